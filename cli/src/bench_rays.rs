@@ -1,0 +1,93 @@
+//! `prm bench-rays`: closest-hit and occlusion throughput on a level, in rays per second.
+//!
+//! The rays are the ones the bakers trace: closest-hit rays leave texel points in
+//! cosine-distributed directions; occlusion rays join two random texel points.
+
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use glam::Vec3;
+use prm::{Bvh, TexelSet};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+use serde_json::json;
+
+use crate::common::{load, SceneArgs};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Rays per measurement.
+    #[arg(long, default_value_t = 1_000_000)]
+    rays: usize,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// A unit direction from a cosine-weighted hemisphere around `n`.
+fn cosine_dir(n: Vec3, u1: f32, u2: f32) -> Vec3 {
+    let (t, b) = n.any_orthonormal_pair();
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize()
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.rays == 0 || a.rays > 1_000_000_000 {
+        bail!("--rays {} is out of range (1 to 1e9)", a.rays);
+    }
+    let scene = load(&a.scene, 256, a.json)?;
+    let start = Instant::now();
+    let bvh = Bvh::build(&scene);
+    let build = start.elapsed().as_secs_f64();
+    let set = TexelSet::build(&scene, 256, 256);
+    if set.is_empty() {
+        bail!("the level has no lightmap texels to start rays from");
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(7);
+    let rays: Vec<(Vec3, Vec3, Vec3, Vec3)> = (0..a.rays)
+        .map(|_| {
+            let t = &set.texels[rng.random_range(0..set.len())];
+            let o = &set.texels[rng.random_range(0..set.len())];
+            let d = cosine_dir(t.normal, rng.random(), rng.random());
+            (t.position, t.normal, d, o.position + o.normal * 0.0)
+        })
+        .collect();
+    let normals: Vec<Vec3> = (0..a.rays).map(|k| set.texels[(k * 7919) % set.len()].normal).collect();
+
+    let time = |f: &dyn Fn() -> usize| {
+        let s = Instant::now();
+        let hits = f();
+        (a.rays as f64 / s.elapsed().as_secs_f64(), hits)
+    };
+    let (closest_1, hits) = time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+    let (closest_n, _) = time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+    let (occl_1, visible) = time(&|| rays.iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
+    let (occl_n, _) = time(&|| rays.par_iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
+
+    let threads = rayon::current_num_threads();
+    let out = json!({
+        "scene": a.scene.scene.display().to_string(),
+        "triangles": scene.triangles.len(),
+        "bvh_build_seconds": build,
+        "rays": a.rays,
+        "threads": threads,
+        "closest_hit_rays_per_s_1_thread": closest_1,
+        "closest_hit_rays_per_s": closest_n,
+        "closest_hit_fraction_hit": hits as f64 / a.rays as f64,
+        "occlusion_rays_per_s_1_thread": occl_1,
+        "occlusion_rays_per_s": occl_n,
+        "occlusion_fraction_visible": visible as f64 / a.rays as f64,
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("{}: {} triangles, BVH built in {:.4} s", a.scene.scene.display(), scene.triangles.len(), build);
+        println!("  closest hit  {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % hit)", closest_1 / 1e6, closest_n / 1e6, 100.0 * hits as f64 / a.rays as f64);
+        println!("  occlusion    {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % visible)", occl_1 / 1e6, occl_n / 1e6, 100.0 * visible as f64 / a.rays as f64);
+    }
+    Ok(())
+}

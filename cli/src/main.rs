@@ -1,0 +1,40 @@
+//! `prm`: the one user-facing binary. Each subcommand lives in its own module.
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+mod bench_rays;
+mod common;
+mod gen_assets;
+mod info;
+mod texels;
+
+/// Precomputed radiance maps: indirect light for static levels under moving lights.
+#[derive(Parser)]
+#[command(name = "prm", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print triangle, light, texel and lightmap-UV facts about a level.
+    Info(info::Args),
+    /// Write the lightmap texel set (exit points) as EXR: P.x P.y P.z N.x N.y N.z mask.
+    Texels(texels::Args),
+    /// Regenerate the bundled scenes in assets/.
+    GenAssets(gen_assets::Args),
+    /// Measure ray-query throughput (closest hit and occlusion) on a level.
+    BenchRays(bench_rays::Args),
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Texels(a) => texels::run(a),
+        Command::GenAssets(a) => gen_assets::run(a),
+        Command::BenchRays(a) => bench_rays::run(a),
+    }
+}

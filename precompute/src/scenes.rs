@@ -1,0 +1,316 @@
+//! Generator of the bundled scenes in `assets/` (`prm gen-assets`).
+//!
+//! - `cornell.glb`: the Cornell box from its published measurements (millimetres, here metres),
+//!   reflectances as RGB albedos, one point light below the ceiling, the measured camera.
+//! - `chamber.glb`: a hall with two arcades of pillars and arches (about 3,600 triangles) and
+//!   two lights, standing in for paper 004's marble chamber.
+//! - `two_rooms.glb`: two rooms joined by a door in a 10 cm wall, the light in one room: the
+//!   light-leak test.
+//!
+//! Surfaces are one-sided and face the space they bound. Lightmap UVs (`TEXCOORD_1`) come from
+//! `uvunwrap`, each quad kept in one chart, packed for a 256^2 atlas with 2-texel padding.
+
+use glam::Vec3;
+use prm::glb::{GlbLight, GlbMaterial, GlbMesh, GlbNode, GlbScene};
+
+/// Geometry collected per material, as quads and triangles.
+#[derive(Default)]
+pub struct Builder {
+    materials: Vec<GlbMaterial>,
+    /// Per material: positions, normals, indices, polygon id per triangle.
+    parts: Vec<Part>,
+    polygons: u32,
+}
+
+#[derive(Default, Clone)]
+struct Part {
+    positions: Vec<[f32; 3]>,
+    normals: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+    polygon: Vec<u32>,
+}
+
+impl Builder {
+    /// Add a material; returns its index.
+    pub fn material(&mut self, name: &str, albedo: [f32; 3]) -> usize {
+        self.materials.push(GlbMaterial {
+            name: name.into(),
+            base_color: [albedo[0], albedo[1], albedo[2], 1.0],
+            emissive: [0.0; 3],
+            double_sided: false,
+        });
+        self.parts.push(Part::default());
+        self.materials.len() - 1
+    }
+
+    /// A planar convex polygon, counter-clockwise seen from its front (fan-triangulated).
+    pub fn polygon(&mut self, m: usize, pts: &[Vec3]) {
+        let n = (pts[1] - pts[0]).cross(pts[2] - pts[0]).normalize_or_zero();
+        let part = &mut self.parts[m];
+        let base = part.positions.len() as u32;
+        for p in pts {
+            part.positions.push(p.to_array());
+            part.normals.push(n.to_array());
+        }
+        for k in 1..pts.len() as u32 - 1 {
+            part.indices.extend_from_slice(&[base, base + k, base + k + 1]);
+            part.polygon.push(self.polygons);
+        }
+        self.polygons += 1;
+    }
+
+    /// A quad a-b-c-d, counter-clockwise seen from its front.
+    pub fn quad(&mut self, m: usize, a: Vec3, b: Vec3, c: Vec3, d: Vec3) {
+        self.polygon(m, &[a, b, c, d]);
+    }
+
+    /// An axis-aligned box with faces pointing out (`inward` = false) or in (a room).
+    /// `skip` lists faces to leave out: 0 -x, 1 +x, 2 -y, 3 +y, 4 -z, 5 +z.
+    pub fn boxed(&mut self, m: usize, lo: Vec3, hi: Vec3, inward: bool, skip: &[usize]) {
+        let c = |x: usize, y: usize, z: usize| {
+            Vec3::new(if x == 0 { lo.x } else { hi.x }, if y == 0 { lo.y } else { hi.y }, if z == 0 { lo.z } else { hi.z })
+        };
+        // Outward counter-clockwise corner lists.
+        let faces = [
+            [c(0, 0, 0), c(0, 0, 1), c(0, 1, 1), c(0, 1, 0)],
+            [c(1, 0, 0), c(1, 1, 0), c(1, 1, 1), c(1, 0, 1)],
+            [c(0, 0, 0), c(1, 0, 0), c(1, 0, 1), c(0, 0, 1)],
+            [c(0, 1, 0), c(0, 1, 1), c(1, 1, 1), c(1, 1, 0)],
+            [c(0, 0, 0), c(0, 1, 0), c(1, 1, 0), c(1, 0, 0)],
+            [c(0, 0, 1), c(1, 0, 1), c(1, 1, 1), c(0, 1, 1)],
+        ];
+        for (k, f) in faces.iter().enumerate() {
+            if skip.contains(&k) {
+                continue;
+            }
+            if inward {
+                self.quad(m, f[3], f[2], f[1], f[0]);
+            } else {
+                self.quad(m, f[0], f[1], f[2], f[3]);
+            }
+        }
+    }
+
+    /// A vertical cylinder (sides only) of `sides` facets and `rings` bands, facing out.
+    pub fn cylinder(&mut self, m: usize, base: Vec3, radius: f32, height: f32, sides: u32, rings: u32) {
+        let at = |k: u32, r: u32| {
+            let a = std::f32::consts::TAU * k as f32 / sides as f32;
+            base + Vec3::new(radius * a.cos(), height * r as f32 / rings as f32, radius * a.sin())
+        };
+        for r in 0..rings {
+            for k in 0..sides {
+                self.quad(m, at(k, r), at(k, r + 1), at(k + 1, r + 1), at(k + 1, r));
+            }
+        }
+    }
+
+    /// Unwrap lightmap UVs and produce the level.
+    pub fn finish(self, resolution: u32) -> Result<GlbScene, String> {
+        let used: Vec<usize> = (0..self.parts.len()).filter(|&m| !self.parts[m].indices.is_empty()).collect();
+        let inputs: Vec<uvunwrap::MeshInput> = used
+            .iter()
+            .map(|&m| {
+                let p = &self.parts[m];
+                uvunwrap::MeshInput { polygons: Some(&p.polygon), ..uvunwrap::MeshInput::new(&p.positions, &p.indices) }
+            })
+            .collect();
+        let options = uvunwrap::Options {
+            density: uvunwrap::Density::Auto { page_size: resolution },
+            padding: 2,
+            ..Default::default()
+        };
+        let atlas = uvunwrap::generate(&inputs, &options).map_err(|e| e.to_string())?;
+        if atlas.page_count != 1 {
+            return Err(format!("charts need {} pages", atlas.page_count));
+        }
+        let v_scale = atlas.height as f32 / atlas.width as f32;
+        let mut scene = GlbScene { materials: self.materials, ..Default::default() };
+        for (&m, out) in used.iter().zip(&atlas.meshes) {
+            let p = &self.parts[m];
+            scene.add_mesh(GlbMesh {
+                name: scene.materials[m].name.clone(),
+                positions: out.vertices.iter().map(|v| p.positions[v.xref as usize]).collect(),
+                normals: Some(out.vertices.iter().map(|v| p.normals[v.xref as usize]).collect()),
+                uv1: Some(out.vertices.iter().map(|v| [v.uv[0], v.uv[1] * v_scale]).collect()),
+                indices: Some(out.indices.clone()),
+                material: Some(m),
+            });
+        }
+        Ok(scene)
+    }
+}
+
+fn point_light(name: &str, color: [f32; 3], intensity: f32) -> GlbLight {
+    GlbLight { name: name.into(), kind: "point", color, intensity, inner: 0.0, outer: 0.0, range: None }
+}
+
+fn camera(scene: &mut GlbScene, name: &str, eye: Vec3, target: Vec3, yfov: f32) {
+    scene.add_node(GlbNode {
+        name: name.into(),
+        translation: Some(eye.to_array()),
+        rotation: Some(prm::glb::look_rotation(target - eye, Vec3::Y)),
+        camera: Some((yfov, 1.0)),
+        ..Default::default()
+    });
+}
+
+/// Cornell box albedos (RGB fits of the measured spectra).
+pub const CORNELL_WHITE: [f32; 3] = [0.725, 0.71, 0.68];
+pub const CORNELL_RED: [f32; 3] = [0.63, 0.065, 0.05];
+pub const CORNELL_GREEN: [f32; 3] = [0.14, 0.45, 0.091];
+
+/// The Cornell box, from the published measurements (converted from mm to m).
+pub fn cornell() -> Result<GlbScene, String> {
+    let mut b = Builder::default();
+    let white = b.material("white", CORNELL_WHITE);
+    let red = b.material("red", CORNELL_RED);
+    let green = b.material("green", CORNELL_GREEN);
+    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z) * 0.001;
+    // Floor, ceiling, back wall, right (green) and left (red) walls: facing into the box.
+    b.quad(white, v(552.8, 0.0, 0.0), v(0.0, 0.0, 0.0), v(0.0, 0.0, 559.2), v(549.6, 0.0, 559.2));
+    b.quad(white, v(556.0, 548.8, 0.0), v(556.0, 548.8, 559.2), v(0.0, 548.8, 559.2), v(0.0, 548.8, 0.0));
+    b.quad(white, v(549.6, 0.0, 559.2), v(0.0, 0.0, 559.2), v(0.0, 548.8, 559.2), v(556.0, 548.8, 559.2));
+    b.quad(green, v(0.0, 0.0, 559.2), v(0.0, 0.0, 0.0), v(0.0, 548.8, 0.0), v(0.0, 548.8, 559.2));
+    b.quad(red, v(552.8, 0.0, 0.0), v(549.6, 0.0, 559.2), v(556.0, 548.8, 559.2), v(556.0, 548.8, 0.0));
+    // Short block.
+    b.quad(white, v(130.0, 165.0, 65.0), v(82.0, 165.0, 225.0), v(240.0, 165.0, 272.0), v(290.0, 165.0, 114.0));
+    b.quad(white, v(290.0, 0.0, 114.0), v(290.0, 165.0, 114.0), v(240.0, 165.0, 272.0), v(240.0, 0.0, 272.0));
+    b.quad(white, v(130.0, 0.0, 65.0), v(130.0, 165.0, 65.0), v(290.0, 165.0, 114.0), v(290.0, 0.0, 114.0));
+    b.quad(white, v(82.0, 0.0, 225.0), v(82.0, 165.0, 225.0), v(130.0, 165.0, 65.0), v(130.0, 0.0, 65.0));
+    b.quad(white, v(240.0, 0.0, 272.0), v(240.0, 165.0, 272.0), v(82.0, 165.0, 225.0), v(82.0, 0.0, 225.0));
+    // Tall block.
+    b.quad(white, v(423.0, 330.0, 247.0), v(265.0, 330.0, 296.0), v(314.0, 330.0, 456.0), v(472.0, 330.0, 406.0));
+    b.quad(white, v(423.0, 0.0, 247.0), v(423.0, 330.0, 247.0), v(472.0, 330.0, 406.0), v(472.0, 0.0, 406.0));
+    b.quad(white, v(472.0, 0.0, 406.0), v(472.0, 330.0, 406.0), v(314.0, 330.0, 456.0), v(314.0, 0.0, 456.0));
+    b.quad(white, v(314.0, 0.0, 456.0), v(314.0, 330.0, 456.0), v(265.0, 330.0, 296.0), v(265.0, 0.0, 296.0));
+    b.quad(white, v(265.0, 0.0, 296.0), v(265.0, 330.0, 296.0), v(423.0, 330.0, 247.0), v(423.0, 0.0, 247.0));
+    let mut scene = b.finish(256)?;
+    // The measured light opening is centred at (278, 548.8, 279.5); the point light hangs 6 cm
+    // below it.
+    scene.add_light(point_light("ceiling_light", [1.0, 0.85, 0.65], 8.0), v(278.0, 488.8, 279.5), -Vec3::Y);
+    // Camera at (278, 273, -800) looking along +z; 35 mm lens on a 25 mm film.
+    camera(&mut scene, "camera", v(278.0, 273.0, -800.0), v(278.0, 273.0, 0.0), 2.0 * (12.5f32 / 35.0).atan());
+    Ok(scene)
+}
+
+/// A hall with two arcades: 10 pillars, 8 arches, a dais, two lights.
+pub fn chamber() -> Result<GlbScene, String> {
+    let mut b = Builder::default();
+    let wall = b.material("wall", [0.75, 0.72, 0.68]);
+    let floor = b.material("floor", [0.55, 0.5, 0.45]);
+    let marble = b.material("pillar", [0.8, 0.78, 0.74]);
+    let arcade = b.material("arcade", [0.7, 0.68, 0.64]);
+    let carpet = b.material("carpet", [0.6, 0.1, 0.08]);
+    let apse = b.material("apse", [0.15, 0.3, 0.55]);
+    let (hx, h, hz) = (6.0f32, 7.0f32, 10.0f32);
+    // Shell: floor, ceiling, walls, facing in. The wall at +z (behind the dais) is blue.
+    b.quad(floor, Vec3::new(-hx, 0.0, -hz), Vec3::new(-hx, 0.0, hz), Vec3::new(hx, 0.0, hz), Vec3::new(hx, 0.0, -hz));
+    b.quad(wall, Vec3::new(-hx, h, -hz), Vec3::new(hx, h, -hz), Vec3::new(hx, h, hz), Vec3::new(-hx, h, hz));
+    b.quad(wall, Vec3::new(-hx, 0.0, -hz), Vec3::new(hx, 0.0, -hz), Vec3::new(hx, h, -hz), Vec3::new(-hx, h, -hz));
+    b.quad(apse, Vec3::new(hx, 0.0, hz), Vec3::new(-hx, 0.0, hz), Vec3::new(-hx, h, hz), Vec3::new(hx, h, hz));
+    b.quad(wall, Vec3::new(-hx, 0.0, hz), Vec3::new(-hx, 0.0, -hz), Vec3::new(-hx, h, -hz), Vec3::new(-hx, h, hz));
+    b.quad(wall, Vec3::new(hx, 0.0, -hz), Vec3::new(hx, 0.0, hz), Vec3::new(hx, h, hz), Vec3::new(hx, h, -hz));
+    // Dais at the +z end with a carpet runner down the nave.
+    b.boxed(carpet, Vec3::new(-3.0, 0.0, 6.5), Vec3::new(3.0, 0.4, 9.999), false, &[2, 5]);
+    b.quad(carpet, Vec3::new(-0.8, 0.01, -9.0), Vec3::new(-0.8, 0.01, 6.5), Vec3::new(0.8, 0.01, 6.5), Vec3::new(0.8, 0.01, -9.0));
+    // Pillars: plinth, 24-sided shaft in 5 bands, capital; two rows of five.
+    let (row_x, pr, spring) = (3.5f32, 0.35f32, 4.0f32);
+    let zs = [-8.0f32, -4.0, 0.0, 4.0, 8.0];
+    for &x in &[-row_x, row_x] {
+        for &z in &zs {
+            b.boxed(marble, Vec3::new(x - 0.5, 0.0, z - 0.5), Vec3::new(x + 0.5, 0.3, z + 0.5), false, &[2]);
+            b.cylinder(marble, Vec3::new(x, 0.3, z), pr, spring - 0.6, 24, 5);
+            b.boxed(marble, Vec3::new(x - 0.45, spring - 0.3, z - 0.45), Vec3::new(x + 0.45, spring, z + 0.45), false, &[3]);
+        }
+        arcade_row(&mut b, arcade, x, &zs, spring, 0.45, 6.2);
+    }
+    let mut scene = b.finish(256)?;
+    scene.add_light(point_light("nave_lamp", [1.0, 0.9, 0.75], 60.0), Vec3::new(0.0, 5.0, -3.0), -Vec3::Y);
+    scene.add_light(
+        GlbLight { name: "dais_spot".into(), kind: "spot", color: [0.85, 0.9, 1.0], intensity: 250.0, inner: 0.45, outer: 0.6, range: None },
+        Vec3::new(0.0, 6.8, 3.0),
+        Vec3::new(0.0, -6.4, 5.0),
+    );
+    camera(&mut scene, "camera", Vec3::new(0.0, 2.2, -9.5), Vec3::new(0.0, 1.8, 4.0), 1.0);
+    Ok(scene)
+}
+
+/// An arcade wall along z at `x`: arches between consecutive pillars, springing at `spring`,
+/// wall from `spring` to `top`, half-thickness `ht`.
+fn arcade_row(b: &mut Builder, m: usize, x: f32, zs: &[f32], spring: f32, ht: f32, top: f32) {
+    let segs = 16;
+    let (xl, xr) = (x - ht, x + ht);
+    for pair in zs.windows(2) {
+        let (za, zb) = (pair[0] + ht, pair[1] - ht);
+        let (zc, r) = (0.5 * (za + zb), 0.5 * (zb - za));
+        let arc = |k: u32| {
+            let a = std::f32::consts::PI * (1.0 - k as f32 / segs as f32);
+            (zc + r * a.cos(), spring + r * a.sin())
+        };
+        for k in 0..segs {
+            let ((z0, y0), (z1, y1)) = (arc(k), arc(k + 1));
+            // Spandrel strips on both faces, and the soffit under the arch.
+            b.quad(m, Vec3::new(xl, y0, z0), Vec3::new(xl, y1, z1), Vec3::new(xl, top, z1), Vec3::new(xl, top, z0));
+            b.quad(m, Vec3::new(xr, y1, z1), Vec3::new(xr, y0, z0), Vec3::new(xr, top, z0), Vec3::new(xr, top, z1));
+            b.quad(m, Vec3::new(xl, y0, z0), Vec3::new(xr, y0, z0), Vec3::new(xr, y1, z1), Vec3::new(xl, y1, z1));
+        }
+    }
+    // Over each pillar, the wall between arches; the ends; the top.
+    for (k, &z) in zs.iter().enumerate() {
+        let z0 = if k == 0 { z - ht } else { z - ht };
+        let z1 = z + ht;
+        b.quad(m, Vec3::new(xl, spring, z1), Vec3::new(xl, top, z1), Vec3::new(xl, top, z0), Vec3::new(xl, spring, z0));
+        b.quad(m, Vec3::new(xr, spring, z0), Vec3::new(xr, top, z0), Vec3::new(xr, top, z1), Vec3::new(xr, spring, z1));
+    }
+    let (zf, zl) = (zs[0] - ht, zs[zs.len() - 1] + ht);
+    b.quad(m, Vec3::new(xl, spring, zf), Vec3::new(xl, top, zf), Vec3::new(xr, top, zf), Vec3::new(xr, spring, zf));
+    b.quad(m, Vec3::new(xr, spring, zl), Vec3::new(xr, top, zl), Vec3::new(xl, top, zl), Vec3::new(xl, spring, zl));
+    b.quad(m, Vec3::new(xl, top, zf), Vec3::new(xl, top, zl), Vec3::new(xr, top, zl), Vec3::new(xr, top, zf));
+}
+
+/// Two 4 x 3 x 4 m rooms joined by a 1 x 2.1 m door in a 10 cm wall; the light in room A.
+pub fn two_rooms() -> Result<GlbScene, String> {
+    let mut b = Builder::default();
+    let wall = b.material("wall", [0.7, 0.7, 0.7]);
+    let floor = b.material("floor", [0.5, 0.45, 0.4]);
+    let tint = b.material("room_b_wall", [0.3, 0.55, 0.35]);
+    let (w, h, d, t) = (4.0f32, 3.0f32, 2.0f32, 0.05f32);
+    let (door_z, door_h) = (0.5f32, 2.1f32);
+    for (x0, x1, room_wall) in [(-w, -t, wall), (t, w, tint)] {
+        b.quad(floor, Vec3::new(x0, 0.0, -d), Vec3::new(x0, 0.0, d), Vec3::new(x1, 0.0, d), Vec3::new(x1, 0.0, -d));
+        b.quad(wall, Vec3::new(x0, h, -d), Vec3::new(x1, h, -d), Vec3::new(x1, h, d), Vec3::new(x0, h, d));
+        b.quad(room_wall, Vec3::new(x0, 0.0, -d), Vec3::new(x1, 0.0, -d), Vec3::new(x1, h, -d), Vec3::new(x0, h, -d));
+        b.quad(room_wall, Vec3::new(x1, 0.0, d), Vec3::new(x0, 0.0, d), Vec3::new(x0, h, d), Vec3::new(x1, h, d));
+    }
+    // Outer end walls.
+    b.quad(wall, Vec3::new(-w, 0.0, d), Vec3::new(-w, 0.0, -d), Vec3::new(-w, h, -d), Vec3::new(-w, h, d));
+    b.quad(tint, Vec3::new(w, 0.0, -d), Vec3::new(w, 0.0, d), Vec3::new(w, h, d), Vec3::new(w, h, -d));
+    // The thin wall at x = 0, both faces, with the door opening |z| < door_z, y < door_h.
+    for (x, sign, m) in [(-t, -1.0f32, wall), (t, 1.0f32, tint)] {
+        let face = |b: &mut Builder, z0: f32, z1: f32, y0: f32, y1: f32| {
+            let (p0, p1, p2, p3) = (Vec3::new(x, y0, z0), Vec3::new(x, y0, z1), Vec3::new(x, y1, z1), Vec3::new(x, y1, z0));
+            if sign > 0.0 {
+                b.quad(m, p0, p3, p2, p1);
+            } else {
+                b.quad(m, p0, p1, p2, p3);
+            }
+        };
+        face(&mut b, -d, -door_z, 0.0, h);
+        face(&mut b, door_z, d, 0.0, h);
+        face(&mut b, -door_z, door_z, door_h, h);
+    }
+    // Door jambs, lintel and threshold floor.
+    b.quad(wall, Vec3::new(-t, 0.0, -door_z), Vec3::new(t, 0.0, -door_z), Vec3::new(t, door_h, -door_z), Vec3::new(-t, door_h, -door_z));
+    b.quad(wall, Vec3::new(t, 0.0, door_z), Vec3::new(-t, 0.0, door_z), Vec3::new(-t, door_h, door_z), Vec3::new(t, door_h, door_z));
+    b.quad(wall, Vec3::new(-t, door_h, -door_z), Vec3::new(t, door_h, -door_z), Vec3::new(t, door_h, door_z), Vec3::new(-t, door_h, door_z));
+    b.quad(floor, Vec3::new(-t, 0.0, -door_z), Vec3::new(-t, 0.0, door_z), Vec3::new(t, 0.0, door_z), Vec3::new(t, 0.0, -door_z));
+    let mut scene = b.finish(256)?;
+    scene.add_light(point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0), Vec3::new(-2.5, 2.4, -0.8), -Vec3::Y);
+    camera(&mut scene, "camera", Vec3::new(3.8, 1.6, 1.8), Vec3::new(-1.0, 1.0, -0.5), 1.1);
+    Ok(scene)
+}
+
+/// All bundled scenes by file name.
+pub fn all() -> Vec<(&'static str, fn() -> Result<GlbScene, String>)> {
+    vec![("cornell.glb", cornell), ("chamber.glb", chamber), ("two_rooms.glb", two_rooms)]
+}

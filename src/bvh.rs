@@ -1,0 +1,196 @@
+//! Ray queries over the scene: closest hit and occlusion, on an `obvhs` compressed wide BVH.
+//!
+//! **Offsets.** A ray leaving a surface starts at the point moved along the normal by
+//! `eps(p) = max(1e-5 x scene diagonal, 64 ulp(max |p_k|))`. The first term scales with the
+//! level, so the same code works for a 1e-3 and a 1e4 unit scene; the second keeps the offset
+//! above float round-off when a small level sits far from the origin. Rays then use tmin = 0.
+//! A segment between two surface points ends at the far point's own offset, on its front side,
+//! so the far surface itself never occludes a visible pair.
+//!
+//! [`Bvh::closest_hit_brute_force`] is the slow twin every traversal is tested against.
+
+use std::time::Duration;
+
+use glam::{Vec3, Vec3A};
+use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::CwBvh;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::triangle::Triangle as BvhTriangle;
+use obvhs::BvhBuildParams;
+
+use crate::scene::Scene;
+
+/// Offset floor relative to the scene diagonal.
+pub const OFFSET_REL_SCENE: f32 = 1e-5;
+/// Offset floor relative to the magnitude of the coordinates (64 ulp).
+pub const OFFSET_REL_ULP: f32 = 64.0 * f32::EPSILON;
+
+/// A ray hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Scene triangle index.
+    pub triangle: u32,
+    /// Distance along the (unit) ray direction.
+    pub t: f32,
+    /// Barycentrics: the point is `(1-u-v) v0 + u v1 + v v2`.
+    pub u: f32,
+    pub v: f32,
+}
+
+impl Hit {
+    /// Barycentrics as (w0, w1, w2).
+    pub fn bary(&self) -> Vec3 {
+        Vec3::new(1.0 - self.u - self.v, self.u, self.v)
+    }
+}
+
+/// Ray-query acceleration structure over a scene's triangles.
+pub struct Bvh {
+    bvh: Option<CwBvh>,
+    /// Triangles in BVH order.
+    tris: Vec<BvhTriangle>,
+    /// Scene triangle index for each entry of `tris`.
+    ids: Vec<u32>,
+    /// Absolute offset floor: `OFFSET_REL_SCENE x diagonal`.
+    scene_eps: f32,
+}
+
+impl Bvh {
+    /// Build over all triangles of `scene`.
+    pub fn build(scene: &Scene) -> Bvh {
+        let scene_tris: Vec<BvhTriangle> = (0..scene.triangles.len())
+            .map(|t| {
+                let [a, b, c] = scene.corners(t);
+                BvhTriangle { v0: a.into(), v1: b.into(), v2: c.into() }
+            })
+            .collect();
+        let scene_eps = OFFSET_REL_SCENE * scene.diagonal().max(f32::MIN_POSITIVE);
+        if scene_tris.is_empty() {
+            return Bvh { bvh: None, tris: Vec::new(), ids: Vec::new(), scene_eps };
+        }
+        let bvh = build_cwbvh_from_tris(&scene_tris, BvhBuildParams::medium_build(), &mut Duration::default());
+        // Store triangles in BVH leaf order so traversal reads them sequentially.
+        let ids: Vec<u32> = bvh.primitive_indices.clone();
+        let tris = ids.iter().map(|&i| scene_tris[i as usize]).collect();
+        // Traversal hands the callback an index into `primitive_indices`, which is now also
+        // an index into `tris`.
+        Bvh { bvh: Some(bvh), tris, ids, scene_eps }
+    }
+
+    /// The offset distance used at point `p`.
+    #[inline]
+    pub fn eps_at(&self, p: Vec3) -> f32 {
+        self.scene_eps.max(OFFSET_REL_ULP * p.abs().max_element())
+    }
+
+    /// `p` moved off its surface along the unit normal `n` (front side).
+    #[inline]
+    pub fn offset(&self, p: Vec3, n: Vec3) -> Vec3 {
+        p + n * self.eps_at(p)
+    }
+
+    /// Closest hit along a unit direction within `(0, tmax)`.
+    pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let bvh = self.bvh.as_ref()?;
+        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let mut hit = RayHit::none();
+        if !bvh.ray_traverse(ray, &mut hit, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0)) {
+            return None;
+        }
+        let k = hit.primitive_id as usize;
+        let (t, u, v) = intersect(&self.tris[k], &ray)?;
+        Some(Hit { triangle: self.ids[k], t, u, v })
+    }
+
+    /// True when anything lies along the unit direction within `(0, tmax)`.
+    pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        let Some(bvh) = self.bvh.as_ref() else { return false };
+        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        !bvh.ray_traverse_miss(ray, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0))
+    }
+
+    /// Closest hit of a ray leaving surface point `p` (unit normal `n`) along unit `dir`.
+    pub fn trace_from_surface(&self, p: Vec3, n: Vec3, dir: Vec3) -> Option<Hit> {
+        let o = self.offset(p, if n.dot(dir) >= 0.0 { n } else { -n });
+        self.closest_hit(o, dir, f32::INFINITY)
+    }
+
+    /// Mutual visibility of two surface points, each with the unit normal of the side the
+    /// other is seen from.
+    pub fn visible(&self, p0: Vec3, n0: Vec3, p1: Vec3, n1: Vec3) -> bool {
+        let a = self.offset(p0, n0);
+        let b = self.offset(p1, n1);
+        let d = b - a;
+        let len = d.length();
+        if !(len > 0.0) {
+            return true;
+        }
+        !self.occluded(a, d / len, len)
+    }
+
+    /// Visibility from surface point `p` (unit normal `n`) to a point `q` in free space, such
+    /// as a point light.
+    pub fn visible_point(&self, p: Vec3, n: Vec3, q: Vec3) -> bool {
+        let a = self.offset(p, n);
+        let d = q - a;
+        let len = d.length();
+        if !(len > 0.0) {
+            return true;
+        }
+        !self.occluded(a, d / len, len * (1.0 - 1e-6))
+    }
+
+    /// Visibility from surface point `p` to infinity along unit `dir` (directional lights).
+    pub fn visible_dir(&self, p: Vec3, n: Vec3, dir: Vec3) -> bool {
+        !self.occluded(self.offset(p, n), dir, f32::INFINITY)
+    }
+
+    /// The slow twin of [`Bvh::closest_hit`]: every triangle, in scene order.
+    pub fn closest_hit_brute_force(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let mut best: Option<Hit> = None;
+        for (k, tri) in self.tris.iter().enumerate() {
+            if let Some((t, u, v)) = intersect(tri, &ray) {
+                if best.is_none_or(|b| t < b.t) {
+                    best = Some(Hit { triangle: self.ids[k], t, u, v });
+                }
+            }
+        }
+        best
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// True when there is no geometry.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+}
+
+/// Möller-Trumbore ray/triangle test, both faces: `(t, u, v)` when `tmin < t < tmax`.
+#[inline(always)]
+fn intersect(tri: &BvhTriangle, ray: &Ray) -> Option<(f32, f32, f32)> {
+    let e1: Vec3A = tri.v1 - tri.v0;
+    let e2: Vec3A = tri.v2 - tri.v0;
+    let p = ray.direction.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = ray.origin - tri.v0;
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = ray.direction.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = e2.dot(q) * inv;
+    (t > ray.tmin && t < ray.tmax).then_some((t, u, v))
+}

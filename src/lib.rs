@@ -1,0 +1,33 @@
+//! PRM core: the pieces every stage shares.
+//!
+//! - [`scene`]: a glTF level flattened into one world-space triangle soup with Lambertian
+//!   materials, punctual lights and cameras ([`gltf_load`] reads it, [`glb`] writes one).
+//! - [`light`]: the radiometric light model (DESIGN.md §3) used by every stage.
+//! - [`uv`]: lightmap-UV checks (range, overlap) and generation when a level has none.
+//! - [`texels`]: the lightmap texel set: exit points with exact conservative coverage.
+//! - [`bvh`]: closest-hit and occlusion queries with a scale-independent offset scheme.
+//! - [`exr_io`]: named-channel EXR files in the DESIGN.md §8 layouts, written atomically.
+//!
+//! No wgpu here: the runtime crate adds the GPU side.
+
+pub mod bvh;
+pub mod exr_io;
+pub mod fsutil;
+pub mod glb;
+pub mod gltf_load;
+pub mod light;
+pub mod scene;
+pub mod texels;
+pub mod uv;
+
+pub use bvh::{Bvh, Hit};
+pub use gltf_load::{load_scene, LoadOptions, SceneError};
+pub use light::{Light, LightKind};
+pub use scene::{Camera, Material, Scene, Triangle};
+pub use texels::{Texel, TexelSet};
+
+/// Rec. 709 luminance of a linear RGB value (DESIGN.md §3 metric, Russian roulette).
+#[inline]
+pub fn luminance(c: glam::Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}

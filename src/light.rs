@@ -1,0 +1,172 @@
+//! The light model, shared by every stage (DESIGN.md §3).
+//!
+//! Units are radiometric and glTF `KHR_lights_punctual` numbers are used as they are:
+//! point and spot `intensity x color` is the radiant intensity I in W/sr per RGB channel;
+//! directional `intensity x color` is the irradiance E in W/m² on a surface facing the light.
+//! Falloff is inverse-square; glTF `range`, when given, applies the spec's smooth window
+//! `clamp(1 - (d/range)^4, 0, 1)^2`. Spot cones use the spec's smooth falloff
+//! `t = clamp((cos θ - cos outer) / (cos inner - cos outer), 0, 1)`, attenuation `t²`;
+//! `inner == outer` is a hard cone.
+
+use glam::Vec3;
+
+/// The kind of a punctual light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightKind {
+    Point,
+    /// Cone half-angles in radians, `0 <= inner <= outer <= pi/2`.
+    Spot { inner: f32, outer: f32 },
+    Directional,
+}
+
+/// One punctual light in world space.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Light {
+    pub name: String,
+    pub kind: LightKind,
+    /// World position (unused for directional lights).
+    pub position: Vec3,
+    /// Unit direction the light points along (spot, directional): the node's -Z.
+    pub direction: Vec3,
+    /// W/sr per channel (point, spot) or W/m² (directional).
+    pub intensity: Vec3,
+    /// glTF `range` in scene units, if given.
+    pub range: Option<f32>,
+}
+
+/// What a light delivers to a receiver, before visibility.
+#[derive(Clone, Copy, Debug)]
+pub struct Incident {
+    /// Unit direction from the receiver towards the light.
+    pub to_light: Vec3,
+    /// Distance to the light (`f32::INFINITY` for directional lights).
+    pub distance: f32,
+    /// Irradiance on a surface facing the light (W/m²): I/d² x falloff, or E.
+    pub irradiance: Vec3,
+}
+
+impl Light {
+    /// Light arriving at point `p`, not yet multiplied by the receiver's cosine or visibility.
+    pub fn incident(&self, p: Vec3) -> Incident {
+        match self.kind {
+            LightKind::Directional => Incident {
+                to_light: -self.direction,
+                distance: f32::INFINITY,
+                irradiance: self.intensity,
+            },
+            LightKind::Point | LightKind::Spot { .. } => {
+                let d = self.position - p;
+                let dist2 = d.length_squared();
+                if !(dist2 > 0.0) {
+                    // A receiver exactly at the light: no defined direction, and the inverse
+                    // square law has no finite value. We deliver nothing rather than infinity.
+                    return Incident { to_light: Vec3::Z, distance: 0.0, irradiance: Vec3::ZERO };
+                }
+                let dist = dist2.sqrt();
+                let to_light = d / dist;
+                let mut scale = 1.0 / dist2 * self.window(dist);
+                if let LightKind::Spot { inner, outer } = self.kind {
+                    scale *= spot_falloff(self.direction.dot(-to_light), inner, outer);
+                }
+                Incident { to_light, distance: dist, irradiance: self.intensity * scale }
+            }
+        }
+    }
+
+    /// Irradiance at `p` on a surface with unit normal `n`, without visibility (W/m²).
+    pub fn irradiance(&self, p: Vec3, n: Vec3) -> Vec3 {
+        let inc = self.incident(p);
+        inc.irradiance * n.dot(inc.to_light).max(0.0)
+    }
+
+    /// Radiant intensity emitted towards unit direction `dir` (W/sr), for point and spot lights.
+    pub fn intensity_towards(&self, dir: Vec3) -> Vec3 {
+        match self.kind {
+            LightKind::Point => self.intensity,
+            LightKind::Spot { inner, outer } => {
+                self.intensity * spot_falloff(self.direction.dot(dir), inner, outer)
+            }
+            LightKind::Directional => Vec3::ZERO,
+        }
+    }
+
+    /// glTF range window; 1 without a range.
+    fn window(&self, dist: f32) -> f32 {
+        match self.range {
+            Some(r) if r > 0.0 => {
+                let x = dist / r;
+                let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
+                w * w
+            }
+            _ => 1.0,
+        }
+    }
+
+    /// True when this is a point-like light (has a position).
+    pub fn is_positional(&self) -> bool {
+        !matches!(self.kind, LightKind::Directional)
+    }
+}
+
+/// glTF spot falloff for `cos_angle` = cos of the angle off the spot axis.
+pub fn spot_falloff(cos_angle: f32, inner: f32, outer: f32) -> f32 {
+    let (ci, co) = (inner.cos(), outer.cos());
+    if ci - co <= 1e-6 {
+        return if cos_angle >= co { 1.0 } else { 0.0 };
+    }
+    let t = ((cos_angle - co) / (ci - co)).clamp(0.0, 1.0);
+    t * t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(pos: Vec3, i: f32) -> Light {
+        Light {
+            name: "p".into(),
+            kind: LightKind::Point,
+            position: pos,
+            direction: -Vec3::Y,
+            intensity: Vec3::splat(i),
+            range: None,
+        }
+    }
+
+    #[test]
+    fn point_light_is_inverse_square_times_cosine() {
+        let l = point(Vec3::new(0.0, 2.0, 0.0), 10.0);
+        // Directly below: E = I / r^2.
+        let e = l.irradiance(Vec3::ZERO, Vec3::Y);
+        assert!((e.x - 2.5).abs() < 1e-6);
+        // Off to the side at (2, 0, 0): r^2 = 8, cos = 2/sqrt 8.
+        let e = l.irradiance(Vec3::new(2.0, 0.0, 0.0), Vec3::Y);
+        let want = 10.0 / 8.0 * (2.0 / 8f32.sqrt());
+        assert!((e.x - want).abs() < 1e-6);
+        // Facing away: nothing.
+        assert_eq!(l.irradiance(Vec3::ZERO, -Vec3::Y), Vec3::ZERO);
+        // At the light: finite zero.
+        assert_eq!(l.irradiance(Vec3::new(0.0, 2.0, 0.0), Vec3::Y), Vec3::ZERO);
+    }
+
+    #[test]
+    fn spot_falloff_matches_gltf_and_hard_cone() {
+        let (inner, outer) = (0.2f32, 0.4f32);
+        assert_eq!(spot_falloff(1.0, inner, outer), 1.0);
+        assert_eq!(spot_falloff(0.5f32.cos(), inner, outer), 0.0);
+        let mid = 0.3f32.cos();
+        let t = (mid - outer.cos()) / (inner.cos() - outer.cos());
+        assert!((spot_falloff(mid, inner, outer) - t * t).abs() < 1e-6);
+        assert_eq!(spot_falloff(0.29f32.cos(), 0.3, 0.3), 1.0);
+        assert_eq!(spot_falloff(0.31f32.cos(), 0.3, 0.3), 0.0);
+    }
+
+    #[test]
+    fn range_window_reaches_zero_at_range() {
+        let mut l = point(Vec3::ZERO, 1.0);
+        l.range = Some(2.0);
+        assert_eq!(l.incident(Vec3::new(0.0, 2.0, 0.0)).irradiance, Vec3::ZERO);
+        let e = l.incident(Vec3::new(0.0, 1.0, 0.0)).irradiance.x;
+        assert!((e - (1.0f32 - 1.0 / 16.0).powi(2)).abs() < 1e-6);
+    }
+}

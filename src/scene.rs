@@ -1,0 +1,223 @@
+//! The world-space scene every stage works on.
+//!
+//! A glTF level is flattened into one triangle soup: every primitive's vertices are transformed
+//! by their node's world matrix, so later stages never see the node hierarchy. Each triangle
+//! remembers where it came from (mesh, primitive, triangle index) so errors and reports can name
+//! it. Surfaces are Lambertian and one-sided unless their material is `doubleSided`: the front
+//! face is the counter-clockwise one (glTF), and its geometric normal is [`Scene::face_normal`].
+
+use glam::{Mat4, Vec2, Vec3};
+
+use crate::light::Light;
+
+/// A triangle of the scene, indexing [`Scene::positions`] and friends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    /// Vertex indices, counter-clockwise seen from the front.
+    pub v: [u32; 3],
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// glTF mesh index this triangle came from.
+    pub mesh: u32,
+    /// Primitive index within that mesh.
+    pub primitive: u32,
+    /// Triangle index within that primitive (before degenerate triangles were dropped).
+    pub index: u32,
+}
+
+/// An albedo texture, decoded to linear RGB.
+#[derive(Clone, Debug)]
+pub struct Texture {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major linear RGB, `width * height` entries.
+    pub texels: Vec<Vec3>,
+}
+
+impl Texture {
+    /// Bilinear lookup with wrap-around addressing (glTF's default sampler).
+    pub fn sample(&self, uv: Vec2) -> Vec3 {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let x = uv.x * self.width as f32 - 0.5;
+        let y = uv.y * self.height as f32 - 0.5;
+        if !x.is_finite() || !y.is_finite() {
+            return self.texels[0];
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let at = |i: i64, j: i64| self.texels[(j.rem_euclid(h) * w + i.rem_euclid(w)) as usize];
+        let (i, j) = (x0 as i64, y0 as i64);
+        let top = at(i, j).lerp(at(i + 1, j), fx);
+        let bottom = at(i, j + 1).lerp(at(i + 1, j + 1), fx);
+        top.lerp(bottom, fy)
+    }
+}
+
+/// A Lambertian material (DESIGN.md §3).
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    /// Linear RGB albedo factor in [0, 1] (glTF `baseColorFactor`).
+    pub albedo: Vec3,
+    /// Optional albedo texture (index into [`Scene::textures`]), multiplied with `albedo`.
+    pub albedo_texture: Option<u32>,
+    /// Emitted radiance in W/(m² sr), linear RGB (`emissiveFactor` x `emissive_strength`).
+    pub emissive: Vec3,
+    /// Both faces reflect; otherwise the back face absorbs.
+    pub double_sided: bool,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            name: "default".into(),
+            albedo: Vec3::ONE,
+            albedo_texture: None,
+            emissive: Vec3::ZERO,
+            double_sided: false,
+        }
+    }
+}
+
+/// A perspective camera from the glTF.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    pub name: String,
+    /// Camera-to-world transform; the camera looks down its local -Z with +Y up.
+    pub to_world: Mat4,
+    /// Vertical field of view in radians.
+    pub yfov: f32,
+    /// Width / height, when the file gives one.
+    pub aspect: Option<f32>,
+}
+
+/// What loading found and did that a user should know about. Never fatal.
+#[derive(Clone, Debug, Default)]
+pub struct LoadReport {
+    /// Zero-area triangles dropped.
+    pub degenerate_dropped: usize,
+    /// Primitives skipped because they are not triangles (points, lines).
+    pub non_triangle_primitives: usize,
+    /// Lightmap UVs were generated because the file had no `TEXCOORD_1` (on some primitive).
+    pub uv1_generated: bool,
+    /// Primitives that lacked `TEXCOORD_1`.
+    pub primitives_without_uv1: usize,
+    /// Triangles whose lightmap UVs leave [0, 1] (those parts get no texels).
+    pub uv_out_of_range: usize,
+    /// Pairs of triangles whose lightmap UVs overlap (only non-zero with `allow_overlap`).
+    pub uv_overlapping_pairs: usize,
+    /// Normals were generated for primitives that had none.
+    pub normals_generated: usize,
+    /// Free-form notes (one line each) for the user.
+    pub notes: Vec<String>,
+}
+
+/// One world-space scene.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    /// Where it was loaded from, for messages.
+    pub source: String,
+    pub positions: Vec<Vec3>,
+    /// Unit shading normals, world space.
+    pub normals: Vec<Vec3>,
+    /// Lightmap UVs (`TEXCOORD_1` or generated), in [0, 1] for a valid level.
+    pub uv1: Vec<Vec2>,
+    /// UVs the material's albedo texture uses (zero when untextured).
+    pub uv_albedo: Vec<Vec2>,
+    pub triangles: Vec<Triangle>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Vec<Light>,
+    pub cameras: Vec<Camera>,
+    pub report: LoadReport,
+}
+
+impl Scene {
+    /// The three corner positions of triangle `t`.
+    #[inline]
+    pub fn corners(&self, t: usize) -> [Vec3; 3] {
+        let v = self.triangles[t].v;
+        [
+            self.positions[v[0] as usize],
+            self.positions[v[1] as usize],
+            self.positions[v[2] as usize],
+        ]
+    }
+
+    /// The three lightmap UVs of triangle `t`.
+    #[inline]
+    pub fn uv1_corners(&self, t: usize) -> [Vec2; 3] {
+        let v = self.triangles[t].v;
+        [self.uv1[v[0] as usize], self.uv1[v[1] as usize], self.uv1[v[2] as usize]]
+    }
+
+    /// Unit geometric normal of triangle `t` (front face, counter-clockwise).
+    #[inline]
+    pub fn face_normal(&self, t: usize) -> Vec3 {
+        let [a, b, c] = self.corners(t);
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+
+    /// Area of triangle `t` in square scene units.
+    #[inline]
+    pub fn area(&self, t: usize) -> f32 {
+        let [a, b, c] = self.corners(t);
+        0.5 * (b - a).cross(c - a).length()
+    }
+
+    /// Point of triangle `t` at barycentrics `(w0, w1, w2)`.
+    #[inline]
+    pub fn point(&self, t: usize, bary: Vec3) -> Vec3 {
+        let [a, b, c] = self.corners(t);
+        a * bary.x + b * bary.y + c * bary.z
+    }
+
+    /// Linear albedo of triangle `t` at barycentrics `bary` (factor x texture).
+    pub fn albedo(&self, t: usize, bary: Vec3) -> Vec3 {
+        let tri = &self.triangles[t];
+        let m = &self.materials[tri.material as usize];
+        match m.albedo_texture {
+            None => m.albedo,
+            Some(ti) => {
+                let v = tri.v;
+                let uv = self.uv_albedo[v[0] as usize] * bary.x
+                    + self.uv_albedo[v[1] as usize] * bary.y
+                    + self.uv_albedo[v[2] as usize] * bary.z;
+                m.albedo * self.textures[ti as usize].sample(uv)
+            }
+        }
+    }
+
+    /// The material of triangle `t`.
+    #[inline]
+    pub fn material(&self, t: usize) -> &Material {
+        &self.materials[self.triangles[t].material as usize]
+    }
+
+    /// Axis-aligned bounds (min, max) of all vertices; zero for an empty scene.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        if self.positions.is_empty() {
+            return (Vec3::ZERO, Vec3::ZERO);
+        }
+        self.positions.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        })
+    }
+
+    /// Length of the bounds' diagonal: the scene's scale for offsets and tolerances.
+    pub fn diagonal(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        (hi - lo).length()
+    }
+
+    /// Total surface area.
+    pub fn total_area(&self) -> f64 {
+        (0..self.triangles.len()).map(|t| self.area(t) as f64).sum()
+    }
+
+    /// "mesh M primitive P triangle T" for messages.
+    pub fn describe_triangle(&self, t: usize) -> String {
+        let tri = &self.triangles[t];
+        format!("mesh {} primitive {} triangle {}", tri.mesh, tri.primitive, tri.index)
+    }
+}

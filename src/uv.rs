@@ -1,0 +1,212 @@
+//! Lightmap UVs (`TEXCOORD_1`): generation for levels without them, and the checks a level's
+//! own UVs must pass.
+//!
+//! Overlap is tested exactly in UV space: two triangles overlap when their UV images share
+//! positive area (separating-axis test). Triangles that only touch along an edge or at a
+//! vertex (the normal case inside a chart) do not overlap. Overlap means two surfaces would
+//! share texels and so share lighting, which is wrong; the loader makes it an error unless
+//! `--allow-overlap` is given.
+
+use std::collections::HashMap;
+
+use glam::{DVec2, Vec2, Vec3};
+
+use crate::scene::Scene;
+
+/// A primitive whose lightmap UVs are to be generated: its arrays are rewritten, because the
+/// unwrapper splits vertices along chart seams.
+pub struct UnwrapPrim<'a> {
+    pub positions: &'a mut Vec<Vec3>,
+    pub normals: &'a mut Vec<Vec3>,
+    pub uv_albedo: &'a mut Vec<Vec2>,
+    pub indices: &'a mut Vec<u32>,
+    pub uv1: &'a mut Option<Vec<Vec2>>,
+}
+
+/// Generate lightmap UVs for all primitives together, packed into one square atlas page laid
+/// out for `resolution`^2 texels with 2 texels of padding around each chart.
+pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Result<(), String> {
+    if resolution < 16 {
+        return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
+    }
+    let positions: Vec<Vec<[f32; 3]>> = prims.iter().map(|p| p.positions.iter().map(|v| v.to_array()).collect()).collect();
+    let inputs: Vec<uvunwrap::MeshInput> = prims
+        .iter()
+        .zip(&positions)
+        .map(|(p, pos)| uvunwrap::MeshInput::new(pos, p.indices))
+        .collect();
+    let options = uvunwrap::Options {
+        density: uvunwrap::Density::Auto { page_size: resolution },
+        padding: 2,
+        ..Default::default()
+    };
+    let atlas = uvunwrap::generate(&inputs, &options).map_err(|e| e.to_string())?;
+    if atlas.page_count != 1 {
+        return Err(format!("the charts need {} atlas pages at {resolution}^2; use a larger --atlas", atlas.page_count));
+    }
+    // uvunwrap crops the page to the rows it uses; keep texels square in our square atlas.
+    let v_scale = atlas.height as f32 / atlas.width as f32;
+    for (p, out) in prims.iter_mut().zip(&atlas.meshes) {
+        let xref: Vec<usize> = out.vertices.iter().map(|v| v.xref as usize).collect();
+        *p.positions = xref.iter().map(|&i| p.positions[i]).collect();
+        *p.normals = xref.iter().map(|&i| p.normals[i]).collect();
+        *p.uv_albedo = xref.iter().map(|&i| p.uv_albedo[i]).collect();
+        *p.uv1 = Some(out.vertices.iter().map(|v| Vec2::new(v.uv[0], v.uv[1] * v_scale)).collect());
+        *p.indices = out.indices.clone();
+    }
+    Ok(())
+}
+
+/// Number of triangles with a lightmap UV outside [0, 1].
+pub fn count_out_of_range(scene: &Scene) -> usize {
+    (0..scene.triangles.len())
+        .filter(|&t| scene.uv1_corners(t).iter().any(|uv| !(0.0..=1.0).contains(&uv.x) || !(0.0..=1.0).contains(&uv.y)))
+        .count()
+}
+
+/// Twice the signed area of a UV triangle.
+fn signed_area2(t: &[DVec2; 3]) -> f64 {
+    (t[1] - t[0]).perp_dot(t[2] - t[0])
+}
+
+/// True when the two triangles' interiors overlap by more than `eps` along every separating
+/// axis (triangle edge normals, normalised).
+pub fn triangles_overlap(a: &[DVec2; 3], b: &[DVec2; 3], eps: f64) -> bool {
+    for tri in [a, b] {
+        for k in 0..3 {
+            let e = tri[(k + 1) % 3] - tri[k];
+            let len = e.length();
+            if len == 0.0 {
+                continue;
+            }
+            let axis = DVec2::new(-e.y, e.x) / len;
+            let (amin, amax) = project(a, axis);
+            let (bmin, bmax) = project(b, axis);
+            if amax <= bmin + eps || bmax <= amin + eps {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+fn project(t: &[DVec2; 3], axis: DVec2) -> (f64, f64) {
+    let d = [t[0].dot(axis), t[1].dot(axis), t[2].dot(axis)];
+    (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+}
+
+fn uv_f64(scene: &Scene, t: usize) -> [DVec2; 3] {
+    scene.uv1_corners(t).map(|v| v.as_dvec2())
+}
+
+/// All pairs of triangles whose lightmap UVs overlap with positive area, sorted.
+pub fn find_overlaps(scene: &Scene) -> Vec<(usize, usize)> {
+    let n = scene.triangles.len();
+    let grid = ((n as f64).sqrt() as usize).clamp(8, 512);
+    let cell = |x: f64| ((x.clamp(0.0, 1.0) * grid as f64) as usize).min(grid - 1);
+    let mut bins: HashMap<(usize, usize), Vec<usize>> = HashMap::new();
+    let mut boxes = Vec::with_capacity(n);
+    for t in 0..n {
+        let uv = uv_f64(scene, t);
+        let lo = uv[0].min(uv[1]).min(uv[2]);
+        let hi = uv[0].max(uv[1]).max(uv[2]);
+        let b = (cell(lo.x), cell(lo.y), cell(hi.x), cell(hi.y));
+        boxes.push(b);
+        if signed_area2(&uv).abs() <= 1e-14 {
+            continue;
+        }
+        for j in b.1..=b.3 {
+            for i in b.0..=b.2 {
+                bins.entry((i, j)).or_default().push(t);
+            }
+        }
+    }
+    // Overlap needs more than round-off: 1e-9 UV units is far below a texel at any atlas size.
+    let eps = 1e-9;
+    let mut pairs = Vec::new();
+    for (&(i, j), members) in &bins {
+        for (k, &a) in members.iter().enumerate() {
+            for &b in &members[k + 1..] {
+                // Test each pair once: in the lowest cell both boxes share.
+                let (ba, bb) = (boxes[a], boxes[b]);
+                if (ba.0.max(bb.0), ba.1.max(bb.1)) != (i, j) {
+                    continue;
+                }
+                if triangles_overlap(&uv_f64(scene, a), &uv_f64(scene, b), eps) {
+                    pairs.push((a.min(b), a.max(b)));
+                }
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs
+}
+
+/// Chart id per triangle: triangles that share a lightmap-UV edge (both UV endpoints
+/// bit-identical) are in one chart. Ids are dense, in order of first triangle.
+pub fn charts(scene: &Scene) -> Vec<u32> {
+    let n = scene.triangles.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn find(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    let key = |v: Vec2| (v.x.to_bits(), v.y.to_bits());
+    let mut edges: HashMap<((u32, u32), (u32, u32)), usize> = HashMap::new();
+    for t in 0..n {
+        let uv = scene.uv1_corners(t);
+        for k in 0..3 {
+            let (a, b) = (key(uv[k]), key(uv[(k + 1) % 3]));
+            let e = if a < b { (a, b) } else { (b, a) };
+            match edges.get(&e) {
+                Some(&other) => {
+                    let (ra, rb) = (find(&mut parent, t), find(&mut parent, other));
+                    if ra != rb {
+                        parent[ra.max(rb)] = ra.min(rb);
+                    }
+                }
+                None => {
+                    edges.insert(e, t);
+                }
+            }
+        }
+    }
+    let mut ids = vec![u32::MAX; n];
+    let mut next = 0u32;
+    let mut out = vec![0u32; n];
+    for t in 0..n {
+        let r = find(&mut parent, t);
+        if ids[r] == u32::MAX {
+            ids[r] = next;
+            next += 1;
+        }
+        out[t] = ids[r];
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tri(p: [(f64, f64); 3]) -> [DVec2; 3] {
+        p.map(|(x, y)| DVec2::new(x, y))
+    }
+
+    #[test]
+    fn shared_edges_do_not_overlap_but_crossing_triangles_do() {
+        let a = tri([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]);
+        let b = tri([(1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]);
+        assert!(!triangles_overlap(&a, &b, 1e-9));
+        let c = tri([(0.1, 0.1), (0.9, 0.1), (0.1, 0.9)]);
+        assert!(triangles_overlap(&a, &c, 1e-9));
+        let d = tri([(0.6, 0.6), (2.0, 0.6), (0.6, 2.0)]);
+        assert!(!triangles_overlap(&a, &d, 1e-9));
+        // Touching at a single vertex only.
+        let e = tri([(1.0, 0.0), (2.0, 0.0), (1.0, 1.0)]);
+        assert!(!triangles_overlap(&a, &e, 1e-9));
+    }
+}
