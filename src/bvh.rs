@@ -7,6 +7,12 @@
 //! A segment between two surface points ends at the far point's own offset, on its front side,
 //! so the far surface itself never occludes a visible pair.
 //!
+//! **BVH space.** obvhs's wide-BVH node test ignores boxes closer than an absolute 1e-4 along
+//! the ray, which at 1e-3 scene scale drops real hits. The BVH is therefore built over the scene
+//! scaled by a power of two that brings its diagonal to [1024, 2048): a power-of-two scale is
+//! exact in floating point, so hits, distances and offsets are the same as in scene space, and
+//! 1e-4 becomes under 1e-7 of the scene, far below the offset.
+//!
 //! [`Bvh::closest_hit_brute_force`] is the slow twin every traversal is tested against.
 
 use std::time::Duration;
@@ -53,20 +59,32 @@ pub struct Bvh {
     ids: Vec<u32>,
     /// Absolute offset floor: `OFFSET_REL_SCENE x diagonal`.
     scene_eps: f32,
+    /// Power-of-two factor from scene space to BVH space.
+    to_bvh: f32,
+}
+
+/// The power of two that brings a scene diagonal into [1024, 2048).
+fn bvh_scale(diagonal: f32) -> f32 {
+    if !(diagonal > 0.0 && diagonal.is_finite()) {
+        return 1.0;
+    }
+    let e = 10 - diagonal.log2().floor() as i32;
+    2f32.powi(e.clamp(-100, 100))
 }
 
 impl Bvh {
     /// Build over all triangles of `scene`.
     pub fn build(scene: &Scene) -> Bvh {
+        let to_bvh = bvh_scale(scene.diagonal());
         let scene_tris: Vec<BvhTriangle> = (0..scene.triangles.len())
             .map(|t| {
-                let [a, b, c] = scene.corners(t);
-                BvhTriangle { v0: a.into(), v1: b.into(), v2: c.into() }
+                let [a, b, c] = scene.corners(t).map(|p| glam::Vec3A::from_array((p * to_bvh).to_array()));
+                BvhTriangle { v0: a, v1: b, v2: c }
             })
             .collect();
         let scene_eps = OFFSET_REL_SCENE * scene.diagonal().max(f32::MIN_POSITIVE);
         if scene_tris.is_empty() {
-            return Bvh { bvh: None, tris: Vec::new(), ids: Vec::new(), scene_eps };
+            return Bvh { bvh: None, tris: Vec::new(), ids: Vec::new(), scene_eps, to_bvh };
         }
         let bvh = build_cwbvh_from_tris(&scene_tris, BvhBuildParams::medium_build(), &mut Duration::default());
         // Store triangles in BVH leaf order so traversal reads them sequentially.
@@ -74,7 +92,7 @@ impl Bvh {
         let tris = ids.iter().map(|&i| scene_tris[i as usize]).collect();
         // Traversal hands the callback an index into `primitive_indices`, which is now also
         // an index into `tris`.
-        Bvh { bvh: Some(bvh), tris, ids, scene_eps }
+        Bvh { bvh: Some(bvh), tris, ids, scene_eps, to_bvh }
     }
 
     /// The offset distance used at point `p`.
@@ -89,23 +107,35 @@ impl Bvh {
         p + n * self.eps_at(p)
     }
 
+    /// A ray in BVH space.
+    #[inline]
+    fn ray(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Ray {
+        let o = origin * self.to_bvh;
+        Ray::new(
+            glam::Vec3A::from_array(o.to_array()),
+            glam::Vec3A::from_array(dir.to_array()),
+            0.0,
+            tmax * self.to_bvh,
+        )
+    }
+
     /// Closest hit along a unit direction within `(0, tmax)`.
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let ray = self.ray(origin, dir, tmax);
         let mut hit = RayHit::none();
         if !bvh.ray_traverse(ray, &mut hit, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0)) {
             return None;
         }
         let k = hit.primitive_id as usize;
         let (t, u, v) = intersect(&self.tris[k], &ray)?;
-        Some(Hit { triangle: self.ids[k], t, u, v })
+        Some(Hit { triangle: self.ids[k], t: t / self.to_bvh, u, v })
     }
 
     /// True when anything lies along the unit direction within `(0, tmax)`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let Some(bvh) = self.bvh.as_ref() else { return false };
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let ray = self.ray(origin, dir, tmax);
         !bvh.ray_traverse_miss(ray, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0))
     }
 
@@ -147,7 +177,7 @@ impl Bvh {
 
     /// The slow twin of [`Bvh::closest_hit`]: every triangle, in scene order.
     pub fn closest_hit_brute_force(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let ray = self.ray(origin, dir, tmax);
         let mut best: Option<Hit> = None;
         for (k, tri) in self.tris.iter().enumerate() {
             if let Some((t, u, v)) = intersect(tri, &ray) {
@@ -156,7 +186,7 @@ impl Bvh {
                 }
             }
         }
-        best
+        best.map(|h| Hit { t: h.t / self.to_bvh, ..h })
     }
 
     /// Number of triangles.

@@ -114,6 +114,7 @@ pub fn load_scene(path: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, S
 /// One primitive's data before it joins the scene.
 struct Prim {
     place: Place,
+    node: usize,
     positions: Vec<Vec3>,
     normals: Vec<Vec3>,
     uv1: Option<Vec<Vec2>>,
@@ -223,6 +224,7 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
             let tri = Triangle {
                 v: [base + t[0], base + t[1], base + t[2]],
                 material: p.material,
+                node: p.node as u32,
                 mesh: p.place.mesh as u32,
                 primitive: p.place.primitive as u32,
                 index: k as u32,
@@ -470,7 +472,7 @@ fn read_primitive(
         Some(set) => read_uv(set, if set == 0 { "TEXCOORD_0" } else { "TEXCOORD_n" })?.unwrap_or_else(|| vec![Vec2::ZERO; n]),
         None => vec![Vec2::ZERO; n],
     };
-    Ok(Prim { place, positions, normals, uv1, uv_albedo, indices, material })
+    Ok(Prim { place, node, positions, normals, uv1, uv_albedo, indices, material })
 }
 
 /// Area-weighted vertex normals of an indexed triangle list.

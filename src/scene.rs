@@ -17,6 +17,8 @@ pub struct Triangle {
     pub v: [u32; 3],
     /// Index into [`Scene::materials`].
     pub material: u32,
+    /// glTF node that placed it (one mesh may be placed by several nodes).
+    pub node: u32,
     /// glTF mesh index this triangle came from.
     pub mesh: u32,
     /// Primitive index within that mesh.
@@ -133,6 +135,28 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// A one-material scene from raw arrays (tests and tools): positions, lightmap UVs and a
+    /// triangle list, albedo 0.5 everywhere, normals from the faces.
+    pub fn from_mesh(positions: Vec<Vec3>, uv1: Vec<Vec2>, indices: &[u32]) -> Scene {
+        let normals = crate::gltf_load::generate_normals(&positions, indices);
+        let n = positions.len();
+        let triangles = indices
+            .chunks_exact(3)
+            .enumerate()
+            .map(|(k, t)| Triangle { v: [t[0], t[1], t[2]], material: 0, node: 0, mesh: 0, primitive: 0, index: k as u32 })
+            .collect();
+        Scene {
+            source: "mesh".into(),
+            positions,
+            normals,
+            uv1,
+            uv_albedo: vec![Vec2::ZERO; n],
+            triangles,
+            materials: vec![Material { albedo: Vec3::splat(0.5), ..Default::default() }],
+            ..Default::default()
+        }
+    }
+
     /// The three corner positions of triangle `t`.
     #[inline]
     pub fn corners(&self, t: usize) -> [Vec3; 3] {
@@ -215,9 +239,9 @@ impl Scene {
         (0..self.triangles.len()).map(|t| self.area(t) as f64).sum()
     }
 
-    /// "mesh M primitive P triangle T" for messages.
+    /// "node N mesh M primitive P triangle T" for messages.
     pub fn describe_triangle(&self, t: usize) -> String {
         let tri = &self.triangles[t];
-        format!("mesh {} primitive {} triangle {}", tri.mesh, tri.primitive, tri.index)
+        format!("node {} mesh {} primitive {} triangle {}", tri.node, tri.mesh, tri.primitive, tri.index)
     }
 }

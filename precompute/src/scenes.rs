@@ -203,16 +203,32 @@ pub fn chamber() -> Result<GlbScene, String> {
     let carpet = b.material("carpet", [0.6, 0.1, 0.08]);
     let apse = b.material("apse", [0.15, 0.3, 0.55]);
     let (hx, h, hz) = (6.0f32, 7.0f32, 10.0f32);
-    // Shell: floor, ceiling, walls, facing in. The wall at +z (behind the dais) is blue.
-    b.quad(floor, Vec3::new(-hx, 0.0, -hz), Vec3::new(-hx, 0.0, hz), Vec3::new(hx, 0.0, hz), Vec3::new(hx, 0.0, -hz));
+    // Half-width of the dais: clear of the pillar plinths at |x| = 3.5 +- 0.5.
+    let dais = 2.5f32;
+    // Shell: floor, ceiling, walls, facing in. The wall at +z (behind the dais) is blue. The
+    // floor is cut around the dais and the carpet runner so no floor hides under them.
+    let mut floor_rect = |m: usize, x0: f32, x1: f32, z0: f32, z1: f32| {
+        b.quad(m, Vec3::new(x0, 0.0, z0), Vec3::new(x0, 0.0, z1), Vec3::new(x1, 0.0, z1), Vec3::new(x1, 0.0, z0));
+    };
+    floor_rect(floor, -hx, -dais, -hz, hz);
+    floor_rect(floor, -dais, -0.8, -hz, 6.5);
+    floor_rect(floor, -0.8, 0.8, -hz, -9.0);
+    floor_rect(carpet, -0.8, 0.8, -9.0, 6.5);
+    floor_rect(floor, 0.8, dais, -hz, 6.5);
+    floor_rect(floor, dais, hx, -hz, hz);
     b.quad(wall, Vec3::new(-hx, h, -hz), Vec3::new(hx, h, -hz), Vec3::new(hx, h, hz), Vec3::new(-hx, h, hz));
     b.quad(wall, Vec3::new(-hx, 0.0, -hz), Vec3::new(hx, 0.0, -hz), Vec3::new(hx, h, -hz), Vec3::new(-hx, h, -hz));
-    b.quad(apse, Vec3::new(hx, 0.0, hz), Vec3::new(-hx, 0.0, hz), Vec3::new(-hx, h, hz), Vec3::new(hx, h, hz));
+    // The apse wall, cut around the dais (0.4 m high) that stands against it.
+    let mut apse_rect = |x0: f32, x1: f32, y0: f32, y1: f32| {
+        b.quad(apse, Vec3::new(x1, y0, hz), Vec3::new(x0, y0, hz), Vec3::new(x0, y1, hz), Vec3::new(x1, y1, hz));
+    };
+    apse_rect(-hx, hx, 0.4, h);
+    apse_rect(-hx, -dais, 0.0, 0.4);
+    apse_rect(dais, hx, 0.0, 0.4);
     b.quad(wall, Vec3::new(-hx, 0.0, hz), Vec3::new(-hx, 0.0, -hz), Vec3::new(-hx, h, -hz), Vec3::new(-hx, h, hz));
     b.quad(wall, Vec3::new(hx, 0.0, -hz), Vec3::new(hx, 0.0, hz), Vec3::new(hx, h, hz), Vec3::new(hx, h, -hz));
-    // Dais at the +z end with a carpet runner down the nave.
-    b.boxed(carpet, Vec3::new(-3.0, 0.0, 6.5), Vec3::new(3.0, 0.4, 9.999), false, &[2, 5]);
-    b.quad(carpet, Vec3::new(-0.8, 0.01, -9.0), Vec3::new(-0.8, 0.01, 6.5), Vec3::new(0.8, 0.01, 6.5), Vec3::new(0.8, 0.01, -9.0));
+    // Dais at the +z end, against the apse wall.
+    b.boxed(carpet, Vec3::new(-dais, 0.0, 6.5), Vec3::new(dais, 0.4, hz), false, &[2, 5]);
     // Pillars: plinth, 24-sided shaft in 5 bands, capital; two rows of five.
     let (row_x, pr, spring) = (3.5f32, 0.35f32, 4.0f32);
     let zs = [-8.0f32, -4.0, 0.0, 4.0, 8.0];

@@ -1,0 +1,91 @@
+//! The bundled scenes: current with their generator, loadable, and what the issue asks of them.
+
+use std::path::PathBuf;
+
+use glam::Vec3;
+use prm::{load_scene, Bvh, LightKind, LoadOptions, Scene, TexelSet};
+
+fn asset(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets").join(name)
+}
+
+fn load(name: &str) -> Scene {
+    load_scene(asset(name), &LoadOptions { require_uv1: true, ..Default::default() }).unwrap()
+}
+
+#[test]
+fn committed_assets_match_the_generator() {
+    for (name, make) in prm_precompute::scenes::all() {
+        let bytes = make().unwrap().to_glb();
+        let on_disk = std::fs::read(asset(name)).unwrap();
+        assert!(on_disk == bytes, "assets/{name} is stale: run `prm gen-assets`");
+    }
+}
+
+/// Every ray from the texels of a closed level hits something (no holes), and at most
+/// `hidden` of them reach a back face: only texels hidden under other geometry (floor under a
+/// plinth or a carpet) may see the inside of a solid.
+fn assert_closed(scene: &Scene, hidden: f64) {
+    let bvh = Bvh::build(scene);
+    let set = TexelSet::build(scene, 128, 128);
+    let (mut k, mut rays, mut back) = (0u32, 0usize, 0usize);
+    for t in set.texels.iter().step_by(3) {
+        k = k.wrapping_mul(747796405).wrapping_add(2891336453);
+        let a = (k >> 8) as f32 / (1u32 << 24) as f32;
+        let b = ((k.wrapping_mul(277803737)) >> 8) as f32 / (1u32 << 24) as f32;
+        let (e1, e2) = t.normal.any_orthonormal_pair();
+        let r = a.sqrt();
+        let phi = std::f32::consts::TAU * b;
+        let d = (e1 * r * phi.cos() + e2 * r * phi.sin() + t.normal * (1.0 - a).sqrt()).normalize();
+        let hit = bvh.trace_from_surface(t.position, t.normal, d).unwrap_or_else(|| panic!("{}: ray escaped from texel ({}, {}) at {} along {d}", scene.source, t.i, t.j, t.position));
+        rays += 1;
+        back += (scene.face_normal(hit.triangle as usize).dot(d) >= 0.0) as usize;
+    }
+    assert!(back as f64 <= hidden * rays as f64, "{}: {back} of {rays} rays reached a back face", scene.source);
+}
+
+#[test]
+fn cornell_box_matches_the_published_box() {
+    let s = load("cornell.glb");
+    assert_eq!(s.triangles.len(), 30, "5 walls + 2 blocks of 5 faces, 2 triangles each");
+    let (lo, hi) = s.bounds();
+    assert!((lo - Vec3::ZERO).length() < 1e-6 && (hi - Vec3::new(0.556, 0.5488, 0.5592)).length() < 1e-6);
+    assert_eq!(s.lights.len(), 1);
+    assert_eq!(s.lights[0].kind, LightKind::Point);
+    assert!(s.lights[0].position.y < 0.5488 && s.lights[0].position.y > 0.4);
+    assert_eq!(s.cameras.len(), 1);
+    // Red on the left (+x seen from the camera), green on the right.
+    let red = s.materials.iter().position(|m| m.name == "red").unwrap() as u32;
+    let red_x: f32 = s.triangles.iter().filter(|t| t.material == red).map(|t| s.positions[t.v[0] as usize].x).sum::<f32>();
+    assert!(red_x > 0.5 * 2.0);
+    // Room faces point into the box, block faces away from their block.
+    let centre = Vec3::new(0.278, 0.274, 0.28);
+    for t in 0..10 {
+        let p = s.point(t, Vec3::splat(1.0 / 3.0));
+        assert!(s.face_normal(t).dot(centre - p) > 0.0, "wall {} faces out", s.describe_triangle(t));
+    }
+}
+
+#[test]
+fn chamber_has_pillars_arches_and_two_lights() {
+    let s = load("chamber.glb");
+    assert!((3000..=5000).contains(&s.triangles.len()), "{} triangles", s.triangles.len());
+    assert_eq!(s.lights.len(), 2);
+    assert!(s.lights.iter().any(|l| matches!(l.kind, LightKind::Spot { .. })));
+    assert!(prm::uv::find_overlaps(&s).is_empty());
+    assert_eq!(s.report.uv_out_of_range, 0);
+    assert_closed(&s, 0.015);
+}
+
+#[test]
+fn two_rooms_are_sealed_except_for_the_door() {
+    let s = load("two_rooms.glb");
+    assert_eq!(s.lights.len(), 1);
+    assert!(s.lights[0].position.x < 0.0, "the light is in room A");
+    assert_closed(&s, 0.0);
+    let bvh = Bvh::build(&s);
+    // Through the door: visible. Through the 10 cm wall: blocked.
+    let light = s.lights[0].position;
+    assert!(bvh.visible_point(Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::new(-1.0, 1.0, 0.0)));
+    assert!(!bvh.visible_point(Vec3::new(2.0, 0.0, -1.5), Vec3::Y, light));
+}

@@ -1,0 +1,128 @@
+//! BVH queries against the brute-force twin, and the offset scheme at 1e-3, 1 and 1e4 scale.
+
+use glam::{Vec2, Vec3};
+use prm::{Bvh, Scene, TexelSet};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+const SCALES: [f32; 3] = [1e-3, 1.0, 1e4];
+
+fn random_soup(scale: f32, seed: u64) -> Scene {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let mut pos = Vec::new();
+    for _ in 0..1500 {
+        let c = Vec3::new(rng.random(), rng.random(), rng.random()) * 10.0;
+        for _ in 0..3 {
+            pos.push((c + Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5) * scale);
+        }
+    }
+    let idx: Vec<u32> = (0..pos.len() as u32).collect();
+    let uv = vec![Vec2::ZERO; pos.len()];
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+#[test]
+fn closest_hits_equal_brute_force_at_three_scales() {
+    for (k, &s) in SCALES.iter().enumerate() {
+        let scene = random_soup(s, k as u64);
+        let bvh = Bvh::build(&scene);
+        let mut rng = Pcg64Mcg::seed_from_u64(100 + k as u64);
+        let (mut hits, mut occluded) = (0, 0);
+        for _ in 0..4000 {
+            let o = Vec3::new(rng.random(), rng.random(), rng.random()) * 12.0 * s - s;
+            let d = Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5).normalize();
+            let tmax = if rng.random::<f32>() < 0.3 { 2.0 * s } else { f32::INFINITY };
+            let fast = bvh.closest_hit(o, d, tmax);
+            let slow = bvh.closest_hit_brute_force(o, d, tmax);
+            match (fast, slow) {
+                (None, None) => {}
+                (Some(f), Some(b)) => {
+                    assert!(f.t == b.t, "scale {s}: t {} vs brute force {}", f.t, b.t);
+                    if f.triangle != b.triangle {
+                        // Only a genuine tie may pick another triangle.
+                        assert_eq!(f.t, b.t);
+                    }
+                    hits += 1;
+                }
+                _ => panic!("scale {s}: BVH {fast:?} vs brute force {slow:?}"),
+            }
+            assert_eq!(bvh.occluded(o, d, tmax), slow.is_some(), "scale {s}: occlusion disagrees");
+            occluded += slow.is_some() as usize;
+        }
+        assert!(hits > 500 && occluded < 4000, "scale {s}: fixture should mix hits and misses ({hits})");
+    }
+}
+
+/// A closed box room (faces inward) of side `s`, with a dividing wall at x = 0 (two faces).
+fn box_room(s: f32, offset: Vec3) -> Scene {
+    let mut pos = Vec::new();
+    let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
+        for p in [a, b, c, a, c, d] {
+            pos.push(p * s + offset);
+        }
+    };
+    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    quad(v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)); // floor, up
+    quad(v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)); // ceiling, down
+    quad(v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)); // z = 0, +z
+    quad(v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)); // z = 1, -z
+    quad(v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)); // x = 0, +x
+    quad(v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)); // x = 1, -x
+    let n = pos.len();
+    // UVs: six charts on a 3 x 2 grid, each quad's corners mapped to its cell (with margin).
+    let corners = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)];
+    let uv = (0..n)
+        .map(|k| {
+            let (face, corner) = (k / 6, k % 6);
+            let cell = Vec2::new((face % 3) as f32, (face / 3) as f32);
+            (cell + Vec2::splat(0.05) + corners[corner] * 0.9) / Vec2::new(3.0, 2.0)
+        })
+        .collect();
+    let idx: Vec<u32> = (0..n as u32).collect();
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+#[test]
+fn rays_leaving_texels_never_hit_their_own_surface_or_leak_at_any_scale() {
+    for &s in &SCALES {
+        for offset in [Vec3::ZERO, Vec3::splat(3.0 * s)] {
+            let scene = box_room(s, offset);
+            let bvh = Bvh::build(&scene);
+            let set = TexelSet::build(&scene, 96, 64);
+            let mut rng = Pcg64Mcg::seed_from_u64(5);
+            for t in &set.texels {
+                for _ in 0..8 {
+                    let (u1, u2) = (rng.random::<f32>(), rng.random::<f32>());
+                    let (a, b) = t.normal.any_orthonormal_pair();
+                    let r = u1.sqrt();
+                    let phi = std::f32::consts::TAU * u2;
+                    let d = (a * r * phi.cos() + b * r * phi.sin() + t.normal * (1.0 - u1).sqrt()).normalize();
+                    let hit = bvh.trace_from_surface(t.position, t.normal, d);
+                    let hit = hit.unwrap_or_else(|| panic!("scale {s}: a ray leaked out of the closed box from texel ({}, {})", t.i, t.j));
+                    let n_hit = scene.face_normal(hit.triangle as usize);
+                    assert!(n_hit.dot(t.normal) < 0.999, "scale {s}: self-intersection at texel ({}, {}), t = {}", t.i, t.j, hit.t);
+                    assert!(n_hit.dot(d) < 0.0, "scale {s}: hit a back face (leak through a seam)");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn visibility_between_points_and_through_a_wall() {
+    for &s in &SCALES {
+        let scene = box_room(s, Vec3::splat(-0.5 * s));
+        let bvh = Bvh::build(&scene);
+        let floor = Vec3::new(0.2, -0.5, 0.3) * s;
+        let ceiling = Vec3::new(-0.1, 0.5, -0.2) * s;
+        assert!(bvh.visible(floor, Vec3::Y, ceiling, -Vec3::Y), "scale {s}: floor sees ceiling");
+        assert!(bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 0.4, 0.0) * s), "scale {s}: floor sees a light");
+        // A light outside the box is hidden by the ceiling.
+        assert!(!bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 2.0, 0.0) * s), "scale {s}: the ceiling blocks");
+        // Two points on the same floor plane see each other (grazing, no self-occlusion).
+        let other = Vec3::new(-0.3, -0.5, -0.4) * s;
+        assert!(bvh.visible(floor, Vec3::Y, other, Vec3::Y), "scale {s}: grazing visibility on one plane");
+        // A light 1e-4 units (relative) above the floor still lights the floor beneath it.
+        assert!(bvh.visible_point(floor + Vec3::new(0.01, 0.0, 0.0) * s, Vec3::Y, floor + Vec3::new(0.0, 1e-3, 0.0) * s));
+    }
+}

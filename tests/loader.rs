@@ -1,0 +1,240 @@
+//! The glTF loader: what it reads, and the error each kind of bad input gets. Fixture files are
+//! written by the test with `prm::glb`.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Quat, Vec3};
+use prm::glb::{glb_bytes, GlbLight, GlbMaterial, GlbMesh, GlbNode, GlbScene};
+use prm::{load_scene, LightKind, LoadOptions, SceneError};
+
+fn material(albedo: [f32; 3]) -> GlbMaterial {
+    GlbMaterial { name: "m".into(), base_color: [albedo[0], albedo[1], albedo[2], 1.0], emissive: [0.0; 3], double_sided: false }
+}
+
+/// A unit quad in the xz plane facing +y, with lightmap UVs filling [0.1, 0.9]^2.
+fn quad_mesh() -> GlbMesh {
+    GlbMesh {
+        name: "quad".into(),
+        positions: vec![[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, 0.0]],
+        normals: None,
+        uv1: Some(vec![[0.1, 0.1], [0.1, 0.9], [0.9, 0.9], [0.9, 0.1]]),
+        indices: Some(vec![0, 1, 2, 0, 2, 3]),
+        material: Some(0),
+    }
+}
+
+fn one_quad() -> GlbScene {
+    let mut s = GlbScene { materials: vec![material([0.5, 0.5, 0.5])], ..Default::default() };
+    s.add_mesh(quad_mesh());
+    s
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+fn load(path: &Path) -> Result<prm::Scene, SceneError> {
+    load_scene(path, &LoadOptions::default())
+}
+
+#[test]
+fn reads_hierarchy_lights_cameras_and_generates_normals() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.meshes[0].normals = None;
+    // Parent: TRS translate (10, 0, 0) and rotate 90 degrees about y; child: matrix scale 2.
+    let child = s.add_node(GlbNode {
+        name: "child".into(),
+        matrix: Some([2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 1.0, 0.0, 1.0]),
+        mesh: Some(0),
+        ..Default::default()
+    });
+    s.add_node(GlbNode {
+        name: "parent".into(),
+        translation: Some([10.0, 0.0, 0.0]),
+        rotation: Some(Quat::from_rotation_y(std::f32::consts::FRAC_PI_2).to_array()),
+        children: vec![child],
+        ..Default::default()
+    });
+    s.add_light(GlbLight { name: "p".into(), kind: "point", color: [1.0, 0.5, 0.25], intensity: 8.0, inner: 0.0, outer: 0.0, range: None }, Vec3::new(0.5, 2.0, 0.5), -Vec3::Y);
+    s.add_light(GlbLight { name: "s".into(), kind: "spot", color: [1.0; 3], intensity: 3.0, inner: 0.2, outer: 0.5, range: Some(9.0) }, Vec3::new(0.0, 3.0, 0.0), Vec3::new(1.0, -1.0, 0.0));
+    s.add_light(GlbLight { name: "sun".into(), kind: "directional", color: [1.0; 3], intensity: 2.0, inner: 0.0, outer: 0.0, range: None }, Vec3::ZERO, Vec3::new(0.0, -1.0, 1.0));
+    s.add_node(GlbNode { name: "cam".into(), translation: Some([0.0, 1.0, 5.0]), camera: Some((0.8, 1.5)), ..Default::default() });
+    let path = write(dir.path(), "h.glb", &s.to_glb());
+    // Mesh 0 is placed twice, so its lightmap UVs overlap themselves.
+    let scene = load_scene(&path, &LoadOptions { allow_overlap: true, ..Default::default() }).unwrap();
+
+    // Mesh 0 appears twice: at the root (identity) and under parent/child.
+    assert_eq!(scene.triangles.len(), 4);
+    let rot = Quat::from_rotation_y(std::f32::consts::FRAC_PI_2);
+    let want = Vec3::new(10.0, 0.0, 0.0) + rot * (Vec3::new(0.0, 1.0, 0.0) + 2.0 * Vec3::new(1.0, 0.0, 1.0));
+    assert!(scene.positions.iter().any(|p| (*p - want).length() < 1e-5), "transformed corner {want} missing");
+    for n in &scene.normals {
+        assert!((*n - Vec3::Y).length() < 1e-5, "generated normal {n}");
+    }
+    assert_eq!(scene.report.normals_generated, 2);
+
+    assert_eq!(scene.lights.len(), 3);
+    let p = &scene.lights[0];
+    assert_eq!(p.kind, LightKind::Point);
+    assert!((p.intensity - Vec3::new(8.0, 4.0, 2.0)).length() < 1e-6, "W/sr = colour x intensity");
+    assert!((p.position - Vec3::new(0.5, 2.0, 0.5)).length() < 1e-6);
+    let sp = &scene.lights[1];
+    assert!(matches!(sp.kind, LightKind::Spot { inner, outer } if (inner - 0.2).abs() < 1e-6 && (outer - 0.5).abs() < 1e-6));
+    assert!((sp.direction - Vec3::new(1.0, -1.0, 0.0).normalize()).length() < 1e-5);
+    assert_eq!(sp.range, Some(9.0));
+    let sun = &scene.lights[2];
+    assert_eq!(sun.kind, LightKind::Directional);
+    assert!((sun.direction - Vec3::new(0.0, -1.0, 1.0).normalize()).length() < 1e-5);
+    assert_eq!(scene.cameras.len(), 1);
+    assert!((scene.cameras[0].yfov - 0.8).abs() < 1e-6);
+    assert_eq!(scene.report.uv_overlapping_pairs, 2);
+}
+
+#[test]
+fn the_instanced_quad_overlaps_itself_in_uv_space() {
+    // Two instances of one mesh share lightmap UVs: that is overlap, an error by default.
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.add_node(GlbNode { name: "again".into(), translation: Some([3.0, 0.0, 0.0]), mesh: Some(0), ..Default::default() });
+    let path = write(dir.path(), "inst.glb", &s.to_glb());
+    let err = load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::UvOverlap { pairs, .. } if pairs > 0), "{err}");
+    let msg = err.to_string();
+    assert!(msg.contains("inst.glb") && msg.contains("mesh 0 primitive 0 triangle") && msg.contains("node 1") && msg.contains("--allow-overlap"), "{msg}");
+    let scene = load_scene(&path, &LoadOptions { allow_overlap: true, ..Default::default() }).unwrap();
+    assert!(scene.report.uv_overlapping_pairs >= 2);
+}
+
+#[test]
+fn missing_and_unreadable_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = load(&dir.path().join("nope.glb")).unwrap_err();
+    assert!(matches!(err, SceneError::Io { .. }) && err.to_string().contains("nope.glb"), "{err}");
+    let garbage = write(dir.path(), "garbage.glb", b"this is not a glTF file at all");
+    let err = load(&garbage).unwrap_err();
+    assert!(matches!(err, SceneError::Gltf { .. }) && err.to_string().contains("garbage.glb"), "{err}");
+    let mut truncated = one_quad().to_glb();
+    truncated.truncate(truncated.len() - 40);
+    let path = write(dir.path(), "truncated.glb", &truncated);
+    assert!(load(&path).is_err());
+}
+
+#[test]
+fn non_finite_position_names_mesh_primitive_and_vertex() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.meshes[0].positions[2][1] = f32::NAN;
+    let path = write(dir.path(), "nan.glb", &s.to_glb());
+    let err = load(&path).unwrap_err();
+    match &err {
+        SceneError::NonFinite { place, attribute, vertex, .. } => {
+            assert_eq!((place.mesh, place.primitive, *vertex, *attribute), (0, 0, 2, "POSITION"));
+        }
+        other => panic!("wrong error: {other}"),
+    }
+    assert!(err.to_string().contains("nan.glb") && err.to_string().contains("vertex 2"), "{err}");
+}
+
+#[test]
+fn out_of_range_index_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.meshes[0].indices = Some(vec![0, 1, 2, 0, 2, 7]);
+    let path = write(dir.path(), "idx.glb", &s.to_glb());
+    let err = load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::IndexOutOfRange { position: 5, value: 7, vertex_count: 4, .. }), "{err}");
+    assert!(err.to_string().contains("index 5 is 7"), "{err}");
+}
+
+#[test]
+fn albedo_outside_unit_range_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.materials[0].base_color = [1.5, 0.2, 0.2, 1.0];
+    let path = write(dir.path(), "albedo.glb", &s.to_glb());
+    let err = load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::AlbedoOutOfRange { material: 0, .. }), "{err}");
+    assert!(err.to_string().contains("[1.5, 0.2, 0.2]"), "{err}");
+}
+
+#[test]
+fn negative_light_intensity_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.add_light(GlbLight { name: "bad".into(), kind: "point", color: [1.0; 3], intensity: -2.0, inner: 0.0, outer: 0.0, range: None }, Vec3::Y, -Vec3::Y);
+    let path = write(dir.path(), "light.glb", &s.to_glb());
+    let err = load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::BadLight { light: 0, .. }) && err.to_string().contains("intensity -2"), "{err}");
+}
+
+#[test]
+fn degenerate_triangles_are_dropped_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    // A third triangle with two identical corners.
+    s.meshes[0].indices = Some(vec![0, 1, 2, 0, 2, 3, 1, 1, 2]);
+    let path = write(dir.path(), "degen.glb", &s.to_glb());
+    let scene = load(&path).unwrap();
+    assert_eq!(scene.triangles.len(), 2);
+    assert_eq!(scene.report.degenerate_dropped, 1);
+}
+
+#[test]
+fn missing_uv1_is_generated_or_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = GlbScene { materials: vec![material([0.5; 3])], ..Default::default() };
+    // A closed box: generated charts must not overlap and must stay in [0, 1].
+    let mut pos = Vec::new();
+    let mut idx = Vec::new();
+    let v = |x: f32, y: f32, z: f32| [x, y, z];
+    let faces = [
+        [v(0., 0., 0.), v(0., 0., 1.), v(0., 1., 1.), v(0., 1., 0.)],
+        [v(1., 0., 0.), v(1., 1., 0.), v(1., 1., 1.), v(1., 0., 1.)],
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)],
+        [v(0., 1., 0.), v(0., 1., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        [v(0., 0., 0.), v(0., 1., 0.), v(1., 1., 0.), v(1., 0., 0.)],
+        [v(0., 0., 1.), v(1., 0., 1.), v(1., 1., 1.), v(0., 1., 1.)],
+    ];
+    for f in faces {
+        let k = pos.len() as u32;
+        pos.extend_from_slice(&f);
+        idx.extend_from_slice(&[k, k + 1, k + 2, k, k + 2, k + 3]);
+    }
+    s.add_mesh(GlbMesh { name: "box".into(), positions: pos, normals: None, uv1: None, indices: Some(idx), material: Some(0) });
+    let path = write(dir.path(), "nouv.glb", &s.to_glb());
+    let err = load_scene(&path, &LoadOptions { require_uv1: true, ..Default::default() }).unwrap_err();
+    assert!(matches!(err, SceneError::MissingUv1 { .. }) && err.to_string().contains("--require-uv1"), "{err}");
+    let scene = load(&path).unwrap();
+    assert!(scene.report.uv1_generated);
+    assert!(scene.report.notes.iter().any(|n| n.contains("generated")));
+    assert_eq!(scene.triangles.len(), 12);
+    assert_eq!(scene.report.uv_out_of_range, 0);
+    assert!(prm::uv::find_overlaps(&scene).is_empty());
+    let set = prm::TexelSet::build(&scene, 64, 64);
+    assert!(set.len() > 500, "generated charts should cover the atlas ({})", set.len());
+}
+
+#[test]
+fn uv_outside_unit_square_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.meshes[0].uv1 = Some(vec![[0.1, 0.1], [0.1, 1.4], [0.9, 1.4], [0.9, 0.1]]);
+    let path = write(dir.path(), "range.glb", &s.to_glb());
+    let scene = load(&path).unwrap();
+    assert_eq!(scene.report.uv_out_of_range, 2);
+    assert!(scene.report.notes.iter().any(|n| n.contains("outside [0, 1]")));
+}
+
+#[test]
+fn a_malformed_buffer_reference_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut doc, bin) = one_quad().to_json_and_bin();
+    // Point the index accessor past the end of its buffer view.
+    doc["accessors"][2]["count"] = serde_json::json!(600);
+    let path = write(dir.path(), "oob.glb", &glb_bytes(&doc, &bin));
+    let err = load(&path).unwrap_err();
+    assert!(err.to_string().contains("oob.glb"), "{err}");
+}

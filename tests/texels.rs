@@ -1,0 +1,208 @@
+//! The texel set against a brute-force twin: exact coverage for slivers and tiny triangles,
+//! sample points on their triangles, unit normals, a dilation ring that bilinear lookups never
+//! read past, and the same set at any thread count.
+
+use glam::{DVec2, Vec2, Vec3};
+use prm::{Scene, TexelSet};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+/// Area of the part of triangle `t` (texel units) inside the unit square at (x0, y0), by
+/// Sutherland-Hodgman clipping: a different algorithm from the separating-axis test.
+fn clipped_area(t: &[DVec2; 3], x0: f64, y0: f64) -> f64 {
+    let mut poly: Vec<DVec2> = t.to_vec();
+    let planes: [(DVec2, f64); 4] = [(DVec2::X, x0), (-DVec2::X, -(x0 + 1.0)), (DVec2::Y, y0), (-DVec2::Y, -(y0 + 1.0))];
+    for (n, d) in planes {
+        let mut out = Vec::new();
+        for k in 0..poly.len() {
+            let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+            let (da, db) = (a.dot(n) - d, b.dot(n) - d);
+            if da >= 0.0 {
+                out.push(a);
+            }
+            if (da >= 0.0) != (db >= 0.0) {
+                out.push(a + (b - a) * (da / (da - db)));
+            }
+        }
+        poly = out;
+        if poly.len() < 3 {
+            return 0.0;
+        }
+    }
+    let mut area = 0.0;
+    for k in 0..poly.len() {
+        area += poly[k].perp_dot(poly[(k + 1) % poly.len()]);
+    }
+    0.5 * area.abs()
+}
+
+/// Distance from `p` to triangle (a, b, c) in 3D, by sampling-free projection and clamping.
+fn point_triangle_distance(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> f32 {
+    let n = (b - a).cross(c - a).normalize();
+    let q = p - n * (p - a).dot(n);
+    let inside = [(a, b), (b, c), (c, a)].iter().all(|&(u, v)| (v - u).cross(q - u).dot(n) >= 0.0);
+    if inside {
+        return (p - q).length();
+    }
+    [(a, b), (b, c), (c, a)]
+        .iter()
+        .map(|&(u, v)| {
+            let e = v - u;
+            let s = ((p - u).dot(e) / e.length_squared()).clamp(0.0, 1.0);
+            (p - (u + e * s)).length()
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Slivers, tiny triangles, grid-aligned edges and ordinary triangles scattered over a 64^2
+/// atlas (UVs) and a sloped surface (positions).
+fn sliver_scene(seed: u64) -> Scene {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    let mut add = |a: Vec2, b: Vec2, c: Vec2| {
+        // Keep the winding counter-clockwise in UV so the 3D normal points +z-ish.
+        let (b, c) = if (b - a).perp_dot(c - a) < 0.0 { (c, b) } else { (b, c) };
+        for p in [a, b, c] {
+            uv.push(p);
+            pos.push(Vec3::new(p.x * 3.0, p.y * 2.0, 0.3 * p.x + 0.1 * p.y));
+        }
+        let k = idx.len() as u32;
+        idx.extend_from_slice(&[k, k + 1, k + 2]);
+    };
+    let w = 64.0f32;
+    for _ in 0..300 {
+        // Needle: long and under a hundredth of a texel wide.
+        let a = Vec2::new(rng.random(), rng.random());
+        let dir = Vec2::from_angle(rng.random::<f32>() * 6.283);
+        let len = rng.random_range(2.0..10.0) / w;
+        let width = rng.random_range(1e-4..1e-2) / w;
+        add(a, a + dir * len, a + dir * len * 0.5 + dir.perp() * width);
+    }
+    for _ in 0..300 {
+        // Tiny: well inside one texel or straddling a corner.
+        let a = Vec2::new(rng.random(), rng.random());
+        let s = rng.random_range(1e-3..0.3) / w;
+        add(a, a + Vec2::new(s, 0.0), a + Vec2::new(0.0, s));
+    }
+    for _ in 0..100 {
+        // Edges exactly on texel lines: touching a texel is not covering it.
+        let i = rng.random_range(1..60) as f32;
+        let j = rng.random_range(1..60) as f32;
+        add(Vec2::new(i, j) / w, Vec2::new(i + 2.0, j) / w, Vec2::new(i, j + rng.random_range(0.3..2.0)) / w);
+    }
+    for _ in 0..50 {
+        let a = Vec2::new(rng.random(), rng.random()) * 0.9;
+        add(a, a + Vec2::new(rng.random(), rng.random()) * 0.1, a + Vec2::new(rng.random(), rng.random()) * 0.1);
+    }
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+#[test]
+fn coverage_equals_brute_force_for_slivers_and_tiny_triangles() {
+    let scene = sliver_scene(1);
+    let (w, h) = (64u32, 64u32);
+    let set = TexelSet::build(&scene, w, h);
+    let size = DVec2::new(w as f64, h as f64);
+    let mut brute = vec![0.0f64; (w * h) as usize];
+    for t in 0..scene.triangles.len() {
+        let uv = scene.uv1_corners(t).map(|v| v.as_dvec2() * size);
+        for j in 0..h {
+            for i in 0..w {
+                let a = clipped_area(&uv, i as f64, j as f64);
+                let k = (j * w + i) as usize;
+                brute[k] = brute[k].max(a);
+            }
+        }
+    }
+    // Clipping and separating axes differ by round-off only for overlaps thinner than 1e-7
+    // texel, whose clipped area is below 1e-9 texel^2: that band is the only one not compared.
+    let (mut compared, mut ambiguous) = (0, 0);
+    for k in 0..(w * h) as usize {
+        let covered = set.index[k] != TexelSet::EMPTY;
+        if brute[k] > 1e-9 {
+            assert!(covered, "texel {k} overlapped by area {} is missing", brute[k]);
+            compared += 1;
+        } else if brute[k] == 0.0 {
+            assert!(!covered, "texel {k} is covered but no triangle overlaps it");
+            compared += 1;
+        } else {
+            ambiguous += 1;
+        }
+    }
+    assert!(set.len() > 500, "the fixture covers a fair number of texels ({})", set.len());
+    assert!(ambiguous * 1000 <= compared, "too many round-off cases: {ambiguous}");
+    // Slivers that cover no texel centre are the point of the exercise: count some.
+    let centre_missed = set
+        .texels
+        .iter()
+        .filter(|t| {
+            let c = DVec2::new(t.i as f64 + 0.5, t.j as f64 + 0.5);
+            let uv = scene.uv1_corners(t.triangle as usize).map(|v| v.as_dvec2() * size);
+            let b = prm::texels::closest_barycentrics(c, &uv);
+            b.iter().any(|&x| x <= 0.0)
+        })
+        .count();
+    assert!(centre_missed > 100, "fixture should exercise texels whose centre no triangle covers ({centre_missed})");
+}
+
+#[test]
+fn sample_points_lie_on_their_triangles_with_unit_normals() {
+    let scene = sliver_scene(2);
+    let set = TexelSet::build(&scene, 64, 64);
+    let diag = scene.diagonal();
+    for t in &set.texels {
+        let [a, b, c] = scene.corners(t.triangle as usize);
+        let d = point_triangle_distance(t.position, a, b, c);
+        assert!(d <= 1e-5 * diag, "texel ({}, {}) is {d} off its triangle", t.i, t.j);
+        assert!((t.normal.length() - 1.0).abs() < 1e-5);
+        assert!(t.bary.min_element() >= 0.0 && (t.bary.element_sum() - 1.0).abs() < 1e-5);
+        assert!(t.normal.dot(scene.face_normal(t.triangle as usize)) > 0.9999);
+    }
+}
+
+#[test]
+fn bilinear_lookups_on_the_surface_never_read_an_empty_texel() {
+    let scene = sliver_scene(3);
+    let (w, h) = (64u32, 64u32);
+    let set = TexelSet::build(&scene, w, h);
+    let mut filled = set.mask();
+    for d in &set.dilation {
+        assert!(!filled[d.target as usize]);
+        filled[d.target as usize] = true;
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    for _ in 0..200_000 {
+        let t = rng.random_range(0..scene.triangles.len());
+        let (mut r1, mut r2) = (rng.random::<f32>(), rng.random::<f32>());
+        if r1 + r2 > 1.0 {
+            (r1, r2) = (1.0 - r1, 1.0 - r2);
+        }
+        let [a, b, c] = scene.uv1_corners(t);
+        let p = a + (b - a) * r1 + (c - a) * r2;
+        if !(0.0..=1.0).contains(&p.x) || !(0.0..=1.0).contains(&p.y) {
+            continue; // outside the atlas: such UVs are reported and get no texels
+        }
+        let (x, y) = (p.x * w as f32 - 0.5, p.y * h as f32 - 0.5);
+        for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let i = (x.floor() as i64 + di).clamp(0, w as i64 - 1);
+            let j = (y.floor() as i64 + dj).clamp(0, h as i64 - 1);
+            assert!(filled[(j * w as i64 + i) as usize], "bilinear tap ({i}, {j}) is empty");
+        }
+    }
+    // Dilated values are means of covered neighbours.
+    let values: Vec<Vec3> = set.texels.iter().map(|t| t.position).collect();
+    let img = set.to_image(&values, Vec3::splat(-1.0));
+    for d in &set.dilation {
+        let want = d.sources[..d.count as usize].iter().map(|&s| img[s as usize]).fold(Vec3::ZERO, |a, b| a + b) / d.count as f32;
+        assert!((img[d.target as usize] - want).length() < 1e-5);
+    }
+}
+
+#[test]
+fn texel_set_is_the_same_at_any_thread_count() {
+    let scene = sliver_scene(4);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| TexelSet::build(&scene, 64, 64));
+    let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| TexelSet::build(&scene, 64, 64));
+    assert_eq!(one.texels, two.texels);
+    assert_eq!(one.dilation, two.dilation);
+}
