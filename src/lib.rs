@@ -16,6 +16,7 @@ pub mod fsutil;
 pub mod glb;
 pub mod gltf_load;
 pub mod light;
+pub mod metric;
 pub mod scene;
 pub mod texels;
 pub mod uv;

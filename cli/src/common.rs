@@ -47,3 +47,32 @@ pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
     }
     Ok(scene)
 }
+
+/// The process-wide Ctrl-C flag: the first Ctrl-C sets it and long stages stop at their next
+/// chunk, leaving no output file; a second Ctrl-C exits at once.
+pub fn cancel_flag() -> &'static std::sync::atomic::AtomicBool {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::OnceLock;
+    static FLAG: AtomicBool = AtomicBool::new(false);
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(|| {
+        let _ = ctrlc::set_handler(|| {
+            if FLAG.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\nstopping (Ctrl-C again to quit at once); no output will be written");
+        });
+    });
+    &FLAG
+}
+
+/// A progress bar with rate and ETA on stderr.
+pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len);
+    let style = indicatif::ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {per_sec} ETA {eta}")
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    bar.set_style(style);
+    bar.set_message(what.to_string());
+    bar
+}

@@ -5,7 +5,9 @@ use clap::{Parser, Subcommand};
 
 mod bench_rays;
 mod common;
+mod compare;
 mod gen_assets;
+mod ground_truth;
 mod info;
 mod texels;
 
@@ -27,6 +29,10 @@ enum Command {
     GenAssets(gen_assets::Args),
     /// Measure ray-query throughput (closest hit and occlusion) on a level.
     BenchRays(bench_rays::Args),
+    /// Path-trace the ground truth: direct and indirect irradiance per texel, or a camera view.
+    GroundTruth(ground_truth::Args),
+    /// The error of one lightmap or image against a reference (DESIGN.md §3 metric).
+    Compare(compare::Args),
 }
 
 fn main() -> Result<()> {
@@ -36,5 +42,7 @@ fn main() -> Result<()> {
         Command::Texels(a) => texels::run(a),
         Command::GenAssets(a) => gen_assets::run(a),
         Command::BenchRays(a) => bench_rays::run(a),
+        Command::GroundTruth(a) => ground_truth::run(a),
+        Command::Compare(a) => compare::run(a),
     }
 }

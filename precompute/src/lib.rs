@@ -1,4 +1,5 @@
-//! PRM offline stages. This crate grows with the precompute, the reference baker and the
-//! ground-truth tracer; today it holds the generator of the bundled scenes.
+//! PRM offline stages: the ground-truth path tracer and the generator of the bundled scenes.
+//! The precompute and the reference baker join here.
 
+pub mod ground_truth;
 pub mod scenes;

@@ -185,9 +185,10 @@ pub fn cornell() -> Result<GlbScene, String> {
     b.quad(white, v(314.0, 0.0, 456.0), v(314.0, 330.0, 456.0), v(265.0, 330.0, 296.0), v(265.0, 0.0, 296.0));
     b.quad(white, v(265.0, 0.0, 296.0), v(265.0, 330.0, 296.0), v(423.0, 330.0, 247.0), v(423.0, 0.0, 247.0));
     let mut scene = b.finish(256)?;
-    // The measured light opening is centred at (278, 548.8, 279.5); the point light hangs 6 cm
-    // below it.
-    scene.add_light(point_light("ceiling_light", [1.0, 0.85, 0.65], 8.0), v(278.0, 488.8, 279.5), -Vec3::Y);
+    // The measured light opening is centred at (278, 548.8, 279.5); the point light hangs 10 cm
+    // below it (closer, the ceiling above it becomes a 1/r^2 hot spot that dominates the
+    // indirect light).
+    scene.add_light(point_light("ceiling_light", [1.0, 0.85, 0.65], 8.0), v(278.0, 448.8, 279.5), -Vec3::Y);
     // Camera at (278, 273, -800) looking along +z; 35 mm lens on a 25 mm film.
     camera(&mut scene, "camera", v(278.0, 273.0, -800.0), v(278.0, 273.0, 0.0), 2.0 * (12.5f32 / 35.0).atan());
     Ok(scene)

@@ -1,0 +1,123 @@
+//! The `prm` binary end to end: known figures from `compare`, outputs that read back, and bad
+//! input that gets a clear error and leaves no file behind.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::Vec3;
+use prm::exr_io::Channels;
+
+fn prm(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_prm")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn asset(name: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets").join(name).display().to_string()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn compare_gives_the_hand_computed_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    // Reference: grey 1, 2, 4 on three texels and a fourth outside the mask.
+    let mut b = Channels::new(2, 2);
+    b.insert_rgb("indirect", &[Vec3::splat(1.0), Vec3::splat(2.0), Vec3::splat(4.0), Vec3::splat(100.0)]);
+    b.insert("mask", vec![1.0, 1.0, 1.0, 0.0]);
+    let mut a = Channels::new(2, 2);
+    a.insert_rgb("", &[Vec3::splat(1.0), Vec3::splat(3.0), Vec3::splat(4.0), Vec3::splat(-5.0)]);
+    let (pa, pb) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+    a.write(&pa).unwrap();
+    b.write(&pb).unwrap();
+    let png = dir.path().join("diff.png");
+    let (ok, out, err) = prm(&["compare", s(&pa), s(&pb), "--json", "--diff-png", s(&png)]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    // Luminance of grey g is g: error sqrt(1 / (1 + 4 + 16)), bias 8/7 - 1, max |dY| 1.
+    assert_eq!(v["count"], 3);
+    assert!((v["error"].as_f64().unwrap() - (1.0f64 / 21.0).sqrt()).abs() < 1e-6);
+    assert!((v["bias"].as_f64().unwrap() - (8.0 / 7.0 - 1.0)).abs() < 1e-6);
+    assert!((v["max_abs"].as_f64().unwrap() - 1.0).abs() < 1e-6);
+    assert_eq!(v["negative"], 0, "the negative texel is outside the mask");
+    assert!(png.exists());
+}
+
+#[test]
+fn texels_and_ground_truth_on_a_bundled_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = dir.path().join("t.exr");
+    let (ok, _, err) = prm(&["texels", &asset("cornell.glb"), "--atlas", "32", "-o", s(&t)]);
+    assert!(ok, "{err}");
+    let tex = Channels::read(&t).unwrap();
+    let gt = dir.path().join("gt.exr");
+    let (ok, out, err) = prm(&["ground-truth", &asset("cornell.glb"), "--atlas", "32", "--spp", "8", "--json", "-o", s(&gt)]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["paths_truncated_at_max_bounces"], 0);
+    let g = Channels::read(&gt).unwrap();
+    assert_eq!(g.get("mask"), tex.get("mask"), "ground truth covers exactly the texel set");
+    for layer in ["indirect", "direct", "stderr"] {
+        let rgb = g.rgb(layer).unwrap();
+        assert!(rgb.iter().all(|c| c.is_finite() && c.min_element() >= 0.0), "{layer} has bad values");
+    }
+    let covered: Vec<bool> = tex.get("mask").unwrap().iter().map(|&m| m > 0.5).collect();
+    let ind = g.rgb("indirect").unwrap();
+    // At 8 paths, a texel whose hemisphere is half open front may see no bounce; most do.
+    let lit = ind.iter().zip(&covered).filter(|(v, &c)| c && v.max_element() > 0.0).count();
+    let total = covered.iter().filter(|&&c| c).count();
+    assert!(lit * 100 >= total * 95, "{lit} of {total} texels receive indirect light");
+    // The error of the ground truth against itself is zero.
+    let (ok, out, _) = prm(&["compare", s(&gt), s(&gt), "--json"]);
+    assert!(ok);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["error"].as_f64().unwrap(), 0.0);
+}
+
+#[test]
+fn camera_view_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = dir.path().join("cam.exr");
+    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--camera", "camera", "--width", "24", "--spp", "2", "-o", s(&img)]);
+    assert!(ok, "{err}");
+    let c = Channels::read(&img).unwrap();
+    let rgb = c.rgb("").unwrap();
+    assert_eq!((c.width, c.height), (24, 24));
+    assert!(rgb.iter().all(|v| v.is_finite() && v.min_element() >= 0.0));
+    assert!(rgb.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2, "most pixels see the lit box");
+    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--camera", "nope", "-o", s(&img)]);
+    assert!(!ok && err.contains("no camera named 'nope'") && err.contains("camera"), "{err}");
+}
+
+#[test]
+fn bad_input_is_a_clear_error_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.exr");
+    let (ok, _, err) = prm(&["texels", s(&dir.path().join("missing.glb")), "-o", s(&out)]);
+    assert!(!ok && err.contains("missing.glb") && err.contains("cannot read"), "{err}");
+    let junk = dir.path().join("junk.glb");
+    std::fs::write(&junk, b"glTF\x02\x00\x00\x00garbage").unwrap();
+    let (ok, _, err) = prm(&["info", s(&junk)]);
+    assert!(!ok && err.contains("junk.glb"), "{err}");
+    let (ok, _, err) = prm(&["texels", &asset("cornell.glb"), "--atlas", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("--atlas 0"), "{err}");
+    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--spp", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("--spp 0"), "{err}");
+    let (ok, _, err) = prm(&["compare", s(&junk), s(&junk)]);
+    assert!(!ok && err.contains("junk.glb"), "{err}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "only the junk input remains: no partial outputs");
+}
+
+#[test]
+fn info_reports_the_chamber() {
+    let (ok, out, err) = prm(&["info", &asset("chamber.glb"), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let tris = v["triangles"].as_u64().unwrap();
+    assert!((3000..=5000).contains(&tris));
+    assert_eq!(v["lights"].as_array().unwrap().len(), 2);
+    assert_eq!(v["uv"]["overlapping_pairs"], 0);
+    assert!(v["texels"]["covered"].as_u64().unwrap() > 10_000);
+}

@@ -1,0 +1,150 @@
+//! The ground-truth tracer against analytic answers: inverse-square direct light, the furnace,
+//! and the form factor of a square emitter.
+
+use std::sync::atomic::AtomicBool;
+
+use glam::{Vec2, Vec3};
+use prm::{Bvh, Light, LightKind, Material, Scene, TexelSet};
+use prm_precompute::ground_truth::{GtParams, Tracer};
+
+/// Quads (a, b, c, d counter-clockwise from the front) as one scene, each quad its own chart
+/// on a 4 x 4 grid of UV cells.
+fn quads(qs: &[[Vec3; 4]]) -> Scene {
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, q) in qs.iter().enumerate() {
+        let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
+        let base = pos.len() as u32;
+        for (c, p) in q.iter().enumerate() {
+            pos.push(*p);
+            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            uv.push((cell + Vec2::splat(0.05) + corner * 0.9) / 4.0);
+        }
+        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+fn floor_quad(half: f32) -> [Vec3; 4] {
+    [Vec3::new(-half, 0.0, -half), Vec3::new(-half, 0.0, half), Vec3::new(half, 0.0, half), Vec3::new(half, 0.0, -half)]
+}
+
+#[test]
+fn point_light_over_a_plane_is_inverse_square_times_cosine() {
+    let mut scene = quads(&[floor_quad(2.0)]);
+    let light_pos = Vec3::new(0.3, 1.5, -0.2);
+    let intensity = Vec3::new(10.0, 5.0, 2.5);
+    scene.lights.push(Light { name: "p".into(), kind: LightKind::Point, position: light_pos, direction: -Vec3::Y, intensity, range: None });
+    let bvh = Bvh::build(&scene);
+    let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 8, ..Default::default() });
+    let set = TexelSet::build(&scene, 32, 32);
+    let out = tracer.texels(&set.texels, 32, &|_| {}, &AtomicBool::new(false)).unwrap();
+    for (t, r) in set.texels.iter().zip(&out) {
+        let d = light_pos - t.position;
+        let want = intensity * (d.y / d.length()) / d.length_squared();
+        // Next-event estimation of a point light has no noise: only float round-off remains.
+        assert!((r.direct - want).abs().max_element() <= 1e-4 * want.max_element(), "texel ({}, {}): {} vs {}", t.i, t.j, r.direct, want);
+        assert_eq!(r.direct_stderr, Vec3::ZERO);
+        // Nothing for the light to bounce off.
+        assert_eq!(r.indirect, Vec3::ZERO, "texel {:?} at {} n {}", (t.i, t.j), t.position, t.normal);
+    }
+}
+
+/// A closed unit box facing inward, every wall emitting `le` with albedo `a`.
+fn furnace(a: f32, le: f32) -> Scene {
+    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    let mut s = quads(&[
+        [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+        [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+        [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
+        [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+        [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+    ]);
+    s.materials[0] = Material { albedo: Vec3::splat(a), emissive: Vec3::splat(le), ..Default::default() };
+    s
+}
+
+#[test]
+fn furnace_indirect_is_a_over_one_minus_a_times_direct() {
+    for a in [0.5f32, 0.9] {
+        let le = 2.0;
+        let scene = furnace(a, le);
+        let bvh = Bvh::build(&scene);
+        let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 2000, ..Default::default() });
+        let set = TexelSet::build(&scene, 32, 32);
+        let picks: Vec<_> = set.texels.iter().step_by(37).copied().collect();
+        let out = tracer.texels(&picks, 32, &|_| {}, &AtomicBool::new(false)).unwrap();
+        let direct = std::f32::consts::PI * le;
+        let want = a / (1.0 - a) * direct;
+        let n = out.len() as f32;
+        let mean = out.iter().map(|r| r.indirect.x).sum::<f32>() / n;
+        let se = (out.iter().map(|r| r.indirect_stderr.x.powi(2)).sum::<f32>()).sqrt() / n;
+        for r in &out {
+            // Every direction sees an emitting wall: the direct estimate has no variance.
+            assert!((r.direct.x - direct).abs() < 1e-4 * direct);
+        }
+        assert!((mean - want).abs() <= 3.0 * se, "albedo {a}: indirect {mean} vs {want} (3 sigma = {})", 3.0 * se);
+        assert!(se < 0.02 * want, "albedo {a}: the test needs a tight estimate (se {se})");
+        assert_eq!(tracer.stats.truncated.load(std::sync::atomic::Ordering::Relaxed), 0);
+    }
+}
+
+/// Integral of cos over the solid angle of polygon `poly` seen from `p` with normal `n`
+/// (Lambert's contour formula).
+fn polygon_cosine_integral(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
+    let mut sum = 0.0;
+    for k in 0..poly.len() {
+        let (a, b) = ((poly[k] - p).normalize(), (poly[(k + 1) % poly.len()] - p).normalize());
+        let c = a.cross(b);
+        sum += a.dot(b).clamp(-1.0, 1.0).acos() * n.dot(c.normalize());
+    }
+    0.5 * sum.abs()
+}
+
+#[test]
+fn square_emitter_irradiance_matches_the_form_factor() {
+    let h = 0.7;
+    // Emitter faces down (-y), 0.8 x 0.8, offset from the receiver's centre.
+    let em = [Vec3::new(-0.2, h, -0.3), Vec3::new(0.6, h, -0.3), Vec3::new(0.6, h, 0.5), Vec3::new(-0.2, h, 0.5)];
+    let mut scene = quads(&[floor_quad(1.0), em]);
+    scene.materials[0].albedo = Vec3::ZERO;
+    scene.materials.push(Material { albedo: Vec3::ZERO, emissive: Vec3::new(3.0, 2.0, 1.0), ..Default::default() });
+    for t in scene.triangles.iter_mut().skip(2) {
+        t.material = 1;
+    }
+    assert!(scene.face_normal(2).y < 0.0);
+    let bvh = Bvh::build(&scene);
+    let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 4000, ..Default::default() });
+    let set = TexelSet::build(&scene, 16, 16);
+    let floor: Vec<_> = set.texels.iter().filter(|t| t.triangle < 2).step_by(5).copied().collect();
+    let out = tracer.texels(&floor, 16, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let mut worst = 0.0f32;
+    for (t, r) in floor.iter().zip(&out) {
+        let want = 3.0 * polygon_cosine_integral(t.position, Vec3::Y, &em);
+        let z = (r.direct.x - want).abs() / r.direct_stderr.x.max(1e-6);
+        worst = worst.max(z);
+        // Per texel, 4 standard errors: over ~20 texels a 3-sigma bound would trip by chance.
+        assert!(z <= 4.0, "texel ({}, {}): {} vs {} ({} se)", t.i, t.j, r.direct.x, want, z);
+        assert!((r.direct.y / r.direct.x - 2.0 / 3.0).abs() < 1e-5);
+    }
+    assert!(worst > 0.0);
+}
+
+#[test]
+fn ground_truth_is_the_same_at_any_thread_count() {
+    let scene = furnace(0.7, 1.0);
+    let bvh = Bvh::build(&scene);
+    let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 16, ..Default::default() });
+    let set = TexelSet::build(&scene, 16, 16);
+    let run = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(false)).unwrap());
+    assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn a_cancelled_run_returns_no_result() {
+    let scene = furnace(0.5, 1.0);
+    let bvh = Bvh::build(&scene);
+    let tracer = Tracer::new(&scene, &bvh, GtParams::default());
+    let set = TexelSet::build(&scene, 16, 16);
+    assert!(tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(true)).is_err());
+}
