@@ -107,7 +107,11 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
         let v: Vec<Vec3> = values.iter().map(f).collect();
         set.to_image(&v, Vec3::ZERO)
     };
-    ch.insert_rgb("indirect", &layer(&|r| r.indirect));
+    // Bare R G B is the lightmap's main quantity (DESIGN.md §8): here the indirect light,
+    // also stored as `indirect.*` so tools can name the layer.
+    let indirect = layer(&|r| r.indirect);
+    ch.insert_rgb("", &indirect);
+    ch.insert_rgb("indirect", &indirect);
     ch.insert_rgb("direct", &layer(&|r| r.direct));
     ch.insert_rgb("stderr", &layer(&|r| r.indirect_stderr));
     ch.insert_rgb("stderr_direct", &layer(&|r| r.direct_stderr));
