@@ -17,6 +17,7 @@ pub mod glb;
 pub mod gltf_load;
 pub mod light;
 pub mod metric;
+pub mod prm_file;
 pub mod scene;
 pub mod texels;
 pub mod uv;

@@ -6,9 +6,12 @@ use clap::{Parser, Subcommand};
 mod bench_rays;
 mod common;
 mod compare;
+mod evaluate;
+mod export_panes;
 mod gen_assets;
 mod ground_truth;
 mod info;
+mod precompute;
 mod texels;
 
 /// Precomputed radiance maps: indirect light for static levels under moving lights.
@@ -33,6 +36,12 @@ enum Command {
     GroundTruth(ground_truth::Args),
     /// The error of one lightmap or image against a reference (DESIGN.md §3 metric).
     Compare(compare::Args),
+    /// Bake a level's precomputed radiance map (.prm).
+    Precompute(precompute::Args),
+    /// Write a .prm's pane atlases as EXR pages.
+    ExportPanes(export_panes::Args),
+    /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).
+    Evaluate(evaluate::Args),
 }
 
 fn main() -> Result<()> {
@@ -44,5 +53,8 @@ fn main() -> Result<()> {
         Command::BenchRays(a) => bench_rays::run(a),
         Command::GroundTruth(a) => ground_truth::run(a),
         Command::Compare(a) => compare::run(a),
+        Command::Precompute(a) => precompute::run(a),
+        Command::ExportPanes(a) => export_panes::run(a),
+        Command::Evaluate(a) => evaluate::run(a),
     }
 }

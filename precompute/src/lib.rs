@@ -1,5 +1,12 @@
-//! PRM offline stages: the ground-truth path tracer and the generator of the bundled scenes.
-//! The precompute and the reference baker join here.
+//! PRM offline stages: the precompute (entries, clustering, light transport, pane atlases), the
+//! ground-truth path tracer, and the generator of the bundled scenes. The reference baker joins
+//! here.
 
+pub mod cluster;
+pub mod entries;
 pub mod ground_truth;
+pub mod panes;
+pub mod precompute;
+pub mod relight;
 pub mod scenes;
+pub mod transport;

@@ -1,0 +1,175 @@
+//! `prm precompute`: bake a level's precomputed radiance map into a `.prm` file.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use prm::Bvh;
+use prm_precompute::precompute::{precompute, Phase, PrecomputeParams};
+use prm_precompute::transport::Estimator;
+use serde_json::json;
+
+use crate::common::{cancel_flag, load, progress_bar, SceneArgs};
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Preset {
+    Preview,
+    Production,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum EstimatorArg {
+    /// Texel-side walks credited to the cluster whose region they hit (default).
+    Gather,
+    /// Paper 004's virtual point lights with a clamped 1/r².
+    Scatter,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Output .prm file.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Parameter preset; the options below override it.
+    #[arg(long, value_enum, default_value = "production")]
+    preset: Preset,
+    /// Entry points N.
+    #[arg(long)]
+    entries: Option<u32>,
+    /// Light paths: per texel (gather) or per entry (scatter).
+    #[arg(long)]
+    paths: Option<u32>,
+    /// Clusters C (panes).
+    #[arg(long)]
+    clusters: Option<u32>,
+    /// Atlas width and height in texels.
+    #[arg(long)]
+    atlas: Option<u32>,
+    /// Random seed.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Pane estimator.
+    #[arg(long, value_enum)]
+    estimator: Option<EstimatorArg>,
+    /// Scatter only: 1/r² is clamped below (clamp x entry spacing)².
+    #[arg(long, default_value_t = 0.5)]
+    clamp: f32,
+    /// Relative energy of a pane its dropped tiles may hold.
+    #[arg(long)]
+    drop_threshold: Option<f64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut p = match a.preset {
+        Preset::Preview => PrecomputeParams::preview(),
+        Preset::Production => PrecomputeParams::production(),
+    };
+    p.entries = a.entries.unwrap_or(p.entries);
+    p.paths = a.paths.unwrap_or(p.paths);
+    p.clusters = a.clusters.unwrap_or(p.clusters);
+    p.atlas = a.atlas.unwrap_or(p.atlas);
+    p.seed = a.seed.unwrap_or(p.seed);
+    p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
+    if let Some(e) = a.estimator {
+        p.estimator = match e {
+            EstimatorArg::Gather => Estimator::Gather,
+            EstimatorArg::Scatter => Estimator::Scatter { clamp: a.clamp },
+        };
+    }
+    p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
+    let threads = a.threads.unwrap_or(0);
+    if threads > 1024 {
+        bail!("--threads {threads} is out of range (1 to 1024)");
+    }
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
+    pool.install(|| bake(&a, &p))
+}
+
+fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
+    let start = Instant::now();
+    let scene = load(&a.scene, p.atlas, a.json)?;
+    let bvh = Bvh::build(&scene);
+    let cancel = cancel_flag();
+    let bar = Mutex::new(progress_bar(1, "texels"));
+    let hidden = a.json;
+    let on_progress = |phase: Phase, done: usize, total: usize| {
+        let Ok(b) = bar.lock() else { return };
+        if hidden {
+            b.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        let name = match phase {
+            Phase::Texels => "texels",
+            Phase::Entries => "entries",
+            Phase::Clustering => "clustering",
+            Phase::Transport => "transport",
+            Phase::Panes => "panes",
+        };
+        if b.message() != name {
+            b.set_message(name);
+            b.set_length(total as u64);
+            b.reset_eta();
+        }
+        b.set_position(done as u64);
+    };
+    let result = precompute(&scene, &bvh, p, &on_progress, cancel);
+    if let Ok(b) = bar.lock() {
+        b.finish_and_clear();
+    }
+    let (prm, report) = result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
+    let t = Instant::now();
+    let bytes = prm.to_bytes();
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        bail!("stopped by Ctrl-C; {} not written", a.output.display());
+    }
+    prm::fsutil::write_bytes_atomic(&a.output, &bytes).with_context(|| format!("writing {}", a.output.display()))?;
+    let write_s = t.elapsed().as_secs_f64();
+    let mut v = serde_json::to_value(&report)?;
+    v["scene"] = a.scene.scene.display().to_string().into();
+    v["output"] = a.output.display().to_string().into();
+    v["file_bytes"] = bytes.len().into();
+    v["seconds_write"] = write_s.into();
+    v["seconds_wall"] = start.elapsed().as_secs_f64().into();
+    v["peak_memory_bytes"] = peak_rss().map_or(serde_json::Value::Null, |b| b.into());
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{} -> {}: {} entries, {} clusters, {} texels, {} ({}), {:.2} s (transport {:.2} s, {:.2} Mrays/s), {} tiles kept, {} dropped ({:.3} % of energy), {:.1} MB",
+            a.scene.scene.display(),
+            a.output.display(),
+            report.entries,
+            report.clusters,
+            report.texels,
+            report.estimator,
+            json!(report.paths),
+            report.seconds_total,
+            report.seconds_transport,
+            report.rays_per_second / 1e6,
+            report.tiles_kept,
+            report.tiles_dropped,
+            100.0 * report.dropped_energy,
+            bytes.len() as f64 / 1e6
+        );
+        if report.walks_truncated > 0 || report.unowned_vertices > 0 {
+            println!("  note: {} walks cut at the bounce cap, {} path vertices with no owning entry (their light is lost)", report.walks_truncated, report.unowned_vertices);
+        }
+    }
+    Ok(())
+}
+
+/// Peak resident memory of this process, from /proc (Linux); `None` elsewhere.
+fn peak_rss() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}

@@ -1,0 +1,217 @@
+//! `prm precompute`: a level becomes a precomputed radiance map (DESIGN.md §4, paper 004).
+//!
+//! Phases: entry points -> clustering -> light transport (the panes' contents) -> pane atlases.
+//! Every random stream is seeded from (seed, purpose, index), so the result is the same bytes
+//! at any thread count.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use prm::prm_file::{scene_fingerprint, Header, Prm};
+use prm::{Bvh, Scene, TexelSet};
+use serde::Serialize;
+
+use crate::cluster::{centroids, cluster_entries};
+use crate::entries::sample_entries;
+use crate::panes::tile_panes;
+use crate::transport::{Cancelled, Estimator, Transport};
+
+/// Precompute parameters. Every field has a unit and a default; presets set them together.
+#[derive(Clone, Debug)]
+pub struct PrecomputeParams {
+    /// Entry points N (default 4096).
+    pub entries: u32,
+    /// Light paths: per texel for the gather estimator, per entry for scatter (default 64).
+    pub paths: u32,
+    /// Clusters C, one pane each (default 256; at most N).
+    pub clusters: u32,
+    /// Atlas width and height in texels (default 256).
+    pub atlas: u32,
+    /// Seed of every random stream.
+    pub seed: u64,
+    /// How panes are estimated (default gather; see `transport`).
+    pub estimator: Estimator,
+    /// Pane tile side in texels (default 16).
+    pub tile_size: u32,
+    /// Relative energy of a pane its dropped tiles may hold (default 1e-2).
+    pub drop_threshold: f64,
+    /// Hard cap on walk length (walks cut there are counted in the report; default 1000).
+    pub max_bounces: u32,
+    /// k-means iterations (default 30).
+    pub kmeans_iterations: u32,
+}
+
+impl PrecomputeParams {
+    /// Fast, noisier: for iterating on a level.
+    pub fn preview() -> Self {
+        PrecomputeParams { entries: 1024, paths: 16, clusters: 64, ..Self::production() }
+    }
+    /// The DESIGN.md §9 configuration.
+    pub fn production() -> Self {
+        PrecomputeParams {
+            entries: 4096,
+            paths: 64,
+            clusters: 256,
+            atlas: 256,
+            seed: 0,
+            estimator: Estimator::Gather,
+            tile_size: 16,
+            drop_threshold: 1e-2,
+            max_bounces: 1000,
+            kmeans_iterations: 30,
+        }
+    }
+
+    /// Reject absurd values with a message naming the parameter.
+    pub fn validate(&self) -> Result<(), String> {
+        let check = |ok: bool, msg: String| if ok { Ok(()) } else { Err(msg) };
+        check((1..=1 << 20).contains(&self.entries), format!("entries {} must be 1 to 1048576", self.entries))?;
+        check((1..=1 << 16).contains(&self.paths), format!("paths {} must be 1 to 65536", self.paths))?;
+        check((1..=65536).contains(&self.clusters), format!("clusters {} must be 1 to 65536", self.clusters))?;
+        check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
+        check((1..=1024).contains(&self.tile_size), format!("tile size {} must be 1 to 1024", self.tile_size))?;
+        check((0.0..0.5).contains(&self.drop_threshold), format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold))?;
+        check(self.max_bounces >= 1, "max bounces must be at least 1".into())?;
+        if let Estimator::Scatter { clamp } = self.estimator {
+            check(clamp.is_finite() && clamp >= 0.0, format!("clamp {clamp} must be finite and >= 0"))?;
+        }
+        Ok(())
+    }
+}
+
+impl Default for PrecomputeParams {
+    fn default() -> Self {
+        Self::production()
+    }
+}
+
+/// The phases, for progress reporting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    Texels,
+    Entries,
+    Clustering,
+    Transport,
+    Panes,
+}
+
+/// What a precompute did and what it cost.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    pub estimator: String,
+    pub entries: u32,
+    pub clusters: u32,
+    pub paths: u32,
+    pub atlas: u32,
+    pub seed: u64,
+    pub texels: usize,
+    pub seconds_texels: f64,
+    pub seconds_entries: f64,
+    pub seconds_clustering: f64,
+    pub seconds_transport: f64,
+    pub seconds_panes: f64,
+    pub seconds_total: f64,
+    pub rays: usize,
+    pub rays_per_second: f64,
+    pub walks_truncated: usize,
+    pub unowned_vertices: usize,
+    pub virtual_lights: usize,
+    pub tiles_kept: u32,
+    pub tiles_dropped: u32,
+    pub dropped_energy: f64,
+    pub pane_bytes: usize,
+    pub threads: usize,
+}
+
+/// Run the precompute. `progress(phase, done, total)` is called as work completes; `cancel`
+/// stops it (no result).
+pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress: &(dyn Fn(Phase, usize, usize) + Sync), cancel: &AtomicBool) -> Result<(Prm, Report), Cancelled> {
+    let all = Instant::now();
+    let mut report = Report {
+        estimator: params.estimator.to_string(),
+        entries: params.entries,
+        paths: params.paths,
+        atlas: params.atlas,
+        seed: params.seed,
+        threads: rayon::current_num_threads(),
+        ..Default::default()
+    };
+    let t = Instant::now();
+    let set = TexelSet::build(scene, params.atlas, params.atlas);
+    report.texels = set.len();
+    report.seconds_texels = t.elapsed().as_secs_f64();
+    progress(Phase::Texels, 1, 1);
+
+    let t = Instant::now();
+    let entries = sample_entries(scene, params.entries as usize, params.seed);
+    report.seconds_entries = t.elapsed().as_secs_f64();
+    progress(Phase::Entries, 1, 1);
+    if cancel.load(Ordering::Relaxed) {
+        return Err(Cancelled);
+    }
+
+    let t = Instant::now();
+    let clustering = cluster_entries(&entries, params.clusters as usize, scene.total_area(), params.kmeans_iterations as usize, params.seed);
+    let cents = centroids(&entries, &clustering);
+    report.clusters = clustering.members.len() as u32;
+    report.seconds_clustering = t.elapsed().as_secs_f64();
+    progress(Phase::Clustering, 1, 1);
+    if cancel.load(Ordering::Relaxed) {
+        return Err(Cancelled);
+    }
+
+    let t = Instant::now();
+    let transport = Transport {
+        scene,
+        bvh,
+        entries: &entries,
+        assignment: &clustering.assignment,
+        clusters: clustering.members.len(),
+        paths: params.paths,
+        max_bounces: params.max_bounces,
+        seed: params.seed,
+        stats: Default::default(),
+    };
+    let n = set.len();
+    let texel_panes = transport.run(params.estimator, &set, &|done| progress(Phase::Transport, done, n), cancel)?;
+    report.seconds_transport = t.elapsed().as_secs_f64();
+    report.rays = transport.stats.rays.load(Ordering::Relaxed);
+    report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
+    report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
+    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
+
+    let t = Instant::now();
+    let tiled = tile_panes(&set, &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
+    drop(texel_panes);
+    report.seconds_panes = t.elapsed().as_secs_f64();
+    progress(Phase::Panes, 1, 1);
+    report.tiles_kept = tiled.tiles.len() as u32;
+    report.tiles_dropped = tiled.tiles_dropped;
+    report.dropped_energy = tiled.dropped_energy;
+    report.pane_bytes = tiled.data.len() * 2;
+    report.seconds_total = all.elapsed().as_secs_f64();
+    report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
+
+    let header = Header {
+        fingerprint: format!("{:016x}", scene_fingerprint(scene, params.atlas, params.atlas)),
+        atlas_width: params.atlas,
+        atlas_height: params.atlas,
+        tile_size: params.tile_size,
+        entries: entries.len() as u32,
+        clusters: tiled.clusters.len() as u32,
+        tiles: tiled.tiles.len() as u32,
+        tiles_dropped: tiled.tiles_dropped,
+        dropped_energy: tiled.dropped_energy,
+        drop_threshold: params.drop_threshold,
+        // Only what the inputs fix goes in the file: timings would break byte-for-byte
+        // determinism.
+        provenance: serde_json::json!({
+            "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
+            "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
+            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
+            "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
+        }),
+    };
+    let prm = Prm { header, entries, clusters: tiled.clusters, tiles: tiled.tiles, data: tiled.data };
+    Ok((prm, report))
+}

@@ -1,0 +1,273 @@
+//! The precompute against analytic answers and twins: the furnace, superposition, a
+//! brute-force scatter twin on a tiny scene, the file's bad-input errors, determinism.
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use glam::{Vec2, Vec3};
+use prm::prm_file::{Prm, PrmError};
+use prm::{Bvh, Scene, TexelSet};
+use prm_precompute::cluster::cluster_entries;
+use prm_precompute::entries::sample_entries;
+use prm_precompute::precompute::{precompute, PrecomputeParams};
+use prm_precompute::transport::{Estimator, Transport};
+
+/// Quads (counter-clockwise from the front) as one scene, each its own UV chart on a 4 x 4 grid.
+fn quads(qs: &[[Vec3; 4]], albedo: f32) -> Scene {
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, q) in qs.iter().enumerate() {
+        let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
+        let base = pos.len() as u32;
+        for (c, p) in q.iter().enumerate() {
+            pos.push(*p);
+            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            uv.push((cell + Vec2::splat(0.08) + corner * 0.84) / 4.0);
+        }
+        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    let mut s = Scene::from_mesh(pos, uv, &idx);
+    s.materials[0].albedo = Vec3::splat(albedo);
+    s
+}
+
+fn v(x: f32, y: f32, z: f32) -> Vec3 {
+    Vec3::new(x, y, z)
+}
+
+/// A closed unit box, faces inward.
+fn closed_box(albedo: f32) -> Scene {
+    quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        ],
+        albedo,
+    )
+}
+
+fn params(entries: u32, paths: u32, clusters: u32, atlas: u32) -> PrecomputeParams {
+    PrecomputeParams { entries, paths, clusters, atlas, ..PrecomputeParams::production() }
+}
+
+fn bake(scene: &Scene, p: &PrecomputeParams) -> Prm {
+    let bvh = Bvh::build(scene);
+    precompute(scene, &bvh, p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
+}
+
+/// Values at the covered texels of a full-atlas image.
+fn at_texels(set: &TexelSet, img: &[Vec3]) -> Vec<Vec3> {
+    set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect()
+}
+
+#[test]
+fn furnace_gives_a_over_one_minus_a_everywhere() {
+    // Gather walks in a closed grey box with roulette q = a: each walk credits a per vertex and
+    // has a geometric number of vertices (mean 1/(1-a)), so the expected indirect irradiance for
+    // unit entry irradiance everywhere is exactly a/(1-a), with per-walk variance
+    // a^2 a/(1-a)^2. The stored panes add half-float rounding (< 1e-3 relative).
+    for a in [0.5f32, 0.9] {
+        let scene = closed_box(a);
+        let p = params(512, 256, 24, 24);
+        let prm = bake(&scene, &p);
+        let set = TexelSet::build(&scene, 24, 24);
+        let img = prm.compose(&vec![Vec3::ONE; prm.clusters.len()]);
+        let vals = at_texels(&set, &img);
+        let want = a / (1.0 - a);
+        let sigma_walk = a * (a).sqrt() / (1.0 - a);
+        let sigma_texel = sigma_walk / (p.paths as f32).sqrt();
+        let mean = vals.iter().map(|v| v.x).sum::<f32>() / vals.len() as f32;
+        let sigma_mean = sigma_texel / (vals.len() as f32).sqrt();
+        assert!((mean - want).abs() <= 4.0 * sigma_mean + 2e-3 * want, "a = {a}: mean {mean} vs {want} (sigma {sigma_mean})");
+        for (t, x) in set.texels.iter().zip(&vals) {
+            assert!((x.x - want).abs() <= 6.0 * sigma_texel + 2e-3 * want, "a = {a}: texel ({}, {}) {} vs {want}", t.i, t.j, x.x);
+            assert!((x.y - x.x).abs() <= 2e-3 * want, "grey box stays grey");
+        }
+    }
+}
+
+#[test]
+fn superposition_and_clustering_invariance() {
+    // An open box (floor and three walls) lit unevenly.
+    let scene = quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        ],
+        0.7,
+    );
+    let bvh = Bvh::build(&scene);
+    let p = params(256, 32, 12, 20);
+    let prm = bake(&scene, &p);
+    let set = TexelSet::build(&scene, 20, 20);
+    let weights: Vec<Vec3> = (0..prm.clusters.len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
+    let composed = at_texels(&set, &prm.compose(&weights));
+    // The same walks evaluated directly for that field.
+    let entries = sample_entries(&scene, 256, p.seed);
+    let clustering = cluster_entries(&entries, 12, scene.total_area(), p.kmeans_iterations as usize, p.seed);
+    assert_eq!(clustering.members.len(), prm.clusters.len());
+    let tr = Transport { scene: &scene, bvh: &bvh, entries: &entries, assignment: &clustering.assignment, clusters: clustering.members.len(), paths: p.paths, max_bounces: p.max_bounces, seed: p.seed, stats: Default::default() };
+    let direct = tr.gather_field(&set, &weights);
+    let peak = direct.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
+    for (a, b) in composed.iter().zip(&direct) {
+        // Half floats carry 11 bits; tiles share a colour, exact here (grey albedo).
+        assert!((*a - *b).abs().max_element() <= 2e-3 * peak, "{a} vs {b}");
+    }
+    // With uniform weights the sum of all panes does not depend on the clustering: C = N
+    // (each entry its own cluster) and C = 12 give the same lightmap.
+    let ones = |prm: &Prm| at_texels(&set, &prm.compose(&vec![Vec3::ONE; prm.clusters.len()]));
+    let per_entry = bake(&scene, &params(256, 32, 256, 20));
+    assert_eq!(per_entry.clusters.len(), 256);
+    assert!(per_entry.clusters.iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
+    for (a, b) in ones(&per_entry).iter().zip(&ones(&prm)) {
+        assert!((*a - *b).abs().max_element() <= 3e-3 * peak.max(1.0), "{a} vs {b}");
+    }
+}
+
+#[test]
+fn gather_agrees_with_a_brute_force_scatter_twin() {
+    // Floor lit, walls dark: the walls' indirect light is the floor's first bounce.
+    let scene = quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+        ],
+        0.6,
+    );
+    let set = TexelSet::build(&scene, 16, 16);
+    let prm = bake(&scene, &params(1024, 1024, 16, 16));
+    let e: Vec<Vec3> = prm.entries.iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
+    let fast = at_texels(&set, &prm.compose(&prm.cluster_weights(&e)));
+
+    // Twin: paper 004's virtual lights from independent entries, unclamped, brute-force
+    // visibility, no clustering; sixteen independent batches give its standard error.
+    let bvh = Bvh::build(&scene);
+    let batches = 16;
+    let mut runs = Vec::new();
+    for b in 0..batches {
+        let entries = sample_entries(&scene, 256, 1000 + b);
+        let mut img = vec![Vec3::ZERO; set.len()];
+        for en in entries.iter().filter(|en| en.normal.y > 0.5) {
+            // One walk per entry: the entry's own light (l = 0), then its bounces.
+            let mut lights = vec![(en.position, en.normal, en.albedo * en.area)];
+            let mut rng = prm_precompute::entries::stream(b, 9, lights.len() as u64 + (en.position.x.to_bits() as u64));
+            let (mut x, mut n, mut phi) = (en.position, en.normal, en.albedo * en.area);
+            loop {
+                use rand::Rng;
+                let d = prm_precompute::ground_truth::cosine_direction(n, rng.random(), rng.random());
+                let Some(h) = bvh.closest_hit_brute_force(x + n * 1e-5, d, f32::INFINITY) else { break };
+                let t = h.triangle as usize;
+                let nh = scene.face_normal(t);
+                if nh.dot(d) > 0.0 {
+                    break;
+                }
+                let a = scene.albedo(t, h.bary());
+                phi *= a;
+                let y = scene.point(t, h.bary());
+                lights.push((y, nh, phi));
+                let q = prm::luminance(a);
+                if rng.random::<f32>() >= q {
+                    break;
+                }
+                phi /= q;
+                (x, n) = (y, nh);
+            }
+            for (k, tx) in set.texels.iter().enumerate() {
+                for &(z, nz, f) in &lights {
+                    let d = tx.position - z;
+                    let r2 = d.length_squared();
+                    let (cz, cx) = (nz.dot(d) / r2.sqrt(), -tx.normal.dot(d) / r2.sqrt());
+                    if cz <= 0.0 || cx <= 0.0 {
+                        continue;
+                    }
+                    let o = z + nz * 1e-5;
+                    let dist = (tx.position + tx.normal * 1e-5 - o).length();
+                    let dir = (tx.position + tx.normal * 1e-5 - o) / dist;
+                    if bvh.closest_hit_brute_force(o, dir, dist).is_some() {
+                        continue;
+                    }
+                    img[k] += f * (cz * cx / (std::f32::consts::PI * r2));
+                }
+            }
+        }
+        runs.push(img);
+    }
+    // Compare per wall (the floor's own indirect light is its second bounce off the walls).
+    for wall in [2u32, 4] {
+        let ks: Vec<usize> = (0..set.len()).filter(|&k| set.texels[k].triangle / 2 == wall / 2).collect();
+        let mean_of = |img: &[Vec3]| ks.iter().map(|&k| img[k].x).sum::<f32>() / ks.len() as f32;
+        let batch_means: Vec<f32> = runs.iter().map(|r| mean_of(r)).collect();
+        let twin = batch_means.iter().sum::<f32>() / batches as f32;
+        let var = batch_means.iter().map(|m| (m - twin).powi(2)).sum::<f32>() / (batches - 1) as f32;
+        let se = (var / batches as f32).sqrt();
+        let ours = mean_of(&fast);
+        assert!((ours - twin).abs() <= 3.0 * se + 0.02 * twin, "wall {wall}: gather {ours} vs twin {twin} (se {se})");
+        assert!(twin > 0.01);
+    }
+}
+
+fn write_read(dir: &Path, name: &str, bytes: &[u8], scene: Option<&Scene>) -> Result<Prm, PrmError> {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    Prm::read(&p, scene)
+}
+
+#[test]
+fn bad_prm_files_get_their_errors() {
+    let scene = closed_box(0.5);
+    let prm = bake(&scene, &params(64, 4, 8, 16));
+    let bytes = prm.to_bytes();
+    let dir = tempfile::tempdir().unwrap();
+    assert_eq!(write_read(dir.path(), "ok.prm", &bytes, Some(&scene)).unwrap(), prm);
+    assert!(matches!(write_read(dir.path(), "trunc.prm", &bytes[..bytes.len() / 2], None), Err(PrmError::Checksum { .. } | PrmError::Truncated { .. })));
+    assert!(matches!(write_read(dir.path(), "tiny.prm", &bytes[..5], None), Err(PrmError::Truncated { .. })));
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x40;
+    assert!(matches!(write_read(dir.path(), "flip.prm", &flipped, None), Err(PrmError::Checksum { .. })));
+    let mut version = bytes.clone();
+    version[8] = 7;
+    assert!(matches!(write_read(dir.path(), "v7.prm", &version, None), Err(PrmError::Version { found: 7, .. })));
+    assert!(matches!(write_read(dir.path(), "magic.prm", b"glTF and then some bytes", None), Err(PrmError::Magic { .. })));
+    let other = closed_box(0.6);
+    let err = write_read(dir.path(), "other.prm", &bytes, Some(&other)).unwrap_err();
+    assert!(matches!(err, PrmError::WrongScene { .. }) && err.to_string().contains("another scene"), "{err}");
+    // A corrupt but correctly checksummed body is still caught by the bounds checks.
+    let mut evil = prm.clone();
+    evil.tiles[0].cluster = 99;
+    assert!(matches!(Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()), Err(PrmError::Corrupt { .. })));
+    let mut evil = prm.clone();
+    evil.clusters[0].members.push(10_000);
+    assert!(matches!(Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()), Err(PrmError::Corrupt { .. })));
+    assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
+}
+
+#[test]
+fn same_bytes_at_one_and_two_threads() {
+    let scene = closed_box(0.7);
+    for est in [Estimator::Gather, Estimator::Scatter { clamp: 0.5 }] {
+        let p = PrecomputeParams { estimator: est, ..params(128, 8, 10, 16) };
+        let run = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| bake(&scene, &p).to_bytes());
+        assert!(run(1) == run(2), "{est}: output differs between 1 and 2 threads");
+    }
+}
+
+#[test]
+fn absurd_parameters_are_refused() {
+    for p in [
+        PrecomputeParams { entries: 0, ..PrecomputeParams::preview() },
+        PrecomputeParams { clusters: 0, ..PrecomputeParams::preview() },
+        PrecomputeParams { atlas: 100_000, ..PrecomputeParams::preview() },
+        PrecomputeParams { drop_threshold: 0.9, ..PrecomputeParams::preview() },
+        PrecomputeParams { estimator: Estimator::Scatter { clamp: f32::NAN }, ..PrecomputeParams::preview() },
+    ] {
+        assert!(p.validate().is_err());
+    }
+    assert!(PrecomputeParams::production().validate().is_ok());
+}
