@@ -12,8 +12,10 @@
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
+//!     MASK  ceil(W x H / 8) B: bit (j W + i) set where a texel is stored (covered or dilated)
 //!     TILE  K x 20 B: cluster u32, tile index u32, colour scale (3 x f32)
-//!     DATA  K x tile_size^2 f16: per-texel intensity in [0, 1], tiles in TILE order
+//!     DATA  f16 per-texel intensity in [0, 1]: for each tile in TILE order, its masked texels
+//!           in row-major order (empty atlas texels are not stored)
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -111,8 +113,21 @@ pub struct Prm {
     pub entries: Vec<Entry>,
     pub clusters: Vec<Cluster>,
     pub tiles: Vec<Tile>,
-    /// Half-float intensities of all tiles, `tile_size^2` per tile, in tile order.
+    /// Stored-texel mask of the atlas, one bit per texel, row-major (covered or dilated).
+    pub mask: Vec<u8>,
+    /// Half-float intensities of all tiles' masked texels, in tile order.
     pub data: Vec<f16>,
+}
+
+/// Pack a per-texel boolean mask into bits.
+pub fn pack_mask(mask: &[bool]) -> Vec<u8> {
+    let mut out = vec![0u8; mask.len().div_ceil(8)];
+    for (k, &m) in mask.iter().enumerate() {
+        if m {
+            out[k / 8] |= 1 << (k % 8);
+        }
+    }
+    out
 }
 
 /// What can be wrong with a `.prm` file.
@@ -167,9 +182,39 @@ pub fn scene_fingerprint(scene: &Scene, width: u32, height: u32) -> u64 {
 }
 
 impl Prm {
-    /// Texels per tile.
-    pub fn tile_texels(&self) -> usize {
-        (self.header.tile_size as usize).pow(2)
+    /// True when atlas texel `k` (row-major) is stored.
+    #[inline]
+    pub fn stored(&self, k: usize) -> bool {
+        self.mask[k / 8] & (1 << (k % 8)) != 0
+    }
+
+    /// Atlas texels (row-major indices) stored for tile `index`, in storage order.
+    pub fn tile_texel_list(&self, index: u32) -> Vec<usize> {
+        let ts = self.header.tile_size as usize;
+        let (w, h) = (self.header.atlas_width as usize, self.header.atlas_height as usize);
+        let tx = self.tiles_x() as usize;
+        let (ti, tj) = (index as usize % tx, index as usize / tx);
+        let mut out = Vec::new();
+        for j in tj * ts..((tj + 1) * ts).min(h) {
+            for i in ti * ts..((ti + 1) * ts).min(w) {
+                if self.stored(j * w + i) {
+                    out.push(j * w + i);
+                }
+            }
+        }
+        out
+    }
+
+    /// Start of each tile's data in [`Prm::data`], and the total length.
+    pub fn tile_offsets(&self) -> (Vec<usize>, usize) {
+        let counts: Vec<usize> = (0..self.tiles_x() * self.tiles_y()).map(|i| self.tile_texel_list(i).len()).collect();
+        let mut offsets = Vec::with_capacity(self.tiles.len());
+        let mut at = 0;
+        for t in &self.tiles {
+            offsets.push(at);
+            at += counts.get(t.index as usize).copied().unwrap_or(0);
+        }
+        (offsets, at)
     }
 
     /// Tiles across the atlas.
@@ -184,27 +229,18 @@ impl Prm {
 
     /// Add `weight x pane_c` into a full-atlas image (row-major, W x H).
     pub fn add_pane(&self, c: usize, weight: Vec3, img: &mut [Vec3]) {
+        let (offsets, _) = self.tile_offsets();
+        self.add_pane_with(c, weight, img, &offsets);
+    }
+
+    /// [`Prm::add_pane`] with precomputed [`Prm::tile_offsets`].
+    pub fn add_pane_with(&self, c: usize, weight: Vec3, img: &mut [Vec3], offsets: &[usize]) {
         let cl = &self.clusters[c];
-        let ts = self.header.tile_size as usize;
-        let (w, h) = (self.header.atlas_width as usize, self.header.atlas_height as usize);
-        let tx = self.tiles_x() as usize;
         for k in cl.first_tile as usize..(cl.first_tile + cl.tile_count) as usize {
             let tile = &self.tiles[k];
-            let (ti, tj) = (tile.index as usize % tx, tile.index as usize / tx);
-            let base = k * self.tile_texels();
             let s = weight * tile.scale;
-            for y in 0..ts {
-                let j = tj * ts + y;
-                if j >= h {
-                    break;
-                }
-                for x in 0..ts {
-                    let i = ti * ts + x;
-                    if i >= w {
-                        break;
-                    }
-                    img[j * w + i] += s * self.data[base + y * ts + x].to_f32();
-                }
+            for (n, texel) in self.tile_texel_list(tile.index).into_iter().enumerate() {
+                img[texel] += s * self.data[offsets[k] + n].to_f32();
             }
         }
     }
@@ -214,9 +250,10 @@ impl Prm {
     pub fn compose(&self, weights: &[Vec3]) -> Vec<Vec3> {
         assert_eq!(weights.len(), self.clusters.len());
         let mut img = vec![Vec3::ZERO; (self.header.atlas_width * self.header.atlas_height) as usize];
+        let (offsets, _) = self.tile_offsets();
         for (c, w) in weights.iter().enumerate() {
             if *w != Vec3::ZERO {
-                self.add_pane(c, *w, &mut img);
+                self.add_pane_with(c, *w, &mut img, &offsets);
             }
         }
         img
@@ -289,6 +326,7 @@ impl Prm {
         }
         section(b"CLUS", c);
         section(b"MEMB", m);
+        section(b"MASK", self.mask.clone());
         let mut t = Vec::with_capacity(self.tiles.len() * 20);
         for tile in &self.tiles {
             t.extend_from_slice(&tile.cluster.to_le_bytes());
@@ -391,6 +429,10 @@ impl Prm {
         if let Some(bad) = members.iter().find(|&&x| x as usize >= entries.len()) {
             return Err(corrupt(format!("member {bad} is not an entry (there are {})", entries.len())));
         }
+        let mask = next(b"MASK")?.to_vec();
+        if mask.len() as u64 != (header.atlas_width as u64 * header.atlas_height as u64).div_ceil(8) {
+            return Err(corrupt(format!("mask is {} bytes for a {}x{} atlas", mask.len(), header.atlas_width, header.atlas_height)));
+        }
         let t = next(b"TILE")?;
         if t.len() as u64 != header.tiles as u64 * 20 {
             return Err(corrupt(format!("{} tiles declared, {} bytes of tiles", header.tiles, t.len())));
@@ -415,14 +457,15 @@ impl Prm {
             clusters.push(Cluster { members: members[first..first + count].to_vec(), centroid: v3(b, 8), energy: f32_at(b, 20), first_tile: ft, tile_count: tc });
         }
         let d = next(b"DATA")?;
-        let want = header.tiles as u64 * (header.tile_size as u64).pow(2) * 2;
-        if d.len() as u64 != want {
-            return Err(corrupt(format!("tile data is {} bytes, {} tiles need {want}", d.len(), header.tiles)));
-        }
-        let data: Vec<f16> = d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect();
         if at != body.len() {
             return Err(corrupt(format!("{} unexpected bytes after the last section", body.len() - at)));
         }
-        Ok(Prm { header, entries, clusters, tiles, data })
+        let mut prm = Prm { header, entries, clusters, tiles, mask, data: Vec::new() };
+        let (_, want) = prm.tile_offsets();
+        if d.len() as u64 != want as u64 * 2 {
+            return Err(corrupt(format!("tile data is {} bytes, the tiles' masked texels need {}", d.len(), want * 2)));
+        }
+        prm.data = d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect();
+        Ok(prm)
     }
 }

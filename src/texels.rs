@@ -167,6 +167,60 @@ impl TexelSet {
         }
     }
 
+    /// Geometry-guided smoothing weights: for each covered texel, the covered texels within
+    /// `radius` (in texels) that lie on the same surface (normals within ~25 degrees, off each
+    /// other's plane by under a quarter of the filter's world size, and no farther in the world
+    /// than the filter's footprint), with Gaussian weights that sum to one. Weights depend on
+    /// geometry only, so smoothing is linear: smoothing panes then summing them equals summing
+    /// then smoothing.
+    pub fn smoothing_kernel(&self, scene: &Scene, radius: u32) -> Vec<Vec<(u32, f32)>> {
+        let r = radius as i64;
+        let (w, h) = (self.width as i64, self.height as i64);
+        let texel_size: Vec<f32> = self
+            .texels
+            .iter()
+            .map(|t| {
+                let uv = scene.uv1_corners(t.triangle as usize);
+                let uv_area = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (w * h) as f32;
+                (scene.area(t.triangle as usize) / uv_area.max(1e-12)).sqrt()
+            })
+            .collect();
+        let sigma2 = (0.5 * radius as f32 + 0.5).powi(2);
+        self.texels
+            .par_iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let reach = (radius as f32 + 1.5) * texel_size[k];
+                let mut taps = Vec::new();
+                let mut total = 0.0;
+                for dj in -r..=r {
+                    for di in -r..=r {
+                        let (i, j) = (t.i as i64 + di, t.j as i64 + dj);
+                        if i < 0 || j < 0 || i >= w || j >= h {
+                            continue;
+                        }
+                        let n = self.index[(j * w + i) as usize];
+                        if n == Self::EMPTY {
+                            continue;
+                        }
+                        let o = &self.texels[n as usize];
+                        let d = o.position - t.position;
+                        if o.normal.dot(t.normal) < 0.9 || d.dot(t.normal).abs() > 0.25 * reach || d.length() > reach {
+                            continue;
+                        }
+                        let wgt = (-((di * di + dj * dj) as f32) / (2.0 * sigma2)).exp();
+                        taps.push((n, wgt));
+                        total += wgt;
+                    }
+                }
+                for tap in &mut taps {
+                    tap.1 /= total;
+                }
+                taps
+            })
+            .collect()
+    }
+
     fn dilation_ring(&self) -> Vec<Dilation> {
         let (w, h) = (self.width as i64, self.height as i64);
         let covered = |i: i64, j: i64| i >= 0 && j >= 0 && i < w && j < h && self.index[(j * w + i) as usize] != Self::EMPTY;

@@ -24,6 +24,8 @@ pub enum EstimatorArg {
     Gather,
     /// Paper 004's virtual point lights with a clamped 1/r².
     Scatter,
+    /// Gather walks plus one entry per cluster, first bounce combined by MIS.
+    Mis,
 }
 
 #[derive(clap::Args)]
@@ -57,6 +59,12 @@ pub struct Args {
     /// Scatter only: 1/r² is clamped below (clamp x entry spacing)².
     #[arg(long, default_value_t = 0.5)]
     clamp: f32,
+    /// Pane tile side in texels.
+    #[arg(long)]
+    tile_size: Option<u32>,
+    /// Radius in texels of the geometry-guided pane smoothing (0: none).
+    #[arg(long)]
+    smooth: Option<u32>,
     /// Relative energy of a pane its dropped tiles may hold.
     #[arg(long)]
     drop_threshold: Option<f64>,
@@ -79,10 +87,13 @@ pub fn run(a: Args) -> Result<()> {
     p.atlas = a.atlas.unwrap_or(p.atlas);
     p.seed = a.seed.unwrap_or(p.seed);
     p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
+    p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
+    p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {
         p.estimator = match e {
             EstimatorArg::Gather => Estimator::Gather,
             EstimatorArg::Scatter => Estimator::Scatter { clamp: a.clamp },
+            EstimatorArg::Mis => Estimator::Mis,
         };
     }
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;

@@ -121,3 +121,38 @@ fn info_reports_the_chamber() {
     assert_eq!(v["uv"]["overlapping_pairs"], 0);
     assert!(v["texels"]["covered"].as_u64().unwrap() > 10_000);
 }
+
+#[test]
+fn precompute_evaluate_and_export_panes() {
+    let dir = tempfile::tempdir().unwrap();
+    let prm_path = dir.path().join("c.prm");
+    let (ok, out, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "--json", "-o", s(&prm_path)]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["entries"], 1024);
+    assert!(v["file_bytes"].as_u64().unwrap() == std::fs::metadata(&prm_path).unwrap().len());
+    for key in ["seconds_entries", "seconds_clustering", "seconds_transport", "seconds_panes", "rays_per_second", "tiles_kept", "tiles_dropped"] {
+        assert!(v[key].is_number(), "summary lacks {key}");
+    }
+    let lm = dir.path().join("lm.exr");
+    let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "-o", s(&lm)]);
+    assert!(ok, "{err}");
+    let c = Channels::read(&lm).unwrap();
+    let mask = c.get("mask").unwrap();
+    let rgb = c.rgb("").unwrap();
+    assert!(rgb.iter().all(|v| v.is_finite() && v.min_element() >= 0.0));
+    let lit = rgb.iter().zip(mask).filter(|(v, &m)| m > 0.5 && v.max_element() > 0.0).count();
+    assert!(lit * 10 >= mask.iter().filter(|&&m| m > 0.5).count() * 9, "most texels get indirect light");
+    let panes = dir.path().join("panes");
+    let (ok, out, err) = prm(&["export-panes", s(&prm_path), "-o", s(&panes)]);
+    assert!(ok && out.contains("64 panes"), "{out}{err}");
+    assert_eq!(std::fs::read_dir(&panes).unwrap().count(), 4);
+    // A map baked for one scene is refused for another.
+    let (ok, _, err) = prm(&["evaluate", &asset("two_rooms.glb"), "--prm", s(&prm_path), "-o", s(&dir.path().join("x.exr"))]);
+    assert!(!ok && err.contains("another scene"), "{err}");
+    // Absurd parameters are refused before any work, and nothing is written.
+    let bad = dir.path().join("bad.prm");
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--entries", "0", "-o", s(&bad)]);
+    assert!(!ok && err.contains("entries 0"), "{err}");
+    assert!(!bad.exists());
+}

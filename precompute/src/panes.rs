@@ -20,6 +20,8 @@ use crate::transport::TexelPanes;
 /// Tiles and their data for all clusters, plus drop statistics.
 pub struct Tiled {
     pub clusters: Vec<Cluster>,
+    /// Stored-texel mask (covered or dilated), packed.
+    pub mask: Vec<u8>,
     pub tiles: Vec<Tile>,
     pub data: Vec<f16>,
     pub tiles_dropped: u32,
@@ -27,11 +29,15 @@ pub struct Tiled {
 }
 
 /// Build the pane atlases. `members` are the clusters' entries; `centroids` their means.
-pub fn tile_panes(set: &TexelSet, texel_panes: &[TexelPanes], members: &[Vec<u32>], centroids: &[Vec3], tile_size: u32, drop_threshold: f64) -> Tiled {
+pub fn tile_panes(set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, texel_panes: &[TexelPanes], members: &[Vec<u32>], centroids: &[Vec3], tile_size: u32, drop_threshold: f64) -> Tiled {
     let c_count = members.len();
     let (w, h) = (set.width as usize, set.height as usize);
     let ts = tile_size as usize;
     let (tx, ty) = (w.div_ceil(ts), h.div_ceil(ts));
+    let mut stored = set.mask();
+    for d in &set.dilation {
+        stored[d.target as usize] = true;
+    }
 
     // Transpose texel-major contributions to cluster-major lists.
     let mut counts = vec![0usize; c_count];
@@ -67,6 +73,15 @@ pub fn tile_panes(set: &TexelSet, texel_panes: &[TexelPanes], members: &[Vec<u32
             for &(k, v) in &by_cluster[start[c]..start[c + 1]] {
                 let t = &set.texels[k as usize];
                 img[t.j as usize * w + t.i as usize] = v;
+            }
+            if let Some(kernel) = kernel {
+                let smoothed: Vec<Vec3> = kernel
+                    .iter()
+                    .map(|taps| taps.iter().map(|&(n, wgt)| { let o = &set.texels[n as usize]; img[o.j as usize * w + o.i as usize] * wgt }).fold(Vec3::ZERO, |a, b| a + b))
+                    .collect();
+                for (t, v) in set.texels.iter().zip(smoothed) {
+                    img[t.j as usize * w + t.i as usize] = v;
+                }
             }
             set.dilate(&mut img);
             let energy: f64 = set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
@@ -109,10 +124,11 @@ pub fn tile_panes(set: &TexelSet, texel_panes: &[TexelPanes], members: &[Vec<u32
                 .map(|(&(index, _), _)| {
                     let (i, j) = (index as usize % tx, index as usize / tx);
                     let mut vals = Vec::with_capacity(ts * ts);
-                    for y in 0..ts {
-                        for x in 0..ts {
-                            let (px, py) = (i * ts + x, j * ts + y);
-                            vals.push(if px < w && py < h { img[py * w + px] } else { Vec3::ZERO });
+                    for py in j * ts..((j + 1) * ts).min(h) {
+                        for px in i * ts..((i + 1) * ts).min(w) {
+                            if stored[py * w + px] {
+                                vals.push(img[py * w + px]);
+                            }
                         }
                     }
                     // Colour: the tile's mean chromaticity (luminance 1); intensity: luminance
@@ -128,7 +144,7 @@ pub fn tile_panes(set: &TexelSet, texel_panes: &[TexelPanes], members: &[Vec<u32
         })
         .collect();
 
-    let mut out = Tiled { clusters: Vec::with_capacity(c_count), tiles: Vec::new(), data: Vec::new(), tiles_dropped: 0, dropped_energy: 0.0 };
+    let mut out = Tiled { clusters: Vec::with_capacity(c_count), mask: prm::prm_file::pack_mask(&stored), tiles: Vec::new(), data: Vec::new(), tiles_dropped: 0, dropped_energy: 0.0 };
     let (mut dropped_e, mut total_e) = (0.0f64, 0.0f64);
     for (c, p) in panes.into_iter().enumerate() {
         out.clusters.push(Cluster {

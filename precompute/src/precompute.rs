@@ -21,7 +21,7 @@ use crate::transport::{Cancelled, Estimator, Transport};
 pub struct PrecomputeParams {
     /// Entry points N (default 4096).
     pub entries: u32,
-    /// Light paths: per texel for the gather estimator, per entry for scatter (default 64).
+    /// Light paths: per texel for the gather estimator, per entry for scatter (default 128).
     pub paths: u32,
     /// Clusters C, one pane each (default 256; at most N).
     pub clusters: u32,
@@ -39,18 +39,20 @@ pub struct PrecomputeParams {
     pub max_bounces: u32,
     /// k-means iterations (default 30).
     pub kmeans_iterations: u32,
+    /// Radius in texels of the geometry-guided smoothing applied to every pane (0: none; default 1).
+    pub smooth_radius: u32,
 }
 
 impl PrecomputeParams {
     /// Fast, noisier: for iterating on a level.
     pub fn preview() -> Self {
-        PrecomputeParams { entries: 1024, paths: 16, clusters: 64, ..Self::production() }
+        PrecomputeParams { entries: 1024, paths: 32, clusters: 64, ..Self::production() }
     }
     /// The DESIGN.md §9 configuration.
     pub fn production() -> Self {
         PrecomputeParams {
             entries: 4096,
-            paths: 64,
+            paths: 128,
             clusters: 256,
             atlas: 256,
             seed: 0,
@@ -59,6 +61,7 @@ impl PrecomputeParams {
             drop_threshold: 1e-2,
             max_bounces: 1000,
             kmeans_iterations: 30,
+            smooth_radius: 1,
         }
     }
 
@@ -72,6 +75,7 @@ impl PrecomputeParams {
         check((1..=1024).contains(&self.tile_size), format!("tile size {} must be 1 to 1024", self.tile_size))?;
         check((0.0..0.5).contains(&self.drop_threshold), format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold))?;
         check(self.max_bounces >= 1, "max bounces must be at least 1".into())?;
+        check(self.smooth_radius <= 16, format!("smooth radius {} must be 0 to 16", self.smooth_radius))?;
         if let Estimator::Scatter { clamp } = self.estimator {
             check(clamp.is_finite() && clamp >= 0.0, format!("clamp {clamp} must be finite and >= 0"))?;
         }
@@ -181,7 +185,8 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
     report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
 
     let t = Instant::now();
-    let tiled = tile_panes(&set, &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
+    let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
+    let tiled = tile_panes(&set, kernel.as_deref(), &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
     drop(texel_panes);
     report.seconds_panes = t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
@@ -208,10 +213,10 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
         provenance: serde_json::json!({
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
-            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
+            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations, "smooth_radius": params.smooth_radius,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
         }),
     };
-    let prm = Prm { header, entries, clusters: tiled.clusters, tiles: tiled.tiles, data: tiled.data };
+    let prm = Prm { header, entries, clusters: tiled.clusters, tiles: tiled.tiles, mask: tiled.mask, data: tiled.data };
     Ok((prm, report))
 }
