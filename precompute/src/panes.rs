@@ -3,8 +3,10 @@
 //!
 //! **Dropping tiles.** A cluster's light reaches mostly nearby surfaces; far tiles hold little.
 //! For each pane, tiles are sorted by energy (sum of texel luminance) and the smallest are left
-//! out while their total stays within `drop_threshold` of the pane's energy (default 1e-2: at
-//! most 1 % of every pane's light is lost). The file records the fraction dropped overall.
+//! out while their total stays within `drop_threshold` of the pane's energy (default 1e-3: at
+//! most 0.1 % of every pane's light is lost). The rule is relative to the pane, so the light a
+//! cluster sends into a dim room is a small share of its total and goes first: at 1e-2 the
+//! second room of two_rooms lost 12 % of its indirect light, at 1e-3 none measurable. The file records the fraction dropped overall.
 //!
 //! Panes are dilated before tiling (the dilation of [`prm::TexelSet`] is linear, so a sum of
 //! dilated panes is the dilated sum): the runtime's bilinear lookups need no extra pass.

@@ -33,7 +33,7 @@ pub struct PrecomputeParams {
     pub estimator: Estimator,
     /// Pane tile side in texels (default 16).
     pub tile_size: u32,
-    /// Relative energy of a pane its dropped tiles may hold (default 1e-2).
+    /// Relative energy of a pane its dropped tiles may hold (default 1e-3).
     pub drop_threshold: f64,
     /// Hard cap on walk length (walks cut there are counted in the report; default 1000).
     pub max_bounces: u32,
@@ -58,7 +58,7 @@ impl PrecomputeParams {
             seed: 0,
             estimator: Estimator::Gather,
             tile_size: 16,
-            drop_threshold: 1e-2,
+            drop_threshold: 1e-3,
             max_bounces: 1000,
             kmeans_iterations: 30,
             smooth_radius: 1,

@@ -277,3 +277,31 @@ fn absurd_parameters_are_refused() {
     }
     assert!(PrecomputeParams::production().validate().is_ok());
 }
+
+#[test]
+fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
+    // Paper 004's estimator in the same furnace: the expectation of the virtual-light sum is
+    // a/(1-a) too (the l = 0 term is the first bounce), but single texels see 1/r² spikes, so
+    // only the mean over the box is checked (10 %); a clamp can only lower it.
+    let a = 0.5f32;
+    let scene = closed_box(a);
+    let mean_of = |clamp: f32| {
+        let p = PrecomputeParams { estimator: Estimator::Scatter { clamp }, smooth_radius: 0, ..params(2048, 8, 16, 16) };
+        let prm = bake(&scene, &p);
+        let set = TexelSet::build(&scene, 16, 16);
+        let vals = at_texels(&set, &prm.compose(&vec![Vec3::ONE; prm.clusters.len()]));
+        vals.iter().map(|v| v.x as f64).sum::<f64>() / vals.len() as f64
+    };
+    let want = (a / (1.0 - a)) as f64;
+    let free = mean_of(0.0);
+    assert!((free - want).abs() <= 0.1 * want, "unclamped scatter mean {free} vs {want}");
+    let clamped = mean_of(2.0);
+    assert!(clamped < free && clamped > 0.5 * want, "clamped {clamped} vs unclamped {free}");
+}
+
+#[test]
+fn a_cancelled_precompute_returns_nothing() {
+    let scene = closed_box(0.5);
+    let bvh = Bvh::build(&scene);
+    assert!(precompute(&scene, &bvh, &params(64, 4, 8, 16), &|_, _, _| {}, &AtomicBool::new(true)).is_err());
+}
