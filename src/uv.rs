@@ -35,17 +35,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
         .zip(&positions)
         .map(|(p, pos)| uvunwrap::MeshInput::new(pos, p.indices))
         .collect();
-    let options = uvunwrap::Options {
-        density: uvunwrap::Density::Auto { page_size: resolution },
-        padding: 2,
-        ..Default::default()
-    };
-    let atlas = uvunwrap::generate(&inputs, &options).map_err(|e| e.to_string())?;
-    if atlas.page_count != 1 {
-        return Err(format!("the charts need {} atlas pages at {resolution}^2; use a larger --atlas", atlas.page_count));
-    }
-    // uvunwrap crops the page to the rows it uses; keep texels square in our square atlas.
-    let v_scale = atlas.height as f32 / atlas.width as f32;
+    let (atlas, v_scale) = unwrap_meshes(&inputs, resolution)?;
     for (p, out) in prims.iter_mut().zip(&atlas.meshes) {
         let xref: Vec<usize> = out.vertices.iter().map(|v| v.xref as usize).collect();
         *p.positions = xref.iter().map(|&i| p.positions[i]).collect();
@@ -55,6 +45,23 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
         *p.indices = out.indices.clone();
     }
     Ok(())
+}
+
+/// Unwrap meshes into one square atlas page laid out for `resolution`^2 texels with 2 texels
+/// of padding. Returns the atlas and the factor to multiply its v by: uvunwrap crops the page
+/// to the rows it uses, and our atlas is square, so texels stay square.
+pub fn unwrap_meshes(inputs: &[uvunwrap::MeshInput<'_>], resolution: u32) -> Result<(uvunwrap::Atlas, f32), String> {
+    let options = uvunwrap::Options {
+        density: uvunwrap::Density::Auto { page_size: resolution },
+        padding: 2,
+        ..Default::default()
+    };
+    let atlas = uvunwrap::generate(inputs, &options).map_err(|e| e.to_string())?;
+    if atlas.page_count != 1 {
+        return Err(format!("the charts need {} atlas pages at {resolution}^2; use a larger --atlas", atlas.page_count));
+    }
+    let v_scale = atlas.height as f32 / atlas.width as f32;
+    Ok((atlas, v_scale))
 }
 
 /// Number of triangles with a lightmap UV outside [0, 1].

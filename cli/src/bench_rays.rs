@@ -27,14 +27,6 @@ pub struct Args {
     json: bool,
 }
 
-/// A unit direction from a cosine-weighted hemisphere around `n`.
-fn cosine_dir(n: Vec3, u1: f32, u2: f32) -> Vec3 {
-    let (t, b) = n.any_orthonormal_pair();
-    let r = u1.sqrt();
-    let phi = std::f32::consts::TAU * u2;
-    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize()
-}
-
 pub fn run(a: Args) -> Result<()> {
     if a.rays == 0 || a.rays > 1_000_000_000 {
         bail!("--rays {} is out of range (1 to 1e9)", a.rays);
@@ -52,7 +44,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(|_| {
             let t = &set.texels[rng.random_range(0..set.len())];
             let o = &set.texels[rng.random_range(0..set.len())];
-            let d = cosine_dir(t.normal, rng.random(), rng.random());
+            let d = prm_precompute::ground_truth::cosine_direction(t.normal, rng.random(), rng.random());
             (t.position, t.normal, d, o.position + o.normal * 0.0)
         })
         .collect();

@@ -114,16 +114,7 @@ impl Builder {
                 uvunwrap::MeshInput { polygons: Some(&p.polygon), ..uvunwrap::MeshInput::new(&p.positions, &p.indices) }
             })
             .collect();
-        let options = uvunwrap::Options {
-            density: uvunwrap::Density::Auto { page_size: resolution },
-            padding: 2,
-            ..Default::default()
-        };
-        let atlas = uvunwrap::generate(&inputs, &options).map_err(|e| e.to_string())?;
-        if atlas.page_count != 1 {
-            return Err(format!("charts need {} pages", atlas.page_count));
-        }
-        let v_scale = atlas.height as f32 / atlas.width as f32;
+        let (atlas, v_scale) = prm::uv::unwrap_meshes(&inputs, resolution)?;
         let mut scene = GlbScene { materials: self.materials, ..Default::default() };
         for (&m, out) in used.iter().zip(&atlas.meshes) {
             let p = &self.parts[m];

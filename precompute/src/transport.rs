@@ -333,6 +333,18 @@ impl<'a> Transport<'a> {
         Ok(out)
     }
 
+    /// Paper 004's Russian roulette after a vertex of albedo `a` at walk depth `depth`:
+    /// continue with probability q = luminance(a) and return q, or stop (also at the bounce
+    /// cap, which is counted).
+    fn roulette(&self, depth: u32, a: Vec3, rng: &mut impl Rng) -> Option<f32> {
+        if depth >= self.max_bounces {
+            self.stats.truncated.fetch_add(1, Ordering::Relaxed);
+            return None;
+        }
+        let q = luminance(a);
+        (q > 0.0 && rng.random::<f32>() < q).then_some(q)
+    }
+
     fn gather_texel(&self, scratch: &mut Scratch, t: &Texel, width: u32, owners: &OwnerMap, mis: Option<&MisTables>) -> TexelPanes {
         let mut rng = stream(self.seed, 3, t.j as u64 * width as u64 + t.i as u64);
         let k = self.paths.max(1);
@@ -372,14 +384,7 @@ impl<'a> Transport<'a> {
                     }
                 }
                 depth += 1;
-                if depth >= self.max_bounces {
-                    self.stats.truncated.fetch_add(1, Ordering::Relaxed);
-                    break;
-                }
-                let q = luminance(a);
-                if !(q > 0.0) || rng.random::<f32>() >= q {
-                    break;
-                }
+                let Some(q) = self.roulette(depth, a, &mut rng) else { break };
                 beta /= q;
                 x = y;
                 n = ny;
@@ -458,14 +463,7 @@ impl<'a> Transport<'a> {
                         }
                         out.push((y, ny, phi, c));
                         depth += 1;
-                        if depth >= self.max_bounces {
-                            self.stats.truncated.fetch_add(1, Ordering::Relaxed);
-                            break;
-                        }
-                        let q = luminance(a);
-                        if !(q > 0.0) || rng.random::<f32>() >= q {
-                            break;
-                        }
+                        let Some(q) = self.roulette(depth, a, &mut rng) else { break };
                         phi /= q;
                         x = y;
                         n = ny;
