@@ -52,3 +52,25 @@ pub fn sample_entries(scene: &Scene, n: usize, seed: u64) -> Vec<Entry> {
         })
         .collect()
 }
+
+/// Rays an entry sends to decide whether it is enclosed.
+const ENCLOSURE_RAYS: u32 = 16;
+
+/// True when the point is inside a solid: at least 3/4 of `ENCLOSURE_RAYS` cosine rays from it
+/// hit the back of a one-sided surface (floor under a plinth, a wall behind a dais). Such
+/// entries never receive light, and counted in a cluster's mean they would dim it.
+pub fn is_enclosed(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u64) -> bool {
+    let mut rng = stream(seed, 5, index);
+    let mut inside = 0;
+    for k in 0..ENCLOSURE_RAYS {
+        let u1 = (k as f32 + rng.random::<f32>()) / ENCLOSURE_RAYS as f32;
+        let d = crate::ground_truth::cosine_direction(e.normal, u1, rng.random());
+        if let Some(h) = bvh.trace_from_surface(e.position, e.normal, d) {
+            let t = h.triangle as usize;
+            if scene.face_normal(t).dot(d) > 0.0 && !scene.material(t).double_sided {
+                inside += 1;
+            }
+        }
+    }
+    inside * 4 >= ENCLOSURE_RAYS * 3
+}

@@ -12,7 +12,8 @@ use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
 use crate::cluster::{centroids, cluster_entries};
-use crate::entries::sample_entries;
+use crate::entries::{is_enclosed, sample_entries};
+use rayon::prelude::*;
 use crate::panes::tile_panes;
 use crate::transport::{Cancelled, Estimator, Transport};
 
@@ -109,6 +110,8 @@ pub struct Report {
     pub atlas: u32,
     pub seed: u64,
     pub texels: usize,
+    /// Entries dropped because they lie inside a solid.
+    pub entries_enclosed: usize,
     pub seconds_texels: f64,
     pub seconds_entries: f64,
     pub seconds_clustering: f64,
@@ -147,7 +150,11 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
     progress(Phase::Texels, 1, 1);
 
     let t = Instant::now();
-    let entries = sample_entries(scene, params.entries as usize, params.seed);
+    let sampled = sample_entries(scene, params.entries as usize, params.seed);
+    // Entries inside solids never see light; in a cluster's mean they would only dim it.
+    let enclosed: Vec<bool> = sampled.par_iter().enumerate().map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64)).collect();
+    let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
+    report.entries_enclosed = sampled.len() - entries.len();
     report.seconds_entries = t.elapsed().as_secs_f64();
     progress(Phase::Entries, 1, 1);
     if cancel.load(Ordering::Relaxed) {
@@ -215,6 +222,7 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations, "smooth_radius": params.smooth_radius,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
+            "entries_enclosed": report.entries_enclosed,
         }),
     };
     let prm = Prm { header, entries, clusters: tiled.clusters, tiles: tiled.tiles, mask: tiled.mask, data: tiled.data };
