@@ -305,3 +305,25 @@ fn a_cancelled_precompute_returns_nothing() {
     let bvh = Bvh::build(&scene);
     assert!(precompute(&scene, &bvh, &params(64, 4, 8, 16), &|_, _, _| {}, &AtomicBool::new(true)).is_err());
 }
+
+#[test]
+fn entries_inside_a_solid_are_recognised() {
+    // A floor with a closed box standing on it: floor points under the box are enclosed.
+    let mut qs = vec![[v(-2., 0., -2.), v(-2., 0., 2.), v(2., 0., 2.), v(2., 0., -2.)]];
+    let (lo, hi) = (v(-0.5, 0.0, -0.5), v(0.5, 1.0, 0.5));
+    let c = |x: bool, y: bool, z: bool| v(if x { hi.x } else { lo.x }, if y { hi.y } else { lo.y }, if z { hi.z } else { lo.z });
+    qs.push([c(false, false, false), c(false, false, true), c(false, true, true), c(false, true, false)]);
+    qs.push([c(true, false, false), c(true, true, false), c(true, true, true), c(true, false, true)]);
+    qs.push([c(false, true, false), c(false, true, true), c(true, true, true), c(true, true, false)]);
+    qs.push([c(false, false, false), c(false, true, false), c(true, true, false), c(true, false, false)]);
+    qs.push([c(false, false, true), c(true, false, true), c(true, true, true), c(false, true, true)]);
+    let scene = quads(&qs, 0.5);
+    let bvh = Bvh::build(&scene);
+    let entry = |p: Vec3| prm::prm_file::Entry { position: p, normal: Vec3::Y, albedo: Vec3::splat(0.5), area: 1.0, triangle: 0 };
+    assert!(prm_precompute::entries::is_enclosed(&scene, &bvh, &entry(v(0.1, 0.0, -0.2)), 0, 0));
+    assert!(!prm_precompute::entries::is_enclosed(&scene, &bvh, &entry(v(1.5, 0.0, 1.5)), 0, 1));
+    // The precompute drops exactly those: none of its entries lies under the box.
+    let prm = bake(&scene, &params(512, 4, 8, 16));
+    assert!(prm.entries.len() < 512 && prm.entries.len() > 400, "{} entries kept", prm.entries.len());
+    assert!(prm.entries.iter().all(|e| !(e.position.y < 1e-4 && e.position.x.abs() < 0.49 && e.position.z.abs() < 0.49)));
+}
