@@ -154,10 +154,11 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
-            "{} -> {}: {} entries, {} clusters, {} texels, {} ({}), {:.2} s (transport {:.2} s, {:.2} Mrays/s), {} tiles kept, {} dropped ({:.3} % of energy), {:.1} MB",
+            "{} -> {}: {} entries ({} inside solids left out), {} clusters, {} texels, {} ({}), {:.2} s (transport {:.2} s, {:.2} Mrays/s), {} tiles kept, {} dropped ({:.3} % of energy), {:.1} MB",
             a.scene.scene.display(),
             a.output.display(),
             report.entries,
+            report.entries_enclosed,
             report.clusters,
             report.texels,
             report.estimator,
