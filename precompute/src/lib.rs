@@ -7,6 +7,7 @@ pub mod entries;
 pub mod ground_truth;
 pub mod panes;
 pub mod precompute;
+pub mod reference;
 pub mod relight;
 pub mod scenes;
 pub mod transport;
