@@ -2,3 +2,6 @@
 //! setup. Built in stages; today the light models and their evaluation.
 
 pub mod form_factor;
+pub mod kdtree;
+pub mod polygon;
+pub mod vpl;

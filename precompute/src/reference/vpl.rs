@@ -1,0 +1,168 @@
+//! Virtual point lights per real light and per bounce (paper 000 §5.1).
+//!
+//! Photons leave each light carrying flux: a point light sends `4 pi I / n` per photon in
+//! uniform directions; a spot light `I falloff(w) Omega / n` in uniform directions inside its
+//! outer cone (solid angle Omega); a directional light `E pi R^2 / n` from a disk of the level's
+//! bounding radius R. Where a photon meets a front face, it leaves a VPL of its bounce with the
+//! flux it brings (`incident`) and the flux it re-emits (`power = incident x albedo`, Lambertian);
+//! it then continues in a cosine direction with that reflected flux, for `bounces` bounces.
+//! Photons that leave the level, or meet the back of a one-sided surface, are counted, so energy
+//! can be accounted for exactly: emitted = incident on first hits + escaped + absorbed by backs.
+
+use glam::Vec3;
+use prm::{Bvh, Light, LightKind, Scene};
+use rand::Rng;
+use rayon::prelude::*;
+
+use crate::entries::stream;
+use crate::ground_truth::cosine_direction;
+
+/// A virtual point light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Vpl {
+    pub position: Vec3,
+    pub normal: Vec3,
+    /// Flux arriving with the photon, W per channel.
+    pub incident: Vec3,
+    /// Flux re-emitted (incident x albedo), W per channel.
+    pub power: Vec3,
+    pub light: u32,
+    /// 1 for a photon's first hit.
+    pub bounce: u32,
+}
+
+/// Energy accounting of the photons of one light.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PhotonBudget {
+    /// Flux the light emitted.
+    pub emitted: Vec3,
+    /// Flux that left the level before its first hit.
+    pub escaped: Vec3,
+    /// Flux that met the back of a one-sided surface at its first hit.
+    pub absorbed_by_backs: Vec3,
+    /// Flux still re-emitted by the last bounce's VPLs (light the bounce cap leaves out).
+    pub beyond_last_bounce: Vec3,
+}
+
+/// Emit `photons` photons from `light`; their first direction and flux, and the origin.
+fn emit(light: &Light, scene: &Scene, photons: usize, k: usize, rng: &mut impl Rng) -> (Vec3, Vec3, Vec3) {
+    let n = photons as f32;
+    match light.kind {
+        LightKind::Point => {
+            let d = uniform_sphere(rng.random(), rng.random());
+            (light.position, d, light.intensity * (4.0 * std::f32::consts::PI / n))
+        }
+        LightKind::Spot { outer, .. } => {
+            let cos_outer = outer.cos();
+            let z = 1.0 - rng.random::<f32>() * (1.0 - cos_outer);
+            let phi = std::f32::consts::TAU * rng.random::<f32>();
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let (t, b) = light.direction.any_orthonormal_pair();
+            let d = (t * (r * phi.cos()) + b * (r * phi.sin()) + light.direction * z).normalize();
+            let omega = std::f32::consts::TAU * (1.0 - cos_outer);
+            (light.position, d, light.intensity_towards(d) * (omega / n))
+        }
+        LightKind::Directional => {
+            let (lo, hi) = scene.bounds();
+            let centre = 0.5 * (lo + hi);
+            let radius = 0.5 * (hi - lo).length() * 1.01 + 1e-6;
+            let (t, b) = light.direction.any_orthonormal_pair();
+            // Stratify the disk by photon index along the radius.
+            let r = radius * ((k as f32 + rng.random::<f32>()) / n).sqrt();
+            let phi = std::f32::consts::TAU * rng.random::<f32>();
+            let origin = centre - light.direction * (2.0 * radius) + t * (r * phi.cos()) + b * (r * phi.sin());
+            (origin, light.direction, light.intensity * (std::f32::consts::PI * radius * radius / n))
+        }
+    }
+}
+
+fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
+    let z = 1.0 - 2.0 * u1;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Trace `photons` photons from each light for `bounces` bounces. VPLs come out grouped by
+/// light, then photon, then bounce; the budget is per light.
+pub fn trace_photons(scene: &Scene, bvh: &Bvh, lights: &[Light], photons: usize, bounces: u32, seed: u64) -> (Vec<Vpl>, Vec<PhotonBudget>) {
+    let mut all = Vec::new();
+    let mut budgets = Vec::new();
+    for (li, light) in lights.iter().enumerate() {
+        let per_photon: Vec<(Vec<Vpl>, PhotonBudget)> = (0..photons)
+            .into_par_iter()
+            .map(|k| {
+                let mut rng = stream(seed, 10 + li as u64, k as u64);
+                let mut budget = PhotonBudget::default();
+                let mut out = Vec::new();
+                let (mut origin, mut dir, mut flux) = emit(light, scene, photons, k, &mut rng);
+                budget.emitted = flux;
+                let mut from_surface: Option<Vec3> = None;
+                for bounce in 1..=bounces {
+                    let hit = match from_surface {
+                        None => bvh.closest_hit(origin, dir, f32::INFINITY),
+                        Some(n) => bvh.trace_from_surface(origin, n, dir),
+                    };
+                    let Some(hit) = hit else {
+                        if bounce == 1 {
+                            budget.escaped = flux;
+                        }
+                        break;
+                    };
+                    let t = hit.triangle as usize;
+                    let mut n = scene.face_normal(t);
+                    if n.dot(dir) > 0.0 {
+                        if !scene.material(t).double_sided {
+                            if bounce == 1 {
+                                budget.absorbed_by_backs = flux;
+                            }
+                            break;
+                        }
+                        n = -n;
+                    }
+                    if bounce == 1 && light.range.is_some() {
+                        // glTF's range window, applied where the photon lands.
+                        flux *= range_window(light, hit.t);
+                    }
+                    let y = scene.point(t, hit.bary());
+                    let power = flux * scene.albedo(t, hit.bary());
+                    out.push(Vpl { position: y, normal: n, incident: flux, power, light: li as u32, bounce });
+                    if bounce == bounces {
+                        budget.beyond_last_bounce = power;
+                        break;
+                    }
+                    if power == Vec3::ZERO {
+                        break;
+                    }
+                    origin = y;
+                    from_surface = Some(n);
+                    dir = cosine_direction(n, rng.random(), rng.random());
+                    flux = power;
+                }
+                (out, budget)
+            })
+            .collect();
+        let mut b = PhotonBudget::default();
+        for (v, pb) in per_photon {
+            all.extend(v);
+            b.emitted += pb.emitted;
+            b.escaped += pb.escaped;
+            b.absorbed_by_backs += pb.absorbed_by_backs;
+            b.beyond_last_bounce += pb.beyond_last_bounce;
+        }
+        budgets.push(b);
+    }
+    (all, budgets)
+}
+
+/// glTF range window at distance `d` (1 without a range).
+fn range_window(light: &Light, d: f32) -> f32 {
+    match light.range {
+        Some(r) if r > 0.0 => {
+            let x = d / r;
+            let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
+            w * w
+        }
+        _ => 1.0,
+    }
+}
