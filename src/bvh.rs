@@ -111,6 +111,10 @@ impl Bvh {
     #[inline]
     fn ray(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Ray {
         let o = origin * self.to_bvh;
+        // Adding +0 turns -0 into +0: obvhs picks the traversal octant from `d < 0` but the
+        // inverse direction from the sign bit, and a -0 component makes the two disagree and
+        // the ray miss everything (an axis-aligned ray along -n where n has a +0 component).
+        let dir = dir + Vec3::ZERO;
         Ray::new(
             glam::Vec3A::from_array(o.to_array()),
             glam::Vec3A::from_array(dir.to_array()),

@@ -126,3 +126,17 @@ fn visibility_between_points_and_through_a_wall() {
         assert!(bvh.visible_point(floor + Vec3::new(0.01, 0.0, 0.0) * s, Vec3::Y, floor + Vec3::new(0.0, 1e-3, 0.0) * s));
     }
 }
+
+#[test]
+fn axis_aligned_rays_with_negative_zero_components_hit() {
+    // obvhs picks the traversal octant from d < 0 but the inverse direction from the sign bit;
+    // -(0, -1, 0) = (-0, 1, -0) used to miss everything.
+    let pos = vec![Vec3::new(-1.0, 1.0, -1.0), Vec3::new(1.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)];
+    let scene = Scene::from_mesh(pos, vec![Vec2::ZERO; 3], &[0, 1, 2]);
+    let bvh = Bvh::build(&scene);
+    let n = Vec3::new(0.0, -1.0, 0.0);
+    for dir in [-n, Vec3::new(-0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -0.0)] {
+        let hit = bvh.closest_hit(Vec3::ZERO, dir, f32::INFINITY);
+        assert!(hit.is_some_and(|h| (h.t - 1.0).abs() < 1e-6), "direction {dir:?} missed");
+    }
+}

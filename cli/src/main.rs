@@ -3,6 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+mod bake_reference;
 mod bench_rays;
 mod common;
 mod compare;
@@ -40,6 +41,8 @@ enum Command {
     Precompute(precompute::Args),
     /// Write a .prm's pane atlases as EXR pages.
     ExportPanes(export_panes::Args),
+    /// Bake the static reference lightmap with virtual polygon lights (paper 000).
+    BakeReference(bake_reference::Args),
     /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).
     Evaluate(evaluate::Args),
 }
@@ -56,5 +59,6 @@ fn main() -> Result<()> {
         Command::Precompute(a) => precompute::run(a),
         Command::ExportPanes(a) => export_panes::run(a),
         Command::Evaluate(a) => evaluate::run(a),
+        Command::BakeReference(a) => bake_reference::run(a),
     }
 }

@@ -156,3 +156,24 @@ fn precompute_evaluate_and_export_panes() {
     assert!(!ok && err.contains("entries 0"), "{err}");
     assert!(!bad.exists());
 }
+
+#[test]
+fn bake_reference_writes_layers_and_debug_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ref.exr");
+    let obj = dir.path().join("lights.obj");
+    let (ok, stdout, err) = prm(&["bake-reference", &asset("cornell.glb"), "--atlas", "32", "--vpls", "4000", "--json", "--debug-lights", s(&obj), "-o", s(&out)]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(v["polygon_lights"].as_u64().unwrap() > 10);
+    let c = Channels::read(&out).unwrap();
+    let (total, direct, indirect) = (c.rgb("").unwrap(), c.rgb("direct").unwrap(), c.rgb("indirect").unwrap());
+    for k in 0..total.len() {
+        assert!((total[k] - direct[k] - indirect[k]).abs().max_element() <= 1e-4 * total[k].max_element().max(1.0));
+        assert!(total[k].is_finite() && total[k].min_element() >= 0.0);
+    }
+    let text = std::fs::read_to_string(&obj).unwrap();
+    assert!(text.contains("g polygons") && text.lines().filter(|l| l.starts_with("f ")).count() > 10);
+    let (ok, _, err) = prm(&["bake-reference", &asset("cornell.glb"), "--vpls", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("vpls 0"), "{err}");
+}

@@ -50,11 +50,17 @@ pub fn point_to_polygon(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
 
 /// The part of polygon `poly` on the positive side of the plane through `p` with normal `n`
 /// (Sutherland-Hodgman against one plane).
+///
+/// Heights within 1e-5 of the polygon's size are taken as zero: a light lying in the receiver's
+/// own plane would otherwise leave a round-off sliver whose contour integral is anything
+/// between 0 and 1, and light its own surface.
 pub fn clip_above_plane(poly: &[Vec3], p: Vec3, n: Vec3) -> Vec<Vec3> {
+    let scale = poly.iter().map(|v| (*v - p).length()).fold(0.0f32, f32::max);
+    let tol = 1e-5 * scale;
     let mut out = Vec::with_capacity(poly.len() + 1);
     for k in 0..poly.len() {
         let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
-        let (da, db) = ((a - p).dot(n), (b - p).dot(n));
+        let (da, db) = ((a - p).dot(n) - tol, (b - p).dot(n) - tol);
         if da > 0.0 {
             out.push(a);
         }
@@ -119,10 +125,13 @@ impl PolygonLight {
 }
 
 /// Move receiver p (normal n) along its surface until it is `eps` above the plane through c
-/// with normal nx, when it lies within `eps` of it and that plane is not parallel to its own.
+/// with normal nx, when it lies in front of that plane by less than `eps` (a concave corner:
+/// a wall texel just above a lit floor) and the plane is not parallel to its own. Receivers
+/// behind the plane (below a block's lit top, round a convex edge) are not moved: lifting them
+/// over the edge would light a face the light cannot see.
 pub fn epsilon_shift(p: Vec3, n: Vec3, c: Vec3, nx: Vec3, eps: f32) -> Vec3 {
     let h = (p - c).dot(nx);
-    if h >= eps || h < -eps {
+    if !(0.0..eps).contains(&h) {
         return p;
     }
     // The direction along the receiver's surface that rises fastest above the light's plane.

@@ -1,7 +1,10 @@
 //! The reference baker (paper 000, DESIGN.md §6): virtual polygon lights for one fixed light
-//! setup. Built in stages; today the light models and their evaluation.
+//! setup: photons to VPLs per light and bounce (`vpl`), planes (`planes`), kd-tree clusters
+//! (`kdtree`), light polygons (`polygon`), light models (`form_factor`), the bake (`bake`).
 
 pub mod form_factor;
+pub mod bake;
 pub mod kdtree;
+pub mod planes;
 pub mod polygon;
 pub mod vpl;

@@ -1,0 +1,124 @@
+//! `prm bake-reference`: the static reference lightmap with virtual polygon lights (paper 000).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use glam::Vec3;
+use prm::exr_io::Channels;
+use prm::{Bvh, TexelSet};
+use prm_precompute::reference::bake::{evaluate, to_obj, virtual_lights, BakeParams};
+
+use crate::common::{cancel_flag, load, progress_bar, SceneArgs};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Output EXR: bare R G B = direct + indirect (indirect only with --indirect-only),
+    /// layers direct.*, indirect.*, and mask.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Photons (VPL paths) per light.
+    #[arg(long, default_value_t = 40_000)]
+    vpls: usize,
+    /// Bounces traced (the light left beyond the last is reported).
+    #[arg(long, default_value_t = 12)]
+    bounces: u32,
+    /// VPLs per virtual light at the first bounce (doubling with each bounce).
+    #[arg(long, default_value_t = 64)]
+    cluster_size: usize,
+    /// Shadow rays per texel and virtual light.
+    #[arg(long, default_value_t = 2)]
+    visibility_samples: u32,
+    /// Atlas width and height in texels.
+    #[arg(long, default_value_t = 256)]
+    atlas: u32,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Bake only the indirect light.
+    #[arg(long)]
+    indirect_only: bool,
+    /// Also write the virtual lights as an OBJ file to look at.
+    #[arg(long)]
+    debug_lights: Option<PathBuf>,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let p = BakeParams {
+        photons: a.vpls,
+        bounces: a.bounces,
+        cluster_size: a.cluster_size,
+        visibility_samples: a.visibility_samples,
+        atlas: a.atlas,
+        seed: a.seed,
+        indirect_only: a.indirect_only,
+        ..BakeParams::default()
+    };
+    p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
+    let start = Instant::now();
+    let scene = load(&a.scene, a.atlas, a.json)?;
+    let bvh = Bvh::build(&scene);
+    let set = TexelSet::build(&scene, a.atlas, a.atlas);
+    let t = Instant::now();
+    let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
+    let lights_s = t.elapsed().as_secs_f64();
+    let bar = progress_bar(set.len() as u64, "texels");
+    if a.json {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let t = Instant::now();
+    let baked = evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, &|d| bar.set_position(d as u64), cancel_flag());
+    bar.finish_and_clear();
+    let baked = baked.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
+    let eval_s = t.elapsed().as_secs_f64();
+    let total: Vec<Vec3> = baked.direct.iter().zip(&baked.indirect).map(|(d, i)| *d + *i).collect();
+    let mut ch = Channels::new(set.width as usize, set.height as usize);
+    ch.insert_rgb("", &set.to_image(if a.indirect_only { &baked.indirect } else { &total }, Vec3::ZERO));
+    ch.insert_rgb("direct", &set.to_image(&baked.direct, Vec3::ZERO));
+    ch.insert_rgb("indirect", &set.to_image(&baked.indirect, Vec3::ZERO));
+    ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
+    ch.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
+    if let Some(obj) = &a.debug_lights {
+        prm::fsutil::write_bytes_atomic(obj, to_obj(&vl).as_bytes()).with_context(|| format!("writing {}", obj.display()))?;
+    }
+    let emitted = vl.budgets.iter().fold(Vec3::ZERO, |s, b| s + b.emitted);
+    let beyond = vl.budgets.iter().fold(Vec3::ZERO, |s, b| s + b.beyond_last_bounce);
+    let summary = serde_json::json!({
+        "scene": a.scene.scene.display().to_string(),
+        "output": a.output.display().to_string(),
+        "vpls": vl.vpl_count,
+        "polygon_lights": vl.polygons.len(),
+        "sphere_lights": vl.spheres.len(),
+        "vpl_power": vl.vpl_power.to_array(),
+        "virtual_light_power": vl.light_power.to_array(),
+        "emitted_power": emitted.to_array(),
+        "power_beyond_last_bounce": beyond.to_array(),
+        "seconds_virtual_lights": lights_s,
+        "seconds_evaluation": eval_s,
+        "seconds_total": start.elapsed().as_secs_f64(),
+        "rays": baked.rays,
+        "rays_per_second": baked.rays as f64 / eval_s.max(1e-9),
+        "texels": set.len(),
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        println!(
+            "{} -> {}: {} VPLs -> {} polygon + {} sphere lights in {:.2} s, evaluated at {} texels in {:.2} s ({:.2} Mrays/s)",
+            a.scene.scene.display(),
+            a.output.display(),
+            vl.vpl_count,
+            vl.polygons.len(),
+            vl.spheres.len(),
+            lights_s,
+            set.len(),
+            eval_s,
+            baked.rays as f64 / eval_s.max(1e-9) / 1e6
+        );
+    }
+    Ok(())
+}
