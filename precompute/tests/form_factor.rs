@@ -142,6 +142,9 @@ fn sphere_light_is_bounded_and_inverse_square_far_away() {
     let s = SphereLight { centre: Vec3::new(0.0, 1.0, 0.0), radius: 0.2, normal: -Vec3::Y, power: Vec3::splat(3.0) };
     let at = |y: f32| s.irradiance(Vec3::new(0.0, 1.0 - y, 0.0), Vec3::Y).x;
     assert!(at(1e-6).is_finite() && at(1e-6) <= 3.0 / (std::f32::consts::PI * 0.04) + 1e-3);
+    // Beyond its radius it is exactly a point light.
+    let mid = at(0.5);
+    assert!((mid - 3.0 / (std::f32::consts::PI * 0.25)).abs() < 1e-5);
     let far = at(100.0);
     let point = 3.0 / (std::f32::consts::PI * 100.0 * 100.0);
     assert!((far - point).abs() < 1e-5 * point + 1e-9);

@@ -9,7 +9,8 @@
 //! Evaluation at a texel (p, n): direct light of the real lights with a shadow ray; for every
 //! virtual light its analytic irradiance (form factor, epsilon shift of half a texel, point
 //! fallback) times a soft visibility: the fraction of `visibility_samples` of its member VPLs
-//! (drawn at random) that the texel sees. Ray-traced visibility replaces the paper's PCSS.
+//! that the texel sees, the members drawn in proportion to their point-light kernel at the
+//! texel. Ray-traced visibility replaces the paper's PCSS.
 //! Sampling members rather than points of the polygon matters: a convex hull of floor VPLs can
 //! span the foot of a block, and points there are hidden though no light is there (measured on
 //! cornell: 4 % of the indirect light lost at 512 VPLs per light). Its error is the Monte Carlo
@@ -160,7 +161,7 @@ pub fn virtual_lights(scene: &Scene, bvh: &Bvh, lights: &[Light], p: &BakeParams
                     let power = ms.iter().fold(Vec3::ZERO, |a, v| a + v.power);
                     let centre = (ms.iter().fold(glam::DVec3::ZERO, |a, v| a + v.position.as_dvec3()) / ms.len() as f64).as_vec3();
                     let normal = ms.iter().fold(Vec3::ZERO, |a, v| a + v.normal).normalize_or_zero();
-                    let radius = ms.iter().map(|v| (v.position - centre).length()).fold(0.0f32, f32::max);
+                    let radius = (ms.iter().map(|v| (v.position - centre).length_squared() as f64).sum::<f64>() / ms.len() as f64).sqrt() as f32;
                     let samples = sample_members(ms.iter().map(|v| (v.position, v.normal)));
                     spheres.push(SphereCluster { light: SphereLight { centre, radius, normal: if normal == Vec3::ZERO { Vec3::Y } else { normal }, power }, samples });
                 }
@@ -226,10 +227,27 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                     }
                     let mut indirect = Vec3::ZERO;
                     let s = p.visibility_samples;
-                    let visibility = |samples: &[(Vec3, Vec3)], rng: &mut rand_pcg::Pcg64Mcg| {
+                    // Visibility weighted the way the light reaches this texel: member VPLs are
+                    // drawn in proportion to their own point-light kernel cos cos / r² (r² kept
+                    // above the light's area per sample), so near parts of a large light count
+                    // for what they give. A plain fraction of members undercounts a light whose
+                    // far members hide behind pillars while its near ones shine: 4-6 % of the
+                    // chamber's indirect light was lost that way.
+                    let visibility = |samples: &[(Vec3, Vec3)], r2_min: f32, rng: &mut rand_pcg::Pcg64Mcg| {
+                        let mut cdf = Vec::with_capacity(samples.len());
+                        let mut total = 0.0f32;
+                        for (q, nq) in samples {
+                            let d = t.position - *q;
+                            let r2 = d.length_squared();
+                            let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
+                            total += w;
+                            cdf.push(total);
+                        }
                         let mut seen = 0;
-                        for _ in 0..s {
-                            let (q, nq) = samples[rng.random_range(0..samples.len())];
+                        for k in 0..s {
+                            let u = (k as f32 + rng.random::<f32>()) / s as f32;
+                            let i = if total > 0.0 { cdf.partition_point(|&c| c < u * total).min(samples.len() - 1) } else { rng.random_range(0..samples.len()) };
+                            let (q, nq) = samples[i];
                             rays.fetch_add(1, Ordering::Relaxed);
                             seen += bvh.visible(t.position, t.normal, q, nq) as u32;
                         }
@@ -238,13 +256,13 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                     for pc in &vl.polygons {
                         let e = pc.light.irradiance(t.position, t.normal, eps);
                         if e != Vec3::ZERO {
-                            indirect += e * visibility(&pc.samples, &mut rng);
+                            indirect += e * visibility(&pc.samples, pc.light.area() / pc.samples.len() as f32, &mut rng);
                         }
                     }
                     for sc in &vl.spheres {
                         let e = sc.light.irradiance(t.position, t.normal);
                         if e != Vec3::ZERO {
-                            indirect += e * visibility(&sc.samples, &mut rng);
+                            indirect += e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
                         }
                     }
                     (direct, indirect)

@@ -16,9 +16,12 @@
 //! contour sum loses precision (the angles are tiny); the light is then a point at its centroid:
 //! `E = Phi cos_x cos_y / (pi d^2)`, which agrees to O((r/d)^2) there.
 //!
-//! **Sphere lights** (Hasan et al. 2009, for clusters not on a plane): power Phi around centre c
-//! with radius R and mean normal n_x: `E = Phi max(cos_x, 0) max(cos_y, 0) / (pi (d^2 + R^2))`:
-//! a point light whose inverse square is bounded by the cluster's extent.
+//! **Sphere lights** (after Hasan et al. 2009, for clusters not on a plane): power Phi around
+//! centre c with radius R (the members' RMS distance from c) and mean normal n_x:
+//! `E = Phi max(cos_x, 0) max(cos_y, 0) / (pi max(d^2, R^2))`: a point light whose inverse
+//! square is capped inside the cluster's extent. Outside it the point law holds exactly; the
+//! `d^2 + R^2` form would dim it at every distance (by 20 % at d = 2R), which lost 7 % of the
+//! chamber's indirect light where the curved pillars and arches carry many such lights.
 
 use glam::Vec3;
 
@@ -166,6 +169,6 @@ impl SphereLight {
         if cx <= 0.0 || cy <= 0.0 {
             return Vec3::ZERO;
         }
-        self.power * (cx * cy / (std::f32::consts::PI * (d2 + self.radius * self.radius)))
+        self.power * (cx * cy / (std::f32::consts::PI * d2.max(self.radius * self.radius)))
     }
 }
