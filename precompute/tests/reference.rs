@@ -83,6 +83,20 @@ fn energy_is_accounted_for_exactly() {
         4.0 * (a * a / ((a * a + d * d) * (a * a + d * d)).sqrt()).asin() / (4.0 * std::f32::consts::PI)
     };
     assert!((share - exact).abs() < 0.01, "floor catches {share}, solid angle says {exact}");
+
+    // A directional light straight down delivers E x area to the floor; a spot light only what
+    // its cone (uniform inside, hard edge) covers: all of it when the cone fits on the floor.
+    let mut sun = floor.clone();
+    sun.lights = vec![Light { name: "sun".into(), kind: LightKind::Directional, position: Vec3::ZERO, direction: -Vec3::Y, intensity: Vec3::splat(2.0), range: None }];
+    let (vpls, _) = prm_precompute::reference::vpl::trace_photons(&sun, &bvh, &sun.lights, 20_000, 1, 0);
+    let got = vpls.iter().fold(0.0, |s, v| s + v.incident.x);
+    assert!((got - 2.0 * 4.0).abs() < 0.03 * 8.0, "sun on a 2 x 2 floor: {got} W, want 8");
+    let mut spot = floor.clone();
+    spot.lights = vec![Light { name: "spot".into(), kind: LightKind::Spot { inner: 0.5, outer: 0.5 }, position: v(0.0, 0.5, 0.0), direction: -Vec3::Y, intensity: Vec3::splat(3.0), range: None }];
+    let (vpls, budgets) = prm_precompute::reference::vpl::trace_photons(&spot, &bvh, &spot.lights, 20_000, 1, 0);
+    let got = vpls.iter().fold(0.0, |s, v| s + v.incident.x);
+    let cone = 3.0 * std::f32::consts::TAU * (1.0 - 0.5f32.cos());
+    assert!((budgets[0].emitted.x - cone).abs() < 1e-3 * cone && (got - cone).abs() < 1e-3 * cone, "spot emits I x cone solid angle: {got} vs {cone}");
 }
 
 #[test]
