@@ -18,6 +18,7 @@ pub mod gltf_load;
 pub mod light;
 pub mod metric;
 pub mod prm_file;
+pub mod rig;
 pub mod scene;
 pub mod texels;
 pub mod uv;

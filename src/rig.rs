@@ -1,0 +1,350 @@
+//! Light rigs (DESIGN.md §8): the lights of a level over time, as JSON.
+//!
+//! ```json
+//! {
+//!   "duration": 2.0,
+//!   "lights": [
+//!     { "name": "nave_lamp",
+//!       "keyframes": [ { "time": 0.0, "position": [-3, 5, -3] },
+//!                      { "time": 2.0, "position": [3, 5, -3], "intensity": 30 } ] },
+//!     { "name": "torch", "type": "point", "position": [1, 1, 0],
+//!       "color": [1, 0.6, 0.3], "intensity": 5 },
+//!     { "name": "dais_spot", "enabled": false }
+//!   ]
+//! }
+//! ```
+//!
+//! - A light whose `name` is one of the level's glTF lights starts from that light; any of
+//!   `type`, `position`, `direction`, `color`, `intensity`, `inner_cone_deg`, `outer_cone_deg`,
+//!   `range` overrides it. A light with a new name must give `type` (`point`, `spot`,
+//!   `directional`) and what that type needs. Units as in glTF (DESIGN.md §3): point and spot
+//!   `color x intensity` in W/sr, directional in W/m²; cone angles in degrees.
+//! - `keyframes` (times in seconds, strictly increasing) animate `position`, `direction`,
+//!   `color`, `intensity`; values are linear between keyframes (directions renormalised) and
+//!   held before the first and after the last. A keyframe gives only what changes.
+//! - glTF lights the rig does not name keep their glTF values; `"enabled": false` switches one
+//!   off.
+//! - Frame i of F samples time `duration x i / (F - 1)` (`duration` defaults to the last
+//!   keyframe time, or 0).
+//!
+//! Errors name the light and field: an unknown light without a type, non-finite numbers,
+//! negative intensity or colour, bad cone angles, keyframes out of order, more than
+//! [`MAX_LIGHTS`] lights.
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use serde::Deserialize;
+
+use crate::light::{Light, LightKind};
+
+/// Most lights a rig (with the level's) may have; the runtime sizes its buffers for it.
+pub const MAX_LIGHTS: usize = 64;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    #[error("{path}: cannot read the rig: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not a valid rig: {source}")]
+    Json { path: PathBuf, source: serde_json::Error },
+    #[error("{path}: light '{light}': {what}")]
+    Light { path: PathBuf, light: String, what: String },
+    #[error("{path}: {count} lights; the limit is {MAX_LIGHTS}")]
+    TooMany { path: PathBuf, count: usize },
+    #[error("{path}: duration {value} must be finite and >= 0")]
+    Duration { path: PathBuf, value: f64 },
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigFile {
+    #[serde(default)]
+    duration: Option<f64>,
+    #[serde(default)]
+    lights: Vec<RigLight>,
+}
+
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct State {
+    #[serde(default)]
+    position: Option<[f64; 3]>,
+    #[serde(default)]
+    direction: Option<[f64; 3]>,
+    #[serde(default)]
+    color: Option<[f64; 3]>,
+    #[serde(default)]
+    intensity: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigLight {
+    name: String,
+    #[serde(default, rename = "type")]
+    kind: Option<String>,
+    #[serde(default = "yes")]
+    enabled: bool,
+    #[serde(default)]
+    inner_cone_deg: Option<f64>,
+    #[serde(default)]
+    outer_cone_deg: Option<f64>,
+    #[serde(default)]
+    range: Option<f64>,
+    #[serde(flatten)]
+    state: State,
+    #[serde(default)]
+    keyframes: Vec<Keyframe>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+struct Keyframe {
+    time: f64,
+    #[serde(flatten)]
+    state: State,
+}
+
+/// One light of a rig with its animation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AnimatedLight {
+    /// The light at rest (time before the first keyframe uses the first keyframe).
+    pub base: Light,
+    /// (time, position, direction, colour x intensity) samples, time strictly increasing.
+    pub keys: Vec<(f64, Vec3, Vec3, Vec3)>,
+}
+
+/// The lights of a level over time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rig {
+    pub lights: Vec<AnimatedLight>,
+    pub duration: f64,
+}
+
+impl Rig {
+    /// The level's own lights, unanimated.
+    pub fn from_lights(lights: &[Light]) -> Rig {
+        Rig { lights: lights.iter().map(|l| AnimatedLight { base: l.clone(), keys: Vec::new() }).collect(), duration: 0.0 }
+    }
+
+    /// Read a rig file against the level's glTF lights.
+    pub fn load(path: &Path, level: &[Light]) -> Result<Rig, RigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io { path: path.into(), source })?;
+        Self::parse(path, &text, level)
+    }
+
+    /// Parse rig JSON (`path` only for messages).
+    pub fn parse(path: &Path, text: &str, level: &[Light]) -> Result<Rig, RigError> {
+        let file: RigFile = serde_json::from_str(text).map_err(|source| RigError::Json { path: path.into(), source })?;
+        let mut out: Vec<Option<AnimatedLight>> = level.iter().map(|l| Some(AnimatedLight { base: l.clone(), keys: Vec::new() })).collect();
+        let mut last_key = 0.0f64;
+        for rl in &file.lights {
+            let bad = |what: String| RigError::Light { path: path.into(), light: rl.name.clone(), what };
+            let slot = level.iter().position(|l| l.name == rl.name);
+            let mut light = match (slot, &rl.kind) {
+                (Some(i), _) => level[i].clone(),
+                (None, Some(_)) => Light { name: rl.name.clone(), kind: LightKind::Point, position: Vec3::ZERO, direction: -Vec3::Y, intensity: Vec3::ONE, range: None },
+                (None, None) => {
+                    let names: Vec<&str> = level.iter().map(|l| l.name.as_str()).collect();
+                    return Err(bad(format!("no such light in the level (it has: {}) and no \"type\" to make a new one", names.join(", "))));
+                }
+            };
+            if let Some(k) = &rl.kind {
+                light.kind = match k.as_str() {
+                    "point" => LightKind::Point,
+                    "directional" => LightKind::Directional,
+                    "spot" => LightKind::Spot { inner: 0.0, outer: std::f32::consts::FRAC_PI_4 },
+                    other => return Err(bad(format!("unknown type '{other}' (point, spot or directional)"))),
+                };
+            }
+            if let LightKind::Spot { inner, outer } = light.kind {
+                let inner = rl.inner_cone_deg.map_or(inner as f64, f64::to_radians);
+                let outer = rl.outer_cone_deg.map_or(outer as f64, f64::to_radians);
+                if !(inner.is_finite() && outer.is_finite() && 0.0 <= inner && inner <= outer && outer <= std::f64::consts::FRAC_PI_2 + 1e-9) {
+                    return Err(bad(format!("cone angles inner {:.3} / outer {:.3} degrees must satisfy 0 <= inner <= outer <= 90", inner.to_degrees(), outer.to_degrees())));
+                }
+                light.kind = LightKind::Spot { inner: inner as f32, outer: (outer as f32).min(std::f32::consts::FRAC_PI_2) };
+            } else if rl.inner_cone_deg.is_some() || rl.outer_cone_deg.is_some() {
+                return Err(bad("cone angles given for a light that is not a spot".into()));
+            }
+            if let Some(r) = rl.range {
+                if !(r.is_finite() && r > 0.0) {
+                    return Err(bad(format!("range {r} must be positive")));
+                }
+                light.range = Some(r as f32);
+            }
+            let colour = apply(&mut light, &rl.state, None).map_err(&bad)?;
+            let mut keys = Vec::new();
+            let mut prev = f64::NEG_INFINITY;
+            let mut current = light.clone();
+            let mut current_colour = colour;
+            for (k, kf) in rl.keyframes.iter().enumerate() {
+                if !(kf.time.is_finite() && kf.time > prev) {
+                    return Err(bad(format!("keyframe {k}: time {} must be finite and later than the one before", kf.time)));
+                }
+                prev = kf.time;
+                current_colour = apply(&mut current, &kf.state, Some(current_colour)).map_err(|w| bad(format!("keyframe {k}: {w}")))?;
+                keys.push((kf.time, current.position, current.direction, current.intensity));
+            }
+            last_key = last_key.max(prev.max(0.0));
+            let anim = if rl.enabled { Some(AnimatedLight { base: light, keys }) } else { None };
+            match slot {
+                Some(i) => out[i] = anim,
+                None => out.push(anim),
+            }
+        }
+        let lights: Vec<AnimatedLight> = out.into_iter().flatten().collect();
+        if lights.len() > MAX_LIGHTS {
+            return Err(RigError::TooMany { path: path.into(), count: lights.len() });
+        }
+        let duration = file.duration.unwrap_or(last_key);
+        if !(duration.is_finite() && duration >= 0.0) {
+            return Err(RigError::Duration { path: path.into(), value: duration });
+        }
+        Ok(Rig { lights, duration })
+    }
+
+    /// The lights at time `t` (seconds).
+    pub fn at_time(&self, t: f64) -> Vec<Light> {
+        self.lights.iter().map(|a| a.at_time(t)).collect()
+    }
+
+    /// The lights of frame `i` of `frames`.
+    pub fn frame(&self, i: usize, frames: usize) -> Vec<Light> {
+        let t = if frames > 1 { self.duration * i as f64 / (frames - 1) as f64 } else { 0.0 };
+        self.at_time(t)
+    }
+}
+
+impl AnimatedLight {
+    /// This light at time `t`.
+    pub fn at_time(&self, t: f64) -> Light {
+        let mut l = self.base.clone();
+        let Some(first) = self.keys.first() else { return l };
+        let (pos, dir, int) = if t <= first.0 {
+            (first.1, first.2, first.3)
+        } else if let Some(k) = self.keys.windows(2).find(|w| t <= w[1].0) {
+            let (a, b) = (&k[0], &k[1]);
+            let s = ((t - a.0) / (b.0 - a.0)) as f32;
+            (a.1.lerp(b.1, s), a.2.lerp(b.2, s).try_normalize().unwrap_or(b.2), a.3.lerp(b.3, s))
+        } else {
+            let last = self.keys[self.keys.len() - 1];
+            (last.1, last.2, last.3)
+        };
+        l.position = pos;
+        l.direction = dir;
+        l.intensity = int;
+        l
+    }
+}
+
+/// Apply a state's fields to a light; returns the colour in use (intensity is stored as
+/// colour x intensity, so the colour must be remembered to rescale).
+fn apply(light: &mut Light, s: &State, colour: Option<Vec3>) -> Result<Vec3, String> {
+    let v3 = |name: &str, v: [f64; 3]| -> Result<Vec3, String> {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+        } else {
+            Err(format!("{name} {v:?} is not finite"))
+        }
+    };
+    if let Some(p) = s.position {
+        light.position = v3("position", p)?;
+    }
+    if let Some(d) = s.direction {
+        light.direction = v3("direction", d)?.try_normalize().ok_or("direction is zero")?;
+    }
+    // Split the stored colour x intensity into the two so either can change alone.
+    let old_colour = colour.unwrap_or_else(|| {
+        let m = light.intensity.max_element();
+        if m > 0.0 { light.intensity / m } else { Vec3::ONE }
+    });
+    let old_intensity = light.intensity.max_element() / old_colour.max_element().max(f32::MIN_POSITIVE);
+    let new_colour = match s.color {
+        Some(c) => {
+            let c = v3("color", c)?;
+            if c.min_element() < 0.0 {
+                return Err(format!("color {c} is negative"));
+            }
+            c
+        }
+        None => old_colour,
+    };
+    let new_intensity = match s.intensity {
+        Some(i) if !(i.is_finite() && i >= 0.0) => return Err(format!("intensity {i} is negative or not finite")),
+        Some(i) => i as f32,
+        None => old_intensity,
+    };
+    light.intensity = new_colour * new_intensity;
+    Ok(new_colour)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn level() -> Vec<Light> {
+        vec![Light { name: "lamp".into(), kind: LightKind::Point, position: Vec3::new(0.0, 2.0, 0.0), direction: -Vec3::Y, intensity: Vec3::new(10.0, 5.0, 2.5), range: None }]
+    }
+
+    fn parse(text: &str) -> Result<Rig, RigError> {
+        Rig::parse(Path::new("rig.json"), text, &level())
+    }
+
+    #[test]
+    fn keyframes_interpolate_and_hold() {
+        let rig = parse(r#"{"lights": [{"name": "lamp", "keyframes": [
+            {"time": 0, "position": [-1, 2, 0]}, {"time": 2, "position": [1, 2, 0], "intensity": 20}]}]}"#).unwrap();
+        assert_eq!(rig.duration, 2.0);
+        let mid = rig.at_time(1.0);
+        assert!((mid[0].position - Vec3::new(0.0, 2.0, 0.0)).length() < 1e-6);
+        // Colour (1, 0.5, 0.25) kept; intensity 10 -> 20 halfway is 15.
+        assert!((mid[0].intensity - Vec3::new(15.0, 7.5, 3.75)).length() < 1e-4, "{}", mid[0].intensity);
+        assert_eq!(rig.at_time(-5.0)[0].position, Vec3::new(-1.0, 2.0, 0.0));
+        assert_eq!(rig.at_time(9.0)[0].position, Vec3::new(1.0, 2.0, 0.0));
+        let frames: Vec<Vec3> = (0..3).map(|i| rig.frame(i, 3)[0].position).collect();
+        assert_eq!(frames[1], Vec3::new(0.0, 2.0, 0.0));
+    }
+
+    #[test]
+    fn new_lights_overrides_and_switching_off() {
+        let rig = parse(r#"{"lights": [
+            {"name": "spot", "type": "spot", "position": [0, 3, 0], "direction": [0, -2, 0], "inner_cone_deg": 10, "outer_cone_deg": 20, "intensity": 4},
+            {"name": "lamp", "color": [0, 1, 0]}]}"#).unwrap();
+        assert_eq!(rig.lights.len(), 2);
+        assert_eq!(rig.lights[0].base.intensity, Vec3::new(0.0, 10.0, 0.0));
+        let spot = &rig.lights[1].base;
+        assert!(matches!(spot.kind, LightKind::Spot { inner, outer } if (inner - 10f32.to_radians()).abs() < 1e-6 && (outer - 20f32.to_radians()).abs() < 1e-6));
+        assert_eq!(spot.direction, -Vec3::Y);
+        let off = parse(r#"{"lights": [{"name": "lamp", "enabled": false}]}"#).unwrap();
+        assert!(off.lights.is_empty());
+        // Without a rig entry the level's light stays as it is.
+        assert_eq!(parse(r#"{"lights": []}"#).unwrap().lights[0].base, level()[0]);
+    }
+
+    #[test]
+    fn bad_rigs_name_the_light_and_the_field() {
+        let cases = [
+            (r#"{"lights": [{"name": "ghost"}]}"#, "no such light"),
+            (r#"{"lights": [{"name": "lamp", "position": [1, 1e999, 0]}]}"#, "not a valid rig"),
+            (r#"{"lights": [{"name": "lamp", "intensity": -3}]}"#, "intensity -3"),
+            (r#"{"lights": [{"name": "lamp", "keyframes": [{"time": 1}, {"time": 1}]}]}"#, "keyframe 1"),
+            (r#"{"lights": [{"name": "s", "type": "spot", "inner_cone_deg": 30, "outer_cone_deg": 20}]}"#, "cone angles"),
+            (r#"{"lights": [{"name": "s", "type": "laser"}]}"#, "unknown type"),
+            (r#"{"lights": [{"name": "lamp", "direction": [0, 0, 0]}]}"#, "direction is zero"),
+            (r#"{"lights": [{"name": "lamp", "colour": [1, 1, 1]}]}"#, "unknown field"),
+            (r#"{"lights": "#, "not a valid rig"),
+        ];
+        for (text, want) in cases {
+            let err = parse(text).unwrap_err().to_string();
+            assert!(err.contains(want) && err.contains("rig.json"), "{text}: {err}");
+        }
+        let many: Vec<String> = (0..70).map(|i| format!(r#"{{"name": "l{i}", "type": "point"}}"#)).collect();
+        let err = parse(&format!(r#"{{"lights": [{}]}}"#, many.join(","))).unwrap_err();
+        assert!(matches!(err, RigError::TooMany { count: 71, .. }), "{err}");
+    }
+}
