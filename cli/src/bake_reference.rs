@@ -9,12 +9,14 @@ use prm::exr_io::Channels;
 use prm::{Bvh, TexelSet};
 use prm_precompute::reference::bake::{evaluate, to_obj, virtual_lights, BakeParams};
 
-use crate::common::{cancel_flag, load, progress_bar, SceneArgs};
+use crate::common::{cancel_flag, load, progress_bar, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    rig: RigArgs,
     /// Output EXR: bare R G B = direct + indirect (indirect only with --indirect-only),
     /// layers direct.*, indirect.*, and mask.
     #[arg(short, long)]
@@ -60,7 +62,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let start = Instant::now();
-    let scene = load(&a.scene, a.atlas, a.json)?;
+    let mut scene = load(&a.scene, a.atlas, a.json)?;
+    scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
     let set = TexelSet::build(&scene, a.atlas, a.atlas);
     let t = Instant::now();

@@ -76,3 +76,35 @@ pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     bar.set_message(what.to_string());
     bar
 }
+
+/// Which lights to use: the level's, or a rig's frame.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RigArgs {
+    /// Light rig (JSON, see README); without one the level's glTF lights are used.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// Frame of the rig to use.
+    #[arg(long, default_value_t = 0)]
+    pub frame: usize,
+    /// Frames the rig's duration is divided into.
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+}
+
+impl RigArgs {
+    /// The rig (the level's lights when none is given).
+    pub fn rig(&self, scene: &Scene) -> Result<prm::rig::Rig> {
+        match &self.rig {
+            Some(p) => Ok(prm::rig::Rig::load(p, &scene.lights)?),
+            None => Ok(prm::rig::Rig::from_lights(&scene.lights)),
+        }
+    }
+
+    /// The lights of the chosen frame.
+    pub fn lights(&self, scene: &Scene) -> Result<Vec<prm::Light>> {
+        if self.frames == 0 || self.frame >= self.frames {
+            bail!("--frame {} must be below --frames {}", self.frame, self.frames);
+        }
+        Ok(self.rig(scene)?.frame(self.frame, self.frames))
+    }
+}

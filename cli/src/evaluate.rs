@@ -1,6 +1,6 @@
-//! `prm evaluate`: the indirect lightmap a `.prm` gives for the level's lights, on the CPU, with
-//! exact weights (entry irradiance ray-traced) and every pane. What the precompute alone
-//! achieves, before the runtime's shadow maps and top-K.
+//! `prm evaluate`: the indirect lightmap a `.prm` gives for the level's lights (or a rig frame),
+//! on the CPU twin of the runtime: exact weights (entry irradiance ray-traced) and every pane by
+//! default, or the top K. What the precompute alone achieves, before the runtime's shadow maps.
 
 use std::path::PathBuf;
 
@@ -9,7 +9,7 @@ use prm::exr_io::Channels;
 use prm::prm_file::Prm;
 use prm::{Bvh, TexelSet};
 
-use crate::common::{load, SceneArgs};
+use crate::common::{load, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -18,6 +18,11 @@ pub struct Args {
     /// The level's .prm.
     #[arg(long)]
     prm: PathBuf,
+    #[command(flatten)]
+    rig: RigArgs,
+    /// Compose only the K strongest panes (default: all).
+    #[arg(long)]
+    top_k: Option<usize>,
     /// Output EXR: bare R G B and indirect.* = indirect irradiance (W/m²), mask.
     #[arg(short, long)]
     output: PathBuf,
@@ -28,7 +33,9 @@ pub fn run(a: Args) -> Result<()> {
     let scene = load(&a.scene, bytes_prm.header.atlas_width, false)?;
     bytes_prm.check_scene(&a.prm, &scene)?;
     let bvh = Bvh::build(&scene);
-    let img = prm_precompute::relight::indirect_lightmap(&bytes_prm, &bvh, &scene.lights);
+    let lights = a.rig.lights(&scene)?;
+    let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
+    let img = twin.frame(&lights).to_vec();
     let set = TexelSet::build(&scene, bytes_prm.header.atlas_width, bytes_prm.header.atlas_height);
     let (w, h) = (set.width as usize, set.height as usize);
     let mut ch = Channels::new(w, h);
@@ -36,6 +43,6 @@ pub fn run(a: Args) -> Result<()> {
     ch.insert_rgb("indirect", &img);
     ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
     ch.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
-    println!("{} lights, {} clusters -> {}", scene.lights.len(), bytes_prm.clusters.len(), a.output.display());
+    println!("{} lights, {} of {} clusters composed -> {}", lights.len(), twin.last_selected, bytes_prm.clusters.len(), a.output.display());
     Ok(())
 }

@@ -14,12 +14,14 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde_json::json;
 
-use crate::common::{cancel_flag, check_atlas, load, progress_bar, SceneArgs};
+use crate::common::{cancel_flag, check_atlas, load, progress_bar, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    rig: RigArgs,
     /// Paths per texel (per pixel with --camera).
     #[arg(long, default_value_t = 256)]
     spp: u32,
@@ -54,7 +56,8 @@ pub fn run(a: Args) -> Result<()> {
     if a.max_bounces == 0 {
         bail!("--max-bounces must be at least 1");
     }
-    let scene = load(&a.scene, a.atlas, a.json)?;
+    let mut scene = load(&a.scene, a.atlas, a.json)?;
+    scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
     let params = GtParams { spp: a.spp, max_bounces: a.max_bounces, seed: a.seed, ..GtParams::default() };
     let tracer = Tracer::new(&scene, &bvh, params);

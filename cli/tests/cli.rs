@@ -177,3 +177,31 @@ fn bake_reference_writes_layers_and_debug_lights() {
     let (ok, _, err) = prm(&["bake-reference", &asset("cornell.glb"), "--vpls", "0", "-o", s(&out)]);
     assert!(!ok && err.contains("vpls 0"), "{err}");
 }
+
+#[test]
+fn rigs_drive_evaluate_and_ground_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = dir.path().join("rig.json");
+    std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
+        {"time": 0, "position": [0.15, 0.45, 0.28]}, {"time": 1, "position": [0.4, 0.45, 0.28], "intensity": 4}]}]}"#).unwrap();
+    let prm_path = dir.path().join("c.prm");
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
+    assert!(ok, "{err}");
+    let read = |p: &Path| Channels::read(p).unwrap().rgb("").unwrap();
+    let (f0, f1) = (dir.path().join("f0.exr"), dir.path().join("f1.exr"));
+    for (frame, out) in [("0", &f0), ("9", &f1)] {
+        let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frame", frame, "--frames", "10", "--top-k", "16", "-o", s(out)]);
+        assert!(ok, "{err}");
+    }
+    let (a, b) = (read(&f0), read(&f1));
+    assert_ne!(a, b, "the light moved and dimmed");
+    let sum = |v: &[Vec3]| v.iter().map(|x| x.x as f64).sum::<f64>();
+    assert!(sum(&b) < sum(&a), "intensity 8 -> 4 lowers the indirect light");
+    let gt = dir.path().join("gt.exr");
+    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--atlas", "16", "--spp", "4", "--rig", s(&rig), "--frame", "9", "--frames", "10", "-o", s(&gt)]);
+    assert!(ok, "{err}");
+    // A rig naming a light the level lacks is refused.
+    std::fs::write(&rig, r#"{"lights": [{"name": "sun"}]}"#).unwrap();
+    let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "-o", s(&f0)]);
+    assert!(!ok && err.contains("'sun'") && err.contains("no such light"), "{err}");
+}

@@ -8,6 +8,5 @@ pub mod ground_truth;
 pub mod panes;
 pub mod precompute;
 pub mod reference;
-pub mod relight;
 pub mod scenes;
 pub mod transport;

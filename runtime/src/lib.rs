@@ -1,5 +1,7 @@
-//! PRM runtime (wgpu): per-frame indirect lightmaps from a precomputed radiance map.
+//! PRM runtime: per-frame indirect lightmaps from a precomputed radiance map.
 //!
-//! Not built yet: it arrives with the runtime issue (shadow-mapped entry weights, top-K panes,
-//! compose, shading, and its CPU twin). The crate exists now so the workspace has its final
-//! shape and a game's dependency on `prm-runtime` pulls in only the core library.
+//! Today this holds the CPU twin ([`cpu`]): entry irradiance with ray-traced visibility,
+//! cluster weights, top-K selection and compose. The wgpu path (shadow maps, compute shaders,
+//! shading) arrives with the runtime issue and is held to this twin.
+
+pub mod cpu;

@@ -1,0 +1,95 @@
+//! The CPU twin of the runtime's lightmap (DESIGN.md §5 steps 2-4), with rayon.
+//!
+//! 1. Entry irradiance `E_j = sum_lights I(w) V cos / r²` (or E V cos for directional lights).
+//!    **Visibility is ray-traced** (one shadow ray per entry and light, offset as everywhere
+//!    else), not shadow-mapped: the twin is the exact answer the GPU's shadow maps approximate.
+//! 2. Cluster weights: the mean irradiance of each cluster's members.
+//! 3. Selection: the K clusters with the largest `luminance(w_c) x energy_c`; clusters with zero
+//!    weight are never selected. Ties go to the lower index.
+//! 4. Compose: `sum w_c pane_c` over the selected clusters' stored tiles only. When the lights
+//!    have not changed since the last frame, nothing is recomposed ([`CpuTwin::composes`]
+//!    counts the composes that did happen).
+
+use glam::Vec3;
+use prm::prm_file::Prm;
+use prm::{luminance, Bvh, Light};
+use rayon::prelude::*;
+
+/// Irradiance at every entry point from `lights`, with ray-traced visibility.
+pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
+    prm.entries
+        .par_iter()
+        .map(|e| {
+            let mut sum = Vec3::ZERO;
+            for l in lights {
+                let inc = l.incident(e.position);
+                let cos = e.normal.dot(inc.to_light);
+                if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
+                    continue;
+                }
+                let visible = if l.is_positional() { bvh.visible_point(e.position, e.normal, l.position) } else { bvh.visible_dir(e.position, e.normal, inc.to_light) };
+                if visible {
+                    sum += inc.irradiance * cos;
+                }
+            }
+            sum
+        })
+        .collect()
+}
+
+/// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,
+/// strongest first; zero-weight clusters are left out.
+pub fn select_top_k(weights: &[Vec3], energies: &[f32], k: usize) -> Vec<usize> {
+    let mut scored: Vec<(f32, usize)> = weights
+        .iter()
+        .zip(energies)
+        .enumerate()
+        .map(|(c, (w, e))| (luminance(*w) * e, c))
+        .filter(|(s, _)| *s > 0.0)
+        .collect();
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    scored.truncate(k);
+    scored.into_iter().map(|(_, c)| c).collect()
+}
+
+/// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
+pub struct CpuTwin<'a> {
+    prm: &'a Prm,
+    bvh: &'a Bvh,
+    top_k: usize,
+    offsets: Vec<usize>,
+    last_lights: Option<Vec<Light>>,
+    lightmap: Vec<Vec3>,
+    /// Composes performed (a frame with unchanged lights adds none).
+    pub composes: usize,
+    /// Clusters composed in the last compose.
+    pub last_selected: usize,
+}
+
+impl<'a> CpuTwin<'a> {
+    /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
+    pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
+        let (offsets, _) = prm.tile_offsets();
+        let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
+        CpuTwin { prm, bvh, top_k, offsets, last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0 }
+    }
+
+    /// The indirect lightmap (full atlas, row-major, W/m²) for these lights.
+    pub fn frame(&mut self, lights: &[Light]) -> &[Vec3] {
+        if self.last_lights.as_deref() == Some(lights) {
+            return &self.lightmap;
+        }
+        let e = entry_irradiance(self.prm, self.bvh, lights);
+        let w = self.prm.cluster_weights(&e);
+        let energies: Vec<f32> = self.prm.clusters.iter().map(|c| c.energy).collect();
+        let selected = select_top_k(&w, &energies, self.top_k);
+        self.lightmap.iter_mut().for_each(|v| *v = Vec3::ZERO);
+        for &c in &selected {
+            self.prm.add_pane_with(c, w[c], &mut self.lightmap, &self.offsets);
+        }
+        self.composes += 1;
+        self.last_selected = selected.len();
+        self.last_lights = Some(lights.to_vec());
+        &self.lightmap
+    }
+}
