@@ -215,7 +215,9 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
 
     for p in prims {
         let base = scene.positions.len() as u32;
-        let uv1 = p.uv1.expect("every primitive has lightmap UVs after unwrapping");
+        let Some(uv1) = p.uv1 else {
+            return Err(SceneError::Unwrap { path: path.into(), reason: format!("{}: no lightmap UVs after unwrapping", p.place) });
+        };
         scene.positions.extend(p.positions);
         scene.normals.extend(p.normals);
         scene.uv1.extend(uv1);
