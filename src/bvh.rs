@@ -204,6 +204,25 @@ impl Bvh {
     }
 }
 
+/// Irradiance at surface point `p` (unit normal `n`) from punctual `lights`, each with a shadow
+/// ray (W/m²). The precompute's evaluation, the runtime's CPU twin and the reference baker
+/// share it; the ground truth keeps its own on purpose (DESIGN.md §7).
+pub fn direct_irradiance(bvh: &Bvh, lights: &[crate::Light], p: Vec3, n: Vec3) -> Vec3 {
+    let mut sum = Vec3::ZERO;
+    for l in lights {
+        let inc = l.incident(p);
+        let cos = n.dot(inc.to_light);
+        if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
+            continue;
+        }
+        let visible = if l.is_positional() { bvh.visible_point(p, n, l.position) } else { bvh.visible_dir(p, n, inc.to_light) };
+        if visible {
+            sum += inc.irradiance * cos;
+        }
+    }
+    sum
+}
+
 /// Möller-Trumbore ray/triangle test, both faces: `(t, u, v)` when `tmin < t < tmax`.
 #[inline(always)]
 fn intersect(tri: &BvhTriangle, ray: &Ray) -> Option<(f32, f32, f32)> {

@@ -17,24 +17,7 @@ use rayon::prelude::*;
 
 /// Irradiance at every entry point from `lights`, with ray-traced visibility.
 pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
-    prm.entries
-        .par_iter()
-        .map(|e| {
-            let mut sum = Vec3::ZERO;
-            for l in lights {
-                let inc = l.incident(e.position);
-                let cos = e.normal.dot(inc.to_light);
-                if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
-                    continue;
-                }
-                let visible = if l.is_positional() { bvh.visible_point(e.position, e.normal, l.position) } else { bvh.visible_dir(e.position, e.normal, inc.to_light) };
-                if visible {
-                    sum += inc.irradiance * cos;
-                }
-            }
-            sum
-        })
-        .collect()
+    prm.entries.par_iter().map(|e| prm::bvh::direct_irradiance(bvh, lights, e.position, e.normal)).collect()
 }
 
 /// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,

@@ -210,21 +210,12 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                     let uv = scene.uv1_corners(t.triangle as usize);
                     let uv_area = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * w * h;
                     let eps = 0.5 * (scene.area(t.triangle as usize) / uv_area.max(1e-12)).sqrt();
-                    let mut direct = Vec3::ZERO;
-                    if !p.indirect_only {
-                        for l in lights {
-                            let inc = l.incident(t.position);
-                            let cos = t.normal.dot(inc.to_light);
-                            if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
-                                continue;
-                            }
-                            rays.fetch_add(1, Ordering::Relaxed);
-                            let vis = if l.is_positional() { bvh.visible_point(t.position, t.normal, l.position) } else { bvh.visible_dir(t.position, t.normal, inc.to_light) };
-                            if vis {
-                                direct += inc.irradiance * cos;
-                            }
-                        }
-                    }
+                    let direct = if p.indirect_only {
+                        Vec3::ZERO
+                    } else {
+                        rays.fetch_add(lights.len(), Ordering::Relaxed);
+                        prm::bvh::direct_irradiance(bvh, lights, t.position, t.normal)
+                    };
                     let mut indirect = Vec3::ZERO;
                     let s = p.visibility_samples;
                     // Visibility weighted the way the light reaches this texel: member VPLs are
