@@ -417,6 +417,9 @@ impl Prm {
             .chunks_exact(48)
             .map(|b| Entry { position: v3(b, 0), normal: v3(b, 12), albedo: v3(b, 24), area: f32_at(b, 36), triangle: u32_at(b, 40) })
             .collect();
+        if let Some(k) = entries.iter().position(|e| !(e.position.is_finite() && e.normal.is_finite() && e.albedo.is_finite() && e.area.is_finite() && e.area >= 0.0)) {
+            return Err(corrupt(format!("entry {k} has non-finite or negative values")));
+        }
         let c = next(b"CLUS")?;
         if c.len() as u64 != header.clusters as u64 * 32 {
             return Err(corrupt(format!("{} clusters declared, {} bytes of clusters", header.clusters, c.len())));
@@ -466,6 +469,12 @@ impl Prm {
             return Err(corrupt(format!("tile data is {} bytes, the tiles' masked texels need {}", d.len(), want * 2)));
         }
         prm.data = d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect();
+        if let Some(k) = prm.data.iter().position(|v| !(v.is_finite() && v.to_f32() >= 0.0)) {
+            return Err(corrupt(format!("tile texel {k} is not a finite, non-negative intensity")));
+        }
+        if let Some(c) = prm.clusters.iter().position(|c| !(c.energy.is_finite() && c.energy >= 0.0 && c.centroid.is_finite())) {
+            return Err(corrupt(format!("cluster {c} has a non-finite energy or centroid")));
+        }
         Ok(prm)
     }
 }

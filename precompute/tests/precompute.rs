@@ -327,3 +327,42 @@ fn entries_inside_a_solid_are_recognised() {
     assert!(prm.entries.len() < 512 && prm.entries.len() > 400, "{} entries kept", prm.entries.len());
     assert!(prm.entries.iter().all(|e| !(e.position.y < 1e-4 && e.position.x.abs() < 0.49 && e.position.z.abs() < 0.49)));
 }
+
+#[test]
+fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
+    // Byte flips, truncations and splices, each re-checksummed so the parser behind the
+    // checksum is exercised too. Every outcome must be Ok or an error.
+    use rand::{Rng, SeedableRng};
+    let scene = closed_box(0.5);
+    let bytes = bake(&scene, &params(64, 4, 8, 16)).to_bytes();
+    let body_len = bytes.len() - 8;
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(77);
+    let mut refused = 0;
+    for _ in 0..3000 {
+        let mut b = bytes[..body_len].to_vec();
+        match rng.random_range(0..3) {
+            0 => {
+                for _ in 0..rng.random_range(1..8) {
+                    let i = rng.random_range(0..b.len());
+                    b[i] = rng.random();
+                }
+            }
+            1 => b.truncate(rng.random_range(0..b.len())),
+            _ => {
+                let i = rng.random_range(0..b.len());
+                let j = rng.random_range(0..b.len());
+                let chunk: Vec<u8> = b[j..(j + 16).min(b.len())].to_vec();
+                b.splice(i..i, chunk);
+            }
+        }
+        let sum = prm::prm_file::fnv1a(prm::prm_file::FNV_START, &b);
+        b.extend_from_slice(&sum.to_le_bytes());
+        let r = std::panic::catch_unwind(|| Prm::from_bytes(Path::new("m.prm"), &b).map(|p| p.compose(&vec![Vec3::ONE; p.clusters.len()])));
+        match r {
+            Ok(Ok(img)) => assert!(img.iter().all(|v| v.is_finite() && v.min_element() >= 0.0), "a loaded file composes to bad values"),
+            Ok(Err(_)) => refused += 1,
+            Err(_) => panic!("a mutated file made the loader or compose panic"),
+        }
+    }
+    assert!(refused > 1000, "most mutations are refused ({refused})");
+}
