@@ -13,6 +13,7 @@ mod gen_assets;
 mod ground_truth;
 mod info;
 mod precompute;
+mod render;
 mod texels;
 
 /// Precomputed radiance maps: indirect light for static levels under moving lights.
@@ -41,6 +42,8 @@ enum Command {
     Precompute(precompute::Args),
     /// Write a .prm's pane atlases as EXR pages.
     ExportPanes(export_panes::Args),
+    /// Render frames under a (moving) light rig: direct light + the PRM's indirect lightmap.
+    Render(render::Args),
     /// Bake the static reference lightmap with virtual polygon lights (paper 000).
     BakeReference(bake_reference::Args),
     /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).
@@ -60,5 +63,6 @@ fn main() -> Result<()> {
         Command::ExportPanes(a) => export_panes::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::BakeReference(a) => bake_reference::run(a),
+        Command::Render(a) => render::run(a),
     }
 }

@@ -205,3 +205,29 @@ fn rigs_drive_evaluate_and_ground_truth() {
     let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "-o", s(&f0)]);
     assert!(!ok && err.contains("'sun'") && err.contains("no such light"), "{err}");
 }
+
+#[test]
+fn render_writes_frames_that_follow_the_rig() {
+    let dir = tempfile::tempdir().unwrap();
+    let prm_path = dir.path().join("c.prm");
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
+    assert!(ok, "{err}");
+    let rig = dir.path().join("rig.json");
+    std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
+        {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
+    let out = dir.path().join("frames");
+    let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--lightmap-out", "-o", s(&out)]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("3 frames, 3 composes"), "{stdout}");
+    let frame = |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
+    let (f0, f2) = (frame(0), frame(2));
+    assert!(f0.iter().chain(&f2).all(|v| v.is_finite() && v.min_element() >= 0.0));
+    assert!(f0.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2);
+    assert_ne!(f0, f2, "the light moved");
+    assert!(out.join("frame_0001.png").exists() && out.join("lightmap_0002.exr").exists());
+    // Without a rig the lights do not move: one compose for all frames.
+    let (ok, stdout, _) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--frames", "3", "--width", "8", "-o", s(&out)]);
+    assert!(ok && stdout.contains("3 frames, 1 composes"), "{stdout}");
+    let (ok, _, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--backend", "gpu", "-o", s(&out)]);
+    assert!(!ok && err.contains("GPU backend is not built yet"), "{err}");
+}

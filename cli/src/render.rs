@@ -1,0 +1,184 @@
+//! `prm render`: frames of a level under a (moving) light rig, shaded with direct light and the
+//! PRM's indirect lightmap. Today on the CPU twin: the lightmap from `prm_runtime::cpu`, the
+//! frame by ray casting (first hit, direct light with shadow rays, bilinear indirect lookup),
+//! `L = emission + albedo / pi x (E_direct + E_indirect)`. The wgpu backend comes with the
+//! runtime issue.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use glam::{Vec2, Vec3, Vec4Swizzles};
+use prm::exr_io::Channels;
+use prm::prm_file::Prm;
+use prm::{Bvh, Scene};
+use prm_runtime::cpu::CpuTwin;
+use rayon::prelude::*;
+
+use crate::common::{load, SceneArgs};
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Backend {
+    Cpu,
+    Gpu,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// The level's .prm.
+    #[arg(long)]
+    prm: PathBuf,
+    /// Light rig (JSON); without one the level's glTF lights, unmoving.
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// Frames over the rig's duration.
+    #[arg(long, default_value_t = 30)]
+    frames: usize,
+    /// glTF camera to render from (default: the first).
+    #[arg(long)]
+    camera: Option<String>,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 320)]
+    width: u32,
+    /// Panes composed per frame.
+    #[arg(long, default_value_t = 32)]
+    top_k: usize,
+    #[arg(long, value_enum, default_value = "cpu")]
+    backend: Backend,
+    /// Also write each frame's indirect lightmap as EXR.
+    #[arg(long)]
+    lightmap_out: bool,
+    /// Output folder (created).
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if let Backend::Gpu = a.backend {
+        bail!("the GPU backend is not built yet (it arrives with the runtime issue); use --backend cpu");
+    }
+    if a.frames == 0 || a.frames > 100_000 {
+        bail!("--frames {} is out of range (1 to 100000)", a.frames);
+    }
+    if a.width == 0 || a.width > 8192 {
+        bail!("--width {} is out of range (1 to 8192)", a.width);
+    }
+    let prm_file = Prm::read(&a.prm, None).with_context(|| "reading the radiance map failed")?;
+    let scene = load(&a.scene, prm_file.header.atlas_width, false)?;
+    prm_file.check_scene(&a.prm, &scene)?;
+    let rig = match &a.rig {
+        Some(p) => prm::rig::Rig::load(p, &scene.lights)?,
+        None => prm::rig::Rig::from_lights(&scene.lights),
+    };
+    let cam = match &a.camera {
+        Some(n) => scene.cameras.iter().find(|c| &c.name == n).ok_or_else(|| anyhow!("no camera named '{n}'"))?,
+        None => scene.cameras.first().ok_or_else(|| anyhow!("the level has no camera; add one to the glTF"))?,
+    };
+    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let bvh = Bvh::build(&scene);
+    let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
+    let (w, h) = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
+    let aspect = cam.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
+    let (iw, ih) = (a.width as usize, ((a.width as f32 / aspect).round() as usize).max(1));
+    let mut totals = (0.0, 0.0);
+    for f in 0..a.frames {
+        let lights = rig.frame(f, a.frames);
+        let t = Instant::now();
+        let lightmap = twin.frame(&lights).to_vec();
+        let compose_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let img = shade(&scene, &bvh, cam, &lights, &lightmap, (w, h), (iw, ih));
+        let shade_s = t.elapsed().as_secs_f64();
+        totals.0 += compose_s;
+        totals.1 += shade_s;
+        let mut ch = Channels::new(iw, ih);
+        ch.insert_rgb("", &img);
+        let stem = a.output.join(format!("frame_{f:04}"));
+        ch.write(&stem.with_extension("exr")).with_context(|| format!("writing {}", stem.display()))?;
+        write_png(&stem.with_extension("png"), &img, iw, ih)?;
+        if a.lightmap_out {
+            let mut lm = Channels::new(w, h);
+            lm.insert_rgb("", &lightmap);
+            let p = a.output.join(format!("lightmap_{f:04}.exr"));
+            lm.write(&p).with_context(|| format!("writing {}", p.display()))?;
+        }
+        println!("frame {f:4}: lightmap {:7.2} ms ({} panes), shading {:7.2} ms", compose_s * 1e3, twin.last_selected, shade_s * 1e3);
+    }
+    println!(
+        "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU, {} threads) -> {}",
+        a.frames,
+        twin.composes,
+        totals.0 * 1e3 / a.frames as f64,
+        totals.1 * 1e3 / a.frames as f64,
+        rayon::current_num_threads(),
+        a.output.display()
+    );
+    Ok(())
+}
+
+/// Bilinear lookup of a full-atlas image at lightmap UV `uv` (texel centres at (i+0.5)/W).
+fn bilinear(img: &[Vec3], (w, h): (usize, usize), uv: Vec2) -> Vec3 {
+    let x = uv.x * w as f32 - 0.5;
+    let y = uv.y * h as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let at = |i: f32, j: f32| img[(j.clamp(0.0, h as f32 - 1.0) as usize) * w + i.clamp(0.0, w as f32 - 1.0) as usize];
+    let top = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
+    let bottom = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
+    top.lerp(bottom, fy)
+}
+
+fn shade(scene: &Scene, bvh: &Bvh, cam: &prm::Camera, lights: &[prm::Light], lightmap: &[Vec3], atlas: (usize, usize), (iw, ih): (usize, usize)) -> Vec<Vec3> {
+    let origin = cam.to_world.col(3).xyz();
+    let (right, up, back) = (cam.to_world.col(0).xyz().normalize(), cam.to_world.col(1).xyz().normalize(), cam.to_world.col(2).xyz().normalize());
+    let tan = (cam.yfov * 0.5).tan();
+    let aspect = iw as f32 / ih as f32;
+    (0..iw * ih)
+        .into_par_iter()
+        .map(|k| {
+            let (i, j) = (k % iw, k / iw);
+            let x = (2.0 * (i as f32 + 0.5) / iw as f32 - 1.0) * tan * aspect;
+            let y = (1.0 - 2.0 * (j as f32 + 0.5) / ih as f32) * tan;
+            let d = (right * x + up * y - back).normalize();
+            let Some(hit) = bvh.closest_hit(origin, d, f32::INFINITY) else { return Vec3::ZERO };
+            let t = hit.triangle as usize;
+            let mut n = scene.face_normal(t);
+            let m = scene.material(t);
+            if n.dot(d) > 0.0 {
+                if !m.double_sided {
+                    return Vec3::ZERO;
+                }
+                n = -n;
+            }
+            let b = hit.bary();
+            let p = scene.point(t, b);
+            let [u0, u1, u2] = scene.uv1_corners(t);
+            let uv = u0 * b.x + u1 * b.y + u2 * b.z;
+            let direct = prm::bvh::direct_irradiance(bvh, lights, p, n);
+            let indirect = bilinear(lightmap, atlas, uv);
+            m.emissive + scene.albedo(t, b) / std::f32::consts::PI * (direct + indirect)
+        })
+        .collect()
+}
+
+/// Tone-mapped sRGB PNG (exposure from the frame's mean luminance, Reinhard), written atomically.
+fn write_png(path: &Path, img: &[Vec3], w: usize, h: usize) -> Result<()> {
+    let mean = img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>() / img.len().max(1) as f64;
+    let exposure = if mean > 0.0 { (0.18 / mean) as f32 } else { 1.0 };
+    let enc = |c: f32| {
+        let c = c * exposure;
+        let c = c / (1.0 + c);
+        let s = if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
+        (s.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+    };
+    let mut out = image::RgbImage::new(w as u32, h as u32);
+    for (k, v) in img.iter().enumerate() {
+        out.put_pixel((k % w) as u32, (k / w) as u32, image::Rgb([enc(v.x), enc(v.y), enc(v.z)]));
+    }
+    let tmp = prm::fsutil::temp_path(path);
+    out.save_with_format(&tmp, image::ImageFormat::Png).with_context(|| format!("writing {}", path.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
