@@ -3,26 +3,12 @@
 
 use std::sync::atomic::AtomicBool;
 
-use glam::{Vec2, Vec3};
+mod common;
+
+use glam::Vec3;
 use prm::{Bvh, Light, LightKind, Material, Scene, TexelSet};
 use prm_precompute::ground_truth::{GtParams, Tracer};
 
-/// Quads (a, b, c, d counter-clockwise from the front) as one scene, each quad its own chart
-/// on a 4 x 4 grid of UV cells.
-fn quads(qs: &[[Vec3; 4]]) -> Scene {
-    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, q) in qs.iter().enumerate() {
-        let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
-        let base = pos.len() as u32;
-        for (c, p) in q.iter().enumerate() {
-            pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
-            uv.push((cell + Vec2::splat(0.05) + corner * 0.9) / 4.0);
-        }
-        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    Scene::from_mesh(pos, uv, &idx)
-}
 
 fn floor_quad(half: f32) -> [Vec3; 4] {
     [Vec3::new(-half, 0.0, -half), Vec3::new(-half, 0.0, half), Vec3::new(half, 0.0, half), Vec3::new(half, 0.0, -half)]
@@ -30,7 +16,7 @@ fn floor_quad(half: f32) -> [Vec3; 4] {
 
 #[test]
 fn point_light_over_a_plane_is_inverse_square_times_cosine() {
-    let mut scene = quads(&[floor_quad(2.0)]);
+    let mut scene = common::quads(&[floor_quad(2.0)], 0.5);
     let light_pos = Vec3::new(0.3, 1.5, -0.2);
     let intensity = Vec3::new(10.0, 5.0, 2.5);
     scene.lights.push(Light { name: "p".into(), kind: LightKind::Point, position: light_pos, direction: -Vec3::Y, intensity, range: None });
@@ -51,15 +37,7 @@ fn point_light_over_a_plane_is_inverse_square_times_cosine() {
 
 /// A closed unit box facing inward, every wall emitting `le` with albedo `a`.
 fn furnace(a: f32, le: f32) -> Scene {
-    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-    let mut s = quads(&[
-        [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-        [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
-        [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-        [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
-        [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-        [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-    ]);
+    let mut s = common::quads(&common::unit_box_faces(), 0.5);
     s.materials[0] = Material { albedo: Vec3::splat(a), emissive: Vec3::splat(le), ..Default::default() };
     s
 }
@@ -106,7 +84,7 @@ fn square_emitter_irradiance_matches_the_form_factor() {
     let h = 0.7;
     // Emitter faces down (-y), 0.8 x 0.8, offset from the receiver's centre.
     let em = [Vec3::new(-0.2, h, -0.3), Vec3::new(0.6, h, -0.3), Vec3::new(0.6, h, 0.5), Vec3::new(-0.2, h, 0.5)];
-    let mut scene = quads(&[floor_quad(1.0), em]);
+    let mut scene = common::quads(&[floor_quad(1.0), em], 0.5);
     scene.materials[0].albedo = Vec3::ZERO;
     scene.materials.push(Material { albedo: Vec3::ZERO, emissive: Vec3::new(3.0, 2.0, 1.0), ..Default::default() });
     for t in scene.triangles.iter_mut().skip(2) {

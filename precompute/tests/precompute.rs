@@ -4,7 +4,10 @@
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
-use glam::{Vec2, Vec3};
+mod common;
+
+use common::{quads, unit_box_faces, v};
+use glam::Vec3;
 use prm::prm_file::{Prm, PrmError};
 use prm::{Bvh, Scene, TexelSet};
 use prm_precompute::cluster::cluster_entries;
@@ -12,41 +15,11 @@ use prm_precompute::entries::sample_entries;
 use prm_precompute::precompute::{precompute, PrecomputeParams};
 use prm_precompute::transport::{Estimator, Transport};
 
-/// Quads (counter-clockwise from the front) as one scene, each its own UV chart on a 4 x 4 grid.
-fn quads(qs: &[[Vec3; 4]], albedo: f32) -> Scene {
-    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, q) in qs.iter().enumerate() {
-        let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
-        let base = pos.len() as u32;
-        for (c, p) in q.iter().enumerate() {
-            pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
-            uv.push((cell + Vec2::splat(0.08) + corner * 0.84) / 4.0);
-        }
-        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    let mut s = Scene::from_mesh(pos, uv, &idx);
-    s.materials[0].albedo = Vec3::splat(albedo);
-    s
-}
 
-fn v(x: f32, y: f32, z: f32) -> Vec3 {
-    Vec3::new(x, y, z)
-}
 
 /// A closed unit box, faces inward.
 fn closed_box(albedo: f32) -> Scene {
-    quads(
-        &[
-            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-            [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
-            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-            [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
-            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-        ],
-        albedo,
-    )
+    quads(&unit_box_faces(), albedo)
 }
 
 fn params(entries: u32, paths: u32, clusters: u32, atlas: u32) -> PrecomputeParams {

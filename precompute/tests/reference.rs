@@ -3,31 +3,15 @@
 
 use std::sync::atomic::AtomicBool;
 
-use glam::{Vec2, Vec3};
+mod common;
+
+use common::{quads, unit_box_faces, v};
+use glam::Vec3;
 use prm::{Bvh, Light, LightKind, Scene, TexelSet};
 use prm_precompute::ground_truth::{GtParams, Tracer};
 use prm_precompute::reference::bake::{evaluate, virtual_lights, BakeParams};
 
-fn quads(qs: &[[Vec3; 4]], albedo: f32) -> Scene {
-    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, q) in qs.iter().enumerate() {
-        let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
-        let base = pos.len() as u32;
-        for (c, p) in q.iter().enumerate() {
-            pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
-            uv.push((cell + Vec2::splat(0.08) + corner * 0.84) / 4.0);
-        }
-        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    let mut s = Scene::from_mesh(pos, uv, &idx);
-    s.materials[0].albedo = Vec3::splat(albedo);
-    s
-}
 
-fn v(x: f32, y: f32, z: f32) -> Vec3 {
-    Vec3::new(x, y, z)
-}
 
 fn point_light(at: Vec3, i: f32) -> Light {
     Light { name: "p".into(), kind: LightKind::Point, position: at, direction: -Vec3::Y, intensity: Vec3::splat(i), range: None }
@@ -35,17 +19,7 @@ fn point_light(at: Vec3, i: f32) -> Light {
 
 /// A closed unit box, faces inward, with a point light inside.
 fn lit_box(albedo: f32) -> Scene {
-    let mut s = quads(
-        &[
-            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-            [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
-            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-            [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
-            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-        ],
-        albedo,
-    );
+    let mut s = quads(&unit_box_faces(), albedo);
     s.lights.push(point_light(v(0.3, 0.7, 0.4), 2.0));
     s
 }
