@@ -1,8 +1,9 @@
 //! `prm precompute`: a level becomes a precomputed radiance map (DESIGN.md §4, paper 004).
 //!
-//! Phases: entry points -> clustering -> light transport (the panes' contents) -> pane atlases.
-//! Every random stream is seeded from (seed, purpose, index), so the result is the same bytes
-//! at any thread count.
+//! Phases: texel set -> entry points (those inside solids left out) -> clustering -> light
+//! transport (the panes' contents, `transport`) -> pane atlases (geometry-guided smoothing,
+//! dilation, tiles, `panes`). Every random stream is seeded from (seed, purpose, index), so the
+//! result is the same bytes at any thread count.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
