@@ -119,6 +119,16 @@ pub struct Prm {
     pub data: Vec<f16>,
 }
 
+/// Where each stored tile's texels are: per atlas tile index, the row-major atlas texels stored
+/// there (in storage order), and per stored tile, the start of its data.
+#[derive(Clone, Debug)]
+pub struct TileLayout {
+    pub texels: Vec<Vec<u32>>,
+    pub offsets: Vec<usize>,
+    /// Total stored texels over all tiles.
+    pub len: usize,
+}
+
 /// Pack a per-texel boolean mask into bits.
 pub fn pack_mask(mask: &[bool]) -> Vec<u8> {
     let mut out = vec![0u8; mask.len().div_ceil(8)];
@@ -188,35 +198,6 @@ impl Prm {
         self.mask[k / 8] & (1 << (k % 8)) != 0
     }
 
-    /// Atlas texels (row-major indices) stored for tile `index`, in storage order.
-    pub fn tile_texel_list(&self, index: u32) -> Vec<usize> {
-        let ts = self.header.tile_size as usize;
-        let (w, h) = (self.header.atlas_width as usize, self.header.atlas_height as usize);
-        let tx = self.tiles_x() as usize;
-        let (ti, tj) = (index as usize % tx, index as usize / tx);
-        let mut out = Vec::new();
-        for j in tj * ts..((tj + 1) * ts).min(h) {
-            for i in ti * ts..((ti + 1) * ts).min(w) {
-                if self.stored(j * w + i) {
-                    out.push(j * w + i);
-                }
-            }
-        }
-        out
-    }
-
-    /// Start of each tile's data in [`Prm::data`], and the total length.
-    pub fn tile_offsets(&self) -> (Vec<usize>, usize) {
-        let counts: Vec<usize> = (0..self.tiles_x() * self.tiles_y()).map(|i| self.tile_texel_list(i).len()).collect();
-        let mut offsets = Vec::with_capacity(self.tiles.len());
-        let mut at = 0;
-        for t in &self.tiles {
-            offsets.push(at);
-            at += counts.get(t.index as usize).copied().unwrap_or(0);
-        }
-        (offsets, at)
-    }
-
     /// Tiles across the atlas.
     pub fn tiles_x(&self) -> u32 {
         self.header.atlas_width.div_ceil(self.header.tile_size)
@@ -227,20 +208,48 @@ impl Prm {
         self.header.atlas_height.div_ceil(self.header.tile_size)
     }
 
-    /// Add `weight x pane_c` into a full-atlas image (row-major, W x H).
-    pub fn add_pane(&self, c: usize, weight: Vec3, img: &mut [Vec3]) {
-        let (offsets, _) = self.tile_offsets();
-        self.add_pane_with(c, weight, img, &offsets);
+    /// Where every stored tile's texels live: built once per map, then used by every compose.
+    pub fn layout(&self) -> TileLayout {
+        let ts = self.header.tile_size as usize;
+        let (w, h) = (self.header.atlas_width as usize, self.header.atlas_height as usize);
+        let tx = self.tiles_x() as usize;
+        let texels: Vec<Vec<u32>> = (0..self.tiles_x() as usize * self.tiles_y() as usize)
+            .map(|index| {
+                let (ti, tj) = (index % tx, index / tx);
+                let mut out = Vec::new();
+                for j in tj * ts..((tj + 1) * ts).min(h) {
+                    for i in ti * ts..((ti + 1) * ts).min(w) {
+                        if self.stored(j * w + i) {
+                            out.push((j * w + i) as u32);
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(self.tiles.len());
+        let mut len = 0;
+        for t in &self.tiles {
+            offsets.push(len);
+            len += texels.get(t.index as usize).map_or(0, Vec::len);
+        }
+        TileLayout { texels, offsets, len }
     }
 
-    /// [`Prm::add_pane`] with precomputed [`Prm::tile_offsets`].
-    pub fn add_pane_with(&self, c: usize, weight: Vec3, img: &mut [Vec3], offsets: &[usize]) {
+    /// Add `weight x pane_c` into a full-atlas image (row-major, W x H).
+    pub fn add_pane(&self, c: usize, weight: Vec3, img: &mut [Vec3]) {
+        self.add_pane_with(c, weight, img, &self.layout());
+    }
+
+    /// [`Prm::add_pane`] with a [`Prm::layout`] built beforehand.
+    pub fn add_pane_with(&self, c: usize, weight: Vec3, img: &mut [Vec3], layout: &TileLayout) {
         let cl = &self.clusters[c];
         for k in cl.first_tile as usize..(cl.first_tile + cl.tile_count) as usize {
             let tile = &self.tiles[k];
             let s = weight * tile.scale;
-            for (n, texel) in self.tile_texel_list(tile.index).into_iter().enumerate() {
-                img[texel] += s * self.data[offsets[k] + n].to_f32();
+            let data = &self.data[layout.offsets[k]..];
+            for (&texel, v) in layout.texels[tile.index as usize].iter().zip(data) {
+                img[texel as usize] += s * v.to_f32();
             }
         }
     }
@@ -250,10 +259,10 @@ impl Prm {
     pub fn compose(&self, weights: &[Vec3]) -> Vec<Vec3> {
         assert_eq!(weights.len(), self.clusters.len());
         let mut img = vec![Vec3::ZERO; (self.header.atlas_width * self.header.atlas_height) as usize];
-        let (offsets, _) = self.tile_offsets();
+        let layout = self.layout();
         for (c, w) in weights.iter().enumerate() {
             if *w != Vec3::ZERO {
-                self.add_pane_with(c, *w, &mut img, &offsets);
+                self.add_pane_with(c, *w, &mut img, &layout);
             }
         }
         img
@@ -464,7 +473,7 @@ impl Prm {
             return Err(corrupt(format!("{} unexpected bytes after the last section", body.len() - at)));
         }
         let mut prm = Prm { header, entries, clusters, tiles, mask, data: Vec::new() };
-        let (_, want) = prm.tile_offsets();
+        let want = prm.layout().len;
         if d.len() as u64 != want as u64 * 2 {
             return Err(corrupt(format!("tile data is {} bytes, the tiles' masked texels need {}", d.len(), want * 2)));
         }

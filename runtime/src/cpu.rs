@@ -40,7 +40,7 @@ pub struct CpuTwin<'a> {
     prm: &'a Prm,
     bvh: &'a Bvh,
     top_k: usize,
-    offsets: Vec<usize>,
+    layout: prm::prm_file::TileLayout,
     last_lights: Option<Vec<Light>>,
     lightmap: Vec<Vec3>,
     /// Composes performed (a frame with unchanged lights adds none).
@@ -52,9 +52,8 @@ pub struct CpuTwin<'a> {
 impl<'a> CpuTwin<'a> {
     /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
     pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
-        let (offsets, _) = prm.tile_offsets();
         let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
-        CpuTwin { prm, bvh, top_k, offsets, last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0 }
+        CpuTwin { prm, bvh, top_k, layout: prm.layout(), last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0 }
     }
 
     /// The indirect lightmap (full atlas, row-major, W/m²) for these lights.
@@ -68,7 +67,7 @@ impl<'a> CpuTwin<'a> {
         let selected = select_top_k(&w, &energies, self.top_k);
         self.lightmap.iter_mut().for_each(|v| *v = Vec3::ZERO);
         for &c in &selected {
-            self.prm.add_pane_with(c, w[c], &mut self.lightmap, &self.offsets);
+            self.prm.add_pane_with(c, w[c], &mut self.lightmap, &self.layout);
         }
         self.composes += 1;
         self.last_selected = selected.len();
