@@ -167,6 +167,14 @@ impl TexelSet {
         }
     }
 
+    /// Side of one texel in scene units on triangle `t`: the square root of its world area per
+    /// texel of its lightmap-UV area.
+    pub fn world_texel_size(&self, scene: &Scene, t: usize) -> f32 {
+        let uv = scene.uv1_corners(t);
+        let texels = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (self.width as f32 * self.height as f32);
+        (scene.area(t) / texels.max(1e-12)).sqrt()
+    }
+
     /// Geometry-guided smoothing weights: for each covered texel, the covered texels within
     /// `radius` (in texels) that lie on the same surface (normals within ~25 degrees, off each
     /// other's plane by under a quarter of the filter's world size, and no farther in the world
@@ -176,15 +184,7 @@ impl TexelSet {
     pub fn smoothing_kernel(&self, scene: &Scene, radius: u32) -> Vec<Vec<(u32, f32)>> {
         let r = radius as i64;
         let (w, h) = (self.width as i64, self.height as i64);
-        let texel_size: Vec<f32> = self
-            .texels
-            .iter()
-            .map(|t| {
-                let uv = scene.uv1_corners(t.triangle as usize);
-                let uv_area = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (w * h) as f32;
-                (scene.area(t.triangle as usize) / uv_area.max(1e-12)).sqrt()
-            })
-            .collect();
+        let texel_size: Vec<f32> = self.texels.iter().map(|t| self.world_texel_size(scene, t.triangle as usize)).collect();
         let sigma2 = (0.5 * radius as f32 + 0.5).powi(2);
         self.texels
             .par_iter()

@@ -94,10 +94,7 @@ pub struct RigArgs {
 impl RigArgs {
     /// The rig (the level's lights when none is given).
     pub fn rig(&self, scene: &Scene) -> Result<prm::rig::Rig> {
-        match &self.rig {
-            Some(p) => Ok(prm::rig::Rig::load(p, &scene.lights)?),
-            None => Ok(prm::rig::Rig::from_lights(&scene.lights)),
-        }
+        load_rig(self.rig.as_deref(), scene)
     }
 
     /// The lights of the chosen frame.
@@ -107,4 +104,20 @@ impl RigArgs {
         }
         Ok(self.rig(scene)?.frame(self.frame, self.frames))
     }
+}
+
+/// A rig file read against the level's lights, or the level's lights unmoving.
+pub fn load_rig(path: Option<&std::path::Path>, scene: &Scene) -> Result<prm::rig::Rig> {
+    match path {
+        Some(p) => Ok(prm::rig::Rig::load(p, &scene.lights)?),
+        None => Ok(prm::rig::Rig::from_lights(&scene.lights)),
+    }
+}
+
+/// A `.prm` and the level it must have been baked for (loaded at the map's atlas size).
+pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Scene, prm::prm_file::Prm)> {
+    let map = prm::prm_file::Prm::read(prm_path, None).with_context(|| "reading the radiance map failed")?;
+    let scene = load(args, map.header.atlas_width, false)?;
+    map.check_scene(prm_path, &scene)?;
+    Ok((scene, map))
 }

@@ -6,10 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use prm::exr_io::Channels;
-use prm::prm_file::Prm;
 use prm::{Bvh, TexelSet};
 
-use crate::common::{load, RigArgs, SceneArgs};
+use crate::common::{load_with_prm, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -29,9 +28,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let bytes_prm = Prm::read(&a.prm, None).with_context(|| "reading the radiance map failed")?;
-    let scene = load(&a.scene, bytes_prm.header.atlas_width, false)?;
-    bytes_prm.check_scene(&a.prm, &scene)?;
+    let (scene, bytes_prm) = load_with_prm(&a.scene, &a.prm)?;
     let bvh = Bvh::build(&scene);
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));

@@ -10,12 +10,11 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3, Vec4Swizzles};
 use prm::exr_io::Channels;
-use prm::prm_file::Prm;
 use prm::{Bvh, Scene};
 use prm_runtime::cpu::CpuTwin;
 use rayon::prelude::*;
 
-use crate::common::{load, SceneArgs};
+use crate::common::{load_rig, load_with_prm, SceneArgs};
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum Backend {
@@ -65,13 +64,8 @@ pub fn run(a: Args) -> Result<()> {
     if a.width == 0 || a.width > 8192 {
         bail!("--width {} is out of range (1 to 8192)", a.width);
     }
-    let prm_file = Prm::read(&a.prm, None).with_context(|| "reading the radiance map failed")?;
-    let scene = load(&a.scene, prm_file.header.atlas_width, false)?;
-    prm_file.check_scene(&a.prm, &scene)?;
-    let rig = match &a.rig {
-        Some(p) => prm::rig::Rig::load(p, &scene.lights)?,
-        None => prm::rig::Rig::from_lights(&scene.lights),
-    };
+    let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
+    let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = match &a.camera {
         Some(n) => scene.cameras.iter().find(|c| &c.name == n).ok_or_else(|| anyhow!("no camera named '{n}'"))?,
         None => scene.cameras.first().ok_or_else(|| anyhow!("the level has no camera; add one to the glTF"))?,

@@ -194,7 +194,6 @@ pub struct Baked {
 pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: &VirtualLights, p: &BakeParams, progress: &(dyn Fn(usize) + Sync), cancel: &AtomicBool) -> Result<Baked, Cancelled> {
     let rays = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
-    let (w, h) = (set.width as f32, set.height as f32);
     let chunks: Vec<Option<Vec<(Vec3, Vec3)>>> = set
         .texels
         .par_chunks(64)
@@ -207,9 +206,7 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                 .map(|t| {
                     let mut rng = stream(p.seed, 30, (t.j * set.width + t.i) as u64);
                     // Half a texel, in world units, for the epsilon shift.
-                    let uv = scene.uv1_corners(t.triangle as usize);
-                    let uv_area = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * w * h;
-                    let eps = 0.5 * (scene.area(t.triangle as usize) / uv_area.max(1e-12)).sqrt();
+                    let eps = 0.5 * set.world_texel_size(scene, t.triangle as usize);
                     let direct = if p.indirect_only {
                         Vec3::ZERO
                     } else {
