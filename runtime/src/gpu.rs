@@ -1,0 +1,141 @@
+//! Getting a GPU: for tools and tests that do not bring their own `wgpu::Device`.
+//!
+//! A game creates its device itself and hands it to [`crate::Runtime`]; `prm` and the tests call
+//! [`Gpu::new`], which takes the first high-performance adapter wgpu finds (on a machine without
+//! a GPU, Mesa's software Vulkan driver, lavapipe). Timestamp queries are requested when the
+//! adapter has them, so `prm bench` can time passes on the GPU itself.
+
+/// A device and queue with what is known about the adapter behind them.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no GPU adapter found ({0}). Install a Vulkan driver (on Debian/Ubuntu: \
+         apt-get install mesa-vulkan-drivers, a software driver) or use the CPU twin (--backend cpu)"
+    )]
+    NoAdapter(String),
+    #[error("the GPU adapter '{adapter}' refused a device: {source}")]
+    Device { adapter: String, source: wgpu::RequestDeviceError },
+}
+
+impl Gpu {
+    /// The first high-performance adapter, with timestamp queries where supported.
+    pub fn new() -> Result<Gpu, GpuError> {
+        // Vulkan/Metal/DX12 (GL's probing only adds noise on headless machines); WGPU_BACKEND
+        // still overrides.
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::PRIMARY;
+        let instance = wgpu::Instance::new(desc.with_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let wanted = wgpu::Features::TIMESTAMP_QUERY;
+        let mut limits = wgpu::Limits::default();
+        let have = adapter.limits();
+        limits.max_texture_array_layers = have.max_texture_array_layers;
+        limits.max_storage_buffer_binding_size = have.max_storage_buffer_binding_size;
+        limits.max_buffer_size = have.max_buffer_size;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("prm"),
+            required_features: adapter.features() & wanted,
+            required_limits: limits,
+            ..Default::default()
+        }))
+        .map_err(|source| GpuError::Device { adapter: info.name.clone(), source })?;
+        Ok(Gpu { device, queue, info })
+    }
+
+    /// "name (backend, device type)", for reports.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?}, {:?}, driver {} {})", self.info.name, self.info.backend, self.info.device_type, self.info.driver, self.info.driver_info)
+    }
+}
+
+/// A compute pipeline from WGSL `source`, entry point `entry`, with these bind group layouts.
+pub fn compute_pipeline(device: &wgpu::Device, label: &str, source: &str, entry: &str, groups: &[&wgpu::BindGroupLayout]) -> wgpu::ComputePipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(source.into()) });
+    let groups: Vec<Option<&wgpu::BindGroupLayout>> = groups.iter().map(|g| Some(*g)).collect();
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some(label), bind_group_layouts: &groups, immediate_size: 0 });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: Some(&layout),
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
+/// A bind group layout entry for a storage buffer (read-only or read-write) or a uniform.
+pub fn buffer_entry(binding: u32, stages: wgpu::ShaderStages, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry { binding, visibility: stages, ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None }, count: None }
+}
+
+pub const READ: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: true };
+pub const WRITE: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: false };
+pub const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
+
+/// A storage buffer holding `data` (at least 16 bytes, so empty arrays still bind).
+pub fn storage_buffer(device: &wgpu::Device, label: &str, data: &[u8], extra: wgpu::BufferUsages) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    let mut bytes = data.to_vec();
+    bytes.resize(bytes.len().max(16).next_multiple_of(4), 0);
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: &bytes, usage: wgpu::BufferUsages::STORAGE | extra })
+}
+
+/// A bind group of whole buffers, bound in order from binding 0.
+pub fn bind_buffers(device: &wgpu::Device, label: &str, layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
+}
+
+/// Copies `buffer` back to the CPU, waiting for the GPU (tests, exports, readbacks: not a
+/// per-frame path).
+pub fn read_buffer(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -> Vec<u8> {
+    let staging = device.create_buffer(&wgpu::BufferDescriptor { label: Some("readback"), size: buffer.size(), usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+    let mut enc = device.create_command_encoder(&Default::default());
+    enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
+    queue.submit([enc.finish()]);
+    map_read(device, &staging)
+}
+
+/// Maps a MAP_READ buffer and returns its bytes.
+pub fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Vec<u8> {
+    let slice = staging.slice(..);
+    slice.map_async(wgpu::MapMode::Read, |r| r.expect("mapping a readback buffer"));
+    device.poll(wgpu::PollType::wait_indefinitely()).expect("waiting for the GPU");
+    let bytes = slice.get_mapped_range().expect("reading a mapped readback buffer").to_vec();
+    staging.unmap();
+    bytes
+}
+
+/// Copies an RGBA32Float texture back as RGB rows (row padding removed).
+pub fn read_rgba32f(device: &wgpu::Device, queue: &wgpu::Queue, texture: &wgpu::Texture) -> Vec<glam::Vec3> {
+    let (w, h) = (texture.width(), texture.height());
+    let row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let staging = device.create_buffer(&wgpu::BufferDescriptor { label: Some("texture readback"), size: (row * h) as u64, usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+    let mut enc = device.create_command_encoder(&Default::default());
+    enc.copy_texture_to_buffer(
+        texture.as_image_copy(),
+        wgpu::TexelCopyBufferInfo { buffer: &staging, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(h) } },
+        texture.size(),
+    );
+    queue.submit([enc.finish()]);
+    let bytes = map_read(device, &staging);
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for j in 0..h as usize {
+        let r: &[[f32; 4]] = bytemuck::cast_slice(&bytes[j * row as usize..j * row as usize + w as usize * 16]);
+        out.extend(r.iter().map(|v| glam::Vec3::new(v[0], v[1], v[2])));
+    }
+    out
+}

@@ -1,0 +1,215 @@
+//! The per-frame indirect lightmap on the GPU (DESIGN.md §5 steps 1-4): what a game links.
+//!
+//! [`Runtime::update`] takes the frame's lights. When nothing changed it does nothing at all;
+//! otherwise it re-renders the shadow maps of the lights that moved, then records four compute
+//! passes in one submission: entry irradiance, cluster weights, top-K selection, compose.
+//! The result stays on the GPU in [`Runtime::lightmap`].
+
+use std::path::Path;
+
+use glam::Vec3;
+use prm::prm_file::{Prm, PrmError};
+use prm::{Light, Scene};
+
+use crate::compose::{ComposeBytes, ComposePass};
+use crate::irradiance::EntryPass;
+use crate::layout::IndirectParams;
+use crate::lights::LightError;
+use crate::shadow::ShadowMaps;
+use crate::weights::WeightPass;
+
+/// Runtime settings.
+#[derive(Clone, Copy, Debug)]
+pub struct RuntimeParams {
+    /// Panes composed per frame, the strongest by `luminance(weight) x energy` (default 32;
+    /// >= the cluster count means all).
+    pub top_k: usize,
+    /// Texels per side of each shadow-map layer (default 1024).
+    pub shadow_size: u32,
+}
+
+impl Default for RuntimeParams {
+    fn default() -> Self {
+        RuntimeParams { top_k: 32, shadow_size: 1024 }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    #[error(transparent)]
+    Light(#[from] LightError),
+    #[error(transparent)]
+    Prm(#[from] PrmError),
+    #[error("{0}")]
+    Params(String),
+}
+
+/// What one [`Runtime::update`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Update {
+    /// The lightmap was recomposed (false: lights unchanged, no GPU work at all).
+    pub composed: bool,
+}
+
+pub struct Runtime {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    params: RuntimeParams,
+    params_buf: wgpu::Buffer,
+    shadows: ShadowMaps,
+    entries: EntryPass,
+    weights: WeightPass,
+    compose: ComposePass,
+    energies: Vec<f32>,
+    clusters: usize,
+    entry_count: u32,
+    stale: bool,
+    /// Composes recorded so far (an update with unchanged lights adds none).
+    pub composes: u64,
+}
+
+impl Runtime {
+    /// A runtime for `prm`, baked for `scene`, on the caller's device and queue.
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, prm: &Prm, params: RuntimeParams) -> Result<Runtime, RuntimeError> {
+        prm.check_scene(Path::new("the .prm"), scene)?;
+        if params.top_k == 0 {
+            return Err(RuntimeError::Params("top_k must be at least 1".into()));
+        }
+        let max_2d = device.limits().max_texture_dimension_2d;
+        if !(16..=max_2d).contains(&params.shadow_size) {
+            return Err(RuntimeError::Params(format!("shadow map size {} must be in 16..={max_2d}", params.shadow_size)));
+        }
+        let max_buf = device.limits().max_storage_buffer_binding_size as u64;
+        if (prm.data.len() as u64) * 2 > max_buf {
+            return Err(RuntimeError::Params(format!("the .prm's pane data ({} bytes) exceeds this device's storage-buffer limit ({max_buf} bytes)", prm.data.len() * 2)));
+        }
+        let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("indirect params"),
+            size: std::mem::size_of::<IndirectParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
+        let points: Vec<(Vec3, Vec3)> = prm.entries.iter().map(|e| (e.position, e.normal)).collect();
+        let entries = EntryPass::new(device, &shadows.layout, &params_buf, &points);
+        let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
+        let compose = ComposePass::new(device, prm, &weights.selected);
+        Ok(Runtime {
+            device: device.clone(),
+            queue: queue.clone(),
+            params,
+            params_buf,
+            shadows,
+            entries,
+            weights,
+            compose,
+            energies: prm.clusters.iter().map(|c| c.energy).collect(),
+            clusters: prm.clusters.len(),
+            entry_count: points.len() as u32,
+            stale: true,
+            composes: 0,
+        })
+    }
+
+    /// Brings the lightmap up to date with `lights` (at most [`prm::rig::MAX_LIGHTS`]).
+    pub fn update(&mut self, lights: &[Light]) -> Result<Update, RuntimeError> {
+        self.update_timed(lights, None)
+    }
+
+    /// [`Runtime::update`], writing GPU timestamps around each pass when `timer` is given
+    /// (passes 0, 1, 2: irradiance, weights + selection, compose;
+    /// see [`crate::timer::PassTimer`]).
+    pub fn update_timed(&mut self, lights: &[Light], timer: Option<&crate::timer::PassTimer>) -> Result<Update, RuntimeError> {
+        let changed = self.shadows.update(lights)?;
+        if !changed && !self.stale {
+            return Ok(Update { composed: false });
+        }
+        self.write_params();
+        let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
+        self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
+        self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
+        self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
+        self.queue.submit([enc.finish()]);
+        self.composes += 1;
+        self.stale = false;
+        Ok(Update { composed: true })
+    }
+
+    /// Composes the lightmap for weights chosen by the caller (one per cluster), keeping the
+    /// `top_k` strongest: the compose alone, for tests and benchmarks.
+    pub fn compose_weights(&mut self, weights: &[Vec3]) -> Result<(), RuntimeError> {
+        if weights.len() != self.clusters {
+            return Err(RuntimeError::Params(format!("{} weights for {} clusters", weights.len(), self.clusters)));
+        }
+        self.write_params();
+        self.weights.upload(&self.queue, weights, &self.energies);
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
+        self.weights.encode(&mut enc, true, None);
+        self.compose.encode(&mut enc, None);
+        self.queue.submit([enc.finish()]);
+        self.composes += 1;
+        // The next update must recompose from lights even if they did not change.
+        self.stale = true;
+        Ok(())
+    }
+
+    /// Changes how many panes are composed; the next update recomposes.
+    pub fn set_top_k(&mut self, k: usize) -> Result<(), RuntimeError> {
+        if k == 0 {
+            return Err(RuntimeError::Params("top_k must be at least 1".into()));
+        }
+        self.params.top_k = k;
+        self.stale = true;
+        Ok(())
+    }
+
+    fn write_params(&self) {
+        let p = IndirectParams {
+            entry_count: self.entry_count,
+            light_count: self.shadows.light_count(),
+            cluster_count: self.clusters as u32,
+            top_k: self.params.top_k.min(u32::MAX as usize) as u32,
+        };
+        self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
+    }
+
+    /// The indirect lightmap (`Rgba32Float`, atlas-sized, W/m²).
+    pub fn lightmap(&self) -> &wgpu::Texture {
+        &self.compose.lightmap
+    }
+
+    /// The shadow maps and light buffer (shared with the shading pass).
+    pub fn shadows(&self) -> &ShadowMaps {
+        &self.shadows
+    }
+
+    /// Reads the lightmap back (row-major RGB, W/m²). Waits for the GPU.
+    pub fn read_lightmap(&self) -> Vec<Vec3> {
+        crate::gpu::read_rgba32f(&self.device, &self.queue, &self.compose.lightmap)
+    }
+
+    /// Reads the last entry irradiance back (W/m² per entry).
+    pub fn read_entry_irradiance(&self) -> Vec<Vec3> {
+        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output), self.entry_count as usize)
+    }
+
+    /// Reads back which clusters the last compose used.
+    pub fn read_selected(&self) -> Vec<bool> {
+        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected), self.clusters).iter().map(|w| *w != Vec3::ZERO).collect()
+    }
+
+    /// Bytes a compose with this selection moves.
+    pub fn compose_bytes(&self, selected: &[bool]) -> ComposeBytes {
+        self.compose.bytes(selected)
+    }
+
+    pub fn params(&self) -> RuntimeParams {
+        self.params
+    }
+}
+
+fn read_vec4(bytes: &[u8], n: usize) -> Vec<Vec3> {
+    let v: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..n * 16]);
+    v.iter().map(|a| Vec3::new(a[0], a[1], a[2])).collect()
+}

@@ -1,0 +1,265 @@
+//! Shadow maps (DESIGN.md §5 step 1): one `Depth32Float` 2D-array texture holding every
+//! light's layers (see [`crate::lights`] for the frusta), rendered by `shaders/shadow.wgsl`.
+//!
+//! Only the layers of lights whose frusta changed (position, direction, kind, cone) are
+//! re-rendered; a change of colour or intensity only rewrites the light buffer.
+//! [`ShadowMaps::layers_rendered`] counts layer renders so tests can check that.
+//!
+//! The bind group this module owns (group 0 of `irradiance.wgsl` and `shade.wgsl`): lights,
+//! layer matrices, the depth array and a comparison sampler (GreaterEqual, linear: each tap
+//! of the PCF is itself a bilinear blend of four comparisons).
+
+use glam::Vec3;
+use prm::{Light, Scene};
+use wgpu::util::DeviceExt;
+
+use crate::layout::{mat, GpuLight};
+use crate::lights::{self, Bounds, LightError};
+
+const SHADER: &str = include_str!("../../shaders/shadow.wgsl");
+const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+pub struct ShadowMaps {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::RenderPipeline,
+    vertices: wgpu::Buffer,
+    vertex_count: u32,
+    size: u32,
+    bounds: Bounds,
+    max_layers: u32,
+    lights_buf: wgpu::Buffer,
+    mats_buf: wgpu::Buffer,
+    mats_group: wgpu::BindGroup,
+    texture: Option<(wgpu::Texture, u32)>,
+    sampler: wgpu::Sampler,
+    /// Group 0 of the lighting shaders.
+    pub layout: wgpu::BindGroupLayout,
+    group: Option<wgpu::BindGroup>,
+    last: Option<Vec<Light>>,
+    light_count: u32,
+    /// Shadow layers rendered so far.
+    pub layers_rendered: u64,
+}
+
+impl ShadowMaps {
+    /// Shadow maps of `size` x `size` texels per layer for the level's triangles.
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, size: u32) -> ShadowMaps {
+        let positions: Vec<[f32; 3]> = (0..scene.triangles.len()).flat_map(|t| scene.corners(t)).map(|p| p.to_array()).collect();
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("shadow vertices"),
+            contents: bytemuck::cast_slice(if positions.is_empty() { &[[0.0f32; 3]] } else { &positions[..] }),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let (lo, hi) = scene.bounds();
+        let bounds = if lo.is_finite() && hi.is_finite() { Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() } } else { Bounds { centre: Vec3::ZERO, radius: 1.0 } };
+        let max_layers = device.limits().max_texture_array_layers;
+        let storage = |binding, stages| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: stages,
+            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let lit = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lights + shadow maps"),
+            entries: &[
+                storage(0, lit),
+                storage(1, lit),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: lit,
+                    ty: wgpu::BindingType::Texture { sample_type: wgpu::TextureSampleType::Depth, view_dimension: wgpu::TextureViewDimension::D2Array, multisampled: false },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry { binding: 3, visibility: lit, ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison), count: None },
+            ],
+        });
+        let mats_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("shadow layer matrices"), entries: &[storage(0, wgpu::ShaderStages::VERTEX)] });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("shadow.wgsl"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("shadow"), bind_group_layouts: &[Some(&mats_group_layout)], immediate_size: 0 });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("shadow"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout { array_stride: 12, step_mode: wgpu::VertexStepMode::Vertex, attributes: &wgpu::vertex_attr_array![0 => Float32x3] })],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Greater),
+                stencil: Default::default(),
+                // Reverse-Z: a negative slope bias pushes occluders away from the light, so a
+                // lit surface at a slant does not shadow itself (the normal offset does the rest).
+                bias: wgpu::DepthBiasState { constant: 0, slope_scale: -1.5, clamp: 0.0 },
+            }),
+            multisample: Default::default(),
+            fragment: None,
+            multiview_mask: None,
+            cache: None,
+        });
+        let lights_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lights"),
+            size: (prm::rig::MAX_LIGHTS * std::mem::size_of::<GpuLight>()) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mats_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shadow matrices"),
+            size: (max_layers.min(6 * prm::rig::MAX_LIGHTS as u32) as u64) * 64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mats_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("shadow layer matrices"),
+            layout: &mats_group_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: mats_buf.as_entire_binding() }],
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow comparison"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::GreaterEqual),
+            ..Default::default()
+        });
+        ShadowMaps {
+            device: device.clone(),
+            queue: queue.clone(),
+            pipeline,
+            vertex_count: positions.len() as u32,
+            vertices,
+            size,
+            bounds,
+            max_layers,
+            lights_buf,
+            mats_buf,
+            mats_group,
+            texture: None,
+            sampler,
+            layout,
+            group: None,
+            last: None,
+            light_count: 0,
+            layers_rendered: 0,
+        }
+    }
+
+    /// Brings the maps and light buffer up to date with `lights`. Returns whether anything the
+    /// lighting depends on changed (false: the last frame's light is still right).
+    pub fn update(&mut self, lights: &[Light]) -> Result<bool, LightError> {
+        lights::validate(lights)?;
+        if self.last.as_deref() == Some(lights) {
+            return Ok(false);
+        }
+        let needed: u32 = lights.iter().map(lights::layers).sum();
+        if needed > self.max_layers.min(6 * prm::rig::MAX_LIGHTS as u32) {
+            return Err(LightError::TooManyLayers { needed, max: self.max_layers });
+        }
+        let (gpu, mats) = lights::pack(lights, self.size, self.bounds);
+        let realloc = self.texture.as_ref().is_none_or(|(_, n)| *n != needed.max(1));
+        if realloc {
+            self.allocate(needed.max(1));
+        }
+        // Layers to render: all after a reallocation, else those of lights whose frusta moved
+        // (or that now sit at other layers).
+        let mut dirty = Vec::new();
+        for (i, l) in lights.iter().enumerate() {
+            let old = self.last.as_ref().and_then(|v| v.get(i));
+            let old_first = self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(lights::layers).sum::<u32>());
+            let same = !realloc && old.is_some_and(|o| lights::same_shadow(o, l) && lights::layers(o) == gpu[i].layers) && old_first == Some(gpu[i].first_layer);
+            if !same {
+                dirty.extend(gpu[i].first_layer..gpu[i].first_layer + gpu[i].layers);
+            }
+        }
+        if !gpu.is_empty() {
+            self.queue.write_buffer(&self.lights_buf, 0, bytemuck::cast_slice(&gpu));
+        }
+        if !mats.is_empty() {
+            let m: Vec<[[f32; 4]; 4]> = mats.iter().map(|m| mat(*m)).collect();
+            self.queue.write_buffer(&self.mats_buf, 0, bytemuck::cast_slice(&m));
+        }
+        self.render(&dirty);
+        self.light_count = lights.len() as u32;
+        self.last = Some(lights.to_vec());
+        Ok(true)
+    }
+
+    fn allocate(&mut self, layers: u32) {
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow maps"),
+            size: wgpu::Extent3d { width: self.size, height: self.size, depth_or_array_layers: layers },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() });
+        self.group = Some(self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lights + shadow maps"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: self.lights_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.mats_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+            ],
+        }));
+        self.texture = Some((texture, layers));
+    }
+
+    fn render(&mut self, layers: &[u32]) {
+        let Some((texture, _)) = &self.texture else { return };
+        if layers.is_empty() {
+            return;
+        }
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("shadow maps") });
+        for &layer in layers {
+            let view = texture.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2),
+                base_array_layer: layer,
+                array_layer_count: Some(1),
+                ..Default::default()
+            });
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shadow layer"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &view,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+                    stencil_ops: None,
+                }),
+                ..Default::default()
+            });
+            if self.vertex_count > 0 {
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.mats_group, &[]);
+                pass.set_vertex_buffer(0, self.vertices.slice(..));
+                pass.draw(0..self.vertex_count, layer..layer + 1);
+            }
+        }
+        self.queue.submit([enc.finish()]);
+        self.layers_rendered += layers.len() as u64;
+    }
+
+    /// Group 0 of the lighting shaders (lights, matrices, maps, sampler); `None` before the
+    /// first [`ShadowMaps::update`].
+    pub fn group(&self) -> Option<&wgpu::BindGroup> {
+        self.group.as_ref()
+    }
+
+    /// Lights in the buffer.
+    pub fn light_count(&self) -> u32 {
+        self.light_count
+    }
+
+    /// Texels per side of one layer.
+    pub fn size(&self) -> u32 {
+        self.size
+    }
+}

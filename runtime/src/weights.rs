@@ -1,0 +1,90 @@
+//! Cluster weights and top-K selection on the GPU (DESIGN.md §5 steps 2-3;
+//! `shaders/weights.wgsl`). `weights_main` averages each cluster's member irradiance and scores
+//! it by `luminance(w) x pane energy`; `select_main` ranks every cluster against all others
+//! (O(C²), a few hundred thousand comparisons at C = 256, no sort, no atomics) and writes the
+//! weights of the kept ones, zero for the rest, into [`WeightPass::selected`].
+
+use glam::Vec3;
+use prm::prm_file::Prm;
+
+use crate::gpu::{self, buffer_entry, READ, UNIFORM, WRITE};
+
+pub const SOURCE: &str = include_str!("../../shaders/weights.wgsl");
+
+pub struct WeightPass {
+    weights_pipeline: wgpu::ComputePipeline,
+    select_pipeline: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+    count: u32,
+    /// Cluster weights (`vec4f`), written by `weights_main` or uploaded.
+    pub weights: wgpu::Buffer,
+    /// Cluster scores (`f32`).
+    pub scores: wgpu::Buffer,
+    /// Weights of the selected clusters, 0 elsewhere (`vec4f`).
+    pub selected: wgpu::Buffer,
+}
+
+impl WeightPass {
+    pub fn new(device: &wgpu::Device, params: &wgpu::Buffer, entry_irradiance: &wgpu::Buffer, prm: &Prm) -> WeightPass {
+        let mut ranges = Vec::with_capacity(prm.clusters.len());
+        let mut members = Vec::new();
+        for c in &prm.clusters {
+            ranges.push([members.len() as u32, c.members.len() as u32]);
+            members.extend_from_slice(&c.members);
+        }
+        let energy: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+        let n = prm.clusters.len();
+        let ranges = gpu::storage_buffer(device, "member ranges", bytemuck::cast_slice(&ranges), wgpu::BufferUsages::empty());
+        let members = gpu::storage_buffer(device, "members", bytemuck::cast_slice(&members), wgpu::BufferUsages::empty());
+        let energy = gpu::storage_buffer(device, "pane energy", bytemuck::cast_slice(&energy), wgpu::BufferUsages::empty());
+        let rw = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let weights = gpu::storage_buffer(device, "cluster weights", &vec![0u8; n * 16], rw);
+        let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
+        let selected = gpu::storage_buffer(device, "selected weights", &vec![0u8; n * 16], rw);
+        let c = wgpu::ShaderStages::COMPUTE;
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("weights"),
+            entries: &[
+                buffer_entry(0, c, UNIFORM),
+                buffer_entry(1, c, READ),
+                buffer_entry(2, c, READ),
+                buffer_entry(3, c, READ),
+                buffer_entry(4, c, READ),
+                buffer_entry(5, c, WRITE),
+                buffer_entry(6, c, WRITE),
+                buffer_entry(7, c, WRITE),
+            ],
+        });
+        let group = gpu::bind_buffers(device, "weights", &layout, &[params, entry_irradiance, &ranges, &members, &energy, &weights, &scores, &selected]);
+        WeightPass {
+            weights_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "weights_main", &[&layout]),
+            select_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "select_main", &[&layout]),
+            group,
+            count: n as u32,
+            weights,
+            scores,
+            selected,
+        }
+    }
+
+    /// Records weights (unless `uploaded`: weights and scores were written by the CPU) and
+    /// selection.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, uploaded: bool, timestamps: Option<wgpu::ComputePassTimestampWrites>) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("weights + selection"), timestamp_writes: timestamps });
+        pass.set_bind_group(0, &self.group, &[]);
+        if !uploaded {
+            pass.set_pipeline(&self.weights_pipeline);
+            pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+        }
+        pass.set_pipeline(&self.select_pipeline);
+        pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+    }
+
+    /// Uploads weights chosen by the caller (with their scores), in place of `weights_main`.
+    pub fn upload(&self, queue: &wgpu::Queue, weights: &[Vec3], energies: &[f32]) {
+        let w: Vec<[f32; 4]> = weights.iter().map(|v| crate::layout::vec4(*v)).collect();
+        let s: Vec<f32> = weights.iter().zip(energies).map(|(w, e)| prm::luminance(*w) * e).collect();
+        queue.write_buffer(&self.weights, 0, bytemuck::cast_slice(&w));
+        queue.write_buffer(&self.scores, 0, bytemuck::cast_slice(&s));
+    }
+}

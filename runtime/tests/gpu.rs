@@ -1,0 +1,255 @@
+//! The wgpu runtime against analytic answers and its CPU twin. These tests need an adapter
+//! (on a machine without a GPU: Mesa's lavapipe, `apt-get install mesa-vulkan-drivers`); with
+//! none they fail and say so.
+
+use std::sync::atomic::AtomicBool;
+
+use glam::{Vec2, Vec3};
+use prm::prm_file::Prm;
+use prm::{Bvh, Light, LightKind, Scene};
+use prm_runtime::irradiance::EntryPass;
+use prm_runtime::shadow::ShadowMaps;
+use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use rand::{Rng, SeedableRng};
+
+fn gpu() -> Gpu {
+    match Gpu::new() {
+        Ok(g) => g,
+        Err(e) => panic!("this GPU test needs a wgpu adapter: {e}"),
+    }
+}
+
+fn v(x: f32, y: f32, z: f32) -> Vec3 {
+    Vec3::new(x, y, z)
+}
+
+/// Quads (corners counter-clockwise seen from the lit side), each in its own UV cell.
+fn quads(qs: &[[Vec3; 4]]) -> Scene {
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    let n = qs.len() as f32;
+    for (k, q) in qs.iter().enumerate() {
+        let base = pos.len() as u32;
+        for (c, p) in q.iter().enumerate() {
+            pos.push(*p);
+            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            uv.push((Vec2::new(k as f32, 0.0) + Vec2::splat(0.08) + corner * 0.84) / Vec2::new(n, 1.0));
+        }
+        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+fn point(p: Vec3, i: f32) -> Light {
+    Light { name: "p".into(), kind: LightKind::Point, position: p, direction: -Vec3::Y, intensity: Vec3::splat(i), range: None }
+}
+
+/// GPU entry irradiance at arbitrary points, through the runtime's own shadow maps and pass.
+fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec3)], size: u32) -> Vec<Vec3> {
+    let mut shadows = ShadowMaps::new(&g.device, &g.queue, scene, size);
+    shadows.update(lights).unwrap();
+    let params = g.device.create_buffer(&wgpu::BufferDescriptor { label: None, size: 16, usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+    let p = prm_runtime::layout::IndirectParams { entry_count: points.len() as u32, light_count: lights.len() as u32, cluster_count: 0, top_k: 1 };
+    g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
+    let pass = EntryPass::new(&g.device, &shadows.layout, &params, points);
+    let mut enc = g.device.create_command_encoder(&Default::default());
+    pass.encode(&mut enc, shadows.group().unwrap(), None);
+    g.queue.submit([enc.finish()]);
+    let bytes = prm_runtime::gpu::read_buffer(&g.device, &g.queue, &pass.output);
+    let raw: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..points.len() * 16]);
+    raw.iter().map(|a| Vec3::new(a[0], a[1], a[2])).collect()
+}
+
+/// A 4 x 4 floor (y = 0, facing up) with a 1 x 1 occluder at y = 1 (facing down).
+fn floor_and_occluder() -> Scene {
+    quads(&[
+        [v(-2., 0., -2.), v(-2., 0., 2.), v(2., 0., 2.), v(2., 0., -2.)],
+        [v(-0.5, 1., -0.5), v(0.5, 1., -0.5), v(0.5, 1., 0.5), v(-0.5, 1., 0.5)],
+    ])
+}
+
+#[test]
+fn point_spot_and_directional_light_over_a_plane_with_an_occluder() {
+    let g = gpu();
+    let scene = floor_and_occluder();
+    let bvh = Bvh::build(&scene);
+    let grid: Vec<(Vec3, Vec3)> = (0..41 * 41).map(|k| (v(-1.9 + 3.8 * (k % 41) as f32 / 40.0, 0.0, -1.9 + 3.8 * (k / 41) as f32 / 40.0), Vec3::Y)).collect();
+    let spot = Light { name: "s".into(), kind: LightKind::Spot { inner: 0.5, outer: 0.9 }, position: v(0.3, 2.5, 0.2), direction: v(0.0, -1.0, 0.0), intensity: Vec3::splat(40.0), range: None };
+    let sun = Light { name: "d".into(), kind: LightKind::Directional, position: Vec3::ZERO, direction: v(0.3, -1.0, 0.2).normalize(), intensity: Vec3::splat(3.0), range: None };
+    for light in [point(v(0.2, 2.0, 0.1), 10.0), spot, sun] {
+        let gpu_e = gpu_irradiance(&g, &scene, std::slice::from_ref(&light), &grid, 1024);
+        let (mut lit, mut dark) = (0, 0);
+        for ((p, n), e) in grid.iter().zip(&gpu_e) {
+            // Away from shadow edges: every point within 5 cm has the same ray-traced visibility.
+            let vis = |q: Vec3| if light.is_positional() { bvh.visible_point(q, *n, light.position) } else { bvh.visible_dir(q, *n, -light.direction) };
+            let here = vis(*p);
+            if [v(0.05, 0., 0.), v(-0.05, 0., 0.), v(0., 0., 0.05), v(0., 0., -0.05)].iter().any(|d| vis(*p + *d) != here) {
+                continue;
+            }
+            // Analytic: I cos / r² (falloff and all, from prm::Light), or 0 in the shadow.
+            let expect = if here { light.irradiance(*p, *n) } else { Vec3::ZERO };
+            let tol = 1e-4 * expect.max_element() + 1e-6;
+            assert!((*e - expect).abs().max_element() <= tol, "{:?} light at {p}: GPU {e}, expected {expect}", light.kind);
+            if here && expect.x > 0.0 {
+                lit += 1;
+            } else {
+                dark += 1;
+            }
+        }
+        assert!(lit > 300 && dark > 20, "{:?}: {lit} lit and {dark} shadowed points checked", light.kind);
+    }
+}
+
+#[test]
+fn a_light_changing_only_colour_does_not_rerender_shadow_maps() {
+    let g = gpu();
+    let scene = floor_and_occluder();
+    let mut shadows = ShadowMaps::new(&g.device, &g.queue, &scene, 64);
+    let mut l = point(v(0.0, 2.0, 0.0), 1.0);
+    assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
+    assert_eq!(shadows.layers_rendered, 6);
+    assert!(!shadows.update(std::slice::from_ref(&l)).unwrap());
+    l.intensity = v(1.0, 0.5, 0.2);
+    assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
+    assert_eq!(shadows.layers_rendered, 6, "a colour change re-rendered shadow maps");
+    l.position.x += 0.1;
+    assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
+    assert_eq!(shadows.layers_rendered, 12);
+}
+
+#[test]
+fn bad_lights_are_refused_with_the_reason() {
+    let g = gpu();
+    let scene = floor_and_occluder();
+    let mut shadows = ShadowMaps::new(&g.device, &g.queue, &scene, 64);
+    let cases = [
+        (point(v(f32::NAN, 1.0, 0.0), 1.0), "not finite"),
+        (point(v(0.0, 1.0, 0.0), -1.0), ">= 0"),
+        (point(v(0.0, 1.0, 0.0), f32::INFINITY), ">= 0"),
+    ];
+    for (l, what) in cases {
+        let err = shadows.update(&[l]).unwrap_err().to_string();
+        assert!(err.contains(what) && err.contains("'p'"), "{err}");
+    }
+    let many: Vec<Light> = (0..prm::rig::MAX_LIGHTS + 1).map(|i| point(v(i as f32 * 0.01, 1.0, 0.0), 1.0)).collect();
+    let err = shadows.update(&many).unwrap_err().to_string();
+    assert!(err.contains("limit"), "{err}");
+}
+
+fn open_box() -> Scene {
+    let mut s = quads(&[
+        [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+        [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+    ]);
+    s.lights.push(point(v(0.6, 0.8, 0.6), 2.0));
+    s
+}
+
+fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
+    let bvh = Bvh::build(scene);
+    let p = prm_precompute::precompute::PrecomputeParams { entries, paths: 16, clusters, atlas, ..Default::default() };
+    prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
+}
+
+fn assert_close(gpu: &[Vec3], cpu: &[Vec3], rel: f32, what: &str) {
+    let scale = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max).max(1e-12);
+    for (k, (a, b)) in gpu.iter().zip(cpu).enumerate() {
+        assert!((*a - *b).abs().max_element() <= rel * scale, "{what}: texel {k}: GPU {a} vs CPU {b} (scale {scale})");
+    }
+}
+
+#[test]
+fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
+    let g = gpu();
+    let scene = open_box();
+    let prm = bake(&scene, 512, 40, 48);
+    let c = prm.clusters.len();
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 256 }).unwrap();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+    for round in 0..3 {
+        let w: Vec<Vec3> = (0..c).map(|k| if k % 5 == round { Vec3::ZERO } else { Vec3::new(rng.random(), rng.random(), rng.random()) * 10.0 }).collect();
+        // K = C: the full sum (f16 data, f32 sums in another order: 1e-5 of the brightest).
+        rt.set_top_k(c).unwrap();
+        rt.compose_weights(&w).unwrap();
+        assert_close(&rt.read_lightmap(), &prm.compose(&w), 1e-5, "K = C");
+        // K = 5: the same clusters as the CPU's selection, and the same sum.
+        rt.set_top_k(5).unwrap();
+        rt.compose_weights(&w).unwrap();
+        let top = prm_runtime::cpu::select_top_k(&w, &energies, 5);
+        let selected = rt.read_selected();
+        assert_eq!((0..c).filter(|k| selected[*k]).collect::<Vec<_>>(), { let mut t = top.clone(); t.sort(); t });
+        let wk: Vec<Vec3> = (0..c).map(|k| if top.contains(&k) { w[k] } else { Vec3::ZERO }).collect();
+        assert_close(&rt.read_lightmap(), &prm.compose(&wk), 1e-5, "K = 5");
+    }
+}
+
+#[test]
+fn gpu_lightmap_matches_the_cpu_twin() {
+    let g = gpu();
+    let scene = open_box();
+    let prm = bake(&scene, 512, 40, 48);
+    let bvh = Bvh::build(&scene);
+    let c = prm.clusters.len();
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 1024 }).unwrap();
+    rt.update(&scene.lights).unwrap();
+    // Entry irradiance: shadow maps vs shadow rays. The open box has no occluder between the
+    // light and any entry, so they agree to float precision but for PCF at grazing entries.
+    let cpu_e = prm_runtime::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
+    let gpu_e = rt.read_entry_irradiance();
+    let bad = cpu_e.iter().zip(&gpu_e).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6).count();
+    assert!(bad * 100 <= cpu_e.len(), "{bad} of {} entries differ by more than 0.1 %", cpu_e.len());
+    let mut twin = prm_runtime::cpu::CpuTwin::new(&prm, &bvh, c);
+    let cpu = twin.frame(&scene.lights).to_vec();
+    let gpu_l = rt.read_lightmap();
+    let m = prm::metric::compare(&gpu_l, &cpu, None);
+    assert!(m.error < 0.005, "GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+}
+
+#[test]
+fn thirty_moving_light_frames_on_chamber() {
+    let g = gpu();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = prm::gltf_load::load_scene(root.join("assets/chamber.glb"), &Default::default()).unwrap();
+    let rig = prm::rig::Rig::load(&root.join("assets/chamber_rig.json"), &scene.lights).unwrap();
+    let prm = bake(&scene, 1024, 64, 128);
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: 32, shadow_size: 512 }).unwrap();
+    let cam = &scene.cameras[0];
+    let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, 96, 64);
+    let mut last: Option<Vec<Vec3>> = None;
+    for f in 0..30 {
+        let lights = rig.frame(f, 30);
+        assert!(rt.update(&lights).unwrap().composed);
+        renderer.draw(&rt, true, None);
+        let frame = renderer.read_frame();
+        assert!(frame.iter().all(|p| p.is_finite() && p.min_element() >= 0.0), "frame {f} has a non-finite or negative pixel");
+        let lm = rt.read_lightmap();
+        assert!(lm.iter().all(|p| p.is_finite() && p.min_element() >= 0.0), "lightmap {f} has a non-finite or negative texel");
+        let mean = frame.iter().map(|p| prm::luminance(*p) as f64).sum::<f64>() / frame.len() as f64;
+        assert!(mean > 0.0, "frame {f} is black");
+        if let Some(prev) = &last {
+            let changed = frame.iter().zip(prev).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-4 * a.max_element()).count();
+            assert!(changed * 20 > frame.len(), "frame {f}: only {changed} pixels changed as the light moved");
+        }
+        last = Some(frame);
+    }
+    assert_eq!(rt.composes, 30);
+    // The same lights again: no compose, no shadow map, and the same frame.
+    let layers = rt.shadows().layers_rendered;
+    let lights = rig.frame(29, 30);
+    assert!(!rt.update(&lights).unwrap().composed);
+    assert_eq!((rt.composes, rt.shadows().layers_rendered), (30, layers));
+    renderer.draw(&rt, true, None);
+    assert_eq!(renderer.read_frame(), last.unwrap());
+}
+
+#[test]
+fn a_prm_for_another_scene_is_refused() {
+    let g = gpu();
+    let scene = open_box();
+    let prm = bake(&scene, 256, 16, 32);
+    let mut other = scene.clone();
+    other.positions[0].x += 0.01;
+    let err = Runtime::new(&g.device, &g.queue, &other, &prm, RuntimeParams::default()).err().expect("a mismatched .prm was accepted").to_string();
+    assert!(err.contains("scene") || err.contains("fingerprint"), "{err}");
+}

@@ -1,0 +1,130 @@
+// Lights and shadow-map visibility, shared by irradiance.wgsl and shade.wgsl (prepended to each
+// by runtime/src/lights.rs). Layouts: runtime/src/layout.rs (checked by a naga test).
+//
+// Shadow maps are reverse-Z (1 = at the light, 0 = far): a receiver is lit when its depth is
+// >= the stored depth. Point lights own six layers (+X -X +Y -Y +Z -Z faces, 90°+ frusta);
+// spot and directional lights one.
+
+const KIND_POINT: u32 = 0u;
+const KIND_SPOT: u32 = 1u;
+const KIND_DIRECTIONAL: u32 = 2u;
+
+struct Light {
+    position: vec3f,
+    kind: u32,
+    // Unit direction the light points along (spot, directional).
+    direction: vec3f,
+    // glTF range; 0 = none.
+    range: f32,
+    // W/sr (point, spot) or W/m² (directional), per channel.
+    intensity: vec3f,
+    first_layer: u32,
+    cos_inner: f32,
+    cos_outer: f32,
+    // World size of one shadow texel: per unit distance (perspective) or absolute (orthographic).
+    texel: f32,
+    // Layers owned: 6 (cube) or 1.
+    layers: u32,
+}
+
+struct Incident {
+    to_light: vec3f,
+    distance: f32,
+    irradiance: vec3f,
+}
+
+fn spot_falloff(cos_angle: f32, ci: f32, co: f32) -> f32 {
+    if ci - co <= 1e-6 {
+        return select(0.0, 1.0, cos_angle >= co);
+    }
+    let t = clamp((cos_angle - co) / (ci - co), 0.0, 1.0);
+    return t * t;
+}
+
+fn range_window(l: Light, dist: f32) -> f32 {
+    if l.range <= 0.0 {
+        return 1.0;
+    }
+    let x = dist / l.range;
+    let w = clamp(1.0 - x * x * x * x, 0.0, 1.0);
+    return w * w;
+}
+
+// Unoccluded light arriving at p (the same formula as prm::Light::incident).
+fn incident(l: Light, p: vec3f) -> Incident {
+    if l.kind == KIND_DIRECTIONAL {
+        return Incident(-l.direction, 3.4e38, l.intensity);
+    }
+    let d = l.position - p;
+    let dist2 = dot(d, d);
+    if !(dist2 > 0.0) {
+        return Incident(vec3f(0.0, 0.0, 1.0), 0.0, vec3f(0.0));
+    }
+    let dist = sqrt(dist2);
+    let to_light = d / dist;
+    var scale = range_window(l, dist) / dist2;
+    if l.kind == KIND_SPOT {
+        scale *= spot_falloff(dot(l.direction, -to_light), l.cos_inner, l.cos_outer);
+    }
+    return Incident(to_light, dist, l.intensity * scale);
+}
+
+// Cube face of direction d from a point light: 0..5 = +X -X +Y -Y +Z -Z.
+fn cube_face(d: vec3f) -> u32 {
+    let a = abs(d);
+    if a.x >= a.y && a.x >= a.z {
+        return select(1u, 0u, d.x >= 0.0);
+    }
+    if a.y >= a.z {
+        return select(3u, 2u, d.y >= 0.0);
+    }
+    return select(5u, 4u, d.z >= 0.0);
+}
+
+// Fraction of light l reaching the surface point p with unit normal n (toward the light side):
+// normal-offset receiver (1.5 shadow texels along n), 3x3 PCF of bilinear comparisons.
+fn visibility(l: Light, p: vec3f, n: vec3f, dist: f32) -> f32 {
+    var texel_world = l.texel;
+    if l.kind != KIND_DIRECTIONAL {
+        texel_world = l.texel * dist;
+    }
+    let q = p + n * (1.5 * texel_world);
+    var layer = l.first_layer;
+    if l.layers == 6u {
+        layer += cube_face(q - l.position);
+    }
+    let clip = shadow_mats[layer] * vec4f(q, 1.0);
+    if clip.w <= 0.0 {
+        return 1.0;
+    }
+    let ndc = clip.xyz / clip.w;
+    let uv = ndc.xy * vec2f(0.5, -0.5) + vec2f(0.5);
+    if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
+        // Outside the map: nothing was rendered there (beyond a spot's cone, or past the level).
+        return 1.0;
+    }
+    let size = vec2f(textureDimensions(shadow_tex));
+    var lit = 0.0;
+    for (var j = -1; j <= 1; j++) {
+        for (var i = -1; i <= 1; i++) {
+            let o = vec2f(f32(i), f32(j)) / size;
+            lit += textureSampleCompareLevel(shadow_tex, shadow_sampler, uv + o, i32(layer), ndc.z);
+        }
+    }
+    return lit / 9.0;
+}
+
+// Direct irradiance at p (unit normal n) from every light, with shadow-map visibility (W/m²).
+fn direct_irradiance(p: vec3f, n: vec3f, count: u32) -> vec3f {
+    var sum = vec3f(0.0);
+    for (var k = 0u; k < count; k++) {
+        let l = lights[k];
+        let inc = incident(l, p);
+        let c = dot(n, inc.to_light);
+        if c <= 0.0 || all(inc.irradiance == vec3f(0.0)) {
+            continue;
+        }
+        sum += inc.irradiance * c * visibility(l, p, n, inc.distance);
+    }
+    return sum;
+}
