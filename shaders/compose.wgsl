@@ -1,16 +1,25 @@
 // Compose (DESIGN.md §5 step 4, runtime/src/compose.rs): the indirect lightmap is
 // sum over selected clusters c of selected[c] x pane_c, read only from stored tiles.
 //
-// One invocation per atlas texel. The stored tiles covering atlas tile t are records
-// tile_ranges[t].x .. +tile_ranges[t].y; a record's texels are f16 intensities (two per u32)
-// at data_offset + slot, where slot is the texel's place among its atlas tile's stored texels
-// (row-major), times the record's RGB scale. Texels outside the stored mask are written 0.
+// The stored tiles covering atlas tile t are records tile_ranges[t].x .. +tile_ranges[t].y
+// (record_clusters holds their clusters densely). A record's texels are f16 intensities (two
+// per u32) at data_offset + slot, where slot is the texel's place among its atlas tile's stored
+// texels (row-major), times the record's RGB scale.
+//
+// gather_main (one invocation per atlas tile) lists the records of selected clusters in
+// active_records[t * active_stride ..], their number in active_count[t]; compose_main (one invocation
+// per atlas texel) sums only those. Texels outside the stored mask are written 0.
 
 struct Params {
     atlas_width: u32,
     atlas_height: u32,
     tile_size: u32,
     tiles_x: u32,
+    tile_count: u32,
+    // Most records covering one atlas tile.
+    active_stride: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 struct TileRecord {
@@ -31,6 +40,26 @@ const NO_SLOT: u32 = 0xffffffffu;
 @group(0) @binding(4) var<storage, read> slots: array<u32>;
 @group(0) @binding(5) var<storage, read> data: array<u32>;
 @group(0) @binding(6) var lightmap: texture_storage_2d<rgba32float, write>;
+@group(0) @binding(7) var<storage, read> record_clusters: array<u32>;
+@group(0) @binding(8) var<storage, read_write> active_records: array<u32>;
+@group(0) @binding(9) var<storage, read_write> active_count: array<u32>;
+
+@compute @workgroup_size(64)
+fn gather_main(@builtin(global_invocation_id) id: vec3u) {
+    let t = id.x;
+    if t >= params.tile_count {
+        return;
+    }
+    let r = tile_ranges[t];
+    var n = 0u;
+    for (var k = r.x; k < r.x + r.y; k++) {
+        if any(selected[record_clusters[k]].xyz != vec3f(0.0)) {
+            active_records[t * params.active_stride + n] = k;
+            n++;
+        }
+    }
+    active_count[t] = n;
+}
 
 @compute @workgroup_size(8, 8)
 fn compose_main(@builtin(global_invocation_id) id: vec3u) {
@@ -41,15 +70,12 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     if slot != NO_SLOT {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
-        let r = tile_ranges[t];
-        for (var k = r.x; k < r.x + r.y; k++) {
-            let rec = records[k];
-            let w = selected[rec.cluster].xyz;
-            if any(w != vec3f(0.0)) {
-                let i = rec.data_offset + slot;
-                let pair = unpack2x16float(data[i / 2u]);
-                sum += w * rec.scale * select(pair.x, pair.y, (i & 1u) == 1u);
-            }
+        let n = active_count[t];
+        for (var a = 0u; a < n; a++) {
+            let rec = records[active_records[t * params.active_stride + a]];
+            let i = rec.data_offset + slot;
+            let pair = unpack2x16float(data[i / 2u]);
+            sum += selected[rec.cluster].xyz * rec.scale * select(pair.x, pair.y, (i & 1u) == 1u);
         }
     }
     textureStore(lightmap, vec2i(id.xy), vec4f(sum, 1.0));

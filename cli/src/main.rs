@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 mod bake_reference;
+mod bench;
 mod bench_rays;
 mod common;
 mod compare;
@@ -46,6 +47,8 @@ enum Command {
     Render(render::Args),
     /// Bake the static reference lightmap with virtual polygon lights (paper 000).
     BakeReference(bake_reference::Args),
+    /// Frame time with and without indirect light, compose time and bytes, on the GPU.
+    Bench(bench::Args),
     /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).
     Evaluate(evaluate::Args),
 }
@@ -64,5 +67,6 @@ fn main() -> Result<()> {
         Command::Evaluate(a) => evaluate::run(a),
         Command::BakeReference(a) => bake_reference::run(a),
         Command::Render(a) => render::run(a),
+        Command::Bench(a) => bench::run(a),
     }
 }

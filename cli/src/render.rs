@@ -1,8 +1,13 @@
 //! `prm render`: frames of a level under a (moving) light rig, shaded with direct light and the
-//! PRM's indirect lightmap. Today on the CPU twin: the lightmap from `prm_runtime::cpu`, the
-//! frame by ray casting (first hit, direct light with shadow rays, bilinear indirect lookup),
-//! `L = emission + albedo / pi x (E_direct + E_indirect)`. The wgpu backend comes with the
-//! runtime issue.
+//! PRM's indirect lightmap, `L = emission + albedo / pi x (E_direct + E_indirect)`.
+//!
+//! - `--backend gpu` (default): the wgpu runtime (`prm_runtime::Runtime` + `Renderer`):
+//!   shadow-mapped direct light, GPU compose. Without an adapter `prm` says so and uses the CPU.
+//! - `--backend cpu`: the CPU twin's lightmap (`prm_runtime::cpu`), the frame by ray casting
+//!   (first hit, shadow rays, bilinear indirect lookup).
+//!
+//! Frames are EXR (linear radiance) and PNG (tone-mapped); `--lightmap-out` adds each frame's
+//! indirect lightmap as EXR (R G B irradiance, W/m², atlas layout).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -10,13 +15,14 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3, Vec4Swizzles};
 use prm::exr_io::Channels;
-use prm::{Bvh, Scene};
+use prm::{Bvh, Camera, Scene};
 use prm_runtime::cpu::CpuTwin;
+use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
 use rayon::prelude::*;
 
 use crate::common::{load_rig, load_with_prm, SceneArgs};
 
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum Backend {
     Cpu,
     Gpu,
@@ -38,13 +44,17 @@ pub struct Args {
     /// glTF camera to render from (default: the first).
     #[arg(long)]
     camera: Option<String>,
-    /// Image width in pixels.
+    /// Image width in pixels (height from the camera's aspect).
     #[arg(long, default_value_t = 320)]
     width: u32,
     /// Panes composed per frame.
     #[arg(long, default_value_t = 32)]
     top_k: usize,
-    #[arg(long, value_enum, default_value = "cpu")]
+    /// Shadow-map texels per side and layer (GPU backend).
+    #[arg(long, default_value_t = 1024)]
+    shadow_size: u32,
+    /// gpu: the wgpu runtime (falls back to cpu, saying so, without an adapter).
+    #[arg(long, value_enum, default_value = "gpu")]
     backend: Backend,
     /// Also write each frame's indirect lightmap as EXR.
     #[arg(long)]
@@ -55,61 +65,119 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if let Backend::Gpu = a.backend {
-        bail!("the GPU backend is not built yet (it arrives with the runtime issue); use --backend cpu");
-    }
     if a.frames == 0 || a.frames > 100_000 {
         bail!("--frames {} is out of range (1 to 100000)", a.frames);
     }
     if a.width == 0 || a.width > 8192 {
         bail!("--width {} is out of range (1 to 8192)", a.width);
     }
+    if a.top_k == 0 {
+        bail!("--top-k must be at least 1");
+    }
     let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
-    let cam = match &a.camera {
-        Some(n) => scene.cameras.iter().find(|c| &c.name == n).ok_or_else(|| anyhow!("no camera named '{n}'"))?,
-        None => scene.cameras.first().ok_or_else(|| anyhow!("the level has no camera; add one to the glTF"))?,
+    let cam = camera(&scene, a.camera.as_deref())?;
+    let (iw, ih) = image_size(cam, a.width);
+    let gpu = match a.backend {
+        Backend::Cpu => None,
+        Backend::Gpu => match Gpu::new() {
+            Ok(g) => Some(g),
+            Err(e) => {
+                eprintln!("note: {e}\nnote: rendering with the CPU twin instead");
+                None
+            }
+        },
     };
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
-    let bvh = Bvh::build(&scene);
-    let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
-    let (w, h) = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
-    let aspect = cam.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
-    let (iw, ih) = (a.width as usize, ((a.width as f32 / aspect).round() as usize).max(1));
-    let mut totals = (0.0, 0.0);
-    for f in 0..a.frames {
-        let lights = rig.frame(f, a.frames);
-        let t = Instant::now();
-        let lightmap = twin.frame(&lights).to_vec();
-        let compose_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let img = shade(&scene, &bvh, cam, &lights, &lightmap, (w, h), (iw, ih));
-        let shade_s = t.elapsed().as_secs_f64();
-        totals.0 += compose_s;
-        totals.1 += shade_s;
-        let mut ch = Channels::new(iw, ih);
-        ch.insert_rgb("", &img);
-        let stem = a.output.join(format!("frame_{f:04}"));
-        ch.write(&stem.with_extension("exr")).with_context(|| format!("writing {}", stem.display()))?;
-        write_png(&stem.with_extension("png"), &img, iw, ih)?;
-        if a.lightmap_out {
-            let mut lm = Channels::new(w, h);
-            lm.insert_rgb("", &lightmap);
-            let p = a.output.join(format!("lightmap_{f:04}.exr"));
-            lm.write(&p).with_context(|| format!("writing {}", p.display()))?;
+    let out = Output { dir: &a.output, lightmap: a.lightmap_out.then_some((prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize)), size: (iw as usize, ih as usize) };
+    match gpu {
+        Some(g) => {
+            println!("device: {}", g.describe());
+            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size })?;
+            let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih);
+            let mut total = 0.0;
+            for f in 0..a.frames {
+                let lights = rig.frame(f, a.frames);
+                let t = Instant::now();
+                let update = rt.update(&lights)?;
+                renderer.draw(&rt, true, None);
+                renderer.wait();
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                total += ms;
+                let lightmap = if a.lightmap_out { Some(rt.read_lightmap()) } else { None };
+                out.write(f, &renderer.read_frame(), lightmap.as_deref())?;
+                println!("frame {f:4}: {ms:7.2} ms ({})", if update.composed { "lights changed: shadow maps, weights, compose, shading" } else { "lights unchanged: shading only" });
+            }
+            println!("{} frames, {} composes, mean frame {:.2} ms on {} -> {}", a.frames, rt.composes, total / a.frames as f64, g.info.name, a.output.display());
         }
-        println!("frame {f:4}: lightmap {:7.2} ms ({} panes), shading {:7.2} ms", compose_s * 1e3, twin.last_selected, shade_s * 1e3);
+        None => {
+            let bvh = Bvh::build(&scene);
+            let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
+            let atlas = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
+            let mut totals = (0.0, 0.0);
+            for f in 0..a.frames {
+                let lights = rig.frame(f, a.frames);
+                let t = Instant::now();
+                let lightmap = twin.frame(&lights).to_vec();
+                let compose_s = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let img = shade(&scene, &bvh, cam, &lights, &lightmap, atlas, out.size);
+                let shade_s = t.elapsed().as_secs_f64();
+                totals.0 += compose_s;
+                totals.1 += shade_s;
+                out.write(f, &img, Some(&lightmap).filter(|_| a.lightmap_out).map(|v| &v[..]))?;
+                println!("frame {f:4}: lightmap {:7.2} ms ({} panes), shading {:7.2} ms", compose_s * 1e3, twin.last_selected, shade_s * 1e3);
+            }
+            println!(
+                "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU twin, {} threads) -> {}",
+                a.frames,
+                twin.composes,
+                totals.0 * 1e3 / a.frames as f64,
+                totals.1 * 1e3 / a.frames as f64,
+                rayon::current_num_threads(),
+                a.output.display()
+            );
+        }
     }
-    println!(
-        "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU, {} threads) -> {}",
-        a.frames,
-        twin.composes,
-        totals.0 * 1e3 / a.frames as f64,
-        totals.1 * 1e3 / a.frames as f64,
-        rayon::current_num_threads(),
-        a.output.display()
-    );
     Ok(())
+}
+
+/// The named camera, or the level's first.
+pub fn camera<'a>(scene: &'a Scene, name: Option<&str>) -> Result<&'a Camera> {
+    match name {
+        Some(n) => scene.cameras.iter().find(|c| c.name == n).ok_or_else(|| anyhow!("no camera named '{n}'")),
+        None => scene.cameras.first().ok_or_else(|| anyhow!("the level has no camera; add one to the glTF")),
+    }
+}
+
+/// Width x height for a camera's aspect at this width.
+pub fn image_size(cam: &Camera, width: u32) -> (u32, u32) {
+    let aspect = cam.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
+    (width, ((width as f32 / aspect).round() as u32).max(1))
+}
+
+struct Output<'a> {
+    dir: &'a Path,
+    lightmap: Option<(usize, usize)>,
+    size: (usize, usize),
+}
+
+impl Output<'_> {
+    fn write(&self, f: usize, img: &[Vec3], lightmap: Option<&[Vec3]>) -> Result<()> {
+        let (iw, ih) = self.size;
+        let mut ch = Channels::new(iw, ih);
+        ch.insert_rgb("", img);
+        let stem = self.dir.join(format!("frame_{f:04}"));
+        ch.write(&stem.with_extension("exr")).with_context(|| format!("writing {}", stem.display()))?;
+        write_png(&stem.with_extension("png"), img, iw, ih)?;
+        if let (Some((w, h)), Some(lm)) = (self.lightmap, lightmap) {
+            let mut ch = Channels::new(w, h);
+            ch.insert_rgb("", lm);
+            let p = self.dir.join(format!("lightmap_{f:04}.exr"));
+            ch.write(&p).with_context(|| format!("writing {}", p.display()))?;
+        }
+        Ok(())
+    }
 }
 
 /// Bilinear lookup of a full-atlas image at lightmap UV `uv` (texel centres at (i+0.5)/W).
@@ -158,7 +226,7 @@ fn shade(scene: &Scene, bvh: &Bvh, cam: &prm::Camera, lights: &[prm::Light], lig
 }
 
 /// Tone-mapped sRGB PNG (exposure from the frame's mean luminance, Reinhard), written atomically.
-fn write_png(path: &Path, img: &[Vec3], w: usize, h: usize) -> Result<()> {
+pub fn write_png(path: &Path, img: &[Vec3], w: usize, h: usize) -> Result<()> {
     let mean = img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>() / img.len().max(1) as f64;
     let exposure = if mean > 0.0 { (0.18 / mean) as f32 } else { 1.0 };
     let enc = |c: f32| {

@@ -86,6 +86,11 @@ pub struct ComposeParams {
     pub atlas_height: u32,
     pub tile_size: u32,
     pub tiles_x: u32,
+    /// Atlas tiles.
+    pub tile_count: u32,
+    /// Most stored tiles covering one atlas tile (the stride of the active lists).
+    pub active_stride: u32,
+    pub _pad: [u32; 2],
 }
 
 /// `TileRecord` in `shaders/compose.wgsl`: one stored pane tile.

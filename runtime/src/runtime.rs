@@ -136,6 +136,15 @@ impl Runtime {
         Ok(Update { composed: true })
     }
 
+    /// Updates only the shadow maps and light buffer: what a direct-only frame needs. The next
+    /// [`Runtime::update`] recomposes.
+    pub fn update_direct(&mut self, lights: &[Light]) -> Result<(), RuntimeError> {
+        if self.shadows.update(lights)? {
+            self.stale = true;
+        }
+        Ok(())
+    }
+
     /// Composes the lightmap for weights chosen by the caller (one per cluster), keeping the
     /// `top_k` strongest: the compose alone, for tests and benchmarks.
     pub fn compose_weights(&mut self, weights: &[Vec3]) -> Result<(), RuntimeError> {

@@ -1,0 +1,245 @@
+//! `prm bench`: what indirect light costs at run time, measured side by side in one run on one
+//! device (DESIGN.md §9: a frame with indirect light <= 1.10 x a direct-only frame).
+//!
+//! - Frame times: blocks of `--frames` frames over the rig, alternating direct-only (shadow
+//!   maps + shading) and full (shadow maps + entry irradiance + weights + selection + compose
+//!   + shading), `--rounds` of each; every frame waits for the GPU, wall-clock. Median, p95
+//!   and the ratio of medians. With a rig whose lights do not move, the full frames recompose
+//!   only once (that is the design); the bench says how many composes it did.
+//! - Per-pass GPU times from timestamp queries, where the adapter has them.
+//! - Compose: bytes moved per compose (see `ComposePass::bytes`) and the time, against the
+//!   device's copy bandwidth measured in the same run (a 256 MiB buffer-to-buffer copy, 8x).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use prm_runtime::timer::PassTimer;
+use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use serde::Serialize;
+
+use crate::common::{load_rig, load_with_prm, SceneArgs};
+use crate::render::{camera, image_size};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// The level's .prm.
+    #[arg(long)]
+    prm: PathBuf,
+    /// Light rig (JSON); without one the level's glTF lights (which do not move).
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// Frames per block.
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Blocks of each kind (direct-only, full), alternated.
+    #[arg(long, default_value_t = 3)]
+    rounds: usize,
+    /// Frame width in pixels.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Panes composed per frame.
+    #[arg(long, default_value_t = 32)]
+    top_k: usize,
+    /// Shadow-map texels per side and layer.
+    #[arg(long, default_value_t = 1024)]
+    shadow_size: u32,
+    /// Print the figures as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize, Default)]
+struct Stats {
+    median_ms: f64,
+    p95_ms: f64,
+    mean_ms: f64,
+}
+
+fn stats(mut v: Vec<f64>) -> Stats {
+    if v.is_empty() {
+        return Stats::default();
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    Stats { median_ms: at(0.5), p95_ms: at(0.95), mean_ms: v.iter().sum::<f64>() / v.len() as f64 }
+}
+
+#[derive(Serialize)]
+struct Report {
+    device: String,
+    scene: String,
+    width: u32,
+    height: u32,
+    top_k: usize,
+    shadow_size: u32,
+    lights: usize,
+    clusters: usize,
+    frames_per_block: usize,
+    rounds: usize,
+    direct_frame: Stats,
+    full_frame: Stats,
+    ratio_median: f64,
+    composes: u64,
+    gpu_pass_ms: Option<PassTimes>,
+    compose_ms_gpu: Option<f64>,
+    compose_ms_wall: f64,
+    compose_bytes: u64,
+    compose_bytes_detail: ComposeBytesJson,
+    copy_bandwidth_gb_s: f64,
+    compose_at_bandwidth_ms: f64,
+}
+
+#[derive(Serialize)]
+struct PassTimes {
+    entry_irradiance: f64,
+    weights_selection: f64,
+    compose: f64,
+    shading: f64,
+}
+
+#[derive(Serialize)]
+struct ComposeBytesJson {
+    pane_data: u64,
+    headers: u64,
+    tables: u64,
+    written: u64,
+    selected_clusters: usize,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.frames == 0 || a.frames > 100_000 || a.rounds == 0 || a.rounds > 100 {
+        bail!("--frames must be 1 to 100000 and --rounds 1 to 100");
+    }
+    if a.width == 0 || a.width > 8192 || a.top_k == 0 {
+        bail!("--width must be 1 to 8192 and --top-k at least 1");
+    }
+    let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
+    let rig = load_rig(a.rig.as_deref(), &scene)?;
+    let cam = camera(&scene, None)?;
+    let (w, h) = image_size(cam, a.width);
+    let g = Gpu::new()?;
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size })?;
+    let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h);
+    let timer = PassTimer::new(&g.device, &g.queue);
+    let lights_at = |f: usize| rig.frame(f, a.frames);
+    // Warm-up: pipelines, first allocations.
+    for f in 0..3.min(a.frames) {
+        rt.update(&lights_at(f))?;
+        renderer.draw(&rt, true, None);
+        renderer.wait();
+    }
+    let (mut direct, mut full, mut passes) = (Vec::new(), Vec::new(), Vec::new());
+    let composes_before = rt.composes;
+    for _ in 0..a.rounds {
+        for f in 0..a.frames {
+            let t = Instant::now();
+            rt.update_direct(&lights_at(f))?;
+            renderer.draw(&rt, false, None);
+            renderer.wait();
+            direct.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        for f in 0..a.frames {
+            let t = Instant::now();
+            let up = rt.update_timed(&lights_at(f), timer.as_ref())?;
+            renderer.draw(&rt, true, timer.as_ref());
+            renderer.wait();
+            full.push(t.elapsed().as_secs_f64() * 1e3);
+            if let (Some(tm), true) = (&timer, up.composed) {
+                passes.push(tm.read_ms(&g.device, &g.queue));
+            }
+        }
+    }
+    let composes = rt.composes - composes_before;
+    // Compose alone: the weights of the last frame, composed again and again.
+    let selected = rt.read_selected();
+    let bytes = rt.compose_bytes(&selected);
+    let weights: Vec<glam::Vec3> = {
+        let e = rt.read_entry_irradiance();
+        prm_file.cluster_weights(&e)
+    };
+    let reps = 20;
+    let t = Instant::now();
+    for _ in 0..reps {
+        rt.compose_weights(&weights)?;
+    }
+    renderer.wait();
+    let compose_wall = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+    let bandwidth = copy_bandwidth(&g);
+    let total_bytes = bytes.pane_data + bytes.headers + bytes.tables + bytes.written;
+    let pass_median = |i: usize| stats(passes.iter().map(|p: &Vec<f64>| p[i]).collect()).median_ms;
+    let gpu_pass_ms = (!passes.is_empty()).then(|| PassTimes { entry_irradiance: pass_median(0), weights_selection: pass_median(1), compose: pass_median(2), shading: pass_median(3) });
+    let report = Report {
+        device: g.describe(),
+        scene: a.scene.scene.display().to_string(),
+        width: w,
+        height: h,
+        top_k: a.top_k,
+        shadow_size: a.shadow_size,
+        lights: lights_at(0).len(),
+        clusters: prm_file.clusters.len(),
+        frames_per_block: a.frames,
+        rounds: a.rounds,
+        ratio_median: stats(full.clone()).median_ms / stats(direct.clone()).median_ms.max(1e-9),
+        direct_frame: stats(direct),
+        full_frame: stats(full),
+        composes,
+        compose_ms_gpu: gpu_pass_ms.as_ref().map(|p| p.compose),
+        gpu_pass_ms,
+        compose_ms_wall: compose_wall,
+        compose_bytes: total_bytes,
+        compose_bytes_detail: ComposeBytesJson { pane_data: bytes.pane_data, headers: bytes.headers, tables: bytes.tables, written: bytes.written, selected_clusters: selected.iter().filter(|s| **s).count() },
+        copy_bandwidth_gb_s: bandwidth / 1e9,
+        compose_at_bandwidth_ms: total_bytes as f64 / bandwidth * 1e3,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    let r = &report;
+    println!("device: {}", r.device);
+    println!("{} at {}x{}, {} lights, {} clusters, top-{}, shadow maps {}², {} x {} frames per kind", r.scene, r.width, r.height, r.lights, r.clusters, r.top_k, r.shadow_size, r.rounds, r.frames_per_block);
+    println!("direct-only frame: median {:.3} ms, p95 {:.3} ms", r.direct_frame.median_ms, r.direct_frame.p95_ms);
+    println!("full frame:        median {:.3} ms, p95 {:.3} ms ({} composes)", r.full_frame.median_ms, r.full_frame.p95_ms, r.composes);
+    println!("ratio (medians):   {:.3} (target <= 1.10)", r.ratio_median);
+    if let Some(p) = &r.gpu_pass_ms {
+        println!("GPU passes (median): entry irradiance {:.3} ms, weights+selection {:.3} ms, compose {:.3} ms, shading {:.3} ms", p.entry_irradiance, p.weights_selection, p.compose, p.shading);
+    } else {
+        println!("GPU passes: this adapter has no timestamp queries");
+    }
+    println!(
+        "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} clusters: pane data {:.2} MB, headers {:.2} MB, tables {:.2} MB, lightmap written {:.2} MB)",
+        r.compose_ms_wall,
+        total_bytes as f64 / 1e6,
+        r.compose_bytes_detail.selected_clusters,
+        bytes.pane_data as f64 / 1e6,
+        bytes.headers as f64 / 1e6,
+        bytes.tables as f64 / 1e6,
+        bytes.written as f64 / 1e6
+    );
+    println!("copy bandwidth: {:.1} GB/s -> compose at bandwidth {:.3} ms", r.copy_bandwidth_gb_s, r.compose_at_bandwidth_ms);
+    Ok(())
+}
+
+/// Bytes per second of a device-local buffer-to-buffer copy (read + write counted).
+fn copy_bandwidth(g: &Gpu) -> f64 {
+    let size: u64 = 256 << 20;
+    let mk = |usage| g.device.create_buffer(&wgpu::BufferDescriptor { label: Some("bandwidth"), size, usage, mapped_at_creation: false });
+    let (src, dst) = (mk(wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST), mk(wgpu::BufferUsages::COPY_DST));
+    let run = |n: u32| {
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        for _ in 0..n {
+            enc.copy_buffer_to_buffer(&src, 0, &dst, 0, size);
+        }
+        let t = Instant::now();
+        g.queue.submit([enc.finish()]);
+        let _ = g.device.poll(wgpu::PollType::wait_indefinitely());
+        t.elapsed().as_secs_f64()
+    };
+    run(1);
+    let n = 8;
+    let best = (0..3).map(|_| run(n)).fold(f64::INFINITY, f64::min);
+    2.0 * size as f64 * n as f64 / best
+}
