@@ -16,6 +16,8 @@ mod info;
 mod precompute;
 mod render;
 mod texels;
+#[cfg(feature = "view")]
+mod view;
 
 /// Precomputed radiance maps: indirect light for static levels under moving lights.
 #[derive(Parser)]
@@ -49,6 +51,9 @@ enum Command {
     BakeReference(bake_reference::Args),
     /// Frame time with and without indirect light, compose time and bytes, on the GPU.
     Bench(bench::Args),
+    /// A window where the mouse moves a light (built with `--features view`).
+    #[cfg(feature = "view")]
+    View(view::Args),
     /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).
     Evaluate(evaluate::Args),
 }
@@ -68,5 +73,7 @@ fn main() -> Result<()> {
         Command::BakeReference(a) => bake_reference::run(a),
         Command::Render(a) => render::run(a),
         Command::Bench(a) => bench::run(a),
+        #[cfg(feature = "view")]
+        Command::View(a) => view::run(a),
     }
 }

@@ -215,19 +215,46 @@ fn render_writes_frames_that_follow_the_rig() {
     let rig = dir.path().join("rig.json");
     std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
         {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
-    let out = dir.path().join("frames");
-    let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--lightmap-out", "-o", s(&out)]);
+    for backend in ["cpu", "gpu"] {
+        let out = dir.path().join(backend);
+        let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--backend", backend, "--lightmap-out", "-o", s(&out)]);
+        assert!(ok, "{err}");
+        assert!(stdout.contains("3 frames, 3 composes"), "{backend}: {stdout}");
+        let frame = |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
+        let (f0, f2) = (frame(0), frame(2));
+        assert!(f0.iter().chain(&f2).all(|v| v.is_finite() && v.min_element() >= 0.0));
+        assert!(f0.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2);
+        assert_ne!(f0, f2, "{backend}: the light moved");
+        assert!(out.join("frame_0001.png").exists() && out.join("lightmap_0002.exr").exists());
+        // Without a rig the lights do not move: one compose for all frames.
+        let (ok, stdout, _) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--frames", "3", "--width", "8", "--backend", backend, "-o", s(&out)]);
+        assert!(ok && stdout.contains("3 frames, 1 composes"), "{backend}: {stdout}");
+    }
+    // The GPU lightmap (shadow-mapped entry visibility) agrees with the CPU twin's (shadow rays).
+    let lm = |b: &str| Channels::read(&dir.path().join(b).join("lightmap_0001.exr")).unwrap().rgb("").unwrap();
+    let m = prm::metric::compare(&lm("gpu"), &lm("cpu"), None);
+    assert!(m.error < 0.01, "GPU vs CPU lightmap error {}", m.error);
+}
+
+#[test]
+fn bench_reports_both_frame_kinds_and_the_compose() {
+    let dir = tempfile::tempdir().unwrap();
+    let prm_path = dir.path().join("c.prm");
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
     assert!(ok, "{err}");
-    assert!(stdout.contains("3 frames, 3 composes"), "{stdout}");
-    let frame = |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
-    let (f0, f2) = (frame(0), frame(2));
-    assert!(f0.iter().chain(&f2).all(|v| v.is_finite() && v.min_element() >= 0.0));
-    assert!(f0.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2);
-    assert_ne!(f0, f2, "the light moved");
-    assert!(out.join("frame_0001.png").exists() && out.join("lightmap_0002.exr").exists());
-    // Without a rig the lights do not move: one compose for all frames.
-    let (ok, stdout, _) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--frames", "3", "--width", "8", "-o", s(&out)]);
-    assert!(ok && stdout.contains("3 frames, 1 composes"), "{stdout}");
-    let (ok, _, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--backend", "gpu", "-o", s(&out)]);
-    assert!(!ok && err.contains("GPU backend is not built yet"), "{err}");
+    let rig = dir.path().join("rig.json");
+    std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
+        {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
+    let (ok, stdout, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "4", "--rounds", "1", "--width", "32", "--shadow-size", "128", "--json"]);
+    assert!(ok, "{err}");
+    let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(j["composes"], 4, "{stdout}");
+    let f = |k: &str| j[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {stdout}"));
+    assert!(f("ratio_median") > 0.0 && f("ratio_median").is_finite());
+    assert!(f("copy_bandwidth_gb_s") > 0.0 && f("compose_bytes") > 0.0 && f("compose_ms_wall") > 0.0);
+    assert!(j["compose_bytes_detail"]["selected_clusters"].as_u64().unwrap() > 0);
+    // A rig naming a light the level does not have, without a type, is refused.
+    std::fs::write(&rig, r#"{"lights": [{"name": "nowhere", "position": [0, 1, 0]}]}"#).unwrap();
+    let (ok, _, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig)]);
+    assert!(!ok && err.contains("nowhere"), "{err}");
 }

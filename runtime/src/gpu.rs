@@ -7,6 +7,7 @@
 
 /// A device and queue with what is known about the adapter behind them.
 pub struct Gpu {
+    pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
@@ -26,15 +27,23 @@ pub enum GpuError {
 impl Gpu {
     /// The first high-performance adapter, with timestamp queries where supported.
     pub fn new() -> Result<Gpu, GpuError> {
-        // Vulkan/Metal/DX12 (GL's probing only adds noise on headless machines); WGPU_BACKEND
-        // still overrides.
+        Gpu::with_surface(&Gpu::instance(), None)
+    }
+
+    /// The instance [`Gpu::new`] uses: Vulkan/Metal/DX12 (GL's probing only adds noise on
+    /// headless machines); `WGPU_BACKEND` still overrides.
+    pub fn instance() -> wgpu::Instance {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::PRIMARY;
-        let instance = wgpu::Instance::new(desc.with_env());
+        wgpu::Instance::new(desc.with_env())
+    }
+
+    /// [`Gpu::new`] on `instance`, with an adapter that can present to `surface` if given.
+    pub fn with_surface(instance: &wgpu::Instance, surface: Option<&wgpu::Surface<'_>>) -> Result<Gpu, GpuError> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
-            compatible_surface: None,
+            compatible_surface: surface,
             ..Default::default()
         }))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
@@ -52,7 +61,7 @@ impl Gpu {
             ..Default::default()
         }))
         .map_err(|source| GpuError::Device { adapter: info.name.clone(), source })?;
-        Ok(Gpu { device, queue, info })
+        Ok(Gpu { adapter, device, queue, info })
     }
 
     /// "name (backend, device type)", for reports.

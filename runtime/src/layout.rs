@@ -145,3 +145,14 @@ pub fn mat(m: Mat4) -> [[f32; 4]; 4] {
 pub fn vec4(v: Vec3) -> [f32; 4] {
     [v.x, v.y, v.z, 0.0]
 }
+
+/// `TonemapParams` in `shaders/tonemap.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TonemapParams {
+    /// Multiplies the radiance before the curve.
+    pub exposure: f32,
+    /// 1 to sRGB-encode in the shader (a non-sRGB target).
+    pub encode: u32,
+    pub _pad: [u32; 2],
+}

@@ -21,6 +21,7 @@ pub mod runtime;
 pub mod shade;
 pub mod shadow;
 pub mod timer;
+pub mod tonemap;
 pub mod weights;
 
 pub use gpu::Gpu;

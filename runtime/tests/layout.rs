@@ -43,6 +43,8 @@ fn every_shader_parses_and_its_structs_match_the_rust_layouts() {
     let weights = parse("weights.wgsl", prm_runtime::weights::SOURCE);
     let compose = parse("compose.wgsl", prm_runtime::compose::SOURCE);
     parse("shadow.wgsl", include_str!("../../shaders/shadow.wgsl"));
+    let tonemap = parse("tonemap.wgsl", prm_runtime::tonemap::SOURCE);
+    check!(tonemap, "TonemapParams", TonemapParams, [("exposure", exposure), ("encode", encode)]);
     for m in [&irr, &shade] {
         check!(m, "Light", GpuLight, [
             ("position", position), ("kind", kind), ("direction", direction), ("range", range), ("intensity", intensity),
