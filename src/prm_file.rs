@@ -456,6 +456,12 @@ impl Prm {
                 return Err(corrupt(format!("tile {k} is out of range (cluster {}, index {}, scale {})", tile.cluster, tile.index, tile.scale)));
             }
         }
+        // Member ranges must not overlap (each entry belongs to one cluster): otherwise a small
+        // file could make every cluster copy the whole member list.
+        let claimed: u64 = c.chunks_exact(32).map(|b| u32_at(b, 4) as u64).sum();
+        if claimed > members.len() as u64 {
+            return Err(corrupt(format!("clusters claim {claimed} members, the list holds {}", members.len())));
+        }
         let mut clusters = Vec::with_capacity(header.clusters as usize);
         for (k, b) in c.chunks_exact(32).enumerate() {
             let (first, count) = (u32_at(b, 0) as usize, u32_at(b, 4) as usize);
