@@ -14,6 +14,11 @@ struct Params {
     light_count: u32,
     cluster_count: u32,
     top_k: u32,
+    group_count: u32,
+    // 1: groups stand in for the clusters left out.
+    residual: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<storage, read> lights: array<Light>;

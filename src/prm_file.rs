@@ -1,10 +1,10 @@
-//! The `.prm` file, format v1 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v2 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 1
+//! 8   u32    version = 2
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
@@ -12,8 +12,11 @@
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
+//!     GRUP  G x 16 B: energy f32, first tile u32, tile count u32, pad u32; then (when G > 0)
+//!           C x u32: the group of each cluster
 //!     MASK  ceil(W x H / 8) B: bit (j W + i) set where a texel is stored (covered or dilated)
-//!     TILE  K x 20 B: cluster u32, tile index u32, colour scale (3 x f32)
+//!     TILE  K x 20 B: pane u32 (cluster c < C, or group C + g), tile index u32, colour scale
+//!           (3 x f32)
 //!     DATA  f16 per-texel intensity in [0, 1]: for each tile in TILE order, its masked texels
 //!           in row-major order (empty atlas texels are not stored)
 //! end u64    FNV-1a 64 checksum of every byte before it
@@ -26,6 +29,11 @@
 //! chromaticity times its peak luminance) and one half-float intensity per texel, so luminance
 //! is kept exactly (to half-float precision) and colour to the tile's mean. A pane's colour is
 //! mostly its cluster's albedo, the same over the tile; the saving is 3x over RGB half floats.
+//!
+//! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
+//! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
+//! weighted by the light of its clusters left out (see [`Prm::residual_weights`]), so the light
+//! of the many weak clusters is kept in total and placed at the group's scale instead of lost.
 //!
 //! Loading checks, before using anything: magic, version, the checksum, every section length
 //! against the file, every index against its table, and (when a scene is given) the
@@ -43,7 +51,7 @@ use crate::scene::Scene;
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -70,6 +78,16 @@ pub struct Cluster {
     /// the runtime ranks clusters by weight x energy.
     pub energy: f32,
     /// Range of this cluster's tiles in [`Prm::tiles`].
+    pub first_tile: u32,
+    pub tile_count: u32,
+}
+
+/// A group of clusters whose summed pane stands in for those of its clusters a frame leaves out.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Group {
+    /// Energy of the group's pane (the sum of its clusters' energies, less dropped tiles).
+    pub energy: f32,
+    /// Range of this group's tiles in [`Prm::tiles`] (their `cluster` is C + group index).
     pub first_tile: u32,
     pub tile_count: u32,
 }
@@ -104,6 +122,9 @@ pub struct Header {
     /// Free-form provenance: the parameters and statistics of the precompute.
     #[serde(default)]
     pub provenance: serde_json::Value,
+    /// Groups (coarse panes) after the clusters; 0 = none.
+    #[serde(default)]
+    pub groups: u32,
 }
 
 /// A loaded or freshly computed radiance map.
@@ -112,6 +133,10 @@ pub struct Prm {
     pub header: Header,
     pub entries: Vec<Entry>,
     pub clusters: Vec<Cluster>,
+    /// Coarse panes over the clusters (may be empty).
+    pub groups: Vec<Group>,
+    /// The group of each cluster (empty when there are no groups).
+    pub group_of: Vec<u32>,
     pub tiles: Vec<Tile>,
     /// Stored-texel mask of the atlas, one bit per texel, row-major (covered or dilated).
     pub mask: Vec<u8>,
@@ -244,7 +269,52 @@ impl Prm {
     /// [`Prm::add_pane`] with a [`Prm::layout`] built beforehand.
     pub fn add_pane_with(&self, c: usize, weight: Vec3, img: &mut [Vec3], layout: &TileLayout) {
         let cl = &self.clusters[c];
-        for k in cl.first_tile as usize..(cl.first_tile + cl.tile_count) as usize {
+        self.add_tiles(cl.first_tile, cl.tile_count, weight, img, layout);
+    }
+
+    /// Add `weight x` the pane of group `g` into a full-atlas image.
+    pub fn add_group_with(&self, g: usize, weight: Vec3, img: &mut [Vec3], layout: &TileLayout) {
+        let gr = &self.groups[g];
+        self.add_tiles(gr.first_tile, gr.tile_count, weight, img, layout);
+    }
+
+    /// The weight of each group's pane when only the clusters in `selected` are composed:
+    /// `r_g = sum over left-out clusters c of g of w_c x energy_c / energy_g`, which gives the
+    /// group's pane the (luminance) energy of the light those clusters would have added.
+    pub fn residual_weights(&self, weights: &[Vec3], selected: &[bool]) -> Vec<Vec3> {
+        let mut r = vec![Vec3::ZERO; self.groups.len()];
+        for (c, &g) in self.group_of.iter().enumerate() {
+            if !selected[c] {
+                r[g as usize] += weights[c] * self.clusters[c].energy;
+            }
+        }
+        for (v, g) in r.iter_mut().zip(&self.groups) {
+            *v = if g.energy > 0.0 { *v / g.energy } else { Vec3::ZERO };
+        }
+        r
+    }
+
+    /// The lightmap from the clusters in `selected` (weights `weights`), plus, with `residual`,
+    /// the groups standing in for the rest. The slow, obvious twin of the runtime's compose.
+    pub fn compose_selected(&self, weights: &[Vec3], selected: &[bool], residual: bool, layout: &TileLayout) -> Vec<Vec3> {
+        let mut img = vec![Vec3::ZERO; (self.header.atlas_width * self.header.atlas_height) as usize];
+        for c in 0..self.clusters.len() {
+            if selected[c] && weights[c] != Vec3::ZERO {
+                self.add_pane_with(c, weights[c], &mut img, layout);
+            }
+        }
+        if residual {
+            for (g, w) in self.residual_weights(weights, selected).into_iter().enumerate() {
+                if w != Vec3::ZERO {
+                    self.add_group_with(g, w, &mut img, layout);
+                }
+            }
+        }
+        img
+    }
+
+    fn add_tiles(&self, first: u32, count: u32, weight: Vec3, img: &mut [Vec3], layout: &TileLayout) {
+        for k in first as usize..(first + count) as usize {
             let tile = &self.tiles[k];
             let s = weight * tile.scale;
             let data = &self.data[layout.offsets[k]..];
@@ -335,6 +405,19 @@ impl Prm {
         }
         section(b"CLUS", c);
         section(b"MEMB", m);
+        let mut g = Vec::new();
+        for gr in &self.groups {
+            g.extend_from_slice(&gr.energy.to_le_bytes());
+            g.extend_from_slice(&gr.first_tile.to_le_bytes());
+            g.extend_from_slice(&gr.tile_count.to_le_bytes());
+            g.extend_from_slice(&0u32.to_le_bytes());
+        }
+        if !self.groups.is_empty() {
+            for &x in &self.group_of {
+                g.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        section(b"GRUP", g);
         section(b"MASK", self.mask.clone());
         let mut t = Vec::with_capacity(self.tiles.len() * 20);
         for tile in &self.tiles {
@@ -441,6 +524,12 @@ impl Prm {
         if let Some(bad) = members.iter().find(|&&x| x as usize >= entries.len()) {
             return Err(corrupt(format!("member {bad} is not an entry (there are {})", entries.len())));
         }
+        let gsec = next(b"GRUP")?;
+        let (n_groups, n_clusters) = (header.groups as u64, header.clusters as u64);
+        let want = if n_groups == 0 { 0 } else { n_groups * 16 + n_clusters * 4 };
+        if gsec.len() as u64 != want {
+            return Err(corrupt(format!("{n_groups} groups over {n_clusters} clusters declared, {} bytes of groups", gsec.len())));
+        }
         let mask = next(b"MASK")?.to_vec();
         if mask.len() as u64 != (header.atlas_width as u64 * header.atlas_height as u64).div_ceil(8) {
             return Err(corrupt(format!("mask is {} bytes for a {}x{} atlas", mask.len(), header.atlas_width, header.atlas_height)));
@@ -452,7 +541,7 @@ impl Prm {
         let tiles: Vec<Tile> = t.chunks_exact(20).map(|b| Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) }).collect();
         let grid = (header.atlas_width.div_ceil(header.tile_size) as u64) * (header.atlas_height.div_ceil(header.tile_size) as u64);
         for (k, tile) in tiles.iter().enumerate() {
-            if tile.cluster >= header.clusters || tile.index as u64 >= grid || !tile.scale.is_finite() || tile.scale.min_element() < 0.0 {
+            if tile.cluster as u64 >= n_clusters + n_groups || tile.index as u64 >= grid || !tile.scale.is_finite() || tile.scale.min_element() < 0.0 {
                 return Err(corrupt(format!("tile {k} is out of range (cluster {}, index {}, scale {})", tile.cluster, tile.index, tile.scale)));
             }
         }
@@ -474,11 +563,24 @@ impl Prm {
             }
             clusters.push(Cluster { members: members[first..first + count].to_vec(), centroid: v3(b, 8), energy: f32_at(b, 20), first_tile: ft, tile_count: tc });
         }
+        let mut groups = Vec::with_capacity(n_groups as usize);
+        for (g, b) in gsec[..n_groups as usize * 16].chunks_exact(16).enumerate() {
+            let (energy, ft, tc) = (f32_at(b, 0), u32_at(b, 4), u32_at(b, 8));
+            let pane = n_clusters + g as u64;
+            if !(energy.is_finite() && energy >= 0.0) || (ft as u64 + tc as u64) > tiles.len() as u64 || tiles[ft as usize..(ft + tc) as usize].iter().any(|t| t.cluster as u64 != pane) {
+                return Err(corrupt(format!("group {g} has a bad energy or tile range")));
+            }
+            groups.push(Group { energy, first_tile: ft, tile_count: tc });
+        }
+        let group_of: Vec<u32> = gsec[n_groups as usize * 16..].chunks_exact(4).map(|b| u32_at(b, 0)).collect();
+        if let Some(c) = group_of.iter().position(|&g| g as u64 >= n_groups) {
+            return Err(corrupt(format!("cluster {c} is in group {}, of {n_groups}", group_of[c])));
+        }
         let d = next(b"DATA")?;
         if at != body.len() {
             return Err(corrupt(format!("{} unexpected bytes after the last section", body.len() - at)));
         }
-        let mut prm = Prm { header, entries, clusters, tiles, mask, data: Vec::new() };
+        let mut prm = Prm { header, entries, clusters, groups, group_of, tiles, mask, data: Vec::new() };
         let want = prm.layout().len;
         if d.len() as u64 != want as u64 * 2 {
             return Err(corrupt(format!("tile data is {} bytes, the tiles' masked texels need {}", d.len(), want * 2)));

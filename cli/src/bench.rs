@@ -43,6 +43,9 @@ pub struct Args {
     /// Panes composed per frame.
     #[arg(long, default_value_t = 32)]
     top_k: usize,
+    /// Drop the left-out clusters' light instead of composing their groups' panes for it.
+    #[arg(long)]
+    no_residual: bool,
     /// Shadow-map texels per side and layer.
     #[arg(long, default_value_t = 1024)]
     shadow_size: u32,
@@ -121,7 +124,7 @@ pub fn run(a: Args) -> Result<()> {
     let cam = camera(&scene, None)?;
     let (w, h) = image_size(cam, a.width);
     let g = Gpu::new()?;
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size })?;
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
     let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h);
     let timer = PassTimer::new(&g.device, &g.queue);
     let lights_at = |f: usize| rig.frame(f, a.frames);

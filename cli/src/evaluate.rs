@@ -22,6 +22,9 @@ pub struct Args {
     /// Compose only the K strongest panes (default: all).
     #[arg(long)]
     top_k: Option<usize>,
+    /// With --top-k: drop the left-out clusters' light instead of composing their groups' panes.
+    #[arg(long)]
+    no_residual: bool,
     /// Output EXR: bare R G B and indirect.* = indirect irradiance (W/m²), mask.
     #[arg(short, long)]
     output: PathBuf,
@@ -32,6 +35,7 @@ pub fn run(a: Args) -> Result<()> {
     let bvh = Bvh::build(&scene);
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
+    twin.residual = !a.no_residual;
     let img = twin.frame(&lights).to_vec();
     let set = TexelSet::build(&scene, bytes_prm.header.atlas_width, bytes_prm.header.atlas_height);
     let (w, h) = (set.width as usize, set.height as usize);

@@ -65,6 +65,10 @@ pub struct Args {
     /// Radius in texels of the geometry-guided pane smoothing (0: none).
     #[arg(long)]
     smooth: Option<u32>,
+    /// Groups of clusters whose summed panes stand in for the clusters a top-K runtime leaves
+    /// out (0: none; default 16).
+    #[arg(long)]
+    groups: Option<u32>,
     /// Relative energy of a pane its dropped tiles may hold.
     #[arg(long)]
     drop_threshold: Option<f64>,
@@ -88,6 +92,7 @@ pub fn run(a: Args) -> Result<()> {
     p.seed = a.seed.unwrap_or(p.seed);
     p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
+    p.groups = a.groups.unwrap_or(p.groups);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {
         p.estimator = match e {

@@ -50,6 +50,9 @@ pub struct Args {
     /// Panes composed per frame.
     #[arg(long, default_value_t = 32)]
     top_k: usize,
+    /// Drop the left-out clusters' light instead of composing their groups' panes for it.
+    #[arg(long)]
+    no_residual: bool,
     /// Shadow-map texels per side and layer (GPU backend).
     #[arg(long, default_value_t = 1024)]
     shadow_size: u32,
@@ -93,7 +96,7 @@ pub fn run(a: Args) -> Result<()> {
     match gpu {
         Some(g) => {
             println!("device: {}", g.describe());
-            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size })?;
+            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
             let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih);
             let mut total = 0.0;
             for f in 0..a.frames {
@@ -113,6 +116,7 @@ pub fn run(a: Args) -> Result<()> {
         None => {
             let bvh = Bvh::build(&scene);
             let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
+            twin.residual = !a.no_residual;
             let atlas = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {

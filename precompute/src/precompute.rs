@@ -8,7 +8,8 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use prm::prm_file::{scene_fingerprint, Header, Prm};
+use glam::Vec3;
+use prm::prm_file::{scene_fingerprint, Entry, Group, Header, Prm, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
@@ -16,7 +17,7 @@ use crate::cluster::{centroids, cluster_entries};
 use crate::entries::{is_enclosed, sample_entries};
 use rayon::prelude::*;
 use crate::panes::tile_panes;
-use crate::transport::{Cancelled, Estimator, Transport};
+use crate::transport::{Cancelled, Estimator, TexelPanes, Transport};
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
 #[derive(Clone, Debug)]
@@ -43,6 +44,10 @@ pub struct PrecomputeParams {
     pub kmeans_iterations: u32,
     /// Radius in texels of the geometry-guided smoothing applied to every pane (0: none; default 1).
     pub smooth_radius: u32,
+    /// Groups G of clusters (k-means on the clusters' centroids and normals), each storing the
+    /// sum of its clusters' panes: what a runtime composing only the top K adds for the clusters
+    /// it leaves out (`prm::prm_file` module doc). 0: none; default 16.
+    pub groups: u32,
 }
 
 impl PrecomputeParams {
@@ -64,6 +69,7 @@ impl PrecomputeParams {
             max_bounces: 1000,
             kmeans_iterations: 30,
             smooth_radius: 1,
+            groups: 16,
         }
     }
 
@@ -73,6 +79,7 @@ impl PrecomputeParams {
         check((1..=1 << 20).contains(&self.entries), format!("entries {} must be 1 to 1048576", self.entries))?;
         check((1..=1 << 16).contains(&self.paths), format!("paths {} must be 1 to 65536", self.paths))?;
         check((1..=65536).contains(&self.clusters), format!("clusters {} must be 1 to 65536", self.clusters))?;
+        check(self.groups <= 4096, format!("groups {} must be 0 to 4096", self.groups))?;
         check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
         check((1..=1024).contains(&self.tile_size), format!("tile size {} must be 1 to 1024", self.tile_size))?;
         check((0.0..0.5).contains(&self.drop_threshold), format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold))?;
@@ -194,7 +201,8 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
 
     let t = Instant::now();
     let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
-    let tiled = tile_panes(&set, kernel.as_deref(), &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
+    let mut tiled = tile_panes(&set, kernel.as_deref(), &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
+    let (groups, group_of) = group_panes(scene, &entries, &clustering.members, &cents, &texel_panes, params, &set, kernel.as_deref(), &mut tiled);
     drop(texel_panes);
     report.seconds_panes = t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
@@ -212,6 +220,7 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
         tile_size: params.tile_size,
         entries: entries.len() as u32,
         clusters: tiled.clusters.len() as u32,
+        groups: groups.len() as u32,
         tiles: tiled.tiles.len() as u32,
         tiles_dropped: tiled.tiles_dropped,
         dropped_energy: tiled.dropped_energy,
@@ -222,10 +231,55 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations, "smooth_radius": params.smooth_radius,
+            "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,
         }),
     };
-    let prm = Prm { header, entries, clusters: tiled.clusters, tiles: tiled.tiles, mask: tiled.mask, data: tiled.data };
+    let prm = Prm { header, entries, clusters: tiled.clusters, groups, group_of, tiles: tiled.tiles, mask: tiled.mask, data: tiled.data };
     Ok((prm, report))
+}
+
+/// Groups the clusters (k-means on centroid and mean normal, area-weighted like the entries)
+/// and appends each group's pane, the sum of its clusters' contributions, smoothed, dilated and
+/// tiled like theirs, to `tiled`. Returns the groups and each cluster's group.
+#[allow(clippy::too_many_arguments)]
+fn group_panes(scene: &Scene, entries: &[Entry], members: &[Vec<u32>], cents: &[Vec3], texel_panes: &[TexelPanes], params: &PrecomputeParams, set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, tiled: &mut crate::panes::Tiled) -> (Vec<Group>, Vec<u32>) {
+    let c = members.len();
+    if params.groups == 0 || c < 2 {
+        return (Vec::new(), Vec::new());
+    }
+    let pseudo: Vec<Entry> = members
+        .iter()
+        .zip(cents)
+        .map(|(m, &position)| {
+            let area: f32 = m.iter().map(|&e| entries[e as usize].area).sum();
+            let normal = m.iter().fold(Vec3::ZERO, |a, &e| a + entries[e as usize].normal * entries[e as usize].area).normalize_or_zero();
+            Entry { position, normal, albedo: Vec3::ZERO, area, triangle: 0 }
+        })
+        .collect();
+    let grouping = cluster_entries(&pseudo, (params.groups as usize).min(c), scene.total_area(), params.kmeans_iterations as usize, params.seed ^ 0x6772_6f75_7073);
+    let g_count = grouping.members.len();
+    let group_tp: Vec<TexelPanes> = texel_panes
+        .par_iter()
+        .map(|tp| {
+            let mut out: TexelPanes = Vec::new();
+            for &(cl, v) in tp {
+                let g = grouping.assignment[cl as usize];
+                match out.iter_mut().find(|(x, _)| *x == g) {
+                    Some(slot) => slot.1 += v,
+                    None => out.push((g, v)),
+                }
+            }
+            out
+        })
+        .collect();
+    let g_cents: Vec<Vec3> = grouping.members.iter().map(|m| m.iter().fold(Vec3::ZERO, |a, &cl| a + cents[cl as usize]) / m.len().max(1) as f32).collect();
+    let g_tiled = tile_panes(set, kernel, &group_tp, &vec![Vec::new(); g_count], &g_cents, params.tile_size, params.drop_threshold);
+    let (fine_tiles, fine_data) = (tiled.tiles.len() as u32, tiled.data.len());
+    let groups = g_tiled.clusters.iter().map(|g| Group { energy: g.energy, first_tile: g.first_tile + fine_tiles, tile_count: g.tile_count }).collect();
+    tiled.tiles.extend(g_tiled.tiles.iter().map(|t| Tile { cluster: t.cluster + c as u32, ..*t }));
+    tiled.data.extend_from_slice(&g_tiled.data);
+    debug_assert_eq!(tiled.data.len(), fine_data + g_tiled.data.len());
+    (groups, grouping.assignment)
 }

@@ -339,3 +339,30 @@ fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
     }
     assert!(refused > 1000, "most mutations are refused ({refused})");
 }
+
+#[test]
+fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
+    // Grey weights: the group panes' energy stands in exactly (up to dropped tiles and half
+    // floats) for the left-out clusters' energy, so top-K + groups has the full sum's total.
+    let scene = common::quads(&common::unit_box_faces(), 0.6);
+    let p = PrecomputeParams { entries: 512, paths: 8, clusters: 48, atlas: 32, groups: 6, ..Default::default() };
+    let prm = bake(&scene, &p);
+    assert_eq!(prm.groups.len(), 6);
+    assert_eq!(prm.group_of.len(), prm.clusters.len());
+    let layout = prm.layout();
+    let w: Vec<Vec3> = (0..prm.clusters.len()).map(|c| Vec3::splat(0.5 + (c % 7) as f32)).collect();
+    let full = prm.compose(&w);
+    let energy = |img: &[Vec3]| img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>();
+    let chosen: Vec<bool> = (0..prm.clusters.len()).map(|c| c % 4 == 0).collect();
+    let with = prm.compose_selected(&w, &chosen, true, &layout);
+    let without = prm.compose_selected(&w, &chosen, false, &layout);
+    let (ef, ew, eo) = (energy(&full), energy(&with), energy(&without));
+    assert!((ew / ef - 1.0).abs() < 0.01, "top-K + groups {ew} vs full {ef}");
+    assert!(eo < 0.5 * ef, "a quarter of the clusters should carry well under the full light: {eo} vs {ef}");
+    // Everything selected: the groups add nothing.
+    let all = vec![true; prm.clusters.len()];
+    assert_eq!(prm.compose_selected(&w, &all, true, &layout), full);
+    // And the file keeps the groups.
+    let back = Prm::from_bytes(std::path::Path::new("g.prm"), &prm.to_bytes()).unwrap();
+    assert_eq!(back, prm);
+}

@@ -53,7 +53,7 @@ impl ComposePass {
         }
         // Records grouped by atlas tile, clusters in order within each.
         let mut by_tile: Vec<Vec<TileRecord>> = vec![Vec::new(); atlas_tiles];
-        let mut texels_per_cluster = vec![0u64; prm.clusters.len()];
+        let mut texels_per_cluster = vec![0u64; prm.clusters.len() + prm.groups.len()];
         for (k, t) in prm.tiles.iter().enumerate() {
             by_tile[t.index as usize].push(TileRecord { scale: t.scale.to_array(), cluster: t.cluster, data_offset: layout.offsets[k] as u32, _pad: [0; 3] });
             texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
@@ -121,7 +121,7 @@ impl ComposePass {
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("compose"), layout: &bgl, entries: &entries });
         let pipeline = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "compose_main", &[&bgl]);
         let gather = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "gather_main", &[&bgl]);
-        ComposePass { pipeline, gather, tiles: atlas_tiles as u32, group, size: (w, h), lightmap, records_per_tile: ranges.iter().map(|r| r[1]).collect(), texels_per_cluster, tiles_per_cluster: prm.clusters.iter().map(|c| c.tile_count as u64).collect(), texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64 }
+        ComposePass { pipeline, gather, tiles: atlas_tiles as u32, group, size: (w, h), lightmap, records_per_tile: ranges.iter().map(|r| r[1]).collect(), texels_per_cluster, tiles_per_cluster: prm.clusters.iter().map(|c| c.tile_count as u64).chain(prm.groups.iter().map(|g| g.tile_count as u64)).collect(), texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64 }
     }
 
     /// Records the compose.

@@ -6,7 +6,9 @@
 //! 2. Cluster weights: the mean irradiance of each cluster's members.
 //! 3. Selection: the K clusters with the largest `luminance(w_c) x energy_c`; clusters with zero
 //!    weight are never selected. Ties go to the lower index.
-//! 4. Compose: `sum w_c pane_c` over the selected clusters' stored tiles only. When the lights
+//! 4. Compose: `sum w_c pane_c` over the selected clusters' stored tiles only, plus (with
+//!    `residual`, the default) each group's pane weighted by its left-out clusters' light
+//!    ([`prm::prm_file::Prm::residual_weights`]). When the lights
 //!    have not changed since the last frame, nothing is recomposed ([`CpuTwin::composes`]
 //!    counts the composes that did happen).
 
@@ -47,13 +49,15 @@ pub struct CpuTwin<'a> {
     pub composes: usize,
     /// Clusters composed in the last compose.
     pub last_selected: usize,
+    /// Groups stand in for the clusters left out (default true).
+    pub residual: bool,
 }
 
 impl<'a> CpuTwin<'a> {
     /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
     pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
         let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
-        CpuTwin { prm, bvh, top_k, layout: prm.layout(), last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0 }
+        CpuTwin { prm, bvh, top_k, layout: prm.layout(), last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0, residual: true }
     }
 
     /// The indirect lightmap (full atlas, row-major, W/m²) for these lights.
@@ -65,10 +69,11 @@ impl<'a> CpuTwin<'a> {
         let w = self.prm.cluster_weights(&e);
         let energies: Vec<f32> = self.prm.clusters.iter().map(|c| c.energy).collect();
         let selected = select_top_k(&w, &energies, self.top_k);
-        self.lightmap.iter_mut().for_each(|v| *v = Vec3::ZERO);
+        let mut chosen = vec![false; w.len()];
         for &c in &selected {
-            self.prm.add_pane_with(c, w[c], &mut self.lightmap, &self.layout);
+            chosen[c] = true;
         }
+        self.lightmap = self.prm.compose_selected(&w, &chosen, self.residual, &self.layout);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());

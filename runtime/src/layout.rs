@@ -76,6 +76,10 @@ pub struct IndirectParams {
     pub cluster_count: u32,
     /// Clusters composed per frame.
     pub top_k: u32,
+    pub group_count: u32,
+    /// 1: groups stand in for the clusters left out.
+    pub residual: u32,
+    pub _pad: [u32; 2],
 }
 
 /// `Params` in `shaders/compose.wgsl`.

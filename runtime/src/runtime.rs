@@ -26,11 +26,14 @@ pub struct RuntimeParams {
     pub top_k: usize,
     /// Texels per side of each shadow-map layer (default 1024).
     pub shadow_size: u32,
+    /// Compose each group's pane for the light of its clusters left out of the top K
+    /// (default true; `prm::prm_file` module doc). No effect on a `.prm` without groups.
+    pub residual: bool,
 }
 
 impl Default for RuntimeParams {
     fn default() -> Self {
-        RuntimeParams { top_k: 32, shadow_size: 1024 }
+        RuntimeParams { top_k: 32, shadow_size: 1024, residual: true }
     }
 }
 
@@ -62,6 +65,7 @@ pub struct Runtime {
     compose: ComposePass,
     energies: Vec<f32>,
     clusters: usize,
+    groups: usize,
     entry_count: u32,
     stale: bool,
     /// Composes recorded so far (an update with unchanged lights adds none).
@@ -105,6 +109,7 @@ impl Runtime {
             compose,
             energies: prm.clusters.iter().map(|c| c.energy).collect(),
             clusters: prm.clusters.len(),
+            groups: prm.groups.len(),
             entry_count: points.len() as u32,
             stale: true,
             composes: 0,
@@ -179,6 +184,9 @@ impl Runtime {
             light_count: self.shadows.light_count(),
             cluster_count: self.clusters as u32,
             top_k: self.params.top_k.min(u32::MAX as usize) as u32,
+            group_count: self.groups as u32,
+            residual: self.params.residual as u32,
+            _pad: [0; 2],
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }
@@ -203,9 +211,15 @@ impl Runtime {
         read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output), self.entry_count as usize)
     }
 
-    /// Reads back which clusters the last compose used.
+    /// Reads back which panes the last compose used: C clusters, then G groups.
     pub fn read_selected(&self) -> Vec<bool> {
-        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected), self.clusters).iter().map(|w| *w != Vec3::ZERO).collect()
+        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected), self.clusters + self.groups).iter().map(|w| *w != Vec3::ZERO).collect()
+    }
+
+    /// Whether groups stand in for left-out clusters; the next update recomposes.
+    pub fn set_residual(&mut self, on: bool) {
+        self.params.residual = on;
+        self.stale = true;
     }
 
     /// Bytes a compose with this selection moves.

@@ -2,7 +2,9 @@
 //! `shaders/weights.wgsl`). `weights_main` averages each cluster's member irradiance and scores
 //! it by `luminance(w) x pane energy`; `select_main` ranks every cluster against all others
 //! (O(C²), a few hundred thousand comparisons at C = 256, no sort, no atomics) and writes the
-//! weights of the kept ones, zero for the rest, into [`WeightPass::selected`].
+//! weights of the kept ones, zero for the rest, into [`WeightPass::selected`]; `residual_main`
+//! then gives each group of clusters the weight of its left-out clusters' light (after the C
+//! cluster slots of `selected`).
 
 use glam::Vec3;
 use prm::prm_file::Prm;
@@ -14,33 +16,44 @@ pub const SOURCE: &str = include_str!("../../shaders/weights.wgsl");
 pub struct WeightPass {
     weights_pipeline: wgpu::ComputePipeline,
     select_pipeline: wgpu::ComputePipeline,
+    residual_pipeline: wgpu::ComputePipeline,
+    groups: u32,
     group: wgpu::BindGroup,
     count: u32,
     /// Cluster weights (`vec4f`), written by `weights_main` or uploaded.
     pub weights: wgpu::Buffer,
     /// Cluster scores (`f32`).
     pub scores: wgpu::Buffer,
-    /// Weights of the selected clusters, 0 elsewhere (`vec4f`).
+    /// Weights of the selected clusters, 0 elsewhere, then the groups' weights (`vec4f`, C + G).
     pub selected: wgpu::Buffer,
 }
 
 impl WeightPass {
     pub fn new(device: &wgpu::Device, params: &wgpu::Buffer, entry_irradiance: &wgpu::Buffer, prm: &Prm) -> WeightPass {
-        let mut ranges = Vec::with_capacity(prm.clusters.len());
-        let mut members = Vec::new();
-        for c in &prm.clusters {
-            ranges.push([members.len() as u32, c.members.len() as u32]);
-            members.extend_from_slice(&c.members);
-        }
-        let energy: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+        // One ranges/indices/energy table for both levels: clusters (ranges into entries), then
+        // groups (ranges into clusters), to stay within 8 storage buffers per stage.
         let n = prm.clusters.len();
+        let g_count = prm.groups.len();
+        let mut ranges = Vec::with_capacity(n + g_count);
+        let mut indices = Vec::new();
+        for c in &prm.clusters {
+            ranges.push([indices.len() as u32, c.members.len() as u32]);
+            indices.extend_from_slice(&c.members);
+        }
+        for g in 0..g_count as u32 {
+            let first = indices.len() as u32;
+            indices.extend((0..n as u32).filter(|&c| prm.group_of[c as usize] == g));
+            ranges.push([first, indices.len() as u32 - first]);
+        }
+        let energy: Vec<f32> = prm.clusters.iter().map(|c| c.energy).chain(prm.groups.iter().map(|g| g.energy)).collect();
         let ranges = gpu::storage_buffer(device, "member ranges", bytemuck::cast_slice(&ranges), wgpu::BufferUsages::empty());
-        let members = gpu::storage_buffer(device, "members", bytemuck::cast_slice(&members), wgpu::BufferUsages::empty());
+        let indices = gpu::storage_buffer(device, "members", bytemuck::cast_slice(&indices), wgpu::BufferUsages::empty());
         let energy = gpu::storage_buffer(device, "pane energy", bytemuck::cast_slice(&energy), wgpu::BufferUsages::empty());
         let rw = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         let weights = gpu::storage_buffer(device, "cluster weights", &vec![0u8; n * 16], rw);
         let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
-        let selected = gpu::storage_buffer(device, "selected weights", &vec![0u8; n * 16], rw);
+        let selected = gpu::storage_buffer(device, "selected weights", &vec![0u8; (n + g_count) * 16], rw);
+
         let c = wgpu::ShaderStages::COMPUTE;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("weights"),
@@ -55,10 +68,12 @@ impl WeightPass {
                 buffer_entry(7, c, WRITE),
             ],
         });
-        let group = gpu::bind_buffers(device, "weights", &layout, &[params, entry_irradiance, &ranges, &members, &energy, &weights, &scores, &selected]);
+        let group = gpu::bind_buffers(device, "weights", &layout, &[params, entry_irradiance, &ranges, &indices, &energy, &weights, &scores, &selected]);
         WeightPass {
             weights_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "weights_main", &[&layout]),
             select_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "select_main", &[&layout]),
+            residual_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "residual_main", &[&layout]),
+            groups: g_count as u32,
             group,
             count: n as u32,
             weights,
@@ -78,6 +93,10 @@ impl WeightPass {
         }
         pass.set_pipeline(&self.select_pipeline);
         pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+        if self.groups > 0 {
+            pass.set_pipeline(&self.residual_pipeline);
+            pass.dispatch_workgroups(self.groups.div_ceil(64), 1, 1);
+        }
     }
 
     /// Uploads weights chosen by the caller (with their scores), in place of `weights_main`.

@@ -47,8 +47,8 @@ fn point(p: Vec3, i: f32) -> Light {
 fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec3)], size: u32) -> Vec<Vec3> {
     let mut shadows = ShadowMaps::new(&g.device, &g.queue, scene, size);
     shadows.update(lights).unwrap();
-    let params = g.device.create_buffer(&wgpu::BufferDescriptor { label: None, size: 16, usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
-    let p = prm_runtime::layout::IndirectParams { entry_count: points.len() as u32, light_count: lights.len() as u32, cluster_count: 0, top_k: 1 };
+    let params = g.device.create_buffer(&wgpu::BufferDescriptor { label: None, size: std::mem::size_of::<prm_runtime::layout::IndirectParams>() as u64, usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+    let p = prm_runtime::layout::IndirectParams { entry_count: points.len() as u32, light_count: lights.len() as u32, cluster_count: 0, top_k: 1, ..Default::default() };
     g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
     let pass = EntryPass::new(&g.device, &shadows.layout, &params, points);
     let mut enc = g.device.create_command_encoder(&Default::default());
@@ -164,7 +164,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     let scene = open_box();
     let prm = bake(&scene, 512, 40, 48);
     let c = prm.clusters.len();
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 256 }).unwrap();
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 256, ..Default::default() }).unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
     for round in 0..3 {
@@ -173,14 +173,21 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         rt.set_top_k(c).unwrap();
         rt.compose_weights(&w).unwrap();
         assert_close(&rt.read_lightmap(), &prm.compose(&w), 1e-5, "K = C");
-        // K = 5: the same clusters as the CPU's selection, and the same sum.
+        // K = 5: the same clusters as the CPU's selection, and the same sum, with and without
+        // the groups standing in for the clusters left out.
         rt.set_top_k(5).unwrap();
-        rt.compose_weights(&w).unwrap();
         let top = prm_runtime::cpu::select_top_k(&w, &energies, 5);
-        let selected = rt.read_selected();
-        assert_eq!((0..c).filter(|k| selected[*k]).collect::<Vec<_>>(), { let mut t = top.clone(); t.sort(); t });
-        let wk: Vec<Vec3> = (0..c).map(|k| if top.contains(&k) { w[k] } else { Vec3::ZERO }).collect();
-        assert_close(&rt.read_lightmap(), &prm.compose(&wk), 1e-5, "K = 5");
+        let chosen: Vec<bool> = (0..c).map(|k| top.contains(&k)).collect();
+        let layout = prm.layout();
+        for residual in [false, true] {
+            rt.set_residual(residual);
+            rt.compose_weights(&w).unwrap();
+            let selected = rt.read_selected();
+            assert_eq!(selected[..c], chosen[..], "GPU and CPU select different clusters");
+            assert!(selected[c..].iter().any(|s| *s) == residual && !prm.groups.is_empty(), "groups composed: {:?}", &selected[c..]);
+            assert_close(&rt.read_lightmap(), &prm.compose_selected(&w, &chosen, residual, &layout), 1e-5, "K = 5");
+        }
+        rt.set_residual(true);
     }
 }
 
@@ -191,7 +198,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let prm = bake(&scene, 512, 40, 48);
     let bvh = Bvh::build(&scene);
     let c = prm.clusters.len();
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 1024 }).unwrap();
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() }).unwrap();
     rt.update(&scene.lights).unwrap();
     // Entry irradiance: shadow maps vs shadow rays. The open box has no occluder between the
     // light and any entry, so they agree to float precision but for PCF at grazing entries.
@@ -213,7 +220,7 @@ fn thirty_moving_light_frames_on_chamber() {
     let scene = prm::gltf_load::load_scene(root.join("assets/chamber.glb"), &Default::default()).unwrap();
     let rig = prm::rig::Rig::load(&root.join("assets/chamber_rig.json"), &scene.lights).unwrap();
     let prm = bake(&scene, 1024, 64, 128);
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: 32, shadow_size: 512 }).unwrap();
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: 32, shadow_size: 512, ..Default::default() }).unwrap();
     let cam = &scene.cameras[0];
     let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, 96, 64);
     let mut last: Option<Vec<Vec3>> = None;

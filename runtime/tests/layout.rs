@@ -53,7 +53,7 @@ fn every_shader_parses_and_its_structs_match_the_rust_layouts() {
     }
     check!(irr, "Entry", GpuEntry, [("position", position), ("normal", normal)]);
     for m in [&irr, &weights] {
-        check!(m, "Params", IndirectParams, [("entry_count", entry_count), ("light_count", light_count), ("cluster_count", cluster_count), ("top_k", top_k)]);
+        check!(m, "Params", IndirectParams, [("entry_count", entry_count), ("light_count", light_count), ("cluster_count", cluster_count), ("top_k", top_k), ("group_count", group_count), ("residual", residual)]);
     }
     check!(compose, "Params", ComposeParams, [("atlas_width", atlas_width), ("atlas_height", atlas_height), ("tile_size", tile_size), ("tiles_x", tiles_x), ("tile_count", tile_count), ("active_stride", active_stride)]);
     check!(compose, "TileRecord", TileRecord, [("scale", scale), ("cluster", cluster), ("data_offset", data_offset)]);
