@@ -15,6 +15,7 @@ mod ground_truth;
 mod info;
 mod precompute;
 mod render;
+mod report;
 mod texels;
 #[cfg(feature = "view")]
 mod view;
@@ -49,6 +50,8 @@ enum Command {
     Render(render::Args),
     /// Bake the static reference lightmap with virtual polygon lights (paper 000).
     BakeReference(bake_reference::Args),
+    /// Error against run time of every method, and flicker over a rig: report.md + plots.
+    Report(report::Args),
     /// Frame time with and without indirect light, compose time and bytes, on the GPU.
     Bench(bench::Args),
     /// A window where the mouse moves a light (built with `--features view`).
@@ -73,6 +76,7 @@ fn main() -> Result<()> {
         Command::BakeReference(a) => bake_reference::run(a),
         Command::Render(a) => render::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Report(a) => report::run(a),
         #[cfg(feature = "view")]
         Command::View(a) => view::run(a),
     }

@@ -258,3 +258,26 @@ fn bench_reports_both_frame_kinds_and_the_compose() {
     let (ok, _, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig)]);
     assert!(!ok && err.contains("nowhere"), "{err}");
 }
+
+#[test]
+fn report_writes_figures_and_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let (ok, _, err) = prm(&["report", &asset("cornell.glb"), "--smoke", "-o", s(&out)]);
+    assert!(ok, "{err}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for section in ["## PRM: precompute budget", "## PRM: runtime budget", "## Reference baker", "## Moving-light rig", "Machine:", "GPU device:", "Seeds:"] {
+        assert!(md.contains(section), "report.md lacks {section}:\n{md}");
+    }
+    // Every error figure is a finite percentage.
+    let figures: Vec<f64> = md.split('|').filter_map(|c| c.trim().strip_suffix(" %")).filter_map(|v| v.trim_start_matches('+').parse().ok()).collect();
+    assert!(figures.len() > 20 && figures.iter().all(|f| f.is_finite()), "{figures:?}");
+    // Plots need a font; CI installs one (fonts-dejavu-core).
+    if md.contains("precompute.png") {
+        for png in ["precompute.png", "runtime.png", "rig.png"] {
+            assert!(std::fs::metadata(out.join(png)).unwrap().len() > 10_000, "{png} is empty");
+        }
+    } else {
+        assert!(err.contains("fonts-dejavu-core"), "{err}");
+    }
+}
