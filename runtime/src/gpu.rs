@@ -94,11 +94,12 @@ pub const READ: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { rea
 pub const WRITE: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: false };
 pub const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
 
-/// A storage buffer holding `data` (at least 16 bytes, so empty arrays still bind).
+/// A storage buffer holding `data`, padded to at least 256 bytes so an empty array (a level
+/// whose panes are all black has no tiles) still binds as one element of any of our structs.
 pub fn storage_buffer(device: &wgpu::Device, label: &str, data: &[u8], extra: wgpu::BufferUsages) -> wgpu::Buffer {
     use wgpu::util::DeviceExt;
     let mut bytes = data.to_vec();
-    bytes.resize(bytes.len().max(16).next_multiple_of(4), 0);
+    bytes.resize(bytes.len().max(256).next_multiple_of(4), 0);
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: &bytes, usage: wgpu::BufferUsages::STORAGE | extra })
 }
 

@@ -1,0 +1,277 @@
+//! Stiff and extreme cases (README "Stiff cases"): each scene goes through all four stages
+//! (ground truth, precompute + CPU twin, GPU runtime, reference baker) and every lightmap must
+//! be finite and non-negative, with the stated expectation for that case.
+//!
+//! Budgets are tiny (atlas 32: 600 texels for a box; 256 entries, 32 paths, 16 clusters;
+//! ground truth 256 spp; reference 5,000 photons), so "agrees with the ground truth" means
+//! within a tolerance sized for that budget and stated at each case; the analytic cases are
+//! checked against their closed forms instead.
+
+#[path = "../../precompute/tests/common/mod.rs"]
+mod common;
+
+use std::sync::atomic::AtomicBool;
+
+use common::{quads, unit_box_faces, v};
+use glam::Vec3;
+use prm::{Bvh, Light, LightKind, Scene, TexelSet};
+use prm_precompute::ground_truth::{GtParams, Tracer};
+use prm_precompute::precompute::{precompute, PrecomputeParams};
+use prm_precompute::reference::bake::{evaluate, virtual_lights, BakeParams};
+use prm_runtime::cpu::CpuTwin;
+use prm_runtime::{Gpu, Runtime, RuntimeParams};
+
+const ATLAS: u32 = 32;
+
+fn gpu() -> Gpu {
+    Gpu::new().unwrap_or_else(|e| panic!("the stiff suite runs the GPU runtime too and needs a wgpu adapter: {e}"))
+}
+
+fn point(p: Vec3, i: f32) -> Light {
+    Light { name: "p".into(), kind: LightKind::Point, position: p, direction: -Vec3::Y, intensity: Vec3::splat(i), range: None }
+}
+
+/// The six inward faces of an `s`-sized box, each on its own 10 x 10 block of whole texels of
+/// the 32² atlas: no texel straddles a face edge, so every covered texel stands for 1/100 of a
+/// face and plain means over texels are area means.
+fn closed_box(albedo: f32, s: f32, lights: Vec<Light>) -> Scene {
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, q) in unit_box_faces().iter().enumerate() {
+        let origin = glam::Vec2::new((1 + 11 * (k % 3)) as f32, (1 + 11 * (k / 3)) as f32);
+        let base = pos.len() as u32;
+        for (c, p) in q.iter().enumerate() {
+            pos.push(*p * s);
+            let corner = [glam::Vec2::new(0.0, 0.0), glam::Vec2::new(0.0, 1.0), glam::Vec2::new(1.0, 1.0), glam::Vec2::new(1.0, 0.0)][c];
+            uv.push((origin + corner * 10.0) / ATLAS as f32);
+        }
+        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    let mut scene = Scene::from_mesh(pos, uv, &idx);
+    scene.materials[0].albedo = Vec3::splat(albedo);
+    scene.lights = lights;
+    scene
+}
+
+/// Every stage's indirect irradiance per covered texel.
+struct Outputs {
+    gt: Vec<Vec3>,
+    gt_direct: Vec<Vec3>,
+    gt_noise: f64,
+    prm_all: Vec<Vec3>,
+    gpu_all: Vec<Vec3>,
+    gpu_top: Vec<Vec3>,
+    reference: Vec<Vec3>,
+    walks_truncated: usize,
+}
+
+fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs {
+    let bvh = Bvh::build(scene);
+    let set = TexelSet::build(scene, ATLAS, ATLAS);
+    let at = |img: &[Vec3]| set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>();
+    let tracer = Tracer::new(scene, &bvh, GtParams { spp, seed: 3, ..GtParams::default() });
+    let gt = tracer.texels(&set.texels, set.width, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let y2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect) as f64).powi(2)).sum();
+    let s2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect_stderr) as f64).powi(2)).sum();
+    let p = PrecomputeParams { entries: 256, paths: 32, clusters: 16, atlas: ATLAS, groups: 4, tile_size: 8, ..PrecomputeParams::production() };
+    assert!(set.len() >= 100, "{} texels", set.len());
+    let (map, report) = precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
+    let prm_all = at(CpuTwin::new(&map, &bvh, usize::MAX).frame(&scene.lights));
+    let mut rt = Runtime::new(&g.device, &g.queue, scene, &map, RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true }).unwrap();
+    rt.update(&scene.lights).unwrap();
+    let gpu_all = at(&rt.read_lightmap());
+    rt.set_top_k(4).unwrap();
+    rt.update(&scene.lights).unwrap();
+    let gpu_top = at(&rt.read_lightmap());
+    let bp = BakeParams { photons: 5000, atlas: ATLAS, bounces: reference_bounces, indirect_only: true, ..BakeParams::default() };
+    let vl = virtual_lights(scene, &bvh, &scene.lights, &bp);
+    let reference = evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, &|_| {}, &AtomicBool::new(false)).unwrap().indirect;
+    let out = Outputs {
+        gt: gt.iter().map(|r| r.indirect).collect(),
+        gt_direct: gt.iter().map(|r| r.direct).collect(),
+        gt_noise: if y2 > 0.0 { (s2 / y2).sqrt() } else { 0.0 },
+        prm_all,
+        gpu_all,
+        gpu_top,
+        reference,
+        walks_truncated: report.walks_truncated,
+    };
+    for (name, img) in out.all() {
+        assert!(img.iter().all(|x| x.is_finite() && x.min_element() >= 0.0), "{name}: a non-finite or negative texel");
+    }
+    assert!(out.gt_direct.iter().all(|x| x.is_finite() && x.min_element() >= 0.0), "ground-truth direct: a non-finite or negative texel");
+    out
+}
+
+impl Outputs {
+    fn all(&self) -> [(&'static str, &[Vec3]); 5] {
+        [("ground truth", &self.gt), ("PRM, CPU twin", &self.prm_all), ("PRM, GPU all panes", &self.gpu_all), ("PRM, GPU top-4 + groups", &self.gpu_top), ("reference", &self.reference)]
+    }
+
+    /// Each method's error against the ground truth must be within `tol` (a fraction).
+    fn within(&self, case: &str, tol: [f64; 3]) {
+        for ((name, img), t) in [("PRM, CPU twin", &self.prm_all), ("PRM, GPU all panes", &self.gpu_all), ("reference", &self.reference)].into_iter().zip(tol) {
+            let c = prm::metric::compare(img, &self.gt, None);
+            println!("{case}: {name}: error {:.2} % (ground-truth noise {:.2} %), bias {:+.2} %", c.error * 100.0, self.gt_noise * 100.0, c.bias * 100.0);
+            assert!(c.error <= t, "{case}: {name}: error {:.2} % > {:.0} %", c.error * 100.0, t * 100.0);
+        }
+    }
+
+    fn all_zero(&self, case: &str) {
+        for (name, img) in self.all() {
+            assert!(img.iter().all(|x| *x == Vec3::ZERO), "{case}: {name}: indirect light where there is none");
+        }
+    }
+}
+
+fn mean(v: &[Vec3]) -> f64 {
+    v.iter().map(|x| prm::luminance(*x) as f64).sum::<f64>() / v.len() as f64
+}
+
+// Tolerances for a 256-spp ground truth and the tiny PRM/reference budgets above: PRM 25 %,
+// reference 30 % (its error at these budgets in ordinary scenes: 10-20 %).
+const ORDINARY: [f64; 3] = [0.25, 0.25, 0.30];
+
+#[test]
+fn a_light_a_hair_above_a_surface_and_one_exactly_on_it() {
+    let g = gpu();
+    // A closed box of albedo a absorbs all light in the end, so the area mean of the indirect
+    // irradiance is (a / (1 - a)) x power reaching the walls / box area, whatever the light's
+    // position. 1e-4 above the floor: all of 4 pi I W reaches the walls (half of it within a
+    // few 1e-4 of the point below the light, which no texel centre sees: that is why the
+    // check is on power, not on the direct layer). Exactly on the floor: the half of the
+    // sphere below the floor's plane goes nowhere (Light::incident gives the floor cos = 0),
+    // 2 pi I W. The box has 6 faces of area 1 and every texel stands for 1/100 of one.
+    for (case, y, power) in [("on the floor", 0.0f32, 2.0 * std::f64::consts::PI), ("1e-4 above the floor", 1e-4, 4.0 * std::f64::consts::PI)] {
+        let o = run_all(&g, &closed_box(0.5, 1.0, vec![point(v(0.5, y, 0.5), 1.0)]), 256, 12);
+        let expect = power / 6.0;
+        for (name, img) in o.all() {
+            println!("{case}: {name}: mean indirect {:.4}, exact {expect:.4}", mean(img));
+        }
+        for (name, img) in o.all() {
+            let m = mean(img) / expect;
+            if y > 0.0 && name != "reference" {
+                // Known limit, measured: half the power lands within ~1e-4 of the point under
+                // the light. Path tracing with next-event estimation finds that spot only by
+                // chance (the ground truth's mean is 0.56 of exact at 256 spp), and the PRM
+                // samples irradiance at entry points, which miss it (0.49). The reference
+                // shoots photons from the light and gets it (1.01). Expected: finite, never
+                // above exact, and at least 0.4 of it.
+                assert!((0.4..1.05).contains(&m), "{case}: {name}: mean indirect {m:.3} of exact");
+            } else {
+                assert!((m - 1.0).abs() < 0.05, "{case}: {name}: mean indirect {m:.3} of exact");
+            }
+        }
+    }
+}
+
+#[test]
+fn grazing_light() {
+    let g = gpu();
+    // A floor and a back wall, lit by a sun 89.4° from the floor's normal.
+    let mut scene = quads(&[[v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)], [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)]], 0.7);
+    // The sun travels along (0, -0.01, -1): 89.4° from the floor's normal, square onto the wall.
+    let dir = Vec3::new(0.0, -0.01, -1.0).normalize();
+    scene.lights = vec![Light { name: "sun".into(), kind: LightKind::Directional, position: Vec3::ZERO, direction: dir, intensity: Vec3::splat(3.0), range: None }];
+    let o = run_all(&g, &scene, 256, 12);
+    o.within("grazing", ORDINARY);
+}
+
+#[test]
+fn intensities_from_1e_minus_6_to_1e9_scale_every_stage_linearly() {
+    let g = gpu();
+    let base = run_all(&g, &closed_box(0.5, 1.0, vec![point(v(0.3, 0.7, 0.4), 1.0)]), 64, 12);
+    base.within("intensity 1", ORDINARY);
+    for i in [1e-6f32, 1e9] {
+        let o = run_all(&g, &closed_box(0.5, 1.0, vec![point(v(0.3, 0.7, 0.4), i)]), 64, 12);
+        for ((name, a), (_, b)) in o.all().iter().zip(base.all()) {
+            // Same seeds, so the same paths: linear to float rounding.
+            for (x, y) in a.iter().zip(b) {
+                assert!((*x / i - *y).abs().max_element() <= 1e-4 * y.max_element() + 1e-30, "intensity {i}: {name}: {x} / {i} vs {y}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_black_level_has_no_indirect_light() {
+    let g = gpu();
+    let o = run_all(&g, &closed_box(0.0, 1.0, vec![point(v(0.5, 0.5, 0.5), 1.0)]), 64, 12);
+    o.all_zero("albedo 0");
+    assert!(mean(&o.gt_direct) > 0.0);
+}
+
+#[test]
+fn albedo_0_99_closed_box_keeps_its_energy() {
+    let g = gpu();
+    // A closed box absorbs everything in the end: sum of E_direct A = power, sum of E A over
+    // all bounces = power / (1 - a). With equal texel areas, mean indirect / mean direct =
+    // a / (1 - a) = 99 for every estimator that follows paths to the end.
+    let o = run_all(&g, &closed_box(0.99, 1.0, vec![point(v(0.4, 0.6, 0.5), 1.0)]), 64, 12);
+    let d = mean(&o.gt_direct);
+    for (name, img) in [("ground truth", &o.gt), ("PRM, CPU twin", &o.prm_all), ("PRM, GPU all panes", &o.gpu_all)] {
+        let ratio = mean(img) / d;
+        println!("albedo 0.99: {name}: indirect / direct = {ratio:.2} (exact 99)");
+        assert!((ratio / 99.0 - 1.0).abs() < 0.05, "{name}: indirect / direct = {ratio}, 99 expected");
+    }
+    // Top-K with groups keeps the energy too (the groups carry what the top 4 leave).
+    let ratio = mean(&o.gpu_top) / d;
+    assert!((ratio / 99.0 - 1.0).abs() < 0.05, "top-4 + groups: {ratio}");
+    // The reference stops after its bounce count (12 here): sum_{k=1..12} a^k of the series.
+    let expect = (1.0 - 0.99f64.powi(12)) * 99.0;
+    let ratio = mean(&o.reference) / d;
+    println!("albedo 0.99: reference (12 bounces): {ratio:.2} (expected {expect:.2})");
+    assert!((ratio / expect - 1.0).abs() < 0.1, "reference: {ratio} vs {expect}");
+    // Walks are long (mean ~100 bounces) but never reach the 1000-bounce cap in practice.
+    assert!(o.walks_truncated <= 10, "{} walks hit the cap", o.walks_truncated);
+}
+
+#[test]
+fn the_same_level_at_1e_minus_3_and_1e4_scale_gives_the_same_lightmaps() {
+    let g = gpu();
+    let light = |s: f32| vec![point(v(0.3, 0.7, 0.4) * s, s * s)];
+    let base = run_all(&g, &closed_box(0.5, 1.0, light(1.0)), 128, 12);
+    for s in [1e-3f32, 1e4] {
+        let o = run_all(&g, &closed_box(0.5, s, light(s)), 128, 12);
+        for ((name, a), (_, b)) in o.all().iter().zip(base.all()) {
+            // Irradiance is scale-free (I s² / (r s)²). Paths start from the same texels with
+            // the same random numbers; the few that graze an edge can go another way, so
+            // the lightmaps agree to a fraction of the ground truth's noise, not exactly.
+            let c = prm::metric::compare(a, b, None);
+            println!("scale {s}: {name}: difference {:.3} %, bias {:+.3} %", c.error * 100.0, c.bias * 100.0);
+            assert!(c.error < 0.02 && c.bias.abs() < 0.005, "scale {s}: {name}: {:.3} % from scale 1", c.error * 100.0);
+        }
+    }
+}
+
+#[test]
+fn a_single_triangle_has_no_indirect_light_and_exact_direct_light() {
+    let g = gpu();
+    let mut scene = Scene::from_mesh(vec![v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 0.)], vec![glam::Vec2::new(0.05, 0.05), glam::Vec2::new(0.05, 0.95), glam::Vec2::new(0.95, 0.05)], &[0, 1, 2]);
+    scene.lights = vec![point(v(0.3, 1.0, 0.3), 2.0)];
+    let o = run_all(&g, &scene, 16, 12);
+    o.all_zero("single triangle");
+    let set = TexelSet::build(&scene, ATLAS, ATLAS);
+    for (t, e) in set.texels.iter().zip(&o.gt_direct) {
+        let expect = scene.lights[0].irradiance(t.position, t.normal);
+        assert!((*e - expect).abs().max_element() <= 1e-4 * expect.max_element(), "{e} vs {expect}");
+    }
+}
+
+#[test]
+fn no_lights_and_a_light_inside_a_wall_give_darkness() {
+    let g = gpu();
+    let o = run_all(&g, &closed_box(0.5, 1.0, Vec::new()), 16, 12);
+    o.all_zero("no lights");
+    // A room with a solid block in it, the light inside the block: nothing gets out.
+    let mut faces = unit_box_faces().iter().map(|q| q.map(|p| p * 4.0)).collect::<Vec<_>>();
+    let block: Vec<[Vec3; 4]> = unit_box_faces().iter().map(|q| { let mut q = q.map(|p| p + v(1.5, 0.2, 1.5)); q.reverse(); q }).collect();
+    faces.extend(block);
+    let mut scene = quads(&faces, 0.5);
+    scene.lights = vec![point(v(2.0, 0.5, 2.0), 10.0)];
+    let o = run_all(&g, &scene, 16, 12);
+    for (name, img) in o.all() {
+        assert!(mean(img) <= 1e-6, "{name}: light escaped the wall: mean {}", mean(img));
+    }
+    assert!(mean(&o.gt_direct) == 0.0, "ground truth: direct light escaped the wall");
+}
+
