@@ -545,8 +545,8 @@ impl Prm {
                 return Err(corrupt(format!("tile {k} is out of range (cluster {}, index {}, scale {})", tile.cluster, tile.index, tile.scale)));
             }
         }
-        // Member ranges must not overlap (each entry belongs to one cluster): otherwise a small
-        // file could make every cluster copy the whole member list.
+        // Together the clusters may claim at most the member list: otherwise a small file could
+        // make every cluster copy the whole list (quadratic memory).
         let claimed: u64 = c.chunks_exact(32).map(|b| u32_at(b, 4) as u64).sum();
         if claimed > members.len() as u64 {
             return Err(corrupt(format!("clusters claim {claimed} members, the list holds {}", members.len())));
@@ -571,6 +571,16 @@ impl Prm {
                 return Err(corrupt(format!("group {g} has a bad energy or tile range")));
             }
             groups.push(Group { energy, first_tile: ft, tile_count: tc });
+        }
+        // The panes' ranges must cover every tile (the runtime reads tiles by pane id, the CPU
+        // twin by range: a stray tile would make them disagree), one tile per atlas index each.
+        let covered: u64 = clusters.iter().map(|c| c.tile_count as u64).chain(groups.iter().map(|g| g.tile_count as u64)).sum();
+        if covered != tiles.len() as u64 {
+            return Err(corrupt(format!("the panes' tile ranges cover {covered} of {} tiles", tiles.len())));
+        }
+        let mut seen = std::collections::HashSet::with_capacity(tiles.len());
+        if let Some(k) = tiles.iter().position(|t| !seen.insert((t.cluster, t.index))) {
+            return Err(corrupt(format!("tile {k} repeats atlas tile {} of pane {}", tiles[k].index, tiles[k].cluster)));
         }
         let group_of: Vec<u32> = gsec[n_groups as usize * 16..].chunks_exact(4).map(|b| u32_at(b, 0)).collect();
         if let Some(c) = group_of.iter().position(|&g| g as u64 >= n_groups) {

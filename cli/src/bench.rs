@@ -125,7 +125,7 @@ pub fn run(a: Args) -> Result<()> {
     let (w, h) = image_size(cam, a.width);
     let g = Gpu::new()?;
     let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
-    let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h);
+    let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h)?;
     let timer = PassTimer::new(&g.device, &g.queue);
     let lights_at = |f: usize| rig.frame(f, a.frames);
     // Warm-up: pipelines, first allocations.
@@ -151,16 +151,16 @@ pub fn run(a: Args) -> Result<()> {
             renderer.wait();
             full.push(t.elapsed().as_secs_f64() * 1e3);
             if let (Some(tm), true) = (&timer, up.composed) {
-                passes.push(tm.read_ms(&g.device, &g.queue));
+                passes.push(tm.read_ms(&g.device, &g.queue)?);
             }
         }
     }
     let composes = rt.composes - composes_before;
     // Compose alone: the weights of the last frame, composed again and again.
-    let selected = rt.read_selected();
+    let selected = rt.read_selected()?;
     let bytes = rt.compose_bytes(&selected);
     let weights: Vec<glam::Vec3> = {
-        let e = rt.read_entry_irradiance();
+        let e = rt.read_entry_irradiance()?;
         prm_file.cluster_weights(&e)
     };
     let reps = 20;

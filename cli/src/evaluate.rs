@@ -35,7 +35,7 @@ pub fn run(a: Args) -> Result<()> {
     let bvh = Bvh::build(&scene);
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
-    twin.residual = !a.no_residual;
+    twin.set_residual(!a.no_residual);
     let img = twin.frame(&lights).to_vec();
     let set = TexelSet::build(&scene, bytes_prm.header.atlas_width, bytes_prm.header.atlas_height);
     let (w, h) = (set.width as usize, set.height as usize);

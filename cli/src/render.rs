@@ -97,7 +97,7 @@ pub fn run(a: Args) -> Result<()> {
         Some(g) => {
             println!("device: {}", g.describe());
             let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
-            let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih);
+            let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih)?;
             let mut total = 0.0;
             for f in 0..a.frames {
                 let lights = rig.frame(f, a.frames);
@@ -107,8 +107,8 @@ pub fn run(a: Args) -> Result<()> {
                 renderer.wait();
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 total += ms;
-                let lightmap = if a.lightmap_out { Some(rt.read_lightmap()) } else { None };
-                out.write(f, &renderer.read_frame(), lightmap.as_deref())?;
+                let lightmap = if a.lightmap_out { Some(rt.read_lightmap()?) } else { None };
+                out.write(f, &renderer.read_frame()?, lightmap.as_deref())?;
                 println!("frame {f:4}: {ms:7.2} ms ({})", if update.composed { "lights changed: shadow maps, weights, compose, shading" } else { "lights unchanged: shading only" });
             }
             println!("{} frames, {} composes, mean frame {:.2} ms on {} -> {}", a.frames, rt.composes, total / a.frames as f64, g.info.name, a.output.display());
@@ -116,7 +116,7 @@ pub fn run(a: Args) -> Result<()> {
         None => {
             let bvh = Bvh::build(&scene);
             let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
-            twin.residual = !a.no_residual;
+            twin.set_residual(!a.no_residual);
             let atlas = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {

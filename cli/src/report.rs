@@ -85,7 +85,7 @@ impl Budget {
         }
         let mut b = Budget {
             atlas: 256,
-            gt_spp: 512,
+            gt_spp: 1024,
             rig_gt_spp: 128,
             rig_frames: 6,
             prm: vec![(1024, 32, 64), (2048, 64, 128), (4096, 128, 256), (4096, 256, 256)],
@@ -289,7 +289,7 @@ fn runtime_lightmap(rt: Option<&mut Runtime>, map: &Prm, bvh: &Bvh, lights: &[Li
         Some(rt) => {
             rt.set_top_k(k)?;
             rt.update(lights)?;
-            Ok(rt.read_lightmap())
+            Ok(rt.read_lightmap()?)
         }
         None => Ok(CpuTwin::new(map, bvh, k).frame(lights).to_vec()),
     }
@@ -309,7 +309,7 @@ fn runtime_sweep(b: &Budget, scene: &Scene, bvh: &Bvh, set: &TexelSet, map: &Prm
         for &k in &b.top_k {
             for (residual, out) in [(true, &mut with), (false, &mut without)] {
                 let mut twin = CpuTwin::new(map, bvh, k);
-                twin.residual = residual;
+                twin.set_residual(residual);
                 let t = Instant::now();
                 let img = twin.frame(&scene.lights).to_vec();
                 let c = compare(set, &img, gt);
@@ -321,7 +321,7 @@ fn runtime_sweep(b: &Budget, scene: &Scene, bvh: &Bvh, set: &TexelSet, map: &Prm
     let mut rt = Runtime::new(&g.device, &g.queue, scene, map, RuntimeParams { top_k: 32, shadow_size: 1024, residual: true })?;
     let cam = camera(scene, None)?;
     let (w, h) = crate::render::image_size(cam, b.frame_width);
-    let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, cam, w, h);
+    let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, cam, w, h)?;
     let mut direct = Vec::new();
     for _ in 0..b.frame_reps {
         let t = Instant::now();
@@ -344,7 +344,7 @@ fn runtime_sweep(b: &Budget, scene: &Scene, bvh: &Bvh, set: &TexelSet, map: &Prm
                 renderer.wait();
                 times.push(t.elapsed().as_secs_f64() * 1e3);
             }
-            let c = compare(set, &rt.read_lightmap(), gt);
+            let c = compare(set, &rt.read_lightmap()?, gt);
             out.push(Point { label: label(k), seconds: median(times) / 1e3, error: c.0, bias: c.1 });
         }
     }

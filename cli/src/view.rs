@@ -88,7 +88,7 @@ impl App {
         let config = surface.get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1)).context("the adapter cannot present to this window")?;
         surface.configure(&gpu.device, &config);
         let runtime = Runtime::new(&gpu.device, &gpu.queue, &self.scene, &self.prm, RuntimeParams { top_k: self.top_k, ..Default::default() })?;
-        let renderer = Renderer::new(&gpu.device, &gpu.queue, &self.scene, &runtime, &self.camera, config.width, config.height);
+        let renderer = Renderer::new(&gpu.device, &gpu.queue, &self.scene, &runtime, &self.camera, config.width, config.height)?;
         let tonemap = Tonemap::new(&gpu.device, config.format);
         Ok(View { window, surface, config, gpu, runtime, renderer, tonemap })
     }
@@ -136,7 +136,13 @@ impl ApplicationHandler for App {
                     v.config.width = size.width.max(1);
                     v.config.height = size.height.max(1);
                     v.surface.configure(&v.gpu.device, &v.config);
-                    v.renderer = Renderer::new(&v.gpu.device, &v.gpu.queue, &self.scene, &v.runtime, &self.camera, v.config.width, v.config.height);
+                    match Renderer::new(&v.gpu.device, &v.gpu.queue, &self.scene, &v.runtime, &self.camera, v.config.width, v.config.height) {
+                        Ok(r) => v.renderer = r,
+                        Err(e) => {
+                            self.error = Some(e.into());
+                            el.exit();
+                        }
+                    }
                 }
             }
             WindowEvent::CursorMoved { position, .. } => {

@@ -220,6 +220,9 @@ fn render_writes_frames_that_follow_the_rig() {
         let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--backend", backend, "--lightmap-out", "-o", s(&out)]);
         assert!(ok, "{err}");
         assert!(stdout.contains("3 frames, 3 composes"), "{backend}: {stdout}");
+        // The GPU backend must really have run on a device (it falls back to the CPU, saying
+        // so, only without an adapter; the tests need one).
+        assert_eq!(stdout.contains("device:"), backend == "gpu", "{backend}: {stdout}");
         let frame = |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
         let (f0, f2) = (frame(0), frame(2));
         assert!(f0.iter().chain(&f2).all(|v| v.is_finite() && v.min_element() >= 0.0));

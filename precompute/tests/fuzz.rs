@@ -172,10 +172,14 @@ fn mutated_prm_files_load_or_are_refused() {
 fn mutated_gltf_files_load_or_are_refused() {
     let valid = std::fs::read(root().join("assets/cornell.glb")).unwrap();
     // The gltf crate panics on some malformed files; `load_scene` catches those and reports
-    // the file as malformed. Keep their messages out of the log (ours still print).
+    // the file as malformed. A panic anywhere else (our loader included) is recorded here,
+    // since `load_scene`'s own catch would otherwise hide it, and fails the mutation.
+    static OURS: AtomicBool = AtomicBool::new(false);
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
-        if !info.location().is_some_and(|l| l.file().contains("/gltf")) {
+        let in_gltf = info.location().is_some_and(|l| l.file().contains("gltf-") || l.file().contains("gltf_json") || l.file().contains("/gltf/"));
+        if !in_gltf {
+            OURS.store(true, Ordering::SeqCst);
             default(info)
         }
     }));
@@ -183,7 +187,9 @@ fn mutated_gltf_files_load_or_are_refused() {
     let file = dir.path().join("fuzz.glb");
     let load = |b: &[u8]| {
         std::fs::write(&file, b).unwrap();
-        prm::gltf_load::load_scene(&file, &Default::default()).is_ok()
+        let ok = prm::gltf_load::load_scene(&file, &Default::default()).is_ok();
+        assert!(!OURS.swap(false, Ordering::SeqCst), "a panic outside the gltf crate while loading");
+        ok
     };
     fuzz("gltf", &valid, |r, v| mutate(r, v.to_vec()), load);
     // The same mutations confined to the JSON chunk (GLB: 12-byte header, then JSON chunk

@@ -49,8 +49,7 @@ pub struct CpuTwin<'a> {
     pub composes: usize,
     /// Clusters composed in the last compose.
     pub last_selected: usize,
-    /// Groups stand in for the clusters left out (default true).
-    pub residual: bool,
+    residual: bool,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -58,6 +57,13 @@ impl<'a> CpuTwin<'a> {
     pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
         let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
         CpuTwin { prm, bvh, top_k, layout: prm.layout(), last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0, residual: true }
+    }
+
+    /// Whether groups stand in for the clusters left out (default true); the next frame
+    /// recomposes.
+    pub fn set_residual(&mut self, on: bool) {
+        self.residual = on;
+        self.last_lights = None;
     }
 
     /// The indirect lightmap (full atlas, row-major, W/m²) for these lights.

@@ -22,6 +22,8 @@ pub enum GpuError {
     NoAdapter(String),
     #[error("the GPU adapter '{adapter}' refused a device: {source}")]
     Device { adapter: String, source: wgpu::RequestDeviceError },
+    #[error("reading results back from the GPU failed: {0}")]
+    Readback(String),
 }
 
 impl Gpu {
@@ -111,7 +113,7 @@ pub fn bind_buffers(device: &wgpu::Device, label: &str, layout: &wgpu::BindGroup
 
 /// Copies `buffer` back to the CPU, waiting for the GPU (tests, exports, readbacks: not a
 /// per-frame path).
-pub fn read_buffer(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -> Vec<u8> {
+pub fn read_buffer(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
     let staging = device.create_buffer(&wgpu::BufferDescriptor { label: Some("readback"), size: buffer.size(), usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
     let mut enc = device.create_command_encoder(&Default::default());
     enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
@@ -119,18 +121,22 @@ pub fn read_buffer(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Bu
     map_read(device, &staging)
 }
 
-/// Maps a MAP_READ buffer and returns its bytes.
-pub fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Vec<u8> {
+/// Maps a MAP_READ buffer and returns its bytes (an error if the device is lost meanwhile).
+pub fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
     let slice = staging.slice(..);
-    slice.map_async(wgpu::MapMode::Read, |r| r.expect("mapping a readback buffer"));
-    device.poll(wgpu::PollType::wait_indefinitely()).expect("waiting for the GPU");
-    let bytes = slice.get_mapped_range().expect("reading a mapped readback buffer").to_vec();
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+    let bytes = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?.to_vec();
     staging.unmap();
-    bytes
+    Ok(bytes)
 }
 
 /// Copies an RGBA32Float texture back as RGB rows (row padding removed).
-pub fn read_rgba32f(device: &wgpu::Device, queue: &wgpu::Queue, texture: &wgpu::Texture) -> Vec<glam::Vec3> {
+pub fn read_rgba32f(device: &wgpu::Device, queue: &wgpu::Queue, texture: &wgpu::Texture) -> Result<Vec<glam::Vec3>, GpuError> {
     let (w, h) = (texture.width(), texture.height());
     let row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
     let staging = device.create_buffer(&wgpu::BufferDescriptor { label: Some("texture readback"), size: (row * h) as u64, usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
@@ -141,11 +147,11 @@ pub fn read_rgba32f(device: &wgpu::Device, queue: &wgpu::Queue, texture: &wgpu::
         texture.size(),
     );
     queue.submit([enc.finish()]);
-    let bytes = map_read(device, &staging);
+    let bytes = map_read(device, &staging)?;
     let mut out = Vec::with_capacity((w * h) as usize);
     for j in 0..h as usize {
         let r: &[[f32; 4]] = bytemuck::cast_slice(&bytes[j * row as usize..j * row as usize + w as usize * 16]);
         out.extend(r.iter().map(|v| glam::Vec3::new(v[0], v[1], v[2])));
     }
-    out
+    Ok(out)
 }

@@ -45,6 +45,8 @@ pub enum RuntimeError {
     Prm(#[from] PrmError),
     #[error("{0}")]
     Params(String),
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// What one [`Runtime::update`] did.
@@ -83,10 +85,7 @@ impl Runtime {
         if !(16..=max_2d).contains(&params.shadow_size) {
             return Err(RuntimeError::Params(format!("shadow map size {} must be in 16..={max_2d}", params.shadow_size)));
         }
-        let max_buf = device.limits().max_storage_buffer_binding_size as u64;
-        if (prm.data.len() as u64) * 2 > max_buf {
-            return Err(RuntimeError::Params(format!("the .prm's pane data ({} bytes) exceeds this device's storage-buffer limit ({max_buf} bytes)", prm.data.len() * 2)));
-        }
+        check_limits(device, prm)?;
         let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("indirect params"),
             size: std::mem::size_of::<IndirectParams>() as u64,
@@ -202,18 +201,24 @@ impl Runtime {
     }
 
     /// Reads the lightmap back (row-major RGB, W/m²). Waits for the GPU.
-    pub fn read_lightmap(&self) -> Vec<Vec3> {
-        crate::gpu::read_rgba32f(&self.device, &self.queue, &self.compose.lightmap)
+    pub fn read_lightmap(&self) -> Result<Vec<Vec3>, RuntimeError> {
+        Ok(crate::gpu::read_rgba32f(&self.device, &self.queue, &self.compose.lightmap)?)
     }
 
     /// Reads the last entry irradiance back (W/m² per entry).
-    pub fn read_entry_irradiance(&self) -> Vec<Vec3> {
-        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output), self.entry_count as usize)
+    pub fn read_entry_irradiance(&self) -> Result<Vec<Vec3>, RuntimeError> {
+        Ok(read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output)?, self.entry_count as usize))
+    }
+
+    /// Reads the last cluster weights back (mean member irradiance, W/m², per cluster).
+    pub fn read_weights(&self) -> Result<Vec<Vec3>, RuntimeError> {
+        Ok(read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.weights)?, self.clusters))
     }
 
     /// Reads back which panes the last compose used: C clusters, then G groups.
-    pub fn read_selected(&self) -> Vec<bool> {
-        read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected), self.clusters + self.groups).iter().map(|w| *w != Vec3::ZERO).collect()
+    pub fn read_selected(&self) -> Result<Vec<bool>, RuntimeError> {
+        let w = read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected)?, self.clusters + self.groups);
+        Ok(w.iter().map(|w| *w != Vec3::ZERO).collect())
     }
 
     /// Whether groups stand in for left-out clusters; the next update recomposes.
@@ -230,6 +235,35 @@ impl Runtime {
     pub fn params(&self) -> RuntimeParams {
         self.params
     }
+}
+
+/// Refuses a `.prm` whose GPU tables would not fit this device, before allocating any.
+fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
+    let limits = device.limits();
+    let (w, h) = (prm.header.atlas_width, prm.header.atlas_height);
+    if w > limits.max_texture_dimension_2d || h > limits.max_texture_dimension_2d {
+        return Err(RuntimeError::Params(format!("the .prm's {w}x{h} atlas exceeds this device's largest texture ({})", limits.max_texture_dimension_2d)));
+    }
+    let max_buf = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+    let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
+    for t in &prm.tiles {
+        if let Some(n) = per_tile.get_mut(t.index as usize) {
+            *n += 1;
+        }
+    }
+    let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
+    let tables = [
+        ("pane data", prm.data.len() as u64 * 2),
+        ("texel slots", w as u64 * h as u64 * 4),
+        ("active-record lists", per_tile.len() as u64 * stride * 4),
+        ("tile records", prm.tiles.len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
+    ];
+    for (what, bytes) in tables {
+        if bytes > max_buf {
+            return Err(RuntimeError::Params(format!("the .prm's {what} ({bytes} bytes) exceed this device's storage-buffer limit ({max_buf} bytes)")));
+        }
+    }
+    Ok(())
 }
 
 fn read_vec4(bytes: &[u8], n: usize) -> Vec<Vec3> {

@@ -42,7 +42,11 @@ pub struct Renderer {
 impl Renderer {
     /// A renderer of `scene` seen from `camera` at `width` x `height`, reading `runtime`'s
     /// lightmap.
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, runtime: &Runtime, camera: &Camera, width: u32, height: u32) -> Renderer {
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, runtime: &Runtime, camera: &Camera, width: u32, height: u32) -> Result<Renderer, crate::RuntimeError> {
+        let max = device.limits().max_texture_dimension_2d;
+        if width == 0 || height == 0 || width > max || height > max {
+            return Err(crate::RuntimeError::Params(format!("a {width}x{height} frame does not fit this device (1 to {max} pixels a side)")));
+        }
         let mut vertices = shade_vertices(scene);
         let vertex_count = vertices.len() as u32;
         if vertices.is_empty() {
@@ -123,7 +127,7 @@ impl Renderer {
         let diag = if lo.is_finite() && hi.is_finite() { (hi - lo).length().max(1e-30) } else { 1.0 };
         let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(camera.yfov, width as f32 / height as f32, diag * 1e-5);
         let size = runtime.lightmap().size();
-        Renderer {
+        Ok(Renderer {
             device: device.clone(),
             queue: queue.clone(),
             pipeline,
@@ -135,7 +139,7 @@ impl Renderer {
             depth,
             view_proj: proj * camera.to_world.inverse(),
             atlas: (size.width, size.height),
-        }
+        })
     }
 
     /// Draws the frame with the runtime's current lights and lightmap (`indirect` false: a
@@ -187,8 +191,8 @@ impl Renderer {
     }
 
     /// Reads the frame back (row-major RGB). Waits for the GPU.
-    pub fn read_frame(&self) -> Vec<Vec3> {
-        crate::gpu::read_rgba32f(&self.device, &self.queue, &self.target)
+    pub fn read_frame(&self) -> Result<Vec<Vec3>, crate::RuntimeError> {
+        Ok(crate::gpu::read_rgba32f(&self.device, &self.queue, &self.target)?)
     }
 
     /// Waits until the GPU has finished everything submitted.

@@ -37,13 +37,13 @@ impl PassTimer {
 
     /// Durations of passes 0..PASSES in milliseconds, from the passes submitted since the
     /// last read (0 for passes not written). Waits for the GPU.
-    pub fn read_ms(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Vec<f64> {
+    pub fn read_ms(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Vec<f64>, crate::gpu::GpuError> {
         let mut enc = device.create_command_encoder(&Default::default());
         enc.resolve_query_set(&self.set, 0..2 * Self::PASSES, &self.resolve, 0);
         enc.copy_buffer_to_buffer(&self.resolve, 0, &self.staging, 0, self.resolve.size());
         queue.submit([enc.finish()]);
-        let bytes = crate::gpu::map_read(device, &self.staging);
+        let bytes = crate::gpu::map_read(device, &self.staging)?;
         let t: &[u64] = bytemuck::cast_slice(&bytes);
-        (0..Self::PASSES as usize).map(|i| t[2 * i + 1].saturating_sub(t[2 * i]) as f64 * self.period_ns as f64 * 1e-6).collect()
+        Ok((0..Self::PASSES as usize).map(|i| t[2 * i + 1].saturating_sub(t[2 * i]) as f64 * self.period_ns as f64 * 1e-6).collect())
     }
 }

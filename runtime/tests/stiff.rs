@@ -78,10 +78,10 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
     let prm_all = at(CpuTwin::new(&map, &bvh, usize::MAX).frame(&scene.lights));
     let mut rt = Runtime::new(&g.device, &g.queue, scene, &map, RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true }).unwrap();
     rt.update(&scene.lights).unwrap();
-    let gpu_all = at(&rt.read_lightmap());
+    let gpu_all = at(&rt.read_lightmap().unwrap());
     rt.set_top_k(4).unwrap();
     rt.update(&scene.lights).unwrap();
-    let gpu_top = at(&rt.read_lightmap());
+    let gpu_top = at(&rt.read_lightmap().unwrap());
     let bp = BakeParams { photons: 5000, atlas: ATLAS, bounces: reference_bounces, indirect_only: true, ..BakeParams::default() };
     let vl = virtual_lights(scene, &bvh, &scene.lights, &bp);
     let reference = evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, &|_| {}, &AtomicBool::new(false)).unwrap().indirect;
