@@ -6,9 +6,10 @@
 // per u32) at data_offset + slot, where slot is the texel's place among its atlas tile's stored
 // texels (row-major), times the record's RGB scale.
 //
-// gather_main (one invocation per atlas tile) lists the records of selected clusters in
-// active_records[t * active_stride ..], their number in active_count[t]; compose_main (one invocation
-// per atlas texel) sums only those. Texels outside the stored mask are written 0.
+// gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
+// active_records[t * active_stride ..] as (weight x scale, data offset), their number in
+// active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
+// entry and one half float each. Texels outside the stored mask are written 0.
 
 struct Params {
     atlas_width: u32,
@@ -31,6 +32,12 @@ struct TileRecord {
     _pad2: u32,
 }
 
+struct ActiveRecord {
+    // The pane's weight times the tile's colour scale.
+    weighted_scale: vec3f,
+    data_offset: u32,
+}
+
 const NO_SLOT: u32 = 0xffffffffu;
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -41,7 +48,7 @@ const NO_SLOT: u32 = 0xffffffffu;
 @group(0) @binding(5) var<storage, read> data: array<u32>;
 @group(0) @binding(6) var lightmap: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(7) var<storage, read> record_clusters: array<u32>;
-@group(0) @binding(8) var<storage, read_write> active_records: array<u32>;
+@group(0) @binding(8) var<storage, read_write> active_records: array<ActiveRecord>;
 @group(0) @binding(9) var<storage, read_write> active_count: array<u32>;
 
 @compute @workgroup_size(64)
@@ -53,8 +60,10 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     let r = tile_ranges[t];
     var n = 0u;
     for (var k = r.x; k < r.x + r.y; k++) {
-        if any(selected[record_clusters[k]].xyz != vec3f(0.0)) {
-            active_records[t * params.active_stride + n] = k;
+        let w = selected[record_clusters[k]].xyz;
+        if any(w != vec3f(0.0)) {
+            let rec = records[k];
+            active_records[t * params.active_stride + n] = ActiveRecord(w * rec.scale, rec.data_offset);
             n++;
         }
     }
@@ -71,11 +80,12 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     if slot != NO_SLOT {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
         let n = active_count[t];
+        let base = t * params.active_stride;
         for (var a = 0u; a < n; a++) {
-            let rec = records[active_records[t * params.active_stride + a]];
+            let rec = active_records[base + a];
             let i = rec.data_offset + slot;
             let pair = unpack2x16float(data[i / 2u]);
-            sum += selected[rec.cluster].xyz * rec.scale * select(pair.x, pair.y, (i & 1u) == 1u);
+            sum += rec.weighted_scale * select(pair.x, pair.y, (i & 1u) == 1u);
         }
     }
     textureStore(lightmap, vec2i(id.xy), vec4f(sum, 1.0));

@@ -4,8 +4,9 @@
 //! The `.prm`'s tiles are regrouped once, at load, by the atlas tile they cover
 //! (`tile_ranges[t]` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
 //! atlas tile's stored texels (or `NO_SLOT`). The half-float texel data is uploaded as is, two
-//! to a `u32`. Per compose, one invocation per atlas tile lists the records of selected
-//! clusters (reading a 4-byte cluster id per record); then each texel sums just those. A
+//! to a `u32`. Per compose, one invocation per atlas tile lists the stored tiles of selected
+//! panes (reading a 4-byte pane id per tile) with their weight already applied to the tile's
+//! colour scale; then each texel sums just those: a 16-byte entry and a half float each. A
 //! compose reads `2 bytes x stored texels` of each selected pane, never a whole atlas per
 //! cluster, and its work per texel is the number of selected panes stored there.
 //!
@@ -78,7 +79,7 @@ impl ComposePass {
         let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&slots), none);
         let data_buf = gpu::storage_buffer(device, "pane data", data, none);
         let clusters_buf = gpu::storage_buffer(device, "record clusters", bytemuck::cast_slice(&record_clusters), none);
-        let active_buf = gpu::storage_buffer(device, "active records", &vec![0u8; atlas_tiles * stride as usize * 4], none);
+        let active_buf = gpu::storage_buffer(device, "active records", &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<crate::layout::ActiveRecord>()], none);
         let count_buf = gpu::storage_buffer(device, "active counts", &vec![0u8; atlas_tiles * 4], none);
         let lightmap = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("indirect lightmap"),
@@ -135,7 +136,7 @@ impl ComposePass {
     }
 
     /// Bytes one compose reads and writes for this set of selected clusters: the selected
-    /// panes' f16 texels and their 32-byte records, a 4-byte cluster id per stored tile (the
+    /// panes' f16 texels and their 32-byte records, a 4-byte pane id per stored tile (the
     /// gather), the slot table, the selection table, and the RGBA32F lightmap written.
     pub fn bytes(&self, selected: &[bool]) -> ComposeBytes {
         let pane: u64 = self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| t * 2).sum();

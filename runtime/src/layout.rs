@@ -109,6 +109,16 @@ pub struct TileRecord {
     pub _pad: [u32; 3],
 }
 
+/// `ActiveRecord` in `shaders/compose.wgsl`: a stored tile of a selected pane, as the compose
+/// reads it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct ActiveRecord {
+    /// The pane's weight times the tile's colour scale.
+    pub weighted_scale: [f32; 3],
+    pub data_offset: u32,
+}
+
 /// `ShadeParams` in `shaders/shade.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]

@@ -255,7 +255,7 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let tables = [
         ("pane data", prm.data.len() as u64 * 2),
         ("texel slots", w as u64 * h as u64 * 4),
-        ("active-record lists", per_tile.len() as u64 * stride * 4),
+        ("active-record lists", per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64),
         ("tile records", prm.tiles.len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
     ];
     for (what, bytes) in tables {

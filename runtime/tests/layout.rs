@@ -56,6 +56,7 @@ fn every_shader_parses_and_its_structs_match_the_rust_layouts() {
         check!(m, "Params", IndirectParams, [("entry_count", entry_count), ("light_count", light_count), ("cluster_count", cluster_count), ("top_k", top_k), ("group_count", group_count), ("residual", residual)]);
     }
     check!(compose, "Params", ComposeParams, [("atlas_width", atlas_width), ("atlas_height", atlas_height), ("tile_size", tile_size), ("tiles_x", tiles_x), ("tile_count", tile_count), ("active_stride", active_stride)]);
+    check!(compose, "ActiveRecord", ActiveRecord, [("weighted_scale", weighted_scale), ("data_offset", data_offset)]);
     check!(compose, "TileRecord", TileRecord, [("scale", scale), ("cluster", cluster), ("data_offset", data_offset)]);
     check!(shade, "ShadeParams", ShadeParams, [("view_proj", view_proj), ("light_count", light_count), ("indirect_scale", indirect_scale), ("atlas_width", atlas_width), ("atlas_height", atlas_height)]);
     // Vertex attributes: each location's offset is the Rust field's.
