@@ -93,6 +93,28 @@ pub struct Camera {
     pub aspect: Option<f32>,
 }
 
+impl Camera {
+    /// Width x height of an image `width` pixels wide at the camera's aspect (1 without one,
+    /// clamped to [0.01, 100]).
+    pub fn image_size(&self, width: u32) -> (u32, u32) {
+        let aspect = self.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
+        (width, ((width as f32 / aspect).round() as u32).max(1))
+    }
+
+    /// The primary ray (origin, unit direction) through continuous pixel position (x, y) of a
+    /// w x h image: (0, 0) is the top-left corner, (w, h) the bottom-right.
+    pub fn ray(&self, x: f32, y: f32, w: u32, h: u32) -> (glam::Vec3, glam::Vec3) {
+        use glam::Vec4Swizzles;
+        let origin = self.to_world.col(3).xyz();
+        let (right, up, back) = (self.to_world.col(0).xyz().normalize(), self.to_world.col(1).xyz().normalize(), self.to_world.col(2).xyz().normalize());
+        let tan = (self.yfov * 0.5).tan();
+        let aspect = w as f32 / h as f32;
+        let sx = (2.0 * x / w as f32 - 1.0) * tan * aspect;
+        let sy = (1.0 - 2.0 * y / h as f32) * tan;
+        (origin, (right * sx + up * sy - back).normalize())
+    }
+}
+
 /// What loading found and did that a user should know about. Never fatal.
 #[derive(Clone, Debug, Default)]
 pub struct LoadReport {

@@ -19,7 +19,7 @@ use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
 use serde::Serialize;
 
 use crate::common::{load_rig, load_with_prm, SceneArgs};
-use crate::render::{camera, image_size};
+use crate::render::camera;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -122,7 +122,7 @@ pub fn run(a: Args) -> Result<()> {
     let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, None)?;
-    let (w, h) = image_size(cam, a.width);
+    let (w, h) = cam.image_size(a.width);
     let g = Gpu::new()?;
     let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
     let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h)?;

@@ -5,7 +5,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
-use glam::{Vec3, Vec4Swizzles};
+use glam::Vec3;
 use prm::exr_io::Channels;
 use prm::{luminance, Bvh, TexelSet};
 use prm_precompute::ground_truth::{GtParams, Tracer};
@@ -123,12 +123,10 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
 
     // Noise figures of the indirect layer: normalised like the error metric, and the mean of
     // per-texel relative standard errors.
-    let (mut se2, mut y2, mut rel_sum, mut rel_n) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    let (mut rel_sum, mut rel_n) = (0.0f64, 0usize);
     let mut mean = Vec3::ZERO;
     for v in &values {
         let (y, s) = (luminance(v.indirect) as f64, luminance(v.indirect_stderr) as f64);
-        se2 += s * s;
-        y2 += y * y;
         if y > 0.0 {
             rel_sum += s / y;
             rel_n += 1;
@@ -139,7 +137,7 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
         "atlas": a.atlas,
         "texels": set.len(),
         "mean_indirect": mean.to_array(),
-        "indirect_noise_normalised": (se2 / y2.max(1e-300)).sqrt(),
+        "indirect_noise_normalised": prm_precompute::ground_truth::indirect_noise(&values),
         "indirect_mean_relative_stderr": rel_sum / rel_n.max(1) as f64,
     }))
 }
@@ -154,11 +152,8 @@ fn camera_image(a: &Args, tracer: &Tracer, name: &str, cancel: &std::sync::atomi
     if a.width == 0 || a.width > 16384 {
         bail!("--width {} is out of range (1 to 16384)", a.width);
     }
-    let aspect = cam.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
-    let (w, h) = (a.width as usize, ((a.width as f32 / aspect).round() as usize).max(1));
-    let origin = cam.to_world.col(3).xyz();
-    let (right, up, back) = (cam.to_world.col(0).xyz().normalize(), cam.to_world.col(1).xyz().normalize(), cam.to_world.col(2).xyz().normalize());
-    let tan = (cam.yfov * 0.5).tan();
+    let (w, h) = cam.image_size(a.width);
+    let (w, h) = (w as usize, h as usize);
     let bar = progress_bar(h as u64, "rows");
     if a.json {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
@@ -174,9 +169,7 @@ fn camera_image(a: &Args, tracer: &Tracer, name: &str, cancel: &std::sync::atomi
                     let mut rng = Pcg64Mcg::seed_from_u64(a.seed ^ ((j * w + i) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
                     let mut sum = Vec3::ZERO;
                     for _ in 0..a.spp {
-                        let x = (2.0 * (i as f32 + rng.random::<f32>()) / w as f32 - 1.0) * tan * aspect;
-                        let y = (1.0 - 2.0 * (j as f32 + rng.random::<f32>()) / h as f32) * tan;
-                        let d = (right * x + up * y - back).normalize();
+                        let (origin, d) = cam.ray(i as f32 + rng.random::<f32>(), j as f32 + rng.random::<f32>(), w as u32, h as u32);
                         sum += tracer.radiance(origin, d, &mut rng);
                     }
                     sum / a.spp as f32

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
-use glam::{Vec2, Vec3, Vec4Swizzles};
+use glam::{Vec2, Vec3};
 use prm::exr_io::Channels;
 use prm::{Bvh, Camera, Scene};
 use prm_runtime::cpu::CpuTwin;
@@ -80,7 +80,7 @@ pub fn run(a: Args) -> Result<()> {
     let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
-    let (iw, ih) = image_size(cam, a.width);
+    let (iw, ih) = cam.image_size(a.width);
     let gpu = match a.backend {
         Backend::Cpu => None,
         Backend::Gpu => match Gpu::new() {
@@ -154,12 +154,6 @@ pub fn camera<'a>(scene: &'a Scene, name: Option<&str>) -> Result<&'a Camera> {
     }
 }
 
-/// Width x height for a camera's aspect at this width.
-pub fn image_size(cam: &Camera, width: u32) -> (u32, u32) {
-    let aspect = cam.aspect.unwrap_or(1.0).clamp(0.01, 100.0);
-    (width, ((width as f32 / aspect).round() as u32).max(1))
-}
-
 struct Output<'a> {
     dir: &'a Path,
     lightmap: Option<(usize, usize)>,
@@ -197,17 +191,11 @@ fn bilinear(img: &[Vec3], (w, h): (usize, usize), uv: Vec2) -> Vec3 {
 }
 
 fn shade(scene: &Scene, bvh: &Bvh, cam: &prm::Camera, lights: &[prm::Light], lightmap: &[Vec3], atlas: (usize, usize), (iw, ih): (usize, usize)) -> Vec<Vec3> {
-    let origin = cam.to_world.col(3).xyz();
-    let (right, up, back) = (cam.to_world.col(0).xyz().normalize(), cam.to_world.col(1).xyz().normalize(), cam.to_world.col(2).xyz().normalize());
-    let tan = (cam.yfov * 0.5).tan();
-    let aspect = iw as f32 / ih as f32;
     (0..iw * ih)
         .into_par_iter()
         .map(|k| {
             let (i, j) = (k % iw, k / iw);
-            let x = (2.0 * (i as f32 + 0.5) / iw as f32 - 1.0) * tan * aspect;
-            let y = (1.0 - 2.0 * (j as f32 + 0.5) / ih as f32) * tan;
-            let d = (right * x + up * y - back).normalize();
+            let (origin, d) = cam.ray(i as f32 + 0.5, j as f32 + 0.5, iw as u32, ih as u32);
             let Some(hit) = bvh.closest_hit(origin, d, f32::INFINITY) else { return Vec3::ZERO };
             let t = hit.triangle as usize;
             let mut n = scene.face_normal(t);

@@ -146,9 +146,8 @@ pub fn run(a: Args) -> Result<()> {
 
     eprintln!("ground truth ({} spp)...", b.gt_spp);
     let t = Instant::now();
-    let (gt, gt_se) = ground_truth(&scene, &bvh, &set, &scene.lights, b.gt_spp, a.seed)?;
+    let (gt, gt_noise) = ground_truth(&scene, &bvh, &set, &scene.lights, b.gt_spp, a.seed)?;
     let gt_seconds = t.elapsed().as_secs_f64();
-    let gt_noise = noise(&gt, &gt_se);
 
     // PRM: precompute budget.
     let mut prm_points = Vec::new();
@@ -194,7 +193,7 @@ pub fn run(a: Args) -> Result<()> {
     for f in 0..b.rig_frames {
         eprintln!("rig frame {} of {}...", f + 1, b.rig_frames);
         let lights = rig.frame(f, b.rig_frames);
-        let (g, se) = ground_truth(&scene, &bvh, &set, &lights, b.rig_gt_spp, a.seed)?;
+        let (g, g_noise) = ground_truth(&scene, &bvh, &set, &lights, b.rig_gt_spp, a.seed)?;
         let top = runtime_lightmap(rt.as_mut(), &map, &bvh, &lights, 32)?;
         let all = runtime_lightmap(rt.as_mut(), &map, &bvh, &lights, usize::MAX)?;
         let rf = reference(&scene, &bvh, &set, &lights, b.rig_reference.0, b.rig_reference.1, b.atlas, a.seed)?;
@@ -202,7 +201,7 @@ pub fn run(a: Args) -> Result<()> {
         let all = at_texels(&set, &all);
         let res = |x: &[Vec3]| x.iter().zip(&g).map(|(a, b)| luminance(*a) - luminance(*b)).collect::<Vec<f32>>();
         frames.push(Frame {
-            gt_noise: noise(&g, &se),
+            gt_noise: g_noise,
             errors: [compare_texels(&top, &g).0, compare_texels(&all, &g).0, compare_texels(&rf, &g).0],
             residuals: [res(&top), res(&all), res(&rf)],
             gt_mean: g.iter().map(|v| luminance(*v) as f64).sum::<f64>() / g.len() as f64,
@@ -241,24 +240,13 @@ fn default_rig(scene: &Scene) -> Result<Rig> {
     Ok(Rig::parse(Path::new("(default rig)"), &json, &scene.lights)?)
 }
 
-/// Ground-truth indirect irradiance and its standard error per covered texel.
-fn ground_truth(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], spp: u32, seed: u64) -> Result<(Vec<Vec3>, Vec<Vec3>)> {
+/// Ground-truth indirect irradiance per covered texel, and its noise in the metric's units.
+fn ground_truth(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], spp: u32, seed: u64) -> Result<(Vec<Vec3>, f64)> {
     let mut lit = scene.clone();
     lit.lights = lights.to_vec();
     let tracer = Tracer::new(&lit, bvh, GtParams { spp, seed, ..GtParams::default() });
     let v = tracer.texels(&set.texels, set.width, &|_| {}, &AtomicBool::new(false)).map_err(|_| anyhow!("ground truth stopped"))?;
-    Ok((v.iter().map(|r| r.indirect).collect(), v.iter().map(|r| r.indirect_stderr).collect()))
-}
-
-/// The ground truth's own noise in the error metric's units.
-fn noise(gt: &[Vec3], se: &[Vec3]) -> f64 {
-    let s2: f64 = se.iter().map(|v| (luminance(*v) as f64).powi(2)).sum();
-    let y2: f64 = gt.iter().map(|v| (luminance(*v) as f64).powi(2)).sum();
-    if y2 > 0.0 {
-        (s2 / y2).sqrt()
-    } else {
-        0.0
-    }
+    Ok((v.iter().map(|r| r.indirect).collect(), prm_precompute::ground_truth::indirect_noise(&v)))
 }
 
 fn at_texels(set: &TexelSet, img: &[Vec3]) -> Vec<Vec3> {
@@ -320,7 +308,7 @@ fn runtime_sweep(b: &Budget, scene: &Scene, bvh: &Bvh, set: &TexelSet, map: &Prm
     };
     let mut rt = Runtime::new(&g.device, &g.queue, scene, map, RuntimeParams { top_k: 32, shadow_size: 1024, residual: true })?;
     let cam = camera(scene, None)?;
-    let (w, h) = crate::render::image_size(cam, b.frame_width);
+    let (w, h) = cam.image_size(b.frame_width);
     let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, cam, w, h)?;
     let mut direct = Vec::new();
     for _ in 0..b.frame_reps {

@@ -65,6 +65,21 @@ pub struct Irradiance {
     pub indirect_stderr: Vec3,
 }
 
+/// The noise of a ground-truth lightmap's indirect layer in the error metric's units
+/// (`prm::metric`): sqrt(sum of squared luminance standard errors / sum of squared luminance).
+pub fn indirect_noise(values: &[Irradiance]) -> f64 {
+    let (mut se2, mut y2) = (0.0f64, 0.0f64);
+    for v in values {
+        se2 += (prm::luminance(v.indirect_stderr) as f64).powi(2);
+        y2 += (prm::luminance(v.indirect) as f64).powi(2);
+    }
+    if y2 > 0.0 {
+        (se2 / y2).sqrt()
+    } else {
+        0.0
+    }
+}
+
 /// Counters over a whole run.
 #[derive(Debug, Default)]
 pub struct GtStats {

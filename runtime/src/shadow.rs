@@ -54,12 +54,7 @@ impl ShadowMaps {
         let (lo, hi) = scene.bounds();
         let bounds = if lo.is_finite() && hi.is_finite() { Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() } } else { Bounds { centre: Vec3::ZERO, radius: 1.0 } };
         let max_layers = device.limits().max_texture_array_layers;
-        let storage = |binding, stages| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: stages,
-            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
+        let storage = |binding, stages| crate::gpu::buffer_entry(binding, stages, crate::gpu::READ);
         let lit = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lights + shadow maps"),
