@@ -15,19 +15,16 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use prm_runtime::timer::PassTimer;
-use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use prm_runtime::{Gpu, Renderer, Runtime};
 use serde::Serialize;
 
-use crate::common::{load_rig, load_with_prm, SceneArgs};
+use crate::common::{load_rig, ComposeArgs, MapArgs};
 use crate::render::camera;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
-    /// The level's .prm.
-    #[arg(long)]
-    prm: PathBuf,
+    map: MapArgs,
     /// Light rig (JSON); without one the level's glTF lights (which do not move).
     #[arg(long)]
     rig: Option<PathBuf>,
@@ -40,12 +37,8 @@ pub struct Args {
     /// Frame width in pixels.
     #[arg(long, default_value_t = 1280)]
     width: u32,
-    /// Panes composed per frame.
-    #[arg(long, default_value_t = 32)]
-    top_k: usize,
-    /// Drop the left-out clusters' light instead of composing their groups' panes for it.
-    #[arg(long)]
-    no_residual: bool,
+    #[command(flatten)]
+    compose: ComposeArgs,
     /// Shadow-map texels per side and layer.
     #[arg(long, default_value_t = 1024)]
     shadow_size: u32,
@@ -116,15 +109,16 @@ pub fn run(a: Args) -> Result<()> {
     if a.frames == 0 || a.frames > 100_000 || a.rounds == 0 || a.rounds > 100 {
         bail!("--frames must be 1 to 100000 and --rounds 1 to 100");
     }
-    if a.width == 0 || a.width > 8192 || a.top_k == 0 {
-        bail!("--width must be 1 to 8192 and --top-k at least 1");
+    if a.width == 0 || a.width > 8192 {
+        bail!("--width must be 1 to 8192");
     }
-    let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
+    let params = a.compose.runtime(a.shadow_size)?;
+    let (scene, prm_file) = a.map.load()?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, None)?;
     let (w, h) = cam.image_size(a.width);
     let g = Gpu::new()?;
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
     let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h)?;
     let timer = PassTimer::new(&g.device, &g.queue);
     let lights_at = |f: usize| rig.frame(f, a.frames);
@@ -176,10 +170,10 @@ pub fn run(a: Args) -> Result<()> {
     let gpu_pass_ms = (!passes.is_empty()).then(|| PassTimes { entry_irradiance: pass_median(0), weights_selection: pass_median(1), compose: pass_median(2), shading: pass_median(3) });
     let report = Report {
         device: g.describe(),
-        scene: a.scene.scene.display().to_string(),
+        scene: a.map.scene.scene.display().to_string(),
         width: w,
         height: h,
-        top_k: a.top_k,
+        top_k: params.top_k,
         shadow_size: a.shadow_size,
         lights: lights_at(0).len(),
         clusters: prm_file.clusters.len(),

@@ -114,6 +114,44 @@ pub fn load_rig(path: Option<&std::path::Path>, scene: &Scene) -> Result<prm::ri
     }
 }
 
+/// A level and its `.prm`: what every command that lights a level from its map reads.
+#[derive(clap::Args, Clone, Debug)]
+pub struct MapArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// The level's .prm.
+    #[arg(long)]
+    pub prm: PathBuf,
+}
+
+impl MapArgs {
+    /// The level and its map, refused if the map was baked for another level.
+    pub fn load(&self) -> Result<(Scene, prm::prm_file::Prm)> {
+        load_with_prm(&self.scene, &self.prm)
+    }
+}
+
+/// How many panes the runtime composes per frame.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct ComposeArgs {
+    /// Panes composed per frame: the strongest by luminance(weight) x energy.
+    #[arg(long, default_value_t = 32)]
+    pub top_k: usize,
+    /// Drop the left-out clusters' light instead of composing their groups' panes for it.
+    #[arg(long)]
+    pub no_residual: bool,
+}
+
+impl ComposeArgs {
+    /// The runtime's parameters with these, refusing K = 0.
+    pub fn runtime(&self, shadow_size: u32) -> Result<prm_runtime::RuntimeParams> {
+        if self.top_k == 0 {
+            bail!("--top-k must be at least 1");
+        }
+        Ok(prm_runtime::RuntimeParams { top_k: self.top_k, shadow_size, residual: !self.no_residual })
+    }
+}
+
 /// A `.prm` and the level it must have been baked for (loaded at the map's atlas size).
 pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Scene, prm::prm_file::Prm)> {
     let map = prm::prm_file::Prm::read(prm_path, None).with_context(|| "reading the radiance map failed")?;

@@ -8,15 +8,12 @@ use anyhow::{Context, Result};
 use prm::exr_io::Channels;
 use prm::{Bvh, TexelSet};
 
-use crate::common::{load_with_prm, RigArgs, SceneArgs};
+use crate::common::{MapArgs, RigArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
-    /// The level's .prm.
-    #[arg(long)]
-    prm: PathBuf,
+    map: MapArgs,
     #[command(flatten)]
     rig: RigArgs,
     /// Compose only the K strongest panes (default: all).
@@ -31,7 +28,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (scene, bytes_prm) = load_with_prm(&a.scene, &a.prm)?;
+    let (scene, bytes_prm) = a.map.load()?;
     let bvh = Bvh::build(&scene);
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));

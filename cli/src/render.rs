@@ -17,10 +17,10 @@ use glam::{Vec2, Vec3};
 use prm::exr_io::Channels;
 use prm::{Bvh, Camera, Scene};
 use prm_runtime::cpu::CpuTwin;
-use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use prm_runtime::{Gpu, Renderer, Runtime};
 use rayon::prelude::*;
 
-use crate::common::{load_rig, load_with_prm, SceneArgs};
+use crate::common::{load_rig, ComposeArgs, MapArgs};
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum Backend {
@@ -31,10 +31,7 @@ pub enum Backend {
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
-    /// The level's .prm.
-    #[arg(long)]
-    prm: PathBuf,
+    map: MapArgs,
     /// Light rig (JSON); without one the level's glTF lights, unmoving.
     #[arg(long)]
     rig: Option<PathBuf>,
@@ -47,12 +44,8 @@ pub struct Args {
     /// Image width in pixels (height from the camera's aspect).
     #[arg(long, default_value_t = 320)]
     width: u32,
-    /// Panes composed per frame.
-    #[arg(long, default_value_t = 32)]
-    top_k: usize,
-    /// Drop the left-out clusters' light instead of composing their groups' panes for it.
-    #[arg(long)]
-    no_residual: bool,
+    #[command(flatten)]
+    compose: ComposeArgs,
     /// Shadow-map texels per side and layer (GPU backend).
     #[arg(long, default_value_t = 1024)]
     shadow_size: u32,
@@ -74,10 +67,8 @@ pub fn run(a: Args) -> Result<()> {
     if a.width == 0 || a.width > 8192 {
         bail!("--width {} is out of range (1 to 8192)", a.width);
     }
-    if a.top_k == 0 {
-        bail!("--top-k must be at least 1");
-    }
-    let (scene, prm_file) = load_with_prm(&a.scene, &a.prm)?;
+    let params = a.compose.runtime(a.shadow_size)?;
+    let (scene, prm_file) = a.map.load()?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
@@ -96,7 +87,7 @@ pub fn run(a: Args) -> Result<()> {
     match gpu {
         Some(g) => {
             println!("device: {}", g.describe());
-            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, RuntimeParams { top_k: a.top_k, shadow_size: a.shadow_size, residual: !a.no_residual })?;
+            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
             let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih)?;
             let mut total = 0.0;
             for f in 0..a.frames {
@@ -115,8 +106,8 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => {
             let bvh = Bvh::build(&scene);
-            let mut twin = CpuTwin::new(&prm_file, &bvh, a.top_k);
-            twin.set_residual(!a.no_residual);
+            let mut twin = CpuTwin::new(&prm_file, &bvh, params.top_k);
+            twin.set_residual(params.residual);
             let atlas = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {

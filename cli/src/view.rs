@@ -3,7 +3,6 @@
 //! without lights gets a point light). Keys: Escape quits, I toggles indirect light, Up/Down
 //! change the exposure. The title bar shows the frame time and whether the frame recomposed.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -18,22 +17,18 @@ use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
-use crate::common::{load_with_prm, SceneArgs};
+use crate::common::{ComposeArgs, MapArgs};
 use crate::render::camera;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
-    /// The level's .prm.
-    #[arg(long)]
-    prm: PathBuf,
+    map: MapArgs,
     /// glTF camera to view from (default: the first).
     #[arg(long)]
     camera: Option<String>,
-    /// Panes composed per frame.
-    #[arg(long, default_value_t = 32)]
-    top_k: usize,
+    #[command(flatten)]
+    compose: ComposeArgs,
 }
 
 struct View {
@@ -50,7 +45,7 @@ struct App {
     scene: Scene,
     prm: prm::prm_file::Prm,
     camera: prm::Camera,
-    top_k: usize,
+    params: RuntimeParams,
     lights: Vec<Light>,
     indirect: bool,
     exposure: f32,
@@ -59,7 +54,7 @@ struct App {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (scene, prm) = load_with_prm(&a.scene, &a.prm)?;
+    let (scene, prm) = a.map.load()?;
     let camera = camera(&scene, a.camera.as_deref())?.clone();
     let mut lights = scene.lights.clone();
     if lights.is_empty() {
@@ -67,7 +62,8 @@ pub fn run(a: Args) -> Result<()> {
         let c = (lo + hi) * 0.5;
         lights.push(Light { name: "mouse".into(), kind: LightKind::Point, position: c, direction: -Vec3::Y, intensity: Vec3::splat((hi - lo).length_squared()), range: None });
     }
-    let mut app = App { scene, prm, camera, top_k: a.top_k, lights, indirect: true, exposure: 1.0, view: None, error: None };
+    let params = a.compose.runtime(1024)?;
+    let mut app = App { scene, prm, camera, params, lights, indirect: true, exposure: 1.0, view: None, error: None };
     let event_loop = EventLoop::new().context("opening a window needs a display (X11 or Wayland)")?;
     event_loop.run_app(&mut app)?;
     match app.error {
@@ -87,7 +83,7 @@ impl App {
         let size = window.inner_size();
         let config = surface.get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1)).context("the adapter cannot present to this window")?;
         surface.configure(&gpu.device, &config);
-        let runtime = Runtime::new(&gpu.device, &gpu.queue, &self.scene, &self.prm, RuntimeParams { top_k: self.top_k, ..Default::default() })?;
+        let runtime = Runtime::new(&gpu.device, &gpu.queue, &self.scene, &self.prm, self.params)?;
         let renderer = Renderer::new(&gpu.device, &gpu.queue, &self.scene, &runtime, &self.camera, config.width, config.height)?;
         let tonemap = Tonemap::new(&gpu.device, config.format);
         Ok(View { window, surface, config, gpu, runtime, renderer, tonemap })

@@ -206,8 +206,8 @@ fn rigs_drive_evaluate_and_ground_truth() {
     assert!(!ok && err.contains("'sun'") && err.contains("no such light"), "{err}");
 }
 
-#[test]
-fn render_writes_frames_that_follow_the_rig() {
+/// A preview .prm of cornell at 32² and a rig moving its light sideways, in a temp folder.
+fn cornell_map_and_moving_rig() -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let prm_path = dir.path().join("c.prm");
     let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
@@ -215,6 +215,12 @@ fn render_writes_frames_that_follow_the_rig() {
     let rig = dir.path().join("rig.json");
     std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
         {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
+    (dir, prm_path, rig)
+}
+
+#[test]
+fn render_writes_frames_that_follow_the_rig() {
+    let (dir, prm_path, rig) = cornell_map_and_moving_rig();
     for backend in ["cpu", "gpu"] {
         let out = dir.path().join(backend);
         let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--backend", backend, "--lightmap-out", "-o", s(&out)]);
@@ -241,13 +247,7 @@ fn render_writes_frames_that_follow_the_rig() {
 
 #[test]
 fn bench_reports_both_frame_kinds_and_the_compose() {
-    let dir = tempfile::tempdir().unwrap();
-    let prm_path = dir.path().join("c.prm");
-    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
-    assert!(ok, "{err}");
-    let rig = dir.path().join("rig.json");
-    std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
-        {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
+    let (_dir, prm_path, rig) = cornell_map_and_moving_rig();
     let (ok, stdout, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "4", "--rounds", "1", "--width", "32", "--shadow-size", "128", "--json"]);
     assert!(ok, "{err}");
     let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();

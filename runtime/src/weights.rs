@@ -40,10 +40,13 @@ impl WeightPass {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
             indices.extend_from_slice(&c.members);
         }
-        for g in 0..g_count as u32 {
-            let first = indices.len() as u32;
-            indices.extend((0..n as u32).filter(|&c| prm.group_of[c as usize] == g));
-            ranges.push([first, indices.len() as u32 - first]);
+        let mut children = vec![Vec::new(); g_count];
+        for (c, &g) in prm.group_of.iter().enumerate() {
+            children[g as usize].push(c as u32);
+        }
+        for list in &children {
+            ranges.push([indices.len() as u32, list.len() as u32]);
+            indices.extend_from_slice(list);
         }
         let energy: Vec<f32> = prm.clusters.iter().map(|c| c.energy).chain(prm.groups.iter().map(|g| g.energy)).collect();
         let ranges = gpu::storage_buffer(device, "member ranges", bytemuck::cast_slice(&ranges), wgpu::BufferUsages::empty());
