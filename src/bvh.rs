@@ -86,7 +86,8 @@ impl Bvh {
         if scene_tris.is_empty() {
             return Bvh { bvh: None, tris: Vec::new(), ids: Vec::new(), scene_eps, to_bvh };
         }
-        let bvh = build_cwbvh_from_tris(&scene_tris, BvhBuildParams::medium_build(), &mut Duration::default());
+        let bvh =
+            build_cwbvh_from_tris(&scene_tris, BvhBuildParams::medium_build(), &mut Duration::default());
         // Store triangles in BVH leaf order so traversal reads them sequentially.
         let ids: Vec<u32> = bvh.primitive_indices.clone();
         let tris = ids.iter().map(|&i| scene_tris[i as usize]).collect();
@@ -128,7 +129,9 @@ impl Bvh {
         let bvh = self.bvh.as_ref()?;
         let ray = self.ray(origin, dir, tmax);
         let mut hit = RayHit::none();
-        if !bvh.ray_traverse(ray, &mut hit, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0)) {
+        if !bvh
+            .ray_traverse(ray, &mut hit, |r, id| intersect(&self.tris[id], r).map_or(f32::INFINITY, |h| h.0))
+        {
             return None;
         }
         let k = hit.primitive_id as usize;
@@ -215,7 +218,11 @@ pub fn direct_irradiance(bvh: &Bvh, lights: &[crate::Light], p: Vec3, n: Vec3) -
         if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
             continue;
         }
-        let visible = if l.is_positional() { bvh.visible_point(p, n, l.position) } else { bvh.visible_dir(p, n, inc.to_light) };
+        let visible = if l.is_positional() {
+            bvh.visible_point(p, n, l.position)
+        } else {
+            bvh.visible_dir(p, n, inc.to_light)
+        };
         if visible {
             sum += inc.irradiance * cos;
         }

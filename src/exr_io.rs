@@ -86,7 +86,9 @@ impl Channels {
             .write()
             .to_file(&tmp)
             .map_err(|source| ExrError::Exr { path: path.into(), source })
-            .and_then(|_| std::fs::rename(&tmp, path).map_err(|source| ExrError::Io { path: path.into(), source }));
+            .and_then(|_| {
+                std::fs::rename(&tmp, path).map_err(|source| ExrError::Io { path: path.into(), source })
+            });
         if result.is_err() {
             let _ = std::fs::remove_file(&tmp);
         }
@@ -117,7 +119,13 @@ impl Channels {
                 let name = format!("{}{}", prefix.clone().unwrap_or_default(), ch.name);
                 let values: Vec<f32> = ch.sample_data.values_as_f32().collect();
                 if values.len() != w * h {
-                    return Err(ExrError::BadSize { path: path.into(), name, got: values.len(), width: w, height: h });
+                    return Err(ExrError::BadSize {
+                        path: path.into(),
+                        name,
+                        got: values.len(),
+                        width: w,
+                        height: h,
+                    });
                 }
                 out.channels.insert(name, values);
             }

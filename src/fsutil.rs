@@ -13,7 +13,10 @@ pub fn temp_path(path: &Path) -> PathBuf {
 
 /// Write `path` atomically with `write`; on any error the target is untouched and the
 /// temporary file removed.
-pub fn write_atomic<E>(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>) -> Result<(), E>
+pub fn write_atomic<E>(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>,
+) -> Result<(), E>
 where
     E: From<std::io::Error>,
 {

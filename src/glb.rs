@@ -113,13 +113,22 @@ impl GlbScene {
         let mut bin: Vec<u8> = Vec::new();
         let mut views = Vec::new();
         let mut accessors = Vec::new();
-        let mut push = |bytes: &[u8], target: u32, comp: u32, count: usize, ty: &str, minmax: Option<(Vec<f32>, Vec<f32>)>| -> usize {
+        let mut push = |bytes: &[u8],
+                        target: u32,
+                        comp: u32,
+                        count: usize,
+                        ty: &str,
+                        minmax: Option<(Vec<f32>, Vec<f32>)>|
+         -> usize {
             while bin.len() % 4 != 0 {
                 bin.push(0);
             }
-            views.push(json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len(), "target": target}));
+            views.push(
+                json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len(), "target": target}),
+            );
             bin.extend_from_slice(bytes);
-            let mut acc = json!({"bufferView": views.len() - 1, "componentType": comp, "count": count, "type": ty});
+            let mut acc =
+                json!({"bufferView": views.len() - 1, "componentType": comp, "count": count, "type": ty});
             if let Some((lo, hi)) = minmax {
                 acc["min"] = json!(lo);
                 acc["max"] = json!(hi);
@@ -145,11 +154,17 @@ impl GlbScene {
             attrs.insert("POSITION".into(), json!(pos));
             if let Some(n) = &m.normals {
                 let flat: Vec<f32> = n.iter().flatten().copied().collect();
-                attrs.insert("NORMAL".into(), json!(push(&f32_bytes(&flat), 34962, 5126, n.len(), "VEC3", None)));
+                attrs.insert(
+                    "NORMAL".into(),
+                    json!(push(&f32_bytes(&flat), 34962, 5126, n.len(), "VEC3", None)),
+                );
             }
             if let Some(uv) = &m.uv1 {
                 let flat: Vec<f32> = uv.iter().flatten().copied().collect();
-                attrs.insert("TEXCOORD_1".into(), json!(push(&f32_bytes(&flat), 34962, 5126, uv.len(), "VEC2", None)));
+                attrs.insert(
+                    "TEXCOORD_1".into(),
+                    json!(push(&f32_bytes(&flat), 34962, 5126, uv.len(), "VEC2", None)),
+                );
             }
             let mut prim = json!({"attributes": attrs, "mode": 4});
             if let Some(idx) = &m.indices {
@@ -180,7 +195,8 @@ impl GlbScene {
             .lights
             .iter()
             .map(|l| {
-                let mut v = json!({"name": l.name, "type": l.kind, "color": l.color, "intensity": l.intensity});
+                let mut v =
+                    json!({"name": l.name, "type": l.kind, "color": l.color, "intensity": l.intensity});
                 if l.kind == "spot" {
                     v["spot"] = json!({"innerConeAngle": l.inner, "outerConeAngle": l.outer});
                 }
@@ -226,7 +242,8 @@ impl GlbScene {
                 v
             })
             .collect();
-        let is_child: Vec<bool> = (0..self.nodes.len()).map(|i| self.nodes.iter().any(|n| n.children.contains(&i))).collect();
+        let is_child: Vec<bool> =
+            (0..self.nodes.len()).map(|i| self.nodes.iter().any(|n| n.children.contains(&i))).collect();
         let roots: Vec<usize> = (0..self.nodes.len()).filter(|&i| !is_child[i]).collect();
         let mut doc = json!({
             "asset": {"version": "2.0", "generator": "prm"},

@@ -95,9 +95,8 @@ pub fn load_scene(path: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, S
     let bytes = std::fs::read(path).map_err(|source| SceneError::Io { path: path.into(), source })?;
     // The gltf crate is not hardened against every malformed file; a panic inside it must
     // still reach the user as an error naming the file.
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        load_from_bytes(path, &bytes, opts)
-    }));
+    let result =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_from_bytes(path, &bytes, opts)));
     match result {
         Ok(r) => r,
         Err(panic) => {
@@ -148,7 +147,10 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
         roots.into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0)).collect();
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > 256 {
-            return Err(SceneError::Malformed { path: path.into(), what: "node hierarchy deeper than 256 (a cycle?)".into() });
+            return Err(SceneError::Malformed {
+                path: path.into(),
+                what: "node hierarchy deeper than 256 (a cycle?)".into(),
+            });
         }
         let local = Mat4::from_cols_array_2d(&node.transform().matrix());
         let world = parent * local;
@@ -168,7 +170,17 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
                 }
                 let mat = prim.material().index().map(|i| i as u32).unwrap_or(default_material);
                 let tex_set = texture_of.get(mat as usize).copied().flatten().map(|(_, set)| set);
-                let p = read_primitive(path, &buffers, &prim, place, world, mat, tex_set, node.index(), &mut report)?;
+                let p = read_primitive(
+                    path,
+                    &buffers,
+                    &prim,
+                    place,
+                    world,
+                    mat,
+                    tex_set,
+                    node.index(),
+                    &mut report,
+                )?;
                 prims.push(p);
             }
         }
@@ -216,7 +228,10 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
     for p in prims {
         let base = scene.positions.len() as u32;
         let Some(uv1) = p.uv1 else {
-            return Err(SceneError::Unwrap { path: path.into(), reason: format!("{}: no lightmap UVs after unwrapping", p.place) });
+            return Err(SceneError::Unwrap {
+                path: path.into(),
+                reason: format!("{}: no lightmap UVs after unwrapping", p.place),
+            });
         };
         scene.positions.extend(p.positions);
         scene.normals.extend(p.normals);
@@ -292,7 +307,10 @@ fn prims_uv_view(prims: &mut [Prim]) -> Vec<uv::UnwrapPrim<'_>> {
 
 /// Materials, and for each the (texture index, UV set) of its albedo texture.
 #[allow(clippy::type_complexity)]
-fn read_materials(path: &Path, doc: &gltf::Document) -> Result<(Vec<Material>, Vec<Option<(usize, u32)>>), SceneError> {
+fn read_materials(
+    path: &Path,
+    doc: &gltf::Document,
+) -> Result<(Vec<Material>, Vec<Option<(usize, u32)>>), SceneError> {
     let mut out = Vec::new();
     let mut tex = Vec::new();
     for m in doc.materials() {
@@ -302,13 +320,23 @@ fn read_materials(path: &Path, doc: &gltf::Document) -> Result<(Vec<Material>, V
         let f = pbr.base_color_factor();
         let albedo = [f[0], f[1], f[2]];
         if albedo.iter().any(|c| !(0.0..=1.0).contains(c)) {
-            return Err(SceneError::AlbedoOutOfRange { path: path.into(), material: index, name, value: albedo });
+            return Err(SceneError::AlbedoOutOfRange {
+                path: path.into(),
+                material: index,
+                name,
+                value: albedo,
+            });
         }
         let strength = m.emissive_strength().unwrap_or(1.0);
         let e = m.emissive_factor();
         let emissive = [e[0] * strength, e[1] * strength, e[2] * strength];
         if emissive.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
-            return Err(SceneError::BadEmissive { path: path.into(), material: index, name, value: emissive });
+            return Err(SceneError::BadEmissive {
+                path: path.into(),
+                material: index,
+                name,
+                value: emissive,
+            });
         }
         let t = pbr.base_color_texture().map(|info| (info.texture().source().index(), info.tex_coord()));
         tex.push(t);
@@ -337,7 +365,11 @@ fn read_textures(
         .map_err(|source| SceneError::Gltf { path: path.into(), source })?;
     let mut out = Vec::with_capacity(images.len());
     for (k, img) in images.iter().enumerate() {
-        out.push(decode_srgb(img).map_err(|what| SceneError::BadTexture { path: path.into(), texture: k, what })?);
+        out.push(decode_srgb(img).map_err(|what| SceneError::BadTexture {
+            path: path.into(),
+            texture: k,
+            what,
+        })?);
     }
     Ok(out)
 }
@@ -372,20 +404,35 @@ fn decode_srgb(img: &gltf::image::Data) -> Result<Texture, String> {
             2 => srgb_to_linear(u16::from_le_bytes([img.pixels[at], img.pixels[at + 1]]) as f32 / 65535.0),
             _ => {
                 let v = f32::from_le_bytes(img.pixels[at..at + 4].try_into().unwrap_or([0; 4]));
-                if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 }
+                if v.is_finite() {
+                    v.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
             }
         }
     };
     let grey = channels < 3;
-    let texels = (0..n)
-        .map(|i| if grey { Vec3::splat(value(i, 0)) } else { Vec3::new(value(i, 0), value(i, 1), value(i, 2)) })
-        .collect();
+    let texels =
+        (0..n)
+            .map(|i| {
+                if grey {
+                    Vec3::splat(value(i, 0))
+                } else {
+                    Vec3::new(value(i, 0), value(i, 1), value(i, 2))
+                }
+            })
+            .collect();
     Ok(Texture { width: img.width, height: img.height, texels })
 }
 
 /// The sRGB transfer function, decoded.
 pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -401,7 +448,8 @@ fn read_primitive(
     report: &mut LoadReport,
 ) -> Result<Prim, SceneError> {
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-    let oob = |attribute| SceneError::AccessorOutOfBounds { path: path.into(), place: place.clone(), attribute };
+    let oob =
+        |attribute| SceneError::AccessorOutOfBounds { path: path.into(), place: place.clone(), attribute };
     if prim.get(&gltf::Semantic::Positions).is_none() {
         return Err(SceneError::MissingPositions { path: path.into(), place });
     }
@@ -409,7 +457,13 @@ fn read_primitive(
     let n = local.len();
     for (i, p) in local.iter().enumerate() {
         if !p.is_finite() {
-            return Err(SceneError::NonFinite { path: path.into(), place, attribute: "POSITION", vertex: i, value: format!("{p}") });
+            return Err(SceneError::NonFinite {
+                path: path.into(),
+                place,
+                attribute: "POSITION",
+                vertex: i,
+                value: format!("{p}"),
+            });
         }
     }
     let linear = Mat3::from_mat4(world);
@@ -419,7 +473,13 @@ fn read_primitive(
     let flip = linear.determinant() < 0.0;
     let positions: Vec<Vec3> = local.iter().map(|p| world.transform_point3(*p)).collect();
     if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
-        return Err(SceneError::NonFinite { path: path.into(), place, attribute: "POSITION (after the node transform)", vertex: i, value: format!("{p}") });
+        return Err(SceneError::NonFinite {
+            path: path.into(),
+            place,
+            attribute: "POSITION (after the node transform)",
+            vertex: i,
+            value: format!("{p}"),
+        });
     }
 
     let mut indices: Vec<u32> = match prim.indices() {
@@ -430,7 +490,13 @@ fn read_primitive(
         return Err(SceneError::PartialTriangle { path: path.into(), place, count: indices.len() });
     }
     if let Some((position, &value)) = indices.iter().enumerate().find(|(_, &v)| v as usize >= n) {
-        return Err(SceneError::IndexOutOfRange { path: path.into(), place, position, value, vertex_count: n });
+        return Err(SceneError::IndexOutOfRange {
+            path: path.into(),
+            place,
+            position,
+            value,
+            vertex_count: n,
+        });
     }
     if flip {
         for t in indices.chunks_exact_mut(3) {
@@ -441,12 +507,22 @@ fn read_primitive(
     let normal_matrix = linear.inverse().transpose();
     let normals = match prim.get(&gltf::Semantic::Normals) {
         Some(_) => {
-            let local: Vec<Vec3> = reader.read_normals().ok_or_else(|| oob("NORMAL"))?.map(Vec3::from).collect();
+            let local: Vec<Vec3> =
+                reader.read_normals().ok_or_else(|| oob("NORMAL"))?.map(Vec3::from).collect();
             if local.len() != n {
-                return Err(SceneError::Malformed { path: path.into(), what: format!("{place}: NORMAL count differs from POSITION count") });
+                return Err(SceneError::Malformed {
+                    path: path.into(),
+                    what: format!("{place}: NORMAL count differs from POSITION count"),
+                });
             }
             if let Some((i, v)) = local.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-                return Err(SceneError::NonFinite { path: path.into(), place, attribute: "NORMAL", vertex: i, value: format!("{v}") });
+                return Err(SceneError::NonFinite {
+                    path: path.into(),
+                    place,
+                    attribute: "NORMAL",
+                    vertex: i,
+                    value: format!("{v}"),
+                });
             }
             local.iter().map(|v| (normal_matrix * *v).normalize_or_zero()).collect()
         }
@@ -460,18 +536,29 @@ fn read_primitive(
         if prim.get(&gltf::Semantic::TexCoords(set)).is_none() {
             return Ok(None);
         }
-        let uv: Vec<Vec2> = reader.read_tex_coords(set).ok_or_else(|| oob(name))?.into_f32().map(Vec2::from).collect();
+        let uv: Vec<Vec2> =
+            reader.read_tex_coords(set).ok_or_else(|| oob(name))?.into_f32().map(Vec2::from).collect();
         if uv.len() != n {
-            return Err(SceneError::Malformed { path: path.into(), what: format!("{place}: {name} count differs from POSITION count") });
+            return Err(SceneError::Malformed {
+                path: path.into(),
+                what: format!("{place}: {name} count differs from POSITION count"),
+            });
         }
         if let Some((i, v)) = uv.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-            return Err(SceneError::NonFinite { path: path.into(), place: place.clone(), attribute: name, vertex: i, value: format!("{v}") });
+            return Err(SceneError::NonFinite {
+                path: path.into(),
+                place: place.clone(),
+                attribute: name,
+                vertex: i,
+                value: format!("{v}"),
+            });
         }
         Ok(Some(uv))
     };
     let uv1 = read_uv(1, "TEXCOORD_1")?;
     let uv_albedo = match tex_set {
-        Some(set) => read_uv(set, if set == 0 { "TEXCOORD_0" } else { "TEXCOORD_n" })?.unwrap_or_else(|| vec![Vec2::ZERO; n]),
+        Some(set) => read_uv(set, if set == 0 { "TEXCOORD_0" } else { "TEXCOORD_n" })?
+            .unwrap_or_else(|| vec![Vec2::ZERO; n]),
         None => vec![Vec2::ZERO; n],
     };
     Ok(Prim { place, node, positions, normals, uv1, uv_albedo, indices, material })
@@ -490,9 +577,18 @@ pub fn generate_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
     acc.into_iter().map(|n| n.normalize_or_zero()).collect()
 }
 
-fn read_light(path: &Path, light: &gltf::khr_lights_punctual::Light, world: Mat4) -> Result<Light, SceneError> {
+fn read_light(
+    path: &Path,
+    light: &gltf::khr_lights_punctual::Light,
+    world: Mat4,
+) -> Result<Light, SceneError> {
     let name = light.name().unwrap_or("").to_string();
-    let bad = |what: String| SceneError::BadLight { path: path.into(), light: light.index(), name: name.clone(), what };
+    let bad = |what: String| SceneError::BadLight {
+        path: path.into(),
+        light: light.index(),
+        name: name.clone(),
+        what,
+    };
     let color = Vec3::from(light.color());
     let intensity = light.intensity();
     if !(intensity.is_finite() && intensity >= 0.0) {
@@ -508,7 +604,9 @@ fn read_light(path: &Path, light: &gltf::khr_lights_punctual::Light, world: Mat4
             let (inner, outer) = (inner_cone_angle, outer_cone_angle);
             let half_pi = std::f32::consts::FRAC_PI_2;
             if !(0.0 <= inner && inner <= outer && outer <= half_pi + 1e-6) {
-                return Err(bad(format!("spot cone angles inner {inner} / outer {outer} must satisfy 0 <= inner <= outer <= pi/2")));
+                return Err(bad(format!(
+                    "spot cone angles inner {inner} / outer {outer} must satisfy 0 <= inner <= outer <= pi/2"
+                )));
             }
             LightKind::Spot { inner, outer: outer.min(half_pi) }
         }

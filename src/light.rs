@@ -15,7 +15,10 @@ use glam::Vec3;
 pub enum LightKind {
     Point,
     /// Cone half-angles in radians, `0 <= inner <= outer <= pi/2`.
-    Spot { inner: f32, outer: f32 },
+    Spot {
+        inner: f32,
+        outer: f32,
+    },
     Directional,
 }
 
@@ -49,11 +52,9 @@ impl Light {
     /// Light arriving at point `p`, not yet multiplied by the receiver's cosine or visibility.
     pub fn incident(&self, p: Vec3) -> Incident {
         match self.kind {
-            LightKind::Directional => Incident {
-                to_light: -self.direction,
-                distance: f32::INFINITY,
-                irradiance: self.intensity,
-            },
+            LightKind::Directional => {
+                Incident { to_light: -self.direction, distance: f32::INFINITY, irradiance: self.intensity }
+            }
             LightKind::Point | LightKind::Spot { .. } => {
                 let d = self.position - p;
                 let dist2 = d.length_squared();

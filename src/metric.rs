@@ -60,7 +60,15 @@ pub fn compare(a: &[Vec3], b: &[Vec3], mask: Option<&[bool]>) -> Comparison {
             ref_c[ch] += (vb[ch] as f64) * (vb[ch] as f64);
         }
     }
-    let norm = |e: f64, r: f64| if r > 0.0 { (e / r).sqrt() } else if e > 0.0 { f64::INFINITY } else { 0.0 };
+    let norm = |e: f64, r: f64| {
+        if r > 0.0 {
+            (e / r).sqrt()
+        } else if e > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        }
+    };
     c.error = norm(se, sref);
     c.error_rgb = [norm(se_c[0], ref_c[0]), norm(se_c[1], ref_c[1]), norm(se_c[2], ref_c[2])];
     c.bias = if sum_b > 0.0 { sum_a / sum_b - 1.0 } else { 0.0 };

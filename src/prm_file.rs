@@ -296,7 +296,13 @@ impl Prm {
 
     /// The lightmap from the clusters in `selected` (weights `weights`), plus, with `residual`,
     /// the groups standing in for the rest. The slow, obvious twin of the runtime's compose.
-    pub fn compose_selected(&self, weights: &[Vec3], selected: &[bool], residual: bool, layout: &TileLayout) -> Vec<Vec3> {
+    pub fn compose_selected(
+        &self,
+        weights: &[Vec3],
+        selected: &[bool],
+        residual: bool,
+        layout: &TileLayout,
+    ) -> Vec<Vec3> {
         let mut img = vec![Vec3::ZERO; (self.header.atlas_width * self.header.atlas_height) as usize];
         for c in 0..self.clusters.len() {
             if selected[c] && weights[c] != Vec3::ZERO {
@@ -346,14 +352,16 @@ impl Prm {
                 if c.members.is_empty() {
                     return Vec3::ZERO;
                 }
-                c.members.iter().map(|&m| entry_irradiance[m as usize]).fold(Vec3::ZERO, |a, b| a + b) / c.members.len() as f32
+                c.members.iter().map(|&m| entry_irradiance[m as usize]).fold(Vec3::ZERO, |a, b| a + b)
+                    / c.members.len() as f32
             })
             .collect()
     }
 
     /// Error unless this map was baked for `scene` at its atlas size.
     pub fn check_scene(&self, path: &Path, scene: &Scene) -> Result<(), PrmError> {
-        let fp = format!("{:016x}", scene_fingerprint(scene, self.header.atlas_width, self.header.atlas_height));
+        let fp =
+            format!("{:016x}", scene_fingerprint(scene, self.header.atlas_width, self.header.atlas_height));
         if fp != self.header.fingerprint {
             return Err(PrmError::WrongScene {
                 path: path.into(),
@@ -434,7 +442,8 @@ impl Prm {
 
     /// Write atomically.
     pub fn write(&self, path: &Path) -> Result<(), PrmError> {
-        crate::fsutil::write_bytes_atomic(path, &self.to_bytes()).map_err(|source| PrmError::Io { path: path.into(), source })
+        crate::fsutil::write_bytes_atomic(path, &self.to_bytes())
+            .map_err(|source| PrmError::Io { path: path.into(), source })
     }
 
     /// Read and validate a file; with `scene`, also check it was baked for that scene.
@@ -477,9 +486,19 @@ impl Prm {
         if fnv1a(FNV_START, body) != stored {
             return Err(PrmError::Checksum { path: path.into() });
         }
-        let header: Header = serde_json::from_slice(&body[16..16 + header_len]).map_err(|e| corrupt(format!("header: {e}")))?;
-        if header.tile_size == 0 || header.tile_size > 4096 || header.atlas_width == 0 || header.atlas_height == 0 || header.atlas_width > 65536 || header.atlas_height > 65536 {
-            return Err(corrupt(format!("implausible atlas {}x{} / tile size {}", header.atlas_width, header.atlas_height, header.tile_size)));
+        let header: Header = serde_json::from_slice(&body[16..16 + header_len])
+            .map_err(|e| corrupt(format!("header: {e}")))?;
+        if header.tile_size == 0
+            || header.tile_size > 4096
+            || header.atlas_width == 0
+            || header.atlas_height == 0
+            || header.atlas_width > 65536
+            || header.atlas_height > 65536
+        {
+            return Err(corrupt(format!(
+                "implausible atlas {}x{} / tile size {}",
+                header.atlas_width, header.atlas_height, header.tile_size
+            )));
         }
         let mut at = 16 + header_len;
         let mut next = |tag: &[u8; 4]| -> Result<&[u8], PrmError> {
@@ -492,7 +511,10 @@ impl Prm {
             let len = u64::from_le_bytes(body[at + 4..at + 12].try_into().unwrap_or_default());
             let start = at + 12;
             if len > (body.len() - start) as u64 {
-                return Err(truncated(&format!("section {} runs past the end", String::from_utf8_lossy(tag))));
+                return Err(truncated(&format!(
+                    "section {} runs past the end",
+                    String::from_utf8_lossy(tag)
+                )));
             }
             at = start + len as usize;
             Ok(&body[start..at])
@@ -503,18 +525,38 @@ impl Prm {
 
         let e = next(b"ENTR")?;
         if e.len() as u64 != header.entries as u64 * 48 {
-            return Err(corrupt(format!("{} entries declared, {} bytes of entries", header.entries, e.len())));
+            return Err(corrupt(format!(
+                "{} entries declared, {} bytes of entries",
+                header.entries,
+                e.len()
+            )));
         }
         let entries: Vec<Entry> = e
             .chunks_exact(48)
-            .map(|b| Entry { position: v3(b, 0), normal: v3(b, 12), albedo: v3(b, 24), area: f32_at(b, 36), triangle: u32_at(b, 40) })
+            .map(|b| Entry {
+                position: v3(b, 0),
+                normal: v3(b, 12),
+                albedo: v3(b, 24),
+                area: f32_at(b, 36),
+                triangle: u32_at(b, 40),
+            })
             .collect();
-        if let Some(k) = entries.iter().position(|e| !(e.position.is_finite() && e.normal.is_finite() && e.albedo.is_finite() && e.area.is_finite() && e.area >= 0.0)) {
+        if let Some(k) = entries.iter().position(|e| {
+            !(e.position.is_finite()
+                && e.normal.is_finite()
+                && e.albedo.is_finite()
+                && e.area.is_finite()
+                && e.area >= 0.0)
+        }) {
             return Err(corrupt(format!("entry {k} has non-finite or negative values")));
         }
         let c = next(b"CLUS")?;
         if c.len() as u64 != header.clusters as u64 * 32 {
-            return Err(corrupt(format!("{} clusters declared, {} bytes of clusters", header.clusters, c.len())));
+            return Err(corrupt(format!(
+                "{} clusters declared, {} bytes of clusters",
+                header.clusters,
+                c.len()
+            )));
         }
         let m = next(b"MEMB")?;
         if m.len() % 4 != 0 {
@@ -528,28 +570,50 @@ impl Prm {
         let (n_groups, n_clusters) = (header.groups as u64, header.clusters as u64);
         let want = if n_groups == 0 { 0 } else { n_groups * 16 + n_clusters * 4 };
         if gsec.len() as u64 != want {
-            return Err(corrupt(format!("{n_groups} groups over {n_clusters} clusters declared, {} bytes of groups", gsec.len())));
+            return Err(corrupt(format!(
+                "{n_groups} groups over {n_clusters} clusters declared, {} bytes of groups",
+                gsec.len()
+            )));
         }
         let mask = next(b"MASK")?.to_vec();
         if mask.len() as u64 != (header.atlas_width as u64 * header.atlas_height as u64).div_ceil(8) {
-            return Err(corrupt(format!("mask is {} bytes for a {}x{} atlas", mask.len(), header.atlas_width, header.atlas_height)));
+            return Err(corrupt(format!(
+                "mask is {} bytes for a {}x{} atlas",
+                mask.len(),
+                header.atlas_width,
+                header.atlas_height
+            )));
         }
         let t = next(b"TILE")?;
         if t.len() as u64 != header.tiles as u64 * 20 {
             return Err(corrupt(format!("{} tiles declared, {} bytes of tiles", header.tiles, t.len())));
         }
-        let tiles: Vec<Tile> = t.chunks_exact(20).map(|b| Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) }).collect();
-        let grid = (header.atlas_width.div_ceil(header.tile_size) as u64) * (header.atlas_height.div_ceil(header.tile_size) as u64);
+        let tiles: Vec<Tile> = t
+            .chunks_exact(20)
+            .map(|b| Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) })
+            .collect();
+        let grid = (header.atlas_width.div_ceil(header.tile_size) as u64)
+            * (header.atlas_height.div_ceil(header.tile_size) as u64);
         for (k, tile) in tiles.iter().enumerate() {
-            if tile.cluster as u64 >= n_clusters + n_groups || tile.index as u64 >= grid || !tile.scale.is_finite() || tile.scale.min_element() < 0.0 {
-                return Err(corrupt(format!("tile {k} is out of range (cluster {}, index {}, scale {})", tile.cluster, tile.index, tile.scale)));
+            if tile.cluster as u64 >= n_clusters + n_groups
+                || tile.index as u64 >= grid
+                || !tile.scale.is_finite()
+                || tile.scale.min_element() < 0.0
+            {
+                return Err(corrupt(format!(
+                    "tile {k} is out of range (cluster {}, index {}, scale {})",
+                    tile.cluster, tile.index, tile.scale
+                )));
             }
         }
         // Together the clusters may claim at most the member list: otherwise a small file could
         // make every cluster copy the whole list (quadratic memory).
         let claimed: u64 = c.chunks_exact(32).map(|b| u32_at(b, 4) as u64).sum();
         if claimed > members.len() as u64 {
-            return Err(corrupt(format!("clusters claim {claimed} members, the list holds {}", members.len())));
+            return Err(corrupt(format!(
+                "clusters claim {claimed} members, the list holds {}",
+                members.len()
+            )));
         }
         let mut clusters = Vec::with_capacity(header.clusters as usize);
         for (k, b) in c.chunks_exact(32).enumerate() {
@@ -558,31 +622,50 @@ impl Prm {
             if first.checked_add(count).is_none_or(|end| end > members.len()) {
                 return Err(corrupt(format!("cluster {k}'s members run past the member list")));
             }
-            if (ft as u64 + tc as u64) > tiles.len() as u64 || tiles[ft as usize..(ft + tc) as usize].iter().any(|t| t.cluster != k as u32) {
+            if (ft as u64 + tc as u64) > tiles.len() as u64
+                || tiles[ft as usize..(ft + tc) as usize].iter().any(|t| t.cluster != k as u32)
+            {
                 return Err(corrupt(format!("cluster {k}'s tile range is wrong")));
             }
-            clusters.push(Cluster { members: members[first..first + count].to_vec(), centroid: v3(b, 8), energy: f32_at(b, 20), first_tile: ft, tile_count: tc });
+            clusters.push(Cluster {
+                members: members[first..first + count].to_vec(),
+                centroid: v3(b, 8),
+                energy: f32_at(b, 20),
+                first_tile: ft,
+                tile_count: tc,
+            });
         }
         let mut groups = Vec::with_capacity(n_groups as usize);
         for (g, b) in gsec[..n_groups as usize * 16].chunks_exact(16).enumerate() {
             let (energy, ft, tc) = (f32_at(b, 0), u32_at(b, 4), u32_at(b, 8));
             let pane = n_clusters + g as u64;
-            if !(energy.is_finite() && energy >= 0.0) || (ft as u64 + tc as u64) > tiles.len() as u64 || tiles[ft as usize..(ft + tc) as usize].iter().any(|t| t.cluster as u64 != pane) {
+            if !(energy.is_finite() && energy >= 0.0)
+                || (ft as u64 + tc as u64) > tiles.len() as u64
+                || tiles[ft as usize..(ft + tc) as usize].iter().any(|t| t.cluster as u64 != pane)
+            {
                 return Err(corrupt(format!("group {g} has a bad energy or tile range")));
             }
             groups.push(Group { energy, first_tile: ft, tile_count: tc });
         }
         // The panes' ranges must cover every tile (the runtime reads tiles by pane id, the CPU
         // twin by range: a stray tile would make them disagree), one tile per atlas index each.
-        let covered: u64 = clusters.iter().map(|c| c.tile_count as u64).chain(groups.iter().map(|g| g.tile_count as u64)).sum();
+        let covered: u64 = clusters
+            .iter()
+            .map(|c| c.tile_count as u64)
+            .chain(groups.iter().map(|g| g.tile_count as u64))
+            .sum();
         if covered != tiles.len() as u64 {
             return Err(corrupt(format!("the panes' tile ranges cover {covered} of {} tiles", tiles.len())));
         }
         let mut seen = std::collections::HashSet::with_capacity(tiles.len());
         if let Some(k) = tiles.iter().position(|t| !seen.insert((t.cluster, t.index))) {
-            return Err(corrupt(format!("tile {k} repeats atlas tile {} of pane {}", tiles[k].index, tiles[k].cluster)));
+            return Err(corrupt(format!(
+                "tile {k} repeats atlas tile {} of pane {}",
+                tiles[k].index, tiles[k].cluster
+            )));
         }
-        let group_of: Vec<u32> = gsec[n_groups as usize * 16..].chunks_exact(4).map(|b| u32_at(b, 0)).collect();
+        let group_of: Vec<u32> =
+            gsec[n_groups as usize * 16..].chunks_exact(4).map(|b| u32_at(b, 0)).collect();
         if let Some(c) = group_of.iter().position(|&g| g as u64 >= n_groups) {
             return Err(corrupt(format!("cluster {c} is in group {}, of {n_groups}", group_of[c])));
         }
@@ -593,13 +676,21 @@ impl Prm {
         let mut prm = Prm { header, entries, clusters, groups, group_of, tiles, mask, data: Vec::new() };
         let want = prm.layout().len;
         if d.len() as u64 != want as u64 * 2 {
-            return Err(corrupt(format!("tile data is {} bytes, the tiles' masked texels need {}", d.len(), want * 2)));
+            return Err(corrupt(format!(
+                "tile data is {} bytes, the tiles' masked texels need {}",
+                d.len(),
+                want * 2
+            )));
         }
         prm.data = d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect();
         if let Some(k) = prm.data.iter().position(|v| !(v.is_finite() && v.to_f32() >= 0.0)) {
             return Err(corrupt(format!("tile texel {k} is not a finite, non-negative intensity")));
         }
-        if let Some(c) = prm.clusters.iter().position(|c| !(c.energy.is_finite() && c.energy >= 0.0 && c.centroid.is_finite())) {
+        if let Some(c) = prm
+            .clusters
+            .iter()
+            .position(|c| !(c.energy.is_finite() && c.energy >= 0.0 && c.centroid.is_finite()))
+        {
             return Err(corrupt(format!("cluster {c} has a non-finite energy or centroid")));
         }
         Ok(prm)

@@ -128,29 +128,45 @@ pub struct Rig {
 impl Rig {
     /// The level's own lights, unanimated.
     pub fn from_lights(lights: &[Light]) -> Rig {
-        Rig { lights: lights.iter().map(|l| AnimatedLight { base: l.clone(), keys: Vec::new() }).collect(), duration: 0.0 }
+        Rig {
+            lights: lights.iter().map(|l| AnimatedLight { base: l.clone(), keys: Vec::new() }).collect(),
+            duration: 0.0,
+        }
     }
 
     /// Read a rig file against the level's glTF lights.
     pub fn load(path: &Path, level: &[Light]) -> Result<Rig, RigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io { path: path.into(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| RigError::Io { path: path.into(), source })?;
         Self::parse(path, &text, level)
     }
 
     /// Parse rig JSON (`path` only for messages).
     pub fn parse(path: &Path, text: &str, level: &[Light]) -> Result<Rig, RigError> {
-        let file: RigFile = serde_json::from_str(text).map_err(|source| RigError::Json { path: path.into(), source })?;
-        let mut out: Vec<Option<AnimatedLight>> = level.iter().map(|l| Some(AnimatedLight { base: l.clone(), keys: Vec::new() })).collect();
+        let file: RigFile =
+            serde_json::from_str(text).map_err(|source| RigError::Json { path: path.into(), source })?;
+        let mut out: Vec<Option<AnimatedLight>> =
+            level.iter().map(|l| Some(AnimatedLight { base: l.clone(), keys: Vec::new() })).collect();
         let mut last_key = 0.0f64;
         for rl in &file.lights {
             let bad = |what: String| RigError::Light { path: path.into(), light: rl.name.clone(), what };
             let slot = level.iter().position(|l| l.name == rl.name);
             let mut light = match (slot, &rl.kind) {
                 (Some(i), _) => level[i].clone(),
-                (None, Some(_)) => Light { name: rl.name.clone(), kind: LightKind::Point, position: Vec3::ZERO, direction: -Vec3::Y, intensity: Vec3::ONE, range: None },
+                (None, Some(_)) => Light {
+                    name: rl.name.clone(),
+                    kind: LightKind::Point,
+                    position: Vec3::ZERO,
+                    direction: -Vec3::Y,
+                    intensity: Vec3::ONE,
+                    range: None,
+                },
                 (None, None) => {
                     let names: Vec<&str> = level.iter().map(|l| l.name.as_str()).collect();
-                    return Err(bad(format!("no such light in the level (it has: {}) and no \"type\" to make a new one", names.join(", "))));
+                    return Err(bad(format!(
+                        "no such light in the level (it has: {}) and no \"type\" to make a new one",
+                        names.join(", ")
+                    )));
                 }
             };
             if let Some(k) = &rl.kind {
@@ -164,10 +180,18 @@ impl Rig {
             if let LightKind::Spot { inner, outer } = light.kind {
                 let inner = rl.inner_cone_deg.map_or(inner as f64, f64::to_radians);
                 let outer = rl.outer_cone_deg.map_or(outer as f64, f64::to_radians);
-                if !(inner.is_finite() && outer.is_finite() && 0.0 <= inner && inner <= outer && outer <= std::f64::consts::FRAC_PI_2 + 1e-9) {
+                if !(inner.is_finite()
+                    && outer.is_finite()
+                    && 0.0 <= inner
+                    && inner <= outer
+                    && outer <= std::f64::consts::FRAC_PI_2 + 1e-9)
+                {
                     return Err(bad(format!("cone angles inner {:.3} / outer {:.3} degrees must satisfy 0 <= inner <= outer <= 90", inner.to_degrees(), outer.to_degrees())));
                 }
-                light.kind = LightKind::Spot { inner: inner as f32, outer: (outer as f32).min(std::f32::consts::FRAC_PI_2) };
+                light.kind = LightKind::Spot {
+                    inner: inner as f32,
+                    outer: (outer as f32).min(std::f32::consts::FRAC_PI_2),
+                };
             } else if rl.inner_cone_deg.is_some() || rl.outer_cone_deg.is_some() {
                 return Err(bad("cone angles given for a light that is not a spot".into()));
             }
@@ -184,10 +208,14 @@ impl Rig {
             let mut current_colour = colour;
             for (k, kf) in rl.keyframes.iter().enumerate() {
                 if !(kf.time.is_finite() && kf.time > prev) {
-                    return Err(bad(format!("keyframe {k}: time {} must be finite and later than the one before", kf.time)));
+                    return Err(bad(format!(
+                        "keyframe {k}: time {} must be finite and later than the one before",
+                        kf.time
+                    )));
                 }
                 prev = kf.time;
-                current_colour = apply(&mut current, &kf.state, Some(current_colour)).map_err(|w| bad(format!("keyframe {k}: {w}")))?;
+                current_colour = apply(&mut current, &kf.state, Some(current_colour))
+                    .map_err(|w| bad(format!("keyframe {k}: {w}")))?;
                 keys.push((kf.time, current.position, current.direction, current.intensity));
             }
             last_key = last_key.max(prev.max(0.0));
@@ -261,7 +289,11 @@ fn apply(light: &mut Light, s: &State, colour: Option<Vec3>) -> Result<Vec3, Str
     // Split the stored colour x intensity into the two so either can change alone.
     let old_colour = colour.unwrap_or_else(|| {
         let m = light.intensity.max_element();
-        if m > 0.0 { light.intensity / m } else { Vec3::ONE }
+        if m > 0.0 {
+            light.intensity / m
+        } else {
+            Vec3::ONE
+        }
     });
     let old_intensity = light.intensity.max_element() / old_colour.max_element().max(f32::MIN_POSITIVE);
     let new_colour = match s.color {
@@ -275,7 +307,9 @@ fn apply(light: &mut Light, s: &State, colour: Option<Vec3>) -> Result<Vec3, Str
         None => old_colour,
     };
     let new_intensity = match s.intensity {
-        Some(i) if !(i.is_finite() && i >= 0.0) => return Err(format!("intensity {i} is negative or not finite")),
+        Some(i) if !(i.is_finite() && i >= 0.0) => {
+            return Err(format!("intensity {i} is negative or not finite"))
+        }
         Some(i) => i as f32,
         None => old_intensity,
     };
@@ -288,7 +322,14 @@ mod tests {
     use super::*;
 
     fn level() -> Vec<Light> {
-        vec![Light { name: "lamp".into(), kind: LightKind::Point, position: Vec3::new(0.0, 2.0, 0.0), direction: -Vec3::Y, intensity: Vec3::new(10.0, 5.0, 2.5), range: None }]
+        vec![Light {
+            name: "lamp".into(),
+            kind: LightKind::Point,
+            position: Vec3::new(0.0, 2.0, 0.0),
+            direction: -Vec3::Y,
+            intensity: Vec3::new(10.0, 5.0, 2.5),
+            range: None,
+        }]
     }
 
     fn parse(text: &str) -> Result<Rig, RigError> {
@@ -297,8 +338,11 @@ mod tests {
 
     #[test]
     fn keyframes_interpolate_and_hold() {
-        let rig = parse(r#"{"lights": [{"name": "lamp", "keyframes": [
-            {"time": 0, "position": [-1, 2, 0]}, {"time": 2, "position": [1, 2, 0], "intensity": 20}]}]}"#).unwrap();
+        let rig = parse(
+            r#"{"lights": [{"name": "lamp", "keyframes": [
+            {"time": 0, "position": [-1, 2, 0]}, {"time": 2, "position": [1, 2, 0], "intensity": 20}]}]}"#,
+        )
+        .unwrap();
         assert_eq!(rig.duration, 2.0);
         let mid = rig.at_time(1.0);
         assert!((mid[0].position - Vec3::new(0.0, 2.0, 0.0)).length() < 1e-6);
@@ -318,7 +362,9 @@ mod tests {
         assert_eq!(rig.lights.len(), 2);
         assert_eq!(rig.lights[0].base.intensity, Vec3::new(0.0, 10.0, 0.0));
         let spot = &rig.lights[1].base;
-        assert!(matches!(spot.kind, LightKind::Spot { inner, outer } if (inner - 10f32.to_radians()).abs() < 1e-6 && (outer - 20f32.to_radians()).abs() < 1e-6));
+        assert!(
+            matches!(spot.kind, LightKind::Spot { inner, outer } if (inner - 10f32.to_radians()).abs() < 1e-6 && (outer - 20f32.to_radians()).abs() < 1e-6)
+        );
         assert_eq!(spot.direction, -Vec3::Y);
         let off = parse(r#"{"lights": [{"name": "lamp", "enabled": false}]}"#).unwrap();
         assert!(off.lights.is_empty());
@@ -333,7 +379,10 @@ mod tests {
             (r#"{"lights": [{"name": "lamp", "position": [1, 1e999, 0]}]}"#, "not a valid rig"),
             (r#"{"lights": [{"name": "lamp", "intensity": -3}]}"#, "intensity -3"),
             (r#"{"lights": [{"name": "lamp", "keyframes": [{"time": 1}, {"time": 1}]}]}"#, "keyframe 1"),
-            (r#"{"lights": [{"name": "s", "type": "spot", "inner_cone_deg": 30, "outer_cone_deg": 20}]}"#, "cone angles"),
+            (
+                r#"{"lights": [{"name": "s", "type": "spot", "inner_cone_deg": 30, "outer_cone_deg": 20}]}"#,
+                "cone angles",
+            ),
             (r#"{"lights": [{"name": "s", "type": "laser"}]}"#, "unknown type"),
             (r#"{"lights": [{"name": "lamp", "direction": [0, 0, 0]}]}"#, "direction is zero"),
             (r#"{"lights": [{"name": "lamp", "colour": [1, 1, 1]}]}"#, "unknown field"),

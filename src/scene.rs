@@ -106,7 +106,11 @@ impl Camera {
     pub fn ray(&self, x: f32, y: f32, w: u32, h: u32) -> (glam::Vec3, glam::Vec3) {
         use glam::Vec4Swizzles;
         let origin = self.to_world.col(3).xyz();
-        let (right, up, back) = (self.to_world.col(0).xyz().normalize(), self.to_world.col(1).xyz().normalize(), self.to_world.col(2).xyz().normalize());
+        let (right, up, back) = (
+            self.to_world.col(0).xyz().normalize(),
+            self.to_world.col(1).xyz().normalize(),
+            self.to_world.col(2).xyz().normalize(),
+        );
         let tan = (self.yfov * 0.5).tan();
         let aspect = w as f32 / h as f32;
         let sx = (2.0 * x / w as f32 - 1.0) * tan * aspect;
@@ -165,7 +169,14 @@ impl Scene {
         let triangles = indices
             .chunks_exact(3)
             .enumerate()
-            .map(|(k, t)| Triangle { v: [t[0], t[1], t[2]], material: 0, node: 0, mesh: 0, primitive: 0, index: k as u32 })
+            .map(|(k, t)| Triangle {
+                v: [t[0], t[1], t[2]],
+                material: 0,
+                node: 0,
+                mesh: 0,
+                primitive: 0,
+                index: k as u32,
+            })
             .collect();
         Scene {
             source: "mesh".into(),
@@ -183,11 +194,7 @@ impl Scene {
     #[inline]
     pub fn corners(&self, t: usize) -> [Vec3; 3] {
         let v = self.triangles[t].v;
-        [
-            self.positions[v[0] as usize],
-            self.positions[v[1] as usize],
-            self.positions[v[2] as usize],
-        ]
+        [self.positions[v[0] as usize], self.positions[v[1] as usize], self.positions[v[2] as usize]]
     }
 
     /// The three lightmap UVs of triangle `t`.
@@ -245,9 +252,9 @@ impl Scene {
         if self.positions.is_empty() {
             return (Vec3::ZERO, Vec3::ZERO);
         }
-        self.positions.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(*p), hi.max(*p))
-        })
+        self.positions
+            .iter()
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
     }
 
     /// Length of the bounds' diagonal: the scene's scale for offsets and tolerances.

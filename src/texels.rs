@@ -127,7 +127,15 @@ impl TexelSet {
             index[flat] = texels.len() as u32;
             texels.push(make_texel(scene, c, size, width));
         }
-        let mut set = TexelSet { width, height, texels, index, dilation: Vec::new(), zero_uv_area_triangles, shared_gutter_texels: 0 };
+        let mut set = TexelSet {
+            width,
+            height,
+            texels,
+            index,
+            dilation: Vec::new(),
+            zero_uv_area_triangles,
+            shared_gutter_texels: 0,
+        };
         set.dilation = set.dilation_ring();
         set.shared_gutter_texels = set.count_shared_gutters(&crate::uv::charts(scene));
         set
@@ -171,7 +179,8 @@ impl TexelSet {
     /// texel of its lightmap-UV area.
     pub fn world_texel_size(&self, scene: &Scene, t: usize) -> f32 {
         let uv = scene.uv1_corners(t);
-        let texels = 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (self.width as f32 * self.height as f32);
+        let texels =
+            0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (self.width as f32 * self.height as f32);
         (scene.area(t) / texels.max(1e-12)).sqrt()
     }
 
@@ -184,7 +193,8 @@ impl TexelSet {
     pub fn smoothing_kernel(&self, scene: &Scene, radius: u32) -> Vec<Vec<(u32, f32)>> {
         let r = radius as i64;
         let (w, h) = (self.width as i64, self.height as i64);
-        let texel_size: Vec<f32> = self.texels.iter().map(|t| self.world_texel_size(scene, t.triangle as usize)).collect();
+        let texel_size: Vec<f32> =
+            self.texels.iter().map(|t| self.world_texel_size(scene, t.triangle as usize)).collect();
         let sigma2 = (0.5 * radius as f32 + 0.5).powi(2);
         self.texels
             .par_iter()
@@ -205,7 +215,10 @@ impl TexelSet {
                         }
                         let o = &self.texels[n as usize];
                         let d = o.position - t.position;
-                        if o.normal.dot(t.normal) < 0.9 || d.dot(t.normal).abs() > 0.25 * reach || d.length() > reach {
+                        if o.normal.dot(t.normal) < 0.9
+                            || d.dot(t.normal).abs() > 0.25 * reach
+                            || d.length() > reach
+                        {
                             continue;
                         }
                         let wgt = (-((di * di + dj * dj) as f32) / (2.0 * sigma2)).exp();
@@ -223,7 +236,9 @@ impl TexelSet {
 
     fn dilation_ring(&self) -> Vec<Dilation> {
         let (w, h) = (self.width as i64, self.height as i64);
-        let covered = |i: i64, j: i64| i >= 0 && j >= 0 && i < w && j < h && self.index[(j * w + i) as usize] != Self::EMPTY;
+        let covered = |i: i64, j: i64| {
+            i >= 0 && j >= 0 && i < w && j < h && self.index[(j * w + i) as usize] != Self::EMPTY
+        };
         let mut out = Vec::new();
         for j in 0..h {
             for i in 0..w {
@@ -296,7 +311,12 @@ fn triangle_candidates(uv: &[DVec2; 3], triangle: u32, width: u32, height: u32) 
             let centre = DVec2::new(i as f64 + 0.5, j as f64 + 0.5);
             let bary = closest_barycentrics(centre, uv);
             let q = uv[0] * bary[0] + uv[1] * bary[1] + uv[2] * bary[2];
-            out.push(Candidate { flat: (j as u32) * width + i as u32, triangle, distance: (q - centre).length(), bary });
+            out.push(Candidate {
+                flat: (j as u32) * width + i as u32,
+                triangle,
+                distance: (q - centre).length(),
+                bary,
+            });
         }
     }
     out
@@ -305,7 +325,12 @@ fn triangle_candidates(uv: &[DVec2; 3], triangle: u32, width: u32, height: u32) 
 /// Separating-axis test of triangle `t` against the unit square at (x0, y0), all in texels.
 /// True when they overlap by more than [`COVERAGE_EPS`] along every axis.
 pub fn overlaps_square(t: &[DVec2; 3], x0: f64, y0: f64) -> bool {
-    let square = [DVec2::new(x0, y0), DVec2::new(x0 + 1.0, y0), DVec2::new(x0 + 1.0, y0 + 1.0), DVec2::new(x0, y0 + 1.0)];
+    let square = [
+        DVec2::new(x0, y0),
+        DVec2::new(x0 + 1.0, y0),
+        DVec2::new(x0 + 1.0, y0 + 1.0),
+        DVec2::new(x0, y0 + 1.0),
+    ];
     let mut axes = [DVec2::X, DVec2::Y, DVec2::ZERO, DVec2::ZERO, DVec2::ZERO];
     for k in 0..3 {
         let e = t[(k + 1) % 3] - t[k];
@@ -317,8 +342,14 @@ pub fn overlaps_square(t: &[DVec2; 3], x0: f64, y0: f64) -> bool {
             continue;
         }
         let a = a / len;
-        let (pmin, pmax) = t.iter().map(|p| p.dot(a)).fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), d| (l.min(d), h.max(d)));
-        let (qmin, qmax) = square.iter().map(|p| p.dot(a)).fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), d| (l.min(d), h.max(d)));
+        let (pmin, pmax) = t
+            .iter()
+            .map(|p| p.dot(a))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), d| (l.min(d), h.max(d)));
+        let (qmin, qmax) = square
+            .iter()
+            .map(|p| p.dot(a))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), d| (l.min(d), h.max(d)));
         if pmax <= qmin + COVERAGE_EPS || qmax <= pmin + COVERAGE_EPS {
             return false;
         }
@@ -342,7 +373,11 @@ pub fn closest_barycentrics(p: DVec2, t: &[DVec2; 3]) -> [f64; 3] {
     let mut best = (f64::INFINITY, [1.0, 0.0, 0.0]);
     for (i, j) in [(0, 1), (1, 2), (2, 0)] {
         let e = t[j] - t[i];
-        let s = if e.length_squared() > 0.0 { ((p - t[i]).dot(e) / e.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+        let s = if e.length_squared() > 0.0 {
+            ((p - t[i]).dot(e) / e.length_squared()).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         let d = (t[i] + e * s - p).length();
         if d < best.0 {
             let mut bc = [0.0; 3];

@@ -29,12 +29,10 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
     if resolution < 16 {
         return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
     }
-    let positions: Vec<Vec<[f32; 3]>> = prims.iter().map(|p| p.positions.iter().map(|v| v.to_array()).collect()).collect();
-    let inputs: Vec<uvunwrap::MeshInput> = prims
-        .iter()
-        .zip(&positions)
-        .map(|(p, pos)| uvunwrap::MeshInput::new(pos, p.indices))
-        .collect();
+    let positions: Vec<Vec<[f32; 3]>> =
+        prims.iter().map(|p| p.positions.iter().map(|v| v.to_array()).collect()).collect();
+    let inputs: Vec<uvunwrap::MeshInput> =
+        prims.iter().zip(&positions).map(|(p, pos)| uvunwrap::MeshInput::new(pos, p.indices)).collect();
     let (atlas, v_scale) = unwrap_meshes(&inputs, resolution)?;
     for (p, out) in prims.iter_mut().zip(&atlas.meshes) {
         let xref: Vec<usize> = out.vertices.iter().map(|v| v.xref as usize).collect();
@@ -50,7 +48,10 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
 /// Unwrap meshes into one square atlas page laid out for `resolution`^2 texels with 2 texels
 /// of padding. Returns the atlas and the factor to multiply its v by: uvunwrap crops the page
 /// to the rows it uses, and our atlas is square, so texels stay square.
-pub fn unwrap_meshes(inputs: &[uvunwrap::MeshInput<'_>], resolution: u32) -> Result<(uvunwrap::Atlas, f32), String> {
+pub fn unwrap_meshes(
+    inputs: &[uvunwrap::MeshInput<'_>],
+    resolution: u32,
+) -> Result<(uvunwrap::Atlas, f32), String> {
     let options = uvunwrap::Options {
         density: uvunwrap::Density::Auto { page_size: resolution },
         padding: 2,
@@ -58,7 +59,10 @@ pub fn unwrap_meshes(inputs: &[uvunwrap::MeshInput<'_>], resolution: u32) -> Res
     };
     let atlas = uvunwrap::generate(inputs, &options).map_err(|e| e.to_string())?;
     if atlas.page_count != 1 {
-        return Err(format!("the charts need {} atlas pages at {resolution}^2; use a larger --atlas", atlas.page_count));
+        return Err(format!(
+            "the charts need {} atlas pages at {resolution}^2; use a larger --atlas",
+            atlas.page_count
+        ));
     }
     let v_scale = atlas.height as f32 / atlas.width as f32;
     Ok((atlas, v_scale))
@@ -67,7 +71,9 @@ pub fn unwrap_meshes(inputs: &[uvunwrap::MeshInput<'_>], resolution: u32) -> Res
 /// Number of triangles with a lightmap UV outside [0, 1].
 pub fn count_out_of_range(scene: &Scene) -> usize {
     (0..scene.triangles.len())
-        .filter(|&t| scene.uv1_corners(t).iter().any(|uv| !(0.0..=1.0).contains(&uv.x) || !(0.0..=1.0).contains(&uv.y)))
+        .filter(|&t| {
+            scene.uv1_corners(t).iter().any(|uv| !(0.0..=1.0).contains(&uv.x) || !(0.0..=1.0).contains(&uv.y))
+        })
         .count()
 }
 
@@ -161,8 +167,9 @@ pub fn charts(scene: &Scene) -> Vec<u32> {
         }
         x
     }
-    let key = |v: Vec2| (v.x.to_bits(), v.y.to_bits());
-    let mut edges: HashMap<((u32, u32), (u32, u32)), usize> = HashMap::new();
+    type Key = (u32, u32);
+    let key = |v: Vec2| -> Key { (v.x.to_bits(), v.y.to_bits()) };
+    let mut edges: HashMap<(Key, Key), usize> = HashMap::new();
     for t in 0..n {
         let uv = scene.uv1_corners(t);
         for k in 0..3 {
@@ -184,13 +191,13 @@ pub fn charts(scene: &Scene) -> Vec<u32> {
     let mut ids = vec![u32::MAX; n];
     let mut next = 0u32;
     let mut out = vec![0u32; n];
-    for t in 0..n {
+    for (t, chart) in out.iter_mut().enumerate() {
         let r = find(&mut parent, t);
         if ids[r] == u32::MAX {
             ids[r] = next;
             next += 1;
         }
-        out[t] = ids[r];
+        *chart = ids[r];
     }
     out
 }

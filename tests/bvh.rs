@@ -30,7 +30,9 @@ fn closest_hits_equal_brute_force_at_three_scales() {
         let (mut hits, mut occluded) = (0, 0);
         for _ in 0..4000 {
             let o = Vec3::new(rng.random(), rng.random(), rng.random()) * 12.0 * s - s;
-            let d = Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5).normalize();
+            let d =
+                Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5)
+                    .normalize();
             let tmax = if rng.random::<f32>() < 0.3 { 2.0 * s } else { f32::INFINITY };
             let fast = bvh.closest_hit(o, d, tmax);
             let slow = bvh.closest_hit_brute_force(o, d, tmax);
@@ -70,7 +72,14 @@ fn box_room(s: f32, offset: Vec3) -> Scene {
     quad(v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)); // x = 1, -x
     let n = pos.len();
     // UVs: six charts on a 3 x 2 grid, each quad's corners mapped to its cell (with margin).
-    let corners = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)];
+    let corners = [
+        Vec2::new(0.0, 0.0),
+        Vec2::new(0.0, 1.0),
+        Vec2::new(1.0, 1.0),
+        Vec2::new(0.0, 0.0),
+        Vec2::new(1.0, 1.0),
+        Vec2::new(1.0, 0.0),
+    ];
     let uv = (0..n)
         .map(|k| {
             let (face, corner) = (k / 6, k % 6);
@@ -96,11 +105,20 @@ fn rays_leaving_texels_never_hit_their_own_surface_or_leak_at_any_scale() {
                     let (a, b) = t.normal.any_orthonormal_pair();
                     let r = u1.sqrt();
                     let phi = std::f32::consts::TAU * u2;
-                    let d = (a * r * phi.cos() + b * r * phi.sin() + t.normal * (1.0 - u1).sqrt()).normalize();
+                    let d =
+                        (a * r * phi.cos() + b * r * phi.sin() + t.normal * (1.0 - u1).sqrt()).normalize();
                     let hit = bvh.trace_from_surface(t.position, t.normal, d);
-                    let hit = hit.unwrap_or_else(|| panic!("scale {s}: a ray leaked out of the closed box from texel ({}, {})", t.i, t.j));
+                    let hit = hit.unwrap_or_else(|| {
+                        panic!("scale {s}: a ray leaked out of the closed box from texel ({}, {})", t.i, t.j)
+                    });
                     let n_hit = scene.face_normal(hit.triangle as usize);
-                    assert!(n_hit.dot(t.normal) < 0.999, "scale {s}: self-intersection at texel ({}, {}), t = {}", t.i, t.j, hit.t);
+                    assert!(
+                        n_hit.dot(t.normal) < 0.999,
+                        "scale {s}: self-intersection at texel ({}, {}), t = {}",
+                        t.i,
+                        t.j,
+                        hit.t
+                    );
                     assert!(n_hit.dot(d) < 0.0, "scale {s}: hit a back face (leak through a seam)");
                 }
             }
@@ -116,14 +134,24 @@ fn visibility_between_points_and_through_a_wall() {
         let floor = Vec3::new(0.2, -0.5, 0.3) * s;
         let ceiling = Vec3::new(-0.1, 0.5, -0.2) * s;
         assert!(bvh.visible(floor, Vec3::Y, ceiling, -Vec3::Y), "scale {s}: floor sees ceiling");
-        assert!(bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 0.4, 0.0) * s), "scale {s}: floor sees a light");
+        assert!(
+            bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 0.4, 0.0) * s),
+            "scale {s}: floor sees a light"
+        );
         // A light outside the box is hidden by the ceiling.
-        assert!(!bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 2.0, 0.0) * s), "scale {s}: the ceiling blocks");
+        assert!(
+            !bvh.visible_point(floor, Vec3::Y, Vec3::new(0.0, 2.0, 0.0) * s),
+            "scale {s}: the ceiling blocks"
+        );
         // Two points on the same floor plane see each other (grazing, no self-occlusion).
         let other = Vec3::new(-0.3, -0.5, -0.4) * s;
         assert!(bvh.visible(floor, Vec3::Y, other, Vec3::Y), "scale {s}: grazing visibility on one plane");
         // A light 1e-4 units (relative) above the floor still lights the floor beneath it.
-        assert!(bvh.visible_point(floor + Vec3::new(0.01, 0.0, 0.0) * s, Vec3::Y, floor + Vec3::new(0.0, 1e-3, 0.0) * s));
+        assert!(bvh.visible_point(
+            floor + Vec3::new(0.01, 0.0, 0.0) * s,
+            Vec3::Y,
+            floor + Vec3::new(0.0, 1e-3, 0.0) * s
+        ));
     }
 }
 

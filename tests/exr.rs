@@ -6,7 +6,12 @@ use prm::{Scene, TexelSet};
 
 #[test]
 fn texel_exr_round_trips_exactly() {
-    let pos = vec![Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 0.1, 2.0), Vec3::new(3.0, 0.2, 0.0), Vec3::new(-1e4, 5.0, 1e-3)];
+    let pos = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(0.0, 0.1, 2.0),
+        Vec3::new(3.0, 0.2, 0.0),
+        Vec3::new(-1e4, 5.0, 1e-3),
+    ];
     let uv = vec![Vec2::new(0.05, 0.05), Vec2::new(0.05, 0.9), Vec2::new(0.9, 0.05), Vec2::new(0.95, 0.95)];
     let scene = Scene::from_mesh(pos, uv, &[0, 1, 2, 2, 1, 3]);
     let set = TexelSet::build(&scene, 37, 23);
@@ -21,7 +26,11 @@ fn texel_exr_round_trips_exactly() {
     // Row 0 of the file is atlas row j = 0.
     let t = &set.texels[0];
     assert_eq!(read.get("P.x").unwrap()[(t.j * 37 + t.i) as usize], t.position.x);
-    assert!(!dir.path().read_dir().unwrap().any(|e| e.unwrap().file_name().to_string_lossy().contains(".tmp")));
+    assert!(!dir.path().read_dir().unwrap().any(|e| e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .contains(".tmp")));
 }
 
 #[test]

@@ -8,7 +8,12 @@ use prm::glb::{glb_bytes, GlbLight, GlbMaterial, GlbMesh, GlbNode, GlbScene};
 use prm::{load_scene, LightKind, LoadOptions, SceneError};
 
 fn material(albedo: [f32; 3]) -> GlbMaterial {
-    GlbMaterial { name: "m".into(), base_color: [albedo[0], albedo[1], albedo[2], 1.0], emissive: [0.0; 3], double_sided: false }
+    GlbMaterial {
+        name: "m".into(),
+        base_color: [albedo[0], albedo[1], albedo[2], 1.0],
+        emissive: [0.0; 3],
+        double_sided: false,
+    }
 }
 
 /// A unit quad in the xz plane facing +y, with lightmap UVs filling [0.1, 0.9]^2.
@@ -58,10 +63,51 @@ fn reads_hierarchy_lights_cameras_and_generates_normals() {
         children: vec![child],
         ..Default::default()
     });
-    s.add_light(GlbLight { name: "p".into(), kind: "point", color: [1.0, 0.5, 0.25], intensity: 8.0, inner: 0.0, outer: 0.0, range: None }, Vec3::new(0.5, 2.0, 0.5), -Vec3::Y);
-    s.add_light(GlbLight { name: "s".into(), kind: "spot", color: [1.0; 3], intensity: 3.0, inner: 0.2, outer: 0.5, range: Some(9.0) }, Vec3::new(0.0, 3.0, 0.0), Vec3::new(1.0, -1.0, 0.0));
-    s.add_light(GlbLight { name: "sun".into(), kind: "directional", color: [1.0; 3], intensity: 2.0, inner: 0.0, outer: 0.0, range: None }, Vec3::ZERO, Vec3::new(0.0, -1.0, 1.0));
-    s.add_node(GlbNode { name: "cam".into(), translation: Some([0.0, 1.0, 5.0]), camera: Some((0.8, 1.5)), ..Default::default() });
+    s.add_light(
+        GlbLight {
+            name: "p".into(),
+            kind: "point",
+            color: [1.0, 0.5, 0.25],
+            intensity: 8.0,
+            inner: 0.0,
+            outer: 0.0,
+            range: None,
+        },
+        Vec3::new(0.5, 2.0, 0.5),
+        -Vec3::Y,
+    );
+    s.add_light(
+        GlbLight {
+            name: "s".into(),
+            kind: "spot",
+            color: [1.0; 3],
+            intensity: 3.0,
+            inner: 0.2,
+            outer: 0.5,
+            range: Some(9.0),
+        },
+        Vec3::new(0.0, 3.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+    );
+    s.add_light(
+        GlbLight {
+            name: "sun".into(),
+            kind: "directional",
+            color: [1.0; 3],
+            intensity: 2.0,
+            inner: 0.0,
+            outer: 0.0,
+            range: None,
+        },
+        Vec3::ZERO,
+        Vec3::new(0.0, -1.0, 1.0),
+    );
+    s.add_node(GlbNode {
+        name: "cam".into(),
+        translation: Some([0.0, 1.0, 5.0]),
+        camera: Some((0.8, 1.5)),
+        ..Default::default()
+    });
     let path = write(dir.path(), "h.glb", &s.to_glb());
     // Mesh 0 is placed twice, so its lightmap UVs overlap themselves.
     let scene = load_scene(&path, &LoadOptions { allow_overlap: true, ..Default::default() }).unwrap();
@@ -82,7 +128,9 @@ fn reads_hierarchy_lights_cameras_and_generates_normals() {
     assert!((p.intensity - Vec3::new(8.0, 4.0, 2.0)).length() < 1e-6, "W/sr = colour x intensity");
     assert!((p.position - Vec3::new(0.5, 2.0, 0.5)).length() < 1e-6);
     let sp = &scene.lights[1];
-    assert!(matches!(sp.kind, LightKind::Spot { inner, outer } if (inner - 0.2).abs() < 1e-6 && (outer - 0.5).abs() < 1e-6));
+    assert!(
+        matches!(sp.kind, LightKind::Spot { inner, outer } if (inner - 0.2).abs() < 1e-6 && (outer - 0.5).abs() < 1e-6)
+    );
     assert!((sp.direction - Vec3::new(1.0, -1.0, 0.0).normalize()).length() < 1e-5);
     assert_eq!(sp.range, Some(9.0));
     let sun = &scene.lights[2];
@@ -98,12 +146,23 @@ fn the_instanced_quad_overlaps_itself_in_uv_space() {
     // Two instances of one mesh share lightmap UVs: that is overlap, an error by default.
     let dir = tempfile::tempdir().unwrap();
     let mut s = one_quad();
-    s.add_node(GlbNode { name: "again".into(), translation: Some([3.0, 0.0, 0.0]), mesh: Some(0), ..Default::default() });
+    s.add_node(GlbNode {
+        name: "again".into(),
+        translation: Some([3.0, 0.0, 0.0]),
+        mesh: Some(0),
+        ..Default::default()
+    });
     let path = write(dir.path(), "inst.glb", &s.to_glb());
     let err = load(&path).unwrap_err();
     assert!(matches!(err, SceneError::UvOverlap { pairs, .. } if pairs > 0), "{err}");
     let msg = err.to_string();
-    assert!(msg.contains("inst.glb") && msg.contains("mesh 0 primitive 0 triangle") && msg.contains("node 1") && msg.contains("--allow-overlap"), "{msg}");
+    assert!(
+        msg.contains("inst.glb")
+            && msg.contains("mesh 0 primitive 0 triangle")
+            && msg.contains("node 1")
+            && msg.contains("--allow-overlap"),
+        "{msg}"
+    );
     let scene = load_scene(&path, &LoadOptions { allow_overlap: true, ..Default::default() }).unwrap();
     assert!(scene.report.uv_overlapping_pairs >= 2);
 }
@@ -145,7 +204,10 @@ fn out_of_range_index_is_named() {
     s.meshes[0].indices = Some(vec![0, 1, 2, 0, 2, 7]);
     let path = write(dir.path(), "idx.glb", &s.to_glb());
     let err = load(&path).unwrap_err();
-    assert!(matches!(err, SceneError::IndexOutOfRange { position: 5, value: 7, vertex_count: 4, .. }), "{err}");
+    assert!(
+        matches!(err, SceneError::IndexOutOfRange { position: 5, value: 7, vertex_count: 4, .. }),
+        "{err}"
+    );
     assert!(err.to_string().contains("index 5 is 7"), "{err}");
 }
 
@@ -164,10 +226,25 @@ fn albedo_outside_unit_range_is_an_error() {
 fn negative_light_intensity_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let mut s = one_quad();
-    s.add_light(GlbLight { name: "bad".into(), kind: "point", color: [1.0; 3], intensity: -2.0, inner: 0.0, outer: 0.0, range: None }, Vec3::Y, -Vec3::Y);
+    s.add_light(
+        GlbLight {
+            name: "bad".into(),
+            kind: "point",
+            color: [1.0; 3],
+            intensity: -2.0,
+            inner: 0.0,
+            outer: 0.0,
+            range: None,
+        },
+        Vec3::Y,
+        -Vec3::Y,
+    );
     let path = write(dir.path(), "light.glb", &s.to_glb());
     let err = load(&path).unwrap_err();
-    assert!(matches!(err, SceneError::BadLight { light: 0, .. }) && err.to_string().contains("intensity -2"), "{err}");
+    assert!(
+        matches!(err, SceneError::BadLight { light: 0, .. }) && err.to_string().contains("intensity -2"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -203,10 +280,20 @@ fn missing_uv1_is_generated_or_refused() {
         pos.extend_from_slice(&f);
         idx.extend_from_slice(&[k, k + 1, k + 2, k, k + 2, k + 3]);
     }
-    s.add_mesh(GlbMesh { name: "box".into(), positions: pos, normals: None, uv1: None, indices: Some(idx), material: Some(0) });
+    s.add_mesh(GlbMesh {
+        name: "box".into(),
+        positions: pos,
+        normals: None,
+        uv1: None,
+        indices: Some(idx),
+        material: Some(0),
+    });
     let path = write(dir.path(), "nouv.glb", &s.to_glb());
     let err = load_scene(&path, &LoadOptions { require_uv1: true, ..Default::default() }).unwrap_err();
-    assert!(matches!(err, SceneError::MissingUv1 { .. }) && err.to_string().contains("--require-uv1"), "{err}");
+    assert!(
+        matches!(err, SceneError::MissingUv1 { .. }) && err.to_string().contains("--require-uv1"),
+        "{err}"
+    );
     let scene = load(&path).unwrap();
     assert!(scene.report.uv1_generated);
     assert!(scene.report.notes.iter().any(|n| n.contains("generated")));

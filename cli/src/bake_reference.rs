@@ -74,7 +74,8 @@ pub fn run(a: Args) -> Result<()> {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
     let t = Instant::now();
-    let baked = evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, &|d| bar.set_position(d as u64), cancel_flag());
+    let baked =
+        evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, &|d| bar.set_position(d as u64), cancel_flag());
     bar.finish_and_clear();
     let baked = baked.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let eval_s = t.elapsed().as_secs_f64();
@@ -86,7 +87,8 @@ pub fn run(a: Args) -> Result<()> {
     ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
     ch.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
     if let Some(obj) = &a.debug_lights {
-        prm::fsutil::write_bytes_atomic(obj, to_obj(&vl).as_bytes()).with_context(|| format!("writing {}", obj.display()))?;
+        prm::fsutil::write_bytes_atomic(obj, to_obj(&vl).as_bytes())
+            .with_context(|| format!("writing {}", obj.display()))?;
     }
     let emitted = vl.budgets.iter().fold(Vec3::ZERO, |s, b| s + b.emitted);
     let beyond = vl.budgets.iter().fold(Vec3::ZERO, |s, b| s + b.beyond_last_bounce);

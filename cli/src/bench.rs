@@ -2,8 +2,8 @@
 //! device (DESIGN.md §9: a frame with indirect light <= 1.10 x a direct-only frame).
 //!
 //! - Frame times: blocks of `--frames` frames over the rig, alternating direct-only (shadow
-//!   maps + shading) and full (shadow maps + entry irradiance + weights + selection + compose
-//!   + shading), `--rounds` of each; every frame waits for the GPU, wall-clock. Median, p95
+//!   maps + shading) and full (shadow maps + entry irradiance + weights + selection + compose,
+//!   then shading), `--rounds` of each; every frame waits for the GPU, wall-clock. Median, p95
 //!   and the ratio of medians. With a rig whose lights do not move, the full frames recompose
 //!   only once (that is the design); the bench says how many composes it did.
 //! - Per-pass GPU times from timestamp queries, where the adapter has them.
@@ -167,7 +167,12 @@ pub fn run(a: Args) -> Result<()> {
     let bandwidth = copy_bandwidth(&g);
     let total_bytes = bytes.pane_data + bytes.headers + bytes.tables + bytes.written;
     let pass_median = |i: usize| stats(passes.iter().map(|p: &Vec<f64>| p[i]).collect()).median_ms;
-    let gpu_pass_ms = (!passes.is_empty()).then(|| PassTimes { entry_irradiance: pass_median(0), weights_selection: pass_median(1), compose: pass_median(2), shading: pass_median(3) });
+    let gpu_pass_ms = (!passes.is_empty()).then(|| PassTimes {
+        entry_irradiance: pass_median(0),
+        weights_selection: pass_median(1),
+        compose: pass_median(2),
+        shading: pass_median(3),
+    });
     let report = Report {
         device: g.describe(),
         scene: a.map.scene.scene.display().to_string(),
@@ -187,7 +192,13 @@ pub fn run(a: Args) -> Result<()> {
         gpu_pass_ms,
         compose_ms_wall: compose_wall,
         compose_bytes: total_bytes,
-        compose_bytes_detail: ComposeBytesJson { pane_data: bytes.pane_data, headers: bytes.headers, tables: bytes.tables, written: bytes.written, selected_clusters: selected.iter().filter(|s| **s).count() },
+        compose_bytes_detail: ComposeBytesJson {
+            pane_data: bytes.pane_data,
+            headers: bytes.headers,
+            tables: bytes.tables,
+            written: bytes.written,
+            selected_clusters: selected.iter().filter(|s| **s).count(),
+        },
         copy_bandwidth_gb_s: bandwidth / 1e9,
         compose_at_bandwidth_ms: total_bytes as f64 / bandwidth * 1e3,
     };
@@ -197,9 +208,26 @@ pub fn run(a: Args) -> Result<()> {
     }
     let r = &report;
     println!("device: {}", r.device);
-    println!("{} at {}x{}, {} lights, {} clusters, top-{}, shadow maps {}², {} x {} frames per kind", r.scene, r.width, r.height, r.lights, r.clusters, r.top_k, r.shadow_size, r.rounds, r.frames_per_block);
-    println!("direct-only frame: median {:.3} ms, p95 {:.3} ms", r.direct_frame.median_ms, r.direct_frame.p95_ms);
-    println!("full frame:        median {:.3} ms, p95 {:.3} ms ({} composes)", r.full_frame.median_ms, r.full_frame.p95_ms, r.composes);
+    println!(
+        "{} at {}x{}, {} lights, {} clusters, top-{}, shadow maps {}², {} x {} frames per kind",
+        r.scene,
+        r.width,
+        r.height,
+        r.lights,
+        r.clusters,
+        r.top_k,
+        r.shadow_size,
+        r.rounds,
+        r.frames_per_block
+    );
+    println!(
+        "direct-only frame: median {:.3} ms, p95 {:.3} ms",
+        r.direct_frame.median_ms, r.direct_frame.p95_ms
+    );
+    println!(
+        "full frame:        median {:.3} ms, p95 {:.3} ms ({} composes)",
+        r.full_frame.median_ms, r.full_frame.p95_ms, r.composes
+    );
     println!("ratio (medians):   {:.3} (target <= 1.10)", r.ratio_median);
     if let Some(p) = &r.gpu_pass_ms {
         println!("GPU passes (median): entry irradiance {:.3} ms, weights+selection {:.3} ms, compose {:.3} ms, shading {:.3} ms", p.entry_irradiance, p.weights_selection, p.compose, p.shading);
@@ -216,15 +244,26 @@ pub fn run(a: Args) -> Result<()> {
         bytes.tables as f64 / 1e6,
         bytes.written as f64 / 1e6
     );
-    println!("copy bandwidth: {:.1} GB/s -> compose at bandwidth {:.3} ms", r.copy_bandwidth_gb_s, r.compose_at_bandwidth_ms);
+    println!(
+        "copy bandwidth: {:.1} GB/s -> compose at bandwidth {:.3} ms",
+        r.copy_bandwidth_gb_s, r.compose_at_bandwidth_ms
+    );
     Ok(())
 }
 
 /// Bytes per second of a device-local buffer-to-buffer copy (read + write counted).
 fn copy_bandwidth(g: &Gpu) -> f64 {
     let size: u64 = 256 << 20;
-    let mk = |usage| g.device.create_buffer(&wgpu::BufferDescriptor { label: Some("bandwidth"), size, usage, mapped_at_creation: false });
-    let (src, dst) = (mk(wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST), mk(wgpu::BufferUsages::COPY_DST));
+    let mk = |usage| {
+        g.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bandwidth"),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
+    let (src, dst) =
+        (mk(wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST), mk(wgpu::BufferUsages::COPY_DST));
     let run = |n: u32| {
         let mut enc = g.device.create_command_encoder(&Default::default());
         for _ in 0..n {

@@ -55,10 +55,14 @@ pub fn run(a: Args) -> Result<()> {
         let hits = f();
         (a.rays as f64 / s.elapsed().as_secs_f64(), hits)
     };
-    let (closest_1, hits) = time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
-    let (closest_n, _) = time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
-    let (occl_1, visible) = time(&|| rays.iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
-    let (occl_n, _) = time(&|| rays.par_iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
+    let (closest_1, hits) =
+        time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+    let (closest_n, _) =
+        time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+    let (occl_1, visible) =
+        time(&|| rays.iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
+    let (occl_n, _) =
+        time(&|| rays.par_iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
 
     let threads = rayon::current_num_threads();
     let out = json!({
@@ -77,9 +81,24 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        println!("{}: {} triangles, BVH built in {:.4} s", a.scene.scene.display(), scene.triangles.len(), build);
-        println!("  closest hit  {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % hit)", closest_1 / 1e6, closest_n / 1e6, 100.0 * hits as f64 / a.rays as f64);
-        println!("  occlusion    {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % visible)", occl_1 / 1e6, occl_n / 1e6, 100.0 * visible as f64 / a.rays as f64);
+        println!(
+            "{}: {} triangles, BVH built in {:.4} s",
+            a.scene.scene.display(),
+            scene.triangles.len(),
+            build
+        );
+        println!(
+            "  closest hit  {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % hit)",
+            closest_1 / 1e6,
+            closest_n / 1e6,
+            100.0 * hits as f64 / a.rays as f64
+        );
+        println!(
+            "  occlusion    {:>8.2} Mrays/s on 1 thread, {:>8.2} Mrays/s on {threads} ({:.1} % visible)",
+            occl_1 / 1e6,
+            occl_n / 1e6,
+            100.0 * visible as f64 / a.rays as f64
+        );
     }
     Ok(())
 }

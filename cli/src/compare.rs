@@ -38,7 +38,12 @@ fn rgb_layer(ch: &Channels, path: &Path, layer: Option<&str>) -> Result<(Vec<Vec
         None => String::new(),
     };
     let v = ch.rgb(&pick).ok_or_else(|| {
-        anyhow!("{}: no RGB layer '{}' (channels: {})", path.display(), pick, ch.channels.keys().cloned().collect::<Vec<_>>().join(" "))
+        anyhow!(
+            "{}: no RGB layer '{}' (channels: {})",
+            path.display(),
+            pick,
+            ch.channels.keys().cloned().collect::<Vec<_>>().join(" ")
+        )
     })?;
     Ok((v, pick))
 }
@@ -47,7 +52,15 @@ pub fn run(a: Args) -> Result<()> {
     let ca = Channels::read(&a.a).with_context(|| format!("reading {}", a.a.display()))?;
     let cb = Channels::read(&a.b).with_context(|| format!("reading {}", a.b.display()))?;
     if (ca.width, ca.height) != (cb.width, cb.height) {
-        bail!("{} is {}x{} but {} is {}x{}", a.a.display(), ca.width, ca.height, a.b.display(), cb.width, cb.height);
+        bail!(
+            "{} is {}x{} but {} is {}x{}",
+            a.a.display(),
+            ca.width,
+            ca.height,
+            a.b.display(),
+            cb.width,
+            cb.height
+        );
     }
     let (va, la) = rgb_layer(&ca, &a.a, a.layer_a.as_deref())?;
     let (vb, lb) = rgb_layer(&cb, &a.b, a.layer_b.as_deref())?;
@@ -55,7 +68,14 @@ pub fn run(a: Args) -> Result<()> {
         Some(t) => {
             let ct = Channels::read(t).with_context(|| format!("reading {}", t.display()))?;
             if (ct.width, ct.height) != (cb.width, cb.height) {
-                bail!("texel set {} is {}x{}, images are {}x{}", t.display(), ct.width, ct.height, cb.width, cb.height);
+                bail!(
+                    "texel set {} is {}x{}, images are {}x{}",
+                    t.display(),
+                    ct.width,
+                    ct.height,
+                    cb.width,
+                    cb.height
+                );
             }
             Some(ct.require(t, "mask")?.iter().map(|&m| m > 0.5).collect())
         }
@@ -90,9 +110,18 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-fn write_diff_png(path: &Path, a: &[Vec3], b: &[Vec3], mask: Option<&[bool]>, w: usize, h: usize) -> Result<()> {
+fn write_diff_png(
+    path: &Path,
+    a: &[Vec3],
+    b: &[Vec3],
+    mask: Option<&[bool]>,
+    w: usize,
+    h: usize,
+) -> Result<()> {
     let on = |k: usize| mask.is_none_or(|m| m[k]);
-    let (sum, n) = (0..b.len()).filter(|&k| on(k)).fold((0.0f64, 0usize), |(s, n), k| (s + prm::luminance(b[k]) as f64, n + 1));
+    let (sum, n) = (0..b.len())
+        .filter(|&k| on(k))
+        .fold((0.0f64, 0usize), |(s, n), k| (s + prm::luminance(b[k]) as f64, n + 1));
     let mean = (sum / n.max(1) as f64).max(1e-30) as f32;
     let mut img = image::RgbImage::new(w as u32, h as u32);
     for k in 0..a.len() {
@@ -102,13 +131,15 @@ fn write_diff_png(path: &Path, a: &[Vec3], b: &[Vec3], mask: Option<&[bool]>, w:
             let ya = if a[k].is_finite() { prm::luminance(a[k]) } else { f32::INFINITY };
             let t = ((ya - prm::luminance(b[k])).abs() / mean / 0.25).clamp(0.0, 1.0);
             // Blue -> green -> red.
-            let (r, g, bl) = if t < 0.5 { (0.0, 2.0 * t, 1.0 - 2.0 * t) } else { (2.0 * t - 1.0, 2.0 - 2.0 * t, 0.0) };
+            let (r, g, bl) =
+                if t < 0.5 { (0.0, 2.0 * t, 1.0 - 2.0 * t) } else { (2.0 * t - 1.0, 2.0 - 2.0 * t, 0.0) };
             [(r * 255.0) as u8, (g * 255.0) as u8, (bl * 255.0) as u8]
         };
         img.put_pixel((k % w) as u32, (k / w) as u32, image::Rgb(px));
     }
     let tmp = prm::fsutil::temp_path(path);
-    img.save_with_format(&tmp, image::ImageFormat::Png).with_context(|| format!("writing {}", path.display()))?;
+    img.save_with_format(&tmp, image::ImageFormat::Png)
+        .with_context(|| format!("writing {}", path.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

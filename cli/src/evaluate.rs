@@ -41,6 +41,12 @@ pub fn run(a: Args) -> Result<()> {
     ch.insert_rgb("indirect", &img);
     ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
     ch.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
-    println!("{} lights, {} of {} clusters composed -> {}", lights.len(), twin.last_selected, bytes_prm.clusters.len(), a.output.display());
+    println!(
+        "{} lights, {} of {} clusters composed -> {}",
+        lights.len(),
+        twin.last_selected,
+        bytes_prm.clusters.len(),
+        a.output.display()
+    );
     Ok(())
 }

@@ -26,7 +26,8 @@ pub fn run(a: Args) -> Result<()> {
             }
             continue;
         }
-        prm::fsutil::write_bytes_atomic(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+        prm::fsutil::write_bytes_atomic(&path, &bytes)
+            .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {} ({} bytes)", path.display(), bytes.len());
     }
     if !stale.is_empty() {

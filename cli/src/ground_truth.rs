@@ -84,11 +84,7 @@ pub fn run(a: Args) -> Result<()> {
     if let (Some(o), Some(s)) = (out.as_object_mut(), summary.as_object()) {
         o.extend(s.clone());
     }
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    } else {
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    }
+    println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
 }
 
@@ -142,13 +138,19 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
     }))
 }
 
-fn camera_image(a: &Args, tracer: &Tracer, name: &str, cancel: &std::sync::atomic::AtomicBool) -> Result<serde_json::Value> {
+fn camera_image(
+    a: &Args,
+    tracer: &Tracer,
+    name: &str,
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<serde_json::Value> {
     let scene = tracer.scene;
-    let cam = scene
-        .cameras
-        .iter()
-        .find(|c| c.name == name)
-        .ok_or_else(|| anyhow!("no camera named '{name}' (the level has: {})", scene.cameras.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")))?;
+    let cam = scene.cameras.iter().find(|c| c.name == name).ok_or_else(|| {
+        anyhow!(
+            "no camera named '{name}' (the level has: {})",
+            scene.cameras.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
+        )
+    })?;
     if a.width == 0 || a.width > 16384 {
         bail!("--width {} is out of range (1 to 16384)", a.width);
     }
@@ -166,10 +168,17 @@ fn camera_image(a: &Args, tracer: &Tracer, name: &str, cancel: &std::sync::atomi
             }
             let row = (0..w)
                 .map(|i| {
-                    let mut rng = Pcg64Mcg::seed_from_u64(a.seed ^ ((j * w + i) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                    let mut rng = Pcg64Mcg::seed_from_u64(
+                        a.seed ^ ((j * w + i) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                    );
                     let mut sum = Vec3::ZERO;
                     for _ in 0..a.spp {
-                        let (origin, d) = cam.ray(i as f32 + rng.random::<f32>(), j as f32 + rng.random::<f32>(), w as u32, h as u32);
+                        let (origin, d) = cam.ray(
+                            i as f32 + rng.random::<f32>(),
+                            j as f32 + rng.random::<f32>(),
+                            w as u32,
+                            h as u32,
+                        );
                         sum += tracer.radiance(origin, d, &mut rng);
                     }
                     sum / a.spp as f32

@@ -77,13 +77,36 @@ pub fn run(a: Args) -> Result<()> {
         return Ok(());
     }
     println!("{}", a.scene.scene.display());
-    println!("  triangles   {} ({} vertices, {} materials), {} zero-area dropped", scene.triangles.len(), scene.positions.len(), scene.materials.len() - 1, r.degenerate_dropped);
-    println!("  bounds      {:.4?} .. {:.4?} (diagonal {:.4}), surface area {:.4}", lo.to_array(), hi.to_array(), scene.diagonal(), scene.total_area());
+    println!(
+        "  triangles   {} ({} vertices, {} materials), {} zero-area dropped",
+        scene.triangles.len(),
+        scene.positions.len(),
+        scene.materials.len() - 1,
+        r.degenerate_dropped
+    );
+    println!(
+        "  bounds      {:.4?} .. {:.4?} (diagonal {:.4}), surface area {:.4}",
+        lo.to_array(),
+        hi.to_array(),
+        scene.diagonal(),
+        scene.total_area()
+    );
     println!("  lights      {}", scene.lights.len());
     for l in &summary["lights"].as_array().cloned().unwrap_or_default() {
-        println!("    {} {}: at {} dir {} intensity {} {}", l["kind"].as_str().unwrap_or(""), l["name"], l["position"], l["direction"], l["intensity"], l["unit"].as_str().unwrap_or(""));
+        println!(
+            "    {} {}: at {} dir {} intensity {} {}",
+            l["kind"].as_str().unwrap_or(""),
+            l["name"],
+            l["position"],
+            l["direction"],
+            l["intensity"],
+            l["unit"].as_str().unwrap_or("")
+        );
     }
-    println!("  cameras     {}", scene.cameras.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", "));
+    println!(
+        "  cameras     {}",
+        scene.cameras.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
+    );
     println!(
         "  lightmap UV {} charts{}, {} triangles outside [0,1], {} overlapping pairs, {} with zero UV area",
         charts,

@@ -106,7 +106,8 @@ pub fn run(a: Args) -> Result<()> {
     if threads > 1024 {
         bail!("--threads {threads} is out of range (1 to 1024)");
     }
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
+    let pool =
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
     pool.install(|| bake(&a, &p))
 }
 
@@ -140,13 +141,15 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
     if let Ok(b) = bar.lock() {
         b.finish_and_clear();
     }
-    let (prm, report) = result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
+    let (prm, report) =
+        result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let t = Instant::now();
     let bytes = prm.to_bytes();
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         bail!("stopped by Ctrl-C; {} not written", a.output.display());
     }
-    prm::fsutil::write_bytes_atomic(&a.output, &bytes).with_context(|| format!("writing {}", a.output.display()))?;
+    prm::fsutil::write_bytes_atomic(&a.output, &bytes)
+        .with_context(|| format!("writing {}", a.output.display()))?;
     let write_s = t.elapsed().as_secs_f64();
     let mut v = serde_json::to_value(&report)?;
     v["scene"] = a.scene.scene.display().to_string().into();

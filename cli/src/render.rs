@@ -83,7 +83,13 @@ pub fn run(a: Args) -> Result<()> {
         },
     };
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
-    let out = Output { dir: &a.output, lightmap: a.lightmap_out.then_some((prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize)), size: (iw as usize, ih as usize) };
+    let out = Output {
+        dir: &a.output,
+        lightmap: a
+            .lightmap_out
+            .then_some((prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize)),
+        size: (iw as usize, ih as usize),
+    };
     match gpu {
         Some(g) => {
             println!("device: {}", g.describe());
@@ -100,9 +106,23 @@ pub fn run(a: Args) -> Result<()> {
                 total += ms;
                 let lightmap = if a.lightmap_out { Some(rt.read_lightmap()?) } else { None };
                 out.write(f, &renderer.read_frame()?, lightmap.as_deref())?;
-                println!("frame {f:4}: {ms:7.2} ms ({})", if update.composed { "lights changed: shadow maps, weights, compose, shading" } else { "lights unchanged: shading only" });
+                println!(
+                    "frame {f:4}: {ms:7.2} ms ({})",
+                    if update.composed {
+                        "lights changed: shadow maps, weights, compose, shading"
+                    } else {
+                        "lights unchanged: shading only"
+                    }
+                );
             }
-            println!("{} frames, {} composes, mean frame {:.2} ms on {} -> {}", a.frames, rt.composes, total / a.frames as f64, g.info.name, a.output.display());
+            println!(
+                "{} frames, {} composes, mean frame {:.2} ms on {} -> {}",
+                a.frames,
+                rt.composes,
+                total / a.frames as f64,
+                g.info.name,
+                a.output.display()
+            );
         }
         None => {
             let bvh = Bvh::build(&scene);
@@ -121,7 +141,12 @@ pub fn run(a: Args) -> Result<()> {
                 totals.0 += compose_s;
                 totals.1 += shade_s;
                 out.write(f, &img, Some(&lightmap).filter(|_| a.lightmap_out).map(|v| &v[..]))?;
-                println!("frame {f:4}: lightmap {:7.2} ms ({} panes), shading {:7.2} ms", compose_s * 1e3, twin.last_selected, shade_s * 1e3);
+                println!(
+                    "frame {f:4}: lightmap {:7.2} ms ({} panes), shading {:7.2} ms",
+                    compose_s * 1e3,
+                    twin.last_selected,
+                    shade_s * 1e3
+                );
             }
             println!(
                 "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU twin, {} threads) -> {}",
@@ -175,13 +200,23 @@ fn bilinear(img: &[Vec3], (w, h): (usize, usize), uv: Vec2) -> Vec3 {
     let y = uv.y * h as f32 - 0.5;
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
-    let at = |i: f32, j: f32| img[(j.clamp(0.0, h as f32 - 1.0) as usize) * w + i.clamp(0.0, w as f32 - 1.0) as usize];
+    let at = |i: f32, j: f32| {
+        img[(j.clamp(0.0, h as f32 - 1.0) as usize) * w + i.clamp(0.0, w as f32 - 1.0) as usize]
+    };
     let top = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
     let bottom = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
     top.lerp(bottom, fy)
 }
 
-fn shade(scene: &Scene, bvh: &Bvh, cam: &prm::Camera, lights: &[prm::Light], lightmap: &[Vec3], atlas: (usize, usize), (iw, ih): (usize, usize)) -> Vec<Vec3> {
+fn shade(
+    scene: &Scene,
+    bvh: &Bvh,
+    cam: &prm::Camera,
+    lights: &[prm::Light],
+    lightmap: &[Vec3],
+    atlas: (usize, usize),
+    (iw, ih): (usize, usize),
+) -> Vec<Vec3> {
     (0..iw * ih)
         .into_par_iter()
         .map(|k| {
@@ -223,7 +258,8 @@ pub fn write_png(path: &Path, img: &[Vec3], w: usize, h: usize) -> Result<()> {
         out.put_pixel((k % w) as u32, (k / w) as u32, image::Rgb([enc(v.x), enc(v.y), enc(v.z)]));
     }
     let tmp = prm::fsutil::temp_path(path);
-    out.save_with_format(&tmp, image::ImageFormat::Png).with_context(|| format!("writing {}", path.display()))?;
+    out.save_with_format(&tmp, image::ImageFormat::Png)
+        .with_context(|| format!("writing {}", path.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

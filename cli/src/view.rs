@@ -60,10 +60,18 @@ pub fn run(a: Args) -> Result<()> {
     if lights.is_empty() {
         let (lo, hi) = scene.bounds();
         let c = (lo + hi) * 0.5;
-        lights.push(Light { name: "mouse".into(), kind: LightKind::Point, position: c, direction: -Vec3::Y, intensity: Vec3::splat((hi - lo).length_squared()), range: None });
+        lights.push(Light {
+            name: "mouse".into(),
+            kind: LightKind::Point,
+            position: c,
+            direction: -Vec3::Y,
+            intensity: Vec3::splat((hi - lo).length_squared()),
+            range: None,
+        });
     }
     let params = a.compose.runtime(1024)?;
-    let mut app = App { scene, prm, camera, params, lights, indirect: true, exposure: 1.0, view: None, error: None };
+    let mut app =
+        App { scene, prm, camera, params, lights, indirect: true, exposure: 1.0, view: None, error: None };
     let event_loop = EventLoop::new().context("opening a window needs a display (X11 or Wayland)")?;
     event_loop.run_app(&mut app)?;
     match app.error {
@@ -75,16 +83,28 @@ pub fn run(a: Args) -> Result<()> {
 impl App {
     fn open(&mut self, el: &ActiveEventLoop) -> Result<View> {
         let aspect = self.camera.aspect.unwrap_or(1.0);
-        let attrs = Window::default_attributes().with_title("prm view").with_inner_size(winit::dpi::LogicalSize::new(960.0, 960.0 / aspect as f64));
+        let attrs = Window::default_attributes()
+            .with_title("prm view")
+            .with_inner_size(winit::dpi::LogicalSize::new(960.0, 960.0 / aspect as f64));
         let window = Arc::new(el.create_window(attrs)?);
         let instance = Gpu::instance();
         let surface = instance.create_surface(window.clone())?;
         let gpu = Gpu::with_surface(&instance, Some(&surface))?;
         let size = window.inner_size();
-        let config = surface.get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1)).context("the adapter cannot present to this window")?;
+        let config = surface
+            .get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1))
+            .context("the adapter cannot present to this window")?;
         surface.configure(&gpu.device, &config);
         let runtime = Runtime::new(&gpu.device, &gpu.queue, &self.scene, &self.prm, self.params)?;
-        let renderer = Renderer::new(&gpu.device, &gpu.queue, &self.scene, &runtime, &self.camera, config.width, config.height)?;
+        let renderer = Renderer::new(
+            &gpu.device,
+            &gpu.queue,
+            &self.scene,
+            &runtime,
+            &self.camera,
+            config.width,
+            config.height,
+        )?;
         let tonemap = Tonemap::new(&gpu.device, config.format);
         Ok(View { window, surface, config, gpu, runtime, renderer, tonemap })
     }
@@ -92,7 +112,11 @@ impl App {
     fn redraw(&mut self) -> Result<()> {
         let Some(v) = &mut self.view else { return Ok(()) };
         let t = Instant::now();
-        let up = if self.indirect { v.runtime.update(&self.lights)?.composed } else { v.runtime.update_direct(&self.lights).map(|_| false)? };
+        let up = if self.indirect {
+            v.runtime.update(&self.lights)?.composed
+        } else {
+            v.runtime.update_direct(&self.lights).map(|_| false)?
+        };
         v.renderer.draw(&v.runtime, self.indirect, None);
         let frame = match v.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
@@ -106,7 +130,12 @@ impl App {
         v.gpu.queue.present(frame);
         v.renderer.wait();
         let ms = t.elapsed().as_secs_f64() * 1e3;
-        v.window.set_title(&format!("prm view: {ms:.1} ms{}{}, exposure {:.2} (mouse: light, I: indirect, Up/Down: exposure)", if up { ", recomposed" } else { "" }, if self.indirect { "" } else { ", direct only" }, self.exposure));
+        v.window.set_title(&format!(
+            "prm view: {ms:.1} ms{}{}, exposure {:.2} (mouse: light, I: indirect, Up/Down: exposure)",
+            if up { ", recomposed" } else { "" },
+            if self.indirect { "" } else { ", direct only" },
+            self.exposure
+        ));
         Ok(())
     }
 }
@@ -132,7 +161,15 @@ impl ApplicationHandler for App {
                     v.config.width = size.width.max(1);
                     v.config.height = size.height.max(1);
                     v.surface.configure(&v.gpu.device, &v.config);
-                    match Renderer::new(&v.gpu.device, &v.gpu.queue, &self.scene, &v.runtime, &self.camera, v.config.width, v.config.height) {
+                    match Renderer::new(
+                        &v.gpu.device,
+                        &v.gpu.queue,
+                        &self.scene,
+                        &v.runtime,
+                        &self.camera,
+                        v.config.width,
+                        v.config.height,
+                    ) {
                         Ok(r) => v.renderer = r,
                         Err(e) => {
                             self.error = Some(e.into());
@@ -153,13 +190,15 @@ impl ApplicationHandler for App {
                     v.window.request_redraw();
                 }
             }
-            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => match event.logical_key {
-                Key::Named(NamedKey::Escape) => el.exit(),
-                Key::Named(NamedKey::ArrowUp) => self.exposure *= 1.25,
-                Key::Named(NamedKey::ArrowDown) => self.exposure /= 1.25,
-                Key::Character(c) if c.eq_ignore_ascii_case("i") => self.indirect = !self.indirect,
-                _ => {}
-            },
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                match event.logical_key {
+                    Key::Named(NamedKey::Escape) => el.exit(),
+                    Key::Named(NamedKey::ArrowUp) => self.exposure *= 1.25,
+                    Key::Named(NamedKey::ArrowDown) => self.exposure /= 1.25,
+                    Key::Character(c) if c.eq_ignore_ascii_case("i") => self.indirect = !self.indirect,
+                    _ => {}
+                }
+            }
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.redraw() {
                     self.error = Some(e);

@@ -9,7 +9,11 @@ use prm::exr_io::Channels;
 
 fn prm(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_prm")).args(args).output().unwrap();
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
 }
 
 fn asset(name: &str) -> String {
@@ -53,7 +57,8 @@ fn texels_and_ground_truth_on_a_bundled_scene() {
     assert!(ok, "{err}");
     let tex = Channels::read(&t).unwrap();
     let gt = dir.path().join("gt.exr");
-    let (ok, out, err) = prm(&["ground-truth", &asset("cornell.glb"), "--atlas", "32", "--spp", "8", "--json", "-o", s(&gt)]);
+    let (ok, out, err) =
+        prm(&["ground-truth", &asset("cornell.glb"), "--atlas", "32", "--spp", "8", "--json", "-o", s(&gt)]);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["paths_truncated_at_max_bounces"], 0);
@@ -80,13 +85,27 @@ fn texels_and_ground_truth_on_a_bundled_scene() {
 fn camera_view_renders() {
     let dir = tempfile::tempdir().unwrap();
     let img = dir.path().join("cam.exr");
-    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--camera", "camera", "--width", "24", "--spp", "2", "-o", s(&img)]);
+    let (ok, _, err) = prm(&[
+        "ground-truth",
+        &asset("cornell.glb"),
+        "--camera",
+        "camera",
+        "--width",
+        "24",
+        "--spp",
+        "2",
+        "-o",
+        s(&img),
+    ]);
     assert!(ok, "{err}");
     let c = Channels::read(&img).unwrap();
     let rgb = c.rgb("").unwrap();
     assert_eq!((c.width, c.height), (24, 24));
     assert!(rgb.iter().all(|v| v.is_finite() && v.min_element() >= 0.0));
-    assert!(rgb.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2, "most pixels see the lit box");
+    assert!(
+        rgb.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2,
+        "most pixels see the lit box"
+    );
     let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--camera", "nope", "-o", s(&img)]);
     assert!(!ok && err.contains("no camera named 'nope'") && err.contains("camera"), "{err}");
 }
@@ -107,7 +126,11 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     assert!(!ok && err.contains("--spp 0"), "{err}");
     let (ok, _, err) = prm(&["compare", s(&junk), s(&junk)]);
     assert!(!ok && err.contains("junk.glb"), "{err}");
-    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "only the junk input remains: no partial outputs");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        1,
+        "only the junk input remains: no partial outputs"
+    );
 }
 
 #[test]
@@ -126,12 +149,30 @@ fn info_reports_the_chamber() {
 fn precompute_evaluate_and_export_panes() {
     let dir = tempfile::tempdir().unwrap();
     let prm_path = dir.path().join("c.prm");
-    let (ok, out, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "--json", "-o", s(&prm_path)]);
+    let (ok, out, err) = prm(&[
+        "precompute",
+        &asset("cornell.glb"),
+        "--preset",
+        "preview",
+        "--atlas",
+        "32",
+        "--json",
+        "-o",
+        s(&prm_path),
+    ]);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["entries"], 1024);
     assert!(v["file_bytes"].as_u64().unwrap() == std::fs::metadata(&prm_path).unwrap().len());
-    for key in ["seconds_entries", "seconds_clustering", "seconds_transport", "seconds_panes", "rays_per_second", "tiles_kept", "tiles_dropped"] {
+    for key in [
+        "seconds_entries",
+        "seconds_clustering",
+        "seconds_transport",
+        "seconds_panes",
+        "rays_per_second",
+        "tiles_kept",
+        "tiles_dropped",
+    ] {
         assert!(v[key].is_number(), "summary lacks {key}");
     }
     let lm = dir.path().join("lm.exr");
@@ -148,7 +189,14 @@ fn precompute_evaluate_and_export_panes() {
     assert!(ok && out.contains("64 panes"), "{out}{err}");
     assert_eq!(std::fs::read_dir(&panes).unwrap().count(), 4);
     // A map baked for one scene is refused for another.
-    let (ok, _, err) = prm(&["evaluate", &asset("two_rooms.glb"), "--prm", s(&prm_path), "-o", s(&dir.path().join("x.exr"))]);
+    let (ok, _, err) = prm(&[
+        "evaluate",
+        &asset("two_rooms.glb"),
+        "--prm",
+        s(&prm_path),
+        "-o",
+        s(&dir.path().join("x.exr")),
+    ]);
     assert!(!ok && err.contains("another scene"), "{err}");
     // Absurd parameters are refused before any work, and nothing is written.
     let bad = dir.path().join("bad.prm");
@@ -162,14 +210,30 @@ fn bake_reference_writes_layers_and_debug_lights() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("ref.exr");
     let obj = dir.path().join("lights.obj");
-    let (ok, stdout, err) = prm(&["bake-reference", &asset("cornell.glb"), "--atlas", "32", "--vpls", "4000", "--json", "--debug-lights", s(&obj), "-o", s(&out)]);
+    let (ok, stdout, err) = prm(&[
+        "bake-reference",
+        &asset("cornell.glb"),
+        "--atlas",
+        "32",
+        "--vpls",
+        "4000",
+        "--json",
+        "--debug-lights",
+        s(&obj),
+        "-o",
+        s(&out),
+    ]);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert!(v["polygon_lights"].as_u64().unwrap() > 10);
     let c = Channels::read(&out).unwrap();
-    let (total, direct, indirect) = (c.rgb("").unwrap(), c.rgb("direct").unwrap(), c.rgb("indirect").unwrap());
+    let (total, direct, indirect) =
+        (c.rgb("").unwrap(), c.rgb("direct").unwrap(), c.rgb("indirect").unwrap());
     for k in 0..total.len() {
-        assert!((total[k] - direct[k] - indirect[k]).abs().max_element() <= 1e-4 * total[k].max_element().max(1.0));
+        assert!(
+            (total[k] - direct[k] - indirect[k]).abs().max_element()
+                <= 1e-4 * total[k].max_element().max(1.0)
+        );
         assert!(total[k].is_finite() && total[k].min_element() >= 0.0);
     }
     let text = std::fs::read_to_string(&obj).unwrap();
@@ -185,12 +249,36 @@ fn rigs_drive_evaluate_and_ground_truth() {
     std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
         {"time": 0, "position": [0.15, 0.45, 0.28]}, {"time": 1, "position": [0.4, 0.45, 0.28], "intensity": 4}]}]}"#).unwrap();
     let prm_path = dir.path().join("c.prm");
-    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
+    let (ok, _, err) = prm(&[
+        "precompute",
+        &asset("cornell.glb"),
+        "--preset",
+        "preview",
+        "--atlas",
+        "32",
+        "-o",
+        s(&prm_path),
+    ]);
     assert!(ok, "{err}");
     let read = |p: &Path| Channels::read(p).unwrap().rgb("").unwrap();
     let (f0, f1) = (dir.path().join("f0.exr"), dir.path().join("f1.exr"));
     for (frame, out) in [("0", &f0), ("9", &f1)] {
-        let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frame", frame, "--frames", "10", "--top-k", "16", "-o", s(out)]);
+        let (ok, _, err) = prm(&[
+            "evaluate",
+            &asset("cornell.glb"),
+            "--prm",
+            s(&prm_path),
+            "--rig",
+            s(&rig),
+            "--frame",
+            frame,
+            "--frames",
+            "10",
+            "--top-k",
+            "16",
+            "-o",
+            s(out),
+        ]);
         assert!(ok, "{err}");
     }
     let (a, b) = (read(&f0), read(&f1));
@@ -198,11 +286,27 @@ fn rigs_drive_evaluate_and_ground_truth() {
     let sum = |v: &[Vec3]| v.iter().map(|x| x.x as f64).sum::<f64>();
     assert!(sum(&b) < sum(&a), "intensity 8 -> 4 lowers the indirect light");
     let gt = dir.path().join("gt.exr");
-    let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--atlas", "16", "--spp", "4", "--rig", s(&rig), "--frame", "9", "--frames", "10", "-o", s(&gt)]);
+    let (ok, _, err) = prm(&[
+        "ground-truth",
+        &asset("cornell.glb"),
+        "--atlas",
+        "16",
+        "--spp",
+        "4",
+        "--rig",
+        s(&rig),
+        "--frame",
+        "9",
+        "--frames",
+        "10",
+        "-o",
+        s(&gt),
+    ]);
     assert!(ok, "{err}");
     // A rig naming a light the level lacks is refused.
     std::fs::write(&rig, r#"{"lights": [{"name": "sun"}]}"#).unwrap();
-    let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "-o", s(&f0)]);
+    let (ok, _, err) =
+        prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "-o", s(&f0)]);
     assert!(!ok && err.contains("'sun'") && err.contains("no such light"), "{err}");
 }
 
@@ -210,11 +314,24 @@ fn rigs_drive_evaluate_and_ground_truth() {
 fn cornell_map_and_moving_rig() -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let prm_path = dir.path().join("c.prm");
-    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)]);
+    let (ok, _, err) = prm(&[
+        "precompute",
+        &asset("cornell.glb"),
+        "--preset",
+        "preview",
+        "--atlas",
+        "32",
+        "-o",
+        s(&prm_path),
+    ]);
     assert!(ok, "{err}");
     let rig = dir.path().join("rig.json");
-    std::fs::write(&rig, r#"{"lights": [{"name": "ceiling_light", "keyframes": [
-        {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#).unwrap();
+    std::fs::write(
+        &rig,
+        r#"{"lights": [{"name": "ceiling_light", "keyframes": [
+        {"time": 0, "position": [0.1, 0.45, 0.28]}, {"time": 1, "position": [0.45, 0.45, 0.28]}]}]}"#,
+    )
+    .unwrap();
     (dir, prm_path, rig)
 }
 
@@ -223,24 +340,55 @@ fn render_writes_frames_that_follow_the_rig() {
     let (dir, prm_path, rig) = cornell_map_and_moving_rig();
     for backend in ["cpu", "gpu"] {
         let out = dir.path().join(backend);
-        let (ok, stdout, err) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "3", "--width", "24", "--backend", backend, "--lightmap-out", "-o", s(&out)]);
+        let (ok, stdout, err) = prm(&[
+            "render",
+            &asset("cornell.glb"),
+            "--prm",
+            s(&prm_path),
+            "--rig",
+            s(&rig),
+            "--frames",
+            "3",
+            "--width",
+            "24",
+            "--backend",
+            backend,
+            "--lightmap-out",
+            "-o",
+            s(&out),
+        ]);
         assert!(ok, "{err}");
         assert!(stdout.contains("3 frames, 3 composes"), "{backend}: {stdout}");
         // The GPU backend must really have run on a device (it falls back to the CPU, saying
         // so, only without an adapter; the tests need one).
         assert_eq!(stdout.contains("device:"), backend == "gpu", "{backend}: {stdout}");
-        let frame = |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
+        let frame =
+            |i: usize| Channels::read(&out.join(format!("frame_{i:04}.exr"))).unwrap().rgb("").unwrap();
         let (f0, f2) = (frame(0), frame(2));
         assert!(f0.iter().chain(&f2).all(|v| v.is_finite() && v.min_element() >= 0.0));
         assert!(f0.iter().filter(|v| v.max_element() > 0.0).count() > 24 * 24 / 2);
         assert_ne!(f0, f2, "{backend}: the light moved");
         assert!(out.join("frame_0001.png").exists() && out.join("lightmap_0002.exr").exists());
         // Without a rig the lights do not move: one compose for all frames.
-        let (ok, stdout, _) = prm(&["render", &asset("cornell.glb"), "--prm", s(&prm_path), "--frames", "3", "--width", "8", "--backend", backend, "-o", s(&out)]);
+        let (ok, stdout, _) = prm(&[
+            "render",
+            &asset("cornell.glb"),
+            "--prm",
+            s(&prm_path),
+            "--frames",
+            "3",
+            "--width",
+            "8",
+            "--backend",
+            backend,
+            "-o",
+            s(&out),
+        ]);
         assert!(ok && stdout.contains("3 frames, 1 composes"), "{backend}: {stdout}");
     }
     // The GPU lightmap (shadow-mapped entry visibility) agrees with the CPU twin's (shadow rays).
-    let lm = |b: &str| Channels::read(&dir.path().join(b).join("lightmap_0001.exr")).unwrap().rgb("").unwrap();
+    let lm =
+        |b: &str| Channels::read(&dir.path().join(b).join("lightmap_0001.exr")).unwrap().rgb("").unwrap();
     let m = prm::metric::compare(&lm("gpu"), &lm("cpu"), None);
     assert!(m.error < 0.01, "GPU vs CPU lightmap error {}", m.error);
 }
@@ -248,7 +396,23 @@ fn render_writes_frames_that_follow_the_rig() {
 #[test]
 fn bench_reports_both_frame_kinds_and_the_compose() {
     let (_dir, prm_path, rig) = cornell_map_and_moving_rig();
-    let (ok, stdout, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig), "--frames", "4", "--rounds", "1", "--width", "32", "--shadow-size", "128", "--json"]);
+    let (ok, stdout, err) = prm(&[
+        "bench",
+        &asset("cornell.glb"),
+        "--prm",
+        s(&prm_path),
+        "--rig",
+        s(&rig),
+        "--frames",
+        "4",
+        "--rounds",
+        "1",
+        "--width",
+        "32",
+        "--shadow-size",
+        "128",
+        "--json",
+    ]);
     assert!(ok, "{err}");
     let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(j["composes"], 4, "{stdout}");
@@ -269,11 +433,23 @@ fn report_writes_figures_and_plots() {
     let (ok, _, err) = prm(&["report", &asset("cornell.glb"), "--smoke", "-o", s(&out)]);
     assert!(ok, "{err}");
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for section in ["## PRM: precompute budget", "## PRM: runtime budget", "## Reference baker", "## Moving-light rig", "Machine:", "GPU device:", "Seeds:"] {
+    for section in [
+        "## PRM: precompute budget",
+        "## PRM: runtime budget",
+        "## Reference baker",
+        "## Moving-light rig",
+        "Machine:",
+        "GPU device:",
+        "Seeds:",
+    ] {
         assert!(md.contains(section), "report.md lacks {section}:\n{md}");
     }
     // Every error figure is a finite percentage.
-    let figures: Vec<f64> = md.split('|').filter_map(|c| c.trim().strip_suffix(" %")).filter_map(|v| v.trim_start_matches('+').parse().ok()).collect();
+    let figures: Vec<f64> = md
+        .split('|')
+        .filter_map(|c| c.trim().strip_suffix(" %"))
+        .filter_map(|v| v.trim_start_matches('+').parse().ok())
+        .collect();
     assert!(figures.len() > 20 && figures.iter().all(|f| f.is_finite()), "{figures:?}");
     // Plots need a font; CI installs one (fonts-dejavu-core).
     if md.contains("precompute.png") {

@@ -56,14 +56,23 @@ fn nearest(f: &Feature, centres: &[Feature]) -> u32 {
 }
 
 /// Cluster `entries` into `k` clusters (at most one per entry) with `iterations` Lloyd steps.
-pub fn cluster_entries(entries: &[Entry], k: usize, total_area: f64, iterations: usize, seed: u64) -> Clustering {
+pub fn cluster_entries(
+    entries: &[Entry],
+    k: usize,
+    total_area: f64,
+    iterations: usize,
+    seed: u64,
+) -> Clustering {
     let n = entries.len();
     let k = k.min(n).max(1);
     if n == 0 {
         return Clustering { assignment: Vec::new(), members: vec![Vec::new()] };
     }
     if k == n {
-        return Clustering { assignment: (0..n as u32).collect(), members: (0..n as u32).map(|i| vec![i]).collect() };
+        return Clustering {
+            assignment: (0..n as u32).collect(),
+            members: (0..n as u32).map(|i| vec![i]).collect(),
+        };
     }
     let l = ((total_area / k as f64).sqrt() as f32).max(f32::MIN_POSITIVE);
     let feats: Vec<Feature> = entries.iter().map(|e| feature(e, 1.0 / l)).collect();
@@ -149,6 +158,9 @@ pub fn centroids(entries: &[Entry], clustering: &Clustering) -> Vec<Vec3> {
     clustering
         .members
         .iter()
-        .map(|m| m.iter().map(|&i| entries[i as usize].position).fold(Vec3::ZERO, |a, b| a + b) / m.len().max(1) as f32)
+        .map(|m| {
+            m.iter().map(|&i| entries[i as usize].position).fold(Vec3::ZERO, |a, b| a + b)
+                / m.len().max(1) as f32
+        })
         .collect()
 }

@@ -15,7 +15,9 @@ use rand_pcg::Pcg64Mcg;
 
 /// A per-index random stream derived from a seed and a purpose tag.
 pub fn stream(seed: u64, tag: u64, index: u64) -> Pcg64Mcg {
-    let mix = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ tag.wrapping_mul(0xC2B2_AE3D_27D4_EB4F) ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    let mix = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ tag.wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03);
     Pcg64Mcg::seed_from_u64(mix ^ (mix >> 29))
 }
 

@@ -161,7 +161,11 @@ impl<'a> Tracer<'a> {
             let xh = self.scene.point(t, hit.bary());
             if material.emissive != Vec3::ZERO {
                 let le = beta * material.emissive * std::f32::consts::PI;
-                if bounce == 1 { direct += le } else { indirect += le }
+                if bounce == 1 {
+                    direct += le
+                } else {
+                    indirect += le
+                }
             }
             let rho = self.scene.albedo(t, hit.bary());
             beta *= rho;
@@ -188,7 +192,10 @@ impl<'a> Tracer<'a> {
 
     /// Mean and standard error of `spp` samples at one point, on its own random stream.
     pub fn irradiance(&self, p: Vec3, n: Vec3, stream: u64) -> Irradiance {
-        let mut rng = Pcg64Mcg::seed_from_u64(self.params.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03).wrapping_add(stream));
+        let mut rng = Pcg64Mcg::seed_from_u64(
+            self.params.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03).wrapping_add(stream),
+        );
         let e_punctual = self.punctual(p, n);
         // Welford's running mean and squared deviation, in f64: constant samples give exactly
         // zero error, and long runs lose nothing to cancellation.
@@ -209,13 +216,24 @@ impl<'a> Tracer<'a> {
             }
             (m2.max(DVec3::ZERO) / ((spp - 1) as f64 * spp as f64)).map(f64::sqrt).as_vec3()
         };
-        Irradiance { direct: md.as_vec3(), indirect: mi.as_vec3(), direct_stderr: stderr(m2d), indirect_stderr: stderr(m2i) }
+        Irradiance {
+            direct: md.as_vec3(),
+            indirect: mi.as_vec3(),
+            direct_stderr: stderr(m2d),
+            indirect_stderr: stderr(m2i),
+        }
     }
 
     /// Irradiance at every texel, in parallel, deterministic at any thread count (each texel
     /// seeds its own stream from its atlas index). `progress` gets the number of texels done
     /// after each chunk; `cancel` stops the run.
-    pub fn texels(&self, texels: &[Texel], width: u32, progress: &(dyn Fn(usize) + Sync), cancel: &AtomicBool) -> Result<Vec<Irradiance>, Cancelled> {
+    pub fn texels(
+        &self,
+        texels: &[Texel],
+        width: u32,
+        progress: &(dyn Fn(usize) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<Vec<Irradiance>, Cancelled> {
         let done = AtomicUsize::new(0);
         let chunks: Vec<Result<Vec<Irradiance>, Cancelled>> = texels
             .par_chunks(256)

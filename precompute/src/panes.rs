@@ -31,7 +31,15 @@ pub struct Tiled {
 }
 
 /// Build the pane atlases. `members` are the clusters' entries; `centroids` their means.
-pub fn tile_panes(set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, texel_panes: &[TexelPanes], members: &[Vec<u32>], centroids: &[Vec3], tile_size: u32, drop_threshold: f64) -> Tiled {
+pub fn tile_panes(
+    set: &TexelSet,
+    kernel: Option<&[Vec<(u32, f32)>]>,
+    texel_panes: &[TexelPanes],
+    members: &[Vec<u32>],
+    centroids: &[Vec3],
+    tile_size: u32,
+    drop_threshold: f64,
+) -> Tiled {
     let c_count = members.len();
     let (w, h) = (set.width as usize, set.height as usize);
     let ts = tile_size as usize;
@@ -79,14 +87,22 @@ pub fn tile_panes(set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, texel_pane
             if let Some(kernel) = kernel {
                 let smoothed: Vec<Vec3> = kernel
                     .iter()
-                    .map(|taps| taps.iter().map(|&(n, wgt)| { let o = &set.texels[n as usize]; img[o.j as usize * w + o.i as usize] * wgt }).fold(Vec3::ZERO, |a, b| a + b))
+                    .map(|taps| {
+                        taps.iter()
+                            .map(|&(n, wgt)| {
+                                let o = &set.texels[n as usize];
+                                img[o.j as usize * w + o.i as usize] * wgt
+                            })
+                            .fold(Vec3::ZERO, |a, b| a + b)
+                    })
                     .collect();
                 for (t, v) in set.texels.iter().zip(smoothed) {
                     img[t.j as usize * w + t.i as usize] = v;
                 }
             }
             set.dilate(&mut img);
-            let energy: f64 = set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
+            let energy: f64 =
+                set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
             let mut tiles: Vec<(u32, f64)> = Vec::new();
             for j in 0..ty {
                 for i in 0..tx {
@@ -135,10 +151,17 @@ pub fn tile_panes(set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, texel_pane
                     }
                     // Colour: the tile's mean chromaticity (luminance 1); intensity: luminance
                     // over the tile's peak.
-                    let (sum, sum_y) = vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.max(Vec3::ZERO), y + luminance(v.max(Vec3::ZERO))));
+                    let (sum, sum_y) = vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| {
+                        (s + v.max(Vec3::ZERO), y + luminance(v.max(Vec3::ZERO)))
+                    });
                     let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
-                    let peak = vals.iter().map(|v| luminance(v.max(Vec3::ZERO))).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
-                    let data = vals.iter().map(|v| f16::from_f32(luminance(v.max(Vec3::ZERO)) / peak)).collect();
+                    let peak = vals
+                        .iter()
+                        .map(|v| luminance(v.max(Vec3::ZERO)))
+                        .fold(0.0f32, f32::max)
+                        .max(f32::MIN_POSITIVE);
+                    let data =
+                        vals.iter().map(|v| f16::from_f32(luminance(v.max(Vec3::ZERO)) / peak)).collect();
                     (index, chroma * peak, data)
                 })
                 .collect();
@@ -146,7 +169,14 @@ pub fn tile_panes(set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, texel_pane
         })
         .collect();
 
-    let mut out = Tiled { clusters: Vec::with_capacity(c_count), mask: prm::prm_file::pack_mask(&stored), tiles: Vec::new(), data: Vec::new(), tiles_dropped: 0, dropped_energy: 0.0 };
+    let mut out = Tiled {
+        clusters: Vec::with_capacity(c_count),
+        mask: prm::prm_file::pack_mask(&stored),
+        tiles: Vec::new(),
+        data: Vec::new(),
+        tiles_dropped: 0,
+        dropped_energy: 0.0,
+    };
     let (mut dropped_e, mut total_e) = (0.0f64, 0.0f64);
     for (c, p) in panes.into_iter().enumerate() {
         out.clusters.push(Cluster {

@@ -15,9 +15,9 @@ use serde::Serialize;
 
 use crate::cluster::{centroids, cluster_entries};
 use crate::entries::{is_enclosed, sample_entries};
-use rayon::prelude::*;
 use crate::panes::tile_panes;
 use crate::transport::{Cancelled, Estimator, TexelPanes, Transport};
+use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
 #[derive(Clone, Debug)]
@@ -76,13 +76,25 @@ impl PrecomputeParams {
     /// Reject absurd values with a message naming the parameter.
     pub fn validate(&self) -> Result<(), String> {
         let check = |ok: bool, msg: String| if ok { Ok(()) } else { Err(msg) };
-        check((1..=1 << 20).contains(&self.entries), format!("entries {} must be 1 to 1048576", self.entries))?;
+        check(
+            (1..=1 << 20).contains(&self.entries),
+            format!("entries {} must be 1 to 1048576", self.entries),
+        )?;
         check((1..=1 << 16).contains(&self.paths), format!("paths {} must be 1 to 65536", self.paths))?;
-        check((1..=65536).contains(&self.clusters), format!("clusters {} must be 1 to 65536", self.clusters))?;
+        check(
+            (1..=65536).contains(&self.clusters),
+            format!("clusters {} must be 1 to 65536", self.clusters),
+        )?;
         check(self.groups <= 4096, format!("groups {} must be 0 to 4096", self.groups))?;
         check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
-        check((1..=1024).contains(&self.tile_size), format!("tile size {} must be 1 to 1024", self.tile_size))?;
-        check((0.0..0.5).contains(&self.drop_threshold), format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold))?;
+        check(
+            (1..=1024).contains(&self.tile_size),
+            format!("tile size {} must be 1 to 1024", self.tile_size),
+        )?;
+        check(
+            (0.0..0.5).contains(&self.drop_threshold),
+            format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold),
+        )?;
         check(self.max_bounces >= 1, "max bounces must be at least 1".into())?;
         check(self.smooth_radius <= 16, format!("smooth radius {} must be 0 to 16", self.smooth_radius))?;
         if let Estimator::Scatter { clamp } = self.estimator {
@@ -140,7 +152,13 @@ pub struct Report {
 
 /// Run the precompute. `progress(phase, done, total)` is called as work completes; `cancel`
 /// stops it (no result).
-pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress: &(dyn Fn(Phase, usize, usize) + Sync), cancel: &AtomicBool) -> Result<(Prm, Report), Cancelled> {
+pub fn precompute(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+    progress: &(dyn Fn(Phase, usize, usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<(Prm, Report), Cancelled> {
     let all = Instant::now();
     let mut report = Report {
         estimator: params.estimator.to_string(),
@@ -160,7 +178,11 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
     let t = Instant::now();
     let sampled = sample_entries(scene, params.entries as usize, params.seed);
     // Entries inside solids never see light; in a cluster's mean they would only dim it.
-    let enclosed: Vec<bool> = sampled.par_iter().enumerate().map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64)).collect();
+    let enclosed: Vec<bool> = sampled
+        .par_iter()
+        .enumerate()
+        .map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64))
+        .collect();
     let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
     report.entries_enclosed = sampled.len() - entries.len();
     report.seconds_entries = t.elapsed().as_secs_f64();
@@ -170,7 +192,13 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
     }
 
     let t = Instant::now();
-    let clustering = cluster_entries(&entries, params.clusters as usize, scene.total_area(), params.kmeans_iterations as usize, params.seed);
+    let clustering = cluster_entries(
+        &entries,
+        params.clusters as usize,
+        scene.total_area(),
+        params.kmeans_iterations as usize,
+        params.seed,
+    );
     let cents = centroids(&entries, &clustering);
     report.clusters = clustering.members.len() as u32;
     report.seconds_clustering = t.elapsed().as_secs_f64();
@@ -192,7 +220,8 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
         stats: Default::default(),
     };
     let n = set.len();
-    let texel_panes = transport.run(params.estimator, &set, &|done| progress(Phase::Transport, done, n), cancel)?;
+    let texel_panes =
+        transport.run(params.estimator, &set, &|done| progress(Phase::Transport, done, n), cancel)?;
     report.seconds_transport = t.elapsed().as_secs_f64();
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
@@ -201,8 +230,26 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
 
     let t = Instant::now();
     let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
-    let mut tiled = tile_panes(&set, kernel.as_deref(), &texel_panes, &clustering.members, &cents, params.tile_size, params.drop_threshold);
-    let (groups, group_of) = group_panes(scene, &entries, &clustering.members, &cents, &texel_panes, params, &set, kernel.as_deref(), &mut tiled);
+    let mut tiled = tile_panes(
+        &set,
+        kernel.as_deref(),
+        &texel_panes,
+        &clustering.members,
+        &cents,
+        params.tile_size,
+        params.drop_threshold,
+    );
+    let (groups, group_of) = group_panes(
+        scene,
+        &entries,
+        &clustering.members,
+        &cents,
+        &texel_panes,
+        params,
+        &set,
+        kernel.as_deref(),
+        &mut tiled,
+    );
     drop(texel_panes);
     report.seconds_panes = t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
@@ -236,7 +283,16 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
             "entries_enclosed": report.entries_enclosed,
         }),
     };
-    let prm = Prm { header, entries, clusters: tiled.clusters, groups, group_of, tiles: tiled.tiles, mask: tiled.mask, data: tiled.data };
+    let prm = Prm {
+        header,
+        entries,
+        clusters: tiled.clusters,
+        groups,
+        group_of,
+        tiles: tiled.tiles,
+        mask: tiled.mask,
+        data: tiled.data,
+    };
     Ok((prm, report))
 }
 
@@ -244,7 +300,17 @@ pub fn precompute(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams, progress:
 /// and appends each group's pane, the sum of its clusters' contributions, smoothed, dilated and
 /// tiled like theirs, to `tiled`. Returns the groups and each cluster's group.
 #[allow(clippy::too_many_arguments)]
-fn group_panes(scene: &Scene, entries: &[Entry], members: &[Vec<u32>], cents: &[Vec3], texel_panes: &[TexelPanes], params: &PrecomputeParams, set: &TexelSet, kernel: Option<&[Vec<(u32, f32)>]>, tiled: &mut crate::panes::Tiled) -> (Vec<Group>, Vec<u32>) {
+fn group_panes(
+    scene: &Scene,
+    entries: &[Entry],
+    members: &[Vec<u32>],
+    cents: &[Vec3],
+    texel_panes: &[TexelPanes],
+    params: &PrecomputeParams,
+    set: &TexelSet,
+    kernel: Option<&[Vec<(u32, f32)>]>,
+    tiled: &mut crate::panes::Tiled,
+) -> (Vec<Group>, Vec<u32>) {
     let c = members.len();
     if params.groups == 0 || c < 2 {
         return (Vec::new(), Vec::new());
@@ -254,11 +320,20 @@ fn group_panes(scene: &Scene, entries: &[Entry], members: &[Vec<u32>], cents: &[
         .zip(cents)
         .map(|(m, &position)| {
             let area: f32 = m.iter().map(|&e| entries[e as usize].area).sum();
-            let normal = m.iter().fold(Vec3::ZERO, |a, &e| a + entries[e as usize].normal * entries[e as usize].area).normalize_or_zero();
+            let normal = m
+                .iter()
+                .fold(Vec3::ZERO, |a, &e| a + entries[e as usize].normal * entries[e as usize].area)
+                .normalize_or_zero();
             Entry { position, normal, albedo: Vec3::ZERO, area, triangle: 0 }
         })
         .collect();
-    let grouping = cluster_entries(&pseudo, (params.groups as usize).min(c), scene.total_area(), params.kmeans_iterations as usize, params.seed ^ 0x6772_6f75_7073);
+    let grouping = cluster_entries(
+        &pseudo,
+        (params.groups as usize).min(c),
+        scene.total_area(),
+        params.kmeans_iterations as usize,
+        params.seed ^ 0x6772_6f75_7073,
+    );
     let g_count = grouping.members.len();
     let group_tp: Vec<TexelPanes> = texel_panes
         .par_iter()
@@ -274,10 +349,26 @@ fn group_panes(scene: &Scene, entries: &[Entry], members: &[Vec<u32>], cents: &[
             out
         })
         .collect();
-    let g_cents: Vec<Vec3> = grouping.members.iter().map(|m| m.iter().fold(Vec3::ZERO, |a, &cl| a + cents[cl as usize]) / m.len().max(1) as f32).collect();
-    let g_tiled = tile_panes(set, kernel, &group_tp, &vec![Vec::new(); g_count], &g_cents, params.tile_size, params.drop_threshold);
+    let g_cents: Vec<Vec3> = grouping
+        .members
+        .iter()
+        .map(|m| m.iter().fold(Vec3::ZERO, |a, &cl| a + cents[cl as usize]) / m.len().max(1) as f32)
+        .collect();
+    let g_tiled = tile_panes(
+        set,
+        kernel,
+        &group_tp,
+        &vec![Vec::new(); g_count],
+        &g_cents,
+        params.tile_size,
+        params.drop_threshold,
+    );
     let (fine_tiles, fine_data) = (tiled.tiles.len() as u32, tiled.data.len());
-    let groups = g_tiled.clusters.iter().map(|g| Group { energy: g.energy, first_tile: g.first_tile + fine_tiles, tile_count: g.tile_count }).collect();
+    let groups = g_tiled
+        .clusters
+        .iter()
+        .map(|g| Group { energy: g.energy, first_tile: g.first_tile + fine_tiles, tile_count: g.tile_count })
+        .collect();
     tiled.tiles.extend(g_tiled.tiles.iter().map(|t| Tile { cluster: t.cluster + c as u32, ..*t }));
     tiled.data.extend_from_slice(&g_tiled.data);
     debug_assert_eq!(tiled.data.len(), fine_data + g_tiled.data.len());

@@ -68,7 +68,11 @@ impl Builder {
     /// `skip` lists faces to leave out: 0 -x, 1 +x, 2 -y, 3 +y, 4 -z, 5 +z.
     pub fn boxed(&mut self, m: usize, lo: Vec3, hi: Vec3, inward: bool, skip: &[usize]) {
         let c = |x: usize, y: usize, z: usize| {
-            Vec3::new(if x == 0 { lo.x } else { hi.x }, if y == 0 { lo.y } else { hi.y }, if z == 0 { lo.z } else { hi.z })
+            Vec3::new(
+                if x == 0 { lo.x } else { hi.x },
+                if y == 0 { lo.y } else { hi.y },
+                if z == 0 { lo.z } else { hi.z },
+            )
         };
         // Outward counter-clockwise corner lists.
         let faces = [
@@ -111,7 +115,10 @@ impl Builder {
             .iter()
             .map(|&m| {
                 let p = &self.parts[m];
-                uvunwrap::MeshInput { polygons: Some(&p.polygon), ..uvunwrap::MeshInput::new(&p.positions, &p.indices) }
+                uvunwrap::MeshInput {
+                    polygons: Some(&p.polygon),
+                    ..uvunwrap::MeshInput::new(&p.positions, &p.indices)
+                }
             })
             .collect();
         let (atlas, v_scale) = prm::uv::unwrap_meshes(&inputs, resolution)?;
@@ -164,13 +171,25 @@ pub fn cornell() -> Result<GlbScene, String> {
     b.quad(green, v(0.0, 0.0, 559.2), v(0.0, 0.0, 0.0), v(0.0, 548.8, 0.0), v(0.0, 548.8, 559.2));
     b.quad(red, v(552.8, 0.0, 0.0), v(549.6, 0.0, 559.2), v(556.0, 548.8, 559.2), v(556.0, 548.8, 0.0));
     // Short block.
-    b.quad(white, v(130.0, 165.0, 65.0), v(82.0, 165.0, 225.0), v(240.0, 165.0, 272.0), v(290.0, 165.0, 114.0));
+    b.quad(
+        white,
+        v(130.0, 165.0, 65.0),
+        v(82.0, 165.0, 225.0),
+        v(240.0, 165.0, 272.0),
+        v(290.0, 165.0, 114.0),
+    );
     b.quad(white, v(290.0, 0.0, 114.0), v(290.0, 165.0, 114.0), v(240.0, 165.0, 272.0), v(240.0, 0.0, 272.0));
     b.quad(white, v(130.0, 0.0, 65.0), v(130.0, 165.0, 65.0), v(290.0, 165.0, 114.0), v(290.0, 0.0, 114.0));
     b.quad(white, v(82.0, 0.0, 225.0), v(82.0, 165.0, 225.0), v(130.0, 165.0, 65.0), v(130.0, 0.0, 65.0));
     b.quad(white, v(240.0, 0.0, 272.0), v(240.0, 165.0, 272.0), v(82.0, 165.0, 225.0), v(82.0, 0.0, 225.0));
     // Tall block.
-    b.quad(white, v(423.0, 330.0, 247.0), v(265.0, 330.0, 296.0), v(314.0, 330.0, 456.0), v(472.0, 330.0, 406.0));
+    b.quad(
+        white,
+        v(423.0, 330.0, 247.0),
+        v(265.0, 330.0, 296.0),
+        v(314.0, 330.0, 456.0),
+        v(472.0, 330.0, 406.0),
+    );
     b.quad(white, v(423.0, 0.0, 247.0), v(423.0, 330.0, 247.0), v(472.0, 330.0, 406.0), v(472.0, 0.0, 406.0));
     b.quad(white, v(472.0, 0.0, 406.0), v(472.0, 330.0, 406.0), v(314.0, 330.0, 456.0), v(314.0, 0.0, 456.0));
     b.quad(white, v(314.0, 0.0, 456.0), v(314.0, 330.0, 456.0), v(265.0, 330.0, 296.0), v(265.0, 0.0, 296.0));
@@ -181,7 +200,13 @@ pub fn cornell() -> Result<GlbScene, String> {
     // indirect light).
     scene.add_light(point_light("ceiling_light", [1.0, 0.85, 0.65], 8.0), v(278.0, 448.8, 279.5), -Vec3::Y);
     // Camera at (278, 273, -800) looking along +z; 35 mm lens on a 25 mm film.
-    camera(&mut scene, "camera", v(278.0, 273.0, -800.0), v(278.0, 273.0, 0.0), 2.0 * (12.5f32 / 35.0).atan());
+    camera(
+        &mut scene,
+        "camera",
+        v(278.0, 273.0, -800.0),
+        v(278.0, 273.0, 0.0),
+        2.0 * (12.5f32 / 35.0).atan(),
+    );
     Ok(scene)
 }
 
@@ -200,7 +225,13 @@ pub fn chamber() -> Result<GlbScene, String> {
     // Shell: floor, ceiling, walls, facing in. The wall at +z (behind the dais) is blue. The
     // floor is cut around the dais and the carpet runner so no floor hides under them.
     let mut floor_rect = |m: usize, x0: f32, x1: f32, z0: f32, z1: f32| {
-        b.quad(m, Vec3::new(x0, 0.0, z0), Vec3::new(x0, 0.0, z1), Vec3::new(x1, 0.0, z1), Vec3::new(x1, 0.0, z0));
+        b.quad(
+            m,
+            Vec3::new(x0, 0.0, z0),
+            Vec3::new(x0, 0.0, z1),
+            Vec3::new(x1, 0.0, z1),
+            Vec3::new(x1, 0.0, z0),
+        );
     };
     floor_rect(floor, -hx, -dais, -hz, hz);
     floor_rect(floor, -dais, -0.8, -hz, 6.5);
@@ -209,16 +240,40 @@ pub fn chamber() -> Result<GlbScene, String> {
     floor_rect(floor, 0.8, dais, -hz, 6.5);
     floor_rect(floor, dais, hx, -hz, hz);
     b.quad(wall, Vec3::new(-hx, h, -hz), Vec3::new(hx, h, -hz), Vec3::new(hx, h, hz), Vec3::new(-hx, h, hz));
-    b.quad(wall, Vec3::new(-hx, 0.0, -hz), Vec3::new(hx, 0.0, -hz), Vec3::new(hx, h, -hz), Vec3::new(-hx, h, -hz));
+    b.quad(
+        wall,
+        Vec3::new(-hx, 0.0, -hz),
+        Vec3::new(hx, 0.0, -hz),
+        Vec3::new(hx, h, -hz),
+        Vec3::new(-hx, h, -hz),
+    );
     // The apse wall, cut around the dais (0.4 m high) that stands against it.
     let mut apse_rect = |x0: f32, x1: f32, y0: f32, y1: f32| {
-        b.quad(apse, Vec3::new(x1, y0, hz), Vec3::new(x0, y0, hz), Vec3::new(x0, y1, hz), Vec3::new(x1, y1, hz));
+        b.quad(
+            apse,
+            Vec3::new(x1, y0, hz),
+            Vec3::new(x0, y0, hz),
+            Vec3::new(x0, y1, hz),
+            Vec3::new(x1, y1, hz),
+        );
     };
     apse_rect(-hx, hx, 0.4, h);
     apse_rect(-hx, -dais, 0.0, 0.4);
     apse_rect(dais, hx, 0.0, 0.4);
-    b.quad(wall, Vec3::new(-hx, 0.0, hz), Vec3::new(-hx, 0.0, -hz), Vec3::new(-hx, h, -hz), Vec3::new(-hx, h, hz));
-    b.quad(wall, Vec3::new(hx, 0.0, -hz), Vec3::new(hx, 0.0, hz), Vec3::new(hx, h, hz), Vec3::new(hx, h, -hz));
+    b.quad(
+        wall,
+        Vec3::new(-hx, 0.0, hz),
+        Vec3::new(-hx, 0.0, -hz),
+        Vec3::new(-hx, h, -hz),
+        Vec3::new(-hx, h, hz),
+    );
+    b.quad(
+        wall,
+        Vec3::new(hx, 0.0, -hz),
+        Vec3::new(hx, 0.0, hz),
+        Vec3::new(hx, h, hz),
+        Vec3::new(hx, h, -hz),
+    );
     // Dais at the +z end, against the apse wall.
     b.boxed(carpet, Vec3::new(-dais, 0.0, 6.5), Vec3::new(dais, 0.4, hz), false, &[2, 5]);
     // Pillars: plinth, 24-sided shaft in 5 bands, capital; two rows of five.
@@ -228,14 +283,28 @@ pub fn chamber() -> Result<GlbScene, String> {
         for &z in &zs {
             b.boxed(marble, Vec3::new(x - 0.5, 0.0, z - 0.5), Vec3::new(x + 0.5, 0.3, z + 0.5), false, &[2]);
             b.cylinder(marble, Vec3::new(x, 0.3, z), pr, spring - 0.6, 24, 5);
-            b.boxed(marble, Vec3::new(x - 0.45, spring - 0.3, z - 0.45), Vec3::new(x + 0.45, spring, z + 0.45), false, &[3]);
+            b.boxed(
+                marble,
+                Vec3::new(x - 0.45, spring - 0.3, z - 0.45),
+                Vec3::new(x + 0.45, spring, z + 0.45),
+                false,
+                &[3],
+            );
         }
         arcade_row(&mut b, arcade, x, &zs, spring, 0.45, 6.2);
     }
     let mut scene = b.finish(256)?;
     scene.add_light(point_light("nave_lamp", [1.0, 0.9, 0.75], 60.0), Vec3::new(0.0, 5.0, -3.0), -Vec3::Y);
     scene.add_light(
-        GlbLight { name: "dais_spot".into(), kind: "spot", color: [0.85, 0.9, 1.0], intensity: 250.0, inner: 0.45, outer: 0.6, range: None },
+        GlbLight {
+            name: "dais_spot".into(),
+            kind: "spot",
+            color: [0.85, 0.9, 1.0],
+            intensity: 250.0,
+            inner: 0.45,
+            outer: 0.6,
+            range: None,
+        },
         Vec3::new(0.0, 6.8, 3.0),
         Vec3::new(0.0, -6.4, 5.0),
     );
@@ -258,21 +327,63 @@ fn arcade_row(b: &mut Builder, m: usize, x: f32, zs: &[f32], spring: f32, ht: f3
         for k in 0..segs {
             let ((z0, y0), (z1, y1)) = (arc(k), arc(k + 1));
             // Spandrel strips on both faces, and the soffit under the arch.
-            b.quad(m, Vec3::new(xl, y0, z0), Vec3::new(xl, y1, z1), Vec3::new(xl, top, z1), Vec3::new(xl, top, z0));
-            b.quad(m, Vec3::new(xr, y1, z1), Vec3::new(xr, y0, z0), Vec3::new(xr, top, z0), Vec3::new(xr, top, z1));
-            b.quad(m, Vec3::new(xl, y0, z0), Vec3::new(xr, y0, z0), Vec3::new(xr, y1, z1), Vec3::new(xl, y1, z1));
+            b.quad(
+                m,
+                Vec3::new(xl, y0, z0),
+                Vec3::new(xl, y1, z1),
+                Vec3::new(xl, top, z1),
+                Vec3::new(xl, top, z0),
+            );
+            b.quad(
+                m,
+                Vec3::new(xr, y1, z1),
+                Vec3::new(xr, y0, z0),
+                Vec3::new(xr, top, z0),
+                Vec3::new(xr, top, z1),
+            );
+            b.quad(
+                m,
+                Vec3::new(xl, y0, z0),
+                Vec3::new(xr, y0, z0),
+                Vec3::new(xr, y1, z1),
+                Vec3::new(xl, y1, z1),
+            );
         }
     }
     // Over each pillar, the wall between arches; the ends; the top.
-    for (k, &z) in zs.iter().enumerate() {
-        let z0 = if k == 0 { z - ht } else { z - ht };
+    for z in zs {
+        let z0 = z - ht;
         let z1 = z + ht;
-        b.quad(m, Vec3::new(xl, spring, z1), Vec3::new(xl, top, z1), Vec3::new(xl, top, z0), Vec3::new(xl, spring, z0));
-        b.quad(m, Vec3::new(xr, spring, z0), Vec3::new(xr, top, z0), Vec3::new(xr, top, z1), Vec3::new(xr, spring, z1));
+        b.quad(
+            m,
+            Vec3::new(xl, spring, z1),
+            Vec3::new(xl, top, z1),
+            Vec3::new(xl, top, z0),
+            Vec3::new(xl, spring, z0),
+        );
+        b.quad(
+            m,
+            Vec3::new(xr, spring, z0),
+            Vec3::new(xr, top, z0),
+            Vec3::new(xr, top, z1),
+            Vec3::new(xr, spring, z1),
+        );
     }
     let (zf, zl) = (zs[0] - ht, zs[zs.len() - 1] + ht);
-    b.quad(m, Vec3::new(xl, spring, zf), Vec3::new(xl, top, zf), Vec3::new(xr, top, zf), Vec3::new(xr, spring, zf));
-    b.quad(m, Vec3::new(xr, spring, zl), Vec3::new(xr, top, zl), Vec3::new(xl, top, zl), Vec3::new(xl, spring, zl));
+    b.quad(
+        m,
+        Vec3::new(xl, spring, zf),
+        Vec3::new(xl, top, zf),
+        Vec3::new(xr, top, zf),
+        Vec3::new(xr, spring, zf),
+    );
+    b.quad(
+        m,
+        Vec3::new(xr, spring, zl),
+        Vec3::new(xr, top, zl),
+        Vec3::new(xl, top, zl),
+        Vec3::new(xl, spring, zl),
+    );
     b.quad(m, Vec3::new(xl, top, zf), Vec3::new(xl, top, zl), Vec3::new(xr, top, zl), Vec3::new(xr, top, zf));
 }
 
@@ -285,10 +396,28 @@ pub fn two_rooms() -> Result<GlbScene, String> {
     let (w, h, d, t) = (4.0f32, 3.0f32, 2.0f32, 0.05f32);
     let (door_z, door_h) = (0.5f32, 2.1f32);
     for (x0, x1, room_wall) in [(-w, -t, wall), (t, w, tint)] {
-        b.quad(floor, Vec3::new(x0, 0.0, -d), Vec3::new(x0, 0.0, d), Vec3::new(x1, 0.0, d), Vec3::new(x1, 0.0, -d));
+        b.quad(
+            floor,
+            Vec3::new(x0, 0.0, -d),
+            Vec3::new(x0, 0.0, d),
+            Vec3::new(x1, 0.0, d),
+            Vec3::new(x1, 0.0, -d),
+        );
         b.quad(wall, Vec3::new(x0, h, -d), Vec3::new(x1, h, -d), Vec3::new(x1, h, d), Vec3::new(x0, h, d));
-        b.quad(room_wall, Vec3::new(x0, 0.0, -d), Vec3::new(x1, 0.0, -d), Vec3::new(x1, h, -d), Vec3::new(x0, h, -d));
-        b.quad(room_wall, Vec3::new(x1, 0.0, d), Vec3::new(x0, 0.0, d), Vec3::new(x0, h, d), Vec3::new(x1, h, d));
+        b.quad(
+            room_wall,
+            Vec3::new(x0, 0.0, -d),
+            Vec3::new(x1, 0.0, -d),
+            Vec3::new(x1, h, -d),
+            Vec3::new(x0, h, -d),
+        );
+        b.quad(
+            room_wall,
+            Vec3::new(x1, 0.0, d),
+            Vec3::new(x0, 0.0, d),
+            Vec3::new(x0, h, d),
+            Vec3::new(x1, h, d),
+        );
     }
     // Outer end walls.
     b.quad(wall, Vec3::new(-w, 0.0, d), Vec3::new(-w, 0.0, -d), Vec3::new(-w, h, -d), Vec3::new(-w, h, d));
@@ -296,7 +425,8 @@ pub fn two_rooms() -> Result<GlbScene, String> {
     // The thin wall at x = 0, both faces, with the door opening |z| < door_z, y < door_h.
     for (x, sign, m) in [(-t, -1.0f32, wall), (t, 1.0f32, tint)] {
         let face = |b: &mut Builder, z0: f32, z1: f32, y0: f32, y1: f32| {
-            let (p0, p1, p2, p3) = (Vec3::new(x, y0, z0), Vec3::new(x, y0, z1), Vec3::new(x, y1, z1), Vec3::new(x, y1, z0));
+            let (p0, p1, p2, p3) =
+                (Vec3::new(x, y0, z0), Vec3::new(x, y0, z1), Vec3::new(x, y1, z1), Vec3::new(x, y1, z0));
             if sign > 0.0 {
                 b.quad(m, p0, p3, p2, p1);
             } else {
@@ -308,17 +438,48 @@ pub fn two_rooms() -> Result<GlbScene, String> {
         face(&mut b, -door_z, door_z, door_h, h);
     }
     // Door jambs, lintel and threshold floor.
-    b.quad(wall, Vec3::new(-t, 0.0, -door_z), Vec3::new(t, 0.0, -door_z), Vec3::new(t, door_h, -door_z), Vec3::new(-t, door_h, -door_z));
-    b.quad(wall, Vec3::new(t, 0.0, door_z), Vec3::new(-t, 0.0, door_z), Vec3::new(-t, door_h, door_z), Vec3::new(t, door_h, door_z));
-    b.quad(wall, Vec3::new(-t, door_h, -door_z), Vec3::new(t, door_h, -door_z), Vec3::new(t, door_h, door_z), Vec3::new(-t, door_h, door_z));
-    b.quad(floor, Vec3::new(-t, 0.0, -door_z), Vec3::new(-t, 0.0, door_z), Vec3::new(t, 0.0, door_z), Vec3::new(t, 0.0, -door_z));
+    b.quad(
+        wall,
+        Vec3::new(-t, 0.0, -door_z),
+        Vec3::new(t, 0.0, -door_z),
+        Vec3::new(t, door_h, -door_z),
+        Vec3::new(-t, door_h, -door_z),
+    );
+    b.quad(
+        wall,
+        Vec3::new(t, 0.0, door_z),
+        Vec3::new(-t, 0.0, door_z),
+        Vec3::new(-t, door_h, door_z),
+        Vec3::new(t, door_h, door_z),
+    );
+    b.quad(
+        wall,
+        Vec3::new(-t, door_h, -door_z),
+        Vec3::new(t, door_h, -door_z),
+        Vec3::new(t, door_h, door_z),
+        Vec3::new(-t, door_h, door_z),
+    );
+    b.quad(
+        floor,
+        Vec3::new(-t, 0.0, -door_z),
+        Vec3::new(-t, 0.0, door_z),
+        Vec3::new(t, 0.0, door_z),
+        Vec3::new(t, 0.0, -door_z),
+    );
     let mut scene = b.finish(256)?;
-    scene.add_light(point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0), Vec3::new(-2.5, 2.4, -0.8), -Vec3::Y);
+    scene.add_light(
+        point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0),
+        Vec3::new(-2.5, 2.4, -0.8),
+        -Vec3::Y,
+    );
     camera(&mut scene, "camera", Vec3::new(3.8, 1.6, 1.8), Vec3::new(-1.0, 1.0, -0.5), 1.1);
     Ok(scene)
 }
 
+/// A bundled scene's generator.
+pub type SceneBuilder = fn() -> Result<GlbScene, String>;
+
 /// All bundled scenes by file name.
-pub fn all() -> Vec<(&'static str, fn() -> Result<GlbScene, String>)> {
+pub fn all() -> Vec<(&'static str, SceneBuilder)> {
     vec![("cornell.glb", cornell), ("chamber.glb", chamber), ("two_rooms.glb", two_rooms)]
 }

@@ -161,11 +161,19 @@ pub struct OwnerMap {
 
 impl OwnerMap {
     /// Find every covered texel's owning entry and record its cluster.
-    pub fn build(set: &prm::TexelSet, lookup: &RegionLookup, assignment: &[u32], bvh: &Bvh, stats: &TransportStats) -> OwnerMap {
+    pub fn build(
+        set: &prm::TexelSet,
+        lookup: &RegionLookup,
+        assignment: &[u32],
+        bvh: &Bvh,
+        stats: &TransportStats,
+    ) -> OwnerMap {
         let owners: Vec<u32> = set
             .texels
             .par_iter()
-            .map(|t| lookup.owner(t.position, t.normal, bvh, stats).map_or(u32::MAX, |e| assignment[e as usize]))
+            .map(|t| {
+                lookup.owner(t.position, t.normal, bvh, stats).map_or(u32::MAX, |e| assignment[e as usize])
+            })
             .collect();
         let mut cluster = vec![u32::MAX; set.index.len()];
         for (t, c) in set.texels.iter().zip(owners) {
@@ -279,27 +287,44 @@ fn bounce(scene: &Scene, bvh: &Bvh, x: Vec3, n: Vec3, d: Vec3, stats: &Transport
         nh = -nh;
     }
     let bary = hit.bary();
-    Some(Vertex { position: scene.point(t, bary), normal: nh, albedo: scene.albedo(t, bary), triangle: t, bary })
+    Some(Vertex {
+        position: scene.point(t, bary),
+        normal: nh,
+        albedo: scene.albedo(t, bary),
+        triangle: t,
+        bary,
+    })
 }
 
 impl<'a> Transport<'a> {
     /// Pane contributions at every texel. `progress` gets texels done; `cancel` stops.
-    pub fn run(&self, estimator: Estimator, set: &prm::TexelSet, progress: &(dyn Fn(usize) + Sync), cancel: &AtomicBool) -> Result<Vec<TexelPanes>, Cancelled> {
+    pub fn run(
+        &self,
+        estimator: Estimator,
+        set: &prm::TexelSet,
+        progress: &(dyn Fn(usize) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<Vec<TexelPanes>, Cancelled> {
         let (texels, width) = (&set.texels[..], set.width);
         match estimator {
             Estimator::Gather | Estimator::Mis => {
                 let total_area = self.scene.total_area();
                 let lookup = RegionLookup::new(self.entries, total_area);
                 let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats);
-                let mis = (estimator == Estimator::Mis).then(|| MisTables::new(self.entries, self.assignment, self.clusters, total_area));
-                self.per_texel(texels, progress, cancel, |scratch, t| self.gather_texel(scratch, t, width, &owners, mis.as_ref()))
+                let mis = (estimator == Estimator::Mis)
+                    .then(|| MisTables::new(self.entries, self.assignment, self.clusters, total_area));
+                self.per_texel(texels, progress, cancel, |scratch, t| {
+                    self.gather_texel(scratch, t, width, &owners, mis.as_ref())
+                })
             }
             Estimator::Scatter { clamp } => {
                 let vpls = self.vpls();
                 self.stats.vpls.store(vpls.len(), Ordering::Relaxed);
                 let spacing = (self.scene.total_area() / self.entries.len().max(1) as f64).sqrt() as f32;
                 let rc2 = (clamp * spacing).powi(2);
-                self.per_texel(texels, progress, cancel, |scratch, t| self.scatter_texel(scratch, t, &vpls, rc2))
+                self.per_texel(texels, progress, cancel, |scratch, t| {
+                    self.scatter_texel(scratch, t, &vpls, rc2)
+                })
             }
         }
     }
@@ -345,7 +370,14 @@ impl<'a> Transport<'a> {
         (q > 0.0 && rng.random::<f32>() < q).then_some(q)
     }
 
-    fn gather_texel(&self, scratch: &mut Scratch, t: &Texel, width: u32, owners: &OwnerMap, mis: Option<&MisTables>) -> TexelPanes {
+    fn gather_texel(
+        &self,
+        scratch: &mut Scratch,
+        t: &Texel,
+        width: u32,
+        owners: &OwnerMap,
+        mis: Option<&MisTables>,
+    ) -> TexelPanes {
         let mut rng = stream(self.seed, 3, t.j as u64 * width as u64 + t.i as u64);
         let k = self.paths.max(1);
         // First directions: a Hammersley set shifted by a random rotation (Cranley-Patterson),
@@ -358,7 +390,10 @@ impl<'a> Transport<'a> {
             let mut depth = 0;
             loop {
                 let (u1, u2) = if depth == 0 {
-                    (((path as f32 + 0.5) / k as f32 + shift.0).fract(), (radical_inverse(path) + shift.1).fract())
+                    (
+                        ((path as f32 + 0.5) / k as f32 + shift.0).fract(),
+                        (radical_inverse(path) + shift.1).fract(),
+                    )
                 } else {
                     (rng.random(), rng.random())
                 };
@@ -374,7 +409,8 @@ impl<'a> Transport<'a> {
                         // First vertex under MIS: weight against the entry samples of c.
                         let area_c = mis.map_or(0.0, |m| m.area[c as usize]);
                         let r2 = (y - t.position).length_squared();
-                        let p_b = (t.normal.dot(y - t.position).max(0.0) * ny.dot(t.position - y).max(0.0)) / (std::f32::consts::PI * r2 * r2);
+                        let p_b = (t.normal.dot(y - t.position).max(0.0) * ny.dot(t.position - y).max(0.0))
+                            / (std::f32::consts::PI * r2 * r2);
                         let w = 1.0 / (1.0 + 1.0 / (k as f32 * p_b * area_c).max(1e-30));
                         scratch.add(c, beta * w);
                     }
@@ -430,7 +466,12 @@ impl<'a> Transport<'a> {
         let mut scratch = Scratch::new(self.clusters);
         set.texels
             .iter()
-            .map(|t| self.gather_texel(&mut scratch, t, set.width, &owners, None).iter().map(|&(c, v)| v * weights[c as usize]).fold(Vec3::ZERO, |a, b| a + b))
+            .map(|t| {
+                self.gather_texel(&mut scratch, t, set.width, &owners, None)
+                    .iter()
+                    .map(|&(c, v)| v * weights[c as usize])
+                    .fold(Vec3::ZERO, |a, b| a + b)
+            })
             .collect()
     }
 
@@ -475,7 +516,13 @@ impl<'a> Transport<'a> {
         per_entry.into_iter().flatten().collect()
     }
 
-    fn scatter_texel(&self, scratch: &mut Scratch, t: &Texel, vpls: &[(Vec3, Vec3, Vec3, u32)], rc2: f32) -> TexelPanes {
+    fn scatter_texel(
+        &self,
+        scratch: &mut Scratch,
+        t: &Texel,
+        vpls: &[(Vec3, Vec3, Vec3, u32)],
+        rc2: f32,
+    ) -> TexelPanes {
         for &(z, nz, phi, c) in vpls {
             let d = t.position - z;
             let r2 = d.length_squared();

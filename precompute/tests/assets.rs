@@ -37,11 +37,17 @@ fn assert_closed(scene: &Scene, hidden: f64) {
         let r = a.sqrt();
         let phi = std::f32::consts::TAU * b;
         let d = (e1 * r * phi.cos() + e2 * r * phi.sin() + t.normal * (1.0 - a).sqrt()).normalize();
-        let hit = bvh.trace_from_surface(t.position, t.normal, d).unwrap_or_else(|| panic!("{}: ray escaped from texel ({}, {}) at {} along {d}", scene.source, t.i, t.j, t.position));
+        let hit = bvh.trace_from_surface(t.position, t.normal, d).unwrap_or_else(|| {
+            panic!("{}: ray escaped from texel ({}, {}) at {} along {d}", scene.source, t.i, t.j, t.position)
+        });
         rays += 1;
         back += (scene.face_normal(hit.triangle as usize).dot(d) >= 0.0) as usize;
     }
-    assert!(back as f64 <= hidden * rays as f64, "{}: {back} of {rays} rays reached a back face", scene.source);
+    assert!(
+        back as f64 <= hidden * rays as f64,
+        "{}: {back} of {rays} rays reached a back face",
+        scene.source
+    );
 }
 
 #[test]
@@ -56,7 +62,8 @@ fn cornell_box_matches_the_published_box() {
     assert_eq!(s.cameras.len(), 1);
     // Red on the left (+x seen from the camera), green on the right.
     let red = s.materials.iter().position(|m| m.name == "red").unwrap() as u32;
-    let red_x: f32 = s.triangles.iter().filter(|t| t.material == red).map(|t| s.positions[t.v[0] as usize].x).sum::<f32>();
+    let red_x: f32 =
+        s.triangles.iter().filter(|t| t.material == red).map(|t| s.positions[t.v[0] as usize].x).sum::<f32>();
     assert!(red_x > 0.5 * 2.0);
     // Room faces point into the box, block faces away from their block.
     let centre = Vec3::new(0.278, 0.274, 0.28);

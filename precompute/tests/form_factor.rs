@@ -10,7 +10,11 @@ use rand_pcg::Pcg64Mcg;
 /// `(1/pi) int_A max(cos_y, 0) |cos_x| / r^2 dA` by uniform area samples of a convex polygon.
 fn mc_form_factor(p: Vec3, n: Vec3, poly: &[Vec3], samples: usize, rng: &mut Pcg64Mcg) -> (f64, f64) {
     let nx = (poly[1] - poly[0]).cross(poly[2] - poly[0]).normalize();
-    let tris: Vec<(Vec3, Vec3, Vec3, f32)> = (1..poly.len() - 1).map(|k| (poly[0], poly[k], poly[k + 1], 0.5 * (poly[k] - poly[0]).cross(poly[k + 1] - poly[0]).length())).collect();
+    let tris: Vec<(Vec3, Vec3, Vec3, f32)> = (1..poly.len() - 1)
+        .map(|k| {
+            (poly[0], poly[k], poly[k + 1], 0.5 * (poly[k] - poly[0]).cross(poly[k + 1] - poly[0]).length())
+        })
+        .collect();
     let area: f32 = tris.iter().map(|t| t.3).sum();
     let (mut s, mut s2) = (0.0f64, 0.0f64);
     for _ in 0..samples {
@@ -52,16 +56,21 @@ fn analytic_matches_monte_carlo_in_random_configurations() {
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let mut checked = 0;
     for _ in 0..40 {
-        let rand_unit = |rng: &mut Pcg64Mcg| Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5).normalize();
+        let rand_unit = |rng: &mut Pcg64Mcg| {
+            Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5)
+                .normalize()
+        };
         let nx = rand_unit(&mut rng);
         let c = Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0;
         // A convex pentagon-ish polygon: a regular polygon with jittered radius.
         let (t, b) = nx.any_orthonormal_pair();
         let k = rng.random_range(3..=8);
-        let poly: Vec<Vec3> = (0..k).map(|i| {
-            let a = std::f32::consts::TAU * i as f32 / k as f32;
-            c + (t * a.cos() + b * a.sin()) * 0.5
-        }).collect();
+        let poly: Vec<Vec3> = (0..k)
+            .map(|i| {
+                let a = std::f32::consts::TAU * i as f32 / k as f32;
+                c + (t * a.cos() + b * a.sin()) * 0.5
+            })
+            .collect();
         let p = c + nx * rng.random_range(0.05..1.5) + rand_unit(&mut rng) * rng.random_range(0.0..1.5);
         let n = rand_unit(&mut rng);
         let exact = point_to_polygon(p, n, &poly) as f64;
@@ -98,7 +107,11 @@ fn nearly_grazing_receiver() {
 #[test]
 fn receiver_in_the_light_plane_gets_the_epsilon_shift() {
     // A floor light and a wall texel at its edge, in the floor's plane.
-    let light = PolygonLight { vertices: square(Vec3::new(0.5, 0.0, 0.0), 0.5, Vec3::Y), normal: Vec3::Y, power: Vec3::splat(2.0) };
+    let light = PolygonLight {
+        vertices: square(Vec3::new(0.5, 0.0, 0.0), 0.5, Vec3::Y),
+        normal: Vec3::Y,
+        power: Vec3::splat(2.0),
+    };
     let (p, n) = (Vec3::new(-0.001, 0.0, 0.0), Vec3::X);
     assert_eq!(point_to_polygon(p, n, &light.vertices), 0.0, "in the plane the polygon has no solid angle");
     let eps = 0.01;
@@ -120,7 +133,11 @@ fn tiny_distant_polygon_falls_back_to_a_point_light_consistently() {
     let e = light.irradiance(p, n, 1e-3).x;
     assert!((e - point).abs() <= 1e-4 * point, "fallback {e} vs point light {point}");
     // Just above the threshold the contour formula is used and agrees to O((r/d)^2).
-    let near = PolygonLight { vertices: square(Vec3::new(0.0, 5.0, 0.0), 0.01, -Vec3::Y), normal: -Vec3::Y, power: Vec3::splat(5.0) };
+    let near = PolygonLight {
+        vertices: square(Vec3::new(0.0, 5.0, 0.0), 0.01, -Vec3::Y),
+        normal: -Vec3::Y,
+        power: Vec3::splat(5.0),
+    };
     let exact = near.irradiance(Vec3::ZERO, Vec3::Y, 1e-3).x;
     let point = 5.0 / (std::f32::consts::PI * 25.0);
     assert!((exact - point).abs() <= 1e-3 * point, "{exact} vs {point}");
@@ -129,7 +146,11 @@ fn tiny_distant_polygon_falls_back_to_a_point_light_consistently() {
 #[test]
 fn polygon_irradiance_is_power_over_area_times_form_factor() {
     // A large square light close above a receiver: E -> L pi = Phi / A as it fills the sky.
-    let light = PolygonLight { vertices: square(Vec3::new(0.0, 0.01, 0.0), 50.0, -Vec3::Y), normal: -Vec3::Y, power: Vec3::splat(1e4) };
+    let light = PolygonLight {
+        vertices: square(Vec3::new(0.0, 0.01, 0.0), 50.0, -Vec3::Y),
+        normal: -Vec3::Y,
+        power: Vec3::splat(1e4),
+    };
     let e = light.irradiance(Vec3::ZERO, Vec3::Y, 1e-4).x;
     let full = 1e4 / light.area();
     assert!((e - full).abs() <= 1e-3 * full, "{e} vs {full}");
@@ -139,7 +160,12 @@ fn polygon_irradiance_is_power_over_area_times_form_factor() {
 
 #[test]
 fn sphere_light_is_bounded_and_inverse_square_far_away() {
-    let s = SphereLight { centre: Vec3::new(0.0, 1.0, 0.0), radius: 0.2, normal: -Vec3::Y, power: Vec3::splat(3.0) };
+    let s = SphereLight {
+        centre: Vec3::new(0.0, 1.0, 0.0),
+        radius: 0.2,
+        normal: -Vec3::Y,
+        power: Vec3::splat(3.0),
+    };
     let at = |y: f32| s.irradiance(Vec3::new(0.0, 1.0 - y, 0.0), Vec3::Y).x;
     assert!(at(1e-6).is_finite() && at(1e-6) <= 3.0 / (std::f32::consts::PI * 0.04) + 1e-3);
     // Beyond its radius it is exactly a point light.

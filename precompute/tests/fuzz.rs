@@ -60,7 +60,8 @@ fn mutate(rng: &mut Pcg64, mut b: Vec<u8>) -> Vec<u8> {
             1 if n > 0 => b[at] = [0u8, 0xff, 0x7f, 0x80, b'9', b'-', b'e'][rng.random_range(0..7)],
             2 if n >= 4 => {
                 let at = at.min(n - 4);
-                let v: u32 = [0, 1, u32::MAX, u32::MAX / 2, 0x7f80_0000, 0xffc0_0000, 65536, 1 << 30][rng.random_range(0..8)];
+                let v: u32 = [0, 1, u32::MAX, u32::MAX / 2, 0x7f80_0000, 0xffc0_0000, 65536, 1 << 30]
+                    [rng.random_range(0..8)];
                 b[at..at + 4].copy_from_slice(&v.to_le_bytes());
             }
             3 if n > 0 => {
@@ -85,7 +86,12 @@ fn mutate(rng: &mut Pcg64, mut b: Vec<u8>) -> Vec<u8> {
 }
 
 /// Runs `load` on mutations of `valid` for the budget; returns (mutations, accepted).
-fn fuzz(name: &str, valid: &[u8], mut mutator: impl FnMut(&mut Pcg64, &[u8]) -> Vec<u8>, load: impl Fn(&[u8]) -> bool) -> (usize, usize) {
+fn fuzz(
+    name: &str,
+    valid: &[u8],
+    mut mutator: impl FnMut(&mut Pcg64, &[u8]) -> Vec<u8>,
+    load: impl Fn(&[u8]) -> bool,
+) -> (usize, usize) {
     let seconds: f64 = env_or("PRM_FUZZ_SECONDS", 4.0);
     let iterations: usize = env_or("PRM_FUZZ_ITERATIONS", 20_000);
     let seed: u64 = env_or("PRM_FUZZ_SEED", 1);
@@ -110,11 +116,24 @@ fn fuzz(name: &str, valid: &[u8], mut mutator: impl FnMut(&mut Pcg64, &[u8]) -> 
             Ok(accepted) => ok += accepted as usize,
             Err(_) => panic!("{name}: mutation {n} panicked (input saved to {})", dump()),
         }
-        assert!(LARGEST.load(Ordering::Relaxed) <= MAX_ALLOC, "{name}: mutation {n} allocated {} bytes at once (input saved to {})", LARGEST.load(Ordering::Relaxed), dump());
-        assert!(took < Duration::from_secs(2), "{name}: mutation {n} took {took:?} (input saved to {})", dump());
+        assert!(
+            LARGEST.load(Ordering::Relaxed) <= MAX_ALLOC,
+            "{name}: mutation {n} allocated {} bytes at once (input saved to {})",
+            LARGEST.load(Ordering::Relaxed),
+            dump()
+        );
+        assert!(
+            took < Duration::from_secs(2),
+            "{name}: mutation {n} took {took:?} (input saved to {})",
+            dump()
+        );
         n += 1;
     }
-    println!("{name}: {n} mutations in {:.1} s, {ok} loaded, {} refused with an error", start.elapsed().as_secs_f64(), n - ok);
+    println!(
+        "{name}: {n} mutations in {:.1} s, {ok} loaded, {} refused with an error",
+        start.elapsed().as_secs_f64(),
+        n - ok
+    );
     assert!(n >= 100, "{name}: only {n} mutations ran");
     (n, ok)
 }
@@ -137,9 +156,12 @@ fn fix_checksum(mut b: Vec<u8>) -> Vec<u8> {
 fn mutate_header(rng: &mut Pcg64, b: &[u8]) -> Vec<u8> {
     let len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut header: serde_json::Value = serde_json::from_slice(&b[16..16 + len]).unwrap();
-    let keys: Vec<String> = header.as_object().unwrap().iter().filter(|(_, v)| v.is_number()).map(|(k, _)| k.clone()).collect();
+    let keys: Vec<String> =
+        header.as_object().unwrap().iter().filter(|(_, v)| v.is_number()).map(|(k, _)| k.clone()).collect();
     let key = &keys[rng.random_range(0..keys.len())];
-    let v: serde_json::Value = [0u64, 1, 7, 255, 65536, 65537, u32::MAX as u64, 1 << 40].map(serde_json::Value::from)[rng.random_range(0..8)].clone();
+    let v: serde_json::Value = [0u64, 1, 7, 255, 65536, 65537, u32::MAX as u64, 1 << 40]
+        .map(serde_json::Value::from)[rng.random_range(0..8)]
+    .clone();
     header[key] = v;
     let text = serde_json::to_vec(&header).unwrap();
     let mut out = b[..12].to_vec();
@@ -153,8 +175,17 @@ fn mutate_header(rng: &mut Pcg64, b: &[u8]) -> Vec<u8> {
 fn mutated_prm_files_load_or_are_refused() {
     let scene = prm::gltf_load::load_scene(root().join("assets/cornell.glb"), &Default::default()).unwrap();
     let bvh = prm::Bvh::build(&scene);
-    let p = prm_precompute::precompute::PrecomputeParams { entries: 128, paths: 4, clusters: 12, atlas: 24, tile_size: 8, ..Default::default() };
-    let (map, _) = prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 128,
+        paths: 4,
+        clusters: 12,
+        atlas: 24,
+        tile_size: 8,
+        ..Default::default()
+    };
+    let (map, _) =
+        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
+            .unwrap();
     let valid = map.to_bytes();
     let path = Path::new("fuzz.prm");
     let load = |b: &[u8]| prm::prm_file::Prm::from_bytes(path, b).is_ok();
@@ -177,7 +208,9 @@ fn mutated_gltf_files_load_or_are_refused() {
     static OURS: AtomicBool = AtomicBool::new(false);
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
-        let in_gltf = info.location().is_some_and(|l| l.file().contains("gltf-") || l.file().contains("gltf_json") || l.file().contains("/gltf/"));
+        let in_gltf = info.location().is_some_and(|l| {
+            l.file().contains("gltf-") || l.file().contains("gltf_json") || l.file().contains("/gltf/")
+        });
         if !in_gltf {
             OURS.store(true, Ordering::SeqCst);
             default(info)
@@ -223,7 +256,10 @@ fn mutated_rigs_load_or_are_refused() {
             // A rig that parses must also produce finite lights at any time.
             for f in 0..4 {
                 for l in rig.frame(f, 4) {
-                    assert!(l.intensity.is_finite() && l.intensity.min_element() >= 0.0, "rig accepted a bad light {l:?}");
+                    assert!(
+                        l.intensity.is_finite() && l.intensity.min_element() >= 0.0,
+                        "rig accepted a bad light {l:?}"
+                    );
                 }
             }
             true

@@ -9,9 +9,13 @@ use glam::Vec3;
 use prm::{Bvh, Light, LightKind, Material, Scene, TexelSet};
 use prm_precompute::ground_truth::{GtParams, Tracer};
 
-
 fn floor_quad(half: f32) -> [Vec3; 4] {
-    [Vec3::new(-half, 0.0, -half), Vec3::new(-half, 0.0, half), Vec3::new(half, 0.0, half), Vec3::new(half, 0.0, -half)]
+    [
+        Vec3::new(-half, 0.0, -half),
+        Vec3::new(-half, 0.0, half),
+        Vec3::new(half, 0.0, half),
+        Vec3::new(half, 0.0, -half),
+    ]
 }
 
 #[test]
@@ -19,7 +23,14 @@ fn point_light_over_a_plane_is_inverse_square_times_cosine() {
     let mut scene = common::quads(&[floor_quad(2.0)], 0.5);
     let light_pos = Vec3::new(0.3, 1.5, -0.2);
     let intensity = Vec3::new(10.0, 5.0, 2.5);
-    scene.lights.push(Light { name: "p".into(), kind: LightKind::Point, position: light_pos, direction: -Vec3::Y, intensity, range: None });
+    scene.lights.push(Light {
+        name: "p".into(),
+        kind: LightKind::Point,
+        position: light_pos,
+        direction: -Vec3::Y,
+        intensity,
+        range: None,
+    });
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 8, ..Default::default() });
     let set = TexelSet::build(&scene, 32, 32);
@@ -28,7 +39,14 @@ fn point_light_over_a_plane_is_inverse_square_times_cosine() {
         let d = light_pos - t.position;
         let want = intensity * (d.y / d.length()) / d.length_squared();
         // Next-event estimation of a point light has no noise: only float round-off remains.
-        assert!((r.direct - want).abs().max_element() <= 1e-4 * want.max_element(), "texel ({}, {}): {} vs {}", t.i, t.j, r.direct, want);
+        assert!(
+            (r.direct - want).abs().max_element() <= 1e-4 * want.max_element(),
+            "texel ({}, {}): {} vs {}",
+            t.i,
+            t.j,
+            r.direct,
+            want
+        );
         assert_eq!(r.direct_stderr, Vec3::ZERO);
         // Nothing for the light to bounce off.
         assert_eq!(r.indirect, Vec3::ZERO, "texel {:?} at {} n {}", (t.i, t.j), t.position, t.normal);
@@ -61,7 +79,11 @@ fn furnace_indirect_is_a_over_one_minus_a_times_direct() {
             // Every direction sees an emitting wall: the direct estimate has no variance.
             assert!((r.direct.x - direct).abs() < 1e-4 * direct);
         }
-        assert!((mean - want).abs() <= 3.0 * se, "albedo {a}: indirect {mean} vs {want} (3 sigma = {})", 3.0 * se);
+        assert!(
+            (mean - want).abs() <= 3.0 * se,
+            "albedo {a}: indirect {mean} vs {want} (3 sigma = {})",
+            3.0 * se
+        );
         assert!(se < 0.02 * want, "albedo {a}: the test needs a tight estimate (se {se})");
         assert_eq!(tracer.stats.truncated.load(std::sync::atomic::Ordering::Relaxed), 0);
     }
@@ -83,10 +105,15 @@ fn polygon_cosine_integral(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
 fn square_emitter_irradiance_matches_the_form_factor() {
     let h = 0.7;
     // Emitter faces down (-y), 0.8 x 0.8, offset from the receiver's centre.
-    let em = [Vec3::new(-0.2, h, -0.3), Vec3::new(0.6, h, -0.3), Vec3::new(0.6, h, 0.5), Vec3::new(-0.2, h, 0.5)];
+    let em =
+        [Vec3::new(-0.2, h, -0.3), Vec3::new(0.6, h, -0.3), Vec3::new(0.6, h, 0.5), Vec3::new(-0.2, h, 0.5)];
     let mut scene = common::quads(&[floor_quad(1.0), em], 0.5);
     scene.materials[0].albedo = Vec3::ZERO;
-    scene.materials.push(Material { albedo: Vec3::ZERO, emissive: Vec3::new(3.0, 2.0, 1.0), ..Default::default() });
+    scene.materials.push(Material {
+        albedo: Vec3::ZERO,
+        emissive: Vec3::new(3.0, 2.0, 1.0),
+        ..Default::default()
+    });
     for t in scene.triangles.iter_mut().skip(2) {
         t.material = 1;
     }
@@ -114,7 +141,13 @@ fn ground_truth_is_the_same_at_any_thread_count() {
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 16, ..Default::default() });
     let set = TexelSet::build(&scene, 16, 16);
-    let run = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(false)).unwrap());
+    let run = |n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(|| tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(false)).unwrap())
+    };
     assert_eq!(run(1), run(2));
 }
 

@@ -15,8 +15,6 @@ use prm_precompute::entries::sample_entries;
 use prm_precompute::precompute::{precompute, PrecomputeParams};
 use prm_precompute::transport::{Estimator, Transport};
 
-
-
 /// A closed unit box, faces inward.
 fn closed_box(albedo: f32) -> Scene {
     quads(&unit_box_faces(), albedo)
@@ -54,9 +52,18 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
         let sigma_texel = sigma_walk / (p.paths as f32).sqrt();
         let mean = vals.iter().map(|v| v.x).sum::<f32>() / vals.len() as f32;
         let sigma_mean = sigma_texel / (vals.len() as f32).sqrt();
-        assert!((mean - want).abs() <= 4.0 * sigma_mean + 2e-3 * want, "a = {a}: mean {mean} vs {want} (sigma {sigma_mean})");
+        assert!(
+            (mean - want).abs() <= 4.0 * sigma_mean + 2e-3 * want,
+            "a = {a}: mean {mean} vs {want} (sigma {sigma_mean})"
+        );
         for (t, x) in set.texels.iter().zip(&vals) {
-            assert!((x.x - want).abs() <= 6.0 * sigma_texel + 2e-3 * want, "a = {a}: texel ({}, {}) {} vs {want}", t.i, t.j, x.x);
+            assert!(
+                (x.x - want).abs() <= 6.0 * sigma_texel + 2e-3 * want,
+                "a = {a}: texel ({}, {}) {} vs {want}",
+                t.i,
+                t.j,
+                x.x
+            );
             assert!((x.y - x.x).abs() <= 2e-3 * want, "grey box stays grey");
         }
     }
@@ -79,13 +86,24 @@ fn superposition_and_clustering_invariance() {
     let p = PrecomputeParams { smooth_radius: 0, ..params(256, 32, 12, 20) };
     let prm = bake(&scene, &p);
     let set = TexelSet::build(&scene, 20, 20);
-    let weights: Vec<Vec3> = (0..prm.clusters.len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
+    let weights: Vec<Vec3> =
+        (0..prm.clusters.len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
     let composed = at_texels(&set, &prm.compose(&weights));
     // The same walks evaluated directly for that field.
     let entries = sample_entries(&scene, 256, p.seed);
     let clustering = cluster_entries(&entries, 12, scene.total_area(), p.kmeans_iterations as usize, p.seed);
     assert_eq!(clustering.members.len(), prm.clusters.len());
-    let tr = Transport { scene: &scene, bvh: &bvh, entries: &entries, assignment: &clustering.assignment, clusters: clustering.members.len(), paths: p.paths, max_bounces: p.max_bounces, seed: p.seed, stats: Default::default() };
+    let tr = Transport {
+        scene: &scene,
+        bvh: &bvh,
+        entries: &entries,
+        assignment: &clustering.assignment,
+        clusters: clustering.members.len(),
+        paths: p.paths,
+        max_bounces: p.max_bounces,
+        seed: p.seed,
+        stats: Default::default(),
+    };
     let direct = tr.gather_field(&set, &weights);
     let peak = direct.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
     for (a, b) in composed.iter().zip(&direct) {
@@ -117,7 +135,8 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
     let set = TexelSet::build(&scene, 16, 16);
     let estimate = |est: Estimator| {
         let prm = bake(&scene, &PrecomputeParams { estimator: est, ..params(1024, 1024, 16, 16) });
-        let e: Vec<Vec3> = prm.entries.iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
+        let e: Vec<Vec3> =
+            prm.entries.iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
         at_texels(&set, &prm.compose(&prm.cluster_weights(&e)))
     };
     let ours = [("gather", estimate(Estimator::Gather)), ("mis", estimate(Estimator::Mis))];
@@ -133,7 +152,8 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
         for en in entries.iter().filter(|en| en.normal.y > 0.5) {
             // One walk per entry: the entry's own light (l = 0), then its bounces.
             let mut lights = vec![(en.position, en.normal, en.albedo * en.area)];
-            let mut rng = prm_precompute::entries::stream(b, 9, lights.len() as u64 + (en.position.x.to_bits() as u64));
+            let mut rng =
+                prm_precompute::entries::stream(b, 9, lights.len() as u64 + (en.position.x.to_bits() as u64));
             let (mut x, mut n, mut phi) = (en.position, en.normal, en.albedo * en.area);
             loop {
                 use rand::Rng;
@@ -185,7 +205,10 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
         let se = (var / batches as f32).sqrt();
         for (name, fast) in &ours {
             let m = mean_of(fast);
-            assert!((m - twin).abs() <= 3.0 * se + 0.02 * twin, "wall {wall}: {name} {m} vs twin {twin} (se {se})");
+            assert!(
+                (m - twin).abs() <= 3.0 * se + 0.02 * twin,
+                "wall {wall}: {name} {m} vs twin {twin} (se {se})"
+            );
         }
         assert!(twin > 0.01);
     }
@@ -204,7 +227,10 @@ fn bad_prm_files_get_their_errors() {
     let bytes = prm.to_bytes();
     let dir = tempfile::tempdir().unwrap();
     assert_eq!(write_read(dir.path(), "ok.prm", &bytes, Some(&scene)).unwrap(), prm);
-    assert!(matches!(write_read(dir.path(), "trunc.prm", &bytes[..bytes.len() / 2], None), Err(PrmError::Checksum { .. } | PrmError::Truncated { .. })));
+    assert!(matches!(
+        write_read(dir.path(), "trunc.prm", &bytes[..bytes.len() / 2], None),
+        Err(PrmError::Checksum { .. } | PrmError::Truncated { .. })
+    ));
     assert!(matches!(write_read(dir.path(), "tiny.prm", &bytes[..5], None), Err(PrmError::Truncated { .. })));
     let mut flipped = bytes.clone();
     let mid = flipped.len() / 2;
@@ -212,18 +238,30 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(write_read(dir.path(), "flip.prm", &flipped, None), Err(PrmError::Checksum { .. })));
     let mut version = bytes.clone();
     version[8] = 7;
-    assert!(matches!(write_read(dir.path(), "v7.prm", &version, None), Err(PrmError::Version { found: 7, .. })));
-    assert!(matches!(write_read(dir.path(), "magic.prm", b"glTF and then some bytes", None), Err(PrmError::Magic { .. })));
+    assert!(matches!(
+        write_read(dir.path(), "v7.prm", &version, None),
+        Err(PrmError::Version { found: 7, .. })
+    ));
+    assert!(matches!(
+        write_read(dir.path(), "magic.prm", b"glTF and then some bytes", None),
+        Err(PrmError::Magic { .. })
+    ));
     let other = closed_box(0.6);
     let err = write_read(dir.path(), "other.prm", &bytes, Some(&other)).unwrap_err();
     assert!(matches!(err, PrmError::WrongScene { .. }) && err.to_string().contains("another scene"), "{err}");
     // A corrupt but correctly checksummed body is still caught by the bounds checks.
     let mut evil = prm.clone();
     evil.tiles[0].cluster = 99;
-    assert!(matches!(Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()), Err(PrmError::Corrupt { .. })));
+    assert!(matches!(
+        Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()),
+        Err(PrmError::Corrupt { .. })
+    ));
     let mut evil = prm.clone();
     evil.clusters[0].members.push(10_000);
-    assert!(matches!(Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()), Err(PrmError::Corrupt { .. })));
+    assert!(matches!(
+        Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()),
+        Err(PrmError::Corrupt { .. })
+    ));
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
@@ -232,7 +270,13 @@ fn same_bytes_at_one_and_two_threads() {
     let scene = closed_box(0.7);
     for est in [Estimator::Gather, Estimator::Mis, Estimator::Scatter { clamp: 0.5 }] {
         let p = PrecomputeParams { estimator: est, ..params(128, 8, 10, 16) };
-        let run = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| bake(&scene, &p).to_bytes());
+        let run = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+                .install(|| bake(&scene, &p).to_bytes())
+        };
         assert!(run(1) == run(2), "{est}: output differs between 1 and 2 threads");
     }
 }
@@ -259,7 +303,11 @@ fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
     let a = 0.5f32;
     let scene = closed_box(a);
     let mean_of = |clamp: f32| {
-        let p = PrecomputeParams { estimator: Estimator::Scatter { clamp }, smooth_radius: 0, ..params(2048, 8, 16, 16) };
+        let p = PrecomputeParams {
+            estimator: Estimator::Scatter { clamp },
+            smooth_radius: 0,
+            ..params(2048, 8, 16, 16)
+        };
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 16, 16);
         let vals = at_texels(&set, &prm.compose(&vec![Vec3::ONE; prm.clusters.len()]));
@@ -284,7 +332,9 @@ fn entries_inside_a_solid_are_recognised() {
     // A floor with a closed box standing on it: floor points under the box are enclosed.
     let mut qs = vec![[v(-2., 0., -2.), v(-2., 0., 2.), v(2., 0., 2.), v(2., 0., -2.)]];
     let (lo, hi) = (v(-0.5, 0.0, -0.5), v(0.5, 1.0, 0.5));
-    let c = |x: bool, y: bool, z: bool| v(if x { hi.x } else { lo.x }, if y { hi.y } else { lo.y }, if z { hi.z } else { lo.z });
+    let c = |x: bool, y: bool, z: bool| {
+        v(if x { hi.x } else { lo.x }, if y { hi.y } else { lo.y }, if z { hi.z } else { lo.z })
+    };
     qs.push([c(false, false, false), c(false, false, true), c(false, true, true), c(false, true, false)]);
     qs.push([c(true, false, false), c(true, true, false), c(true, true, true), c(true, false, true)]);
     qs.push([c(false, true, false), c(false, true, true), c(true, true, true), c(true, true, false)]);
@@ -292,13 +342,22 @@ fn entries_inside_a_solid_are_recognised() {
     qs.push([c(false, false, true), c(true, false, true), c(true, true, true), c(false, true, true)]);
     let scene = quads(&qs, 0.5);
     let bvh = Bvh::build(&scene);
-    let entry = |p: Vec3| prm::prm_file::Entry { position: p, normal: Vec3::Y, albedo: Vec3::splat(0.5), area: 1.0, triangle: 0 };
+    let entry = |p: Vec3| prm::prm_file::Entry {
+        position: p,
+        normal: Vec3::Y,
+        albedo: Vec3::splat(0.5),
+        area: 1.0,
+        triangle: 0,
+    };
     assert!(prm_precompute::entries::is_enclosed(&scene, &bvh, &entry(v(0.1, 0.0, -0.2)), 0, 0));
     assert!(!prm_precompute::entries::is_enclosed(&scene, &bvh, &entry(v(1.5, 0.0, 1.5)), 0, 1));
     // The precompute drops exactly those: none of its entries lies under the box.
     let prm = bake(&scene, &params(512, 4, 8, 16));
     assert!(prm.entries.len() < 512 && prm.entries.len() > 400, "{} entries kept", prm.entries.len());
-    assert!(prm.entries.iter().all(|e| !(e.position.y < 1e-4 && e.position.x.abs() < 0.49 && e.position.z.abs() < 0.49)));
+    assert!(prm
+        .entries
+        .iter()
+        .all(|e| !(e.position.y < 1e-4 && e.position.x.abs() < 0.49 && e.position.z.abs() < 0.49)));
 }
 
 #[test]
@@ -330,9 +389,14 @@ fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
         }
         let sum = prm::prm_file::fnv1a(prm::prm_file::FNV_START, &b);
         b.extend_from_slice(&sum.to_le_bytes());
-        let r = std::panic::catch_unwind(|| Prm::from_bytes(Path::new("m.prm"), &b).map(|p| p.compose(&vec![Vec3::ONE; p.clusters.len()])));
+        let r = std::panic::catch_unwind(|| {
+            Prm::from_bytes(Path::new("m.prm"), &b).map(|p| p.compose(&vec![Vec3::ONE; p.clusters.len()]))
+        });
         match r {
-            Ok(Ok(img)) => assert!(img.iter().all(|v| v.is_finite() && v.min_element() >= 0.0), "a loaded file composes to bad values"),
+            Ok(Ok(img)) => assert!(
+                img.iter().all(|v| v.is_finite() && v.min_element() >= 0.0),
+                "a loaded file composes to bad values"
+            ),
             Ok(Err(_)) => refused += 1,
             Err(_) => panic!("a mutated file made the loader or compose panic"),
         }
@@ -345,7 +409,8 @@ fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
     // Grey weights: the group panes' energy stands in exactly (up to dropped tiles and half
     // floats) for the left-out clusters' energy, so top-K + groups has the full sum's total.
     let scene = common::quads(&common::unit_box_faces(), 0.6);
-    let p = PrecomputeParams { entries: 512, paths: 8, clusters: 48, atlas: 32, groups: 6, ..Default::default() };
+    let p =
+        PrecomputeParams { entries: 512, paths: 8, clusters: 48, atlas: 32, groups: 6, ..Default::default() };
     let prm = bake(&scene, &p);
     assert_eq!(prm.groups.len(), 6);
     assert_eq!(prm.group_of.len(), prm.clusters.len());

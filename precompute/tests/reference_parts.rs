@@ -3,7 +3,9 @@
 
 use glam::Vec2;
 use prm_precompute::reference::kdtree::{cluster, gap_split};
-use prm_precompute::reference::polygon::{area, contains, convex_hull, is_convex_ccw, light_polygon, simplify_outer};
+use prm_precompute::reference::polygon::{
+    area, contains, convex_hull, is_convex_ccw, light_polygon, simplify_outer,
+};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -22,7 +24,10 @@ fn light_polygons_are_convex_small_contain_their_vpls_and_stay_in_the_cell() {
         if hull.len() >= 3 {
             assert!(is_convex_ccw(&hull));
             let simple = simplify_outer(&hull, 8);
-            assert!(simple.len() <= 8 && is_convex_ccw(&simple), "trial {trial}: simplified hull not convex or too big");
+            assert!(
+                simple.len() <= 8 && is_convex_ccw(&simple),
+                "trial {trial}: simplified hull not convex or too big"
+            );
             assert!(area(&simple) >= area(&hull) - 1e-6);
             for p in &pts {
                 assert!(contains(&simple, *p, 1e-5), "trial {trial}: simplification lost a VPL");
@@ -35,7 +40,10 @@ fn light_polygons_are_convex_small_contain_their_vpls_and_stay_in_the_cell() {
             assert!(contains(&poly, *p, 1e-5), "trial {trial}: VPL {p} outside its light polygon");
         }
         for v in &poly {
-            assert!(v.x >= lo.x - 1e-5 && v.x <= hi.x + 1e-5 && v.y >= lo.y - 1e-5 && v.y <= hi.y + 1e-5, "trial {trial}: vertex {v} leaves the cell");
+            assert!(
+                v.x >= lo.x - 1e-5 && v.x <= hi.x + 1e-5 && v.y >= lo.y - 1e-5 && v.y <= hi.y + 1e-5,
+                "trial {trial}: vertex {v} leaves the cell"
+            );
         }
     }
 }

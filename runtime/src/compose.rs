@@ -56,7 +56,12 @@ impl ComposePass {
         let mut by_tile: Vec<Vec<TileRecord>> = vec![Vec::new(); atlas_tiles];
         let mut texels_per_cluster = vec![0u64; prm.clusters.len() + prm.groups.len()];
         for (k, t) in prm.tiles.iter().enumerate() {
-            by_tile[t.index as usize].push(TileRecord { scale: t.scale.to_array(), cluster: t.cluster, data_offset: layout.offsets[k] as u32, _pad: [0; 3] });
+            by_tile[t.index as usize].push(TileRecord {
+                scale: t.scale.to_array(),
+                cluster: t.cluster,
+                data_offset: layout.offsets[k] as u32,
+                _pad: [0; 3],
+            });
             texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
         }
         let mut ranges = Vec::with_capacity(atlas_tiles);
@@ -67,19 +72,37 @@ impl ComposePass {
         }
         let data: &[u8] = bytemuck::cast_slice(&prm.data);
         let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
-        let params = ComposeParams { atlas_width: w, atlas_height: h, tile_size: ts, tiles_x, tile_count: atlas_tiles as u32, active_stride: stride, _pad: [0; 2] };
+        let params = ComposeParams {
+            atlas_width: w,
+            atlas_height: h,
+            tile_size: ts,
+            tiles_x,
+            tile_count: atlas_tiles as u32,
+            active_stride: stride,
+            _pad: [0; 2],
+        };
         let record_clusters: Vec<u32> = records.iter().map(|r| r.cluster).collect();
         let params = {
             use wgpu::util::DeviceExt;
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("compose params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM })
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("compose params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM,
+            })
         };
         let none = wgpu::BufferUsages::empty();
         let ranges_buf = gpu::storage_buffer(device, "tile ranges", bytemuck::cast_slice(&ranges), none);
         let records_buf = gpu::storage_buffer(device, "tile records", bytemuck::cast_slice(&records), none);
         let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&slots), none);
         let data_buf = gpu::storage_buffer(device, "pane data", data, none);
-        let clusters_buf = gpu::storage_buffer(device, "record clusters", bytemuck::cast_slice(&record_clusters), none);
-        let active_buf = gpu::storage_buffer(device, "active records", &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<crate::layout::ActiveRecord>()], none);
+        let clusters_buf =
+            gpu::storage_buffer(device, "record clusters", bytemuck::cast_slice(&record_clusters), none);
+        let active_buf = gpu::storage_buffer(
+            device,
+            "active records",
+            &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<crate::layout::ActiveRecord>()],
+            none,
+        );
         let count_buf = gpu::storage_buffer(device, "active counts", &vec![0u8; atlas_tiles * 4], none);
         let lightmap = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("indirect lightmap"),
@@ -88,7 +111,9 @@ impl ComposePass {
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: wgpu::TextureFormat::Rgba32Float,
-            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC,
+            usage: wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
         let c = wgpu::ShaderStages::COMPUTE;
@@ -104,7 +129,11 @@ impl ComposePass {
                 wgpu::BindGroupLayoutEntry {
                     binding: 6,
                     visibility: c,
-                    ty: wgpu::BindingType::StorageTexture { access: wgpu::StorageTextureAccess::WriteOnly, format: wgpu::TextureFormat::Rgba32Float, view_dimension: wgpu::TextureViewDimension::D2 },
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: wgpu::TextureFormat::Rgba32Float,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
                     count: None,
                 },
                 buffer_entry(7, c, READ),
@@ -114,20 +143,52 @@ impl ComposePass {
         });
         let view = lightmap.create_view(&Default::default());
         let buffers = [&params, selected, &ranges_buf, &records_buf, &slots_buf, &data_buf];
-        let mut entries: Vec<wgpu::BindGroupEntry> = buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
-        entries.push(wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&view) });
+        let mut entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        entries
+            .push(wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&view) });
         for (i, b) in [&clusters_buf, &active_buf, &count_buf].iter().enumerate() {
             entries.push(wgpu::BindGroupEntry { binding: 7 + i as u32, resource: b.as_entire_binding() });
         }
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("compose"), layout: &bgl, entries: &entries });
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("compose"),
+            layout: &bgl,
+            entries: &entries,
+        });
         let pipeline = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "compose_main", &[&bgl]);
         let gather = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "gather_main", &[&bgl]);
-        ComposePass { pipeline, gather, tiles: atlas_tiles as u32, group, size: (w, h), lightmap, records_per_tile: ranges.iter().map(|r| r[1]).collect(), texels_per_cluster, tiles_per_cluster: prm.clusters.iter().map(|c| c.tile_count as u64).chain(prm.groups.iter().map(|g| g.tile_count as u64)).collect(), texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64 }
+        ComposePass {
+            pipeline,
+            gather,
+            tiles: atlas_tiles as u32,
+            group,
+            size: (w, h),
+            lightmap,
+            records_per_tile: ranges.iter().map(|r| r[1]).collect(),
+            texels_per_cluster,
+            tiles_per_cluster: prm
+                .clusters
+                .iter()
+                .map(|c| c.tile_count as u64)
+                .chain(prm.groups.iter().map(|g| g.tile_count as u64))
+                .collect(),
+            texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64,
+        }
     }
 
     /// Records the compose.
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, timestamps: Option<wgpu::ComputePassTimestampWrites>) {
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("compose"), timestamp_writes: timestamps });
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        timestamps: Option<wgpu::ComputePassTimestampWrites>,
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("compose"),
+            timestamp_writes: timestamps,
+        });
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.gather);
         pass.dispatch_workgroups(self.tiles.div_ceil(64), 1, 1);
@@ -139,11 +200,25 @@ impl ComposePass {
     /// panes' f16 texels and their 32-byte records, a 4-byte pane id per stored tile (the
     /// gather), the slot table, the selection table, and the RGBA32F lightmap written.
     pub fn bytes(&self, selected: &[bool]) -> ComposeBytes {
-        let pane: u64 = self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| t * 2).sum();
+        let pane: u64 =
+            self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| t * 2).sum();
         let (w, h) = self.size;
         let texels = (w * h) as u64;
-        let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * 4).sum::<u64>() + self.tiles_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| t * 32).sum::<u64>();
-        ComposeBytes { pane_data: pane, headers, tables: texels * 4 + selected.len() as u64 * 16, written: texels * 16, stored_texels: self.texels }
+        let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * 4).sum::<u64>()
+            + self
+                .tiles_per_cluster
+                .iter()
+                .zip(selected)
+                .filter(|(_, s)| **s)
+                .map(|(t, _)| t * 32)
+                .sum::<u64>();
+        ComposeBytes {
+            pane_data: pane,
+            headers,
+            tables: texels * 4 + selected.len() as u64 * 16,
+            written: texels * 16,
+            stored_texels: self.texels,
+        }
     }
 }
 

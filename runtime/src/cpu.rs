@@ -56,7 +56,17 @@ impl<'a> CpuTwin<'a> {
     /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
     pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
         let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
-        CpuTwin { prm, bvh, top_k, layout: prm.layout(), last_lights: None, lightmap: vec![Vec3::ZERO; n], composes: 0, last_selected: 0, residual: true }
+        CpuTwin {
+            prm,
+            bvh,
+            top_k,
+            layout: prm.layout(),
+            last_lights: None,
+            lightmap: vec![Vec3::ZERO; n],
+            composes: 0,
+            last_selected: 0,
+            residual: true,
+        }
     }
 
     /// Whether groups stand in for the clusters left out (default true); the next frame

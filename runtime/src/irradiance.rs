@@ -25,23 +25,55 @@ pub struct EntryPass {
 impl EntryPass {
     /// A pass over these entry points (position, unit normal); `params` is the
     /// [`crate::layout::IndirectParams`] uniform.
-    pub fn new(device: &wgpu::Device, shadow_layout: &wgpu::BindGroupLayout, params: &wgpu::Buffer, points: &[(Vec3, Vec3)]) -> EntryPass {
-        let entries: Vec<GpuEntry> = points.iter().map(|(p, n)| GpuEntry { position: p.to_array(), normal: n.to_array(), ..Default::default() }).collect();
-        let entries = gpu::storage_buffer(device, "entries", bytemuck::cast_slice(&entries), wgpu::BufferUsages::empty());
-        let output = gpu::storage_buffer(device, "entry irradiance", &vec![0u8; points.len() * 16], wgpu::BufferUsages::COPY_SRC);
+    pub fn new(
+        device: &wgpu::Device,
+        shadow_layout: &wgpu::BindGroupLayout,
+        params: &wgpu::Buffer,
+        points: &[(Vec3, Vec3)],
+    ) -> EntryPass {
+        let entries: Vec<GpuEntry> = points
+            .iter()
+            .map(|(p, n)| GpuEntry { position: p.to_array(), normal: n.to_array(), ..Default::default() })
+            .collect();
+        let entries = gpu::storage_buffer(
+            device,
+            "entries",
+            bytemuck::cast_slice(&entries),
+            wgpu::BufferUsages::empty(),
+        );
+        let output = gpu::storage_buffer(
+            device,
+            "entry irradiance",
+            &vec![0u8; points.len() * 16],
+            wgpu::BufferUsages::COPY_SRC,
+        );
         let c = wgpu::ShaderStages::COMPUTE;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("entry irradiance"),
             entries: &[buffer_entry(0, c, UNIFORM), buffer_entry(1, c, READ), buffer_entry(2, c, WRITE)],
         });
         let group = gpu::bind_buffers(device, "entry irradiance", &layout, &[params, &entries, &output]);
-        let pipeline = gpu::compute_pipeline(device, "irradiance.wgsl", &source(), "entry_main", &[shadow_layout, &layout]);
+        let pipeline = gpu::compute_pipeline(
+            device,
+            "irradiance.wgsl",
+            &source(),
+            "entry_main",
+            &[shadow_layout, &layout],
+        );
         EntryPass { pipeline, group, count: points.len() as u32, output }
     }
 
     /// Records the pass; `shadows` is the lights + shadow maps group.
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, shadows: &wgpu::BindGroup, timestamps: Option<wgpu::ComputePassTimestampWrites>) {
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("entry irradiance"), timestamp_writes: timestamps });
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        shadows: &wgpu::BindGroup,
+        timestamps: Option<wgpu::ComputePassTimestampWrites>,
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("entry irradiance"),
+            timestamp_writes: timestamps,
+        });
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.group, &[]);

@@ -49,12 +49,15 @@ pub fn validate(lights: &[Light]) -> Result<(), LightError> {
         if !l.intensity.is_finite() || l.intensity.min_element() < 0.0 {
             return bad(format!("intensity {} must be finite and >= 0", l.intensity));
         }
-        if !matches!(l.kind, LightKind::Point) && !(l.direction.is_finite() && (l.direction.length() - 1.0).abs() < 1e-3) {
+        let unit = l.direction.is_finite() && (l.direction.length() - 1.0).abs() < 1e-3;
+        if !matches!(l.kind, LightKind::Point) && !unit {
             return bad(format!("direction {} is not a unit vector", l.direction));
         }
         if let LightKind::Spot { inner, outer } = l.kind {
             if !(0.0 <= inner && inner <= outer && outer <= std::f32::consts::FRAC_PI_2) {
-                return bad(format!("cone angles inner {inner} outer {outer} rad must satisfy 0 <= inner <= outer <= pi/2"));
+                return bad(format!(
+                    "cone angles inner {inner} outer {outer} rad must satisfy 0 <= inner <= outer <= pi/2"
+                ));
             }
         }
         if let Some(r) = l.range {
@@ -90,7 +93,14 @@ pub fn frusta(l: &Light, size: u32, bounds: Bounds) -> (Vec<Mat4>, f32) {
     let cube = |pos: Vec3| {
         let half = pad.atan();
         let proj = perspective_infinite_reverse(2.0 * half, 1.0, near);
-        let faces = [(Vec3::X, -Vec3::Y), (-Vec3::X, -Vec3::Y), (Vec3::Y, Vec3::Z), (-Vec3::Y, -Vec3::Z), (Vec3::Z, -Vec3::Y), (-Vec3::Z, -Vec3::Y)];
+        let faces = [
+            (Vec3::X, -Vec3::Y),
+            (-Vec3::X, -Vec3::Y),
+            (Vec3::Y, Vec3::Z),
+            (-Vec3::Y, -Vec3::Z),
+            (Vec3::Z, -Vec3::Y),
+            (-Vec3::Z, -Vec3::Y),
+        ];
         let mats = faces.iter().map(|&(d, up)| proj * look_to_mat4(pos, d, up)).collect();
         (mats, 2.0 * pad / size as f32)
     };
@@ -100,7 +110,10 @@ pub fn frusta(l: &Light, size: u32, bounds: Bounds) -> (Vec<Mat4>, f32) {
         LightKind::Spot { outer, .. } => {
             let half = (outer.max(1e-3).tan() * pad).atan();
             let proj = perspective_infinite_reverse(2.0 * half, 1.0, near);
-            (vec![proj * look_to_mat4(l.position, l.direction, up_for(l.direction))], 2.0 * half.tan() / size as f32)
+            (
+                vec![proj * look_to_mat4(l.position, l.direction, up_for(l.direction))],
+                2.0 * half.tan() / size as f32,
+            )
         }
         LightKind::Directional => {
             let r = bounds.radius.max(1e-30) * 1.01;
@@ -133,5 +146,8 @@ pub fn pack(lights: &[Light], size: u32, bounds: Bounds) -> (Vec<GpuLight>, Vec<
 
 /// The same shadow frusta: what decides whether a light's maps must be re-rendered.
 pub fn same_shadow(a: &Light, b: &Light) -> bool {
-    a.kind == b.kind && a.range == b.range && (!a.is_positional() || a.position == b.position) && (matches!(a.kind, LightKind::Point) || a.direction == b.direction)
+    a.kind == b.kind
+        && a.range == b.range
+        && (!a.is_positional() || a.position == b.position)
+        && (matches!(a.kind, LightKind::Point) || a.direction == b.direction)
 }

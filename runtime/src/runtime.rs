@@ -76,14 +76,23 @@ pub struct Runtime {
 
 impl Runtime {
     /// A runtime for `prm`, baked for `scene`, on the caller's device and queue.
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, prm: &Prm, params: RuntimeParams) -> Result<Runtime, RuntimeError> {
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        scene: &Scene,
+        prm: &Prm,
+        params: RuntimeParams,
+    ) -> Result<Runtime, RuntimeError> {
         prm.check_scene(Path::new("the .prm"), scene)?;
         if params.top_k == 0 {
             return Err(RuntimeError::Params("top_k must be at least 1".into()));
         }
         let max_2d = device.limits().max_texture_dimension_2d;
         if !(16..=max_2d).contains(&params.shadow_size) {
-            return Err(RuntimeError::Params(format!("shadow map size {} must be in 16..={max_2d}", params.shadow_size)));
+            return Err(RuntimeError::Params(format!(
+                "shadow map size {} must be in 16..={max_2d}",
+                params.shadow_size
+            )));
         }
         check_limits(device, prm)?;
         let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
@@ -123,14 +132,19 @@ impl Runtime {
     /// [`Runtime::update`], writing GPU timestamps around each pass when `timer` is given
     /// (passes 0, 1, 2: irradiance, weights + selection, compose;
     /// see [`crate::timer::PassTimer`]).
-    pub fn update_timed(&mut self, lights: &[Light], timer: Option<&crate::timer::PassTimer>) -> Result<Update, RuntimeError> {
+    pub fn update_timed(
+        &mut self,
+        lights: &[Light],
+        timer: Option<&crate::timer::PassTimer>,
+    ) -> Result<Update, RuntimeError> {
         let changed = self.shadows.update(lights)?;
         if !changed && !self.stale {
             return Ok(Update { composed: false });
         }
         self.write_params();
         let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
+        let mut enc =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
         self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
         self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
         self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
@@ -153,11 +167,16 @@ impl Runtime {
     /// `top_k` strongest: the compose alone, for tests and benchmarks.
     pub fn compose_weights(&mut self, weights: &[Vec3]) -> Result<(), RuntimeError> {
         if weights.len() != self.clusters {
-            return Err(RuntimeError::Params(format!("{} weights for {} clusters", weights.len(), self.clusters)));
+            return Err(RuntimeError::Params(format!(
+                "{} weights for {} clusters",
+                weights.len(),
+                self.clusters
+            )));
         }
         self.write_params();
         self.weights.upload(&self.queue, weights, &self.energies);
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
+        let mut enc =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
         self.weights.encode(&mut enc, true, None);
         self.compose.encode(&mut enc, None);
         self.queue.submit([enc.finish()]);
@@ -207,17 +226,26 @@ impl Runtime {
 
     /// Reads the last entry irradiance back (W/m² per entry).
     pub fn read_entry_irradiance(&self) -> Result<Vec<Vec3>, RuntimeError> {
-        Ok(read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output)?, self.entry_count as usize))
+        Ok(read_vec4(
+            &crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output)?,
+            self.entry_count as usize,
+        ))
     }
 
     /// Reads the last cluster weights back (mean member irradiance, W/m², per cluster).
     pub fn read_weights(&self) -> Result<Vec<Vec3>, RuntimeError> {
-        Ok(read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.weights)?, self.clusters))
+        Ok(read_vec4(
+            &crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.weights)?,
+            self.clusters,
+        ))
     }
 
     /// Reads back which panes the last compose used: C clusters, then G groups.
     pub fn read_selected(&self) -> Result<Vec<bool>, RuntimeError> {
-        let w = read_vec4(&crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected)?, self.clusters + self.groups);
+        let w = read_vec4(
+            &crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected)?,
+            self.clusters + self.groups,
+        );
         Ok(w.iter().map(|w| *w != Vec3::ZERO).collect())
     }
 
@@ -242,9 +270,12 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let limits = device.limits();
     let (w, h) = (prm.header.atlas_width, prm.header.atlas_height);
     if w > limits.max_texture_dimension_2d || h > limits.max_texture_dimension_2d {
-        return Err(RuntimeError::Params(format!("the .prm's {w}x{h} atlas exceeds this device's largest texture ({})", limits.max_texture_dimension_2d)));
+        return Err(RuntimeError::Params(format!(
+            "the .prm's {w}x{h} atlas exceeds this device's largest texture ({})",
+            limits.max_texture_dimension_2d
+        )));
     }
-    let max_buf = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+    let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
     for t in &prm.tiles {
         if let Some(n) = per_tile.get_mut(t.index as usize) {
@@ -255,7 +286,10 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let tables = [
         ("pane data", prm.data.len() as u64 * 2),
         ("texel slots", w as u64 * h as u64 * 4),
-        ("active-record lists", per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64),
+        (
+            "active-record lists",
+            per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64,
+        ),
         ("tile records", prm.tiles.len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
     ];
     for (what, bytes) in tables {

@@ -42,10 +42,20 @@ pub struct Renderer {
 impl Renderer {
     /// A renderer of `scene` seen from `camera` at `width` x `height`, reading `runtime`'s
     /// lightmap.
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, runtime: &Runtime, camera: &Camera, width: u32, height: u32) -> Result<Renderer, crate::RuntimeError> {
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        scene: &Scene,
+        runtime: &Runtime,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+    ) -> Result<Renderer, crate::RuntimeError> {
         let max = device.limits().max_texture_dimension_2d;
         if width == 0 || height == 0 || width > max || height > max {
-            return Err(crate::RuntimeError::Params(format!("a {width}x{height} frame does not fit this device (1 to {max} pixels a side)")));
+            return Err(crate::RuntimeError::Params(format!(
+                "a {width}x{height} frame does not fit this device (1 to {max} pixels a side)"
+            )));
         }
         let mut vertices = shade_vertices(scene);
         let vertex_count = vertices.len() as u32;
@@ -71,7 +81,11 @@ impl Renderer {
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
                     visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture { sample_type: wgpu::TextureSampleType::Float { filterable: false }, view_dimension: wgpu::TextureViewDimension::D2, multisampled: false },
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
                     count: None,
                 },
             ],
@@ -82,11 +96,21 @@ impl Renderer {
             layout: &layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&lightmap_view) },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&lightmap_view),
+                },
             ],
         });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("shade.wgsl"), source: wgpu::ShaderSource::Wgsl(source().into()) });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("shade"), bind_group_layouts: &[Some(&runtime.shadows().layout), Some(&layout)], immediate_size: 0 });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shade.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(source().into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shade"),
+            bind_group_layouts: &[Some(&runtime.shadows().layout), Some(&layout)],
+            immediate_size: 0,
+        });
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("shade"),
             layout: Some(&pipeline_layout),
@@ -94,9 +118,17 @@ impl Renderer {
                 module: &module,
                 entry_point: Some("vs_main"),
                 compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout { array_stride: std::mem::size_of::<ShadeVertex>() as u64, step_mode: wgpu::VertexStepMode::Vertex, attributes: &ShadeVertex::ATTRIBUTES })],
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: std::mem::size_of::<ShadeVertex>() as u64,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &ShadeVertex::ATTRIBUTES,
+                })],
             },
-            primitive: wgpu::PrimitiveState { front_face: wgpu::FrontFace::Ccw, cull_mode: None, ..Default::default() },
+            primitive: wgpu::PrimitiveState {
+                front_face: wgpu::FrontFace::Ccw,
+                cull_mode: None,
+                ..Default::default()
+            },
             depth_stencil: Some(wgpu::DepthStencilState {
                 format: wgpu::TextureFormat::Depth32Float,
                 depth_write_enabled: Some(true),
@@ -105,7 +137,12 @@ impl Renderer {
                 bias: Default::default(),
             }),
             multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState { module: &module, entry_point: Some("fs_main"), compilation_options: Default::default(), targets: &[Some(HDR.into())] }),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(HDR.into())],
+            }),
             multiview_mask: None,
             cache: None,
         });
@@ -121,11 +158,22 @@ impl Renderer {
                 view_formats: &[],
             })
         };
-        let target = tex("hdr frame", HDR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::TEXTURE_BINDING);
-        let depth = tex("frame depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let target = tex(
+            "hdr frame",
+            HDR,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let depth =
+            tex("frame depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
         let (lo, hi) = scene.bounds();
         let diag = if lo.is_finite() && hi.is_finite() { (hi - lo).length().max(1e-30) } else { 1.0 };
-        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(camera.yfov, width as f32 / height as f32, diag * 1e-5);
+        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
+            camera.yfov,
+            width as f32 / height as f32,
+            diag * 1e-5,
+        );
         let size = runtime.lightmap().size();
         Ok(Renderer {
             device: device.clone(),
@@ -156,7 +204,8 @@ impl Renderer {
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
         let color = self.target.create_view(&Default::default());
         let depth = self.depth.create_view(&Default::default());
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        let mut enc =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
         {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shade"),
@@ -164,11 +213,17 @@ impl Renderer {
                     view: &color,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
                 })],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth,
-                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Discard }),
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
                     stencil_ops: None,
                 }),
                 timestamp_writes: timer.map(|t| t.render_writes(3)),

@@ -45,14 +45,23 @@ pub struct ShadowMaps {
 impl ShadowMaps {
     /// Shadow maps of `size` x `size` texels per layer for the level's triangles.
     pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, size: u32) -> ShadowMaps {
-        let positions: Vec<[f32; 3]> = (0..scene.triangles.len()).flat_map(|t| scene.corners(t)).map(|p| p.to_array()).collect();
+        let positions: Vec<[f32; 3]> =
+            (0..scene.triangles.len()).flat_map(|t| scene.corners(t)).map(|p| p.to_array()).collect();
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("shadow vertices"),
-            contents: bytemuck::cast_slice(if positions.is_empty() { &[[0.0f32; 3]] } else { &positions[..] }),
+            contents: bytemuck::cast_slice(if positions.is_empty() {
+                &[[0.0f32; 3]]
+            } else {
+                &positions[..]
+            }),
             usage: wgpu::BufferUsages::VERTEX,
         });
         let (lo, hi) = scene.bounds();
-        let bounds = if lo.is_finite() && hi.is_finite() { Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() } } else { Bounds { centre: Vec3::ZERO, radius: 1.0 } };
+        let bounds = if lo.is_finite() && hi.is_finite() {
+            Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() }
+        } else {
+            Bounds { centre: Vec3::ZERO, radius: 1.0 }
+        };
         let max_layers = device.limits().max_texture_array_layers;
         let storage = |binding, stages| crate::gpu::buffer_entry(binding, stages, crate::gpu::READ);
         let lit = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
@@ -64,15 +73,34 @@ impl ShadowMaps {
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: lit,
-                    ty: wgpu::BindingType::Texture { sample_type: wgpu::TextureSampleType::Depth, view_dimension: wgpu::TextureViewDimension::D2Array, multisampled: false },
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
                     count: None,
                 },
-                wgpu::BindGroupLayoutEntry { binding: 3, visibility: lit, ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison), count: None },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: lit,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
             ],
         });
-        let mats_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("shadow layer matrices"), entries: &[storage(0, wgpu::ShaderStages::VERTEX)] });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("shadow.wgsl"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("shadow"), bind_group_layouts: &[Some(&mats_group_layout)], immediate_size: 0 });
+        let mats_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shadow layer matrices"),
+            entries: &[storage(0, wgpu::ShaderStages::VERTEX)],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shadow.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shadow"),
+            bind_group_layouts: &[Some(&mats_group_layout)],
+            immediate_size: 0,
+        });
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("shadow"),
             layout: Some(&pipeline_layout),
@@ -80,7 +108,11 @@ impl ShadowMaps {
                 module: &module,
                 entry_point: Some("vs_main"),
                 compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout { array_stride: 12, step_mode: wgpu::VertexStepMode::Vertex, attributes: &wgpu::vertex_attr_array![0 => Float32x3] })],
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                })],
             },
             primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
             depth_stencil: Some(wgpu::DepthStencilState {
@@ -164,8 +196,11 @@ impl ShadowMaps {
         let mut dirty = Vec::new();
         for (i, l) in lights.iter().enumerate() {
             let old = self.last.as_ref().and_then(|v| v.get(i));
-            let old_first = self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(lights::layers).sum::<u32>());
-            let same = !realloc && old.is_some_and(|o| lights::same_shadow(o, l) && lights::layers(o) == gpu[i].layers) && old_first == Some(gpu[i].first_layer);
+            let old_first =
+                self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(lights::layers).sum::<u32>());
+            let same = !realloc
+                && old.is_some_and(|o| lights::same_shadow(o, l) && lights::layers(o) == gpu[i].layers)
+                && old_first == Some(gpu[i].first_layer);
             if !same {
                 dirty.extend(gpu[i].first_layer..gpu[i].first_layer + gpu[i].layers);
             }
@@ -194,7 +229,10 @@ impl ShadowMaps {
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
             view_formats: &[],
         });
-        let view = texture.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
         self.group = Some(self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("lights + shadow maps"),
             layout: &self.layout,
@@ -213,7 +251,9 @@ impl ShadowMaps {
         if layers.is_empty() {
             return;
         }
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("shadow maps") });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("shadow maps") });
         for &layer in layers {
             let view = texture.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2),
@@ -226,7 +266,10 @@ impl ShadowMaps {
                 color_attachments: &[],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &view,
-                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
                     stencil_ops: None,
                 }),
                 ..Default::default()

@@ -29,7 +29,12 @@ pub struct WeightPass {
 }
 
 impl WeightPass {
-    pub fn new(device: &wgpu::Device, params: &wgpu::Buffer, entry_irradiance: &wgpu::Buffer, prm: &Prm) -> WeightPass {
+    pub fn new(
+        device: &wgpu::Device,
+        params: &wgpu::Buffer,
+        entry_irradiance: &wgpu::Buffer,
+        prm: &Prm,
+    ) -> WeightPass {
         // One ranges/indices/energy table for both levels: clusters (ranges into entries), then
         // groups (ranges into clusters), to stay within 8 storage buffers per stage.
         let n = prm.clusters.len();
@@ -48,10 +53,26 @@ impl WeightPass {
             ranges.push([indices.len() as u32, list.len() as u32]);
             indices.extend_from_slice(list);
         }
-        let energy: Vec<f32> = prm.clusters.iter().map(|c| c.energy).chain(prm.groups.iter().map(|g| g.energy)).collect();
-        let ranges = gpu::storage_buffer(device, "member ranges", bytemuck::cast_slice(&ranges), wgpu::BufferUsages::empty());
-        let indices = gpu::storage_buffer(device, "members", bytemuck::cast_slice(&indices), wgpu::BufferUsages::empty());
-        let energy = gpu::storage_buffer(device, "pane energy", bytemuck::cast_slice(&energy), wgpu::BufferUsages::empty());
+        let energy: Vec<f32> =
+            prm.clusters.iter().map(|c| c.energy).chain(prm.groups.iter().map(|g| g.energy)).collect();
+        let ranges = gpu::storage_buffer(
+            device,
+            "member ranges",
+            bytemuck::cast_slice(&ranges),
+            wgpu::BufferUsages::empty(),
+        );
+        let indices = gpu::storage_buffer(
+            device,
+            "members",
+            bytemuck::cast_slice(&indices),
+            wgpu::BufferUsages::empty(),
+        );
+        let energy = gpu::storage_buffer(
+            device,
+            "pane energy",
+            bytemuck::cast_slice(&energy),
+            wgpu::BufferUsages::empty(),
+        );
         let rw = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         let weights = gpu::storage_buffer(device, "cluster weights", &vec![0u8; n * 16], rw);
         let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
@@ -71,11 +92,28 @@ impl WeightPass {
                 buffer_entry(7, c, WRITE),
             ],
         });
-        let group = gpu::bind_buffers(device, "weights", &layout, &[params, entry_irradiance, &ranges, &indices, &energy, &weights, &scores, &selected]);
+        let group = gpu::bind_buffers(
+            device,
+            "weights",
+            &layout,
+            &[params, entry_irradiance, &ranges, &indices, &energy, &weights, &scores, &selected],
+        );
         WeightPass {
-            weights_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "weights_main", &[&layout]),
+            weights_pipeline: gpu::compute_pipeline(
+                device,
+                "weights.wgsl",
+                SOURCE,
+                "weights_main",
+                &[&layout],
+            ),
             select_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "select_main", &[&layout]),
-            residual_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "residual_main", &[&layout]),
+            residual_pipeline: gpu::compute_pipeline(
+                device,
+                "weights.wgsl",
+                SOURCE,
+                "residual_main",
+                &[&layout],
+            ),
             groups: g_count as u32,
             group,
             count: n as u32,
@@ -87,8 +125,16 @@ impl WeightPass {
 
     /// Records weights (unless `uploaded`: weights and scores were written by the CPU) and
     /// selection.
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, uploaded: bool, timestamps: Option<wgpu::ComputePassTimestampWrites>) {
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("weights + selection"), timestamp_writes: timestamps });
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        uploaded: bool,
+        timestamps: Option<wgpu::ComputePassTimestampWrites>,
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("weights + selection"),
+            timestamp_writes: timestamps,
+        });
         pass.set_bind_group(0, &self.group, &[]);
         if !uploaded {
             pass.set_pipeline(&self.weights_pipeline);

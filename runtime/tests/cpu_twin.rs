@@ -19,19 +19,33 @@ fn open_box() -> Scene {
         let base = pos.len() as u32;
         for (c, p) in q.iter().enumerate() {
             pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            let corner =
+                [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
             uv.push((Vec2::new(k as f32, 0.0) + Vec2::splat(0.08) + corner * 0.84) / Vec2::new(3.0, 1.0));
         }
         idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
     }
     let mut s = Scene::from_mesh(pos, uv, &idx);
-    s.lights.push(Light { name: "p".into(), kind: LightKind::Point, position: v(0.6, 0.8, 0.6), direction: -Vec3::Y, intensity: Vec3::splat(2.0), range: None });
+    s.lights.push(Light {
+        name: "p".into(),
+        kind: LightKind::Point,
+        position: v(0.6, 0.8, 0.6),
+        direction: -Vec3::Y,
+        intensity: Vec3::splat(2.0),
+        range: None,
+    });
     s
 }
 
 fn bake(scene: &Scene) -> prm::prm_file::Prm {
     let bvh = Bvh::build(scene);
-    let p = prm_precompute::precompute::PrecomputeParams { entries: 256, paths: 16, clusters: 24, atlas: 24, ..Default::default() };
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 256,
+        paths: 16,
+        clusters: 24,
+        atlas: 24,
+        ..Default::default()
+    };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
@@ -56,7 +70,8 @@ fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     assert!(top.windows(2).all(|p| score(p[0]) >= score(p[1])));
     assert!((0..w.len()).filter(|c| !top.contains(c)).all(|c| score(c) <= score(top[3])));
     // Zero-weight clusters are never selected.
-    let zero: Vec<Vec3> = w.iter().enumerate().map(|(c, x)| if c % 2 == 0 { Vec3::ZERO } else { *x }).collect();
+    let zero: Vec<Vec3> =
+        w.iter().enumerate().map(|(c, x)| if c % 2 == 0 { Vec3::ZERO } else { *x }).collect();
     assert!(select_top_k(&zero, &energies, 100).iter().all(|c| c % 2 == 1));
 }
 

@@ -31,7 +31,8 @@ fn quads(qs: &[[Vec3; 4]]) -> Scene {
         let base = pos.len() as u32;
         for (c, p) in q.iter().enumerate() {
             pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            let corner =
+                [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
             uv.push((Vec2::new(k as f32, 0.0) + Vec2::splat(0.08) + corner * 0.84) / Vec2::new(n, 1.0));
         }
         idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
@@ -40,15 +41,33 @@ fn quads(qs: &[[Vec3; 4]]) -> Scene {
 }
 
 fn point(p: Vec3, i: f32) -> Light {
-    Light { name: "p".into(), kind: LightKind::Point, position: p, direction: -Vec3::Y, intensity: Vec3::splat(i), range: None }
+    Light {
+        name: "p".into(),
+        kind: LightKind::Point,
+        position: p,
+        direction: -Vec3::Y,
+        intensity: Vec3::splat(i),
+        range: None,
+    }
 }
 
 /// GPU entry irradiance at arbitrary points, through the runtime's own shadow maps and pass.
 fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec3)], size: u32) -> Vec<Vec3> {
     let mut shadows = ShadowMaps::new(&g.device, &g.queue, scene, size);
     shadows.update(lights).unwrap();
-    let params = g.device.create_buffer(&wgpu::BufferDescriptor { label: None, size: std::mem::size_of::<prm_runtime::layout::IndirectParams>() as u64, usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
-    let p = prm_runtime::layout::IndirectParams { entry_count: points.len() as u32, light_count: lights.len() as u32, cluster_count: 0, top_k: 1, ..Default::default() };
+    let params = g.device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size: std::mem::size_of::<prm_runtime::layout::IndirectParams>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let p = prm_runtime::layout::IndirectParams {
+        entry_count: points.len() as u32,
+        light_count: lights.len() as u32,
+        cluster_count: 0,
+        top_k: 1,
+        ..Default::default()
+    };
     g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
     let pass = EntryPass::new(&g.device, &shadows.layout, &params, points);
     let mut enc = g.device.create_command_encoder(&Default::default());
@@ -72,23 +91,52 @@ fn point_spot_and_directional_light_over_a_plane_with_an_occluder() {
     let g = gpu();
     let scene = floor_and_occluder();
     let bvh = Bvh::build(&scene);
-    let grid: Vec<(Vec3, Vec3)> = (0..41 * 41).map(|k| (v(-1.9 + 3.8 * (k % 41) as f32 / 40.0, 0.0, -1.9 + 3.8 * (k / 41) as f32 / 40.0), Vec3::Y)).collect();
-    let spot = Light { name: "s".into(), kind: LightKind::Spot { inner: 0.5, outer: 0.9 }, position: v(0.3, 2.5, 0.2), direction: v(0.0, -1.0, 0.0), intensity: Vec3::splat(40.0), range: None };
-    let sun = Light { name: "d".into(), kind: LightKind::Directional, position: Vec3::ZERO, direction: v(0.3, -1.0, 0.2).normalize(), intensity: Vec3::splat(3.0), range: None };
+    let grid: Vec<(Vec3, Vec3)> = (0..41 * 41)
+        .map(|k| (v(-1.9 + 3.8 * (k % 41) as f32 / 40.0, 0.0, -1.9 + 3.8 * (k / 41) as f32 / 40.0), Vec3::Y))
+        .collect();
+    let spot = Light {
+        name: "s".into(),
+        kind: LightKind::Spot { inner: 0.5, outer: 0.9 },
+        position: v(0.3, 2.5, 0.2),
+        direction: v(0.0, -1.0, 0.0),
+        intensity: Vec3::splat(40.0),
+        range: None,
+    };
+    let sun = Light {
+        name: "d".into(),
+        kind: LightKind::Directional,
+        position: Vec3::ZERO,
+        direction: v(0.3, -1.0, 0.2).normalize(),
+        intensity: Vec3::splat(3.0),
+        range: None,
+    };
     for light in [point(v(0.2, 2.0, 0.1), 10.0), spot, sun] {
         let gpu_e = gpu_irradiance(&g, &scene, std::slice::from_ref(&light), &grid, 1024);
         let (mut lit, mut dark) = (0, 0);
         for ((p, n), e) in grid.iter().zip(&gpu_e) {
             // Away from shadow edges: every point within 5 cm has the same ray-traced visibility.
-            let vis = |q: Vec3| if light.is_positional() { bvh.visible_point(q, *n, light.position) } else { bvh.visible_dir(q, *n, -light.direction) };
+            let vis = |q: Vec3| {
+                if light.is_positional() {
+                    bvh.visible_point(q, *n, light.position)
+                } else {
+                    bvh.visible_dir(q, *n, -light.direction)
+                }
+            };
             let here = vis(*p);
-            if [v(0.05, 0., 0.), v(-0.05, 0., 0.), v(0., 0., 0.05), v(0., 0., -0.05)].iter().any(|d| vis(*p + *d) != here) {
+            if [v(0.05, 0., 0.), v(-0.05, 0., 0.), v(0., 0., 0.05), v(0., 0., -0.05)]
+                .iter()
+                .any(|d| vis(*p + *d) != here)
+            {
                 continue;
             }
             // Analytic: I cos / r² (falloff and all, from prm::Light), or 0 in the shadow.
             let expect = if here { light.irradiance(*p, *n) } else { Vec3::ZERO };
             let tol = 1e-4 * expect.max_element() + 1e-6;
-            assert!((*e - expect).abs().max_element() <= tol, "{:?} light at {p}: GPU {e}, expected {expect}", light.kind);
+            assert!(
+                (*e - expect).abs().max_element() <= tol,
+                "{:?} light at {p}: GPU {e}, expected {expect}",
+                light.kind
+            );
             if here && expect.x > 0.0 {
                 lit += 1;
             } else {
@@ -130,7 +178,8 @@ fn bad_lights_are_refused_with_the_reason() {
         let err = shadows.update(&[l]).unwrap_err().to_string();
         assert!(err.contains(what) && err.contains("'p'"), "{err}");
     }
-    let many: Vec<Light> = (0..prm::rig::MAX_LIGHTS + 1).map(|i| point(v(i as f32 * 0.01, 1.0, 0.0), 1.0)).collect();
+    let many: Vec<Light> =
+        (0..prm::rig::MAX_LIGHTS + 1).map(|i| point(v(i as f32 * 0.01, 1.0, 0.0), 1.0)).collect();
     let err = shadows.update(&many).unwrap_err().to_string();
     assert!(err.contains("limit"), "{err}");
 }
@@ -147,14 +196,23 @@ fn open_box() -> Scene {
 
 fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
     let bvh = Bvh::build(scene);
-    let p = prm_precompute::precompute::PrecomputeParams { entries, paths: 16, clusters, atlas, ..Default::default() };
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries,
+        paths: 16,
+        clusters,
+        atlas,
+        ..Default::default()
+    };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
 fn assert_close(gpu: &[Vec3], cpu: &[Vec3], rel: f32, what: &str) {
     let scale = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max).max(1e-12);
     for (k, (a, b)) in gpu.iter().zip(cpu).enumerate() {
-        assert!((*a - *b).abs().max_element() <= rel * scale, "{what}: texel {k}: GPU {a} vs CPU {b} (scale {scale})");
+        assert!(
+            (*a - *b).abs().max_element() <= rel * scale,
+            "{what}: texel {k}: GPU {a} vs CPU {b} (scale {scale})"
+        );
     }
 }
 
@@ -164,11 +222,26 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     let scene = open_box();
     let prm = bake(&scene, 512, 40, 48);
     let c = prm.clusters.len();
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 256, ..Default::default() }).unwrap();
+    let mut rt = Runtime::new(
+        &g.device,
+        &g.queue,
+        &scene,
+        &prm,
+        RuntimeParams { top_k: c, shadow_size: 256, ..Default::default() },
+    )
+    .unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
     for round in 0..3 {
-        let w: Vec<Vec3> = (0..c).map(|k| if k % 5 == round { Vec3::ZERO } else { Vec3::new(rng.random(), rng.random(), rng.random()) * 10.0 }).collect();
+        let w: Vec<Vec3> = (0..c)
+            .map(|k| {
+                if k % 5 == round {
+                    Vec3::ZERO
+                } else {
+                    Vec3::new(rng.random(), rng.random(), rng.random()) * 10.0
+                }
+            })
+            .collect();
         // K = C: the full sum (f16 data, f32 sums in another order: 1e-5 of the brightest).
         rt.set_top_k(c).unwrap();
         rt.compose_weights(&w).unwrap();
@@ -184,8 +257,17 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
             rt.compose_weights(&w).unwrap();
             let selected = rt.read_selected().unwrap();
             assert_eq!(selected[..c], chosen[..], "GPU and CPU select different clusters");
-            assert!(selected[c..].iter().any(|s| *s) == residual && !prm.groups.is_empty(), "groups composed: {:?}", &selected[c..]);
-            assert_close(&rt.read_lightmap().unwrap(), &prm.compose_selected(&w, &chosen, residual, &layout), 1e-5, "K = 5");
+            assert!(
+                selected[c..].iter().any(|s| *s) == residual && !prm.groups.is_empty(),
+                "groups composed: {:?}",
+                &selected[c..]
+            );
+            assert_close(
+                &rt.read_lightmap().unwrap(),
+                &prm.compose_selected(&w, &chosen, residual, &layout),
+                1e-5,
+                "K = 5",
+            );
         }
         rt.set_residual(true);
     }
@@ -198,19 +280,34 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let prm = bake(&scene, 512, 40, 48);
     let bvh = Bvh::build(&scene);
     let c = prm.clusters.len();
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() }).unwrap();
+    let mut rt = Runtime::new(
+        &g.device,
+        &g.queue,
+        &scene,
+        &prm,
+        RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() },
+    )
+    .unwrap();
     rt.update(&scene.lights).unwrap();
     // Entry irradiance: shadow maps vs shadow rays. The open box has no occluder between the
     // light and any entry, so they agree to float precision but for PCF at grazing entries.
     let cpu_e = prm_runtime::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
     let gpu_e = rt.read_entry_irradiance().unwrap();
-    let bad = cpu_e.iter().zip(&gpu_e).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6).count();
+    let bad = cpu_e
+        .iter()
+        .zip(&gpu_e)
+        .filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6)
+        .count();
     assert!(bad * 100 <= cpu_e.len(), "{bad} of {} entries differ by more than 0.1 %", cpu_e.len());
     // Weights: member means of (nearly) the same irradiance; selection: the GPU ranks its own
     // weights exactly as the CPU ranks them.
     let gpu_w = rt.read_weights().unwrap();
     let cpu_w = prm.cluster_weights(&cpu_e);
-    let bad = cpu_w.iter().zip(&gpu_w).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6).count();
+    let bad = cpu_w
+        .iter()
+        .zip(&gpu_w)
+        .filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6)
+        .count();
     assert!(bad * 20 <= c, "{bad} of {c} cluster weights differ by more than 0.1 %");
     let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
     for k in [1, 5, 12] {
@@ -218,7 +315,15 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         rt.update(&scene.lights).unwrap();
         let selected = rt.read_selected().unwrap();
         let cpu_pick = prm_runtime::cpu::select_top_k(&rt.read_weights().unwrap(), &energies, k);
-        assert_eq!((0..c).filter(|i| selected[*i]).collect::<Vec<_>>(), { let mut t = cpu_pick; t.sort(); t }, "top-{k}");
+        assert_eq!(
+            (0..c).filter(|i| selected[*i]).collect::<Vec<_>>(),
+            {
+                let mut t = cpu_pick;
+                t.sort();
+                t
+            },
+            "top-{k}"
+        );
     }
     rt.set_top_k(c).unwrap();
     rt.update(&scene.lights).unwrap();
@@ -236,7 +341,14 @@ fn thirty_moving_light_frames_on_chamber() {
     let scene = prm::gltf_load::load_scene(root.join("assets/chamber.glb"), &Default::default()).unwrap();
     let rig = prm::rig::Rig::load(&root.join("assets/chamber_rig.json"), &scene.lights).unwrap();
     let prm = bake(&scene, 1024, 64, 128);
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams { top_k: 32, shadow_size: 512, ..Default::default() }).unwrap();
+    let mut rt = Runtime::new(
+        &g.device,
+        &g.queue,
+        &scene,
+        &prm,
+        RuntimeParams { top_k: 32, shadow_size: 512, ..Default::default() },
+    )
+    .unwrap();
     let cam = &scene.cameras[0];
     let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, 96, 64).unwrap();
     let mut last: Option<Vec<Vec3>> = None;
@@ -245,14 +357,27 @@ fn thirty_moving_light_frames_on_chamber() {
         assert!(rt.update(&lights).unwrap().composed);
         renderer.draw(&rt, true, None);
         let frame = renderer.read_frame().unwrap();
-        assert!(frame.iter().all(|p| p.is_finite() && p.min_element() >= 0.0), "frame {f} has a non-finite or negative pixel");
+        assert!(
+            frame.iter().all(|p| p.is_finite() && p.min_element() >= 0.0),
+            "frame {f} has a non-finite or negative pixel"
+        );
         let lm = rt.read_lightmap().unwrap();
-        assert!(lm.iter().all(|p| p.is_finite() && p.min_element() >= 0.0), "lightmap {f} has a non-finite or negative texel");
+        assert!(
+            lm.iter().all(|p| p.is_finite() && p.min_element() >= 0.0),
+            "lightmap {f} has a non-finite or negative texel"
+        );
         let mean = frame.iter().map(|p| prm::luminance(*p) as f64).sum::<f64>() / frame.len() as f64;
         assert!(mean > 0.0, "frame {f} is black");
         if let Some(prev) = &last {
-            let changed = frame.iter().zip(prev).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-4 * a.max_element()).count();
-            assert!(changed * 20 > frame.len(), "frame {f}: only {changed} pixels changed as the light moved");
+            let changed = frame
+                .iter()
+                .zip(prev)
+                .filter(|(a, b)| (**a - **b).abs().max_element() > 1e-4 * a.max_element())
+                .count();
+            assert!(
+                changed * 20 > frame.len(),
+                "frame {f}: only {changed} pixels changed as the light moved"
+            );
         }
         last = Some(frame);
     }
@@ -273,6 +398,9 @@ fn a_prm_for_another_scene_is_refused() {
     let prm = bake(&scene, 256, 16, 32);
     let mut other = scene.clone();
     other.positions[0].x += 0.01;
-    let err = Runtime::new(&g.device, &g.queue, &other, &prm, RuntimeParams::default()).err().expect("a mismatched .prm was accepted").to_string();
+    let err = Runtime::new(&g.device, &g.queue, &other, &prm, RuntimeParams::default())
+        .err()
+        .expect("a mismatched .prm was accepted")
+        .to_string();
     assert!(err.contains("scene") || err.contains("fingerprint"), "{err}");
 }

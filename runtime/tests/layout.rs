@@ -18,7 +18,10 @@ fn wgsl_struct(m: &Module, name: &str) -> (u32, Vec<(String, u32)>) {
         if ty.name.as_deref() == Some(name) {
             if let TypeInner::Struct { members, span } = &ty.inner {
                 let _ = h;
-                return (*span, members.iter().map(|f| (f.name.clone().unwrap_or_default(), f.offset)).collect());
+                return (
+                    *span,
+                    members.iter().map(|f| (f.name.clone().unwrap_or_default(), f.offset)).collect(),
+                );
             }
         }
     }
@@ -46,21 +49,86 @@ fn every_shader_parses_and_its_structs_match_the_rust_layouts() {
     let tonemap = parse("tonemap.wgsl", prm_runtime::tonemap::SOURCE);
     check!(tonemap, "TonemapParams", TonemapParams, [("exposure", exposure), ("encode", encode)]);
     for m in [&irr, &shade] {
-        check!(m, "Light", GpuLight, [
-            ("position", position), ("kind", kind), ("direction", direction), ("range", range), ("intensity", intensity),
-            ("first_layer", first_layer), ("cos_inner", cos_inner), ("cos_outer", cos_outer), ("texel", texel), ("layers", layers),
-        ]);
+        check!(
+            m,
+            "Light",
+            GpuLight,
+            [
+                ("position", position),
+                ("kind", kind),
+                ("direction", direction),
+                ("range", range),
+                ("intensity", intensity),
+                ("first_layer", first_layer),
+                ("cos_inner", cos_inner),
+                ("cos_outer", cos_outer),
+                ("texel", texel),
+                ("layers", layers),
+            ]
+        );
     }
     check!(irr, "Entry", GpuEntry, [("position", position), ("normal", normal)]);
     for m in [&irr, &weights] {
-        check!(m, "Params", IndirectParams, [("entry_count", entry_count), ("light_count", light_count), ("cluster_count", cluster_count), ("top_k", top_k), ("group_count", group_count), ("residual", residual)]);
+        check!(
+            m,
+            "Params",
+            IndirectParams,
+            [
+                ("entry_count", entry_count),
+                ("light_count", light_count),
+                ("cluster_count", cluster_count),
+                ("top_k", top_k),
+                ("group_count", group_count),
+                ("residual", residual)
+            ]
+        );
     }
-    check!(compose, "Params", ComposeParams, [("atlas_width", atlas_width), ("atlas_height", atlas_height), ("tile_size", tile_size), ("tiles_x", tiles_x), ("tile_count", tile_count), ("active_stride", active_stride)]);
-    check!(compose, "ActiveRecord", ActiveRecord, [("weighted_scale", weighted_scale), ("data_offset", data_offset)]);
-    check!(compose, "TileRecord", TileRecord, [("scale", scale), ("cluster", cluster), ("data_offset", data_offset)]);
-    check!(shade, "ShadeParams", ShadeParams, [("view_proj", view_proj), ("light_count", light_count), ("indirect_scale", indirect_scale), ("atlas_width", atlas_width), ("atlas_height", atlas_height)]);
+    check!(
+        compose,
+        "Params",
+        ComposeParams,
+        [
+            ("atlas_width", atlas_width),
+            ("atlas_height", atlas_height),
+            ("tile_size", tile_size),
+            ("tiles_x", tiles_x),
+            ("tile_count", tile_count),
+            ("active_stride", active_stride)
+        ]
+    );
+    check!(
+        compose,
+        "ActiveRecord",
+        ActiveRecord,
+        [("weighted_scale", weighted_scale), ("data_offset", data_offset)]
+    );
+    check!(
+        compose,
+        "TileRecord",
+        TileRecord,
+        [("scale", scale), ("cluster", cluster), ("data_offset", data_offset)]
+    );
+    check!(
+        shade,
+        "ShadeParams",
+        ShadeParams,
+        [
+            ("view_proj", view_proj),
+            ("light_count", light_count),
+            ("indirect_scale", indirect_scale),
+            ("atlas_width", atlas_width),
+            ("atlas_height", atlas_height)
+        ]
+    );
     // Vertex attributes: each location's offset is the Rust field's.
-    let offsets = [offset_of!(ShadeVertex, position), offset_of!(ShadeVertex, normal), offset_of!(ShadeVertex, uv1), offset_of!(ShadeVertex, albedo), offset_of!(ShadeVertex, emissive), offset_of!(ShadeVertex, double_sided)];
+    let offsets = [
+        offset_of!(ShadeVertex, position),
+        offset_of!(ShadeVertex, normal),
+        offset_of!(ShadeVertex, uv1),
+        offset_of!(ShadeVertex, albedo),
+        offset_of!(ShadeVertex, emissive),
+        offset_of!(ShadeVertex, double_sided),
+    ];
     for (a, off) in ShadeVertex::ATTRIBUTES.iter().zip(offsets) {
         assert_eq!(a.offset as usize, off, "vertex attribute {}", a.shader_location);
     }

@@ -24,11 +24,19 @@ use prm_runtime::{Gpu, Runtime, RuntimeParams};
 const ATLAS: u32 = 32;
 
 fn gpu() -> Gpu {
-    Gpu::new().unwrap_or_else(|e| panic!("the stiff suite runs the GPU runtime too and needs a wgpu adapter: {e}"))
+    Gpu::new()
+        .unwrap_or_else(|e| panic!("the stiff suite runs the GPU runtime too and needs a wgpu adapter: {e}"))
 }
 
 fn point(p: Vec3, i: f32) -> Light {
-    Light { name: "p".into(), kind: LightKind::Point, position: p, direction: -Vec3::Y, intensity: Vec3::splat(i), range: None }
+    Light {
+        name: "p".into(),
+        kind: LightKind::Point,
+        position: p,
+        direction: -Vec3::Y,
+        intensity: Vec3::splat(i),
+        range: None,
+    }
 }
 
 /// The six inward faces of an `s`-sized box, each on its own 10 x 10 block of whole texels of
@@ -41,7 +49,12 @@ fn closed_box(albedo: f32, s: f32, lights: Vec<Light>) -> Scene {
         let base = pos.len() as u32;
         for (c, p) in q.iter().enumerate() {
             pos.push(*p * s);
-            let corner = [glam::Vec2::new(0.0, 0.0), glam::Vec2::new(0.0, 1.0), glam::Vec2::new(1.0, 1.0), glam::Vec2::new(1.0, 0.0)][c];
+            let corner = [
+                glam::Vec2::new(0.0, 0.0),
+                glam::Vec2::new(0.0, 1.0),
+                glam::Vec2::new(1.0, 1.0),
+                glam::Vec2::new(1.0, 0.0),
+            ][c];
             uv.push((origin + corner * 10.0) / ATLAS as f32);
         }
         idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
@@ -67,24 +80,49 @@ struct Outputs {
 fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs {
     let bvh = Bvh::build(scene);
     let set = TexelSet::build(scene, ATLAS, ATLAS);
-    let at = |img: &[Vec3]| set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>();
+    let at = |img: &[Vec3]| {
+        set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>()
+    };
     let tracer = Tracer::new(scene, &bvh, GtParams { spp, seed: 3, ..GtParams::default() });
     let gt = tracer.texels(&set.texels, set.width, &|_| {}, &AtomicBool::new(false)).unwrap();
     let y2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect) as f64).powi(2)).sum();
     let s2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect_stderr) as f64).powi(2)).sum();
-    let p = PrecomputeParams { entries: 256, paths: 32, clusters: 16, atlas: ATLAS, groups: 4, tile_size: 8, ..PrecomputeParams::production() };
+    let p = PrecomputeParams {
+        entries: 256,
+        paths: 32,
+        clusters: 16,
+        atlas: ATLAS,
+        groups: 4,
+        tile_size: 8,
+        ..PrecomputeParams::production()
+    };
     assert!(set.len() >= 100, "{} texels", set.len());
     let (map, report) = precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
     let prm_all = at(CpuTwin::new(&map, &bvh, usize::MAX).frame(&scene.lights));
-    let mut rt = Runtime::new(&g.device, &g.queue, scene, &map, RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true }).unwrap();
+    let mut rt = Runtime::new(
+        &g.device,
+        &g.queue,
+        scene,
+        &map,
+        RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true },
+    )
+    .unwrap();
     rt.update(&scene.lights).unwrap();
     let gpu_all = at(&rt.read_lightmap().unwrap());
     rt.set_top_k(4).unwrap();
     rt.update(&scene.lights).unwrap();
     let gpu_top = at(&rt.read_lightmap().unwrap());
-    let bp = BakeParams { photons: 5000, atlas: ATLAS, bounces: reference_bounces, indirect_only: true, ..BakeParams::default() };
+    let bp = BakeParams {
+        photons: 5000,
+        atlas: ATLAS,
+        bounces: reference_bounces,
+        indirect_only: true,
+        ..BakeParams::default()
+    };
     let vl = virtual_lights(scene, &bvh, &scene.lights, &bp);
-    let reference = evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, &|_| {}, &AtomicBool::new(false)).unwrap().indirect;
+    let reference = evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, &|_| {}, &AtomicBool::new(false))
+        .unwrap()
+        .indirect;
     let out = Outputs {
         gt: gt.iter().map(|r| r.indirect).collect(),
         gt_direct: gt.iter().map(|r| r.direct).collect(),
@@ -96,29 +134,56 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
         walks_truncated: report.walks_truncated,
     };
     for (name, img) in out.all() {
-        assert!(img.iter().all(|x| x.is_finite() && x.min_element() >= 0.0), "{name}: a non-finite or negative texel");
+        assert!(
+            img.iter().all(|x| x.is_finite() && x.min_element() >= 0.0),
+            "{name}: a non-finite or negative texel"
+        );
     }
-    assert!(out.gt_direct.iter().all(|x| x.is_finite() && x.min_element() >= 0.0), "ground-truth direct: a non-finite or negative texel");
+    assert!(
+        out.gt_direct.iter().all(|x| x.is_finite() && x.min_element() >= 0.0),
+        "ground-truth direct: a non-finite or negative texel"
+    );
     out
 }
 
 impl Outputs {
     fn all(&self) -> [(&'static str, &[Vec3]); 5] {
-        [("ground truth", &self.gt), ("PRM, CPU twin", &self.prm_all), ("PRM, GPU all panes", &self.gpu_all), ("PRM, GPU top-4 + groups", &self.gpu_top), ("reference", &self.reference)]
+        [
+            ("ground truth", &self.gt),
+            ("PRM, CPU twin", &self.prm_all),
+            ("PRM, GPU all panes", &self.gpu_all),
+            ("PRM, GPU top-4 + groups", &self.gpu_top),
+            ("reference", &self.reference),
+        ]
     }
 
     /// Each method's error against the ground truth must be within `tol` (a fraction).
     fn within(&self, case: &str, tol: [f64; 3]) {
-        for ((name, img), t) in [("PRM, CPU twin", &self.prm_all), ("PRM, GPU all panes", &self.gpu_all), ("reference", &self.reference)].into_iter().zip(tol) {
+        for ((name, img), t) in [
+            ("PRM, CPU twin", &self.prm_all),
+            ("PRM, GPU all panes", &self.gpu_all),
+            ("reference", &self.reference),
+        ]
+        .into_iter()
+        .zip(tol)
+        {
             let c = prm::metric::compare(img, &self.gt, None);
-            println!("{case}: {name}: error {:.2} % (ground-truth noise {:.2} %), bias {:+.2} %", c.error * 100.0, self.gt_noise * 100.0, c.bias * 100.0);
+            println!(
+                "{case}: {name}: error {:.2} % (ground-truth noise {:.2} %), bias {:+.2} %",
+                c.error * 100.0,
+                self.gt_noise * 100.0,
+                c.bias * 100.0
+            );
             assert!(c.error <= t, "{case}: {name}: error {:.2} % > {:.0} %", c.error * 100.0, t * 100.0);
         }
     }
 
     fn all_zero(&self, case: &str) {
         for (name, img) in self.all() {
-            assert!(img.iter().all(|x| *x == Vec3::ZERO), "{case}: {name}: indirect light where there is none");
+            assert!(
+                img.iter().all(|x| *x == Vec3::ZERO),
+                "{case}: {name}: indirect light where there is none"
+            );
         }
     }
 }
@@ -141,7 +206,10 @@ fn a_light_a_hair_above_a_surface_and_one_exactly_on_it() {
     // check is on power, not on the direct layer). Exactly on the floor: the half of the
     // sphere below the floor's plane goes nowhere (Light::incident gives the floor cos = 0),
     // 2 pi I W. The box has 6 faces of area 1 and every texel stands for 1/100 of one.
-    for (case, y, power) in [("on the floor", 0.0f32, 2.0 * std::f64::consts::PI), ("1e-4 above the floor", 1e-4, 4.0 * std::f64::consts::PI)] {
+    for (case, y, power) in [
+        ("on the floor", 0.0f32, 2.0 * std::f64::consts::PI),
+        ("1e-4 above the floor", 1e-4, 4.0 * std::f64::consts::PI),
+    ] {
         let o = run_all(&g, &closed_box(0.5, 1.0, vec![point(v(0.5, y, 0.5), 1.0)]), 256, 12);
         let expect = power / 6.0;
         for (name, img) in o.all() {
@@ -168,10 +236,23 @@ fn a_light_a_hair_above_a_surface_and_one_exactly_on_it() {
 fn grazing_light() {
     let g = gpu();
     // A floor and a back wall, lit by a sun 89.4° from the floor's normal.
-    let mut scene = quads(&[[v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)], [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)]], 0.7);
+    let mut scene = quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+        ],
+        0.7,
+    );
     // The sun travels along (0, -0.01, -1): 89.4° from the floor's normal, square onto the wall.
     let dir = Vec3::new(0.0, -0.01, -1.0).normalize();
-    scene.lights = vec![Light { name: "sun".into(), kind: LightKind::Directional, position: Vec3::ZERO, direction: dir, intensity: Vec3::splat(3.0), range: None }];
+    scene.lights = vec![Light {
+        name: "sun".into(),
+        kind: LightKind::Directional,
+        position: Vec3::ZERO,
+        direction: dir,
+        intensity: Vec3::splat(3.0),
+        range: None,
+    }];
     let o = run_all(&g, &scene, 256, 12);
     o.within("grazing", ORDINARY);
 }
@@ -186,7 +267,10 @@ fn intensities_from_1e_minus_6_to_1e9_scale_every_stage_linearly() {
         for ((name, a), (_, b)) in o.all().iter().zip(base.all()) {
             // Same seeds, so the same paths: linear to float rounding.
             for (x, y) in a.iter().zip(b) {
-                assert!((*x / i - *y).abs().max_element() <= 1e-4 * y.max_element() + 1e-30, "intensity {i}: {name}: {x} / {i} vs {y}");
+                assert!(
+                    (*x / i - *y).abs().max_element() <= 1e-4 * y.max_element() + 1e-30,
+                    "intensity {i}: {name}: {x} / {i} vs {y}"
+                );
             }
         }
     }
@@ -208,7 +292,9 @@ fn albedo_0_99_closed_box_keeps_its_energy() {
     // a / (1 - a) = 99 for every estimator that follows paths to the end.
     let o = run_all(&g, &closed_box(0.99, 1.0, vec![point(v(0.4, 0.6, 0.5), 1.0)]), 64, 12);
     let d = mean(&o.gt_direct);
-    for (name, img) in [("ground truth", &o.gt), ("PRM, CPU twin", &o.prm_all), ("PRM, GPU all panes", &o.gpu_all)] {
+    for (name, img) in
+        [("ground truth", &o.gt), ("PRM, CPU twin", &o.prm_all), ("PRM, GPU all panes", &o.gpu_all)]
+    {
         let ratio = mean(img) / d;
         println!("albedo 0.99: {name}: indirect / direct = {ratio:.2} (exact 99)");
         assert!((ratio / 99.0 - 1.0).abs() < 0.05, "{name}: indirect / direct = {ratio}, 99 expected");
@@ -238,7 +324,11 @@ fn the_same_level_at_1e_minus_3_and_1e4_scale_gives_the_same_lightmaps() {
             // the lightmaps agree to a fraction of the ground truth's noise, not exactly.
             let c = prm::metric::compare(a, b, None);
             println!("scale {s}: {name}: difference {:.3} %, bias {:+.3} %", c.error * 100.0, c.bias * 100.0);
-            assert!(c.error < 0.02 && c.bias.abs() < 0.005, "scale {s}: {name}: {:.3} % from scale 1", c.error * 100.0);
+            assert!(
+                c.error < 0.02 && c.bias.abs() < 0.005,
+                "scale {s}: {name}: {:.3} % from scale 1",
+                c.error * 100.0
+            );
         }
     }
 }
@@ -246,7 +336,11 @@ fn the_same_level_at_1e_minus_3_and_1e4_scale_gives_the_same_lightmaps() {
 #[test]
 fn a_single_triangle_has_no_indirect_light_and_exact_direct_light() {
     let g = gpu();
-    let mut scene = Scene::from_mesh(vec![v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 0.)], vec![glam::Vec2::new(0.05, 0.05), glam::Vec2::new(0.05, 0.95), glam::Vec2::new(0.95, 0.05)], &[0, 1, 2]);
+    let mut scene = Scene::from_mesh(
+        vec![v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 0.)],
+        vec![glam::Vec2::new(0.05, 0.05), glam::Vec2::new(0.05, 0.95), glam::Vec2::new(0.95, 0.05)],
+        &[0, 1, 2],
+    );
     scene.lights = vec![point(v(0.3, 1.0, 0.3), 2.0)];
     let o = run_all(&g, &scene, 16, 12);
     o.all_zero("single triangle");
@@ -264,7 +358,14 @@ fn no_lights_and_a_light_inside_a_wall_give_darkness() {
     o.all_zero("no lights");
     // A room with a solid block in it, the light inside the block: nothing gets out.
     let mut faces = unit_box_faces().iter().map(|q| q.map(|p| p * 4.0)).collect::<Vec<_>>();
-    let block: Vec<[Vec3; 4]> = unit_box_faces().iter().map(|q| { let mut q = q.map(|p| p + v(1.5, 0.2, 1.5)); q.reverse(); q }).collect();
+    let block: Vec<[Vec3; 4]> = unit_box_faces()
+        .iter()
+        .map(|q| {
+            let mut q = q.map(|p| p + v(1.5, 0.2, 1.5));
+            q.reverse();
+            q
+        })
+        .collect();
     faces.extend(block);
     let mut scene = quads(&faces, 0.5);
     scene.lights = vec![point(v(2.0, 0.5, 2.0), 10.0)];
@@ -274,4 +375,3 @@ fn no_lights_and_a_light_inside_a_wall_give_darkness() {
     }
     assert!(mean(&o.gt_direct) == 0.0, "ground truth: direct light escaped the wall");
 }
-

@@ -53,7 +53,16 @@ pub struct BakeParams {
 
 impl Default for BakeParams {
     fn default() -> Self {
-        BakeParams { photons: 40_000, bounces: 12, cluster_size: 64, min_plane: 32, visibility_samples: 2, atlas: 256, seed: 0, indirect_only: false }
+        BakeParams {
+            photons: 40_000,
+            bounces: 12,
+            cluster_size: 64,
+            min_plane: 32,
+            visibility_samples: 2,
+            atlas: 256,
+            seed: 0,
+            indirect_only: false,
+        }
     }
 }
 
@@ -62,8 +71,14 @@ impl BakeParams {
         let check = |ok: bool, m: String| if ok { Ok(()) } else { Err(m) };
         check((1..=100_000_000).contains(&self.photons), format!("vpls {} must be 1 to 1e8", self.photons))?;
         check((1..=64).contains(&self.bounces), format!("bounces {} must be 1 to 64", self.bounces))?;
-        check((1..=1_000_000).contains(&self.cluster_size), format!("cluster size {} must be 1 to 1e6", self.cluster_size))?;
-        check((1..=256).contains(&self.visibility_samples), format!("visibility samples {} must be 1 to 256", self.visibility_samples))?;
+        check(
+            (1..=1_000_000).contains(&self.cluster_size),
+            format!("cluster size {} must be 1 to 1e6", self.cluster_size),
+        )?;
+        check(
+            (1..=256).contains(&self.visibility_samples),
+            format!("visibility samples {} must be 1 to 256", self.visibility_samples),
+        )?;
         check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
         Ok(())
     }
@@ -131,39 +146,69 @@ pub fn virtual_lights(scene: &Scene, bvh: &Bvh, lights: &[Light], p: &BakeParams
         .par_iter()
         .map(|((light, bounce), members)| {
             let seed = p.seed ^ ((*light as u64) << 32 | *bounce as u64);
-            let (planes, rest) = detect_planes(&positions, &normals, members, delta, p.min_plane.max(3), seed);
+            let (planes, rest) =
+                detect_planes(&positions, &normals, members, delta, p.min_plane.max(3), seed);
             let mut polys = Vec::new();
             for seg in &planes {
-                let q: Vec<[f32; 2]> = seg.members.iter().map(|&i| seg.project(positions[i as usize]).to_array()).collect();
-                let (lo, hi) = q.iter().fold(([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]), |(l, h), x| ([l[0].min(x[0]), l[1].min(x[1])], [h[0].max(x[0]), h[1].max(x[1])]));
+                let q: Vec<[f32; 2]> =
+                    seg.members.iter().map(|&i| seg.project(positions[i as usize]).to_array()).collect();
+                let (lo, hi) = q.iter().fold(([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]), |(l, h), x| {
+                    ([l[0].min(x[0]), l[1].min(x[1])], [h[0].max(x[0]), h[1].max(x[1])])
+                });
                 // The root cell is the segment's own bounding box: the border growth closes
                 // gaps between neighbouring lights but must not carry a light past the
                 // surface's edge, where walls would hide it and its power would be lost.
                 for leaf in cluster(&q, cluster_size(p.cluster_size, *bounce), lo, hi) {
                     let pts: Vec<Vec2> = leaf.members.iter().map(|&k| Vec2::from(q[k as usize])).collect();
                     let poly = light_polygon(&pts, Vec2::from(leaf.lo), Vec2::from(leaf.hi));
-                    let power = leaf.members.iter().fold(Vec3::ZERO, |a, &k| a + vpls[seg.members[k as usize] as usize].power);
+                    let power = leaf
+                        .members
+                        .iter()
+                        .fold(Vec3::ZERO, |a, &k| a + vpls[seg.members[k as usize] as usize].power);
                     if poly.len() >= 3 {
                         let samples = sample_members(leaf.members.iter().map(|&k| {
                             let v = &vpls[seg.members[k as usize] as usize];
                             (v.position, v.normal)
                         }));
-                        polys.push(PolygonCluster { light: PolygonLight { vertices: poly.iter().map(|v| seg.lift(*v)).collect(), normal: seg.normal, power }, samples });
+                        polys.push(PolygonCluster {
+                            light: PolygonLight {
+                                vertices: poly.iter().map(|v| seg.lift(*v)).collect(),
+                                normal: seg.normal,
+                                power,
+                            },
+                            samples,
+                        });
                     }
                 }
             }
             let mut spheres = Vec::new();
             if !rest.is_empty() {
                 let q: Vec<[f32; 3]> = rest.iter().map(|&i| positions[i as usize].to_array()).collect();
-                let (lo, hi) = q.iter().fold(([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]), |(l, h), x| (std::array::from_fn(|d| l[d].min(x[d])), std::array::from_fn(|d| h[d].max(x[d]))));
+                let (lo, hi) = q.iter().fold(([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]), |(l, h), x| {
+                    (std::array::from_fn(|d| l[d].min(x[d])), std::array::from_fn(|d| h[d].max(x[d])))
+                });
                 for leaf in cluster(&q, cluster_size(p.cluster_size, *bounce), lo, hi) {
-                    let ms: Vec<&Vpl> = leaf.members.iter().map(|&k| &vpls[rest[k as usize] as usize]).collect();
+                    let ms: Vec<&Vpl> =
+                        leaf.members.iter().map(|&k| &vpls[rest[k as usize] as usize]).collect();
                     let power = ms.iter().fold(Vec3::ZERO, |a, v| a + v.power);
-                    let centre = (ms.iter().fold(glam::DVec3::ZERO, |a, v| a + v.position.as_dvec3()) / ms.len() as f64).as_vec3();
+                    let centre = (ms.iter().fold(glam::DVec3::ZERO, |a, v| a + v.position.as_dvec3())
+                        / ms.len() as f64)
+                        .as_vec3();
                     let normal = ms.iter().fold(Vec3::ZERO, |a, v| a + v.normal).normalize_or_zero();
-                    let radius = (ms.iter().map(|v| (v.position - centre).length_squared() as f64).sum::<f64>() / ms.len() as f64).sqrt() as f32;
+                    let radius =
+                        (ms.iter().map(|v| (v.position - centre).length_squared() as f64).sum::<f64>()
+                            / ms.len() as f64)
+                            .sqrt() as f32;
                     let samples = sample_members(ms.iter().map(|v| (v.position, v.normal)));
-                    spheres.push(SphereCluster { light: SphereLight { centre, radius, normal: if normal == Vec3::ZERO { Vec3::Y } else { normal }, power }, samples });
+                    spheres.push(SphereCluster {
+                        light: SphereLight {
+                            centre,
+                            radius,
+                            normal: if normal == Vec3::ZERO { Vec3::Y } else { normal },
+                            power,
+                        },
+                        samples,
+                    });
                 }
             }
             (polys, spheres)
@@ -173,7 +218,12 @@ pub fn virtual_lights(scene: &Scene, bvh: &Bvh, lights: &[Light], p: &BakeParams
         out.polygons.extend(polys);
         out.spheres.extend(spheres);
     }
-    out.light_power = out.polygons.iter().map(|l| l.light.power).chain(out.spheres.iter().map(|s| s.light.power)).fold(Vec3::ZERO, |a, b| a + b);
+    out.light_power = out
+        .polygons
+        .iter()
+        .map(|l| l.light.power)
+        .chain(out.spheres.iter().map(|s| s.light.power))
+        .fold(Vec3::ZERO, |a, b| a + b);
     out
 }
 
@@ -191,7 +241,16 @@ pub struct Baked {
 }
 
 /// Evaluate the virtual lights (and the real lights' direct light) at every texel.
-pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: &VirtualLights, p: &BakeParams, progress: &(dyn Fn(usize) + Sync), cancel: &AtomicBool) -> Result<Baked, Cancelled> {
+pub fn evaluate(
+    scene: &Scene,
+    bvh: &Bvh,
+    set: &TexelSet,
+    lights: &[Light],
+    vl: &VirtualLights,
+    p: &BakeParams,
+    progress: &(dyn Fn(usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<Baked, Cancelled> {
     let rays = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
     let chunks: Vec<Option<Vec<(Vec3, Vec3)>>> = set
@@ -227,14 +286,19 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                         for (q, nq) in samples {
                             let d = t.position - *q;
                             let r2 = d.length_squared();
-                            let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
+                            let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0))
+                                / (r2 * r2.max(r2_min)).max(1e-30);
                             total += w;
                             cdf.push(total);
                         }
                         let mut seen = 0;
                         for k in 0..s {
                             let u = (k as f32 + rng.random::<f32>()) / s as f32;
-                            let i = if total > 0.0 { cdf.partition_point(|&c| c < u * total).min(samples.len() - 1) } else { rng.random_range(0..samples.len()) };
+                            let i = if total > 0.0 {
+                                cdf.partition_point(|&c| c < u * total).min(samples.len() - 1)
+                            } else {
+                                rng.random_range(0..samples.len())
+                            };
                             let (q, nq) = samples[i];
                             rays.fetch_add(1, Ordering::Relaxed);
                             seen += bvh.visible(t.position, t.normal, q, nq) as u32;
@@ -244,13 +308,18 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
                     for pc in &vl.polygons {
                         let e = pc.light.irradiance(t.position, t.normal, eps);
                         if e != Vec3::ZERO {
-                            indirect += e * visibility(&pc.samples, pc.light.area() / pc.samples.len() as f32, &mut rng);
+                            indirect += e * visibility(
+                                &pc.samples,
+                                pc.light.area() / pc.samples.len() as f32,
+                                &mut rng,
+                            );
                         }
                     }
                     for sc in &vl.spheres {
                         let e = sc.light.irradiance(t.position, t.normal);
                         if e != Vec3::ZERO {
-                            indirect += e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
+                            indirect +=
+                                e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
                         }
                     }
                     (direct, indirect)
@@ -260,7 +329,8 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
             Some(out)
         })
         .collect();
-    let mut baked = Baked { direct: Vec::with_capacity(set.len()), indirect: Vec::with_capacity(set.len()), rays: 0 };
+    let mut baked =
+        Baked { direct: Vec::with_capacity(set.len()), indirect: Vec::with_capacity(set.len()), rays: 0 };
     for c in chunks {
         for (d, i) in c.ok_or(Cancelled)? {
             baked.direct.push(d);
@@ -274,7 +344,9 @@ pub fn evaluate(scene: &Scene, bvh: &Bvh, set: &TexelSet, lights: &[Light], vl: 
 /// The virtual lights as a Wavefront OBJ: polygons as faces, spheres as octahedra.
 pub fn to_obj(vl: &VirtualLights) -> String {
     use std::fmt::Write;
-    let mut s = String::from("# prm reference baker: virtual polygon lights (g polygons) and sphere lights (g spheres)\n");
+    let mut s = String::from(
+        "# prm reference baker: virtual polygon lights (g polygons) and sphere lights (g spheres)\n",
+    );
     let mut next = 1;
     let _ = writeln!(s, "g polygons");
     for l in vl.polygons.iter().map(|p| &p.light) {

@@ -35,14 +35,27 @@ pub fn gap_split(sorted: &[f32]) -> usize {
 }
 
 /// Cluster `points` into leaves of at most `target` points (at least 1).
-pub fn cluster<const D: usize>(points: &[[f32; D]], target: usize, lo: [f32; D], hi: [f32; D]) -> Vec<Leaf<D>> {
+pub fn cluster<const D: usize>(
+    points: &[[f32; D]],
+    target: usize,
+    lo: [f32; D],
+    hi: [f32; D],
+) -> Vec<Leaf<D>> {
     let mut out = Vec::new();
     let all: Vec<u32> = (0..points.len() as u32).collect();
     split(points, all, target.max(1), lo, hi, &mut out, 0);
     out
 }
 
-fn split<const D: usize>(points: &[[f32; D]], members: Vec<u32>, target: usize, lo: [f32; D], hi: [f32; D], out: &mut Vec<Leaf<D>>, depth: u32) {
+fn split<const D: usize>(
+    points: &[[f32; D]],
+    members: Vec<u32>,
+    target: usize,
+    lo: [f32; D],
+    hi: [f32; D],
+    out: &mut Vec<Leaf<D>>,
+    depth: u32,
+) {
     if members.len() <= target || depth > 60 {
         out.push(Leaf { members, lo, hi });
         return;

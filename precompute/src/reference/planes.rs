@@ -38,20 +38,37 @@ const TRIES: usize = 48;
 const MIN_COS: f32 = 0.985;
 
 /// Split `members` (indices into `positions`/`normals`) into planar segments and the rest.
-pub fn detect_planes(positions: &[Vec3], normals: &[Vec3], members: &[u32], delta: f32, min_size: usize, seed: u64) -> (Vec<PlaneSegment>, Vec<u32>) {
+pub fn detect_planes(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    members: &[u32],
+    delta: f32,
+    min_size: usize,
+    seed: u64,
+) -> (Vec<PlaneSegment>, Vec<u32>) {
     let mut remaining: Vec<u32> = members.to_vec();
     let mut segments = Vec::new();
     let mut rest = Vec::new();
     let mut rng = stream(seed, 20, members.len() as u64);
     let inliers_of = |rem: &[u32], p: Vec3, n: Vec3| -> Vec<u32> {
-        rem.iter().copied().filter(|&i| (positions[i as usize] - p).dot(n).abs() <= delta && normals[i as usize].dot(n) >= MIN_COS).collect()
+        rem.iter()
+            .copied()
+            .filter(|&i| {
+                (positions[i as usize] - p).dot(n).abs() <= delta && normals[i as usize].dot(n) >= MIN_COS
+            })
+            .collect()
     };
     while remaining.len() >= min_size.max(3) {
         let mut best: Option<(usize, Vec3, Vec3)> = None;
         for _ in 0..TRIES {
             let s = remaining[rng.random_range(0..remaining.len())] as usize;
             let (p, n) = (positions[s], normals[s]);
-            let count = remaining.iter().filter(|&&i| (positions[i as usize] - p).dot(n).abs() <= delta && normals[i as usize].dot(n) >= MIN_COS).count();
+            let count = remaining
+                .iter()
+                .filter(|&&i| {
+                    (positions[i as usize] - p).dot(n).abs() <= delta && normals[i as usize].dot(n) >= MIN_COS
+                })
+                .count();
             if best.is_none_or(|b| count > b.0) {
                 best = Some((count, p, n));
             }
@@ -64,9 +81,15 @@ pub fn detect_planes(positions: &[Vec3], normals: &[Vec3], members: &[u32], delt
         let first = inliers_of(&remaining, p, n);
         // Sums in f64: thousands of f32 positions summed in f32 drift by 1e-5 of their size,
         // enough to lift a light off its wall and have the wall hide it.
-        let nn = first.iter().fold(glam::DVec3::ZERO, |a, &i| a + normals[i as usize].as_dvec3()).normalize_or_zero().as_vec3();
+        let nn = first
+            .iter()
+            .fold(glam::DVec3::ZERO, |a, &i| a + normals[i as usize].as_dvec3())
+            .normalize_or_zero()
+            .as_vec3();
         let n = if nn == Vec3::ZERO { n } else { nn };
-        let centre = (first.iter().fold(glam::DVec3::ZERO, |a, &i| a + positions[i as usize].as_dvec3()) / first.len() as f64).as_vec3();
+        let centre = (first.iter().fold(glam::DVec3::ZERO, |a, &i| a + positions[i as usize].as_dvec3())
+            / first.len() as f64)
+            .as_vec3();
         let inl = inliers_of(&remaining, centre, n);
         let taken: std::collections::HashSet<u32> = inl.iter().copied().collect();
         remaining.retain(|i| !taken.contains(i));

@@ -146,7 +146,11 @@ pub fn contains(poly: &[Vec2], q: Vec2, tol: f32) -> bool {
 /// True when the polygon is convex and counter-clockwise.
 pub fn is_convex_ccw(poly: &[Vec2]) -> bool {
     let n = poly.len();
-    n >= 3 && (0..n).all(|k| (poly[(k + 1) % n] - poly[k]).perp_dot(poly[(k + 2) % n] - poly[(k + 1) % n]) >= -1e-6 * (poly[(k + 1) % n] - poly[k]).length_squared().max(1e-30))
+    n >= 3
+        && (0..n).all(|k| {
+            (poly[(k + 1) % n] - poly[k]).perp_dot(poly[(k + 2) % n] - poly[(k + 1) % n])
+                >= -1e-6 * (poly[(k + 1) % n] - poly[k]).length_squared().max(1e-30)
+        })
 }
 
 /// The light polygon of a planar cluster: hull, simplified to <= 8 vertices, grown by
@@ -161,7 +165,8 @@ pub fn light_polygon(points: &[Vec2], cell_lo: Vec2, cell_hi: Vec2) -> Vec<Vec2>
     } else {
         let cell = (cell_hi - cell_lo).max(Vec2::ZERO);
         let b = 0.5 * (cell.x * cell.y / n).sqrt().max(1e-6);
-        let (lo, hi) = points.iter().fold((Vec2::INFINITY, Vec2::NEG_INFINITY), |(l, h), p| (l.min(*p), h.max(*p)));
+        let (lo, hi) =
+            points.iter().fold((Vec2::INFINITY, Vec2::NEG_INFINITY), |(l, h), p| (l.min(*p), h.max(*p)));
         let (lo, hi) = (lo - Vec2::splat(b), hi + Vec2::splat(b));
         vec![lo, Vec2::new(hi.x, lo.y), hi, Vec2::new(lo.x, hi.y)]
     };

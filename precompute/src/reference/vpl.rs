@@ -70,7 +70,8 @@ fn emit(light: &Light, scene: &Scene, photons: usize, k: usize, rng: &mut impl R
             // Stratify the disk by photon index along the radius.
             let r = radius * ((k as f32 + rng.random::<f32>()) / n).sqrt();
             let phi = std::f32::consts::TAU * rng.random::<f32>();
-            let origin = centre - light.direction * (2.0 * radius) + t * (r * phi.cos()) + b * (r * phi.sin());
+            let origin =
+                centre - light.direction * (2.0 * radius) + t * (r * phi.cos()) + b * (r * phi.sin());
             (origin, light.direction, light.intensity * (std::f32::consts::PI * radius * radius / n))
         }
     }
@@ -85,7 +86,14 @@ fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
 
 /// Trace `photons` photons from each light for `bounces` bounces. VPLs come out grouped by
 /// light, then photon, then bounce; the budget is per light.
-pub fn trace_photons(scene: &Scene, bvh: &Bvh, lights: &[Light], photons: usize, bounces: u32, seed: u64) -> (Vec<Vpl>, Vec<PhotonBudget>) {
+pub fn trace_photons(
+    scene: &Scene,
+    bvh: &Bvh,
+    lights: &[Light],
+    photons: usize,
+    bounces: u32,
+    seed: u64,
+) -> (Vec<Vpl>, Vec<PhotonBudget>) {
     let mut all = Vec::new();
     let mut budgets = Vec::new();
     for (li, light) in lights.iter().enumerate() {

@@ -17,7 +17,8 @@ pub fn quads(qs: &[[Vec3; 4]], albedo: f32) -> Scene {
         let base = pos.len() as u32;
         for (c, p) in q.iter().enumerate() {
             pos.push(*p);
-            let corner = [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
+            let corner =
+                [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
             uv.push((cell + Vec2::splat(0.08) + corner * 0.84) / 4.0);
         }
         idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
