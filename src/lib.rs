@@ -12,6 +12,7 @@
 
 pub mod bvh;
 pub mod exr_io;
+pub mod fingerprint;
 pub mod fsutil;
 pub mod glb;
 pub mod gltf_load;
@@ -19,6 +20,7 @@ pub mod light;
 pub mod metric;
 pub mod prm_file;
 pub mod rig;
+pub mod sampling;
 pub mod scene;
 pub mod texels;
 pub mod uv;

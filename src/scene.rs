@@ -211,6 +211,21 @@ impl Scene {
         (b - a).cross(c - a).normalize_or_zero()
     }
 
+    /// The one sidedness rule of every tracer: a ray travelling along `dir` that hits triangle
+    /// `t` sees its front face (the face normal is returned), the back of a double-sided
+    /// surface (the negated normal: it shades like a front), or the back of a one-sided
+    /// surface, which absorbs (`None`: closed solids have one-sided walls, and light that got
+    /// behind one must not bounce on).
+    #[inline]
+    pub fn facing_normal(&self, t: usize, dir: Vec3) -> Option<Vec3> {
+        let n = self.face_normal(t);
+        if n.dot(dir) > 0.0 {
+            self.material(t).double_sided.then_some(-n)
+        } else {
+            Some(n)
+        }
+    }
+
     /// Area of triangle `t` in square scene units.
     #[inline]
     pub fn area(&self, t: usize) -> f32 {

@@ -1,5 +1,6 @@
 //! `prm bake-reference`: the static reference lightmap with virtual polygon lights (paper 000).
 
+use prm_precompute::parallel::Control;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -74,8 +75,18 @@ pub fn run(a: Args) -> Result<()> {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
     let t = Instant::now();
-    let baked =
-        evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, &|d| bar.set_position(d as u64), cancel_flag());
+    let baked = {
+        let on_texels = |d: usize| bar.set_position(d as u64);
+        evaluate(
+            &scene,
+            &bvh,
+            &set,
+            &scene.lights,
+            &vl,
+            &p,
+            Control { progress: &on_texels, cancel: cancel_flag() },
+        )
+    };
     bar.finish_and_clear();
     let baked = baked.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let eval_s = t.elapsed().as_secs_f64();

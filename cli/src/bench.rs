@@ -155,7 +155,7 @@ pub fn run(a: Args) -> Result<()> {
     let bytes = rt.compose_bytes(&selected);
     let weights: Vec<glam::Vec3> = {
         let e = rt.read_entry_irradiance()?;
-        prm_file.cluster_weights(&e)
+        prm_runtime::cpu::cluster_weights(&prm_file, &e)
     };
     let reps = 20;
     let t = Instant::now();
@@ -181,7 +181,7 @@ pub fn run(a: Args) -> Result<()> {
         top_k: params.top_k,
         shadow_size: a.shadow_size,
         lights: lights_at(0).len(),
-        clusters: prm_file.clusters.len(),
+        clusters: prm_file.clusters().len(),
         frames_per_block: a.frames,
         rounds: a.rounds,
         ratio_median: stats(full.clone()).median_ms / stats(direct.clone()).median_ms.max(1e-9),

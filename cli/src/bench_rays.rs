@@ -44,7 +44,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(|_| {
             let t = &set.texels[rng.random_range(0..set.len())];
             let o = &set.texels[rng.random_range(0..set.len())];
-            let d = prm_precompute::ground_truth::cosine_direction(t.normal, rng.random(), rng.random());
+            let d = prm::sampling::cosine_direction(t.normal, rng.random(), rng.random());
             (t.position, t.normal, d, o.position + o.normal * 0.0)
         })
         .collect();

@@ -156,7 +156,7 @@ impl ComposeArgs {
 /// A `.prm` and the level it must have been baked for (loaded at the map's atlas size).
 pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Scene, prm::prm_file::Prm)> {
     let map = prm::prm_file::Prm::read(prm_path, None).with_context(|| "reading the radiance map failed")?;
-    let scene = load(args, map.header.atlas_width, false)?;
+    let scene = load(args, map.header().atlas_width, false)?;
     map.check_scene(prm_path, &scene)?;
     Ok((scene, map))
 }

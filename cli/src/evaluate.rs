@@ -34,7 +34,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
     twin.set_residual(!a.no_residual);
     let img = twin.frame(&lights).to_vec();
-    let set = TexelSet::build(&scene, bytes_prm.header.atlas_width, bytes_prm.header.atlas_height);
+    let set = TexelSet::build(&scene, bytes_prm.header().atlas_width, bytes_prm.header().atlas_height);
     let (w, h) = (set.width as usize, set.height as usize);
     let mut ch = Channels::new(w, h);
     ch.insert_rgb("", &img);
@@ -45,7 +45,7 @@ pub fn run(a: Args) -> Result<()> {
         "{} lights, {} of {} clusters composed -> {}",
         lights.len(),
         twin.last_selected,
-        bytes_prm.clusters.len(),
+        bytes_prm.clusters().len(),
         a.output.display()
     );
     Ok(())

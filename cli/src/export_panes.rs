@@ -26,20 +26,21 @@ pub fn run(a: Args) -> Result<()> {
     }
     let prm = Prm::read(&a.prm, None).with_context(|| "reading the radiance map failed")?;
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
-    let (w, h) = (prm.header.atlas_width as usize, prm.header.atlas_height as usize);
+    let (w, h) = (prm.header().atlas_width as usize, prm.header().atlas_height as usize);
     let g = a.grid as usize;
+    let layout = prm.layout();
     let per_page = g * g;
-    let pages = prm.clusters.len().div_ceil(per_page);
+    let pages = prm.clusters().len().div_ceil(per_page);
     for page in 0..pages {
         let (pw, ph) = (w * g, h * g);
         let mut img = vec![Vec3::ZERO; pw * ph];
         for slot in 0..per_page {
             let c = page * per_page + slot;
-            if c >= prm.clusters.len() {
+            if c >= prm.clusters().len() {
                 break;
             }
             let mut pane = vec![Vec3::ZERO; w * h];
-            prm.add_pane(c, Vec3::ONE, &mut pane);
+            prm_runtime::cpu::add_pane(&prm, c, Vec3::ONE, &mut pane, &layout);
             let (ox, oy) = ((slot % g) * w, (slot / g) * h);
             for y in 0..h {
                 img[(oy + y) * pw + ox..(oy + y) * pw + ox + w].copy_from_slice(&pane[y * w..(y + 1) * w]);
@@ -50,6 +51,6 @@ pub fn run(a: Args) -> Result<()> {
         let path = a.output.join(format!("panes_{page:03}.exr"));
         ch.write(&path).with_context(|| format!("writing {}", path.display()))?;
     }
-    println!("{} panes in {} pages of {}x{} -> {}", prm.clusters.len(), pages, g, g, a.output.display());
+    println!("{} panes in {} pages of {}x{} -> {}", prm.clusters().len(), pages, g, g, a.output.display());
     Ok(())
 }

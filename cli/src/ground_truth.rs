@@ -1,5 +1,6 @@
 //! `prm ground-truth`: the independent path tracer's irradiance per texel, or a camera image.
 
+use prm_precompute::parallel::Control;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -97,7 +98,8 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
     if a.json {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
-    let result = tracer.texels(&set.texels, set.width, &|done| bar.set_position(done as u64), cancel);
+    let on_texels = |done: usize| bar.set_position(done as u64);
+    let result = tracer.texels(&set.texels, set.width, Control { progress: &on_texels, cancel });
     bar.finish_and_clear();
     let values = result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let (w, h) = (set.width as usize, set.height as usize);

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use prm::Bvh;
-use prm_precompute::precompute::{precompute, Phase, PrecomputeParams};
+use prm_precompute::precompute::{precompute, Phase, PrecomputeError, PrecomputeParams};
 use prm_precompute::transport::Estimator;
 use serde_json::json;
 
@@ -141,8 +141,10 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
     if let Ok(b) = bar.lock() {
         b.finish_and_clear();
     }
-    let (prm, report) =
-        result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
+    let (prm, report) = result.map_err(|e| match e {
+        PrecomputeError::Cancelled(_) => anyhow!("stopped by Ctrl-C; {} not written", a.output.display()),
+        e => anyhow!("{e}; {} not written", a.output.display()),
+    })?;
     let t = Instant::now();
     let bytes = prm.to_bytes();
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {

@@ -87,7 +87,7 @@ pub fn run(a: Args) -> Result<()> {
         dir: &a.output,
         lightmap: a
             .lightmap_out
-            .then_some((prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize)),
+            .then_some((prm_file.header().atlas_width as usize, prm_file.header().atlas_height as usize)),
         size: (iw as usize, ih as usize),
     };
     match gpu {
@@ -128,7 +128,7 @@ pub fn run(a: Args) -> Result<()> {
             let bvh = Bvh::build(&scene);
             let mut twin = CpuTwin::new(&prm_file, &bvh, params.top_k);
             twin.set_residual(params.residual);
-            let atlas = (prm_file.header.atlas_width as usize, prm_file.header.atlas_height as usize);
+            let atlas = (prm_file.header().atlas_width as usize, prm_file.header().atlas_height as usize);
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {
                 let lights = rig.frame(f, a.frames);
@@ -224,14 +224,8 @@ fn shade(
             let (origin, d) = cam.ray(i as f32 + 0.5, j as f32 + 0.5, iw as u32, ih as u32);
             let Some(hit) = bvh.closest_hit(origin, d, f32::INFINITY) else { return Vec3::ZERO };
             let t = hit.triangle as usize;
-            let mut n = scene.face_normal(t);
+            let Some(n) = scene.facing_normal(t, d) else { return Vec3::ZERO };
             let m = scene.material(t);
-            if n.dot(d) > 0.0 {
-                if !m.double_sided {
-                    return Vec3::ZERO;
-                }
-                n = -n;
-            }
             let b = hit.bary();
             let p = scene.point(t, b);
             let [u0, u1, u2] = scene.uv1_corners(t);

@@ -18,6 +18,7 @@
 //! with `plotters` (labels need a TrueType font: DejaVu, Liberation or Noto, as Debian's
 //! `fonts-dejavu-core` installs).
 
+use prm_precompute::parallel::Control;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -179,8 +180,8 @@ pub fn run(a: Args) -> Result<()> {
             ..PrecomputeParams::production()
         };
         let t = Instant::now();
-        let (map, _) = precompute(&scene, &bvh, &p, &|_, _, _| {}, &cancel)
-            .map_err(|_| anyhow!("precompute stopped"))?;
+        let (map, _) =
+            precompute(&scene, &bvh, &p, &|_, _, _| {}, &cancel).map_err(|e| anyhow!("precompute: {e}"))?;
         let seconds = t.elapsed().as_secs_f64();
         let mut twin = CpuTwin::new(&map, &bvh, usize::MAX);
         let img = twin.frame(&scene.lights).to_vec();
@@ -339,7 +340,7 @@ fn ground_truth(
     lit.lights = lights.to_vec();
     let tracer = Tracer::new(&lit, bvh, GtParams { spp, seed, ..GtParams::default() });
     let v = tracer
-        .texels(&set.texels, set.width, &|_| {}, &AtomicBool::new(false))
+        .texels(&set.texels, set.width, Control::none())
         .map_err(|_| anyhow!("ground truth stopped"))?;
     Ok((v.iter().map(|r| r.indirect).collect(), prm_precompute::ground_truth::indirect_noise(&v)))
 }
@@ -378,7 +379,7 @@ fn reference(
     };
     p.validate().map_err(|e| anyhow!("bad reference parameter: {e}"))?;
     let vl = virtual_lights(scene, bvh, lights, &p);
-    let baked = evaluate(scene, bvh, set, lights, &vl, &p, &|_| {}, &AtomicBool::new(false))
+    let baked = evaluate(scene, bvh, set, lights, &vl, &p, Control::none())
         .map_err(|_| anyhow!("reference stopped"))?;
     Ok(baked.indirect)
 }
@@ -418,7 +419,7 @@ fn runtime_sweep(
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let label = |k: usize| if k >= map.clusters.len() { "all".to_string() } else { k.to_string() };
+    let label = |k: usize| if k >= map.clusters().len() { "all".to_string() } else { k.to_string() };
     let Some(g) = gpu else {
         for &k in &b.top_k {
             for (residual, out) in [(true, &mut with), (false, &mut without)] {

@@ -17,7 +17,7 @@ use prm::prm_file::Entry;
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::entries::stream;
+use prm::sampling::stream;
 
 /// The clusters of a set of entries.
 #[derive(Clone, Debug, PartialEq)]

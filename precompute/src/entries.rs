@@ -9,17 +9,9 @@
 
 use glam::Vec3;
 use prm::prm_file::Entry;
+use prm::sampling::{cosine_direction, stream};
 use prm::Scene;
-use rand::{Rng, SeedableRng};
-use rand_pcg::Pcg64Mcg;
-
-/// A per-index random stream derived from a seed and a purpose tag.
-pub fn stream(seed: u64, tag: u64, index: u64) -> Pcg64Mcg {
-    let mix = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ tag.wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03);
-    Pcg64Mcg::seed_from_u64(mix ^ (mix >> 29))
-}
+use rand::Rng;
 
 /// Sample `n` entry points by area.
 pub fn sample_entries(scene: &Scene, n: usize, seed: u64) -> Vec<Entry> {
@@ -66,10 +58,10 @@ pub fn is_enclosed(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u
     let mut inside = 0;
     for k in 0..ENCLOSURE_RAYS {
         let u1 = (k as f32 + rng.random::<f32>()) / ENCLOSURE_RAYS as f32;
-        let d = crate::ground_truth::cosine_direction(e.normal, u1, rng.random());
+        let d = cosine_direction(e.normal, u1, rng.random());
         if let Some(h) = bvh.trace_from_surface(e.position, e.normal, d) {
             let t = h.triangle as usize;
-            if scene.face_normal(t).dot(d) > 0.0 && !scene.material(t).double_sided {
+            if scene.facing_normal(t, d).is_none() {
                 inside += 1;
             }
         }

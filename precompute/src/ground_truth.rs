@@ -1,7 +1,10 @@
 //! The ground truth: an independent Monte Carlo path tracer (DESIGN.md §7).
 //!
-//! It shares only the scene and the ray queries with the rest of PRM, so a mistake in the
-//! precompute or the reference baker cannot hide in it.
+//! It shares only the scene (with its sidedness rule, [`prm::Scene::facing_normal`]) and the
+//! ray queries with the rest of PRM, so a mistake in the precompute or the reference baker
+//! cannot hide in it. **Its sampling code is its own on purpose** (cosine directions, stream
+//! seeding, roulette): `prm::sampling` serves the bakers it judges, and a fault there must
+//! show up as a disagreement with this tracer, not be shared by both.
 //!
 //! **Estimator.** Irradiance at a surface point x0 with normal n is
 //! `E(x0) = E_punctual(x0) + pi * L(x1 -> x0)`, the second term estimated with one
@@ -18,13 +21,14 @@
 //! `q = max(rho)` (clamped to [0.05, 1]), so it is unbiased; `max_bounces` is an explicit,
 //! reported cap (paths cut there are counted).
 
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{DVec3, Vec3};
 use prm::{Bvh, Scene, Texel};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rayon::prelude::*;
+
+use crate::parallel::{par_texels, Cancelled, Control};
 
 /// Ground-truth parameters.
 #[derive(Clone, Debug)]
@@ -88,11 +92,6 @@ pub struct GtStats {
     pub truncated: AtomicUsize,
 }
 
-/// The run was stopped by the caller.
-#[derive(Debug, thiserror::Error)]
-#[error("stopped before the end")]
-pub struct Cancelled;
-
 /// One path tracer over a scene.
 pub struct Tracer<'a> {
     pub scene: &'a Scene,
@@ -101,8 +100,9 @@ pub struct Tracer<'a> {
     pub stats: GtStats,
 }
 
-/// A cosine-distributed unit direction around unit `n`.
-pub fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
+/// A cosine-distributed unit direction around unit `n` (the judge's own copy: see the module
+/// doc).
+fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     let (t, b) = n.any_orthonormal_pair();
     let r = u1.sqrt();
     let phi = std::f32::consts::TAU * u2;
@@ -149,14 +149,8 @@ impl<'a> Tracer<'a> {
             self.stats.rays.fetch_add(1, Ordering::Relaxed);
             let Some(hit) = self.bvh.trace_from_surface(x, nx, d) else { break };
             let t = hit.triangle as usize;
-            let mut nh = self.scene.face_normal(t);
+            let Some(nh) = self.scene.facing_normal(t, d) else { break };
             let material = self.scene.material(t);
-            if nh.dot(d) > 0.0 {
-                if !material.double_sided {
-                    break; // the back of a one-sided surface absorbs
-                }
-                nh = -nh;
-            }
             bounce += 1;
             let xh = self.scene.point(t, hit.bary());
             if material.emissive != Vec3::ZERO {
@@ -225,35 +219,19 @@ impl<'a> Tracer<'a> {
     }
 
     /// Irradiance at every texel, in parallel, deterministic at any thread count (each texel
-    /// seeds its own stream from its atlas index). `progress` gets the number of texels done
-    /// after each chunk; `cancel` stops the run.
+    /// seeds its own stream from its atlas index); `control` reports progress and stops it.
     pub fn texels(
         &self,
         texels: &[Texel],
         width: u32,
-        progress: &(dyn Fn(usize) + Sync),
-        cancel: &AtomicBool,
+        control: Control,
     ) -> Result<Vec<Irradiance>, Cancelled> {
-        let done = AtomicUsize::new(0);
-        let chunks: Vec<Result<Vec<Irradiance>, Cancelled>> = texels
-            .par_chunks(256)
-            .map(|chunk| {
-                if cancel.load(Ordering::Relaxed) {
-                    return Err(Cancelled);
-                }
-                let out: Vec<Irradiance> = chunk
-                    .iter()
-                    .map(|t| self.irradiance(t.position, t.normal, (t.j as u64) * width as u64 + t.i as u64))
-                    .collect();
-                progress(done.fetch_add(chunk.len(), Ordering::Relaxed) + chunk.len());
-                Ok(out)
-            })
-            .collect();
-        let mut out = Vec::with_capacity(texels.len());
-        for c in chunks {
-            out.extend(c?);
-        }
-        Ok(out)
+        par_texels(
+            texels,
+            control,
+            || (),
+            |_, t| self.irradiance(t.position, t.normal, (t.j as u64) * width as u64 + t.i as u64),
+        )
     }
 
     /// Radiance seen along a camera ray: emission plus albedo/pi x irradiance at the first
@@ -262,14 +240,8 @@ impl<'a> Tracer<'a> {
         self.stats.rays.fetch_add(1, Ordering::Relaxed);
         let Some(hit) = self.bvh.closest_hit(origin, dir, f32::INFINITY) else { return Vec3::ZERO };
         let t = hit.triangle as usize;
-        let mut n = self.scene.face_normal(t);
+        let Some(n) = self.scene.facing_normal(t, dir) else { return Vec3::ZERO };
         let material = self.scene.material(t);
-        if n.dot(dir) > 0.0 {
-            if !material.double_sided {
-                return Vec3::ZERO;
-            }
-            n = -n;
-        }
         let p = self.scene.point(t, hit.bary());
         let (d, i) = self.sample(p, n, self.punctual(p, n), rng);
         material.emissive + self.scene.albedo(t, hit.bary()) / std::f32::consts::PI * (d + i)

@@ -6,6 +6,8 @@ pub mod cluster;
 pub mod entries;
 pub mod ground_truth;
 pub mod panes;
+pub mod parallel;
+pub mod params;
 pub mod precompute;
 pub mod reference;
 pub mod scenes;

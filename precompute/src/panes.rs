@@ -6,7 +6,8 @@
 //! out while their total stays within `drop_threshold` of the pane's energy (default 1e-3: at
 //! most 0.1 % of every pane's light is lost). The rule is relative to the pane, so the light a
 //! cluster sends into a dim room is a small share of its total and goes first: at 1e-2 the
-//! second room of two_rooms lost 12 % of its indirect light, at 1e-3 none measurable. The file records the fraction dropped overall.
+//! second room of two_rooms lost 12 % of its indirect light, at 1e-3 none measurable. The file
+//! records the fraction dropped overall.
 //!
 //! Panes are dilated before tiling (the dilation of [`prm::TexelSet`] is linear, so a sum of
 //! dilated panes is the dilated sum): the runtime's bilinear lookups need no extra pass.
@@ -40,138 +41,190 @@ pub fn tile_panes(
     tile_size: u32,
     drop_threshold: f64,
 ) -> Tiled {
-    let c_count = members.len();
-    let (w, h) = (set.width as usize, set.height as usize);
-    let ts = tile_size as usize;
-    let (tx, ty) = (w.div_ceil(ts), h.div_ceil(ts));
+    let grid = Grid::new(set, tile_size);
+    let stored = stored_mask(set);
+    let (start, by_cluster) = transpose(texel_panes, members.len());
+    let panes: Vec<PaneOut> = (0..members.len())
+        .into_par_iter()
+        .map(|c| {
+            let img = pane_image(set, kernel, &by_cluster[start[c]..start[c + 1]]);
+            encode_pane(set, &grid, &stored, &img, drop_threshold)
+        })
+        .collect();
+    assemble(panes, members, centroids, &stored)
+}
+
+/// The atlas cut into square tiles, row-major.
+struct Grid {
+    w: usize,
+    h: usize,
+    ts: usize,
+    tx: usize,
+    ty: usize,
+}
+
+impl Grid {
+    fn new(set: &TexelSet, tile_size: u32) -> Self {
+        let (w, h, ts) = (set.width as usize, set.height as usize, tile_size as usize);
+        Grid { w, h, ts, tx: w.div_ceil(ts), ty: h.div_ceil(ts) }
+    }
+
+    /// Row-major atlas texels of tile `index`, in row-major order.
+    fn texels(&self, index: usize) -> impl Iterator<Item = usize> + '_ {
+        let (i, j) = (index % self.tx, index / self.tx);
+        (j * self.ts..((j + 1) * self.ts).min(self.h))
+            .flat_map(move |y| (i * self.ts..((i + 1) * self.ts).min(self.w)).map(move |x| y * self.w + x))
+    }
+}
+
+/// Texels a pane stores: covered or a dilation target.
+fn stored_mask(set: &TexelSet) -> Vec<bool> {
     let mut stored = set.mask();
     for d in &set.dilation {
         stored[d.target as usize] = true;
     }
+    stored
+}
 
-    // Transpose texel-major contributions to cluster-major lists.
-    let mut counts = vec![0usize; c_count];
+/// Texel-major contributions as cluster-major lists (a counting sort): cluster c's
+/// (texel, value) pairs are `list[start[c]..start[c + 1]]`, in texel order.
+fn transpose(texel_panes: &[TexelPanes], clusters: usize) -> (Vec<usize>, Vec<(u32, Vec3)>) {
+    let mut counts = vec![0usize; clusters];
     for tp in texel_panes {
         for &(c, _) in tp {
             counts[c as usize] += 1;
         }
     }
-    let mut start = vec![0usize; c_count + 1];
-    for c in 0..c_count {
+    let mut start = vec![0usize; clusters + 1];
+    for c in 0..clusters {
         start[c + 1] = start[c] + counts[c];
     }
     let mut fill = start.clone();
-    let mut by_cluster = vec![(0u32, Vec3::ZERO); start[c_count]];
+    let mut list = vec![(0u32, Vec3::ZERO); start[clusters]];
     for (k, tp) in texel_panes.iter().enumerate() {
         for &(c, v) in tp {
-            by_cluster[fill[c as usize]] = (k as u32, v);
+            list[fill[c as usize]] = (k as u32, v);
             fill[c as usize] += 1;
         }
     }
+    (start, list)
+}
 
-    struct PaneOut {
-        energy: f32,
-        tiles: Vec<(u32, Vec3, Vec<f16>)>,
-        dropped: u32,
-        dropped_energy: f64,
-        total_energy: f64,
+/// One pane as a full-atlas image: its texels' values, smoothed with `kernel`, dilated.
+fn pane_image(
+    set: &TexelSet,
+    kernel: Option<&[Vec<(u32, f32)>]>,
+    contributions: &[(u32, Vec3)],
+) -> Vec<Vec3> {
+    let w = set.width as usize;
+    let at = |t: &prm::Texel| t.j as usize * w + t.i as usize;
+    let mut img = vec![Vec3::ZERO; w * set.height as usize];
+    for &(k, v) in contributions {
+        img[at(&set.texels[k as usize])] = v;
     }
-    let panes: Vec<PaneOut> = (0..c_count)
-        .into_par_iter()
-        .map(|c| {
-            let mut img = vec![Vec3::ZERO; w * h];
-            for &(k, v) in &by_cluster[start[c]..start[c + 1]] {
-                let t = &set.texels[k as usize];
-                img[t.j as usize * w + t.i as usize] = v;
-            }
-            if let Some(kernel) = kernel {
-                let smoothed: Vec<Vec3> = kernel
-                    .iter()
-                    .map(|taps| {
-                        taps.iter()
-                            .map(|&(n, wgt)| {
-                                let o = &set.texels[n as usize];
-                                img[o.j as usize * w + o.i as usize] * wgt
-                            })
-                            .fold(Vec3::ZERO, |a, b| a + b)
-                    })
-                    .collect();
-                for (t, v) in set.texels.iter().zip(smoothed) {
-                    img[t.j as usize * w + t.i as usize] = v;
-                }
-            }
-            set.dilate(&mut img);
-            let energy: f64 =
-                set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
-            let mut tiles: Vec<(u32, f64)> = Vec::new();
-            for j in 0..ty {
-                for i in 0..tx {
-                    let mut e = 0.0f64;
-                    let mut any = false;
-                    for y in j * ts..((j + 1) * ts).min(h) {
-                        for x in i * ts..((i + 1) * ts).min(w) {
-                            let v = img[y * w + x];
-                            if v != Vec3::ZERO {
-                                any = true;
-                                e += luminance(v).abs() as f64;
-                            }
-                        }
-                    }
-                    if any {
-                        tiles.push(((j * tx + i) as u32, e));
-                    }
-                }
-            }
-            let total: f64 = tiles.iter().map(|t| t.1).sum();
-            let mut order: Vec<usize> = (0..tiles.len()).collect();
-            order.sort_by(|&a, &b| tiles[a].1.total_cmp(&tiles[b].1).then(a.cmp(&b)));
-            let mut keep = vec![true; tiles.len()];
-            let (mut dropped, mut dropped_energy) = (0u32, 0.0f64);
-            for &k in &order {
-                if dropped_energy + tiles[k].1 > drop_threshold * total {
-                    break;
-                }
-                dropped_energy += tiles[k].1;
-                dropped += 1;
-                keep[k] = false;
-            }
-            let stored = tiles
-                .iter()
-                .zip(&keep)
-                .filter(|(_, &k)| k)
-                .map(|(&(index, _), _)| {
-                    let (i, j) = (index as usize % tx, index as usize / tx);
-                    let mut vals = Vec::with_capacity(ts * ts);
-                    for py in j * ts..((j + 1) * ts).min(h) {
-                        for px in i * ts..((i + 1) * ts).min(w) {
-                            if stored[py * w + px] {
-                                vals.push(img[py * w + px]);
-                            }
-                        }
-                    }
-                    // Colour: the tile's mean chromaticity (luminance 1); intensity: luminance
-                    // over the tile's peak.
-                    let (sum, sum_y) = vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| {
-                        (s + v.max(Vec3::ZERO), y + luminance(v.max(Vec3::ZERO)))
-                    });
-                    let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
-                    let peak = vals
-                        .iter()
-                        .map(|v| luminance(v.max(Vec3::ZERO)))
-                        .fold(0.0f32, f32::max)
-                        .max(f32::MIN_POSITIVE);
-                    let data =
-                        vals.iter().map(|v| f16::from_f32(luminance(v.max(Vec3::ZERO)) / peak)).collect();
-                    (index, chroma * peak, data)
-                })
-                .collect();
-            PaneOut { energy: energy as f32, tiles: stored, dropped, dropped_energy, total_energy: total }
+    if let Some(kernel) = kernel {
+        let smoothed: Vec<Vec3> = kernel
+            .iter()
+            .map(|taps| {
+                taps.iter()
+                    .map(|&(n, wgt)| img[at(&set.texels[n as usize])] * wgt)
+                    .fold(Vec3::ZERO, |a, b| a + b)
+            })
+            .collect();
+        for (t, v) in set.texels.iter().zip(smoothed) {
+            img[at(t)] = v;
+        }
+    }
+    set.dilate(&mut img);
+    img
+}
+
+/// One pane's stored tiles and what its dropped tiles held.
+struct PaneOut {
+    /// Signed luminance over the covered texels (the runtime's ranking energy).
+    energy: f32,
+    /// (atlas tile, RGB scale, half-float intensities of the stored texels).
+    tiles: Vec<(u32, Vec3, Vec<f16>)>,
+    dropped: u32,
+    dropped_energy: f64,
+    total_energy: f64,
+}
+
+fn encode_pane(set: &TexelSet, grid: &Grid, stored: &[bool], img: &[Vec3], drop_threshold: f64) -> PaneOut {
+    let w = grid.w;
+    let energy: f64 = set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
+    let tiles = tile_energies(grid, img);
+    let total: f64 = tiles.iter().map(|t| t.1).sum();
+    let (keep, dropped, dropped_energy) = drop_tiles(&tiles, drop_threshold * total);
+    let tiles = tiles
+        .iter()
+        .zip(&keep)
+        .filter(|(_, &k)| k)
+        .map(|(&(index, _), _)| {
+            let vals: Vec<Vec3> =
+                grid.texels(index as usize).filter(|&k| stored[k]).map(|k| img[k]).collect();
+            let (scale, data) = encode_tile(&vals);
+            (index, scale, data)
         })
         .collect();
+    PaneOut { energy: energy as f32, tiles, dropped, dropped_energy, total_energy: total }
+}
 
+/// The tiles holding any non-zero texel, with their energy (sum of |luminance|).
+fn tile_energies(grid: &Grid, img: &[Vec3]) -> Vec<(u32, f64)> {
+    let mut tiles = Vec::new();
+    for index in 0..grid.tx * grid.ty {
+        let mut e = 0.0f64;
+        let mut any = false;
+        for k in grid.texels(index) {
+            if img[k] != Vec3::ZERO {
+                any = true;
+                e += luminance(img[k]).abs() as f64;
+            }
+        }
+        if any {
+            tiles.push((index as u32, e));
+        }
+    }
+    tiles
+}
+
+/// Which tiles to keep: the weakest go while their total stays within `budget` (ties by
+/// index). Returns the keep flags, the count dropped and the energy dropped.
+fn drop_tiles(tiles: &[(u32, f64)], budget: f64) -> (Vec<bool>, u32, f64) {
+    let mut order: Vec<usize> = (0..tiles.len()).collect();
+    order.sort_by(|&a, &b| tiles[a].1.total_cmp(&tiles[b].1).then(a.cmp(&b)));
+    let mut keep = vec![true; tiles.len()];
+    let (mut dropped, mut dropped_energy) = (0u32, 0.0f64);
+    for &k in &order {
+        if dropped_energy + tiles[k].1 > budget {
+            break;
+        }
+        dropped_energy += tiles[k].1;
+        dropped += 1;
+        keep[k] = false;
+    }
+    (keep, dropped, dropped_energy)
+}
+
+/// A tile's stored texels as an RGB scale (the mean chromaticity at luminance 1, times the
+/// peak luminance) and half-float intensities (luminance over the peak).
+fn encode_tile(vals: &[Vec3]) -> (Vec3, Vec<f16>) {
+    let (sum, sum_y) = vals
+        .iter()
+        .fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.max(Vec3::ZERO), y + luminance(v.max(Vec3::ZERO))));
+    let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
+    let peak =
+        vals.iter().map(|v| luminance(v.max(Vec3::ZERO))).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    let data = vals.iter().map(|v| f16::from_f32(luminance(v.max(Vec3::ZERO)) / peak)).collect();
+    (chroma * peak, data)
+}
+
+/// The panes in cluster order as clusters, tiles and data, with the drop statistics.
+fn assemble(panes: Vec<PaneOut>, members: &[Vec<u32>], centroids: &[Vec3], stored: &[bool]) -> Tiled {
     let mut out = Tiled {
-        clusters: Vec::with_capacity(c_count),
-        mask: prm::prm_file::pack_mask(&stored),
+        clusters: Vec::with_capacity(members.len()),
+        mask: prm::prm_file::pack_mask(stored),
         tiles: Vec::new(),
         data: Vec::new(),
         tiles_dropped: 0,

@@ -9,14 +9,17 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
-use prm::prm_file::{scene_fingerprint, Entry, Group, Header, Prm, Tile};
+use prm::fingerprint::fingerprint_hex;
+use prm::prm_file::{Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
 use crate::cluster::{centroids, cluster_entries};
 use crate::entries::{is_enclosed, sample_entries};
 use crate::panes::tile_panes;
-use crate::transport::{Cancelled, Estimator, TexelPanes, Transport};
+use crate::parallel::{Cancelled, Control};
+use crate::params::{require, ParamError};
+use crate::transport::{Estimator, TexelPanes, Transport};
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
@@ -73,32 +76,24 @@ impl PrecomputeParams {
         }
     }
 
-    /// Reject absurd values with a message naming the parameter.
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |ok: bool, msg: String| if ok { Ok(()) } else { Err(msg) };
-        check(
-            (1..=1 << 20).contains(&self.entries),
-            format!("entries {} must be 1 to 1048576", self.entries),
-        )?;
-        check((1..=1 << 16).contains(&self.paths), format!("paths {} must be 1 to 65536", self.paths))?;
-        check(
-            (1..=65536).contains(&self.clusters),
-            format!("clusters {} must be 1 to 65536", self.clusters),
-        )?;
-        check(self.groups <= 4096, format!("groups {} must be 0 to 4096", self.groups))?;
-        check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
-        check(
-            (1..=1024).contains(&self.tile_size),
-            format!("tile size {} must be 1 to 1024", self.tile_size),
-        )?;
-        check(
+    /// Reject absurd values with an error naming the parameter.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        require((1..=1 << 20).contains(&self.entries), "entries", self.entries, "1 to 1048576")?;
+        require((1..=1 << 16).contains(&self.paths), "paths", self.paths, "1 to 65536")?;
+        require((1..=65536).contains(&self.clusters), "clusters", self.clusters, "1 to 65536")?;
+        require(self.groups <= 4096, "groups", self.groups, "0 to 4096")?;
+        require((1..=8192).contains(&self.atlas), "atlas", self.atlas, "1 to 8192")?;
+        require((1..=1024).contains(&self.tile_size), "tile size", self.tile_size, "1 to 1024")?;
+        require(
             (0.0..0.5).contains(&self.drop_threshold),
-            format!("drop threshold {} must be in [0, 0.5)", self.drop_threshold),
+            "drop threshold",
+            self.drop_threshold,
+            "in [0, 0.5)",
         )?;
-        check(self.max_bounces >= 1, "max bounces must be at least 1".into())?;
-        check(self.smooth_radius <= 16, format!("smooth radius {} must be 0 to 16", self.smooth_radius))?;
+        require(self.max_bounces >= 1, "max bounces", self.max_bounces, "at least 1")?;
+        require(self.smooth_radius <= 16, "smooth radius", self.smooth_radius, "0 to 16")?;
         if let Estimator::Scatter { clamp } = self.estimator {
-            check(clamp.is_finite() && clamp >= 0.0, format!("clamp {clamp} must be finite and >= 0"))?;
+            require(clamp.is_finite() && clamp >= 0.0, "clamp", clamp, "finite and >= 0")?;
         }
         Ok(())
     }
@@ -150,15 +145,28 @@ pub struct Report {
     pub threads: usize,
 }
 
+/// Why a precompute gave no map.
+#[derive(Debug, thiserror::Error)]
+pub enum PrecomputeError {
+    #[error(transparent)]
+    Params(#[from] ParamError),
+    #[error(transparent)]
+    Cancelled(#[from] Cancelled),
+    /// The bake assembled a map the format refuses: a bug, reported rather than written.
+    #[error("the precompute produced an inconsistent map (a bug): {0}")]
+    Invalid(#[from] InvalidPrm),
+}
+
 /// Run the precompute. `progress(phase, done, total)` is called as work completes; `cancel`
-/// stops it (no result).
+/// stops it (no result). Parameters are validated first.
 pub fn precompute(
     scene: &Scene,
     bvh: &Bvh,
     params: &PrecomputeParams,
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
     cancel: &AtomicBool,
-) -> Result<(Prm, Report), Cancelled> {
+) -> Result<(Prm, Report), PrecomputeError> {
+    params.validate()?;
     let all = Instant::now();
     let mut report = Report {
         estimator: params.estimator.to_string(),
@@ -188,7 +196,7 @@ pub fn precompute(
     report.seconds_entries = t.elapsed().as_secs_f64();
     progress(Phase::Entries, 1, 1);
     if cancel.load(Ordering::Relaxed) {
-        return Err(Cancelled);
+        return Err(Cancelled.into());
     }
 
     let t = Instant::now();
@@ -204,7 +212,7 @@ pub fn precompute(
     report.seconds_clustering = t.elapsed().as_secs_f64();
     progress(Phase::Clustering, 1, 1);
     if cancel.load(Ordering::Relaxed) {
-        return Err(Cancelled);
+        return Err(Cancelled.into());
     }
 
     let t = Instant::now();
@@ -220,8 +228,8 @@ pub fn precompute(
         stats: Default::default(),
     };
     let n = set.len();
-    let texel_panes =
-        transport.run(params.estimator, &set, &|done| progress(Phase::Transport, done, n), cancel)?;
+    let on_texels = |done| progress(Phase::Transport, done, n);
+    let texel_panes = transport.run(params.estimator, &set, Control { progress: &on_texels, cancel })?;
     report.seconds_transport = t.elapsed().as_secs_f64();
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
@@ -261,7 +269,7 @@ pub fn precompute(
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
     let header = Header {
-        fingerprint: format!("{:016x}", scene_fingerprint(scene, params.atlas, params.atlas)),
+        fingerprint: fingerprint_hex(scene, params.atlas, params.atlas),
         atlas_width: params.atlas,
         atlas_height: params.atlas,
         tile_size: params.tile_size,
@@ -283,7 +291,7 @@ pub fn precompute(
             "entries_enclosed": report.entries_enclosed,
         }),
     };
-    let prm = Prm {
+    let prm = Prm::new(PrmParts {
         header,
         entries,
         clusters: tiled.clusters,
@@ -292,7 +300,7 @@ pub fn precompute(
         tiles: tiled.tiles,
         mask: tiled.mask,
         data: tiled.data,
-    };
+    })?;
     Ok((prm, report))
 }
 

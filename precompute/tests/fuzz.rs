@@ -146,7 +146,7 @@ fn root() -> &'static Path {
 fn fix_checksum(mut b: Vec<u8>) -> Vec<u8> {
     if b.len() >= 24 {
         let n = b.len() - 8;
-        let h = prm::prm_file::fnv1a(prm::prm_file::FNV_START, &b[..n]);
+        let h = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &b[..n]);
         b[n..].copy_from_slice(&h.to_le_bytes());
     }
     b

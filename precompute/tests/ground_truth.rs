@@ -34,7 +34,7 @@ fn point_light_over_a_plane_is_inverse_square_times_cosine() {
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 8, ..Default::default() });
     let set = TexelSet::build(&scene, 32, 32);
-    let out = tracer.texels(&set.texels, 32, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let out = tracer.texels(&set.texels, 32, prm_precompute::parallel::Control::none()).unwrap();
     for (t, r) in set.texels.iter().zip(&out) {
         let d = light_pos - t.position;
         let want = intensity * (d.y / d.length()) / d.length_squared();
@@ -69,7 +69,7 @@ fn furnace_indirect_is_a_over_one_minus_a_times_direct() {
         let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 2000, ..Default::default() });
         let set = TexelSet::build(&scene, 32, 32);
         let picks: Vec<_> = set.texels.iter().step_by(37).copied().collect();
-        let out = tracer.texels(&picks, 32, &|_| {}, &AtomicBool::new(false)).unwrap();
+        let out = tracer.texels(&picks, 32, prm_precompute::parallel::Control::none()).unwrap();
         let direct = std::f32::consts::PI * le;
         let want = a / (1.0 - a) * direct;
         let n = out.len() as f32;
@@ -122,7 +122,7 @@ fn square_emitter_irradiance_matches_the_form_factor() {
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 4000, ..Default::default() });
     let set = TexelSet::build(&scene, 16, 16);
     let floor: Vec<_> = set.texels.iter().filter(|t| t.triangle < 2).step_by(5).copied().collect();
-    let out = tracer.texels(&floor, 16, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let out = tracer.texels(&floor, 16, prm_precompute::parallel::Control::none()).unwrap();
     let mut worst = 0.0f32;
     for (t, r) in floor.iter().zip(&out) {
         let want = 3.0 * polygon_cosine_integral(t.position, Vec3::Y, &em);
@@ -141,13 +141,12 @@ fn ground_truth_is_the_same_at_any_thread_count() {
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 16, ..Default::default() });
     let set = TexelSet::build(&scene, 16, 16);
-    let run = |n| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()
-            .unwrap()
-            .install(|| tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(false)).unwrap())
-    };
+    let run =
+        |n| {
+            rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
+                tracer.texels(&set.texels, 16, prm_precompute::parallel::Control::none()).unwrap()
+            })
+        };
     assert_eq!(run(1), run(2));
 }
 
@@ -157,5 +156,11 @@ fn a_cancelled_run_returns_no_result() {
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams::default());
     let set = TexelSet::build(&scene, 16, 16);
-    assert!(tracer.texels(&set.texels, 16, &|_| {}, &AtomicBool::new(true)).is_err());
+    assert!(tracer
+        .texels(
+            &set.texels,
+            16,
+            prm_precompute::parallel::Control { progress: &|_| {}, cancel: &AtomicBool::new(true) }
+        )
+        .is_err());
 }

@@ -14,6 +14,7 @@ use prm_precompute::cluster::cluster_entries;
 use prm_precompute::entries::sample_entries;
 use prm_precompute::precompute::{precompute, PrecomputeParams};
 use prm_precompute::transport::{Estimator, Transport};
+use prm_runtime::cpu;
 
 /// A closed unit box, faces inward.
 fn closed_box(albedo: f32) -> Scene {
@@ -45,7 +46,7 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
         let p = params(512, 256, 24, 24);
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 24, 24);
-        let img = prm.compose(&vec![Vec3::ONE; prm.clusters.len()]);
+        let img = cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]);
         let vals = at_texels(&set, &img);
         let want = a / (1.0 - a);
         let sigma_walk = a * (a).sqrt() / (1.0 - a);
@@ -87,12 +88,12 @@ fn superposition_and_clustering_invariance() {
     let prm = bake(&scene, &p);
     let set = TexelSet::build(&scene, 20, 20);
     let weights: Vec<Vec3> =
-        (0..prm.clusters.len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
-    let composed = at_texels(&set, &prm.compose(&weights));
+        (0..prm.clusters().len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
+    let composed = at_texels(&set, &cpu::compose(&prm, &weights));
     // The same walks evaluated directly for that field.
     let entries = sample_entries(&scene, 256, p.seed);
     let clustering = cluster_entries(&entries, 12, scene.total_area(), p.kmeans_iterations as usize, p.seed);
-    assert_eq!(clustering.members.len(), prm.clusters.len());
+    assert_eq!(clustering.members.len(), prm.clusters().len());
     let tr = Transport {
         scene: &scene,
         bvh: &bvh,
@@ -112,10 +113,10 @@ fn superposition_and_clustering_invariance() {
     }
     // With uniform weights the sum of all panes does not depend on the clustering: C = N
     // (each entry its own cluster) and C = 12 give the same lightmap.
-    let ones = |prm: &Prm| at_texels(&set, &prm.compose(&vec![Vec3::ONE; prm.clusters.len()]));
+    let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()]));
     let per_entry = bake(&scene, &PrecomputeParams { smooth_radius: 0, ..params(256, 32, 256, 20) });
-    assert_eq!(per_entry.clusters.len(), 256);
-    assert!(per_entry.clusters.iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
+    assert_eq!(per_entry.clusters().len(), 256);
+    assert!(per_entry.clusters().iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
     for (a, b) in ones(&per_entry).iter().zip(&ones(&prm)) {
         assert!((*a - *b).abs().max_element() <= 3e-3 * peak.max(1.0), "{a} vs {b}");
     }
@@ -136,8 +137,8 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
     let estimate = |est: Estimator| {
         let prm = bake(&scene, &PrecomputeParams { estimator: est, ..params(1024, 1024, 16, 16) });
         let e: Vec<Vec3> =
-            prm.entries.iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
-        at_texels(&set, &prm.compose(&prm.cluster_weights(&e)))
+            prm.entries().iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
+        at_texels(&set, &cpu::compose(&prm, &cpu::cluster_weights(&prm, &e)))
     };
     let ours = [("gather", estimate(Estimator::Gather)), ("mis", estimate(Estimator::Mis))];
 
@@ -152,12 +153,11 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
         for en in entries.iter().filter(|en| en.normal.y > 0.5) {
             // One walk per entry: the entry's own light (l = 0), then its bounces.
             let mut lights = vec![(en.position, en.normal, en.albedo * en.area)];
-            let mut rng =
-                prm_precompute::entries::stream(b, 9, lights.len() as u64 + (en.position.x.to_bits() as u64));
+            let mut rng = prm::sampling::stream(b, 9, lights.len() as u64 + (en.position.x.to_bits() as u64));
             let (mut x, mut n, mut phi) = (en.position, en.normal, en.albedo * en.area);
             loop {
                 use rand::Rng;
-                let d = prm_precompute::ground_truth::cosine_direction(n, rng.random(), rng.random());
+                let d = prm::sampling::cosine_direction(n, rng.random(), rng.random());
                 let Some(h) = bvh.closest_hit_brute_force(x + n * 1e-5, d, f32::INFINITY) else { break };
                 let t = h.triangle as usize;
                 let nh = scene.face_normal(t);
@@ -250,13 +250,13 @@ fn bad_prm_files_get_their_errors() {
     let err = write_read(dir.path(), "other.prm", &bytes, Some(&other)).unwrap_err();
     assert!(matches!(err, PrmError::WrongScene { .. }) && err.to_string().contains("another scene"), "{err}");
     // A corrupt but correctly checksummed body is still caught by the bounds checks.
-    let mut evil = prm.clone();
+    let mut evil = prm.clone().into_parts();
     evil.tiles[0].cluster = 99;
     assert!(matches!(
         Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()),
         Err(PrmError::Corrupt { .. })
     ));
-    let mut evil = prm.clone();
+    let mut evil = prm.clone().into_parts();
     evil.clusters[0].members.push(10_000);
     assert!(matches!(
         Prm::from_bytes(Path::new("evil.prm"), &evil.to_bytes()),
@@ -310,7 +310,7 @@ fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
         };
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 16, 16);
-        let vals = at_texels(&set, &prm.compose(&vec![Vec3::ONE; prm.clusters.len()]));
+        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]));
         vals.iter().map(|v| v.x as f64).sum::<f64>() / vals.len() as f64
     };
     let want = (a / (1.0 - a)) as f64;
@@ -353,9 +353,9 @@ fn entries_inside_a_solid_are_recognised() {
     assert!(!prm_precompute::entries::is_enclosed(&scene, &bvh, &entry(v(1.5, 0.0, 1.5)), 0, 1));
     // The precompute drops exactly those: none of its entries lies under the box.
     let prm = bake(&scene, &params(512, 4, 8, 16));
-    assert!(prm.entries.len() < 512 && prm.entries.len() > 400, "{} entries kept", prm.entries.len());
+    assert!(prm.entries().len() < 512 && prm.entries().len() > 400, "{} entries kept", prm.entries().len());
     assert!(prm
-        .entries
+        .entries()
         .iter()
         .all(|e| !(e.position.y < 1e-4 && e.position.x.abs() < 0.49 && e.position.z.abs() < 0.49)));
 }
@@ -387,10 +387,11 @@ fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
                 b.splice(i..i, chunk);
             }
         }
-        let sum = prm::prm_file::fnv1a(prm::prm_file::FNV_START, &b);
+        let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &b);
         b.extend_from_slice(&sum.to_le_bytes());
         let r = std::panic::catch_unwind(|| {
-            Prm::from_bytes(Path::new("m.prm"), &b).map(|p| p.compose(&vec![Vec3::ONE; p.clusters.len()]))
+            Prm::from_bytes(Path::new("m.prm"), &b)
+                .map(|p| cpu::compose(&p, &vec![Vec3::ONE; p.clusters().len()]))
         });
         match r {
             Ok(Ok(img)) => assert!(
@@ -412,21 +413,21 @@ fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
     let p =
         PrecomputeParams { entries: 512, paths: 8, clusters: 48, atlas: 32, groups: 6, ..Default::default() };
     let prm = bake(&scene, &p);
-    assert_eq!(prm.groups.len(), 6);
-    assert_eq!(prm.group_of.len(), prm.clusters.len());
+    assert_eq!(prm.groups().len(), 6);
+    assert_eq!(prm.group_of().len(), prm.clusters().len());
     let layout = prm.layout();
-    let w: Vec<Vec3> = (0..prm.clusters.len()).map(|c| Vec3::splat(0.5 + (c % 7) as f32)).collect();
-    let full = prm.compose(&w);
+    let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat(0.5 + (c % 7) as f32)).collect();
+    let full = cpu::compose(&prm, &w);
     let energy = |img: &[Vec3]| img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>();
-    let chosen: Vec<bool> = (0..prm.clusters.len()).map(|c| c % 4 == 0).collect();
-    let with = prm.compose_selected(&w, &chosen, true, &layout);
-    let without = prm.compose_selected(&w, &chosen, false, &layout);
+    let chosen: Vec<bool> = (0..prm.clusters().len()).map(|c| c % 4 == 0).collect();
+    let with = cpu::compose_selected(&prm, &w, &chosen, true, &layout);
+    let without = cpu::compose_selected(&prm, &w, &chosen, false, &layout);
     let (ef, ew, eo) = (energy(&full), energy(&with), energy(&without));
     assert!((ew / ef - 1.0).abs() < 0.01, "top-K + groups {ew} vs full {ef}");
     assert!(eo < 0.5 * ef, "a quarter of the clusters should carry well under the full light: {eo} vs {ef}");
     // Everything selected: the groups add nothing.
-    let all = vec![true; prm.clusters.len()];
-    assert_eq!(prm.compose_selected(&w, &all, true, &layout), full);
+    let all = vec![true; prm.clusters().len()];
+    assert_eq!(cpu::compose_selected(&prm, &w, &all, true, &layout), full);
     // And the file keeps the groups.
     let back = Prm::from_bytes(std::path::Path::new("g.prm"), &prm.to_bytes()).unwrap();
     assert_eq!(back, prm);

@@ -1,8 +1,6 @@
 //! The reference baker end to end: energy accounting, direct light, agreement with the ground
 //! truth on a small closed scene, determinism.
 
-use std::sync::atomic::AtomicBool;
-
 mod common;
 
 use common::{quads, unit_box_faces, v};
@@ -118,7 +116,8 @@ fn direct_light_over_a_plane_is_inverse_square() {
     let p = BakeParams { photons: 2000, bounces: 1, atlas: 24, ..Default::default() };
     let vl = virtual_lights(&floor, &bvh, &floor.lights, &p);
     let baked =
-        evaluate(&floor, &bvh, &set, &floor.lights, &vl, &p, &|_| {}, &AtomicBool::new(false)).unwrap();
+        evaluate(&floor, &bvh, &set, &floor.lights, &vl, &p, prm_precompute::parallel::Control::none())
+            .unwrap();
     for (t, d) in set.texels.iter().zip(&baked.direct) {
         let r = at - t.position;
         let want = 3.0 * (r.y / r.length()) / r.length_squared();
@@ -139,7 +138,7 @@ fn agrees_with_the_ground_truth_in_a_lit_box_and_is_deterministic() {
     let run = |threads| {
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
             let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
-            evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, &|_| {}, &AtomicBool::new(false))
+            evaluate(&scene, &bvh, &set, &scene.lights, &vl, &p, prm_precompute::parallel::Control::none())
                 .unwrap()
                 .indirect
         })
@@ -147,7 +146,7 @@ fn agrees_with_the_ground_truth_in_a_lit_box_and_is_deterministic() {
     let ours = run(2);
     assert_eq!(ours, run(1), "same result at 1 and 2 threads");
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 512, ..Default::default() });
-    let gt = tracer.texels(&set.texels, 32, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let gt = tracer.texels(&set.texels, 32, prm_precompute::parallel::Control::none()).unwrap();
     let gt_ind: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
     let c = prm::metric::compare(&ours, &gt_ind, None);
     let noise = (gt.iter().map(|g| g.indirect_stderr.x.powi(2) as f64).sum::<f64>()

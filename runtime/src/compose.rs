@@ -41,8 +41,8 @@ pub struct ComposePass {
 impl ComposePass {
     pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer) -> ComposePass {
         let layout = prm.layout();
-        let (w, h) = (prm.header.atlas_width, prm.header.atlas_height);
-        let ts = prm.header.tile_size;
+        let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
+        let ts = prm.header().tile_size;
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
         // Slots: each stored texel's place in its atlas tile's list.
@@ -54,8 +54,8 @@ impl ComposePass {
         }
         // Records grouped by atlas tile, clusters in order within each.
         let mut by_tile: Vec<Vec<TileRecord>> = vec![Vec::new(); atlas_tiles];
-        let mut texels_per_cluster = vec![0u64; prm.clusters.len() + prm.groups.len()];
-        for (k, t) in prm.tiles.iter().enumerate() {
+        let mut texels_per_cluster = vec![0u64; prm.clusters().len() + prm.groups().len()];
+        for (k, t) in prm.tiles().iter().enumerate() {
             by_tile[t.index as usize].push(TileRecord {
                 scale: t.scale.to_array(),
                 cluster: t.cluster,
@@ -65,12 +65,12 @@ impl ComposePass {
             texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
         }
         let mut ranges = Vec::with_capacity(atlas_tiles);
-        let mut records = Vec::with_capacity(prm.tiles.len());
+        let mut records = Vec::with_capacity(prm.tiles().len());
         for list in &by_tile {
             ranges.push([records.len() as u32, list.len() as u32]);
             records.extend_from_slice(list);
         }
-        let data: &[u8] = bytemuck::cast_slice(&prm.data);
+        let data: &[u8] = bytemuck::cast_slice(prm.data());
         let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
         let params = ComposeParams {
             atlas_width: w,
@@ -170,10 +170,10 @@ impl ComposePass {
             records_per_tile: ranges.iter().map(|r| r[1]).collect(),
             texels_per_cluster,
             tiles_per_cluster: prm
-                .clusters
+                .clusters()
                 .iter()
                 .map(|c| c.tile_count as u64)
-                .chain(prm.groups.iter().map(|g| g.tile_count as u64))
+                .chain(prm.groups().iter().map(|g| g.tile_count as u64))
                 .collect(),
             texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64,
         }

@@ -102,7 +102,7 @@ impl Runtime {
             mapped_at_creation: false,
         });
         let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
-        let points: Vec<(Vec3, Vec3)> = prm.entries.iter().map(|e| (e.position, e.normal)).collect();
+        let points: Vec<(Vec3, Vec3)> = prm.entries().iter().map(|e| (e.position, e.normal)).collect();
         let entries = EntryPass::new(device, &shadows.layout, &params_buf, &points);
         let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
         let compose = ComposePass::new(device, prm, &weights.selected);
@@ -115,9 +115,9 @@ impl Runtime {
             entries,
             weights,
             compose,
-            energies: prm.clusters.iter().map(|c| c.energy).collect(),
-            clusters: prm.clusters.len(),
-            groups: prm.groups.len(),
+            energies: prm.clusters().iter().map(|c| c.energy).collect(),
+            clusters: prm.clusters().len(),
+            groups: prm.groups().len(),
             entry_count: points.len() as u32,
             stale: true,
             composes: 0,
@@ -268,7 +268,7 @@ impl Runtime {
 /// Refuses a `.prm` whose GPU tables would not fit this device, before allocating any.
 fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let limits = device.limits();
-    let (w, h) = (prm.header.atlas_width, prm.header.atlas_height);
+    let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
     if w > limits.max_texture_dimension_2d || h > limits.max_texture_dimension_2d {
         return Err(RuntimeError::Params(format!(
             "the .prm's {w}x{h} atlas exceeds this device's largest texture ({})",
@@ -277,20 +277,20 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     }
     let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
-    for t in &prm.tiles {
+    for t in prm.tiles() {
         if let Some(n) = per_tile.get_mut(t.index as usize) {
             *n += 1;
         }
     }
     let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
     let tables = [
-        ("pane data", prm.data.len() as u64 * 2),
+        ("pane data", prm.data().len() as u64 * 2),
         ("texel slots", w as u64 * h as u64 * 4),
         (
             "active-record lists",
             per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64,
         ),
-        ("tile records", prm.tiles.len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
+        ("tile records", prm.tiles().len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
     ];
     for (what, bytes) in tables {
         if bytes > max_buf {

@@ -37,16 +37,16 @@ impl WeightPass {
     ) -> WeightPass {
         // One ranges/indices/energy table for both levels: clusters (ranges into entries), then
         // groups (ranges into clusters), to stay within 8 storage buffers per stage.
-        let n = prm.clusters.len();
-        let g_count = prm.groups.len();
+        let n = prm.clusters().len();
+        let g_count = prm.groups().len();
         let mut ranges = Vec::with_capacity(n + g_count);
         let mut indices = Vec::new();
-        for c in &prm.clusters {
+        for c in prm.clusters() {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
             indices.extend_from_slice(&c.members);
         }
         let mut children = vec![Vec::new(); g_count];
-        for (c, &g) in prm.group_of.iter().enumerate() {
+        for (c, &g) in prm.group_of().iter().enumerate() {
             children[g as usize].push(c as u32);
         }
         for list in &children {
@@ -54,7 +54,7 @@ impl WeightPass {
             indices.extend_from_slice(list);
         }
         let energy: Vec<f32> =
-            prm.clusters.iter().map(|c| c.energy).chain(prm.groups.iter().map(|g| g.energy)).collect();
+            prm.clusters().iter().map(|c| c.energy).chain(prm.groups().iter().map(|g| g.energy)).collect();
         let ranges = gpu::storage_buffer(
             device,
             "member ranges",

@@ -5,7 +5,7 @@ use std::sync::atomic::AtomicBool;
 
 use glam::{Vec2, Vec3};
 use prm::{Bvh, Light, LightKind, Scene};
-use prm_runtime::cpu::{entry_irradiance, select_top_k, CpuTwin};
+use prm_runtime::cpu::{self, entry_irradiance, select_top_k, CpuTwin};
 
 fn open_box() -> Scene {
     let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
@@ -55,15 +55,15 @@ fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     let prm = bake(&scene);
     let bvh = Bvh::build(&scene);
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
-    let w = prm.cluster_weights(&e);
-    let full = prm.compose(&w);
-    let mut twin = CpuTwin::new(&prm, &bvh, prm.clusters.len());
+    let w = cpu::cluster_weights(&prm, &e);
+    let full = cpu::compose(&prm, &w);
+    let mut twin = CpuTwin::new(&prm, &bvh, prm.clusters().len());
     let all = twin.frame(&scene.lights).to_vec();
     for (a, b) in all.iter().zip(&full) {
         assert!((*a - *b).abs().max_element() <= 1e-5 * b.max_element().max(1e-6), "{a} vs {b}");
     }
     // The K strongest carry the most light, strongest first.
-    let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+    let energies: Vec<f32> = prm.clusters().iter().map(|c| c.energy).collect();
     let top = select_top_k(&w, &energies, 4);
     assert_eq!(top.len(), 4);
     let score = |c: usize| prm::luminance(w[c]) * energies[c];

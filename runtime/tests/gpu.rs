@@ -9,7 +9,7 @@ use prm::prm_file::Prm;
 use prm::{Bvh, Light, LightKind, Scene};
 use prm_runtime::irradiance::EntryPass;
 use prm_runtime::shadow::ShadowMaps;
-use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use prm_runtime::{cpu, Gpu, Renderer, Runtime, RuntimeParams};
 use rand::{Rng, SeedableRng};
 
 fn gpu() -> Gpu {
@@ -221,7 +221,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     let g = gpu();
     let scene = open_box();
     let prm = bake(&scene, 512, 40, 48);
-    let c = prm.clusters.len();
+    let c = prm.clusters().len();
     let mut rt = Runtime::new(
         &g.device,
         &g.queue,
@@ -231,7 +231,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     )
     .unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
-    let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+    let energies: Vec<f32> = prm.clusters().iter().map(|c| c.energy).collect();
     for round in 0..3 {
         let w: Vec<Vec3> = (0..c)
             .map(|k| {
@@ -245,7 +245,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         // K = C: the full sum (f16 data, f32 sums in another order: 1e-5 of the brightest).
         rt.set_top_k(c).unwrap();
         rt.compose_weights(&w).unwrap();
-        assert_close(&rt.read_lightmap().unwrap(), &prm.compose(&w), 1e-5, "K = C");
+        assert_close(&rt.read_lightmap().unwrap(), &cpu::compose(&prm, &w), 1e-5, "K = C");
         // K = 5: the same clusters as the CPU's selection, and the same sum, with and without
         // the groups standing in for the clusters left out.
         rt.set_top_k(5).unwrap();
@@ -258,13 +258,13 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
             let selected = rt.read_selected().unwrap();
             assert_eq!(selected[..c], chosen[..], "GPU and CPU select different clusters");
             assert!(
-                selected[c..].iter().any(|s| *s) == residual && !prm.groups.is_empty(),
+                selected[c..].iter().any(|s| *s) == residual && !prm.groups().is_empty(),
                 "groups composed: {:?}",
                 &selected[c..]
             );
             assert_close(
                 &rt.read_lightmap().unwrap(),
-                &prm.compose_selected(&w, &chosen, residual, &layout),
+                &cpu::compose_selected(&prm, &w, &chosen, residual, &layout),
                 1e-5,
                 "K = 5",
             );
@@ -279,7 +279,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let scene = open_box();
     let prm = bake(&scene, 512, 40, 48);
     let bvh = Bvh::build(&scene);
-    let c = prm.clusters.len();
+    let c = prm.clusters().len();
     let mut rt = Runtime::new(
         &g.device,
         &g.queue,
@@ -302,14 +302,14 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     // Weights: member means of (nearly) the same irradiance; selection: the GPU ranks its own
     // weights exactly as the CPU ranks them.
     let gpu_w = rt.read_weights().unwrap();
-    let cpu_w = prm.cluster_weights(&cpu_e);
+    let cpu_w = cpu::cluster_weights(&prm, &cpu_e);
     let bad = cpu_w
         .iter()
         .zip(&gpu_w)
         .filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3 * a.max_element() + 1e-6)
         .count();
     assert!(bad * 20 <= c, "{bad} of {c} cluster weights differ by more than 0.1 %");
-    let energies: Vec<f32> = prm.clusters.iter().map(|c| c.energy).collect();
+    let energies: Vec<f32> = prm.clusters().iter().map(|c| c.energy).collect();
     for k in [1, 5, 12] {
         rt.set_top_k(k).unwrap();
         rt.update(&scene.lights).unwrap();

@@ -84,7 +84,7 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
         set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>()
     };
     let tracer = Tracer::new(scene, &bvh, GtParams { spp, seed: 3, ..GtParams::default() });
-    let gt = tracer.texels(&set.texels, set.width, &|_| {}, &AtomicBool::new(false)).unwrap();
+    let gt = tracer.texels(&set.texels, set.width, prm_precompute::parallel::Control::none()).unwrap();
     let y2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect) as f64).powi(2)).sum();
     let s2: f64 = gt.iter().map(|r| (prm::luminance(r.indirect_stderr) as f64).powi(2)).sum();
     let p = PrecomputeParams {
@@ -120,9 +120,10 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
         ..BakeParams::default()
     };
     let vl = virtual_lights(scene, &bvh, &scene.lights, &bp);
-    let reference = evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, &|_| {}, &AtomicBool::new(false))
-        .unwrap()
-        .indirect;
+    let reference =
+        evaluate(scene, &bvh, &set, &scene.lights, &vl, &bp, prm_precompute::parallel::Control::none())
+            .unwrap()
+            .indirect;
     let out = Outputs {
         gt: gt.iter().map(|r| r.indirect).collect(),
         gt_direct: gt.iter().map(|r| r.direct).collect(),

@@ -16,10 +16,10 @@
 //! cornell: 4 % of the indirect light lost at 512 VPLs per light). Its error is the Monte Carlo
 //! error of that fraction, which the ground-truth comparison includes.
 
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{Vec2, Vec3};
-use prm::{Bvh, Light, Scene, TexelSet};
+use prm::{Bvh, Light, Scene, Texel, TexelSet};
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -28,8 +28,9 @@ use super::kdtree::cluster;
 use super::planes::detect_planes;
 use super::polygon::light_polygon;
 use super::vpl::{trace_photons, PhotonBudget, Vpl};
-use crate::entries::stream;
-use crate::transport::Cancelled;
+use crate::parallel::{par_texels, Cancelled, Control};
+use crate::params::{require, ParamError};
+use prm::sampling::stream;
 
 /// Reference-bake parameters.
 #[derive(Clone, Debug)]
@@ -67,19 +68,17 @@ impl Default for BakeParams {
 }
 
 impl BakeParams {
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |ok: bool, m: String| if ok { Ok(()) } else { Err(m) };
-        check((1..=100_000_000).contains(&self.photons), format!("vpls {} must be 1 to 1e8", self.photons))?;
-        check((1..=64).contains(&self.bounces), format!("bounces {} must be 1 to 64", self.bounces))?;
-        check(
-            (1..=1_000_000).contains(&self.cluster_size),
-            format!("cluster size {} must be 1 to 1e6", self.cluster_size),
-        )?;
-        check(
+    pub fn validate(&self) -> Result<(), ParamError> {
+        require((1..=100_000_000).contains(&self.photons), "vpls", self.photons, "1 to 1e8")?;
+        require((1..=64).contains(&self.bounces), "bounces", self.bounces, "1 to 64")?;
+        require((1..=1_000_000).contains(&self.cluster_size), "cluster size", self.cluster_size, "1 to 1e6")?;
+        require(
             (1..=256).contains(&self.visibility_samples),
-            format!("visibility samples {} must be 1 to 256", self.visibility_samples),
+            "visibility samples",
+            self.visibility_samples,
+            "1 to 256",
         )?;
-        check((1..=8192).contains(&self.atlas), format!("atlas {} must be 1 to 8192", self.atlas))?;
+        require((1..=8192).contains(&self.atlas), "atlas", self.atlas, "1 to 8192")?;
         Ok(())
     }
 }
@@ -248,97 +247,83 @@ pub fn evaluate(
     lights: &[Light],
     vl: &VirtualLights,
     p: &BakeParams,
-    progress: &(dyn Fn(usize) + Sync),
-    cancel: &AtomicBool,
+    control: Control,
 ) -> Result<Baked, Cancelled> {
-    let rays = AtomicUsize::new(0);
-    let done = AtomicUsize::new(0);
-    let chunks: Vec<Option<Vec<(Vec3, Vec3)>>> = set
-        .texels
-        .par_chunks(64)
-        .map(|chunk| {
-            if cancel.load(Ordering::Relaxed) {
-                return None;
+    let ev = Evaluator { scene, bvh, set, lights, vl, p, rays: AtomicUsize::new(0) };
+    let values = par_texels(&set.texels, control, || (), |_, t| ev.texel(t))?;
+    let (direct, indirect) = values.into_iter().unzip();
+    Ok(Baked { direct, indirect, rays: ev.rays.load(Ordering::Relaxed) })
+}
+
+/// What [`evaluate`] reads, and the rays it has cast.
+struct Evaluator<'a> {
+    scene: &'a Scene,
+    bvh: &'a Bvh,
+    set: &'a TexelSet,
+    lights: &'a [Light],
+    vl: &'a VirtualLights,
+    p: &'a BakeParams,
+    rays: AtomicUsize,
+}
+
+impl Evaluator<'_> {
+    /// (direct, indirect) irradiance at texel `t`.
+    fn texel(&self, t: &Texel) -> (Vec3, Vec3) {
+        let mut rng = stream(self.p.seed, 30, (t.j * self.set.width + t.i) as u64);
+        // Half a texel, in world units, for the epsilon shift.
+        let eps = 0.5 * self.set.world_texel_size(self.scene, t.triangle as usize);
+        let direct = if self.p.indirect_only {
+            Vec3::ZERO
+        } else {
+            self.rays.fetch_add(self.lights.len(), Ordering::Relaxed);
+            prm::bvh::direct_irradiance(self.bvh, self.lights, t.position, t.normal)
+        };
+        let mut indirect = Vec3::ZERO;
+        let s = self.p.visibility_samples;
+        // Visibility weighted the way the light reaches this texel: member VPLs are
+        // drawn in proportion to their own point-light kernel cos cos / r² (r² kept
+        // above the light's area per sample), so near parts of a large light count
+        // for what they give. A plain fraction of members undercounts a light whose
+        // far members hide behind pillars while its near ones shine: 4-6 % of the
+        // chamber's indirect light was lost that way.
+        let visibility = |samples: &[(Vec3, Vec3)], r2_min: f32, rng: &mut rand_pcg::Pcg64Mcg| {
+            let mut cdf = Vec::with_capacity(samples.len());
+            let mut total = 0.0f32;
+            for (q, nq) in samples {
+                let d = t.position - *q;
+                let r2 = d.length_squared();
+                let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
+                total += w;
+                cdf.push(total);
             }
-            let out = chunk
-                .iter()
-                .map(|t| {
-                    let mut rng = stream(p.seed, 30, (t.j * set.width + t.i) as u64);
-                    // Half a texel, in world units, for the epsilon shift.
-                    let eps = 0.5 * set.world_texel_size(scene, t.triangle as usize);
-                    let direct = if p.indirect_only {
-                        Vec3::ZERO
-                    } else {
-                        rays.fetch_add(lights.len(), Ordering::Relaxed);
-                        prm::bvh::direct_irradiance(bvh, lights, t.position, t.normal)
-                    };
-                    let mut indirect = Vec3::ZERO;
-                    let s = p.visibility_samples;
-                    // Visibility weighted the way the light reaches this texel: member VPLs are
-                    // drawn in proportion to their own point-light kernel cos cos / r² (r² kept
-                    // above the light's area per sample), so near parts of a large light count
-                    // for what they give. A plain fraction of members undercounts a light whose
-                    // far members hide behind pillars while its near ones shine: 4-6 % of the
-                    // chamber's indirect light was lost that way.
-                    let visibility = |samples: &[(Vec3, Vec3)], r2_min: f32, rng: &mut rand_pcg::Pcg64Mcg| {
-                        let mut cdf = Vec::with_capacity(samples.len());
-                        let mut total = 0.0f32;
-                        for (q, nq) in samples {
-                            let d = t.position - *q;
-                            let r2 = d.length_squared();
-                            let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0))
-                                / (r2 * r2.max(r2_min)).max(1e-30);
-                            total += w;
-                            cdf.push(total);
-                        }
-                        let mut seen = 0;
-                        for k in 0..s {
-                            let u = (k as f32 + rng.random::<f32>()) / s as f32;
-                            let i = if total > 0.0 {
-                                cdf.partition_point(|&c| c < u * total).min(samples.len() - 1)
-                            } else {
-                                rng.random_range(0..samples.len())
-                            };
-                            let (q, nq) = samples[i];
-                            rays.fetch_add(1, Ordering::Relaxed);
-                            seen += bvh.visible(t.position, t.normal, q, nq) as u32;
-                        }
-                        seen as f32 / s as f32
-                    };
-                    for pc in &vl.polygons {
-                        let e = pc.light.irradiance(t.position, t.normal, eps);
-                        if e != Vec3::ZERO {
-                            indirect += e * visibility(
-                                &pc.samples,
-                                pc.light.area() / pc.samples.len() as f32,
-                                &mut rng,
-                            );
-                        }
-                    }
-                    for sc in &vl.spheres {
-                        let e = sc.light.irradiance(t.position, t.normal);
-                        if e != Vec3::ZERO {
-                            indirect +=
-                                e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
-                        }
-                    }
-                    (direct, indirect)
-                })
-                .collect();
-            progress(done.fetch_add(chunk.len(), Ordering::Relaxed) + chunk.len());
-            Some(out)
-        })
-        .collect();
-    let mut baked =
-        Baked { direct: Vec::with_capacity(set.len()), indirect: Vec::with_capacity(set.len()), rays: 0 };
-    for c in chunks {
-        for (d, i) in c.ok_or(Cancelled)? {
-            baked.direct.push(d);
-            baked.indirect.push(i);
+            let mut seen = 0;
+            for k in 0..s {
+                let u = (k as f32 + rng.random::<f32>()) / s as f32;
+                let i = if total > 0.0 {
+                    cdf.partition_point(|&c| c < u * total).min(samples.len() - 1)
+                } else {
+                    rng.random_range(0..samples.len())
+                };
+                let (q, nq) = samples[i];
+                self.rays.fetch_add(1, Ordering::Relaxed);
+                seen += self.bvh.visible(t.position, t.normal, q, nq) as u32;
+            }
+            seen as f32 / s as f32
+        };
+        for pc in &self.vl.polygons {
+            let e = pc.light.irradiance(t.position, t.normal, eps);
+            if e != Vec3::ZERO {
+                indirect += e * visibility(&pc.samples, pc.light.area() / pc.samples.len() as f32, &mut rng);
+            }
         }
+        for sc in &self.vl.spheres {
+            let e = sc.light.irradiance(t.position, t.normal);
+            if e != Vec3::ZERO {
+                indirect += e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
+            }
+        }
+        (direct, indirect)
     }
-    baked.rays = rays.load(Ordering::Relaxed);
-    Ok(baked)
 }
 
 /// The virtual lights as a Wavefront OBJ: polygons as faces, spheres as octahedra.

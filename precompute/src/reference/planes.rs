@@ -8,7 +8,7 @@
 use glam::{Vec2, Vec3};
 use rand::Rng;
 
-use crate::entries::stream;
+use prm::sampling::stream;
 
 /// A planar segment: an orthonormal frame and the VPLs on it.
 #[derive(Clone, Debug, PartialEq)]

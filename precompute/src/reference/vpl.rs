@@ -14,8 +14,7 @@ use prm::{Bvh, Light, LightKind, Scene};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::entries::stream;
-use crate::ground_truth::cosine_direction;
+use prm::sampling::{cosine_direction, stream};
 
 /// A virtual point light.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,16 +117,12 @@ pub fn trace_photons(
                         break;
                     };
                     let t = hit.triangle as usize;
-                    let mut n = scene.face_normal(t);
-                    if n.dot(dir) > 0.0 {
-                        if !scene.material(t).double_sided {
-                            if bounce == 1 {
-                                budget.absorbed_by_backs = flux;
-                            }
-                            break;
+                    let Some(n) = scene.facing_normal(t, dir) else {
+                        if bounce == 1 {
+                            budget.absorbed_by_backs = flux;
                         }
-                        n = -n;
-                    }
+                        break;
+                    };
                     if bounce == 1 && light.range.is_some() {
                         // glTF's range window, applied where the photon lands.
                         flux *= range_window(light, hit.t);

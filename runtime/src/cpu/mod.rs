@@ -8,33 +8,22 @@
 //!    weight are never selected. Ties go to the lower index.
 //! 4. Compose: `sum w_c pane_c` over the selected clusters' stored tiles only, plus (with
 //!    `residual`, the default) each group's pane weighted by its left-out clusters' light
-//!    ([`prm::prm_file::Prm::residual_weights`]). When the lights
+//!    ([`residual_weights`]). When the lights
 //!    have not changed since the last frame, nothing is recomposed ([`CpuTwin::composes`]
 //!    counts the composes that did happen).
 
+mod compose;
+
+pub use compose::{add_pane, cluster_weights, compose, compose_selected, residual_weights, select_top_k};
+
 use glam::Vec3;
 use prm::prm_file::Prm;
-use prm::{luminance, Bvh, Light};
+use prm::{Bvh, Light};
 use rayon::prelude::*;
 
 /// Irradiance at every entry point from `lights`, with ray-traced visibility.
 pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
-    prm.entries.par_iter().map(|e| prm::bvh::direct_irradiance(bvh, lights, e.position, e.normal)).collect()
-}
-
-/// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,
-/// strongest first; zero-weight clusters are left out.
-pub fn select_top_k(weights: &[Vec3], energies: &[f32], k: usize) -> Vec<usize> {
-    let mut scored: Vec<(f32, usize)> = weights
-        .iter()
-        .zip(energies)
-        .enumerate()
-        .map(|(c, (w, e))| (luminance(*w) * e, c))
-        .filter(|(s, _)| *s > 0.0)
-        .collect();
-    scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    scored.truncate(k);
-    scored.into_iter().map(|(_, c)| c).collect()
+    prm.entries().par_iter().map(|e| prm::bvh::direct_irradiance(bvh, lights, e.position, e.normal)).collect()
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
@@ -55,7 +44,7 @@ pub struct CpuTwin<'a> {
 impl<'a> CpuTwin<'a> {
     /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
     pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
-        let n = (prm.header.atlas_width * prm.header.atlas_height) as usize;
+        let n = prm.texel_count();
         CpuTwin {
             prm,
             bvh,
@@ -82,14 +71,14 @@ impl<'a> CpuTwin<'a> {
             return &self.lightmap;
         }
         let e = entry_irradiance(self.prm, self.bvh, lights);
-        let w = self.prm.cluster_weights(&e);
-        let energies: Vec<f32> = self.prm.clusters.iter().map(|c| c.energy).collect();
+        let w = cluster_weights(self.prm, &e);
+        let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
         let selected = select_top_k(&w, &energies, self.top_k);
         let mut chosen = vec![false; w.len()];
         for &c in &selected {
             chosen[c] = true;
         }
-        self.lightmap = self.prm.compose_selected(&w, &chosen, self.residual, &self.layout);
+        self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());

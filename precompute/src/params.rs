@@ -1,0 +1,30 @@
+//! Parameter errors shared by the bakers' parameter structs: which parameter, its value and
+//! what it may be, so the CLI and a library caller get the same message.
+
+use std::fmt::Display;
+
+/// A parameter outside what the baker accepts.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{name} {value} must be {allowed}")]
+pub struct ParamError {
+    /// The parameter, as the CLI names it.
+    pub name: &'static str,
+    /// Its value, as given.
+    pub value: String,
+    /// What it may be.
+    pub allowed: &'static str,
+}
+
+/// `Err` naming `name`, `value` and `allowed` unless `ok`.
+pub(crate) fn require(
+    ok: bool,
+    name: &'static str,
+    value: impl Display,
+    allowed: &'static str,
+) -> Result<(), ParamError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ParamError { name, value: value.to_string(), allowed })
+    }
+}

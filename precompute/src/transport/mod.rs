@@ -1,0 +1,211 @@
+//! Light transport from entry clusters to exit texels: the panes' contents.
+//!
+//! Two estimators of the same quantity, `pane_c(x)` = indirect irradiance at texel x when the
+//! entries of cluster c receive 1 W/m² (DESIGN.md §4):
+//!
+//! - [`Estimator::Scatter`] is paper 004's: from each entry, M cosine-sampled Russian-roulette
+//!   walks (continuation probability = albedo luminance); every vertex, **the entry itself
+//!   included**, is a virtual point light of flux
+//!   `Phi_l = a(z_0) A/N prod_{i=1..l} a(z_i) / prod_{i=1..l-1} q_i` (per path, / M), and adds
+//!   `Phi_l V cos cos / (pi max(r², r_c²))` to every texel. `r_c = clamp x sqrt(A/N)` bounds the
+//!   1/r² spike (clamp 0: unbiased, spiky). Cost: every virtual light against every texel.
+//! - [`Estimator::Gather`] reverses the same paths: from each texel, K cosine walks with the same
+//!   roulette; the k-th vertex y_k adds its throughput `beta_k = prod_{i<=k} a(y_i) /
+//!   prod_{i<k} q_i` to the cluster whose region y_k lies in. A cluster's region is the set of
+//!   lightmap texels whose nearest compatible, visible entry is one of its members (nearest in
+//!   space among entries facing within 60 degrees; visibility is checked so a thin wall does not
+//!   hand one room's light to the other). The owner of every texel is found once, so a vertex's
+//!   cluster is a lookup of the texel under its lightmap UV. No 1/r² term appears at all, so
+//!   there is no spike to clamp, and the cost is per texel, not per texel x light.
+//!
+//! - [`Estimator::Mis`] is the gather with the first bounce estimated twice and combined by
+//!   multiple importance sampling (balance heuristic): the gather's first vertex y (density
+//!   `p_B = cos_x cos_y / (pi r²)` per walk, K walks) and, for every cluster c, one of its entries
+//!   z picked at random as an area sample of its region (density `1 / A_c`, A_c = |c| A/N). The
+//!   entry adds `a(z) (G/pi) V A_c / (1 + K (G/pi) A_c)`, the walk's first vertex
+//!   `a(y) / (1 + 1 / (K p_B A_c))` / K. Far clusters are found by the entries (a small bright
+//!   region is sampled every time, not hit by chance), near ones by the walks (where 1/r² would
+//!   spike, the entry's weight goes to zero). Deeper bounces are the gather's. Cost: one shadow
+//!   ray per facing cluster per texel on top of the walks.
+//!
+//! All three are unbiased for a direct-light field that is constant over each cluster's region
+//! (scatter only with clamp 0); their expectations agree (tested on a tiny scene, and in the
+//! furnace).
+//!
+//! Files: [`region`] (which cluster owns a surface point), `gather` (the gather and MIS
+//! estimators), `scatter` (paper 004's virtual point lights); here the walk primitives they
+//! share and the dispatch.
+
+mod gather;
+mod region;
+mod scatter;
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use glam::Vec3;
+use prm::prm_file::Entry;
+use prm::{luminance, Bvh, Scene, Texel};
+use rand::Rng;
+
+use crate::parallel::{par_texels, Cancelled, Control};
+use gather::MisTables;
+pub use region::{OwnerMap, RegionLookup};
+
+/// How pane contents are estimated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Estimator {
+    /// Texel-side walks credited to the cluster whose region each vertex hits.
+    Gather,
+    /// Paper 004's virtual point lights, with 1/r² clamped below `clamp x sqrt(A/N)`.
+    Scatter { clamp: f32 },
+    /// Gather walks plus one entry per cluster, first bounce combined by MIS.
+    Mis,
+}
+
+impl std::fmt::Display for Estimator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Estimator::Gather => write!(f, "gather"),
+            Estimator::Mis => write!(f, "mis"),
+            Estimator::Scatter { clamp } => write!(f, "scatter(clamp {clamp})"),
+        }
+    }
+}
+
+/// Per-texel pane contributions: (cluster, irradiance per unit cluster irradiance), ascending.
+pub type TexelPanes = Vec<(u32, Vec3)>;
+
+/// Counters of a transport run.
+#[derive(Debug, Default)]
+pub struct TransportStats {
+    pub rays: AtomicUsize,
+    /// Walks cut by the bounce cap (energy lost, reported).
+    pub truncated: AtomicUsize,
+    /// Gather vertices no compatible entry was found for (their light is lost, reported).
+    pub unowned: AtomicUsize,
+    /// Virtual point lights (scatter).
+    pub vpls: AtomicUsize,
+}
+
+/// Accumulates one texel's contributions densely, then emits them sparse.
+struct Scratch {
+    dense: Vec<Vec3>,
+    touched: Vec<u32>,
+}
+
+impl Scratch {
+    fn new(clusters: usize) -> Self {
+        Scratch { dense: vec![Vec3::ZERO; clusters], touched: Vec::new() }
+    }
+    fn add(&mut self, c: u32, v: Vec3) {
+        if self.dense[c as usize] == Vec3::ZERO {
+            self.touched.push(c);
+        }
+        self.dense[c as usize] += v;
+        if self.dense[c as usize] == Vec3::ZERO {
+            // Keep it listed; a sum that lands on exactly zero is rare and harmless.
+            self.dense[c as usize] = Vec3::splat(f32::MIN_POSITIVE);
+        }
+    }
+    fn take(&mut self, scale: f32) -> TexelPanes {
+        self.touched.sort_unstable();
+        let out = self.touched.iter().map(|&c| (c, self.dense[c as usize] * scale)).collect();
+        for &c in &self.touched {
+            self.dense[c as usize] = Vec3::ZERO;
+        }
+        self.touched.clear();
+        out
+    }
+}
+
+/// Everything an estimator needs.
+pub struct Transport<'a> {
+    pub scene: &'a Scene,
+    pub bvh: &'a Bvh,
+    pub entries: &'a [Entry],
+    /// Cluster of each entry.
+    pub assignment: &'a [u32],
+    pub clusters: usize,
+    /// Paths per texel (gather) or per entry (scatter).
+    pub paths: u32,
+    pub max_bounces: u32,
+    pub seed: u64,
+    pub stats: TransportStats,
+}
+
+/// A front-facing path vertex.
+struct Vertex {
+    position: Vec3,
+    normal: Vec3,
+    albedo: Vec3,
+    triangle: usize,
+    bary: Vec3,
+}
+
+/// One cosine bounce from `(x, n)`: the front-facing hit.
+fn bounce(scene: &Scene, bvh: &Bvh, x: Vec3, n: Vec3, d: Vec3, stats: &TransportStats) -> Option<Vertex> {
+    stats.rays.fetch_add(1, Ordering::Relaxed);
+    let hit = bvh.trace_from_surface(x, n, d)?;
+    let t = hit.triangle as usize;
+    let nh = scene.facing_normal(t, d)?;
+    let bary = hit.bary();
+    Some(Vertex {
+        position: scene.point(t, bary),
+        normal: nh,
+        albedo: scene.albedo(t, bary),
+        triangle: t,
+        bary,
+    })
+}
+
+impl<'a> Transport<'a> {
+    /// Pane contributions at every texel; `control` reports texels done and stops the run.
+    pub fn run(
+        &self,
+        estimator: Estimator,
+        set: &prm::TexelSet,
+        control: Control,
+    ) -> Result<Vec<TexelPanes>, Cancelled> {
+        let (texels, width) = (&set.texels[..], set.width);
+        match estimator {
+            Estimator::Gather | Estimator::Mis => {
+                let total_area = self.scene.total_area();
+                let lookup = RegionLookup::new(self.entries, total_area);
+                let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats);
+                let mis = (estimator == Estimator::Mis)
+                    .then(|| MisTables::new(self.entries, self.assignment, self.clusters, total_area));
+                self.per_texel(texels, control, |scratch, t| {
+                    self.gather_texel(scratch, t, width, &owners, mis.as_ref())
+                })
+            }
+            Estimator::Scatter { clamp } => {
+                let vpls = self.vpls();
+                self.stats.vpls.store(vpls.len(), Ordering::Relaxed);
+                let spacing = (self.scene.total_area() / self.entries.len().max(1) as f64).sqrt() as f32;
+                let rc2 = (clamp * spacing).powi(2);
+                self.per_texel(texels, control, |scratch, t| self.scatter_texel(scratch, t, &vpls, rc2))
+            }
+        }
+    }
+
+    fn per_texel(
+        &self,
+        texels: &[Texel],
+        control: Control,
+        f: impl Fn(&mut Scratch, &Texel) -> TexelPanes + Sync + Send,
+    ) -> Result<Vec<TexelPanes>, Cancelled> {
+        par_texels(texels, control, || Scratch::new(self.clusters), f)
+    }
+
+    /// Paper 004's Russian roulette after a vertex of albedo `a` at walk depth `depth`:
+    /// continue with probability q = luminance(a) and return q, or stop (also at the bounce
+    /// cap, which is counted).
+    fn roulette(&self, depth: u32, a: Vec3, rng: &mut impl Rng) -> Option<f32> {
+        if depth >= self.max_bounces {
+            self.stats.truncated.fetch_add(1, Ordering::Relaxed);
+            return None;
+        }
+        let q = luminance(a);
+        (q > 0.0 && rng.random::<f32>() < q).then_some(q)
+    }
+}

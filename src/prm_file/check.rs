@@ -1,0 +1,159 @@
+//! The invariants of a radiance map, checked once for every [`super::Prm`]: a loaded file and a
+//! fresh bake pass the same door, so nothing downstream (the CPU compose, the GPU upload) needs
+//! to check again or can be made to index out of bounds.
+
+use std::collections::HashSet;
+
+use super::{tile_layout, PrmParts};
+
+/// Largest atlas side and tile side a map may declare.
+const MAX_ATLAS: u32 = 65536;
+const MAX_TILE: u32 = 4096;
+
+/// The first invariant `p` breaks, in words.
+pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
+    let h = &p.header;
+    if h.tile_size == 0
+        || h.tile_size > MAX_TILE
+        || h.atlas_width == 0
+        || h.atlas_height == 0
+        || h.atlas_width > MAX_ATLAS
+        || h.atlas_height > MAX_ATLAS
+    {
+        return Err(format!(
+            "implausible atlas {}x{} / tile size {}",
+            h.atlas_width, h.atlas_height, h.tile_size
+        ));
+    }
+    counts(p)?;
+    entries(p)?;
+    tiles(p)?;
+    ranges(p)?;
+    if let Some(c) = p.group_of.iter().position(|&g| g as usize >= p.groups.len()) {
+        return Err(format!("cluster {c} is in group {}, of {}", p.group_of[c], p.groups.len()));
+    }
+    let mask_bytes = (h.atlas_width as u64 * h.atlas_height as u64).div_ceil(8);
+    if p.mask.len() as u64 != mask_bytes {
+        return Err(format!(
+            "mask is {} bytes for a {}x{} atlas",
+            p.mask.len(),
+            h.atlas_width,
+            h.atlas_height
+        ));
+    }
+    let want = tile_layout(h, &p.mask, &p.tiles).len;
+    if p.data.len() != want {
+        return Err(format!(
+            "tile data is {} bytes, the tiles' masked texels need {}",
+            p.data.len() * 2,
+            want * 2
+        ));
+    }
+    if let Some(k) = p.data.iter().position(|v| !(v.is_finite() && v.to_f32() >= 0.0)) {
+        return Err(format!("tile texel {k} is not a finite, non-negative intensity"));
+    }
+    if let Some(c) =
+        p.clusters.iter().position(|c| !(c.energy.is_finite() && c.energy >= 0.0 && c.centroid.is_finite()))
+    {
+        return Err(format!("cluster {c} has a non-finite energy or centroid"));
+    }
+    Ok(())
+}
+
+/// The header's counts are the parts' lengths.
+fn counts(p: &PrmParts) -> Result<(), String> {
+    let h = &p.header;
+    let want_of = if p.groups.is_empty() { 0 } else { p.clusters.len() };
+    for (what, declared, has) in [
+        ("entries", h.entries as usize, p.entries.len()),
+        ("clusters", h.clusters as usize, p.clusters.len()),
+        ("groups", h.groups as usize, p.groups.len()),
+        ("tiles", h.tiles as usize, p.tiles.len()),
+        ("cluster groups", want_of, p.group_of.len()),
+    ] {
+        if declared != has {
+            return Err(format!("{declared} {what} declared, {has} present"));
+        }
+    }
+    Ok(())
+}
+
+fn entries(p: &PrmParts) -> Result<(), String> {
+    let ok = |e: &super::Entry| {
+        e.position.is_finite()
+            && e.normal.is_finite()
+            && e.albedo.is_finite()
+            && e.area.is_finite()
+            && e.area >= 0.0
+    };
+    if let Some(k) = p.entries.iter().position(|e| !ok(e)) {
+        return Err(format!("entry {k} has non-finite or negative values"));
+    }
+    let n = p.entries.len();
+    for (k, c) in p.clusters.iter().enumerate() {
+        if let Some(bad) = c.members.iter().find(|&&m| m as usize >= n) {
+            return Err(format!("cluster {k}'s member {bad} is not an entry (there are {n})"));
+        }
+    }
+    Ok(())
+}
+
+/// Every tile names a pane that exists and an atlas tile inside the grid, with a usable scale.
+fn tiles(p: &PrmParts) -> Result<(), String> {
+    let h = &p.header;
+    let panes = p.clusters.len() as u64 + p.groups.len() as u64;
+    let grid = (h.atlas_width.div_ceil(h.tile_size) as u64) * (h.atlas_height.div_ceil(h.tile_size) as u64);
+    for (k, tile) in p.tiles.iter().enumerate() {
+        if tile.cluster as u64 >= panes
+            || tile.index as u64 >= grid
+            || !tile.scale.is_finite()
+            || tile.scale.min_element() < 0.0
+        {
+            return Err(format!(
+                "tile {k} is out of range (cluster {}, index {}, scale {})",
+                tile.cluster, tile.index, tile.scale
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The panes' tile ranges hold only their own tiles and together cover every tile (the runtime
+/// reads tiles by pane id, the CPU twin by range: a stray tile would make them disagree), one
+/// tile per atlas index each.
+fn ranges(p: &PrmParts) -> Result<(), String> {
+    let n = p.tiles.len() as u64;
+    let owns = |first: u32, count: u32, pane: u64| {
+        first as u64 + count as u64 <= n
+            && p.tiles[first as usize..(first + count) as usize].iter().all(|t| t.cluster as u64 == pane)
+    };
+    for (k, c) in p.clusters.iter().enumerate() {
+        if !owns(c.first_tile, c.tile_count, k as u64) {
+            return Err(format!("cluster {k}'s tile range is wrong"));
+        }
+    }
+    let base = p.clusters.len() as u64;
+    for (g, gr) in p.groups.iter().enumerate() {
+        let energy_ok = gr.energy.is_finite() && gr.energy >= 0.0;
+        if !energy_ok || !owns(gr.first_tile, gr.tile_count, base + g as u64) {
+            return Err(format!("group {g} has a bad energy or tile range"));
+        }
+    }
+    let covered: u64 = p
+        .clusters
+        .iter()
+        .map(|c| c.tile_count as u64)
+        .chain(p.groups.iter().map(|g| g.tile_count as u64))
+        .sum();
+    if covered != n {
+        return Err(format!("the panes' tile ranges cover {covered} of {n} tiles"));
+    }
+    let mut seen = HashSet::with_capacity(p.tiles.len());
+    if let Some(k) = p.tiles.iter().position(|t| !seen.insert((t.cluster, t.index))) {
+        return Err(format!(
+            "tile {k} repeats atlas tile {} of pane {}",
+            p.tiles[k].index, p.tiles[k].cluster
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,484 @@
+//! The `.prm` file, format v2 (DESIGN.md §8): one level's precomputed radiance map.
+//!
+//! Layout, little-endian:
+//!
+//! ```text
+//! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
+//! 8   u32    version = 2
+//! 12  u32    JSON header length H
+//! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
+//!     then sections, each  [u8; 4] tag, u64 byte length, payload:
+//!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
+//!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
+//!                     first tile u32, tile count u32
+//!     MEMB  u32 entry indices, grouped by cluster
+//!     GRUP  G x 16 B: energy f32, first tile u32, tile count u32, pad u32; then (when G > 0)
+//!           C x u32: the group of each cluster
+//!     MASK  ceil(W x H / 8) B: bit (j W + i) set where a texel is stored (covered or dilated)
+//!     TILE  K x 20 B: pane u32 (cluster c < C, or group C + g), tile index u32, colour scale
+//!           (3 x f32)
+//!     DATA  f16 per-texel intensity in [0, 1]: for each tile in TILE order, its masked texels
+//!           in row-major order (empty atlas texels are not stored)
+//! end u64    FNV-1a 64 checksum of every byte before it
+//! ```
+//!
+//! A pane is the indirect irradiance (W/m², RGB) at every texel when its cluster's entry points
+//! receive 1 W/m². Its texels are stored in tile_size x tile_size tiles of the atlas; tiles
+//! holding a negligible share of the pane's energy are left out (the header says how much was
+//! dropped). A texel's value is `scale x intensity`: one RGB scale per tile (the tile's mean
+//! chromaticity times its peak luminance) and one half-float intensity per texel, so luminance
+//! is kept exactly (to half-float precision) and colour to the tile's mean. A pane's colour is
+//! mostly its cluster's albedo, the same over the tile; the saving is 3x over RGB half floats.
+//!
+//! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
+//! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
+//! weighted by the light of its clusters left out (the runtime's residual weights), so the light
+//! of the many weak clusters is kept in total and placed at the group's scale instead of lost.
+//!
+//! Loading checks, before using anything: magic, version, the checksum, every section length
+//! against the file ([`sections`]), then the invariants every [`Prm`] holds, however made
+//! ([`Prm::new`]: every index against its table, tile ranges, finite values), and (when a
+//! scene is given) the [`crate::fingerprint`] of the scene geometry, lightmap UVs, albedos and
+//! atlas layout. Any mismatch is a [`PrmError`] naming the file and the problem. Writing is
+//! atomic.
+//!
+//! This module is the format only: weighting, selecting and composing panes is the runtime's
+//! (its CPU twin in `prm_runtime::cpu`).
+
+mod check;
+mod sections;
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use half::f16;
+use serde::{Deserialize, Serialize};
+
+use crate::fingerprint::{fingerprint_hex, fnv1a, FNV_START};
+use crate::scene::Scene;
+use sections::{Reader, SectionError, Writer};
+
+/// File magic.
+pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
+/// The format version this code writes and reads.
+pub const VERSION: u32 = 2;
+
+/// An entry point (DESIGN.md §4).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Entry {
+    pub position: Vec3,
+    /// Unit front-face normal.
+    pub normal: Vec3,
+    /// Linear albedo at the entry.
+    pub albedo: Vec3,
+    /// Surface area the entry stands for (A / N), square scene units.
+    pub area: f32,
+    /// Scene triangle it lies on.
+    pub triangle: u32,
+}
+
+/// A cluster of entry points sharing one pane and one runtime weight.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Cluster {
+    /// Member entries (indices into [`Prm::entries`]).
+    pub members: Vec<u32>,
+    /// Mean position of the members.
+    pub centroid: Vec3,
+    /// Sum of the pane's luminance over all texels (texel count weighted, per unit weight):
+    /// the runtime ranks clusters by weight x energy.
+    pub energy: f32,
+    /// Range of this cluster's tiles in [`Prm::tiles`].
+    pub first_tile: u32,
+    pub tile_count: u32,
+}
+
+/// A group of clusters whose summed pane stands in for those of its clusters a frame leaves out.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Group {
+    /// Energy of the group's pane (the sum of its clusters' energies, less dropped tiles).
+    pub energy: f32,
+    /// Range of this group's tiles in [`Prm::tiles`] (their `cluster` is C + group index).
+    pub first_tile: u32,
+    pub tile_count: u32,
+}
+
+/// One stored tile of a pane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tile {
+    /// The pane: cluster c < C, or group C + g.
+    pub cluster: u32,
+    /// Tile index in the atlas tile grid, row-major.
+    pub index: u32,
+    /// RGB multiplier of the stored half-float intensities.
+    pub scale: Vec3,
+}
+
+/// Header facts, stored as JSON.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// Hex FNV-1a 64 of the scene (see [`crate::fingerprint::scene_fingerprint`]).
+    pub fingerprint: String,
+    pub atlas_width: u32,
+    pub atlas_height: u32,
+    pub tile_size: u32,
+    pub entries: u32,
+    pub clusters: u32,
+    pub tiles: u32,
+    /// Tiles left out because their energy was negligible.
+    pub tiles_dropped: u32,
+    /// Fraction of the panes' total energy in the dropped tiles.
+    pub dropped_energy: f64,
+    /// The relative threshold tiles were dropped by.
+    pub drop_threshold: f64,
+    /// Free-form provenance: the parameters and statistics of the precompute.
+    #[serde(default)]
+    pub provenance: serde_json::Value,
+    /// Groups (coarse panes) after the clusters; 0 = none.
+    #[serde(default)]
+    pub groups: u32,
+}
+
+/// The pieces of a radiance map, unchecked: what a bake assembles and [`Prm::new`] validates.
+/// Writing parts as bytes does not check them (tests write broken files with it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PrmParts {
+    pub header: Header,
+    pub entries: Vec<Entry>,
+    pub clusters: Vec<Cluster>,
+    /// Coarse panes over the clusters (may be empty).
+    pub groups: Vec<Group>,
+    /// The group of each cluster (empty when there are no groups).
+    pub group_of: Vec<u32>,
+    pub tiles: Vec<Tile>,
+    /// Stored-texel mask of the atlas, one bit per texel, row-major (covered or dilated).
+    pub mask: Vec<u8>,
+    /// Half-float intensities of all tiles' masked texels, in tile order.
+    pub data: Vec<f16>,
+}
+
+/// A radiance map that holds every invariant of the format (see [`Prm::new`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prm {
+    parts: PrmParts,
+}
+
+/// Where each stored tile's texels are: per atlas tile index, the row-major atlas texels stored
+/// there (in storage order), and per stored tile, the start of its data.
+#[derive(Clone, Debug)]
+pub struct TileLayout {
+    pub texels: Vec<Vec<u32>>,
+    pub offsets: Vec<usize>,
+    /// Total stored texels over all tiles.
+    pub len: usize,
+}
+
+/// One stored tile of a pane with its texels: irradiance per unit weight at `texels[i]` is
+/// `tile.scale x data[i]`.
+pub struct PaneTile<'a> {
+    pub tile: &'a Tile,
+    /// Row-major atlas texel indices.
+    pub texels: &'a [u32],
+    pub data: &'a [f16],
+}
+
+/// Pack a per-texel boolean mask into bits.
+pub fn pack_mask(mask: &[bool]) -> Vec<u8> {
+    let mut out = vec![0u8; mask.len().div_ceil(8)];
+    for (k, &m) in mask.iter().enumerate() {
+        if m {
+            out[k / 8] |= 1 << (k % 8);
+        }
+    }
+    out
+}
+
+/// What can be wrong with a `.prm` file.
+#[derive(Debug, thiserror::Error)]
+pub enum PrmError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not a .prm file (bad magic)")]
+    Magic { path: PathBuf },
+    #[error("{path}: .prm version {found}, this build reads version {VERSION}")]
+    Version { path: PathBuf, found: u32 },
+    #[error("{path}: truncated ({size} bytes; {what})")]
+    Truncated { path: PathBuf, size: u64, what: String },
+    #[error("{path}: checksum mismatch: the file is corrupt")]
+    Checksum { path: PathBuf },
+    #[error("{path}: corrupt: {what}")]
+    Corrupt { path: PathBuf, what: String },
+    #[error(
+        "{path}: baked for another scene or atlas (file fingerprint {file}, scene {scene}, atlas {file_atlas} vs \
+         {scene_atlas}); run prm precompute again"
+    )]
+    WrongScene { path: PathBuf, file: String, scene: String, file_atlas: String, scene_atlas: String },
+}
+
+/// Parts that break an invariant of the format (see [`Prm::new`]).
+#[derive(Debug, thiserror::Error)]
+#[error("invalid radiance map: {0}")]
+pub struct InvalidPrm(pub String);
+
+/// The stored-texel layout of `tiles` over an atlas with this header and mask (the mask must
+/// have the atlas's size).
+fn tile_layout(header: &Header, mask: &[u8], tiles: &[Tile]) -> TileLayout {
+    let ts = header.tile_size as usize;
+    let (w, h) = (header.atlas_width as usize, header.atlas_height as usize);
+    let (tx, ty) = (w.div_ceil(ts), h.div_ceil(ts));
+    let stored = |k: usize| mask[k / 8] & (1 << (k % 8)) != 0;
+    let texels: Vec<Vec<u32>> = (0..tx * ty)
+        .map(|index| {
+            let (ti, tj) = (index % tx, index / tx);
+            let mut out = Vec::new();
+            for j in tj * ts..((tj + 1) * ts).min(h) {
+                for i in ti * ts..((ti + 1) * ts).min(w) {
+                    if stored(j * w + i) {
+                        out.push((j * w + i) as u32);
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(tiles.len());
+    let mut len = 0;
+    for t in tiles {
+        offsets.push(len);
+        len += texels.get(t.index as usize).map_or(0, Vec::len);
+    }
+    TileLayout { texels, offsets, len }
+}
+
+impl PrmParts {
+    /// The file bytes (magic, version, JSON header, sections, checksum), checked or not.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend_from_slice(&MAGIC);
+        out.extend_from_slice(&VERSION.to_le_bytes());
+        let header = serde_json::to_vec(&self.header).unwrap_or_default();
+        out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+        out.extend_from_slice(&header);
+        let mut w = Writer(&mut out);
+        w.entries(&self.entries);
+        w.clusters(&self.clusters);
+        w.groups(&self.groups, &self.group_of);
+        w.mask(&self.mask);
+        w.tiles(&self.tiles);
+        w.data(&self.data);
+        let sum = fnv1a(FNV_START, &out);
+        out.extend_from_slice(&sum.to_le_bytes());
+        out
+    }
+}
+
+impl Prm {
+    /// A map from its parts, if they hold every invariant of the format: the header's counts
+    /// are the parts' lengths; a plausible atlas and tile size; finite entries with a
+    /// non-negative area; members that are entries; tiles naming an existing pane and an atlas
+    /// tile inside the grid, with a finite non-negative scale; each pane's tile range holding
+    /// only its tiles, the ranges covering every tile, no atlas tile twice in a pane; groups of
+    /// clusters that exist; a mask of the atlas's size; exactly the stored texels' data, finite
+    /// and non-negative; finite non-negative energies.
+    pub fn new(parts: PrmParts) -> Result<Prm, InvalidPrm> {
+        check::invariants(&parts).map_err(InvalidPrm)?;
+        Ok(Prm { parts })
+    }
+
+    /// The parts back, to change and validate again.
+    pub fn into_parts(self) -> PrmParts {
+        self.parts
+    }
+
+    pub fn header(&self) -> &Header {
+        &self.parts.header
+    }
+
+    pub fn entries(&self) -> &[Entry] {
+        &self.parts.entries
+    }
+
+    pub fn clusters(&self) -> &[Cluster] {
+        &self.parts.clusters
+    }
+
+    /// Coarse panes over the clusters (may be empty).
+    pub fn groups(&self) -> &[Group] {
+        &self.parts.groups
+    }
+
+    /// The group of each cluster (empty when there are no groups).
+    pub fn group_of(&self) -> &[u32] {
+        &self.parts.group_of
+    }
+
+    pub fn tiles(&self) -> &[Tile] {
+        &self.parts.tiles
+    }
+
+    /// Half-float intensities of all tiles' masked texels, in tile order.
+    pub fn data(&self) -> &[f16] {
+        &self.parts.data
+    }
+
+    /// Atlas width and height in texels.
+    pub fn atlas(&self) -> (u32, u32) {
+        (self.parts.header.atlas_width, self.parts.header.atlas_height)
+    }
+
+    /// Atlas texels (width x height).
+    pub fn texel_count(&self) -> usize {
+        self.parts.header.atlas_width as usize * self.parts.header.atlas_height as usize
+    }
+
+    /// Panes: clusters, then groups.
+    pub fn pane_count(&self) -> usize {
+        self.parts.clusters.len() + self.parts.groups.len()
+    }
+
+    /// True when atlas texel `k` (row-major) is stored.
+    #[inline]
+    pub fn stored(&self, k: usize) -> bool {
+        self.parts.mask[k / 8] & (1 << (k % 8)) != 0
+    }
+
+    /// Tiles across the atlas.
+    pub fn tiles_x(&self) -> u32 {
+        self.parts.header.atlas_width.div_ceil(self.parts.header.tile_size)
+    }
+
+    /// Tiles down the atlas.
+    pub fn tiles_y(&self) -> u32 {
+        self.parts.header.atlas_height.div_ceil(self.parts.header.tile_size)
+    }
+
+    /// Where every stored tile's texels live: build it once per map, then read panes with it.
+    pub fn layout(&self) -> TileLayout {
+        tile_layout(&self.parts.header, &self.parts.mask, &self.parts.tiles)
+    }
+
+    /// The range of pane `pane`'s tiles in [`Prm::tiles`] (cluster c < C, group C + g).
+    pub fn tile_range(&self, pane: usize) -> Range<usize> {
+        let c = self.parts.clusters.len();
+        let (first, count) = match self.parts.clusters.get(pane) {
+            Some(cl) => (cl.first_tile, cl.tile_count),
+            None => {
+                let g = &self.parts.groups[pane - c];
+                (g.first_tile, g.tile_count)
+            }
+        };
+        first as usize..(first + count) as usize
+    }
+
+    /// The stored tiles of pane `pane` (cluster c < C, group C + g) with their texels.
+    pub fn pane_tiles<'a>(
+        &'a self,
+        pane: usize,
+        layout: &'a TileLayout,
+    ) -> impl Iterator<Item = PaneTile<'a>> + 'a {
+        self.tile_range(pane).map(move |k| {
+            let tile = &self.parts.tiles[k];
+            let texels = &layout.texels[tile.index as usize];
+            let start = layout.offsets[k];
+            PaneTile { tile, texels, data: &self.parts.data[start..start + texels.len()] }
+        })
+    }
+
+    /// Error unless this map was baked for `scene` at its atlas size.
+    pub fn check_scene(&self, path: &Path, scene: &Scene) -> Result<(), PrmError> {
+        let h = &self.parts.header;
+        let fp = fingerprint_hex(scene, h.atlas_width, h.atlas_height);
+        if fp != h.fingerprint {
+            let atlas = format!("{}x{}", h.atlas_width, h.atlas_height);
+            return Err(PrmError::WrongScene {
+                path: path.into(),
+                file: h.fingerprint.clone(),
+                scene: fp,
+                file_atlas: atlas.clone(),
+                scene_atlas: atlas,
+            });
+        }
+        Ok(())
+    }
+
+    /// The file bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        self.parts.to_bytes()
+    }
+
+    /// Write atomically.
+    pub fn write(&self, path: &Path) -> Result<(), PrmError> {
+        crate::fsutil::write_bytes_atomic(path, &self.to_bytes())
+            .map_err(|source| PrmError::Io { path: path.into(), source })
+    }
+
+    /// Read and validate a file; with `scene`, also check it was baked for that scene.
+    pub fn read(path: &Path, scene: Option<&Scene>) -> Result<Prm, PrmError> {
+        let bytes = std::fs::read(path).map_err(|source| PrmError::Io { path: path.into(), source })?;
+        let prm = Self::from_bytes(path, &bytes)?;
+        if let Some(s) = scene {
+            prm.check_scene(path, s)?;
+        }
+        Ok(prm)
+    }
+
+    /// Parse and validate file bytes (`path` is only for messages).
+    pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<Prm, PrmError> {
+        let size = bytes.len() as u64;
+        let truncated = |what: &str| PrmError::Truncated { path: path.into(), size, what: what.into() };
+        let corrupt = |what: String| PrmError::Corrupt { path: path.into(), what };
+        let (header, body, at) = Self::frame(path, bytes)?;
+        let mut r = Reader::new(body, at);
+        let parts = (|| -> Result<PrmParts, SectionError> {
+            let entries = r.entries(&header)?;
+            let clusters = r.clusters(&header, entries.len())?;
+            let (groups, group_of) = r.groups(&header)?;
+            let mask = r.mask()?;
+            let tiles = r.tiles(&header)?;
+            let data = r.data()?;
+            r.finish()?;
+            Ok(PrmParts { header, entries, clusters, groups, group_of, tiles, mask, data })
+        })()
+        .map_err(|e| match e {
+            SectionError::Truncated(what) => truncated(&what),
+            SectionError::Corrupt(what) => corrupt(what),
+        })?;
+        Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))
+    }
+
+    /// Magic, version, checksum and JSON header: the header, the body (the bytes the checksum
+    /// covers) and where its sections start.
+    fn frame<'a>(path: &Path, bytes: &'a [u8]) -> Result<(Header, &'a [u8], usize), PrmError> {
+        let size = bytes.len() as u64;
+        let truncated = |what: &str| PrmError::Truncated { path: path.into(), size, what: what.into() };
+        let u32_at = |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+        if bytes.len() < 8 || bytes[..8] != MAGIC {
+            if bytes.len() < 8 && MAGIC.starts_with(bytes) && !bytes.is_empty() {
+                return Err(truncated("shorter than the magic"));
+            }
+            return Err(PrmError::Magic { path: path.into() });
+        }
+        if bytes.len() < 16 {
+            return Err(truncated("no header"));
+        }
+        let version = u32_at(8);
+        if version != VERSION {
+            return Err(PrmError::Version { path: path.into(), found: version });
+        }
+        if bytes.len() < 24 {
+            return Err(truncated("no checksum"));
+        }
+        let body = &bytes[..bytes.len() - 8];
+        let stored = u64::from_le_bytes(bytes[bytes.len() - 8..].try_into().unwrap_or_default());
+        let header_len = u32_at(12) as usize;
+        if 16 + header_len > body.len() {
+            return Err(truncated("header runs past the end"));
+        }
+        if fnv1a(FNV_START, body) != stored {
+            return Err(PrmError::Checksum { path: path.into() });
+        }
+        let header: Header = serde_json::from_slice(&body[16..16 + header_len])
+            .map_err(|e| PrmError::Corrupt { path: path.into(), what: format!("header: {e}") })?;
+        Ok((header, body, 16 + header_len))
+    }
+}

@@ -1,0 +1,267 @@
+//! One writer and one reader per `.prm` section (layout in the module doc of [`super`]).
+//!
+//! Readers check what a section can say about itself (its length against the header's counts,
+//! ranges into the sections read before it) and build the parts; the invariants that tie the
+//! parts together are checked once, by [`super::Prm::new`], for files and fresh bakes alike.
+
+use glam::Vec3;
+use half::f16;
+
+use super::{Cluster, Entry, Group, Header, Tile};
+
+/// Section byte sizes.
+pub(super) const ENTRY_BYTES: usize = 48;
+pub(super) const CLUSTER_BYTES: usize = 32;
+pub(super) const GROUP_BYTES: usize = 16;
+pub(super) const TILE_BYTES: usize = 20;
+
+/// Appends tagged, length-prefixed sections to a byte buffer.
+pub(super) struct Writer<'a>(pub(super) &'a mut Vec<u8>);
+
+impl Writer<'_> {
+    fn section(&mut self, tag: &[u8; 4], payload: &[u8]) {
+        self.0.extend_from_slice(tag);
+        self.0.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        self.0.extend_from_slice(payload);
+    }
+
+    pub(super) fn entries(&mut self, entries: &[Entry]) {
+        let mut e = Vec::with_capacity(entries.len() * ENTRY_BYTES);
+        for en in entries {
+            for v in [en.position, en.normal, en.albedo] {
+                e.extend_from_slice(bytemuck::bytes_of(&v.to_array()));
+            }
+            e.extend_from_slice(&en.area.to_le_bytes());
+            e.extend_from_slice(&en.triangle.to_le_bytes());
+            e.extend_from_slice(&0u32.to_le_bytes());
+        }
+        self.section(b"ENTR", &e);
+    }
+
+    /// `CLUS` and `MEMB`: each cluster's record points at its run of the member list.
+    pub(super) fn clusters(&mut self, clusters: &[Cluster]) {
+        let (mut c, mut m) = (Vec::new(), Vec::new());
+        let mut first = 0u32;
+        for cl in clusters {
+            c.extend_from_slice(&first.to_le_bytes());
+            c.extend_from_slice(&(cl.members.len() as u32).to_le_bytes());
+            c.extend_from_slice(bytemuck::bytes_of(&cl.centroid.to_array()));
+            c.extend_from_slice(&cl.energy.to_le_bytes());
+            c.extend_from_slice(&cl.first_tile.to_le_bytes());
+            c.extend_from_slice(&cl.tile_count.to_le_bytes());
+            for &x in &cl.members {
+                m.extend_from_slice(&x.to_le_bytes());
+            }
+            first += cl.members.len() as u32;
+        }
+        self.section(b"CLUS", &c);
+        self.section(b"MEMB", &m);
+    }
+
+    /// `GRUP`: the groups, then (when there are any) the group of each cluster.
+    pub(super) fn groups(&mut self, groups: &[Group], group_of: &[u32]) {
+        let mut g = Vec::new();
+        for gr in groups {
+            g.extend_from_slice(&gr.energy.to_le_bytes());
+            g.extend_from_slice(&gr.first_tile.to_le_bytes());
+            g.extend_from_slice(&gr.tile_count.to_le_bytes());
+            g.extend_from_slice(&0u32.to_le_bytes());
+        }
+        if !groups.is_empty() {
+            for &x in group_of {
+                g.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        self.section(b"GRUP", &g);
+    }
+
+    pub(super) fn mask(&mut self, mask: &[u8]) {
+        self.section(b"MASK", mask);
+    }
+
+    pub(super) fn tiles(&mut self, tiles: &[Tile]) {
+        let mut t = Vec::with_capacity(tiles.len() * TILE_BYTES);
+        for tile in tiles {
+            t.extend_from_slice(&tile.cluster.to_le_bytes());
+            t.extend_from_slice(&tile.index.to_le_bytes());
+            t.extend_from_slice(bytemuck::bytes_of(&tile.scale.to_array()));
+        }
+        self.section(b"TILE", &t);
+    }
+
+    pub(super) fn data(&mut self, data: &[f16]) {
+        self.section(b"DATA", bytemuck::cast_slice::<f16, u8>(data));
+    }
+}
+
+/// Why a section could not be read: cut short, or saying something impossible.
+pub(super) enum SectionError {
+    Truncated(String),
+    Corrupt(String),
+}
+
+use SectionError::{Corrupt, Truncated};
+
+/// Reads the sections of a checksummed body in order.
+pub(super) struct Reader<'a> {
+    body: &'a [u8],
+    at: usize,
+}
+
+fn f32_at(b: &[u8], i: usize) -> f32 {
+    f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]])
+}
+
+fn u32_at(b: &[u8], i: usize) -> u32 {
+    u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]])
+}
+
+fn v3(b: &[u8], i: usize) -> Vec3 {
+    Vec3::new(f32_at(b, i), f32_at(b, i + 4), f32_at(b, i + 8))
+}
+
+/// Whether `len` bytes hold exactly `count` records of `size` bytes.
+fn holds(len: usize, count: u64, size: usize) -> bool {
+    len as u64 == count * size as u64
+}
+
+impl<'a> Reader<'a> {
+    /// A reader of `body` from byte `at` (just past the JSON header).
+    pub(super) fn new(body: &'a [u8], at: usize) -> Self {
+        Reader { body, at }
+    }
+
+    /// The payload of the next section, which must be `tag`.
+    fn next(&mut self, tag: &[u8; 4]) -> Result<&'a [u8], SectionError> {
+        let name = String::from_utf8_lossy(tag);
+        let body = self.body;
+        if self.at + 12 > body.len() {
+            return Err(Truncated(format!("section {name} missing")));
+        }
+        if &body[self.at..self.at + 4] != tag {
+            return Err(Corrupt(format!("expected section {name}")));
+        }
+        let len = u64::from_le_bytes(body[self.at + 4..self.at + 12].try_into().unwrap_or_default());
+        let start = self.at + 12;
+        if len > (body.len() - start) as u64 {
+            return Err(Truncated(format!("section {name} runs past the end")));
+        }
+        self.at = start + len as usize;
+        Ok(&body[start..self.at])
+    }
+
+    /// Error unless every byte of the body has been read.
+    pub(super) fn finish(&self) -> Result<(), SectionError> {
+        match self.body.len() - self.at {
+            0 => Ok(()),
+            n => Err(Corrupt(format!("{n} unexpected bytes after the last section"))),
+        }
+    }
+
+    pub(super) fn entries(&mut self, header: &Header) -> Result<Vec<Entry>, SectionError> {
+        let e = self.next(b"ENTR")?;
+        if !holds(e.len(), header.entries as u64, ENTRY_BYTES) {
+            return Err(Corrupt(format!(
+                "{} entries declared, {} bytes of entries",
+                header.entries,
+                e.len()
+            )));
+        }
+        Ok(e.chunks_exact(ENTRY_BYTES)
+            .map(|b| Entry {
+                position: v3(b, 0),
+                normal: v3(b, 12),
+                albedo: v3(b, 24),
+                area: f32_at(b, 36),
+                triangle: u32_at(b, 40),
+            })
+            .collect())
+    }
+
+    /// `CLUS` and `MEMB`. Members must be entries, and together the clusters may claim at most
+    /// the member list: otherwise a small file could make every cluster copy the whole list
+    /// (quadratic memory).
+    pub(super) fn clusters(&mut self, header: &Header, entries: usize) -> Result<Vec<Cluster>, SectionError> {
+        let c = self.next(b"CLUS")?;
+        if !holds(c.len(), header.clusters as u64, CLUSTER_BYTES) {
+            return Err(Corrupt(format!(
+                "{} clusters declared, {} bytes of clusters",
+                header.clusters,
+                c.len()
+            )));
+        }
+        let m = self.next(b"MEMB")?;
+        if m.len() % 4 != 0 {
+            return Err(Corrupt("member list is not whole u32s".into()));
+        }
+        let members: Vec<u32> = m.chunks_exact(4).map(|b| u32_at(b, 0)).collect();
+        if let Some(bad) = members.iter().find(|&&x| x as usize >= entries) {
+            return Err(Corrupt(format!("member {bad} is not an entry (there are {entries})")));
+        }
+        let claimed: u64 = c.chunks_exact(CLUSTER_BYTES).map(|b| u32_at(b, 4) as u64).sum();
+        if claimed > members.len() as u64 {
+            return Err(Corrupt(format!(
+                "clusters claim {claimed} members, the list holds {}",
+                members.len()
+            )));
+        }
+        let mut clusters = Vec::with_capacity(header.clusters as usize);
+        for (k, b) in c.chunks_exact(CLUSTER_BYTES).enumerate() {
+            let (first, count) = (u32_at(b, 0) as usize, u32_at(b, 4) as usize);
+            if first.checked_add(count).is_none_or(|end| end > members.len()) {
+                return Err(Corrupt(format!("cluster {k}'s members run past the member list")));
+            }
+            clusters.push(Cluster {
+                members: members[first..first + count].to_vec(),
+                centroid: v3(b, 8),
+                energy: f32_at(b, 20),
+                first_tile: u32_at(b, 24),
+                tile_count: u32_at(b, 28),
+            });
+        }
+        Ok(clusters)
+    }
+
+    /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).
+    pub(super) fn groups(&mut self, header: &Header) -> Result<(Vec<Group>, Vec<u32>), SectionError> {
+        let g = self.next(b"GRUP")?;
+        let (n_groups, n_clusters) = (header.groups as u64, header.clusters as u64);
+        let want = if n_groups == 0 { 0 } else { n_groups * GROUP_BYTES as u64 + n_clusters * 4 };
+        if g.len() as u64 != want {
+            return Err(Corrupt(format!(
+                "{n_groups} groups over {n_clusters} clusters declared, {} bytes of groups",
+                g.len()
+            )));
+        }
+        let (records, of) = g.split_at(n_groups as usize * GROUP_BYTES);
+        let groups = records
+            .chunks_exact(GROUP_BYTES)
+            .map(|b| Group { energy: f32_at(b, 0), first_tile: u32_at(b, 4), tile_count: u32_at(b, 8) })
+            .collect();
+        Ok((groups, of.chunks_exact(4).map(|b| u32_at(b, 0)).collect()))
+    }
+
+    pub(super) fn mask(&mut self) -> Result<Vec<u8>, SectionError> {
+        Ok(self.next(b"MASK")?.to_vec())
+    }
+
+    pub(super) fn tiles(&mut self, header: &Header) -> Result<Vec<Tile>, SectionError> {
+        let t = self.next(b"TILE")?;
+        if !holds(t.len(), header.tiles as u64, TILE_BYTES) {
+            return Err(Corrupt(format!("{} tiles declared, {} bytes of tiles", header.tiles, t.len())));
+        }
+        Ok(t.chunks_exact(TILE_BYTES)
+            .map(|b| Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) })
+            .collect())
+    }
+
+    /// `DATA`: the half floats of every tile's stored texels (how many is the tile layout's
+    /// business, checked with the other invariants).
+    pub(super) fn data(&mut self) -> Result<Vec<f16>, SectionError> {
+        let d = self.next(b"DATA")?;
+        if d.len() % 2 != 0 {
+            return Err(Corrupt(format!("tile data is {} bytes, not whole half floats", d.len())));
+        }
+        Ok(d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect())
+    }
+}
