@@ -20,8 +20,7 @@ fn rect(
     b: Vec3,
     normal: Vec3,
     step: f32,
-    pos: &mut Vec<Vec3>,
-    nrm: &mut Vec<Vec3>,
+    (pos, nrm): (&mut Vec<Vec3>, &mut Vec<Vec3>),
 ) -> Vec<u32> {
     let (na, nb) = ((a.length() / step) as usize, (b.length() / step) as usize);
     let mut ids = Vec::new();
@@ -60,7 +59,7 @@ fn box_points() -> (Vec<Vec3>, Vec<Vec3>, Vec<(Vec<u32>, Vec3)>, Vec<u32>) {
         (Vec3::ZERO, x, y, -Vec3::Z),
         (z, x, y, Vec3::Z),
     ] {
-        faces.push((rect(&mut rng, o, a, b, n, 0.06, &mut pos, &mut nrm), n));
+        faces.push((rect(&mut rng, o, a, b, n, 0.06, (&mut pos, &mut nrm)), n));
     }
     // Noise at least 0.1 from every face (10 DELTA), so no noise point can be an inlier of a
     // face plane; its normals are random, so it forms no plane of MIN_SIZE points either.
@@ -131,7 +130,7 @@ fn two_coplanar_squares_with_a_gap_are_two_segments() {
     let mut rng = Pcg64Mcg::seed_from_u64(4);
     for (gap, pieces) in [(0.5f32, 2usize), (0.0, 1)] {
         let (mut pos, mut nrm) = (Vec::new(), Vec::new());
-        let a = rect(&mut rng, Vec3::ZERO, Vec3::X, Vec3::Z, Vec3::Y, 0.05, &mut pos, &mut nrm);
+        let a = rect(&mut rng, Vec3::ZERO, Vec3::X, Vec3::Z, Vec3::Y, 0.05, (&mut pos, &mut nrm));
         let b = rect(
             &mut rng,
             Vec3::new(1.0 + gap, 0.0, 0.0),
@@ -139,8 +138,7 @@ fn two_coplanar_squares_with_a_gap_are_two_segments() {
             Vec3::Z,
             Vec3::Y,
             0.05,
-            &mut pos,
-            &mut nrm,
+            (&mut pos, &mut nrm),
         );
         let members: Vec<u32> = (0..pos.len() as u32).collect();
         let (segments, rest) = detect_planes(&pos, &nrm, &members, DELTA, MIN_SIZE, 1);
