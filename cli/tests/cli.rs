@@ -24,6 +24,35 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// A bundled level loaded as the CLI loads it at `atlas` (generated UVs are packed for it).
+fn level(name: &str, atlas: u32) -> prm::Scene {
+    let opts = prm::gltf_load::LoadOptions { unwrap_resolution: atlas.clamp(16, 4096), ..Default::default() };
+    prm::gltf_load::load_scene(asset(name), &opts).unwrap()
+}
+
+/// The punctual direct light at every texel of `scene` (shadow rays, `prm::bvh::direct_irradiance`),
+/// as the CLI's images store it: a full atlas, dilated.
+fn direct_image(scene: &prm::Scene, atlas: u32) -> Vec<Vec3> {
+    let bvh = prm::Bvh::build(scene);
+    let set = prm::TexelSet::build(scene, atlas, atlas);
+    let v: Vec<Vec3> = set
+        .texels
+        .iter()
+        .map(|t| prm::bvh::direct_irradiance(&bvh, &scene.lights, t.position, t.normal))
+        .collect();
+    set.to_image(&v, Vec3::ZERO)
+}
+
+/// `a` equals `b` texel by texel to `rel` of the brightest texel of `b`.
+fn assert_images_close(a: &[Vec3], b: &[Vec3], rel: f32, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: sizes");
+    let scale = b.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
+    assert!(scale > 0.0, "{what}: the expected image is black");
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!((*x - *y).abs().max_element() <= rel * scale, "{what}: texel {k}: {x} vs {y}");
+    }
+}
+
 #[test]
 fn compare_gives_the_hand_computed_figures() {
     let dir = tempfile::tempdir().unwrap();
@@ -74,6 +103,22 @@ fn texels_and_ground_truth_on_a_bundled_scene() {
     let lit = ind.iter().zip(&covered).filter(|(v, &c)| c && v.max_element() > 0.0).count();
     let total = covered.iter().filter(|&&c| c).count();
     assert!(lit * 100 >= total * 95, "{lit} of {total} texels receive indirect light");
+    // Cornell is lit by one point light and has no emitters: the direct layer is next-event
+    // estimation only, noiseless, and must be the shared shadow-ray direct light at every
+    // texel (the tracer keeps its own copy of that loop; both are f32 sums in light order, so
+    // 1e-6 of the brightest texel is round-off only).
+    let scene = level("cornell.glb", 32);
+    assert!(scene.materials.iter().all(|m| m.emissive == Vec3::ZERO) && !scene.lights.is_empty());
+    assert_images_close(&g.rgb("direct").unwrap(), &direct_image(&scene, 32), 1e-6, "ground-truth direct");
+    assert!(g.rgb("stderr_direct").unwrap().iter().all(|e| *e == Vec3::ZERO), "a noiseless layer has error");
+    // The summary describes the image: texel count and mean indirect light (f32 sums: 1e-4).
+    assert_eq!(v["texels"].as_u64().unwrap() as usize, total);
+    let mean: Vec3 =
+        ind.iter().zip(&covered).filter(|(_, &c)| c).map(|(v, _)| *v).sum::<Vec3>() / total as f32;
+    for (k, m) in v["mean_indirect"].as_array().unwrap().iter().enumerate() {
+        let m = m.as_f64().unwrap() as f32;
+        assert!((m - mean[k]).abs() <= 1e-4 * mean[k], "mean_indirect[{k}] {m} vs the image's {}", mean[k]);
+    }
     // The error of the ground truth against itself is zero.
     let (ok, out, _) = prm(&["compare", s(&gt), s(&gt), "--json"]);
     assert!(ok);
@@ -175,10 +220,22 @@ fn precompute_evaluate_and_export_panes() {
     ] {
         assert!(v[key].is_number(), "summary lacks {key}");
     }
+    // The summary's tile counts are the file's.
+    let file = prm::prm_file::Prm::read(&prm_path, None).unwrap();
+    assert_eq!(v["tiles_kept"].as_u64().unwrap(), file.header().tiles as u64);
+    assert_eq!(v["tiles_dropped"].as_u64().unwrap(), file.header().tiles_dropped as u64);
     let lm = dir.path().join("lm.exr");
     let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "-o", s(&lm)]);
     assert!(ok, "{err}");
     let c = Channels::read(&lm).unwrap();
+    // Every pane (no --top-k): the lightmap is the slow compose of the cluster weights, the
+    // member means of the ray-traced entry irradiance. The same f32 operations in the same
+    // order, so equal up to 1e-6 of the brightest texel (round-off only).
+    let scene = level("cornell.glb", 32);
+    let bvh = prm::Bvh::build(&scene);
+    let e = prm_runtime::cpu::entry_irradiance(&file, &bvh, &scene.lights);
+    let want = prm_runtime::cpu::compose(&file, &prm_runtime::cpu::cluster_weights(&file, &e));
+    assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs Prm::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();
     assert!(rgb.iter().all(|v| v.is_finite() && v.min_element() >= 0.0));
@@ -236,6 +293,9 @@ fn bake_reference_writes_layers_and_debug_lights() {
         );
         assert!(total[k].is_finite() && total[k].min_element() >= 0.0);
     }
+    // The reference baker's direct layer is the shared shadow-ray direct light (cornell: one
+    // point light), the same function at the same texels: round-off only.
+    assert_images_close(&direct, &direct_image(&level("cornell.glb", 32), 32), 1e-6, "bake-reference direct");
     let text = std::fs::read_to_string(&obj).unwrap();
     assert!(text.contains("g polygons") && text.lines().filter(|l| l.starts_with("f ")).count() > 10);
     let (ok, _, err) = prm(&["bake-reference", &asset("cornell.glb"), "--vpls", "0", "-o", s(&out)]);
@@ -417,9 +477,41 @@ fn bench_reports_both_frame_kinds_and_the_compose() {
     let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(j["composes"], 4, "{stdout}");
     let f = |k: &str| j[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {stdout}"));
-    assert!(f("ratio_median") > 0.0 && f("ratio_median").is_finite());
-    assert!(f("copy_bandwidth_gb_s") > 0.0 && f("compose_bytes") > 0.0 && f("compose_ms_wall") > 0.0);
-    assert!(j["compose_bytes_detail"]["selected_clusters"].as_u64().unwrap() > 0);
+    // The figures hang together (bench.rs): the ratio is of the two medians; the compose bytes
+    // are the sum of their parts; the bandwidth estimate is bytes over measured bandwidth.
+    // 1e-12 relative: JSON round trips of f64.
+    let close = |a: f64, b: f64, what: &str| assert!((a - b).abs() <= 1e-12 * b.abs(), "{what}: {a} vs {b}");
+    let (full, direct) = (&j["full_frame"], &j["direct_frame"]);
+    let med = |s: &serde_json::Value| s["median_ms"].as_f64().unwrap();
+    assert!(med(direct) > 0.0 && med(full) > 0.0, "{stdout}");
+    close(f("ratio_median"), med(full) / med(direct), "ratio_median");
+    for st in [full, direct] {
+        assert!(st["p95_ms"].as_f64().unwrap() >= med(st), "p95 below the median: {stdout}");
+    }
+    let d = &j["compose_bytes_detail"];
+    let part = |k: &str| d[k].as_u64().unwrap_or_else(|| panic!("{k} missing: {stdout}"));
+    assert_eq!(
+        j["compose_bytes"].as_u64().unwrap(),
+        part("pane_data") + part("headers") + part("tables") + part("written")
+    );
+    // Against the file: an RGBA32F atlas written, a 4-byte slot per texel and 16 bytes per
+    // cluster and group selected-or-not, at most all of the f16 pane data read.
+    let file = prm::prm_file::Prm::read(&prm_path, None).unwrap();
+    let texels = (file.header().atlas_width * file.header().atlas_height) as u64;
+    assert_eq!(part("written"), texels * 16);
+    assert_eq!(part("tables"), texels * 4 + (file.clusters().len() + file.groups().len()) as u64 * 16);
+    assert!(part("pane_data") > 0 && part("pane_data") <= file.data().len() as u64 * 2);
+    let selected = part("selected_clusters");
+    assert!(
+        selected > 0 && selected <= (32 + file.groups().len()) as u64,
+        "{selected} panes selected at top-k 32"
+    );
+    assert!(f("copy_bandwidth_gb_s") > 0.0 && f("compose_ms_wall") > 0.0);
+    close(
+        f("compose_at_bandwidth_ms"),
+        f("compose_bytes") / (f("copy_bandwidth_gb_s") * 1e9) * 1e3,
+        "compose_at_bandwidth_ms",
+    );
     // A rig naming a light the level does not have, without a type, is refused.
     std::fs::write(&rig, r#"{"lights": [{"name": "nowhere", "position": [0, 1, 0]}]}"#).unwrap();
     let (ok, _, err) = prm(&["bench", &asset("cornell.glb"), "--prm", s(&prm_path), "--rig", s(&rig)]);

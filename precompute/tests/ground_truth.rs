@@ -101,6 +101,11 @@ fn polygon_cosine_integral(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
     0.5 * sum.abs()
 }
 
+/// The floor under a square emitter, albedo 0 everywhere. With nothing to bounce off and no
+/// punctual light, one direct sample (`ground_truth` module doc) is `pi Le` when its cosine
+/// direction hits the emitter's front and 0 otherwise: a Bernoulli variable with
+/// p = F = (1/pi) integral of cos over the emitter's solid angle. So the mean estimates
+/// `Le x integral`, and its standard error must be `pi Le sqrt(p (1 - p) / N)`.
 #[test]
 fn square_emitter_irradiance_matches_the_form_factor() {
     let h = 0.7;
@@ -119,20 +124,67 @@ fn square_emitter_irradiance_matches_the_form_factor() {
     }
     assert!(scene.face_normal(2).y < 0.0);
     let bvh = Bvh::build(&scene);
-    let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 4000, ..Default::default() });
-    let set = TexelSet::build(&scene, 16, 16);
-    let floor: Vec<_> = set.texels.iter().filter(|t| t.triangle < 2).step_by(5).copied().collect();
-    let out = tracer.texels(&floor, 16, prm_precompute::parallel::Control::none()).unwrap();
-    let mut worst = 0.0f32;
+    let spp = 4000u32;
+    let tracer = Tracer::new(&scene, &bvh, GtParams { spp, ..Default::default() });
+    let set = TexelSet::build(&scene, 64, 64);
+    let floor: Vec<_> = set.texels.iter().filter(|t| t.triangle < 2).copied().collect();
+    let out = tracer.texels(&floor, 64, prm_precompute::parallel::Control::none()).unwrap();
+    let m = floor.len();
+    // The calibration figures below need many texels; the floor's chart is ~13 x 13 texels.
+    assert!(m >= 100, "only {m} floor texels");
+    let n = spp as f64;
+    let sample = (3.0f32 * std::f32::consts::PI) as f64; // one hit's value, pi Le (red)
+    let (mut z2_sum, mut bias_sum, mut var_sum) = (0.0f64, 0.0f64, 0.0f64);
     for (t, r) in floor.iter().zip(&out) {
-        let want = 3.0 * polygon_cosine_integral(t.position, Vec3::Y, &em);
-        let z = (r.direct.x - want).abs() / r.direct_stderr.x.max(1e-6);
-        worst = worst.max(z);
-        // Per texel, 4 standard errors: over ~20 texels a 3-sigma bound would trip by chance.
-        assert!(z <= 4.0, "texel ({}, {}): {} vs {} ({} se)", t.i, t.j, r.direct.x, want, z);
+        assert_eq!(t.normal, Vec3::Y);
+        let want = 3.0 * polygon_cosine_integral(t.position, Vec3::Y, &em) as f64;
+        let p = want / sample;
+        assert!((0.01..0.99).contains(&p), "texel ({}, {}): form factor {p}", t.i, t.j);
+        let (est, se) = (r.direct.x as f64, r.direct_stderr.x as f64);
+        // Bernoulli: the mean is a whole number of hits over N (f32 round-off of a mean of at
+        // most 4000 equal values: ~1e-4 of one hit).
+        let k = est * n / sample;
+        assert!((k - k.round()).abs() < 1e-2, "texel ({}, {}): {k} hits is not a count", t.i, t.j);
+        // The stated error is the sample standard error of those hits (Welford in f64, stored
+        // as f32: 1e-5 relative)...
+        let ph = k.round() / n;
+        let se_sample = sample * (ph * (1.0 - ph) / (n - 1.0)).sqrt();
+        assert!(
+            (se - se_sample).abs() <= 1e-5 * se_sample,
+            "texel ({}, {}): se {se} vs {se_sample}",
+            t.i,
+            t.j
+        );
+        // ...and it estimates the analytic Bernoulli error. sqrt(p^(1 - p^)) moves with p^ by
+        // |1 - 2p| / (2 sqrt(N p (1 - p))) relative per standard deviation of p^; allow 5 of
+        // them (over ~200 texels, 4 would trip by chance about once in 100 seeds).
+        let se_true = sample * (p * (1.0 - p) / n).sqrt();
+        let spread = (1.0 - 2.0 * p).abs() / (2.0 * (n * p * (1.0 - p)).sqrt());
+        assert!(
+            (se / se_true - 1.0).abs() <= 5.0 * spread + 1e-3,
+            "texel ({}, {}): stated se {se} vs analytic {se_true} (p = {p})",
+            t.i,
+            t.j
+        );
+        let z = (est - want) / se;
+        // Per texel, 4.5 standard errors: P(|z| > 4.5) = 7e-6, so ~200 texels stay clear by
+        // chance; N p >= 40 everywhere, so z is close to normal.
+        assert!(z.abs() <= 4.5, "texel ({}, {}): {est} vs {want} ({z} se)", t.i, t.j);
         assert!((r.direct.y / r.direct.x - 2.0 / 3.0).abs() < 1e-5);
+        z2_sum += z * z;
+        bias_sum += est - want;
+        var_sum += se * se;
     }
-    assert!(worst > 0.0);
+    // Calibration: mean z^2 is 1 when the stated errors are right; over M independent texels it
+    // has standard deviation sqrt(2 / M) (normal z). 4 of those: errors stated 1.5x too large
+    // or too small (mean z^2 0.44 or 2.25) fail at M = 196.
+    let mean_z2 = z2_sum / m as f64;
+    let band = 4.0 * (2.0 / m as f64).sqrt();
+    assert!((mean_z2 - 1.0).abs() <= band, "mean z^2 {mean_z2} over {m} texels (band 1 +- {band})");
+    // Pooled bias: the summed error over the summed variance, within 4 sigma. A 2 % bias in
+    // the estimator is ~5 sigma here (3 % gave 8.6).
+    let pooled = bias_sum / var_sum.sqrt();
+    assert!(pooled.abs() <= 4.0, "pooled bias {pooled} sigma over {m} texels");
 }
 
 #[test]

@@ -404,3 +404,65 @@ fn a_prm_for_another_scene_is_refused() {
         .to_string();
     assert!(err.contains("scene") || err.contains("fingerprint"), "{err}");
 }
+
+#[test]
+fn ranged_point_and_spot_lights_follow_the_gltf_window() {
+    let g = gpu();
+    // An 8 x 8 floor and nothing else: every point sees the light, so only the falloff is tested.
+    let scene = quads(&[[v(-4., 0., -4.), v(-4., 0., 4.), v(4., 0., 4.), v(4., 0., -4.)]]);
+    let grid: Vec<(Vec3, Vec3)> = (0..61 * 61)
+        .map(|k| (v(-3.9 + 7.8 * (k % 61) as f32 / 60.0, 0.0, -3.9 + 7.8 * (k / 61) as f32 / 60.0), Vec3::Y))
+        .collect();
+    let mut pt = point(v(0.3, 1.0, -0.2), 10.0);
+    pt.range = Some(3.0);
+    let spot = Light {
+        name: "s".into(),
+        kind: LightKind::Spot { inner: 1.0, outer: 1.3 },
+        position: v(-0.4, 0.8, 0.5),
+        direction: v(0.1, -1.0, 0.0).normalize(),
+        intensity: Vec3::new(20.0, 10.0, 5.0),
+        range: Some(2.5),
+    };
+    for light in [pt, spot] {
+        let range = light.range.unwrap();
+        let gpu_e = gpu_irradiance(&g, &scene, std::slice::from_ref(&light), &grid, 1024);
+        let (mut window_checked, mut beyond) = (0, 0);
+        for ((p, n), e) in grid.iter().zip(&gpu_e) {
+            // Written out here, not taken from prm::Light: I cos / r² x spot x
+            // clamp(1 - (r / R)^4, 0, 1)².
+            let d = light.position - *p;
+            let r = d.length();
+            let cos = n.dot(d / r).max(0.0);
+            let spot = match light.kind {
+                LightKind::Spot { inner, outer } => {
+                    let t = ((light.direction.dot(-d / r) - outer.cos()) / (inner.cos() - outer.cos()))
+                        .clamp(0.0, 1.0);
+                    t * t
+                }
+                _ => 1.0,
+            };
+            let window = (1.0 - (r / range).powi(4)).clamp(0.0, 1.0).powi(2);
+            let expect = light.intensity * cos / (r * r) * spot * window;
+            if r >= range {
+                assert_eq!(*e, Vec3::ZERO, "{:?} at {p}, {r} from the light (range {range})", light.kind);
+                beyond += 1;
+                continue;
+            }
+            // f32 on both sides, the same formula: 1e-4 of the value (as the unranged test above).
+            let tol = 1e-4 * expect.max_element() + 1e-6;
+            assert!(
+                (*e - expect).abs().max_element() <= tol,
+                "{:?} at {p} (r {r}, window {window}): GPU {e}, expected {expect}",
+                light.kind
+            );
+            // Points where the window matters (it takes 5 % to 95 % off) and the light is on.
+            window_checked += (spot > 0.0 && (0.05..0.95).contains(&window)) as usize;
+        }
+        // Preconditions: a GPU that ignored the range (or cut it off hard) fails at each of these.
+        assert!(
+            window_checked >= 100 && beyond >= 100,
+            "{:?}: {window_checked} in the window's transition, {beyond} beyond the range",
+            light.kind
+        );
+    }
+}

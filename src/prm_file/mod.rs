@@ -316,6 +316,11 @@ impl Prm {
         &self.parts.tiles
     }
 
+    /// Stored-texel mask of the atlas, one bit per texel, row-major (see [`Prm::stored`]).
+    pub fn mask(&self) -> &[u8] {
+        &self.parts.mask
+    }
+
     /// Half-float intensities of all tiles' masked texels, in tile order.
     pub fn data(&self) -> &[f16] {
         &self.parts.data
