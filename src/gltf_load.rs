@@ -528,7 +528,7 @@ fn read_primitive(
         }
         None => {
             report.normals_generated += 1;
-            generate_normals(&positions, &indices)
+            crate::scene::generate_normals(&positions, &indices)
         }
     };
 
@@ -562,19 +562,6 @@ fn read_primitive(
         None => vec![Vec2::ZERO; n],
     };
     Ok(Prim { place, node, positions, normals, uv1, uv_albedo, indices, material })
-}
-
-/// Area-weighted vertex normals of an indexed triangle list.
-pub fn generate_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
-    let mut acc = vec![Vec3::ZERO; positions.len()];
-    for t in indices.chunks_exact(3) {
-        let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);
-        let n = (b - a).cross(c - a);
-        for &i in t {
-            acc[i as usize] += n;
-        }
-    }
-    acc.into_iter().map(|n| n.normalize_or_zero()).collect()
 }
 
 fn read_light(

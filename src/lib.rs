@@ -7,28 +7,50 @@
 //! - [`texels`]: the lightmap texel set: exit points with exact conservative coverage.
 //! - [`bvh`]: closest-hit and occlusion queries with a scale-independent offset scheme.
 //! - [`exr_io`]: named-channel EXR files in the DESIGN.md §8 layouts, written atomically.
+//! - [`prm_file`]: the `.prm` format; [`fingerprint`]: what a map was baked for.
+//! - [`sampling`]: seeded streams and sample warps for the bakers.
 //!
 //! No wgpu here: the runtime crate adds the GPU side.
+//!
+//! **Cargo features** (all on by default) keep a game that links only the runtime lean: the
+//! runtime needs the scene, lights, rigs and the `.prm` reader, none of these.
+//!
+//! | feature | gives | pulls |
+//! | --- | --- | --- |
+//! | `gltf` | [`gltf_load`] (+ `unwrap`) | gltf, image decoders |
+//! | `unwrap` | lightmap-UV generation in [`uv`] | uvunwrap |
+//! | `exr` | [`exr_io`] (+ `texels`) | exr |
+//! | `texels` | [`texels`] | rayon |
+//! | `bvh` | [`bvh`] ray queries | obvhs |
+//! | `sampling` | [`sampling`] | rand, rand_pcg |
 
+#[cfg(feature = "bvh")]
 pub mod bvh;
+#[cfg(feature = "exr")]
 pub mod exr_io;
 pub mod fingerprint;
 pub mod fsutil;
 pub mod glb;
+#[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod light;
 pub mod metric;
 pub mod prm_file;
 pub mod rig;
+#[cfg(feature = "sampling")]
 pub mod sampling;
 pub mod scene;
+#[cfg(feature = "texels")]
 pub mod texels;
 pub mod uv;
 
+#[cfg(feature = "bvh")]
 pub use bvh::{Bvh, Hit};
+#[cfg(feature = "gltf")]
 pub use gltf_load::{load_scene, LoadOptions, SceneError};
 pub use light::{Light, LightKind};
 pub use scene::{Camera, Material, Scene, Triangle};
+#[cfg(feature = "texels")]
 pub use texels::{Texel, TexelSet};
 
 /// Rec. 709 luminance of a linear RGB value (DESIGN.md §3 metric, Russian roulette).

@@ -164,7 +164,7 @@ impl Scene {
     /// A one-material scene from raw arrays (tests and tools): positions, lightmap UVs and a
     /// triangle list, albedo 0.5 everywhere, normals from the faces.
     pub fn from_mesh(positions: Vec<Vec3>, uv1: Vec<Vec2>, indices: &[u32]) -> Scene {
-        let normals = crate::gltf_load::generate_normals(&positions, indices);
+        let normals = generate_normals(&positions, indices);
         let n = positions.len();
         let triangles = indices
             .chunks_exact(3)
@@ -288,4 +288,17 @@ impl Scene {
         let tri = &self.triangles[t];
         format!("node {} mesh {} primitive {} triangle {}", tri.node, tri.mesh, tri.primitive, tri.index)
     }
+}
+
+/// Area-weighted vertex normals of an indexed triangle list.
+pub fn generate_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
+    let mut acc = vec![Vec3::ZERO; positions.len()];
+    for t in indices.chunks_exact(3) {
+        let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);
+        let n = (b - a).cross(c - a);
+        for &i in t {
+            acc[i as usize] += n;
+        }
+    }
+    acc.into_iter().map(|n| n.normalize_or_zero()).collect()
 }

@@ -9,20 +9,22 @@
 
 use std::collections::HashMap;
 
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, Vec2};
 
 use crate::scene::Scene;
 
+#[cfg(feature = "unwrap")]
 /// A primitive whose lightmap UVs are to be generated: its arrays are rewritten, because the
 /// unwrapper splits vertices along chart seams.
 pub struct UnwrapPrim<'a> {
-    pub positions: &'a mut Vec<Vec3>,
-    pub normals: &'a mut Vec<Vec3>,
+    pub positions: &'a mut Vec<glam::Vec3>,
+    pub normals: &'a mut Vec<glam::Vec3>,
     pub uv_albedo: &'a mut Vec<Vec2>,
     pub indices: &'a mut Vec<u32>,
     pub uv1: &'a mut Option<Vec<Vec2>>,
 }
 
+#[cfg(feature = "unwrap")]
 /// Generate lightmap UVs for all primitives together, packed into one square atlas page laid
 /// out for `resolution`^2 texels with 2 texels of padding around each chart.
 pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Result<(), String> {
@@ -45,6 +47,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
     Ok(())
 }
 
+#[cfg(feature = "unwrap")]
 /// Unwrap meshes into one square atlas page laid out for `resolution`^2 texels with 2 texels
 /// of padding. Returns the atlas and the factor to multiply its v by: uvunwrap crops the page
 /// to the rows it uses, and our atlas is square, so texels stay square.

@@ -1,0 +1,74 @@
+//! The CPU twin proper (feature `cpu-twin`): ray-traced entry irradiance and the per-frame
+//! lightmap with the unchanged-frame cache.
+
+use glam::Vec3;
+use prm::prm_file::Prm;
+use prm::{Bvh, Light};
+use rayon::prelude::*;
+
+use super::{cluster_weights, compose_selected, select_top_k};
+
+/// Irradiance at every entry point from `lights`, with ray-traced visibility.
+pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
+    prm.entries().par_iter().map(|e| prm::bvh::direct_irradiance(bvh, lights, e.position, e.normal)).collect()
+}
+
+/// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
+pub struct CpuTwin<'a> {
+    prm: &'a Prm,
+    bvh: &'a Bvh,
+    top_k: usize,
+    layout: prm::prm_file::TileLayout,
+    last_lights: Option<Vec<Light>>,
+    lightmap: Vec<Vec3>,
+    /// Composes performed (a frame with unchanged lights adds none).
+    pub composes: usize,
+    /// Clusters composed in the last compose.
+    pub last_selected: usize,
+    residual: bool,
+}
+
+impl<'a> CpuTwin<'a> {
+    /// A twin composing the `top_k` strongest panes (all of them when `top_k` >= C).
+    pub fn new(prm: &'a Prm, bvh: &'a Bvh, top_k: usize) -> Self {
+        let n = prm.texel_count();
+        CpuTwin {
+            prm,
+            bvh,
+            top_k,
+            layout: prm.layout(),
+            last_lights: None,
+            lightmap: vec![Vec3::ZERO; n],
+            composes: 0,
+            last_selected: 0,
+            residual: true,
+        }
+    }
+
+    /// Whether groups stand in for the clusters left out (default true); the next frame
+    /// recomposes.
+    pub fn set_residual(&mut self, on: bool) {
+        self.residual = on;
+        self.last_lights = None;
+    }
+
+    /// The indirect lightmap (full atlas, row-major, W/m²) for these lights.
+    pub fn frame(&mut self, lights: &[Light]) -> &[Vec3] {
+        if self.last_lights.as_deref() == Some(lights) {
+            return &self.lightmap;
+        }
+        let e = entry_irradiance(self.prm, self.bvh, lights);
+        let w = cluster_weights(self.prm, &e);
+        let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
+        let selected = select_top_k(&w, &energies, self.top_k);
+        let mut chosen = vec![false; w.len()];
+        for &c in &selected {
+            chosen[c] = true;
+        }
+        self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
+        self.composes += 1;
+        self.last_selected = selected.len();
+        self.last_lights = Some(lights.to_vec());
+        &self.lightmap
+    }
+}
