@@ -185,7 +185,9 @@ impl GlbScene {
             .map(|m| {
                 json!({
                     "name": m.name,
-                    "pbrMetallicRoughness": {"baseColorFactor": m.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+                    "pbrMetallicRoughness": {
+                        "baseColorFactor": m.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0,
+                    },
                     "emissiveFactor": m.emissive,
                     "doubleSided": m.double_sided,
                 })

@@ -77,7 +77,10 @@ pub enum SceneError {
     BadTransform { path: PathBuf, node: usize },
     #[error("{path}: {place}: no TEXCOORD_1 (lightmap UVs) and --require-uv1 was given")]
     MissingUv1 { path: PathBuf, place: Place },
-    #[error("{path}: lightmap UVs overlap: {first} and {second} share UV area ({pairs} overlapping pairs in all); two surfaces would share texels. Fix the UVs or pass --allow-overlap")]
+    #[error(
+        "{path}: lightmap UVs overlap: {first} and {second} share UV area ({pairs} overlapping pairs in \
+        all); two surfaces would share texels. Fix the UVs or pass --allow-overlap"
+    )]
     UvOverlap { path: PathBuf, first: String, second: String, pairs: usize },
     #[error("{path}: lightmap UV generation failed: {reason}")]
     Unwrap { path: PathBuf, reason: String },
@@ -220,7 +223,8 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
             .map_err(|reason| SceneError::Unwrap { path: path.into(), reason })?;
         report.uv1_generated = true;
         report.notes.push(format!(
-            "{} primitive(s) had no TEXCOORD_1: lightmap UVs were generated for the whole level (uvunwrap, packed for {}^2 with 2-texel padding)",
+            "{} primitive(s) had no TEXCOORD_1: lightmap UVs were generated for the whole level (uvunwrap, \
+                packed for {}^2 with 2-texel padding)",
             report.primitives_without_uv1, opts.unwrap_resolution
         ));
     }

@@ -186,7 +186,12 @@ impl Rig {
                     && inner <= outer
                     && outer <= std::f64::consts::FRAC_PI_2 + 1e-9)
                 {
-                    return Err(bad(format!("cone angles inner {:.3} / outer {:.3} degrees must satisfy 0 <= inner <= outer <= 90", inner.to_degrees(), outer.to_degrees())));
+                    return Err(bad(format!(
+                        "cone angles inner {:.3} / outer {:.3} degrees must satisfy 0 <= \
+                        inner <= outer <= 90",
+                        inner.to_degrees(),
+                        outer.to_degrees()
+                    )));
                 }
                 light.kind = LightKind::Spot {
                     inner: inner as f32,

@@ -124,7 +124,8 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
         println!(
-            "{} -> {}: {} VPLs -> {} polygon + {} sphere lights in {:.2} s, evaluated at {} texels in {:.2} s ({:.2} Mrays/s)",
+            "{} -> {}: {} VPLs -> {} polygon + {} sphere lights in {:.2} s, evaluated at {} texels in {:.2} \
+                s ({:.2} Mrays/s)",
             a.scene.scene.display(),
             a.output.display(),
             vl.vpl_count,

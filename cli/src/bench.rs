@@ -230,12 +230,17 @@ pub fn run(a: Args) -> Result<()> {
     );
     println!("ratio (medians):   {:.3} (target <= 1.10)", r.ratio_median);
     if let Some(p) = &r.gpu_pass_ms {
-        println!("GPU passes (median): entry irradiance {:.3} ms, weights+selection {:.3} ms, compose {:.3} ms, shading {:.3} ms", p.entry_irradiance, p.weights_selection, p.compose, p.shading);
+        println!(
+            "GPU passes (median): entry irradiance {:.3} ms, weights+selection {:.3} ms, compose {:.3} \
+            ms, shading {:.3} ms",
+            p.entry_irradiance, p.weights_selection, p.compose, p.shading
+        );
     } else {
         println!("GPU passes: this adapter has no timestamp queries");
     }
     println!(
-        "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} clusters: pane data {:.2} MB, headers {:.2} MB, tables {:.2} MB, lightmap written {:.2} MB)",
+        "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} clusters: pane data {:.2} MB, headers \
+            {:.2} MB, tables {:.2} MB, lightmap written {:.2} MB)",
         r.compose_ms_wall,
         total_bytes as f64 / 1e6,
         r.compose_bytes_detail.selected_clusters,

@@ -94,7 +94,8 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
-            "error {:.2} % (R {:.2} G {:.2} B {:.2}), bias {:+.2} %, max |dY| {:.4e} ({:.1} % of mean), {} compared, {} non-finite, {} negative",
+            "error {:.2} % (R {:.2} G {:.2} B {:.2}), bias {:+.2} %, max |dY| {:.4e} ({:.1} % of mean), {} \
+                compared, {} non-finite, {} negative",
             100.0 * c.error,
             100.0 * c.error_rgb[0],
             100.0 * c.error_rgb[1],

@@ -36,10 +36,15 @@ pub fn run(a: Args) -> Result<()> {
             let kind = match l.kind {
                 LightKind::Point => "point".to_string(),
                 LightKind::Directional => "directional".to_string(),
-                LightKind::Spot { inner, outer } => format!("spot {:.1}/{:.1} deg", inner.to_degrees(), outer.to_degrees()),
+                LightKind::Spot { inner, outer } => {
+                    format!("spot {:.1}/{:.1} deg", inner.to_degrees(), outer.to_degrees())
+                }
             };
-            json!({"name": l.name, "kind": kind, "position": l.position.to_array(), "direction": l.direction.to_array(),
-                   "intensity": l.intensity.to_array(), "unit": if l.is_positional() {"W/sr"} else {"W/m2"}})
+            json!({
+                "name": l.name, "kind": kind, "position": l.position.to_array(),
+                "direction": l.direction.to_array(), "intensity": l.intensity.to_array(),
+                "unit": if l.is_positional() {"W/sr"} else {"W/m2"},
+            })
         })
         .collect();
     let r = &scene.report;
@@ -116,7 +121,8 @@ pub fn run(a: Args) -> Result<()> {
         set.zero_uv_area_triangles
     );
     println!(
-        "  texels      {} of {}^2 covered ({:.1} %), {} dilated, {} gutter texels shared by charts, ~{:.4} units per texel, built in {:.3} s",
+        "  texels      {} of {}^2 covered ({:.1} %), {} dilated, {} gutter texels shared by charts, ~{:.4} \
+            units per texel, built in {:.3} s",
         set.len(),
         a.atlas,
         100.0 * set.len() as f64 / total,

@@ -164,7 +164,8 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
-            "{} -> {}: {} entries ({} inside solids left out), {} clusters, {} texels, {} ({}), {:.2} s (transport {:.2} s, {:.2} Mrays/s), {} tiles kept, {} dropped ({:.3} % of energy), {:.1} MB",
+            "{} -> {}: {} entries ({} inside solids left out), {} clusters, {} texels, {} ({}), {:.2} s \
+                (transport {:.2} s, {:.2} Mrays/s), {} tiles kept, {} dropped ({:.3} % of energy), {:.1} MB",
             a.scene.scene.display(),
             a.output.display(),
             report.entries,
@@ -182,7 +183,11 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
             bytes.len() as f64 / 1e6
         );
         if report.walks_truncated > 0 || report.unowned_vertices > 0 {
-            println!("  note: {} walks cut at the bounce cap, {} path vertices with no owning entry (their light is lost)", report.walks_truncated, report.unowned_vertices);
+            println!(
+                "  note: {} walks cut at the bounce cap, {} path vertices with no owning entry (their \
+                light is lost)",
+                report.walks_truncated, report.unowned_vertices
+            );
         }
     }
     Ok(())

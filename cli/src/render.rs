@@ -149,7 +149,8 @@ pub fn run(a: Args) -> Result<()> {
                 );
             }
             println!(
-                "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU twin, {} threads) -> {}",
+                "{} frames, {} composes: mean lightmap {:.2} ms, mean shading {:.2} ms (CPU twin, {} \
+                    threads) -> {}",
                 a.frames,
                 twin.composes,
                 totals.0 * 1e3 / a.frames as f64,

@@ -807,8 +807,24 @@ fn markdown(
         "- Seeds: {} for every stage, every rig frame's ground truth included (common random numbers)",
         a.seed
     );
-    let _ = writeln!(s, "- Error: DESIGN.md §3 normalised luminance RMSE of the indirect irradiance over covered texels against `prm ground-truth` at {} spp ({:.1} s), whose own noise is **{}**: an error figure includes it (remove it in quadrature for the method's own).\n", b.gt_spp, gt_seconds, pct(gt_noise));
-    let _ = writeln!(s, "Each figure can be re-made alone: `prm ground-truth SCENE --spp {} --seed {} -o gt.exr`, `prm precompute SCENE --entries N --paths M --clusters C --seed {} -o s.prm`, `prm evaluate SCENE --prm s.prm [--top-k K] -o e.exr` (CPU twin) or `prm render ... --lightmap-out` (GPU), `prm bake-reference SCENE --vpls P --cluster-size K --indirect-only -o r.exr`, then `prm compare X.exr gt.exr`.\n", b.gt_spp, a.seed, a.seed);
+    let _ = writeln!(
+        s,
+        "- Error: DESIGN.md §3 normalised luminance RMSE of the indirect irradiance over \
+        covered texels against `prm ground-truth` at {} spp ({:.1} s), whose own noise is **{}**: an error \
+        figure includes it (remove it in quadrature for the method's own).\n",
+        b.gt_spp,
+        gt_seconds,
+        pct(gt_noise)
+    );
+    let _ = writeln!(
+        s,
+        "Each figure can be re-made alone: `prm ground-truth SCENE --spp {} --seed {} -o \
+        gt.exr`, `prm precompute SCENE --entries N --paths M --clusters C --seed {} -o s.prm`, `prm evaluate \
+        SCENE --prm s.prm [--top-k K] -o e.exr` (CPU twin) or `prm render ... --lightmap-out` (GPU), `prm \
+        bake-reference SCENE --vpls P --cluster-size K --indirect-only -o r.exr`, then `prm compare X.exr \
+        gt.exr`.\n",
+        b.gt_spp, a.seed, a.seed
+    );
     let _ = writeln!(s, "## PRM: precompute budget (all panes, exact weights)\n");
     if plots {
         let _ = writeln!(s, "![error against precompute time](precompute.png)\n");
@@ -830,11 +846,24 @@ fn markdown(
         let _ = writeln!(s, "![error against frame time](runtime.png)\n");
     }
     if direct_ms.is_finite() {
-        let _ = writeln!(s, "Frame: {} px wide, shadow maps 1024², median of {} frames each recomposing (lights still, so shadow maps are not re-rendered). Direct-only frame: **{:.2} ms**.\n", b.frame_width, b.frame_reps, direct_ms);
+        let _ = writeln!(
+            s,
+            "Frame: {} px wide, shadow maps 1024², median of {} frames each recomposing \
+            (lights still, so shadow maps are not re-rendered). Direct-only frame: **{:.2} ms**.\n",
+            b.frame_width, b.frame_reps, direct_ms
+        );
     } else {
-        let _ = writeln!(s, "No GPU adapter: times are the CPU twin's lightmap (ray-traced entry visibility, weights, selection, compose).\n");
+        let _ = writeln!(
+            s,
+            "No GPU adapter: times are the CPU twin's lightmap (ray-traced entry visibility, \
+            weights, selection, compose).\n"
+        );
     }
-    let _ = writeln!(s, "| top-K | frame (ms) | error, + groups | bias | error, top-K alone | bias |\n| --- | --- | --- | --- | --- | --- |");
+    let _ = writeln!(
+        s,
+        "| top-K | frame (ms) | error, + groups | bias | error, top-K alone | bias |\n| --- \
+        | --- | --- | --- | --- | --- |"
+    );
     for (p, q) in with.iter().zip(without) {
         let ratio = if direct_ms.is_finite() {
             format!(" ({:.2}x direct)", p.seconds * 1e3 / direct_ms)
@@ -871,8 +900,19 @@ fn markdown(
     if plots {
         let _ = writeln!(s, "![error and flicker per frame](rig.png)\n");
     }
-    let _ = writeln!(s, "Ground truth per frame at {} spp; reference at {} photons. Flicker: RMS over texels of the change of the (signed luminance) error from the previous frame, over the mean ground truth. Every frame's ground truth has the same seed, so its noise is largely common to consecutive frames and cancels in the change; \"lighting change\" is how much the ground truth itself moved.\n", b.rig_gt_spp, b.rig_reference.0);
-    let _ = writeln!(s, "| frame | GT noise | PRM top-32 | PRM all | reference | flicker top-32 | flicker all | flicker reference | lighting change |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    let _ = writeln!(
+        s,
+        "Ground truth per frame at {} spp; reference at {} photons. Flicker: RMS over texels \
+        of the change of the (signed luminance) error from the previous frame, over the mean ground truth. \
+        Every frame's ground truth has the same seed, so its noise is largely common to consecutive frames \
+        and cancels in the change; \"lighting change\" is how much the ground truth itself moved.\n",
+        b.rig_gt_spp, b.rig_reference.0
+    );
+    let _ = writeln!(
+        s,
+        "| frame | GT noise | PRM top-32 | PRM all | reference | flicker top-32 | flicker \
+        all | flicker reference | lighting change |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
     let fl = flicker(frames);
     for (f, fr) in frames.iter().enumerate() {
         let flick = if f == 0 {

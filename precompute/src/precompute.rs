@@ -285,7 +285,8 @@ pub fn precompute(
         provenance: serde_json::json!({
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
-            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations, "smooth_radius": params.smooth_radius,
+            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
+            "smooth_radius": params.smooth_radius,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,

@@ -143,7 +143,11 @@ fn fuzz(
         most = most.max(total);
         n += 1;
     }
-    println!("{name}: {n} mutations, {ok} loaded, {} refused with an error; at most {most} bytes allocated in one load", n - ok);
+    println!(
+        "{name}: {n} mutations, {ok} loaded, {} refused with an error; at most {most} bytes allocated \
+        in one load",
+        n - ok
+    );
     assert_eq!(n, iterations, "{name}: not every mutation ran");
     (n, ok)
 }

@@ -32,7 +32,10 @@ pub enum LightError {
     Invalid { index: usize, name: String, what: String },
     #[error("{count} lights; the runtime's limit is {max} (prm::rig::MAX_LIGHTS)")]
     TooMany { count: usize, max: usize },
-    #[error("these lights need {needed} shadow-map layers (6 per point light or wide spot, 1 otherwise); the device allows {max}")]
+    #[error(
+        "these lights need {needed} shadow-map layers (6 per point light or wide spot, 1 otherwise); the \
+        device allows {max}"
+    )]
     TooManyLayers { needed: u32, max: u32 },
 }
 

@@ -294,7 +294,10 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     ];
     for (what, bytes) in tables {
         if bytes > max_buf {
-            return Err(RuntimeError::Params(format!("the .prm's {what} ({bytes} bytes) exceed this device's storage-buffer limit ({max_buf} bytes)")));
+            return Err(RuntimeError::Params(format!(
+                "the .prm's {what} ({bytes} bytes) exceed this device's \
+                storage-buffer limit ({max_buf} bytes)"
+            )));
         }
     }
     Ok(())
