@@ -51,16 +51,11 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     check_atlas(a.atlas)?;
-    if a.spp == 0 || a.spp > 1 << 24 {
-        bail!("--spp {} is out of range (1 to 16777216)", a.spp);
-    }
-    if a.max_bounces == 0 {
-        bail!("--max-bounces must be at least 1");
-    }
+    let params = GtParams { spp: a.spp, max_bounces: a.max_bounces, seed: a.seed, ..GtParams::default() };
+    params.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let mut scene = load(&a.scene, a.atlas, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
-    let params = GtParams { spp: a.spp, max_bounces: a.max_bounces, seed: a.seed, ..GtParams::default() };
     let tracer = Tracer::new(&scene, &bvh, params);
     let cancel = cancel_flag();
     let start = Instant::now();

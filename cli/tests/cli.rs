@@ -168,7 +168,7 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     let (ok, _, err) = prm(&["texels", &asset("cornell.glb"), "--atlas", "0", "-o", s(&out)]);
     assert!(!ok && err.contains("--atlas 0"), "{err}");
     let (ok, _, err) = prm(&["ground-truth", &asset("cornell.glb"), "--spp", "0", "-o", s(&out)]);
-    assert!(!ok && err.contains("--spp 0"), "{err}");
+    assert!(!ok && err.contains("spp 0 must be 1 to 16777216"), "{err}");
     let (ok, _, err) = prm(&["compare", s(&junk), s(&junk)]);
     assert!(!ok && err.contains("junk.glb"), "{err}");
     assert_eq!(

@@ -29,6 +29,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::parallel::{par_texels, Cancelled, Control};
+use crate::params::{require, ParamError};
 
 /// Ground-truth parameters.
 #[derive(Clone, Debug)]
@@ -51,6 +52,13 @@ impl GtParams {
     /// Reference quality: 1024 paths per texel.
     pub fn production() -> Self {
         GtParams { spp: 1024, ..Self::preview() }
+    }
+
+    /// Reject absurd values with an error naming the parameter.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        require((1..=1 << 24).contains(&self.spp), "spp", self.spp, "1 to 16777216")?;
+        require(self.max_bounces >= 1, "max bounces", self.max_bounces, "at least 1")?;
+        Ok(())
     }
 }
 

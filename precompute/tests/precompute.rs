@@ -12,7 +12,7 @@ use prm::prm_file::{Prm, PrmError};
 use prm::{Bvh, Scene, TexelSet};
 use prm_precompute::cluster::cluster_entries;
 use prm_precompute::entries::sample_entries;
-use prm_precompute::precompute::{precompute, PrecomputeParams};
+use prm_precompute::precompute::{precompute, PrecomputeError, PrecomputeParams};
 use prm_precompute::transport::{Estimator, Transport};
 use prm_runtime::cpu;
 
@@ -282,17 +282,26 @@ fn same_bytes_at_one_and_two_threads() {
 }
 
 #[test]
-fn absurd_parameters_are_refused() {
-    for p in [
-        PrecomputeParams { entries: 0, ..PrecomputeParams::preview() },
-        PrecomputeParams { clusters: 0, ..PrecomputeParams::preview() },
-        PrecomputeParams { atlas: 100_000, ..PrecomputeParams::preview() },
-        PrecomputeParams { drop_threshold: 0.9, ..PrecomputeParams::preview() },
-        PrecomputeParams { estimator: Estimator::Scatter { clamp: f32::NAN }, ..PrecomputeParams::preview() },
+fn absurd_parameters_are_refused_naming_the_parameter() {
+    let preview = PrecomputeParams::preview;
+    for (p, name, value) in [
+        (PrecomputeParams { entries: 0, ..preview() }, "entries", "0"),
+        (PrecomputeParams { clusters: 0, ..preview() }, "clusters", "0"),
+        (PrecomputeParams { atlas: 100_000, ..preview() }, "atlas", "100000"),
+        (PrecomputeParams { drop_threshold: 0.9, ..preview() }, "drop threshold", "0.9"),
+        (PrecomputeParams { estimator: Estimator::Scatter { clamp: f32::NAN }, ..preview() }, "clamp", "NaN"),
     ] {
-        assert!(p.validate().is_err());
+        let e = p.validate().unwrap_err();
+        assert_eq!((e.name, e.value.as_str()), (name, value), "{e}");
+        // The precompute itself refuses them too, before any work.
+        let scene = closed_box(0.5);
+        let bvh = Bvh::build(&scene);
+        let err = precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap_err();
+        assert!(matches!(err, PrecomputeError::Params(ref got) if *got == e), "{err}");
     }
     assert!(PrecomputeParams::production().validate().is_ok());
+    let gt = prm_precompute::ground_truth::GtParams { spp: 0, ..Default::default() };
+    assert_eq!(gt.validate().unwrap_err().to_string(), "spp 0 must be 1 to 16777216");
 }
 
 #[test]
