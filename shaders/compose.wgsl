@@ -10,48 +10,11 @@
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
 // active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
 // entry and one half float each. Texels outside the stored mask are written 0.
+//
+// Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
+// generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
 
-struct Params {
-    atlas_width: u32,
-    atlas_height: u32,
-    tile_size: u32,
-    tiles_x: u32,
-    tile_count: u32,
-    // Most records covering one atlas tile.
-    active_stride: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
-
-struct TileRecord {
-    scale: vec3f,
-    cluster: u32,
-    data_offset: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-struct ActiveRecord {
-    // The pane's weight times the tile's colour scale.
-    weighted_scale: vec3f,
-    data_offset: u32,
-}
-
-const NO_SLOT: u32 = 0xffffffffu;
-
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> selected: array<vec4f>;
-@group(0) @binding(2) var<storage, read> tile_ranges: array<vec2u>;
-@group(0) @binding(3) var<storage, read> records: array<TileRecord>;
-@group(0) @binding(4) var<storage, read> slots: array<u32>;
-@group(0) @binding(5) var<storage, read> data: array<u32>;
-@group(0) @binding(6) var lightmap: texture_storage_2d<rgba32float, write>;
-@group(0) @binding(7) var<storage, read> record_clusters: array<u32>;
-@group(0) @binding(8) var<storage, read_write> active_records: array<ActiveRecord>;
-@group(0) @binding(9) var<storage, read_write> active_count: array<u32>;
-
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_LINEAR)
 fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     let t = id.x;
     if t >= params.tile_count {
@@ -70,7 +33,7 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     active_count[t] = n;
 }
 
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WG_TILE, WG_TILE)
 fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     if id.x >= params.atlas_width || id.y >= params.atlas_height {
         return;

@@ -1,31 +1,11 @@
-// Lights and shadow-map visibility, shared by irradiance.wgsl and shade.wgsl (prepended to each
-// by runtime/src/lights.rs). Layouts: runtime/src/layout.rs (checked by a naga test).
+// Lights and shadow-map visibility, shared by irradiance.wgsl and shade.wgsl (put between the
+// prelude and the pass by runtime/src/contract.rs). GpuLight, the KIND_* constants, CUBE_LAYERS,
+// range_window and the shadow group (lights, shadow_mats, shadow_tex, shadow_sampler) come from
+// the generated prelude and bindings.
 //
 // Shadow maps are reverse-Z (1 = at the light, 0 = far): a receiver is lit when its depth is
 // >= the stored depth. Point lights own six layers (+X -X +Y -Y +Z -Z faces, 90°+ frusta);
 // spot and directional lights one.
-
-const KIND_POINT: u32 = 0u;
-const KIND_SPOT: u32 = 1u;
-const KIND_DIRECTIONAL: u32 = 2u;
-
-struct Light {
-    position: vec3f,
-    kind: u32,
-    // Unit direction the light points along (spot, directional).
-    direction: vec3f,
-    // glTF range; 0 = none.
-    range: f32,
-    // W/sr (point, spot) or W/m² (directional), per channel.
-    intensity: vec3f,
-    first_layer: u32,
-    cos_inner: f32,
-    cos_outer: f32,
-    // World size of one shadow texel: per unit distance (perspective) or absolute (orthographic).
-    texel: f32,
-    // Layers owned: 6 (cube) or 1.
-    layers: u32,
-}
 
 struct Incident {
     to_light: vec3f,
@@ -41,17 +21,8 @@ fn spot_falloff(cos_angle: f32, ci: f32, co: f32) -> f32 {
     return t * t;
 }
 
-fn range_window(l: Light, dist: f32) -> f32 {
-    if l.range <= 0.0 {
-        return 1.0;
-    }
-    let x = dist / l.range;
-    let w = clamp(1.0 - x * x * x * x, 0.0, 1.0);
-    return w * w;
-}
-
 // Unoccluded light arriving at p (the same formula as prm::Light::incident).
-fn incident(l: Light, p: vec3f) -> Incident {
+fn incident(l: GpuLight, p: vec3f) -> Incident {
     if l.kind == KIND_DIRECTIONAL {
         return Incident(-l.direction, 3.4e38, l.intensity);
     }
@@ -62,7 +33,7 @@ fn incident(l: Light, p: vec3f) -> Incident {
     }
     let dist = sqrt(dist2);
     let to_light = d / dist;
-    var scale = range_window(l, dist) / dist2;
+    var scale = range_window(dist, l.range) / dist2;
     if l.kind == KIND_SPOT {
         scale *= spot_falloff(dot(l.direction, -to_light), l.cos_inner, l.cos_outer);
     }
@@ -83,14 +54,14 @@ fn cube_face(d: vec3f) -> u32 {
 
 // Fraction of light l reaching the surface point p with unit normal n (toward the light side):
 // normal-offset receiver (1.5 shadow texels along n), 3x3 PCF of bilinear comparisons.
-fn visibility(l: Light, p: vec3f, n: vec3f, dist: f32) -> f32 {
+fn visibility(l: GpuLight, p: vec3f, n: vec3f, dist: f32) -> f32 {
     var texel_world = l.texel;
     if l.kind != KIND_DIRECTIONAL {
         texel_world = l.texel * dist;
     }
     let q = p + n * (1.5 * texel_world);
     var layer = l.first_layer;
-    if l.layers == 6u {
+    if l.layers == CUBE_LAYERS {
         layer += cube_face(q - l.position);
     }
     let clip = shadow_mats[layer] * vec4f(q, 1.0);

@@ -3,14 +3,7 @@
 // E_direct uses the same shadow maps as the entry irradiance (lights.wgsl); E_indirect is the
 // composed lightmap read with a manual bilinear filter (rgba32float is not filterable
 // everywhere). Back faces of single-sided materials are black, as in the CPU render.
-
-struct ShadeParams {
-    view_proj: mat4x4f,
-    light_count: u32,
-    indirect_scale: f32,
-    atlas_width: u32,
-    atlas_height: u32,
-}
+// ShadeParams and the bindings: the generated prelude (runtime/src/contract.rs, shade.rs).
 
 struct VertexIn {
     @location(0) position: vec3f,
@@ -30,13 +23,6 @@ struct VertexOut {
     @location(4) emissive: vec3f,
     @location(5) @interpolate(flat) double_sided: u32,
 }
-
-@group(0) @binding(0) var<storage, read> lights: array<Light>;
-@group(0) @binding(1) var<storage, read> shadow_mats: array<mat4x4f>;
-@group(0) @binding(2) var shadow_tex: texture_depth_2d_array;
-@group(0) @binding(3) var shadow_sampler: sampler_comparison;
-@group(1) @binding(0) var<uniform> params: ShadeParams;
-@group(1) @binding(1) var lightmap: texture_2d<f32>;
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {

@@ -1,17 +1,7 @@
 // Tone mapping of the HDR frame for display (runtime/src/tonemap.rs): exposure x radiance,
 // Reinhard, then sRGB encoding unless the target format encodes itself. One full-screen
 // triangle; the frame is read with textureLoad (rgba32float is not filterable everywhere).
-
-struct TonemapParams {
-    exposure: f32,
-    // 1: write sRGB-encoded values (a non-sRGB target); 0: write linear (an *Srgb target).
-    encode: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
-
-@group(0) @binding(0) var<uniform> params: TonemapParams;
-@group(0) @binding(1) var frame: texture_2d<f32>;
+// TonemapParams and the bindings: the generated prelude (runtime/src/contract.rs, tonemap.rs).
 
 @vertex
 fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4f {

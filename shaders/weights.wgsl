@@ -6,37 +6,11 @@
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
 // sum over its left-out clusters of w_c x energy_c / energy_g (prm::prm_file::Prm::
 // residual_weights), 0 without residual. selected is all compose.wgsl reads.
+//
+// Bindings (their meaning: runtime/src/weights.rs), IndirectParams, luminance and WG_LINEAR:
+// the generated prelude (runtime/src/contract.rs).
 
-struct Params {
-    entry_count: u32,
-    light_count: u32,
-    cluster_count: u32,
-    top_k: u32,
-    group_count: u32,
-    // 1: groups stand in for the clusters left out.
-    residual: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
-
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> entry_irradiance: array<vec4f>;
-// Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
-// (first child cluster, child count) into `indices` at ranges[C + g].
-@group(0) @binding(2) var<storage, read> ranges: array<vec2u>;
-@group(0) @binding(3) var<storage, read> indices: array<u32>;
-// Pane energy: C clusters, then G groups.
-@group(0) @binding(4) var<storage, read> energy: array<f32>;
-@group(0) @binding(5) var<storage, read_write> weights: array<vec4f>;
-@group(0) @binding(6) var<storage, read_write> scores: array<f32>;
-@group(0) @binding(7) var<storage, read_write> selected: array<vec4f>;
-
-
-fn luminance(c: vec3f) -> f32 {
-    return dot(c, vec3f(0.2126, 0.7152, 0.0722));
-}
-
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_LINEAR)
 fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     let c = id.x;
     if c >= params.cluster_count {
@@ -52,7 +26,7 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     scores[c] = luminance(w) * energy[c];
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_LINEAR)
 fn select_main(@builtin(global_invocation_id) id: vec3u) {
     let c = id.x;
     if c >= params.cluster_count {
@@ -70,7 +44,7 @@ fn select_main(@builtin(global_invocation_id) id: vec3u) {
     selected[c] = select(vec4f(0.0), weights[c], keep);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_LINEAR)
 fn residual_main(@builtin(global_invocation_id) id: vec3u) {
     let g = id.x;
     if g >= params.group_count {

@@ -53,8 +53,12 @@ pub use scene::{Camera, Material, Scene, Triangle};
 #[cfg(feature = "texels")]
 pub use texels::{Texel, TexelSet};
 
+/// Rec. 709 luminance weights of linear R, G and B; the GPU's `luminance` (the runtime's WGSL
+/// prelude) is generated from these.
+pub const LUMINANCE: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
 /// Rec. 709 luminance of a linear RGB value (DESIGN.md §3 metric, Russian roulette).
 #[inline]
 pub fn luminance(c: glam::Vec3) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+    LUMINANCE[0] * c.x + LUMINANCE[1] * c.y + LUMINANCE[2] * c.z
 }

@@ -91,16 +91,9 @@ impl Light {
         }
     }
 
-    /// glTF range window; 1 without a range.
+    /// glTF range window ([`range_window`]); 1 without a range.
     fn window(&self, dist: f32) -> f32 {
-        match self.range {
-            Some(r) if r > 0.0 => {
-                let x = dist / r;
-                let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
-                w * w
-            }
-            _ => 1.0,
-        }
+        self.range.map_or(1.0, |r| range_window(dist, r))
     }
 
     /// True when this is a point-like light (has a position).
@@ -108,6 +101,29 @@ impl Light {
         !matches!(self.kind, LightKind::Directional)
     }
 }
+
+/// glTF's smooth range window `clamp(1 - (distance/range)^4, 0, 1)^2` at `distance` from a
+/// light of `range` (scene units); 1 when `range` is not positive (no range).
+pub fn range_window(distance: f32, range: f32) -> f32 {
+    if !(range > 0.0) {
+        return 1.0;
+    }
+    let x = distance / range;
+    let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
+    w * w
+}
+
+/// [`range_window`] in WGSL, for the GPU (the runtime's shader prelude). The same operations in
+/// the same order, so both sides round alike; a GPU test holds them together.
+pub const RANGE_WINDOW_WGSL: &str = "fn range_window(distance: f32, range: f32) -> f32 {
+    if !(range > 0.0) {
+        return 1.0;
+    }
+    let x = distance / range;
+    let w = clamp(1.0 - x * x * x * x, 0.0, 1.0);
+    return w * w;
+}
+";
 
 /// glTF spot falloff for `cos_angle` = cos of the angle off the spot axis.
 pub fn spot_falloff(cos_angle: f32, inner: f32, outer: f32) -> f32 {

@@ -15,11 +15,40 @@
 
 use prm::prm_file::Prm;
 
-use crate::gpu::{self, buffer_entry, READ, UNIFORM};
-use crate::layout::{ComposeParams, TileRecord};
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE};
+use crate::gpu;
+use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 
-pub const SOURCE: &str = include_str!("../../shaders/compose.wgsl");
-const NO_SLOT: u32 = u32::MAX;
+/// The pass's one bind group.
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(ComposeParams::NAME), COMPUTE),
+    // The weight pass's output: C clusters, then G groups.
+    b("selected", Res::Read("array<vec4f>"), COMPUTE),
+    // Per atlas tile: (first record, record count).
+    b("tile_ranges", Res::Read("array<vec2u>"), COMPUTE),
+    b("records", Res::Read("array<TileRecord>"), COMPUTE),
+    // Per atlas texel: its slot among its atlas tile's stored texels, or NO_SLOT.
+    b("slots", Res::Read("array<u32>"), COMPUTE),
+    // f16 intensities, two per u32.
+    b("data", Res::Read("array<u32>"), COMPUTE),
+    b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba32Float), COMPUTE),
+    // records[k].cluster, densely (what the gather reads).
+    b("record_clusters", Res::Read("array<u32>"), COMPUTE),
+    b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
+    b("active_count", Res::ReadWrite("array<u32>"), COMPUTE),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "compose",
+    body: include_str!("../../shaders/compose.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[
+        Compute { entry: "gather_main", workgroup: LINEAR },
+        Compute { entry: "compose_main", workgroup: TILE },
+    ],
+};
 
 pub struct ComposePass {
     pipeline: wgpu::ComputePipeline,
@@ -60,7 +89,7 @@ impl ComposePass {
                 scale: t.scale.to_array(),
                 cluster: t.cluster,
                 data_offset: layout.offsets[k] as u32,
-                _pad: [0; 3],
+                ..Default::default()
             });
             texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
         }
@@ -79,7 +108,7 @@ impl ComposePass {
             tiles_x,
             tile_count: atlas_tiles as u32,
             active_stride: stride,
-            _pad: [0; 2],
+            ..Default::default()
         };
         let record_clusters: Vec<u32> = records.iter().map(|r| r.cluster).collect();
         let params = {
@@ -100,7 +129,7 @@ impl ComposePass {
         let active_buf = gpu::storage_buffer(
             device,
             "active records",
-            &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<crate::layout::ActiveRecord>()],
+            &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<ActiveRecord>()],
             none,
         );
         let count_buf = gpu::storage_buffer(device, "active counts", &vec![0u8; atlas_tiles * 4], none);
@@ -116,50 +145,29 @@ impl ComposePass {
                 | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
-        let c = wgpu::ShaderStages::COMPUTE;
-        let bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("compose"),
-            entries: &[
-                buffer_entry(0, c, UNIFORM),
-                buffer_entry(1, c, READ),
-                buffer_entry(2, c, READ),
-                buffer_entry(3, c, READ),
-                buffer_entry(4, c, READ),
-                buffer_entry(5, c, READ),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 6,
-                    visibility: c,
-                    ty: wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: wgpu::TextureFormat::Rgba32Float,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                    count: None,
-                },
-                buffer_entry(7, c, READ),
-                buffer_entry(8, c, gpu::WRITE),
-                buffer_entry(9, c, gpu::WRITE),
-            ],
-        });
+        let bgl = SHADER.layout(device, 0);
         let view = lightmap.create_view(&Default::default());
-        let buffers = [&params, selected, &ranges_buf, &records_buf, &slots_buf, &data_buf];
-        let mut entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-            .collect();
-        entries
-            .push(wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&view) });
-        for (i, b) in [&clusters_buf, &active_buf, &count_buf].iter().enumerate() {
-            entries.push(wgpu::BindGroupEntry { binding: 7 + i as u32, resource: b.as_entire_binding() });
-        }
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("compose"),
-            layout: &bgl,
-            entries: &entries,
-        });
-        let pipeline = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "compose_main", &[&bgl]);
-        let gather = gpu::compute_pipeline(device, "compose.wgsl", SOURCE, "gather_main", &[&bgl]);
+        let group = bind(
+            device,
+            "compose",
+            &bgl,
+            BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("selected", selected.as_entire_binding()),
+                ("tile_ranges", ranges_buf.as_entire_binding()),
+                ("records", records_buf.as_entire_binding()),
+                ("slots", slots_buf.as_entire_binding()),
+                ("data", data_buf.as_entire_binding()),
+                ("lightmap", wgpu::BindingResource::TextureView(&view)),
+                ("record_clusters", clusters_buf.as_entire_binding()),
+                ("active_records", active_buf.as_entire_binding()),
+                ("active_count", count_buf.as_entire_binding()),
+            ],
+        );
+        let source = SHADER.source();
+        let pipeline = gpu::compute_pipeline(device, "compose.wgsl", &source, "compose_main", &[&bgl]);
+        let gather = gpu::compute_pipeline(device, "compose.wgsl", &source, "gather_main", &[&bgl]);
         ComposePass {
             pipeline,
             gather,
@@ -191,9 +199,9 @@ impl ComposePass {
         });
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.gather);
-        pass.dispatch_workgroups(self.tiles.div_ceil(64), 1, 1);
+        pass.dispatch_workgroups(self.tiles.div_ceil(WG_LINEAR), 1, 1);
         pass.set_pipeline(&self.pipeline);
-        pass.dispatch_workgroups(self.size.0.div_ceil(8), self.size.1.div_ceil(8), 1);
+        pass.dispatch_workgroups(self.size.0.div_ceil(WG_TILE), self.size.1.div_ceil(WG_TILE), 1);
     }
 
     /// Bytes one compose reads and writes for this set of selected clusters: the selected

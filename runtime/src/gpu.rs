@@ -106,24 +106,6 @@ pub fn compute_pipeline(
     })
 }
 
-/// A bind group layout entry for a storage buffer (read-only or read-write) or a uniform.
-pub fn buffer_entry(
-    binding: u32,
-    stages: wgpu::ShaderStages,
-    ty: wgpu::BufferBindingType,
-) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: stages,
-        ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-        count: None,
-    }
-}
-
-pub const READ: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: true };
-pub const WRITE: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: false };
-pub const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
-
 /// A storage buffer holding `data`, padded to at least 256 bytes so an empty array (a level
 /// whose panes are all black has no tiles) still binds as one element of any of our structs.
 pub fn storage_buffer(
@@ -140,21 +122,6 @@ pub fn storage_buffer(
         contents: &bytes,
         usage: wgpu::BufferUsages::STORAGE | extra,
     })
-}
-
-/// A bind group of whole buffers, bound in order from binding 0.
-pub fn bind_buffers(
-    device: &wgpu::Device,
-    label: &str,
-    layout: &wgpu::BindGroupLayout,
-    buffers: &[&wgpu::Buffer],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = buffers
-        .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-        .collect();
-    device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
 }
 
 /// Copies `buffer` back to the CPU, waiting for the GPU (tests, exports, readbacks: not a

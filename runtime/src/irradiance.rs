@@ -4,15 +4,26 @@
 
 use glam::Vec3;
 
-use crate::gpu::{self, buffer_entry, READ, UNIFORM, WRITE};
-use crate::layout::GpuEntry;
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::gpu;
+use crate::layout::{GpuEntry, GpuStruct, IndirectParams};
+use crate::shadow::SHADOW_GROUP;
 
-const SOURCE: &str = include_str!("../../shaders/irradiance.wgsl");
+/// Group 1 of the pass (group 0 is [`SHADOW_GROUP`]).
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    b("entries", Res::Read("array<GpuEntry>"), COMPUTE),
+    b("entry_irradiance", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
 
-/// The full WGSL of the pass (light library + pass).
-pub fn source() -> String {
-    format!("{}\n{}", crate::lights::LIBRARY, SOURCE)
-}
+pub const SHADER: Shader = Shader {
+    stem: "irradiance",
+    body: include_str!("../../shaders/irradiance.wgsl"),
+    lights: true,
+    groups: &[SHADOW_GROUP, BINDINGS],
+    compute: &[Compute { entry: "entry_main", workgroup: LINEAR }],
+};
 
 pub struct EntryPass {
     pipeline: wgpu::ComputePipeline,
@@ -47,16 +58,22 @@ impl EntryPass {
             &vec![0u8; points.len() * 16],
             wgpu::BufferUsages::COPY_SRC,
         );
-        let c = wgpu::ShaderStages::COMPUTE;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("entry irradiance"),
-            entries: &[buffer_entry(0, c, UNIFORM), buffer_entry(1, c, READ), buffer_entry(2, c, WRITE)],
-        });
-        let group = gpu::bind_buffers(device, "entry irradiance", &layout, &[params, &entries, &output]);
+        let layout = SHADER.layout(device, 1);
+        let group = bind(
+            device,
+            "entry irradiance",
+            &layout,
+            BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("entries", entries.as_entire_binding()),
+                ("entry_irradiance", output.as_entire_binding()),
+            ],
+        );
         let pipeline = gpu::compute_pipeline(
             device,
             "irradiance.wgsl",
-            &source(),
+            &SHADER.source(),
             "entry_main",
             &[shadow_layout, &layout],
         );
@@ -77,6 +94,6 @@ impl EntryPass {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.group, &[]);
-        pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
     }
 }

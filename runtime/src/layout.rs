@@ -1,38 +1,109 @@
 //! Every structure the GPU reads or writes, in one place (STYLE.md §2).
 //!
-//! Each is `#[repr(C)]` + `bytemuck::Pod` and mirrors a WGSL struct of the same meaning; the
-//! test `runtime/tests/layout.rs` parses every shader with naga and checks the sizes and field
-//! offsets against these, so the two sides cannot drift apart silently.
+//! Each is declared once, through [`gpu_struct!`]: the macro writes the `#[repr(C)]` +
+//! `bytemuck::Pod` Rust struct and, from the same field list, its WGSL twin (same name, same
+//! fields, [`GpuStruct::wgsl`]), which [`crate::contract::prelude`] puts in front of every
+//! shader. Shaders never declare these structs themselves. WGSL lays structs out by its own
+//! alignment rules (a `vec3f` is 16-aligned), so the Rust side pads explicitly, with scalar
+//! `_padN` fields (a uniform buffer cannot hold `array<u32, N>`); the test
+//! `runtime/tests/layout.rs` lets naga lay out every generated struct and checks its size and
+//! field offsets against [`GpuStruct::FIELDS`] (taken from the Rust struct with `offset_of!`).
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
 use prm::{Light, LightKind};
 
-/// `Light` in `shaders/lights.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuLight {
-    pub position: [f32; 3],
-    /// 0 point, 1 spot, 2 directional.
-    pub kind: u32,
-    pub direction: [f32; 3],
-    /// glTF range in scene units; 0 = none.
-    pub range: f32,
-    /// W/sr (point, spot) or W/m² (directional).
-    pub intensity: [f32; 3],
-    /// First shadow-map layer of this light.
-    pub first_layer: u32,
-    pub cos_inner: f32,
-    pub cos_outer: f32,
-    /// World size of one shadow texel: per unit distance (perspective) or absolute (ortho).
-    pub texel: f32,
-    /// Shadow layers owned: 6 (cube) or 1.
-    pub layers: u32,
+use crate::contract::{KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT};
+
+/// One field of a [`GpuStruct`]: its name, WGSL type and byte offset in the Rust struct.
+#[derive(Clone, Copy, Debug)]
+pub struct Field {
+    pub name: &'static str,
+    pub wgsl: &'static str,
+    pub offset: usize,
 }
 
-pub const KIND_POINT: u32 = 0;
-pub const KIND_SPOT: u32 = 1;
-pub const KIND_DIRECTIONAL: u32 = 2;
+/// A Rust struct with a WGSL twin of the same layout (declared with [`gpu_struct!`]).
+pub trait GpuStruct: Pod {
+    /// The struct's name, in Rust and in WGSL.
+    const NAME: &'static str;
+    /// Its fields in declaration order, with their Rust offsets.
+    const FIELDS: &'static [Field];
+    /// Its size in bytes in Rust.
+    const SIZE: usize = std::mem::size_of::<Self>();
+
+    /// The WGSL declaration of the twin.
+    fn wgsl() -> String {
+        let mut s = format!("struct {} {{\n", Self::NAME);
+        for f in Self::FIELDS {
+            s += &format!("    {}: {},\n", f.name, f.wgsl);
+        }
+        s + "}\n"
+    }
+}
+
+/// The WGSL type of a Rust field type a [`GpuStruct`] may hold.
+pub trait WgslType {
+    const WGSL: &'static str;
+}
+
+macro_rules! wgsl_type {
+    ($($rust:ty => $wgsl:literal),* $(,)?) => {
+        $(impl WgslType for $rust {
+            const WGSL: &'static str = $wgsl;
+        })*
+    };
+}
+
+wgsl_type!(f32 => "f32", u32 => "u32", [f32; 2] => "vec2f", [f32; 3] => "vec3f", [f32; 4] => "vec4f",
+    [[f32; 4]; 4] => "mat4x4f");
+
+/// Declares a `#[repr(C)]`, `Pod` struct and implements [`GpuStruct`] for it from the same
+/// field list, so the Rust and WGSL sides cannot differ in names, types or order.
+macro_rules! gpu_struct {
+    ($(#[$meta:meta])* pub struct $name:ident {
+        $($(#[$fmeta:meta])* pub $field:ident: $ty:ty,)*
+    }) => {
+        $(#[$meta])*
+        #[repr(C)]
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+        pub struct $name {
+            $($(#[$fmeta])* pub $field: $ty,)*
+        }
+
+        impl GpuStruct for $name {
+            const NAME: &'static str = stringify!($name);
+            const FIELDS: &'static [Field] = &[$(Field {
+                name: stringify!($field),
+                wgsl: <$ty as WgslType>::WGSL,
+                offset: std::mem::offset_of!($name, $field),
+            }),*];
+        }
+    };
+}
+
+gpu_struct! {
+    /// A light as the shaders see it (`shaders/lights.wgsl`).
+    pub struct GpuLight {
+        pub position: [f32; 3],
+        /// [`KIND_POINT`], [`KIND_SPOT`] or [`KIND_DIRECTIONAL`].
+        pub kind: u32,
+        /// Unit direction the light points along (spot, directional).
+        pub direction: [f32; 3],
+        /// glTF range in scene units; 0 = none.
+        pub range: f32,
+        /// W/sr (point, spot) or W/m² (directional), per channel.
+        pub intensity: [f32; 3],
+        /// First shadow-map layer of this light.
+        pub first_layer: u32,
+        pub cos_inner: f32,
+        pub cos_outer: f32,
+        /// World size of one shadow texel: per unit distance (perspective) or absolute (ortho).
+        pub texel: f32,
+        /// Shadow layers owned: [`crate::contract::CUBE_LAYERS`] (cube) or 1.
+        pub layers: u32,
+    }
+}
 
 impl GpuLight {
     /// The GPU form of `l`, its shadow layers starting at `first_layer`.
@@ -57,81 +128,87 @@ impl GpuLight {
     }
 }
 
-/// `Entry` in `shaders/irradiance.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct GpuEntry {
-    pub position: [f32; 3],
-    pub _pad0: u32,
-    pub normal: [f32; 3],
-    pub _pad1: u32,
+gpu_struct! {
+    /// An entry point of the irradiance pass (`shaders/irradiance.wgsl`).
+    pub struct GpuEntry {
+        pub position: [f32; 3],
+        pub _pad0: u32,
+        /// Unit normal (zero: the entry gets no light).
+        pub normal: [f32; 3],
+        pub _pad1: u32,
+    }
 }
 
-/// `Params` in `shaders/irradiance.wgsl` and `shaders/weights.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct IndirectParams {
-    pub entry_count: u32,
-    pub light_count: u32,
-    pub cluster_count: u32,
-    /// Clusters composed per frame.
-    pub top_k: u32,
-    pub group_count: u32,
-    /// 1: groups stand in for the clusters left out.
-    pub residual: u32,
-    pub _pad: [u32; 2],
+gpu_struct! {
+    /// The uniform of `shaders/irradiance.wgsl` and `shaders/weights.wgsl`.
+    pub struct IndirectParams {
+        pub entry_count: u32,
+        pub light_count: u32,
+        pub cluster_count: u32,
+        /// Clusters composed per frame.
+        pub top_k: u32,
+        pub group_count: u32,
+        /// 1: groups stand in for the clusters left out.
+        pub residual: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+    }
 }
 
-/// `Params` in `shaders/compose.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct ComposeParams {
-    pub atlas_width: u32,
-    pub atlas_height: u32,
-    pub tile_size: u32,
-    pub tiles_x: u32,
-    /// Atlas tiles.
-    pub tile_count: u32,
-    /// Most stored tiles covering one atlas tile (the stride of the active lists).
-    pub active_stride: u32,
-    pub _pad: [u32; 2],
+gpu_struct! {
+    /// The uniform of `shaders/compose.wgsl`.
+    pub struct ComposeParams {
+        pub atlas_width: u32,
+        pub atlas_height: u32,
+        pub tile_size: u32,
+        pub tiles_x: u32,
+        /// Atlas tiles.
+        pub tile_count: u32,
+        /// Most stored tiles covering one atlas tile (the stride of the active lists).
+        pub active_stride: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+    }
 }
 
-/// `TileRecord` in `shaders/compose.wgsl`: one stored pane tile.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct TileRecord {
-    /// RGB scale of the tile's f16 intensities.
-    pub scale: [f32; 3],
-    pub cluster: u32,
-    /// Index (in f16 units) of the tile's first stored texel in the data buffer.
-    pub data_offset: u32,
-    pub _pad: [u32; 3],
+gpu_struct! {
+    /// One stored pane tile (`shaders/compose.wgsl`).
+    pub struct TileRecord {
+        /// RGB scale of the tile's f16 intensities.
+        pub scale: [f32; 3],
+        pub cluster: u32,
+        /// Index (in f16 units) of the tile's first stored texel in the data buffer.
+        pub data_offset: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
+    }
 }
 
-/// `ActiveRecord` in `shaders/compose.wgsl`: a stored tile of a selected pane, as the compose
-/// reads it.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct ActiveRecord {
-    /// The pane's weight times the tile's colour scale.
-    pub weighted_scale: [f32; 3],
-    pub data_offset: u32,
+gpu_struct! {
+    /// A stored tile of a selected pane, as the compose reads it (`shaders/compose.wgsl`).
+    pub struct ActiveRecord {
+        /// The pane's weight times the tile's colour scale.
+        pub weighted_scale: [f32; 3],
+        pub data_offset: u32,
+    }
 }
 
-/// `ShadeParams` in `shaders/shade.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct ShadeParams {
-    pub view_proj: [[f32; 4]; 4],
-    pub light_count: u32,
-    /// 1 to add the indirect lightmap, 0 for a direct-only frame.
-    pub indirect_scale: f32,
-    pub atlas_width: u32,
-    pub atlas_height: u32,
+gpu_struct! {
+    /// The uniform of `shaders/shade.wgsl`.
+    pub struct ShadeParams {
+        pub view_proj: [[f32; 4]; 4],
+        pub light_count: u32,
+        /// 1 to add the indirect lightmap, 0 for a direct-only frame.
+        pub indirect_scale: f32,
+        pub atlas_width: u32,
+        pub atlas_height: u32,
+    }
 }
 
-/// `VertexIn` in `shaders/shade.wgsl`: one corner of a level triangle, unindexed.
+/// `VertexIn` in `shaders/shade.wgsl`: one corner of a level triangle, unindexed. A vertex
+/// buffer, not a binding: [`ShadeVertex::ATTRIBUTES`] is its contract, checked by the layout
+/// test against these offsets and against the shader's inputs.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct ShadeVertex {
@@ -160,13 +237,32 @@ pub fn vec4(v: Vec3) -> [f32; 4] {
     [v.x, v.y, v.z, 0.0]
 }
 
-/// `TonemapParams` in `shaders/tonemap.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct TonemapParams {
-    /// Multiplies the radiance before the curve.
-    pub exposure: f32,
-    /// 1 to sRGB-encode in the shader (a non-sRGB target).
-    pub encode: u32,
-    pub _pad: [u32; 2],
+gpu_struct! {
+    /// The uniform of `shaders/tonemap.wgsl`.
+    pub struct TonemapParams {
+        /// Multiplies the radiance before the curve.
+        pub exposure: f32,
+        /// 1 to sRGB-encode in the shader (a non-sRGB target).
+        pub encode: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+    }
+}
+
+/// Every [`GpuStruct`], as `(name, WGSL declaration, size, fields)`: what the prelude declares
+/// and the layout test checks.
+pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
+    fn one<T: GpuStruct>() -> (&'static str, String, usize, &'static [Field]) {
+        (T::NAME, T::wgsl(), T::SIZE, T::FIELDS)
+    }
+    vec![
+        one::<GpuLight>(),
+        one::<GpuEntry>(),
+        one::<IndirectParams>(),
+        one::<ComposeParams>(),
+        one::<TileRecord>(),
+        one::<ActiveRecord>(),
+        one::<ShadeParams>(),
+        one::<TonemapParams>(),
+    ]
 }

@@ -8,10 +8,13 @@
 //! - [`cpu`]: the CPU twin of entry irradiance, weights, selection and compose, which the GPU
 //!   is tested against and which `prm` falls back to without an adapter.
 //!
-//! Shaders live in `shaders/`, each next to the module of the same stem; GPU layouts in
-//! [`layout`].
+//! Shaders live in `shaders/`, each next to the module of the same stem; what they share with
+//! Rust (constants, structs, bind groups, workgroup sizes) is generated from [`contract`],
+//! [`layout`] and [`bindings`].
 
+pub mod bindings;
 pub mod compose;
+pub mod contract;
 pub mod cpu;
 pub mod gpu;
 pub mod irradiance;

@@ -17,9 +17,11 @@ use glam::camera::rh::view::look_to_mat4;
 use glam::{Mat4, Vec3};
 use prm::{Light, LightKind};
 
+use crate::contract::CUBE_LAYERS;
 use crate::layout::GpuLight;
 
-/// The WGSL library prepended to every shader that lights surfaces.
+/// The WGSL library of every shader that lights surfaces (after the prelude and bindings,
+/// before the pass: [`crate::contract::Shader::source`]).
 pub const LIBRARY: &str = include_str!("../../shaders/lights.wgsl");
 
 /// Spot cones wider than this (half-angle, radians) get a cube of shadow maps.
@@ -75,8 +77,8 @@ pub fn validate(lights: &[Light]) -> Result<(), LightError> {
 /// Shadow layers a light owns.
 pub fn layers(l: &Light) -> u32 {
     match l.kind {
-        LightKind::Point => 6,
-        LightKind::Spot { outer, .. } if outer > SPOT_CUBE_ABOVE => 6,
+        LightKind::Point => CUBE_LAYERS,
+        LightKind::Spot { outer, .. } if outer > SPOT_CUBE_ABOVE => CUBE_LAYERS,
         _ => 1,
     }
 }

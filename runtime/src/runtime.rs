@@ -204,7 +204,7 @@ impl Runtime {
             top_k: self.params.top_k.min(u32::MAX as usize) as u32,
             group_count: self.groups as u32,
             residual: self.params.residual as u32,
-            _pad: [0; 2],
+            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }

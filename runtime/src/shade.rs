@@ -14,16 +14,28 @@ use glam::{Mat4, Vec3};
 use prm::{Camera, Scene};
 use wgpu::util::DeviceExt;
 
-use crate::layout::{mat, ShadeParams, ShadeVertex};
+use crate::bindings::{b, bind, Binding, Res, FRAGMENT, VERTEX_FRAGMENT};
+use crate::contract::Shader;
+use crate::layout::{mat, GpuStruct, ShadeParams, ShadeVertex};
 use crate::runtime::Runtime;
+use crate::shadow::SHADOW_GROUP;
 
-pub const SOURCE: &str = include_str!("../../shaders/shade.wgsl");
 const HDR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 
-/// The full WGSL of the pass (light library + pass).
-pub fn source() -> String {
-    format!("{}\n{}", crate::lights::LIBRARY, SOURCE)
-}
+/// Group 1 of the pass (group 0 is [`SHADOW_GROUP`]).
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(ShadeParams::NAME), VERTEX_FRAGMENT),
+    // The runtime's indirect lightmap (`Rgba32Float`, read with textureLoad).
+    b("lightmap", Res::Texture2d, FRAGMENT),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "shade",
+    body: include_str!("../../shaders/shade.wgsl"),
+    lights: true,
+    groups: &[SHADOW_GROUP, BINDINGS],
+    compute: &[],
+};
 
 pub struct Renderer {
     device: wgpu::Device,
@@ -73,39 +85,19 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let f = wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("shade"),
-            entries: &[
-                crate::gpu::buffer_entry(0, f, crate::gpu::UNIFORM),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-            ],
-        });
+        let layout = SHADER.layout(device, 1);
         let lightmap_view = runtime.lightmap().create_view(&Default::default());
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("shade"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&lightmap_view),
-                },
+        let group = bind(
+            device,
+            "shade",
+            &layout,
+            BINDINGS,
+            &[
+                ("params", params_buf.as_entire_binding()),
+                ("lightmap", wgpu::BindingResource::TextureView(&lightmap_view)),
             ],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("shade.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(source().into()),
-        });
+        );
+        let module = SHADER.module(device);
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shade"),
             bind_group_layouts: &[Some(&runtime.shadows().layout), Some(&layout)],

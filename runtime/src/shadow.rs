@@ -5,18 +5,42 @@
 //! re-rendered; a change of colour or intensity only rewrites the light buffer.
 //! [`ShadowMaps::layers_rendered`] counts layer renders so tests can check that.
 //!
-//! The bind group this module owns (group 0 of `irradiance.wgsl` and `shade.wgsl`): lights,
-//! layer matrices, the depth array and a comparison sampler (GreaterEqual, linear: each tap
-//! of the PCF is itself a bilinear blend of four comparisons).
+//! The bind group this module owns ([`SHADOW_GROUP`], group 0 of `irradiance.wgsl` and
+//! `shade.wgsl`): lights, layer matrices, the depth array and a comparison sampler
+//! (GreaterEqual, linear: each tap of the PCF is itself a bilinear blend of four comparisons).
 
 use glam::Vec3;
 use prm::{Light, Scene};
 use wgpu::util::DeviceExt;
 
+use crate::bindings::{b, bind, Binding, Res, LIT, VERTEX};
+use crate::contract::{Shader, CUBE_LAYERS};
 use crate::layout::{mat, GpuLight};
 use crate::lights::{self, Bounds, LightError};
 
-const SHADER: &str = include_str!("../../shaders/shadow.wgsl");
+/// Lights and shadow maps: group 0 of every shader that lights surfaces (with
+/// `shaders/lights.wgsl`).
+pub const SHADOW_GROUP: &[Binding] = &[
+    b("lights", Res::Read("array<GpuLight>"), LIT),
+    // One view-projection per shadow layer.
+    b("shadow_mats", Res::Read("array<mat4x4f>"), LIT),
+    b("shadow_tex", Res::DepthArray, LIT),
+    b("shadow_sampler", Res::ComparisonSampler, LIT),
+];
+
+/// The bind group of `shaders/shadow.wgsl`.
+pub const BINDINGS: &[Binding] = &[
+    // One view-projection per shadow layer, picked by the instance index.
+    b("layer_mats", Res::Read("array<mat4x4f>"), VERTEX),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "shadow",
+    body: include_str!("../../shaders/shadow.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[],
+};
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
 pub struct ShadowMaps {
@@ -63,39 +87,9 @@ impl ShadowMaps {
             Bounds { centre: Vec3::ZERO, radius: 1.0 }
         };
         let max_layers = device.limits().max_texture_array_layers;
-        let storage = |binding, stages| crate::gpu::buffer_entry(binding, stages, crate::gpu::READ);
-        let lit = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("lights + shadow maps"),
-            entries: &[
-                storage(0, lit),
-                storage(1, lit),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: lit,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 3,
-                    visibility: lit,
-                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-                    count: None,
-                },
-            ],
-        });
-        let mats_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("shadow layer matrices"),
-            entries: &[storage(0, wgpu::ShaderStages::VERTEX)],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("shadow.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
+        let layout = crate::bindings::layout(device, "lights + shadow maps", SHADOW_GROUP);
+        let mats_group_layout = SHADER.layout(device, 0);
+        let module = SHADER.module(device);
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow"),
             bind_group_layouts: &[Some(&mats_group_layout)],
@@ -137,15 +131,17 @@ impl ShadowMaps {
         });
         let mats_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow matrices"),
-            size: (max_layers.min(6 * prm::rig::MAX_LIGHTS as u32) as u64) * 64,
+            size: (max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) as u64) * 64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mats_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("shadow layer matrices"),
-            layout: &mats_group_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: mats_buf.as_entire_binding() }],
-        });
+        let mats_group = bind(
+            device,
+            "shadow layer matrices",
+            &mats_group_layout,
+            BINDINGS,
+            &[("layer_mats", mats_buf.as_entire_binding())],
+        );
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow comparison"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -183,7 +179,7 @@ impl ShadowMaps {
             return Ok(false);
         }
         let needed: u32 = lights.iter().map(lights::layers).sum();
-        if needed > self.max_layers.min(6 * prm::rig::MAX_LIGHTS as u32) {
+        if needed > self.max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) {
             return Err(LightError::TooManyLayers { needed, max: self.max_layers });
         }
         let (gpu, mats) = lights::pack(lights, self.size, self.bounds);
@@ -233,16 +229,18 @@ impl ShadowMaps {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
-        self.group = Some(self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("lights + shadow maps"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: self.lights_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: self.mats_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
-                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+        self.group = Some(bind(
+            &self.device,
+            "lights + shadow maps",
+            &self.layout,
+            SHADOW_GROUP,
+            &[
+                ("lights", self.lights_buf.as_entire_binding()),
+                ("shadow_mats", self.mats_buf.as_entire_binding()),
+                ("shadow_tex", wgpu::BindingResource::TextureView(&view)),
+                ("shadow_sampler", wgpu::BindingResource::Sampler(&self.sampler)),
             ],
-        }));
+        ));
         self.texture = Some((texture, layers));
     }
 

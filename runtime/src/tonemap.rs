@@ -2,9 +2,24 @@
 //! exposure, Reinhard, sRGB-encoded, drawn into any colour target (a window's surface in
 //! `prm view`). The same curve as the PNGs `prm render` writes.
 
-use crate::layout::TonemapParams;
+use crate::bindings::{b, bind, Binding, Res, FRAGMENT};
+use crate::contract::Shader;
+use crate::layout::{GpuStruct, TonemapParams};
 
-pub const SOURCE: &str = include_str!("../../shaders/tonemap.wgsl");
+/// The pass's one bind group.
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(TonemapParams::NAME), FRAGMENT),
+    // The renderer's HDR frame (`Rgba32Float`, read with textureLoad).
+    b("frame", Res::Texture2d, FRAGMENT),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "tonemap",
+    body: include_str!("../../shaders/tonemap.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[],
+};
 
 pub struct Tonemap {
     pipeline: wgpu::RenderPipeline,
@@ -16,26 +31,8 @@ pub struct Tonemap {
 impl Tonemap {
     /// A tone mapper drawing into targets of `format`.
     pub fn new(device: &wgpu::Device, format: wgpu::TextureFormat) -> Tonemap {
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tonemap"),
-            entries: &[
-                crate::gpu::buffer_entry(0, wgpu::ShaderStages::FRAGMENT, crate::gpu::UNIFORM),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-            ],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("tonemap.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(SOURCE.into()),
-        });
+        let layout = SHADER.layout(device, 0);
+        let module = SHADER.module(device);
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("tonemap"),
             bind_group_layouts: &[Some(&layout)],
@@ -80,17 +77,19 @@ impl Tonemap {
         target: &wgpu::TextureView,
         exposure: f32,
     ) {
-        let p = TonemapParams { exposure, encode: self.encode as u32, _pad: [0; 2] };
+        let p = TonemapParams { exposure, encode: self.encode as u32, ..Default::default() };
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&p));
         let view = frame.create_view(&Default::default());
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("tonemap"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: self.params.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&view) },
+        let group = bind(
+            device,
+            "tonemap",
+            &self.layout,
+            BINDINGS,
+            &[
+                ("params", self.params.as_entire_binding()),
+                ("frame", wgpu::BindingResource::TextureView(&view)),
             ],
-        });
+        );
         let mut enc =
             device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tonemap") });
         {

@@ -9,9 +9,37 @@
 use glam::Vec3;
 use prm::prm_file::Prm;
 
-use crate::gpu::{self, buffer_entry, READ, UNIFORM, WRITE};
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::gpu;
+use crate::layout::{GpuStruct, IndirectParams};
 
-pub const SOURCE: &str = include_str!("../../shaders/weights.wgsl");
+/// The pass's one bind group.
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
+    // Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
+    // (first child cluster, child count) into `indices` at ranges[C + g].
+    b("ranges", Res::Read("array<vec2u>"), COMPUTE),
+    b("indices", Res::Read("array<u32>"), COMPUTE),
+    // Pane energy: C clusters, then G groups.
+    b("energy", Res::Read("array<f32>"), COMPUTE),
+    b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
+    b("selected", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "weights",
+    body: include_str!("../../shaders/weights.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[
+        Compute { entry: "weights_main", workgroup: LINEAR },
+        Compute { entry: "select_main", workgroup: LINEAR },
+        Compute { entry: "residual_main", workgroup: LINEAR },
+    ],
+};
 
 pub struct WeightPass {
     weights_pipeline: wgpu::ComputePipeline,
@@ -78,42 +106,29 @@ impl WeightPass {
         let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
         let selected = gpu::storage_buffer(device, "selected weights", &vec![0u8; (n + g_count) * 16], rw);
 
-        let c = wgpu::ShaderStages::COMPUTE;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("weights"),
-            entries: &[
-                buffer_entry(0, c, UNIFORM),
-                buffer_entry(1, c, READ),
-                buffer_entry(2, c, READ),
-                buffer_entry(3, c, READ),
-                buffer_entry(4, c, READ),
-                buffer_entry(5, c, WRITE),
-                buffer_entry(6, c, WRITE),
-                buffer_entry(7, c, WRITE),
-            ],
-        });
-        let group = gpu::bind_buffers(
+        let layout = SHADER.layout(device, 0);
+        let group = bind(
             device,
             "weights",
             &layout,
-            &[params, entry_irradiance, &ranges, &indices, &energy, &weights, &scores, &selected],
+            BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("entry_irradiance", entry_irradiance.as_entire_binding()),
+                ("ranges", ranges.as_entire_binding()),
+                ("indices", indices.as_entire_binding()),
+                ("energy", energy.as_entire_binding()),
+                ("weights", weights.as_entire_binding()),
+                ("scores", scores.as_entire_binding()),
+                ("selected", selected.as_entire_binding()),
+            ],
         );
+        let source = SHADER.source();
+        let pipeline = |entry| gpu::compute_pipeline(device, "weights.wgsl", &source, entry, &[&layout]);
         WeightPass {
-            weights_pipeline: gpu::compute_pipeline(
-                device,
-                "weights.wgsl",
-                SOURCE,
-                "weights_main",
-                &[&layout],
-            ),
-            select_pipeline: gpu::compute_pipeline(device, "weights.wgsl", SOURCE, "select_main", &[&layout]),
-            residual_pipeline: gpu::compute_pipeline(
-                device,
-                "weights.wgsl",
-                SOURCE,
-                "residual_main",
-                &[&layout],
-            ),
+            weights_pipeline: pipeline("weights_main"),
+            select_pipeline: pipeline("select_main"),
+            residual_pipeline: pipeline("residual_main"),
             groups: g_count as u32,
             group,
             count: n as u32,
@@ -138,13 +153,13 @@ impl WeightPass {
         pass.set_bind_group(0, &self.group, &[]);
         if !uploaded {
             pass.set_pipeline(&self.weights_pipeline);
-            pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
         }
         pass.set_pipeline(&self.select_pipeline);
-        pass.dispatch_workgroups(self.count.div_ceil(64), 1, 1);
+        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
         if self.groups > 0 {
             pass.set_pipeline(&self.residual_pipeline);
-            pass.dispatch_workgroups(self.groups.div_ceil(64), 1, 1);
+            pass.dispatch_workgroups(self.groups.div_ceil(WG_LINEAR), 1, 1);
         }
     }
 

@@ -466,3 +466,66 @@ fn ranged_point_and_spot_lights_follow_the_gltf_window() {
         );
     }
 }
+
+/// The prelude's WGSL `range_window` and `luminance` (generated next to their Rust twins)
+/// against `prm::light::range_window` and `prm::luminance`, inputs on and around the window's
+/// edges. Tolerance 2e-6 relative: Vulkan allows 2.5 ulp for f32 division and may fuse the
+/// dot product's multiply-adds, so the GPU need not round exactly as the CPU does.
+#[test]
+fn the_prelude_functions_equal_their_rust_twins() {
+    use prm_runtime::bindings::{b, bind, declarations, layout, Res, COMPUTE};
+    let g = gpu();
+    let table = [
+        b("input", Res::Read("array<vec4f>"), COMPUTE),
+        b("output", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    ];
+    let body = "@compute @workgroup_size(WG_LINEAR)
+fn main(@builtin(global_invocation_id) id: vec3u) {
+    let v = input[id.x];
+    output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), 0.0, 0.0);
+}";
+    let src = format!("{}{}{}", prm_runtime::contract::prelude(), declarations(&[&table]), body);
+    let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
+    let mut input: Vec<[f32; 4]> = (0..prm_runtime::contract::WG_LINEAR * 4)
+        .map(|_| [rng.random_range(0.0..3.0), rng.random_range(-1.0..2.5), rng.random_range(0.0..5.0), 0.0])
+        .collect();
+    input.extend([[0.0, 2.0, 0.0, 0.0], [2.0, 2.0, 1.0, 0.0], [1.0, 0.0, 1.0, 0.0], [1.0, -1.0, 1.0, 0.0]]);
+    let n = input.len();
+    let in_buf = prm_runtime::gpu::storage_buffer(
+        &g.device,
+        "in",
+        bytemuck::cast_slice(&input),
+        wgpu::BufferUsages::empty(),
+    );
+    let out_buf =
+        prm_runtime::gpu::storage_buffer(&g.device, "out", &vec![0u8; n * 16], wgpu::BufferUsages::COPY_SRC);
+    let bgl = layout(&g.device, "twins", &table);
+    let group = bind(
+        &g.device,
+        "twins",
+        &bgl,
+        &table,
+        &[("output", out_buf.as_entire_binding()), ("input", in_buf.as_entire_binding())],
+    );
+    let pipeline = prm_runtime::gpu::compute_pipeline(&g.device, "twins", &src, "main", &[&bgl]);
+    let mut enc = g.device.create_command_encoder(&Default::default());
+    {
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups((n as u32).div_ceil(prm_runtime::contract::WG_LINEAR), 1, 1);
+    }
+    g.queue.submit([enc.finish()]);
+    let bytes = prm_runtime::gpu::read_buffer(&g.device, &g.queue, &out_buf).unwrap();
+    let out: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..n * 16]);
+    for (v, o) in input.iter().zip(out) {
+        let window = prm::light::range_window(v[0], v[1]);
+        let lum = prm::luminance(Vec3::new(v[0], v[1], v[2]));
+        assert!(
+            (o[0] - window).abs() <= 2e-6 * window.abs().max(1.0),
+            "range_window{v:?}: GPU {}, CPU {window}",
+            o[0]
+        );
+        assert!((o[1] - lum).abs() <= 2e-6 * lum.abs().max(1.0), "luminance{v:?}: GPU {}, CPU {lum}", o[1]);
+    }
+}

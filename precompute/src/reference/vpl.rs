@@ -10,6 +10,7 @@
 //! can be accounted for exactly: emitted = incident on first hits + escaped + absorbed by backs.
 
 use glam::Vec3;
+use prm::light::range_window;
 use prm::{Bvh, Light, LightKind, Scene};
 use rand::Rng;
 use rayon::prelude::*;
@@ -125,7 +126,7 @@ pub fn trace_photons(
                     };
                     if bounce == 1 && light.range.is_some() {
                         // glTF's range window, applied where the photon lands.
-                        flux *= range_window(light, hit.t);
+                        flux *= light.range.map_or(1.0, |r| range_window(hit.t, r));
                     }
                     let y = scene.point(t, hit.bary());
                     let power = flux * scene.albedo(t, hit.bary());
@@ -156,16 +157,4 @@ pub fn trace_photons(
         budgets.push(b);
     }
     (all, budgets)
-}
-
-/// glTF range window at distance `d` (1 without a range).
-fn range_window(light: &Light, d: f32) -> f32 {
-    match light.range {
-        Some(r) if r > 0.0 => {
-            let x = d / r;
-            let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
-            w * w
-        }
-        _ => 1.0,
-    }
 }
