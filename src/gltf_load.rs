@@ -8,7 +8,7 @@
 //! Bad input is an error that names the file and the place (mesh, primitive, index): a missing
 //! or unreadable file, a non-finite position, an out-of-range index, an albedo outside [0, 1],
 //! negative or non-finite light intensity, overlapping lightmap UVs (unless allowed).
-//! Zero-area triangles are dropped and counted in [`LoadReport`](crate::scene::LoadReport).
+//! Zero-area triangles are dropped and counted in [`crate::scene::LoadReport`].
 
 use std::path::{Path, PathBuf};
 

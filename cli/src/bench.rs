@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Result};
-use prm_runtime::timer::PassTimer;
+use prm_runtime::PassTimer;
 use prm_runtime::{Gpu, Renderer, Runtime};
 use serde::Serialize;
 
@@ -129,7 +129,7 @@ pub fn run(a: Args) -> Result<()> {
         renderer.wait();
     }
     let (mut direct, mut full, mut passes) = (Vec::new(), Vec::new(), Vec::new());
-    let composes_before = rt.composes;
+    let composes_before = rt.composes();
     for _ in 0..a.rounds {
         for f in 0..a.frames {
             let t = Instant::now();
@@ -149,7 +149,7 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
-    let composes = rt.composes - composes_before;
+    let composes = rt.composes() - composes_before;
     // Compose alone: the weights of the last frame, composed again and again.
     let selected = rt.read_selected()?;
     let bytes = rt.compose_bytes(&selected);

@@ -118,7 +118,7 @@ pub fn run(a: Args) -> Result<()> {
             println!(
                 "{} frames, {} composes, mean frame {:.2} ms on {} -> {}",
                 a.frames,
-                rt.composes,
+                rt.composes(),
                 total / a.frames as f64,
                 g.info.name,
                 a.output.display()

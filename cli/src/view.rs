@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use glam::Vec3;
 use prm::{Light, LightKind, Scene};
-use prm_runtime::tonemap::Tonemap;
+use prm_runtime::Tonemap;
 use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, WindowEvent};

@@ -230,7 +230,7 @@ impl ComposePass {
     }
 }
 
-/// What one compose moves, in bytes (see [`ComposePass::bytes`]).
+/// What one compose moves, in bytes (`Runtime::compose_bytes`).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ComposeBytes {
     pub pane_data: u64,

@@ -77,6 +77,7 @@ pub fn prelude() -> &'static str {
 
 /// A compute entry point and its workgroup size.
 #[derive(Clone, Copy, Debug)]
+#[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
 pub struct Compute {
     pub entry: &'static str,
     pub workgroup: [u32; 3],
@@ -100,6 +101,7 @@ pub struct Shader {
     /// Bind groups, group `g` = `groups[g]`.
     pub groups: &'static [&'static [Binding]],
     /// Compute entry points with their workgroup sizes (none for render shaders).
+    #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
     pub compute: &'static [Compute],
 }
 
@@ -138,6 +140,7 @@ impl Shader {
 }
 
 /// Every shader of the runtime.
+#[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
 pub const SHADERS: [&Shader; 6] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,

@@ -20,6 +20,7 @@ use crate::contract::{KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT};
 pub struct Field {
     pub name: &'static str,
     pub wgsl: &'static str,
+    #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
     pub offset: usize,
 }
 

@@ -70,8 +70,7 @@ pub struct Runtime {
     groups: usize,
     entry_count: u32,
     stale: bool,
-    /// Composes recorded so far (an update with unchanged lights adds none).
-    pub composes: u64,
+    composes: u64,
 }
 
 impl Runtime {
@@ -103,7 +102,7 @@ impl Runtime {
         });
         let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
         let points: Vec<(Vec3, Vec3)> = prm.entries().iter().map(|e| (e.position, e.normal)).collect();
-        let entries = EntryPass::new(device, &shadows.layout, &params_buf, &points);
+        let entries = EntryPass::new(device, shadows.layout(), &params_buf, &points);
         let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
         let compose = ComposePass::new(device, prm, &weights.selected);
         Ok(Runtime {
@@ -262,6 +261,11 @@ impl Runtime {
 
     pub fn params(&self) -> RuntimeParams {
         self.params
+    }
+
+    /// Composes recorded so far (an update with unchanged lights adds none).
+    pub fn composes(&self) -> u64 {
+        self.composes
     }
 }
 

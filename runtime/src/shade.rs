@@ -100,7 +100,7 @@ impl Renderer {
         let module = SHADER.module(device);
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shade"),
-            bind_group_layouts: &[Some(&runtime.shadows().layout), Some(&layout)],
+            bind_group_layouts: &[Some(runtime.shadows().layout()), Some(&layout)],
             immediate_size: 0,
         });
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {

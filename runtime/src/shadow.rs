@@ -43,6 +43,9 @@ pub const SHADER: Shader = Shader {
 };
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
+/// The lights' shadow maps in one depth array, with the light buffer: bind group 0 of the
+/// lighting shaders (`bindings` `SHADOW_GROUP`). A game shading with the same shadows binds
+/// [`ShadowMaps::group`] with [`ShadowMaps::layout`].
 pub struct ShadowMaps {
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -58,17 +61,17 @@ pub struct ShadowMaps {
     texture: Option<(wgpu::Texture, u32)>,
     sampler: wgpu::Sampler,
     /// Group 0 of the lighting shaders.
-    pub layout: wgpu::BindGroupLayout,
+    layout: wgpu::BindGroupLayout,
     group: Option<wgpu::BindGroup>,
     last: Option<Vec<Light>>,
     light_count: u32,
     /// Shadow layers rendered so far.
-    pub layers_rendered: u64,
+    layers_rendered: u64,
 }
 
 impl ShadowMaps {
     /// Shadow maps of `size` x `size` texels per layer for the level's triangles.
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, size: u32) -> ShadowMaps {
+    pub(crate) fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, size: u32) -> ShadowMaps {
         let positions: Vec<[f32; 3]> =
             (0..scene.triangles.len()).flat_map(|t| scene.corners(t)).map(|p| p.to_array()).collect();
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -173,7 +176,7 @@ impl ShadowMaps {
 
     /// Brings the maps and light buffer up to date with `lights`. Returns whether anything the
     /// lighting depends on changed (false: the last frame's light is still right).
-    pub fn update(&mut self, lights: &[Light]) -> Result<bool, LightError> {
+    pub(crate) fn update(&mut self, lights: &[Light]) -> Result<bool, LightError> {
         lights::validate(lights)?;
         if self.last.as_deref() == Some(lights) {
             return Ok(false);
@@ -283,8 +286,18 @@ impl ShadowMaps {
         self.layers_rendered += layers.len() as u64;
     }
 
+    /// The layout of [`ShadowMaps::group`].
+    pub fn layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+
+    /// Shadow layers rendered so far (a frame whose lights did not move renders none).
+    pub fn layers_rendered(&self) -> u64 {
+        self.layers_rendered
+    }
+
     /// Group 0 of the lighting shaders (lights, matrices, maps, sampler); `None` before the
-    /// first [`ShadowMaps::update`].
+    /// runtime's first update.
     pub fn group(&self) -> Option<&wgpu::BindGroup> {
         self.group.as_ref()
     }

@@ -36,7 +36,7 @@
 //! of the many weak clusters is kept in total and placed at the group's scale instead of lost.
 //!
 //! Loading checks, before using anything: magic, version, the checksum, every section length
-//! against the file ([`sections`]), then the invariants every [`Prm`] holds, however made
+//! against the file (`sections`), then the invariants every [`Prm`] holds, however made
 //! ([`Prm::new`]: every index against its table, tile ranges, finite values), and (when a
 //! scene is given) the [`crate::fingerprint`] of the scene geometry, lightmap UVs, albedos and
 //! atlas layout. Any mismatch is a [`PrmError`] naming the file and the problem. Writing is

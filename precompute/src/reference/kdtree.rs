@@ -15,7 +15,7 @@ pub struct Leaf<const D: usize> {
 /// The paper's weighting exponent.
 pub const RHO: f32 = 0.5;
 
-/// Index j (0-based, split between sorted[j] and sorted[j+1]) maximising the gap criterion over
+/// Index j (0-based, split between `sorted[j]` and `sorted[j+1]`) maximising the gap criterion over
 /// coordinates sorted ascending.
 pub fn gap_split(sorted: &[f32]) -> usize {
     let n = sorted.len();

@@ -32,7 +32,7 @@
 //! (scatter only with clamp 0); their expectations agree (tested on a tiny scene, and in the
 //! furnace).
 //!
-//! Files: [`region`] (which cluster owns a surface point), `gather` (the gather and MIS
+//! Files: `region` (which cluster owns a surface point), `gather` (the gather and MIS
 //! estimators), `scatter` (paper 004's virtual point lights); here the walk primitives they
 //! share and the dispatch.
 

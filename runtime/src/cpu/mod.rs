@@ -12,7 +12,7 @@
 //!    is recomposed (`CpuTwin::composes` counts the composes that did happen).
 //!
 //! Steps 2-4 ([`cluster_weights`], [`select_top_k`], [`compose_selected`]) are plain functions
-//! of the map, always built; step 1 and [`CpuTwin`]-style frames need the scene's BVH and rayon
+//! of the map, always built; step 1 and `CpuTwin` frames need the scene's BVH and rayon
 //! and come with the `cpu-twin` feature.
 
 mod compose;

@@ -4,12 +4,12 @@
 
 use std::sync::atomic::AtomicBool;
 
+use crate::irradiance::EntryPass;
+use crate::shadow::ShadowMaps;
+use crate::{cpu, Gpu, Renderer, Runtime, RuntimeParams};
 use glam::{Vec2, Vec3};
 use prm::prm_file::Prm;
 use prm::{Bvh, Light, LightKind, Scene};
-use prm_runtime::irradiance::EntryPass;
-use prm_runtime::shadow::ShadowMaps;
-use prm_runtime::{cpu, Gpu, Renderer, Runtime, RuntimeParams};
 use rand::{Rng, SeedableRng};
 
 fn gpu() -> Gpu {
@@ -57,11 +57,11 @@ fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec
     shadows.update(lights).unwrap();
     let params = g.device.create_buffer(&wgpu::BufferDescriptor {
         label: None,
-        size: std::mem::size_of::<prm_runtime::layout::IndirectParams>() as u64,
+        size: std::mem::size_of::<crate::layout::IndirectParams>() as u64,
         usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    let p = prm_runtime::layout::IndirectParams {
+    let p = crate::layout::IndirectParams {
         entry_count: points.len() as u32,
         light_count: lights.len() as u32,
         cluster_count: 0,
@@ -69,11 +69,11 @@ fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec
         ..Default::default()
     };
     g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
-    let pass = EntryPass::new(&g.device, &shadows.layout, &params, points);
+    let pass = EntryPass::new(&g.device, shadows.layout(), &params, points);
     let mut enc = g.device.create_command_encoder(&Default::default());
     pass.encode(&mut enc, shadows.group().unwrap(), None);
     g.queue.submit([enc.finish()]);
-    let bytes = prm_runtime::gpu::read_buffer(&g.device, &g.queue, &pass.output).unwrap();
+    let bytes = crate::gpu::read_buffer(&g.device, &g.queue, &pass.output).unwrap();
     let raw: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..points.len() * 16]);
     raw.iter().map(|a| Vec3::new(a[0], a[1], a[2])).collect()
 }
@@ -154,14 +154,14 @@ fn a_light_changing_only_colour_does_not_rerender_shadow_maps() {
     let mut shadows = ShadowMaps::new(&g.device, &g.queue, &scene, 64);
     let mut l = point(v(0.0, 2.0, 0.0), 1.0);
     assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
-    assert_eq!(shadows.layers_rendered, 6);
+    assert_eq!(shadows.layers_rendered(), 6);
     assert!(!shadows.update(std::slice::from_ref(&l)).unwrap());
     l.intensity = v(1.0, 0.5, 0.2);
     assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
-    assert_eq!(shadows.layers_rendered, 6, "a colour change re-rendered shadow maps");
+    assert_eq!(shadows.layers_rendered(), 6, "a colour change re-rendered shadow maps");
     l.position.x += 0.1;
     assert!(shadows.update(std::slice::from_ref(&l)).unwrap());
-    assert_eq!(shadows.layers_rendered, 12);
+    assert_eq!(shadows.layers_rendered(), 12);
 }
 
 #[test]
@@ -249,7 +249,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         // K = 5: the same clusters as the CPU's selection, and the same sum, with and without
         // the groups standing in for the clusters left out.
         rt.set_top_k(5).unwrap();
-        let top = prm_runtime::cpu::select_top_k(&w, &energies, 5);
+        let top = crate::cpu::select_top_k(&w, &energies, 5);
         let chosen: Vec<bool> = (0..c).map(|k| top.contains(&k)).collect();
         let layout = prm.layout();
         for residual in [false, true] {
@@ -291,7 +291,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     rt.update(&scene.lights).unwrap();
     // Entry irradiance: shadow maps vs shadow rays. The open box has no occluder between the
     // light and any entry, so they agree to float precision but for PCF at grazing entries.
-    let cpu_e = prm_runtime::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
+    let cpu_e = crate::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
     let gpu_e = rt.read_entry_irradiance().unwrap();
     let bad = cpu_e
         .iter()
@@ -314,7 +314,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         rt.set_top_k(k).unwrap();
         rt.update(&scene.lights).unwrap();
         let selected = rt.read_selected().unwrap();
-        let cpu_pick = prm_runtime::cpu::select_top_k(&rt.read_weights().unwrap(), &energies, k);
+        let cpu_pick = crate::cpu::select_top_k(&rt.read_weights().unwrap(), &energies, k);
         assert_eq!(
             (0..c).filter(|i| selected[*i]).collect::<Vec<_>>(),
             {
@@ -327,7 +327,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     }
     rt.set_top_k(c).unwrap();
     rt.update(&scene.lights).unwrap();
-    let mut twin = prm_runtime::cpu::CpuTwin::new(&prm, &bvh, c);
+    let mut twin = crate::cpu::CpuTwin::new(&prm, &bvh, c);
     let cpu = twin.frame(&scene.lights).to_vec();
     let gpu_l = rt.read_lightmap().unwrap();
     let m = prm::metric::compare(&gpu_l, &cpu, None);
@@ -381,12 +381,12 @@ fn thirty_moving_light_frames_on_chamber() {
         }
         last = Some(frame);
     }
-    assert_eq!(rt.composes, 30);
+    assert_eq!(rt.composes(), 30);
     // The same lights again: no compose, no shadow map, and the same frame.
-    let layers = rt.shadows().layers_rendered;
+    let layers = rt.shadows().layers_rendered();
     let lights = rig.frame(29, 30);
     assert!(!rt.update(&lights).unwrap().composed);
-    assert_eq!((rt.composes, rt.shadows().layers_rendered), (30, layers));
+    assert_eq!((rt.composes(), rt.shadows().layers_rendered()), (30, layers));
     renderer.draw(&rt, true, None);
     assert_eq!(renderer.read_frame().unwrap(), last.unwrap());
 }
@@ -473,7 +473,7 @@ fn ranged_point_and_spot_lights_follow_the_gltf_window() {
 /// dot product's multiply-adds, so the GPU need not round exactly as the CPU does.
 #[test]
 fn the_prelude_functions_equal_their_rust_twins() {
-    use prm_runtime::bindings::{b, bind, declarations, layout, Res, COMPUTE};
+    use crate::bindings::{b, bind, declarations, layout, Res, COMPUTE};
     let g = gpu();
     let table = [
         b("input", Res::Read("array<vec4f>"), COMPUTE),
@@ -484,21 +484,21 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
     let v = input[id.x];
     output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), 0.0, 0.0);
 }";
-    let src = format!("{}{}{}", prm_runtime::contract::prelude(), declarations(&[&table]), body);
+    let src = format!("{}{}{}", crate::contract::prelude(), declarations(&[&table]), body);
     let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
-    let mut input: Vec<[f32; 4]> = (0..prm_runtime::contract::WG_LINEAR * 4)
+    let mut input: Vec<[f32; 4]> = (0..crate::contract::WG_LINEAR * 4)
         .map(|_| [rng.random_range(0.0..3.0), rng.random_range(-1.0..2.5), rng.random_range(0.0..5.0), 0.0])
         .collect();
     input.extend([[0.0, 2.0, 0.0, 0.0], [2.0, 2.0, 1.0, 0.0], [1.0, 0.0, 1.0, 0.0], [1.0, -1.0, 1.0, 0.0]]);
     let n = input.len();
-    let in_buf = prm_runtime::gpu::storage_buffer(
+    let in_buf = crate::gpu::storage_buffer(
         &g.device,
         "in",
         bytemuck::cast_slice(&input),
         wgpu::BufferUsages::empty(),
     );
     let out_buf =
-        prm_runtime::gpu::storage_buffer(&g.device, "out", &vec![0u8; n * 16], wgpu::BufferUsages::COPY_SRC);
+        crate::gpu::storage_buffer(&g.device, "out", &vec![0u8; n * 16], wgpu::BufferUsages::COPY_SRC);
     let bgl = layout(&g.device, "twins", &table);
     let group = bind(
         &g.device,
@@ -507,16 +507,16 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
         &table,
         &[("output", out_buf.as_entire_binding()), ("input", in_buf.as_entire_binding())],
     );
-    let pipeline = prm_runtime::gpu::compute_pipeline(&g.device, "twins", &src, "main", &[&bgl]);
+    let pipeline = crate::gpu::compute_pipeline(&g.device, "twins", &src, "main", &[&bgl]);
     let mut enc = g.device.create_command_encoder(&Default::default());
     {
         let mut pass = enc.begin_compute_pass(&Default::default());
         pass.set_pipeline(&pipeline);
         pass.set_bind_group(0, &group, &[]);
-        pass.dispatch_workgroups((n as u32).div_ceil(prm_runtime::contract::WG_LINEAR), 1, 1);
+        pass.dispatch_workgroups((n as u32).div_ceil(crate::contract::WG_LINEAR), 1, 1);
     }
     g.queue.submit([enc.finish()]);
-    let bytes = prm_runtime::gpu::read_buffer(&g.device, &g.queue, &out_buf).unwrap();
+    let bytes = crate::gpu::read_buffer(&g.device, &g.queue, &out_buf).unwrap();
     let out: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..n * 16]);
     for (v, o) in input.iter().zip(out) {
         let window = prm::light::range_window(v[0], v[1]);

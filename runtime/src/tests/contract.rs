@@ -1,5 +1,5 @@
 //! The GPU contract (STYLE.md §2), checked without a GPU: every shader, assembled as the runtime
-//! assembles it (`prm_runtime::contract`), parses and validates with naga, and
+//! assembles it (`crate::contract`), parses and validates with naga, and
 //! - every struct of `layout.rs` has, as naga lays out its generated WGSL twin, the size and
 //!   field offsets of the Rust struct;
 //! - the set of `@group @binding`s equals the Rust bind-group tables', each with the table's
@@ -15,11 +15,11 @@
 use std::collections::BTreeMap;
 use std::mem::{offset_of, size_of};
 
+use crate::bindings::{Binding, Res};
+use crate::contract::{self, Compute, Shader, SHADERS};
+use crate::layout::{gpu_structs, Field, ShadeVertex};
 use naga::valid::{Capabilities, ModuleInfo, ValidationFlags, Validator};
 use naga::{AddressSpace, ImageClass, ImageDimension, Module, ScalarKind, StorageAccess, TypeInner};
-use prm_runtime::bindings::{Binding, Res};
-use prm_runtime::contract::{self, Compute, Shader, SHADERS};
-use prm_runtime::layout::{gpu_structs, Field, ShadeVertex};
 
 fn parse(label: &str, src: &str) -> (Module, ModuleInfo) {
     let module =
@@ -140,7 +140,7 @@ fn check_bindings(m: &Module, info: &ModuleInfo, groups: &[&[Binding]]) -> Vec<S
     }
     let mut rust = BTreeMap::new();
     for (gi, table) in groups.iter().enumerate() {
-        for entry in prm_runtime::bindings::layout_entries(table) {
+        for entry in crate::bindings::layout_entries(table) {
             rust.insert((gi as u32, entry.binding), (table[entry.binding as usize].name, entry));
         }
     }
@@ -241,7 +241,7 @@ fn the_shading_vertex_inputs_are_the_rust_vertex_attributes() {
     let last = ShadeVertex::ATTRIBUTES.last().unwrap();
     assert_eq!(last.offset as usize + last.format.size() as usize, size_of::<ShadeVertex>());
     // WGSL: vs_main's inputs have the attributes' locations, component counts and kinds.
-    let (m, _) = assembled(&prm_runtime::shade::SHADER);
+    let (m, _) = assembled(&crate::shade::SHADER);
     let vs = m.entry_points.iter().find(|e| e.name == "vs_main").expect("shade.wgsl has vs_main");
     let TypeInner::Struct { members, .. } = &m.types[vs.function.arguments[0].ty].inner else {
         panic!("vs_main takes a struct")
@@ -275,10 +275,10 @@ fn the_shading_vertex_inputs_are_the_rust_vertex_attributes() {
 
 #[test]
 fn a_wrong_binding_table_is_caught() {
-    use prm_runtime::bindings::{b, COMPUTE, FRAGMENT};
-    let shader = prm_runtime::compose::SHADER;
+    use crate::bindings::{b, COMPUTE, FRAGMENT};
+    let shader = crate::compose::SHADER;
     let (m, info) = assembled(&shader);
-    let table = prm_runtime::compose::BINDINGS;
+    let table = crate::compose::BINDINGS;
     assert!(check_bindings(&m, &info, &[table]).is_empty());
     // Read-write where the shader reads only.
     let mut access = table.to_vec();
@@ -308,8 +308,8 @@ fn a_wrong_binding_table_is_caught() {
 
 #[test]
 fn a_wrong_workgroup_size_or_entry_point_is_caught() {
-    let (m, _) = assembled(&prm_runtime::compose::SHADER);
-    let right = prm_runtime::compose::SHADER.compute;
+    let (m, _) = assembled(&crate::compose::SHADER);
+    let right = crate::compose::SHADER.compute;
     assert!(check_compute(&m, right).is_empty());
     let mut size = right.to_vec();
     size[0].workgroup = [32, 1, 1];
@@ -319,7 +319,7 @@ fn a_wrong_workgroup_size_or_entry_point_is_caught() {
 
 #[test]
 fn a_wrong_struct_layout_is_caught() {
-    let (m, _) = assembled(&prm_runtime::tonemap::SHADER);
+    let (m, _) = assembled(&crate::tonemap::SHADER);
     let fields = [
         Field { name: "exposure", wgsl: "f32", offset: 0 },
         Field { name: "encode", wgsl: "u32", offset: 4 },
