@@ -33,11 +33,16 @@ impl Control<'static> {
 impl Control<'_> {
     /// `Err(Cancelled)` once the cancel flag is set.
     pub fn check(&self) -> Result<(), Cancelled> {
-        if self.cancel.load(Ordering::Relaxed) {
-            Err(Cancelled)
-        } else {
-            Ok(())
-        }
+        stop_if(self.cancel)
+    }
+}
+
+/// `Err(Cancelled)` once `cancel` is set: the check between phases of a long computation.
+pub fn stop_if(cancel: &AtomicBool) -> Result<(), Cancelled> {
+    if cancel.load(Ordering::Relaxed) {
+        Err(Cancelled)
+    } else {
+        Ok(())
     }
 }
 

@@ -14,10 +14,10 @@ use prm::prm_file::{Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
-use crate::cluster::{centroids, cluster_entries};
+use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
 use crate::panes::tile_panes;
-use crate::parallel::{Cancelled, Control};
+use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
 use crate::transport::{Estimator, TexelPanes, Transport};
 use rayon::prelude::*;
@@ -177,87 +177,39 @@ pub fn precompute(
         threads: rayon::current_num_threads(),
         ..Default::default()
     };
-    let t = Instant::now();
-    let set = TexelSet::build(scene, params.atlas, params.atlas);
+    let set = timed(&mut report.seconds_texels, || TexelSet::build(scene, params.atlas, params.atlas));
     report.texels = set.len();
-    report.seconds_texels = t.elapsed().as_secs_f64();
     progress(Phase::Texels, 1, 1);
 
-    let t = Instant::now();
-    let sampled = sample_entries(scene, params.entries as usize, params.seed);
-    // Entries inside solids never see light; in a cluster's mean they would only dim it.
-    let enclosed: Vec<bool> = sampled
-        .par_iter()
-        .enumerate()
-        .map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64))
-        .collect();
-    let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
-    report.entries_enclosed = sampled.len() - entries.len();
-    report.seconds_entries = t.elapsed().as_secs_f64();
+    let mut seconds = 0.0;
+    let (entries, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
+    (report.seconds_entries, report.entries_enclosed) = (seconds, enclosed);
     progress(Phase::Entries, 1, 1);
-    if cancel.load(Ordering::Relaxed) {
-        return Err(Cancelled.into());
-    }
+    stop_if(cancel)?;
 
-    let t = Instant::now();
-    let clustering = cluster_entries(
-        &entries,
-        params.clusters as usize,
-        scene.total_area(),
-        params.kmeans_iterations as usize,
-        params.seed,
-    );
+    let clustering = timed(&mut report.seconds_clustering, || {
+        let k = params.clusters as usize;
+        cluster_entries(&entries, k, scene.total_area(), params.kmeans_iterations as usize, params.seed)
+    });
     let cents = centroids(&entries, &clustering);
     report.clusters = clustering.members.len() as u32;
-    report.seconds_clustering = t.elapsed().as_secs_f64();
     progress(Phase::Clustering, 1, 1);
-    if cancel.load(Ordering::Relaxed) {
-        return Err(Cancelled.into());
-    }
+    stop_if(cancel)?;
 
     let t = Instant::now();
-    let transport = Transport {
-        scene,
-        bvh,
-        entries: &entries,
-        assignment: &clustering.assignment,
-        clusters: clustering.members.len(),
-        paths: params.paths,
-        max_bounces: params.max_bounces,
-        seed: params.seed,
-        stats: Default::default(),
-    };
     let n = set.len();
     let on_texels = |done| progress(Phase::Transport, done, n);
-    let texel_panes = transport.run(params.estimator, &set, Control { progress: &on_texels, cancel })?;
+    let control = Control { progress: &on_texels, cancel };
+    let texel_panes = transport(scene, bvh, params, &entries, &clustering, &set, control, &mut report)?;
     report.seconds_transport = t.elapsed().as_secs_f64();
-    report.rays = transport.stats.rays.load(Ordering::Relaxed);
-    report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
-    report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
-    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
 
     let t = Instant::now();
     let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
-    let mut tiled = tile_panes(
-        &set,
-        kernel.as_deref(),
-        &texel_panes,
-        &clustering.members,
-        &cents,
-        params.tile_size,
-        params.drop_threshold,
-    );
-    let (groups, group_of) = group_panes(
-        scene,
-        &entries,
-        &clustering.members,
-        &cents,
-        &texel_panes,
-        params,
-        &set,
-        kernel.as_deref(),
-        &mut tiled,
-    );
+    let kernel = kernel.as_deref();
+    let (members, threshold) = (&clustering.members, params.drop_threshold);
+    let mut tiled = tile_panes(&set, kernel, &texel_panes, members, &cents, params.tile_size, threshold);
+    let (groups, group_of) =
+        group_panes(scene, &entries, members, &cents, &texel_panes, params, &set, kernel, &mut tiled);
     drop(texel_panes);
     report.seconds_panes = t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
@@ -268,20 +220,87 @@ pub fn precompute(
     report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
-    let header = Header {
+    let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
+    let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
+    let prm = Prm::new(PrmParts { header, entries, clusters, groups, group_of, tiles, mask, data })?;
+    Ok((prm, report))
+}
+
+/// `f()`, with its run time in seconds added to `seconds`.
+fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
+    let t = Instant::now();
+    let out = f();
+    *seconds += t.elapsed().as_secs_f64();
+    out
+}
+
+/// The entry points, less those inside solids (how many is the second value): they never see
+/// light, and in a cluster's mean they would only dim it.
+fn lit_entries(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams) -> (Vec<Entry>, usize) {
+    let sampled = sample_entries(scene, params.entries as usize, params.seed);
+    let enclosed: Vec<bool> = sampled
+        .par_iter()
+        .enumerate()
+        .map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64))
+        .collect();
+    let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
+    let enclosed = sampled.len() - entries.len();
+    (entries, enclosed)
+}
+
+/// The panes' contents at every texel (module `transport`), its counters into the report.
+#[allow(clippy::too_many_arguments)]
+fn transport(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+    entries: &[Entry],
+    clustering: &Clustering,
+    set: &TexelSet,
+    control: Control,
+    report: &mut Report,
+) -> Result<Vec<TexelPanes>, Cancelled> {
+    let transport = Transport {
+        scene,
+        bvh,
+        entries,
+        assignment: &clustering.assignment,
+        clusters: clustering.members.len(),
+        paths: params.paths,
+        max_bounces: params.max_bounces,
+        seed: params.seed,
+        stats: Default::default(),
+    };
+    let texel_panes = transport.run(params.estimator, set, control)?;
+    report.rays = transport.stats.rays.load(Ordering::Relaxed);
+    report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
+    report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
+    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
+    Ok(texel_panes)
+}
+
+/// The file header: what the map was baked for, its counts, and the parameters and counters
+/// the inputs fix (timings would break byte-for-byte determinism, so none go in).
+fn header(
+    scene: &Scene,
+    params: &PrecomputeParams,
+    report: &Report,
+    entries: usize,
+    tiled: &crate::panes::Tiled,
+    groups: usize,
+) -> Header {
+    Header {
         fingerprint: fingerprint_hex(scene, params.atlas, params.atlas),
         atlas_width: params.atlas,
         atlas_height: params.atlas,
         tile_size: params.tile_size,
-        entries: entries.len() as u32,
+        entries: entries as u32,
         clusters: tiled.clusters.len() as u32,
-        groups: groups.len() as u32,
+        groups: groups as u32,
         tiles: tiled.tiles.len() as u32,
         tiles_dropped: tiled.tiles_dropped,
         dropped_energy: tiled.dropped_energy,
         drop_threshold: params.drop_threshold,
-        // Only what the inputs fix goes in the file: timings would break byte-for-byte
-        // determinism.
         provenance: serde_json::json!({
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
@@ -291,18 +310,7 @@ pub fn precompute(
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,
         }),
-    };
-    let prm = Prm::new(PrmParts {
-        header,
-        entries,
-        clusters: tiled.clusters,
-        groups,
-        group_of,
-        tiles: tiled.tiles,
-        mask: tiled.mask,
-        data: tiled.data,
-    })?;
-    Ok((prm, report))
+    }
 }
 
 /// Groups the clusters (k-means on centroid and mean normal, area-weighted like the entries)
