@@ -4,7 +4,7 @@
 // energy_c. select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
-// sum over its left-out clusters of w_c x energy_c / energy_g (prm::prm_file::Prm::
+// sum over its left-out clusters of w_c x energy_c / energy_g (prm_runtime::cpu::
 // residual_weights), 0 without residual. selected is all compose.wgsl reads.
 //
 // Bindings (their meaning: runtime/src/weights.rs), IndirectParams, luminance and WG_LINEAR:

@@ -49,6 +49,18 @@ pub struct Incident {
 }
 
 impl Light {
+    /// A point light at `position` of `intensity` W/sr per channel, no range.
+    pub fn point(name: &str, position: Vec3, intensity: Vec3) -> Light {
+        Light {
+            name: name.into(),
+            kind: LightKind::Point,
+            position,
+            direction: -Vec3::Y,
+            intensity,
+            range: None,
+        }
+    }
+
     /// Light arriving at point `p`, not yet multiplied by the receiver's cosine or visibility.
     pub fn incident(&self, p: Vec3) -> Incident {
         match self.kind {
@@ -140,14 +152,7 @@ mod tests {
     use super::*;
 
     fn point(pos: Vec3, i: f32) -> Light {
-        Light {
-            name: "p".into(),
-            kind: LightKind::Point,
-            position: pos,
-            direction: -Vec3::Y,
-            intensity: Vec3::splat(i),
-            range: None,
-        }
+        Light::point("p", pos, Vec3::splat(i))
     }
 
     #[test]

@@ -277,7 +277,7 @@ fn precompute_evaluate_and_export_panes() {
     let bvh = prm::Bvh::build(&scene);
     let e = prm_runtime::cpu::entry_irradiance(&file, &bvh, &scene.lights);
     let want = prm_runtime::cpu::compose(&file, &prm_runtime::cpu::cluster_weights(&file, &e));
-    assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs Prm::compose");
+    assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();
     assert!(rgb.iter().all(|v| v.is_finite() && v.min_element() >= 0.0));
@@ -347,18 +347,7 @@ fn bake_reference_writes_layers_and_debug_lights() {
 #[test]
 fn rigs_drive_evaluate_and_ground_truth() {
     let dir = tempfile::tempdir().unwrap();
-    let prm_path = dir.path().join("c.prm");
-    let (ok, _, err) = prm(&[
-        "precompute",
-        &asset("cornell.glb"),
-        "--preset",
-        "preview",
-        "--atlas",
-        "32",
-        "-o",
-        s(&prm_path),
-    ]);
-    assert!(ok, "{err}");
+    let prm_path = cornell_preview_map(dir.path());
     let cornell = asset("cornell.glb");
     let evaluate = |rig: Option<&Path>, frame: &str, out: &Path| {
         let mut args = vec!["evaluate", &cornell, "--prm", s(&prm_path), "--top-k", "16"];
@@ -438,21 +427,20 @@ fn rigs_drive_evaluate_and_ground_truth() {
     assert!(!ok && err.contains("'sun'") && err.contains("no such light"), "{err}");
 }
 
+/// A preview .prm of cornell at 32² in `dir`.
+fn cornell_preview_map(dir: &Path) -> PathBuf {
+    let prm_path = dir.join("c.prm");
+    let args =
+        ["precompute", &asset("cornell.glb"), "--preset", "preview", "--atlas", "32", "-o", s(&prm_path)];
+    let (ok, _, err) = prm(&args);
+    assert!(ok, "{err}");
+    prm_path
+}
+
 /// A preview .prm of cornell at 32² and a rig moving its light sideways, in a temp folder.
 fn cornell_map_and_moving_rig() -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
-    let prm_path = dir.path().join("c.prm");
-    let (ok, _, err) = prm(&[
-        "precompute",
-        &asset("cornell.glb"),
-        "--preset",
-        "preview",
-        "--atlas",
-        "32",
-        "-o",
-        s(&prm_path),
-    ]);
-    assert!(ok, "{err}");
+    let prm_path = cornell_preview_map(dir.path());
     let rig = dir.path().join("rig.json");
     std::fs::write(
         &rig,

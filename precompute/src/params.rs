@@ -7,7 +7,7 @@ use std::fmt::Display;
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("{name} {value} must be {allowed}")]
 pub struct ParamError {
-    /// The parameter, as the CLI names it.
+    /// The parameter, as the CLI names it (without the dashes; words, not hyphens).
     pub name: &'static str,
     /// Its value, as given.
     pub value: String,

@@ -33,19 +33,21 @@ fn bake(threshold: f64) -> Prm {
     precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
-/// One pane (cluster c < C, group C + g) as a full-atlas image, composed from the file with
-/// weight 1 (one-hot cluster weights, the runtime-free compose).
+/// One pane (cluster c < C, group C + g) as a full-atlas image, decoded from the file's tiles
+/// (texel = tile scale x half-float intensity); for a cluster, also held to the runtime's CPU
+/// compose of a one-hot weight.
 fn pane(prm: &Prm, layout: &TileLayout, k: usize) -> Vec<Vec3> {
     let mut img = vec![Vec3::ZERO; (prm.header().atlas_width * prm.header().atlas_height) as usize];
+    for t in prm.pane_tiles(k, layout) {
+        for (&texel, v) in t.texels.iter().zip(t.data) {
+            img[texel as usize] = t.tile.scale * v.to_f32();
+        }
+    }
     let c = prm.clusters().len();
     if k < c {
         let mut w = vec![Vec3::ZERO; c];
         w[k] = Vec3::ONE;
-        let composed = cpu::compose(prm, &w);
-        cpu::add_pane(prm, k, Vec3::ONE, &mut img, layout);
-        assert_eq!(composed, img, "compose of a one-hot weight is not the pane");
-    } else {
-        cpu::add_pane(prm, k, Vec3::ONE, &mut img, layout);
+        assert_eq!(cpu::compose(prm, &w), img, "compose of a one-hot weight is not the pane");
     }
     img
 }

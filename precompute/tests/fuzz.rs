@@ -148,7 +148,6 @@ fn fuzz(
         in one load",
         n - ok
     );
-    assert_eq!(n, iterations, "{name}: not every mutation ran");
     (n, ok)
 }
 
@@ -207,7 +206,10 @@ fn mutated_prm_files_load_or_are_refused() {
     fuzz("prm-raw", &valid, |r, v| mutate(r, v.to_vec()), load);
     // Mutations with a valid checksum reach every section check.
     let (_, ok) = fuzz("prm-checksummed", &valid, |r, v| fix_checksum(mutate(r, v.to_vec())), load);
-    let (_, _) = fuzz("prm-header", &valid, mutate_header, load);
+    // Header numbers at boundary values: most are refused (counts that disagree with the
+    // sections, implausible atlases), some are harmless (statistics, provenance).
+    let (n, header_ok) = fuzz("prm-header", &valid, mutate_header, load);
+    assert!(header_ok > 0 && header_ok < n, "{header_ok} of {n} header mutations loaded");
     // Some checksummed mutations (inside pane data, say) are still valid files: the loader
     // must not refuse everything either.
     assert!(ok > 0, "no checksummed mutation loaded: the loader refuses valid files?");

@@ -333,7 +333,8 @@ fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
 fn a_cancelled_precompute_returns_nothing() {
     let scene = closed_box(0.5);
     let bvh = Bvh::build(&scene);
-    assert!(precompute(&scene, &bvh, &params(64, 4, 8, 16), &|_, _, _| {}, &AtomicBool::new(true)).is_err());
+    let result = precompute(&scene, &bvh, &params(64, 4, 8, 16), &|_, _, _| {}, &AtomicBool::new(true));
+    assert!(matches!(result, Err(PrecomputeError::Cancelled(_))), "{:?}", result.err());
 }
 
 #[test]

@@ -10,14 +10,7 @@ use prm_precompute::ground_truth::{GtParams, Tracer};
 use prm_precompute::reference::bake::{evaluate, virtual_lights, BakeParams};
 
 fn point_light(at: Vec3, i: f32) -> Light {
-    Light {
-        name: "p".into(),
-        kind: LightKind::Point,
-        position: at,
-        direction: -Vec3::Y,
-        intensity: Vec3::splat(i),
-        range: None,
-    }
+    Light::point("p", at, Vec3::splat(i))
 }
 
 /// A closed unit box, faces inward, with a point light inside.

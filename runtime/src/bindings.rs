@@ -5,7 +5,7 @@
 //! `@group(g) @binding(b) var ...` declarations ([`declarations`], put in front of the pass's
 //! WGSL by [`crate::contract::Shader::source`]) and fills the bind group by name ([`bind`]).
 //! Shaders never declare bindings themselves, so a layout and its shader cannot disagree about
-//! numbers, kinds or access; `runtime/tests/layout.rs` still parses every assembled shader with
+//! numbers, kinds or access; `runtime/src/tests/contract.rs` still parses every assembled shader with
 //! naga and checks each binding's kind, access and visibility against these tables.
 
 use std::fmt::Write;

@@ -6,7 +6,7 @@
 //! shader. Shaders never declare these structs themselves. WGSL lays structs out by its own
 //! alignment rules (a `vec3f` is 16-aligned), so the Rust side pads explicitly, with scalar
 //! `_padN` fields (a uniform buffer cannot hold `array<u32, N>`); the test
-//! `runtime/tests/layout.rs` lets naga lay out every generated struct and checks its size and
+//! `runtime/src/tests/contract.rs` lets naga lay out every generated struct and checks its size and
 //! field offsets against [`GpuStruct::FIELDS`] (taken from the Rust struct with `offset_of!`).
 
 use bytemuck::{Pod, Zeroable};

@@ -5,8 +5,9 @@
 //!   [`Runtime::update`] with each frame's lights, bind [`Runtime::lightmap`].
 //! - [`Renderer`]: draws a whole frame (direct light from the same shadow maps + albedo/pi x
 //!   the indirect lightmap) into an HDR target; used by `prm render`, `prm bench` and tests.
-//! - [`cpu`]: the CPU twin of entry irradiance, weights, selection and compose, which the GPU
-//!   is tested against and which `prm` falls back to without an adapter.
+//! - [`cpu`]: the CPU twin of weights, selection and compose, which the GPU is tested against;
+//!   with the `cpu-twin` feature also ray-traced entry irradiance and whole frames, which `prm`
+//!   falls back to without an adapter.
 //!
 //! # A frame in a game
 //!

@@ -29,14 +29,7 @@ fn gpu() -> Gpu {
 }
 
 fn point(p: Vec3, i: f32) -> Light {
-    Light {
-        name: "p".into(),
-        kind: LightKind::Point,
-        position: p,
-        direction: -Vec3::Y,
-        intensity: Vec3::splat(i),
-        range: None,
-    }
+    Light::point("p", p, Vec3::splat(i))
 }
 
 /// The six inward faces of an `s`-sized box, each on its own 10 x 10 block of whole texels of

@@ -4,7 +4,7 @@
 
 use std::collections::HashSet;
 
-use super::{tile_layout, PrmParts};
+use super::{tile_layout, Header, PrmParts};
 
 /// Largest atlas side and tile side a map may declare.
 const MAX_ATLAS: u32 = 65536;
@@ -13,18 +13,7 @@ const MAX_TILE: u32 = 4096;
 /// The first invariant `p` breaks, in words.
 pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
     let h = &p.header;
-    if h.tile_size == 0
-        || h.tile_size > MAX_TILE
-        || h.atlas_width == 0
-        || h.atlas_height == 0
-        || h.atlas_width > MAX_ATLAS
-        || h.atlas_height > MAX_ATLAS
-    {
-        return Err(format!(
-            "implausible atlas {}x{} / tile size {}",
-            h.atlas_width, h.atlas_height, h.tile_size
-        ));
-    }
+    atlas(h)?;
     counts(p)?;
     entries(p)?;
     tiles(p)?;
@@ -56,6 +45,23 @@ pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
         p.clusters.iter().position(|c| !(c.energy.is_finite() && c.energy >= 0.0 && c.centroid.is_finite()))
     {
         return Err(format!("cluster {c} has a non-finite energy or centroid"));
+    }
+    Ok(())
+}
+
+/// A plausible atlas and tile size (checked before any section is read, too).
+pub(super) fn atlas(h: &Header) -> Result<(), String> {
+    if h.tile_size == 0
+        || h.tile_size > MAX_TILE
+        || h.atlas_width == 0
+        || h.atlas_height == 0
+        || h.atlas_width > MAX_ATLAS
+        || h.atlas_height > MAX_ATLAS
+    {
+        return Err(format!(
+            "implausible atlas {}x{} / tile size {}",
+            h.atlas_width, h.atlas_height, h.tile_size
+        ));
     }
     Ok(())
 }

@@ -482,8 +482,85 @@ impl Prm {
         if fnv1a(FNV_START, body) != stored {
             return Err(PrmError::Checksum { path: path.into() });
         }
+        let corrupt = |what: String| PrmError::Corrupt { path: path.into(), what };
         let header: Header = serde_json::from_slice(&body[16..16 + header_len])
-            .map_err(|e| PrmError::Corrupt { path: path.into(), what: format!("header: {e}") })?;
+            .map_err(|e| corrupt(format!("header: {e}")))?;
+        check::atlas(&header).map_err(corrupt)?;
         Ok((header, body, 16 + header_len))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 4 x 4 atlas in one 4 x 4 tile, two entries in one cluster, one stored tile.
+    fn parts() -> PrmParts {
+        let entry = |x: f32| Entry {
+            position: Vec3::new(x, 0.0, 0.0),
+            normal: Vec3::Y,
+            albedo: Vec3::splat(0.5),
+            area: 0.25,
+            triangle: 0,
+        };
+        PrmParts {
+            header: Header {
+                atlas_width: 4,
+                atlas_height: 4,
+                tile_size: 4,
+                entries: 2,
+                clusters: 1,
+                tiles: 1,
+                ..Default::default()
+            },
+            entries: vec![entry(0.0), entry(1.0)],
+            clusters: vec![Cluster {
+                members: vec![0, 1],
+                centroid: Vec3::new(0.5, 0.0, 0.0),
+                energy: 1.0,
+                first_tile: 0,
+                tile_count: 1,
+            }],
+            tiles: vec![Tile { cluster: 0, index: 0, scale: Vec3::ONE }],
+            mask: pack_mask(&[true; 16]),
+            data: (0..16).map(|k| f16::from_f32(k as f32 / 16.0)).collect(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn valid_parts_make_a_map_that_round_trips() {
+        let prm = Prm::new(parts()).unwrap();
+        let back = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()).unwrap();
+        assert_eq!(back, prm);
+        assert_eq!(prm.pane_tiles(0, &prm.layout()).map(|t| t.texels.len()).sum::<usize>(), 16);
+    }
+
+    #[test]
+    fn every_broken_invariant_is_refused_with_its_reason() {
+        type Break = fn(&mut PrmParts);
+        let cases: Vec<(&str, Break)> = vec![
+            ("entries declared", |p| p.header.entries = 3),
+            ("groups declared", |p| p.header.groups = 1),
+            ("cluster groups declared", |p| p.group_of = vec![0]),
+            ("implausible atlas", |p| p.header.tile_size = 0),
+            ("non-finite", |p| p.entries[1].area = f32::NAN),
+            ("not an entry", |p| p.clusters[0].members[1] = 2),
+            ("out of range", |p| p.tiles[0].index = 1),
+            ("out of range", |p| p.tiles[0].scale.x = -1.0),
+            ("tile range is wrong", |p| p.clusters[0].tile_count = 2),
+            ("mask is", |p| p.mask.push(0)),
+            ("masked texels need", |p| {
+                p.data.pop();
+            }),
+            ("finite, non-negative intensity", |p| p.data[3] = f16::NAN),
+            ("non-finite energy", |p| p.clusters[0].energy = f32::INFINITY),
+        ];
+        for (reason, break_it) in cases {
+            let mut p = parts();
+            break_it(&mut p);
+            let err = Prm::new(p).expect_err(reason);
+            assert!(err.0.contains(reason), "expected '{reason}', got '{}'", err.0);
+        }
     }
 }

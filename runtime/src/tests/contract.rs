@@ -224,6 +224,33 @@ fn the_prelude_constants_have_the_rust_values() {
     }
 }
 
+/// What the prelude provides must not be written again in a shader's own WGSL: literal
+/// workgroup sizes, the slot sentinel, the cube's layer count, luminance weights, light kinds,
+/// or bindings and structs of their own (those would be checked, but could still drift).
+#[test]
+fn no_shader_writes_the_contract_by_hand() {
+    let lights = include_str!("../../../shaders/lights.wgsl");
+    let bodies = SHADERS.iter().map(|s| (s.stem, s.body)).chain([("lights", lights)]);
+    let forbidden = [
+        "@workgroup_size(6",
+        "@workgroup_size(8",
+        "0xffffffff",
+        "4294967295",
+        "== 6u",
+        "0.2126",
+        "0.7152",
+        "@group(",
+        "@binding(",
+        "struct GpuLight",
+        "struct IndirectParams",
+    ];
+    for (stem, body) in bodies {
+        for f in forbidden {
+            assert!(!body.contains(f), "shaders/{stem}.wgsl writes `{f}`: take it from the prelude");
+        }
+    }
+}
+
 #[test]
 fn the_shading_vertex_inputs_are_the_rust_vertex_attributes() {
     // Rust: each attribute's offset is its field's, and they end at the struct's end.

@@ -41,14 +41,7 @@ fn quads(qs: &[[Vec3; 4]]) -> Scene {
 }
 
 fn point(p: Vec3, i: f32) -> Light {
-    Light {
-        name: "p".into(),
-        kind: LightKind::Point,
-        position: p,
-        direction: -Vec3::Y,
-        intensity: Vec3::splat(i),
-        range: None,
-    }
+    Light::point("p", p, Vec3::splat(i))
 }
 
 /// GPU entry irradiance at arbitrary points, through the runtime's own shadow maps and pass.
