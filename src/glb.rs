@@ -110,147 +110,18 @@ impl GlbScene {
 
     /// The glTF JSON and its binary buffer.
     pub fn to_json_and_bin(&self) -> (Value, Vec<u8>) {
-        let mut bin: Vec<u8> = Vec::new();
-        let mut views = Vec::new();
-        let mut accessors = Vec::new();
-        let mut push = |bytes: &[u8],
-                        target: u32,
-                        comp: u32,
-                        count: usize,
-                        ty: &str,
-                        minmax: Option<(Vec<f32>, Vec<f32>)>|
-         -> usize {
-            while bin.len() % 4 != 0 {
-                bin.push(0);
-            }
-            views.push(
-                json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len(), "target": target}),
-            );
-            bin.extend_from_slice(bytes);
-            let mut acc =
-                json!({"bufferView": views.len() - 1, "componentType": comp, "count": count, "type": ty});
-            if let Some((lo, hi)) = minmax {
-                acc["min"] = json!(lo);
-                acc["max"] = json!(hi);
-            }
-            accessors.push(acc);
-            accessors.len() - 1
-        };
-        let f32_bytes = |v: &[f32]| -> Vec<u8> { v.iter().flat_map(|x| x.to_le_bytes()).collect() };
-        let mut meshes = Vec::new();
-        for m in &self.meshes {
-            let flat: Vec<f32> = m.positions.iter().flatten().copied().collect();
-            let (mut lo, mut hi) = (vec![f32::MAX; 3], vec![f32::MIN; 3]);
-            for p in &m.positions {
-                for k in 0..3 {
-                    if p[k].is_finite() {
-                        lo[k] = lo[k].min(p[k]);
-                        hi[k] = hi[k].max(p[k]);
-                    }
-                }
-            }
-            let mut attrs = serde_json::Map::new();
-            let pos = push(&f32_bytes(&flat), 34962, 5126, m.positions.len(), "VEC3", Some((lo, hi)));
-            attrs.insert("POSITION".into(), json!(pos));
-            if let Some(n) = &m.normals {
-                let flat: Vec<f32> = n.iter().flatten().copied().collect();
-                attrs.insert(
-                    "NORMAL".into(),
-                    json!(push(&f32_bytes(&flat), 34962, 5126, n.len(), "VEC3", None)),
-                );
-            }
-            if let Some(uv) = &m.uv1 {
-                let flat: Vec<f32> = uv.iter().flatten().copied().collect();
-                attrs.insert(
-                    "TEXCOORD_1".into(),
-                    json!(push(&f32_bytes(&flat), 34962, 5126, uv.len(), "VEC2", None)),
-                );
-            }
-            let mut prim = json!({"attributes": attrs, "mode": 4});
-            if let Some(idx) = &m.indices {
-                let bytes: Vec<u8> = idx.iter().flat_map(|x| x.to_le_bytes()).collect();
-                prim["indices"] = json!(push(&bytes, 34963, 5125, idx.len(), "SCALAR", None));
-            }
-            if let Some(mat) = m.material {
-                prim["material"] = json!(mat);
-            }
-            meshes.push(json!({"name": m.name, "primitives": [prim]}));
-        }
-        while bin.len() % 4 != 0 {
-            bin.push(0);
-        }
-        let materials: Vec<Value> = self
-            .materials
-            .iter()
-            .map(|m| {
-                json!({
-                    "name": m.name,
-                    "pbrMetallicRoughness": {
-                        "baseColorFactor": m.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0,
-                    },
-                    "emissiveFactor": m.emissive,
-                    "doubleSided": m.double_sided,
-                })
-            })
-            .collect();
-        let lights: Vec<Value> = self
-            .lights
-            .iter()
-            .map(|l| {
-                let mut v =
-                    json!({"name": l.name, "type": l.kind, "color": l.color, "intensity": l.intensity});
-                if l.kind == "spot" {
-                    v["spot"] = json!({"innerConeAngle": l.inner, "outerConeAngle": l.outer});
-                }
-                if let Some(r) = l.range {
-                    v["range"] = json!(r);
-                }
-                v
-            })
-            .collect();
+        let mut buffer = BinaryBuffer::default();
+        let meshes: Vec<Value> = self.meshes.iter().map(|m| mesh_json(m, &mut buffer)).collect();
+        buffer.align();
+        let materials: Vec<Value> = self.materials.iter().map(material_json).collect();
+        let lights: Vec<Value> = self.lights.iter().map(light_json).collect();
         let mut cameras = Vec::new();
-        let nodes: Vec<Value> = self
-            .nodes
-            .iter()
-            .map(|n| {
-                let mut v = json!({"name": n.name});
-                if let Some(m) = n.matrix {
-                    v["matrix"] = json!(m);
-                } else {
-                    if let Some(t) = n.translation {
-                        v["translation"] = json!(t);
-                    }
-                    if let Some(r) = n.rotation {
-                        v["rotation"] = json!(r);
-                    }
-                    if let Some(s) = n.scale {
-                        v["scale"] = json!(s);
-                    }
-                }
-                if let Some(m) = n.mesh {
-                    v["mesh"] = json!(m);
-                }
-                if let Some(l) = n.light {
-                    v["extensions"] = json!({"KHR_lights_punctual": {"light": l}});
-                }
-                if let Some((yfov, aspect)) = n.camera {
-                    cameras.push(json!({"name": n.name, "type": "perspective",
-                        "perspective": {"yfov": yfov, "aspectRatio": aspect, "znear": 0.01}}));
-                    v["camera"] = json!(cameras.len() - 1);
-                }
-                if !n.children.is_empty() {
-                    v["children"] = json!(n.children);
-                }
-                v
-            })
-            .collect();
-        let is_child: Vec<bool> =
-            (0..self.nodes.len()).map(|i| self.nodes.iter().any(|n| n.children.contains(&i))).collect();
-        let roots: Vec<usize> = (0..self.nodes.len()).filter(|&i| !is_child[i]).collect();
+        let nodes: Vec<Value> = self.nodes.iter().map(|n| node_json(n, &mut cameras)).collect();
+        let BinaryBuffer { bin, views, accessors } = buffer;
         let mut doc = json!({
             "asset": {"version": "2.0", "generator": "prm"},
             "scene": 0,
-            "scenes": [{"nodes": roots}],
+            "scenes": [{"nodes": self.root_nodes()}],
             "nodes": nodes,
             "meshes": meshes,
             "accessors": accessors,
@@ -270,11 +141,173 @@ impl GlbScene {
         (doc, bin)
     }
 
+    /// The nodes no other node lists as a child, in index order.
+    fn root_nodes(&self) -> Vec<usize> {
+        let is_child: Vec<bool> =
+            (0..self.nodes.len()).map(|i| self.nodes.iter().any(|n| n.children.contains(&i))).collect();
+        (0..self.nodes.len()).filter(|&i| !is_child[i]).collect()
+    }
+
     /// The `.glb` bytes.
     pub fn to_glb(&self) -> Vec<u8> {
         let (doc, bin) = self.to_json_and_bin();
         glb_bytes(&doc, &bin)
     }
+}
+
+/// glTF `bufferView.target` and `accessor.componentType` codes (OpenGL enums).
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+const UNSIGNED_INT: u32 = 5125;
+const FLOAT: u32 = 5126;
+
+/// The binary buffer being written, with a buffer view and an accessor per array in it.
+#[derive(Default)]
+struct BinaryBuffer {
+    bin: Vec<u8>,
+    views: Vec<Value>,
+    accessors: Vec<Value>,
+}
+
+impl BinaryBuffer {
+    /// Pad the buffer to a 4-byte boundary with zeros.
+    fn align(&mut self) {
+        while self.bin.len() % 4 != 0 {
+            self.bin.push(0);
+        }
+    }
+
+    /// Append `bytes` (4-byte aligned) with a buffer view and an accessor of `count` elements of
+    /// type `ty` and component type `comp`, optionally with per-component bounds; returns the
+    /// accessor index.
+    fn push(
+        &mut self,
+        bytes: &[u8],
+        target: u32,
+        comp: u32,
+        count: usize,
+        ty: &str,
+        minmax: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> usize {
+        self.align();
+        self.views.push(
+            json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len(), "target": target}),
+        );
+        self.bin.extend_from_slice(bytes);
+        let mut acc =
+            json!({"bufferView": self.views.len() - 1, "componentType": comp, "count": count, "type": ty});
+        if let Some((lo, hi)) = minmax {
+            acc["min"] = json!(lo);
+            acc["max"] = json!(hi);
+        }
+        self.accessors.push(acc);
+        self.accessors.len() - 1
+    }
+
+    /// Append float vectors (VEC2, VEC3) as a vertex attribute; returns the accessor index.
+    fn push_vertex_attribute<const N: usize>(
+        &mut self,
+        values: &[[f32; N]],
+        ty: &str,
+        minmax: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> usize {
+        let bytes: Vec<u8> = values.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        self.push(&bytes, ARRAY_BUFFER, FLOAT, values.len(), ty, minmax)
+    }
+}
+
+/// Per-component bounds of the finite coordinates of `positions` (glTF requires them on POSITION).
+fn position_bounds(positions: &[[f32; 3]]) -> (Vec<f32>, Vec<f32>) {
+    let (mut lo, mut hi) = (vec![f32::MAX; 3], vec![f32::MIN; 3]);
+    for p in positions {
+        for k in 0..3 {
+            if p[k].is_finite() {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// A mesh with its one triangle-list primitive; its arrays go into `buffer`.
+fn mesh_json(m: &GlbMesh, buffer: &mut BinaryBuffer) -> Value {
+    let mut attrs = serde_json::Map::new();
+    let pos = buffer.push_vertex_attribute(&m.positions, "VEC3", Some(position_bounds(&m.positions)));
+    attrs.insert("POSITION".into(), json!(pos));
+    if let Some(n) = &m.normals {
+        attrs.insert("NORMAL".into(), json!(buffer.push_vertex_attribute(n, "VEC3", None)));
+    }
+    if let Some(uv) = &m.uv1 {
+        attrs.insert("TEXCOORD_1".into(), json!(buffer.push_vertex_attribute(uv, "VEC2", None)));
+    }
+    let mut prim = json!({"attributes": attrs, "mode": 4});
+    if let Some(idx) = &m.indices {
+        let bytes: Vec<u8> = idx.iter().flat_map(|x| x.to_le_bytes()).collect();
+        prim["indices"] =
+            json!(buffer.push(&bytes, ELEMENT_ARRAY_BUFFER, UNSIGNED_INT, idx.len(), "SCALAR", None));
+    }
+    if let Some(mat) = m.material {
+        prim["material"] = json!(mat);
+    }
+    json!({"name": m.name, "primitives": [prim]})
+}
+
+/// A metallic-roughness material: the base colour, not metallic, fully rough.
+fn material_json(m: &GlbMaterial) -> Value {
+    json!({
+        "name": m.name,
+        "pbrMetallicRoughness": {
+            "baseColorFactor": m.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0,
+        },
+        "emissiveFactor": m.emissive,
+        "doubleSided": m.double_sided,
+    })
+}
+
+/// A `KHR_lights_punctual` light.
+fn light_json(l: &GlbLight) -> Value {
+    let mut v = json!({"name": l.name, "type": l.kind, "color": l.color, "intensity": l.intensity});
+    if l.kind == "spot" {
+        v["spot"] = json!({"innerConeAngle": l.inner, "outerConeAngle": l.outer});
+    }
+    if let Some(r) = l.range {
+        v["range"] = json!(r);
+    }
+    v
+}
+
+/// A node; its camera, if any, is appended to `cameras` and referenced by index.
+fn node_json(n: &GlbNode, cameras: &mut Vec<Value>) -> Value {
+    let mut v = json!({"name": n.name});
+    if let Some(m) = n.matrix {
+        v["matrix"] = json!(m);
+    } else {
+        if let Some(t) = n.translation {
+            v["translation"] = json!(t);
+        }
+        if let Some(r) = n.rotation {
+            v["rotation"] = json!(r);
+        }
+        if let Some(s) = n.scale {
+            v["scale"] = json!(s);
+        }
+    }
+    if let Some(m) = n.mesh {
+        v["mesh"] = json!(m);
+    }
+    if let Some(l) = n.light {
+        v["extensions"] = json!({"KHR_lights_punctual": {"light": l}});
+    }
+    if let Some((yfov, aspect)) = n.camera {
+        cameras.push(json!({"name": n.name, "type": "perspective",
+            "perspective": {"yfov": yfov, "aspectRatio": aspect, "znear": 0.01}}));
+        v["camera"] = json!(cameras.len() - 1);
+    }
+    if !n.children.is_empty() {
+        v["children"] = json!(n.children);
+    }
+    v
 }
 
 /// Pack a glTF JSON document and binary buffer into `.glb` container bytes.

@@ -1,0 +1,105 @@
+//! glTF 2.0 (`.gltf` and `.glb`) into a world-space [`Scene`].
+//!
+//! What is read: meshes through the node hierarchy (matrix or TRS), triangle primitives,
+//! normals (generated when absent), `baseColorFactor` x `baseColorTexture` as linear albedo,
+//! `emissiveFactor` x `KHR_materials_emissive_strength`, `TEXCOORD_1` as lightmap UVs,
+//! `KHR_lights_punctual` lights (units: [`crate::light`]) and perspective cameras.
+//!
+//! Bad input is an error that names the file and the place (mesh, primitive, index): a missing
+//! or unreadable file, a non-finite position, an out-of-range index, an albedo outside [0, 1],
+//! negative or non-finite light intensity, overlapping lightmap UVs (unless allowed).
+//! Zero-area triangles are dropped and counted in [`crate::scene::LoadReport`].
+
+mod error;
+mod lightmap;
+mod lights;
+mod material;
+mod nodes;
+mod primitive;
+mod texture;
+
+use std::path::Path;
+
+pub use error::{Place, SceneError};
+pub use texture::srgb_to_linear;
+
+use crate::scene::{LoadReport, Material, Scene};
+
+/// How to load a level.
+#[derive(Clone, Debug)]
+pub struct LoadOptions {
+    /// A primitive without `TEXCOORD_1` is an error instead of getting generated UVs.
+    pub require_uv1: bool,
+    /// Overlapping lightmap UVs are reported instead of being an error.
+    pub allow_overlap: bool,
+    /// Atlas resolution generated lightmap UVs are packed for (chart padding is 2 texels there).
+    pub unwrap_resolution: u32,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions { require_uv1: false, allow_overlap: false, unwrap_resolution: 256 }
+    }
+}
+
+/// Load a level file into a world-space scene.
+pub fn load_scene(path: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, SceneError> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|source| SceneError::Io { path: path.into(), source })?;
+    // The gltf crate is not hardened against every malformed file; a panic inside it must
+    // still reach the user as an error naming the file.
+    let result =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_from_bytes(path, &bytes, opts)));
+    match result {
+        Ok(r) => r,
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "the reader failed".into());
+            Err(SceneError::Malformed { path: path.into(), what })
+        }
+    }
+}
+
+/// The steps of reading a file, in order; the first error stops it.
+fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scene, SceneError> {
+    let (document, buffers) = parse(path, bytes)?;
+    let mut scene = Scene { source: path.display().to_string(), ..Default::default() };
+    let mut report = LoadReport::default();
+    let (materials, texture_of) = material::read_materials(path, &document)?;
+    scene.materials = materials;
+    scene.textures = texture::read_textures(path, &document, &buffers, &texture_of)?;
+    let default_material = scene.materials.len() as u32;
+    scene.materials.push(Material::default());
+
+    let reader = nodes::NodeReader { path, buffers: &buffers, texture_of: &texture_of, default_material };
+    let mut prims = Vec::new();
+    nodes::walk(path, &document, |node, world| {
+        reader.read_node(node, world, &mut prims, &mut scene, &mut report)
+    })?;
+
+    report.primitives_without_uv1 = lightmap::count_missing(path, &prims, opts)?;
+    if prims.iter().all(|p| p.indices.is_empty()) {
+        return Err(SceneError::NoGeometry { path: path.into() });
+    }
+    if report.primitives_without_uv1 > 0 {
+        lightmap::generate(path, &mut prims, opts, &mut report)?;
+    }
+    primitive::join_primitives(path, prims, &mut scene, &mut report)?;
+    if scene.triangles.is_empty() {
+        return Err(SceneError::NoGeometry { path: path.into() });
+    }
+    lightmap::check(path, &scene, opts, &mut report)?;
+    scene.report = report;
+    Ok(scene)
+}
+
+/// The glTF document and its buffers (a `.glb`'s own, or files beside `path`).
+fn parse(path: &Path, bytes: &[u8]) -> Result<(gltf::Document, Vec<gltf::buffer::Data>), SceneError> {
+    let gerr = |source| SceneError::Gltf { path: path.into(), source };
+    let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(bytes).map_err(gerr)?;
+    let buffers = gltf::import_buffers(&document, path.parent(), blob).map_err(gerr)?;
+    Ok((document, buffers))
+}
