@@ -14,8 +14,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Result};
+use prm::prm_file::Prm;
+use prm::rig::Rig;
+use prm::Light;
 use prm_runtime::PassTimer;
-use prm_runtime::{Gpu, Renderer, Runtime};
+use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
 use serde::Serialize;
 
 use crate::common::{load_rig, ComposeArgs, MapArgs};
@@ -113,100 +116,186 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--width must be 1 to 8192");
     }
     let params = a.compose.runtime(a.shadow_size)?;
-    let (scene, prm_file) = a.map.load()?;
-    let rig = load_rig(a.rig.as_deref(), &scene)?;
-    let cam = camera(&scene, None)?;
-    let (w, h) = cam.image_size(a.width);
-    let g = Gpu::new()?;
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
-    let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h)?;
-    let timer = PassTimer::new(&g.device, &g.queue);
-    let lights_at = |f: usize| rig.frame(f, a.frames);
-    // Warm-up: pipelines, first allocations.
-    for f in 0..3.min(a.frames) {
-        rt.update(&lights_at(f))?;
-        renderer.draw(&rt, true, None);
-        renderer.wait();
+    let mut bench = Bench::new(&a, params)?;
+    bench.warm_up()?;
+    let times = bench.frame_times(a.rounds)?;
+    let compose = bench.compose_alone()?;
+    let bandwidth = copy_bandwidth(&bench.g);
+    let report = bench.report(&a, times, compose, bandwidth);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
     }
-    let (mut direct, mut full, mut passes) = (Vec::new(), Vec::new(), Vec::new());
-    let composes_before = rt.composes();
-    for _ in 0..a.rounds {
-        for f in 0..a.frames {
-            let t = Instant::now();
-            rt.update_direct(&lights_at(f))?;
-            renderer.draw(&rt, false, None);
-            renderer.wait();
-            direct.push(t.elapsed().as_secs_f64() * 1e3);
+    print_text(&report);
+    Ok(())
+}
+
+/// The level, its map and rig on the GPU: what every measurement plays.
+struct Bench {
+    g: Gpu,
+    rt: Runtime,
+    renderer: Renderer,
+    timer: Option<PassTimer>,
+    params: RuntimeParams,
+    prm_file: Prm,
+    rig: Rig,
+    frames: usize,
+    size: (u32, u32),
+}
+
+/// Wall-clock frame times (ms) of every block, the per-pass GPU times of the full frames that
+/// composed, and how many composes the full frames did.
+struct FrameTimes {
+    direct: Vec<f64>,
+    full: Vec<f64>,
+    passes: Vec<Vec<f64>>,
+    composes: u64,
+}
+
+/// Compose alone: what it moves for the last frame's selection, and its wall-clock time (ms).
+struct ComposeAlone {
+    bytes: ComposeBytesJson,
+    wall_ms: f64,
+}
+
+impl Bench {
+    fn new(a: &Args, params: RuntimeParams) -> Result<Bench> {
+        let (scene, prm_file) = a.map.load()?;
+        let rig = load_rig(a.rig.as_deref(), &scene)?;
+        let cam = camera(&scene, None)?;
+        let (w, h) = cam.image_size(a.width);
+        let g = Gpu::new()?;
+        let rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
+        let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, w, h)?;
+        let timer = PassTimer::new(&g.device, &g.queue);
+        Ok(Bench { g, rt, renderer, timer, params, prm_file, rig, frames: a.frames, size: (w, h) })
+    }
+
+    fn lights_at(&self, f: usize) -> Vec<Light> {
+        self.rig.frame(f, self.frames)
+    }
+
+    /// Pipelines, first allocations.
+    fn warm_up(&mut self) -> Result<()> {
+        for f in 0..3.min(self.frames) {
+            self.rt.update(&self.lights_at(f))?;
+            self.renderer.draw(&self.rt, true, None);
+            self.renderer.wait();
         }
-        for f in 0..a.frames {
-            let t = Instant::now();
-            let up = rt.update_timed(&lights_at(f), timer.as_ref())?;
-            renderer.draw(&rt, true, timer.as_ref());
-            renderer.wait();
-            full.push(t.elapsed().as_secs_f64() * 1e3);
-            if let (Some(tm), true) = (&timer, up.composed) {
-                passes.push(tm.read_ms(&g.device, &g.queue)?);
+        Ok(())
+    }
+
+    /// `rounds` blocks of direct-only frames, each followed by a block of full frames.
+    fn frame_times(&mut self, rounds: usize) -> Result<FrameTimes> {
+        let mut t = FrameTimes { direct: Vec::new(), full: Vec::new(), passes: Vec::new(), composes: 0 };
+        let composes_before = self.rt.composes();
+        for _ in 0..rounds {
+            for f in 0..self.frames {
+                t.direct.push(self.direct_frame(f)?);
+            }
+            for f in 0..self.frames {
+                let (ms, passes) = self.full_frame(f)?;
+                t.full.push(ms);
+                t.passes.extend(passes);
             }
         }
+        t.composes = self.rt.composes() - composes_before;
+        Ok(t)
     }
-    let composes = rt.composes() - composes_before;
-    // Compose alone: the weights of the last frame, composed again and again.
-    let selected = rt.read_selected()?;
-    let bytes = rt.compose_bytes(&selected);
-    let weights: Vec<glam::Vec3> = {
-        let e = rt.read_entry_irradiance()?;
-        prm_runtime::cpu::cluster_weights(&prm_file, &e)
-    };
-    let reps = 20;
-    let t = Instant::now();
-    for _ in 0..reps {
-        rt.compose_weights(&weights)?;
+
+    /// One direct-only frame (shadow maps + shading), in ms.
+    fn direct_frame(&mut self, f: usize) -> Result<f64> {
+        let t = Instant::now();
+        self.rt.update_direct(&self.lights_at(f))?;
+        self.renderer.draw(&self.rt, false, None);
+        self.renderer.wait();
+        Ok(t.elapsed().as_secs_f64() * 1e3)
     }
-    renderer.wait();
-    let compose_wall = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
-    let bandwidth = copy_bandwidth(&g);
-    let total_bytes = bytes.pane_data + bytes.headers + bytes.tables + bytes.written;
-    let pass_median = |i: usize| stats(passes.iter().map(|p: &Vec<f64>| p[i]).collect()).median_ms;
-    let gpu_pass_ms = (!passes.is_empty()).then(|| PassTimes {
-        entry_irradiance: pass_median(0),
-        weights_selection: pass_median(1),
-        compose: pass_median(2),
-        shading: pass_median(3),
-    });
-    let report = Report {
-        device: g.describe(),
-        scene: a.map.scene.scene.display().to_string(),
-        width: w,
-        height: h,
-        top_k: params.top_k,
-        shadow_size: a.shadow_size,
-        lights: lights_at(0).len(),
-        clusters: prm_file.clusters().len(),
-        frames_per_block: a.frames,
-        rounds: a.rounds,
-        ratio_median: stats(full.clone()).median_ms / stats(direct.clone()).median_ms.max(1e-9),
-        direct_frame: stats(direct),
-        full_frame: stats(full),
-        composes,
-        compose_ms_gpu: gpu_pass_ms.as_ref().map(|p| p.compose),
-        gpu_pass_ms,
-        compose_ms_wall: compose_wall,
-        compose_bytes: total_bytes,
-        compose_bytes_detail: ComposeBytesJson {
+
+    /// One full frame, in ms, and its per-pass GPU times if it composed and timestamps exist.
+    fn full_frame(&mut self, f: usize) -> Result<(f64, Option<Vec<f64>>)> {
+        let t = Instant::now();
+        let up = self.rt.update_timed(&self.lights_at(f), self.timer.as_ref())?;
+        self.renderer.draw(&self.rt, true, self.timer.as_ref());
+        self.renderer.wait();
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        match (&self.timer, up.composed) {
+            (Some(tm), true) => Ok((ms, Some(tm.read_ms(&self.g.device, &self.g.queue)?))),
+            _ => Ok((ms, None)),
+        }
+    }
+
+    /// The weights of the last frame, composed again and again.
+    fn compose_alone(&mut self) -> Result<ComposeAlone> {
+        let selected = self.rt.read_selected()?;
+        let bytes = self.rt.compose_bytes(&selected);
+        let weights: Vec<glam::Vec3> = {
+            let e = self.rt.read_entry_irradiance()?;
+            prm_runtime::cpu::cluster_weights(&self.prm_file, &e)
+        };
+        let reps = 20;
+        let t = Instant::now();
+        for _ in 0..reps {
+            self.rt.compose_weights(&weights)?;
+        }
+        self.renderer.wait();
+        let wall_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+        let bytes = ComposeBytesJson {
             pane_data: bytes.pane_data,
             headers: bytes.headers,
             tables: bytes.tables,
             written: bytes.written,
             selected_clusters: selected.iter().filter(|s| **s).count(),
-        },
-        copy_bandwidth_gb_s: bandwidth / 1e9,
-        compose_at_bandwidth_ms: total_bytes as f64 / bandwidth * 1e3,
-    };
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
+        };
+        Ok(ComposeAlone { bytes, wall_ms })
     }
-    let r = &report;
+
+    /// Every figure, with what was measured; `bandwidth` in bytes per second.
+    fn report(&self, a: &Args, times: FrameTimes, compose: ComposeAlone, bandwidth: f64) -> Report {
+        let b = &compose.bytes;
+        let total_bytes = b.pane_data + b.headers + b.tables + b.written;
+        let gpu_pass_ms = pass_medians(&times.passes);
+        Report {
+            device: self.g.describe(),
+            scene: a.map.scene.scene.display().to_string(),
+            width: self.size.0,
+            height: self.size.1,
+            top_k: self.params.top_k,
+            shadow_size: a.shadow_size,
+            lights: self.lights_at(0).len(),
+            clusters: self.prm_file.clusters().len(),
+            frames_per_block: a.frames,
+            rounds: a.rounds,
+            ratio_median: stats(times.full.clone()).median_ms
+                / stats(times.direct.clone()).median_ms.max(1e-9),
+            direct_frame: stats(times.direct),
+            full_frame: stats(times.full),
+            composes: times.composes,
+            compose_ms_gpu: gpu_pass_ms.as_ref().map(|p| p.compose),
+            gpu_pass_ms,
+            compose_ms_wall: compose.wall_ms,
+            compose_bytes: total_bytes,
+            compose_bytes_detail: compose.bytes,
+            copy_bandwidth_gb_s: bandwidth / 1e9,
+            compose_at_bandwidth_ms: total_bytes as f64 / bandwidth * 1e3,
+        }
+    }
+}
+
+/// Median time of each GPU pass over the frames that composed; None without timestamps.
+fn pass_medians(passes: &[Vec<f64>]) -> Option<PassTimes> {
+    let pass_median = |i: usize| stats(passes.iter().map(|p: &Vec<f64>| p[i]).collect()).median_ms;
+    (!passes.is_empty()).then(|| PassTimes {
+        entry_irradiance: pass_median(0),
+        weights_selection: pass_median(1),
+        compose: pass_median(2),
+        shading: pass_median(3),
+    })
+}
+
+/// The figures as text.
+fn print_text(r: &Report) {
+    let bytes = &r.compose_bytes_detail;
     println!("device: {}", r.device);
     println!(
         "{} at {}x{}, {} lights, {} clusters, top-{}, shadow maps {}², {} x {} frames per kind",
@@ -242,8 +331,8 @@ pub fn run(a: Args) -> Result<()> {
         "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} clusters: pane data {:.2} MB, headers \
             {:.2} MB, tables {:.2} MB, lightmap written {:.2} MB)",
         r.compose_ms_wall,
-        total_bytes as f64 / 1e6,
-        r.compose_bytes_detail.selected_clusters,
+        r.compose_bytes as f64 / 1e6,
+        bytes.selected_clusters,
         bytes.pane_data as f64 / 1e6,
         bytes.headers as f64 / 1e6,
         bytes.tables as f64 / 1e6,
@@ -253,7 +342,6 @@ pub fn run(a: Args) -> Result<()> {
         "copy bandwidth: {:.1} GB/s -> compose at bandwidth {:.3} ms",
         r.copy_bandwidth_gb_s, r.compose_at_bandwidth_ms
     );
-    Ok(())
 }
 
 /// Bytes per second of a device-local buffer-to-buffer copy (read + write counted).

@@ -1,0 +1,207 @@
+//! `report.md`: the machine, device, seeds, the command, and every figure, one section per part
+//! of the report.
+
+use std::fmt::Write as _;
+
+use prm::Scene;
+
+use super::rig::{flicker, Frame};
+use super::sweeps::{Point, RuntimeSweep};
+use super::{Args, Budget, Figures};
+
+/// The whole report; `plots` says whether the PNGs were written (and are linked), `total` is
+/// the report's run time in seconds.
+pub fn markdown(a: &Args, b: &Budget, scene: &Scene, f: &Figures, plots: bool, total: f64) -> String {
+    let mut s = String::new();
+    header(&mut s, a, b, scene, f, total);
+    remake(&mut s, a, b);
+    precompute_section(&mut s, &f.prm, plots);
+    runtime_section(&mut s, b, f.prod, &f.runtime, plots);
+    reference_section(&mut s, &f.reference);
+    rig_section(&mut s, a, b, &f.frames, plots);
+    s
+}
+
+fn pct(x: f64) -> String {
+    format!("{:.2} %", x * 100.0)
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    format!("{cpu}, {} threads used", rayon::current_num_threads())
+}
+
+/// Title, command, machine, device, level, seeds and what the error is.
+fn header(s: &mut String, a: &Args, b: &Budget, scene: &Scene, f: &Figures, total: f64) {
+    let _ = writeln!(s, "# Accuracy and cost: {}\n", a.scene.scene.display());
+    let _ = writeln!(s, "Made by `{}` in {:.0} s.\n", std::env::args().collect::<Vec<_>>().join(" "), total);
+    let _ = writeln!(s, "- Machine: {}", machine());
+    let _ = writeln!(s, "- GPU device: {}", f.device);
+    let _ = writeln!(
+        s,
+        "- Level: {} triangles, {} lights; atlas {}²",
+        scene.triangles.len(),
+        scene.lights.len(),
+        b.atlas
+    );
+    let _ = writeln!(
+        s,
+        "- Seeds: {} for every stage, every rig frame's ground truth included (common random numbers)",
+        a.seed
+    );
+    let _ = writeln!(
+        s,
+        "- Error: DESIGN.md §3 normalised luminance RMSE of the indirect irradiance over \
+        covered texels against `prm ground-truth` at {} spp ({:.1} s), whose own noise is **{}**: an error \
+        figure includes it (remove it in quadrature for the method's own).\n",
+        b.gt_spp,
+        f.gt_seconds,
+        pct(f.gt_noise)
+    );
+}
+
+/// How to re-make each figure alone with the CLI.
+fn remake(s: &mut String, a: &Args, b: &Budget) {
+    let _ = writeln!(
+        s,
+        "Each figure can be re-made alone: `prm ground-truth SCENE --spp {} --seed {} -o \
+        gt.exr`, `prm precompute SCENE --entries N --paths M --clusters C --seed {} -o s.prm`, `prm evaluate \
+        SCENE --prm s.prm [--top-k K] -o e.exr` (CPU twin) or `prm render ... --lightmap-out` (GPU), `prm \
+        bake-reference SCENE --vpls P --cluster-size K --indirect-only -o r.exr`, then `prm compare X.exr \
+        gt.exr`.\n",
+        b.gt_spp, a.seed, a.seed
+    );
+}
+
+/// Rows of label, time, error and bias.
+fn budget_rows(s: &mut String, points: &[Point]) {
+    for p in points {
+        let _ =
+            writeln!(s, "| {} | {:.2} s | {} | {:+.2} % |", p.label, p.seconds, pct(p.error), p.bias * 100.0);
+    }
+}
+
+fn precompute_section(s: &mut String, prm: &[Point], plots: bool) {
+    let _ = writeln!(s, "## PRM: precompute budget (all panes, exact weights)\n");
+    if plots {
+        let _ = writeln!(s, "![error against precompute time](precompute.png)\n");
+    }
+    let _ = writeln!(
+        s,
+        "| entries N, paths M, clusters C | precompute | error | bias |\n| --- | --- | --- | --- |"
+    );
+    budget_rows(s, prm);
+}
+
+fn runtime_section(s: &mut String, b: &Budget, prod: (u32, u32, u32), sweep: &RuntimeSweep, plots: bool) {
+    let direct_ms = sweep.direct_ms;
+    let _ = writeln!(
+        s,
+        "\n## PRM: runtime budget (N={} M={} C={}, the level's lights)\n",
+        prod.0, prod.1, prod.2
+    );
+    if plots {
+        let _ = writeln!(s, "![error against frame time](runtime.png)\n");
+    }
+    if direct_ms.is_finite() {
+        let _ = writeln!(
+            s,
+            "Frame: {} px wide, shadow maps 1024², median of {} frames each recomposing \
+            (lights still, so shadow maps are not re-rendered). Direct-only frame: **{:.2} ms**.\n",
+            b.frame_width, b.frame_reps, direct_ms
+        );
+    } else {
+        let _ = writeln!(
+            s,
+            "No GPU adapter: times are the CPU twin's lightmap (ray-traced entry visibility, \
+            weights, selection, compose).\n"
+        );
+    }
+    let _ = writeln!(
+        s,
+        "| top-K | frame (ms) | error, + groups | bias | error, top-K alone | bias |\n| --- \
+        | --- | --- | --- | --- | --- |"
+    );
+    for (p, q) in sweep.with.iter().zip(&sweep.without) {
+        let ratio = if direct_ms.is_finite() {
+            format!(" ({:.2}x direct)", p.seconds * 1e3 / direct_ms)
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {:.2}{} | {} | {:+.2} % | {} | {:+.2} % |",
+            p.label,
+            p.seconds * 1e3,
+            ratio,
+            pct(p.error),
+            p.bias * 100.0,
+            pct(q.error),
+            q.bias * 100.0
+        );
+    }
+}
+
+fn reference_section(s: &mut String, reference: &[Point]) {
+    let _ = writeln!(s, "\n## Reference baker (virtual polygon lights)\n");
+    let _ = writeln!(s, "| photons, VPLs per light | bake | error | bias |\n| --- | --- | --- | --- |");
+    budget_rows(s, reference);
+}
+
+fn rig_section(s: &mut String, a: &Args, b: &Budget, frames: &[Frame], plots: bool) {
+    let _ = writeln!(
+        s,
+        "\n## Moving-light rig ({} frames{})\n",
+        frames.len(),
+        a.rig.as_ref().map_or(
+            ", the level's first light sweeping across the middle 40 % of its width".to_string(),
+            |r| format!(", {}", r.display())
+        )
+    );
+    if plots {
+        let _ = writeln!(s, "![error and flicker per frame](rig.png)\n");
+    }
+    let _ = writeln!(
+        s,
+        "Ground truth per frame at {} spp; reference at {} photons. Flicker: RMS over texels \
+        of the change of the (signed luminance) error from the previous frame, over the mean ground truth. \
+        Every frame's ground truth has the same seed, so its noise is largely common to consecutive frames \
+        and cancels in the change; \"lighting change\" is how much the ground truth itself moved.\n",
+        b.rig_gt_spp, b.rig_reference.0
+    );
+    rig_table(s, frames);
+}
+
+/// Per frame: the ground truth's noise, each method's error and, from the second frame, its
+/// flicker and the lighting change.
+fn rig_table(s: &mut String, frames: &[Frame]) {
+    let _ = writeln!(
+        s,
+        "| frame | GT noise | PRM top-32 | PRM all | reference | flicker top-32 | flicker \
+        all | flicker reference | lighting change |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
+    let fl = flicker(frames);
+    for (f, fr) in frames.iter().enumerate() {
+        let flick = if f == 0 {
+            "| - | - | - | - |".to_string()
+        } else {
+            let (v, floor) = fl[f - 1];
+            format!("| {} | {} | {} | {} |", pct(v[0]), pct(v[1]), pct(v[2]), pct(floor))
+        };
+        let _ = writeln!(
+            s,
+            "| {f} | {} | {} | {} | {} {flick}",
+            pct(fr.gt_noise),
+            pct(fr.errors[0]),
+            pct(fr.errors[1]),
+            pct(fr.errors[2])
+        );
+    }
+}

@@ -1,0 +1,171 @@
+//! `prm report`: how right each method is and what it costs, on one level, in one run.
+//!
+//! Every error is DESIGN.md §3's normalised luminance RMSE of the indirect irradiance over the
+//! covered texels, against `prm ground-truth` computed in the same run (its own noise is given
+//! beside it). The report sweeps:
+//! - the PRM's precompute budget (entries, paths, clusters): error of all panes with exact
+//!   (ray-traced) weights against precompute time;
+//! - its runtime budget (top-K, with and without the groups standing in for the left-out
+//!   clusters): error of the runtime's lightmap against frame time, on the GPU when an adapter
+//!   exists (else the CPU twin, said so);
+//! - the reference baker (photons, hence VPLs, and VPLs per virtual light);
+//! - a moving-light rig: per frame, the error of PRM top-32, PRM all panes and the reference,
+//!   and their flicker: the RMS change of the error image from one frame to the next, over the
+//!   mean ground truth. Every frame's ground truth uses the same seed (common random numbers),
+//!   so its noise changes little between frames and the flicker is mostly the method's own.
+//!
+//! Output: `report.md` (machine, device, seeds, the command, every figure) and PNG plots made
+//! with `plotters` (labels need a TrueType font: DejaVu, Liberation or Noto, as Debian's
+//! `fonts-dejavu-core` installs).
+
+mod markdown;
+mod measure;
+mod plots;
+mod rig;
+mod sweeps;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use prm::rig::Rig;
+use prm_runtime::Gpu;
+
+use crate::common::{load, SceneArgs};
+use measure::{ground_truth, Level};
+use rig::{default_rig, rig_frames, Frame};
+use sweeps::{precompute_sweep, reference_sweep, runtime_sweep, Point, RuntimeSweep};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Light rig for the moving-light part (default: the level's first light moving across
+    /// the middle 40 % of the level's width).
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// A smaller budget: under 15 minutes per bundled scene on 2 cores.
+    #[arg(long)]
+    quick: bool,
+    /// A tiny budget, for tests of the report itself.
+    #[arg(long, hide = true)]
+    smoke: bool,
+    /// Seed of every stage.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Output folder (created).
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// What a report spends.
+struct Budget {
+    atlas: u32,
+    gt_spp: u32,
+    rig_gt_spp: u32,
+    rig_frames: usize,
+    /// (entries, paths, clusters)
+    prm: Vec<(u32, u32, u32)>,
+    /// The configuration the runtime and rig parts use (index into `prm`).
+    production: usize,
+    top_k: Vec<usize>,
+    /// (photons, VPLs per virtual light at the first bounce)
+    reference: Vec<(usize, usize)>,
+    rig_reference: (usize, usize),
+    frame_width: u32,
+    frame_reps: usize,
+}
+
+impl Budget {
+    fn new(quick: bool, smoke: bool) -> Budget {
+        if smoke {
+            return Budget {
+                atlas: 32,
+                gt_spp: 16,
+                rig_gt_spp: 8,
+                rig_frames: 3,
+                prm: vec![(256, 8, 16), (512, 8, 32)],
+                production: 1,
+                top_k: vec![4, usize::MAX],
+                reference: vec![(2000, 64)],
+                rig_reference: (2000, 64),
+                frame_width: 32,
+                frame_reps: 2,
+            };
+        }
+        let mut b = Budget {
+            atlas: 256,
+            gt_spp: 1024,
+            rig_gt_spp: 128,
+            rig_frames: 6,
+            prm: vec![(1024, 32, 64), (2048, 64, 128), (4096, 128, 256), (4096, 256, 256)],
+            production: 2,
+            top_k: vec![8, 16, 32, 64, 128, usize::MAX],
+            reference: vec![(10_000, 64), (20_000, 64), (40_000, 64)],
+            rig_reference: (10_000, 64),
+            frame_width: 640,
+            frame_reps: 9,
+        };
+        if !quick {
+            b.gt_spp = 2048;
+            b.rig_gt_spp = 512;
+            b.rig_frames = 12;
+            b.prm.push((8192, 256, 512));
+            b.reference.extend([(80_000, 64), (40_000, 32)]);
+            b.rig_reference = (40_000, 64);
+        }
+        b
+    }
+}
+
+/// Every figure of the report.
+struct Figures {
+    /// The GPU adapter the runtime figures come from, or why there is none.
+    device: String,
+    gt_seconds: f64,
+    gt_noise: f64,
+    /// The production precompute budget (entries, paths, clusters).
+    prod: (u32, u32, u32),
+    prm: Vec<Point>,
+    runtime: RuntimeSweep,
+    reference: Vec<Point>,
+    frames: Vec<Frame>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let b = Budget::new(a.quick, a.smoke);
+    let start = Instant::now();
+    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let scene = load(&a.scene, b.atlas, true)?;
+    let rig = match &a.rig {
+        Some(p) => Rig::load(p, &scene.lights)?,
+        None => default_rig(&scene)?,
+    };
+    let level = Level::new(scene, b.atlas)?;
+    let gpu = Gpu::new().ok();
+    let figures = measure(&b, &level, &rig, gpu.as_ref(), a.seed)?;
+    let plots = plots::write_plots(&a.output, &figures, gpu.is_some())?;
+    let md = markdown::markdown(&a, &b, &level.scene, &figures, plots, start.elapsed().as_secs_f64());
+    prm::fsutil::write_bytes_atomic(&a.output.join("report.md"), md.as_bytes())
+        .with_context(|| "writing report.md")?;
+    println!("report -> {} ({:.0} s)", a.output.join("report.md").display(), start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The ground truth, the three sweeps and the rig, in that order.
+fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -> Result<Figures> {
+    let device = gpu
+        .map_or("none found: runtime figures from the CPU twin (ray-traced visibility)".to_string(), |g| {
+            g.describe()
+        });
+    eprintln!("ground truth ({} spp)...", b.gt_spp);
+    let t = Instant::now();
+    let (gt, gt_noise) = ground_truth(level, &level.scene.lights, b.gt_spp, seed)?;
+    let gt_seconds = t.elapsed().as_secs_f64();
+    let (prm, map) = precompute_sweep(b, level, &gt, seed)?;
+    eprintln!("runtime top-K sweep...");
+    let runtime = runtime_sweep(b, level, &map, &gt, gpu)?;
+    let reference = reference_sweep(b, level, &gt, seed)?;
+    let frames = rig_frames(b, level, rig, &map, gpu, seed)?;
+    Ok(Figures { device, gt_seconds, gt_noise, prod: b.prm[b.production], prm, runtime, reference, frames })
+}

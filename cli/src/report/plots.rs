@@ -1,0 +1,308 @@
+//! The report's PNG plots, made with `plotters`: error against precompute time, against frame
+//! time, and per frame of the rig with its flicker. Labels need a TrueType font (DejaVu,
+//! Liberation or Noto, as Debian's `fonts-dejavu-core` installs).
+
+use std::ops::Range;
+use std::path::Path;
+
+use anyhow::{anyhow, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::rig::{flicker, Frame};
+use super::sweeps::{Point, RuntimeSweep};
+use super::Figures;
+
+/// Writes precompute.png, runtime.png and rig.png into `output`; false (and a note) when no font
+/// is found, so no plots are made.
+pub fn write_plots(output: &Path, f: &Figures, gpu: bool) -> Result<bool> {
+    if !register_font() {
+        eprintln!(
+            "note: no TrueType font found (install fonts-dejavu-core); report.md written without plots"
+        );
+        return Ok(false);
+    }
+    plot_precompute(&output.join("precompute.png"), &f.prm, &f.reference)?;
+    plot_runtime(&output.join("runtime.png"), &f.runtime, gpu)?;
+    plot_rig(&output.join("rig.png"), &f.frames)?;
+    Ok(true)
+}
+
+/// Registers the first TrueType font found as plotters' "sans-serif".
+fn register_font() -> bool {
+    let candidates = [
+        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+        "/usr/share/fonts/truetype/noto/NotoSans-Regular.ttf",
+        "/usr/share/fonts/TTF/DejaVuSans.ttf",
+        "/Library/Fonts/Arial.ttf",
+        "C:\\Windows\\Fonts\\arial.ttf",
+    ];
+    for c in candidates {
+        if let Ok(bytes) = std::fs::read(c) {
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            if plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+const PRM_COLOUR: RGBColor = RGBColor(31, 119, 180);
+const REF_COLOUR: RGBColor = RGBColor(214, 39, 40);
+const PLAIN_COLOUR: RGBColor = RGBColor(150, 150, 150);
+const ALL_COLOUR: RGBColor = RGBColor(44, 160, 44);
+
+fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+    anyhow!("drawing a plot: {e}")
+}
+
+fn bounds(points: &[&Point], f: impl Fn(&Point) -> f64) -> (f64, f64) {
+    let v: Vec<f64> = points.iter().map(|p| f(p)).filter(|x| x.is_finite() && *x > 0.0).collect();
+    let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().cloned().fold(0.0, f64::max);
+    if lo.is_finite() && hi > 0.0 {
+        (lo, hi)
+    } else {
+        (1e-3, 1.0)
+    }
+}
+
+fn plot_precompute(path: &Path, prm: &[Point], reference: &[Point]) -> Result<()> {
+    let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let all: Vec<&Point> = prm.iter().chain(reference).collect();
+    let (t0, t1) = bounds(&all, |p| p.seconds);
+    let e1 = all.iter().map(|p| p.error * 100.0).filter(|e| e.is_finite()).fold(0.0, f64::max) * 1.15 + 0.5;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Indirect error against precompute / bake time", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d((t0 * 0.7..t1 * 1.4).log_scale(), 0.0..e1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time (s, log)")
+        .y_desc("error vs ground truth (%)")
+        .draw()
+        .map_err(plot_err)?;
+    for (points, colour, name) in [
+        (prm, PRM_COLOUR, "PRM, all panes (entries N, paths M, clusters C)"),
+        (reference, REF_COLOUR, "reference baker (photons, VPLs per light)"),
+    ] {
+        chart
+            .draw_series(LineSeries::new(
+                points.iter().map(|p| (p.seconds, p.error * 100.0)),
+                colour.stroke_width(2),
+            ))
+            .map_err(plot_err)?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart
+            .draw_series(points.iter().map(|p| Circle::new((p.seconds, p.error * 100.0), 4, colour.filled())))
+            .map_err(plot_err)?;
+        chart
+            .draw_series(points.iter().map(|p| {
+                Text::new(
+                    p.label.clone(),
+                    (p.seconds, p.error * 100.0 + e1 * 0.02),
+                    ("sans-serif", 12).into_font().color(&colour),
+                )
+            }))
+            .map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// The runtime plot's time axis (ms, the direct-only frame time included) and its top error (%).
+fn runtime_axes(sweep: &RuntimeSweep) -> (Range<f64>, f64) {
+    let direct_ms = sweep.direct_ms;
+    let all: Vec<&Point> = sweep.with.iter().chain(&sweep.without).collect();
+    let (t0, t1) = bounds(&all, |p| p.seconds * 1e3);
+    let (t0, t1) = if direct_ms.is_finite() { (t0.min(direct_ms), t1.max(direct_ms)) } else { (t0, t1) };
+    let e1 = (all.iter().map(|p| p.error * 100.0).filter(|e| e.is_finite()).fold(0.0, f64::max) * 1.1 + 0.5)
+        .min(120.0);
+    let pad = (t1 - t0).max(t1 * 0.05);
+    ((t0 - pad * 0.2).max(0.0)..t1 + pad * 0.2, e1)
+}
+
+fn plot_runtime(path: &Path, sweep: &RuntimeSweep, gpu: bool) -> Result<()> {
+    let (with, without, direct_ms) = (&sweep.with[..], &sweep.without[..], sweep.direct_ms);
+    let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let ms = |p: &Point| p.seconds * 1e3;
+    let (x_range, e1) = runtime_axes(sweep);
+    let caption = if gpu {
+        "Indirect error against frame time (GPU runtime, top-K)"
+    } else {
+        "Indirect error against lightmap time (CPU twin, top-K)"
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(caption, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range, 0.0..e1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc(if gpu { "full frame time (ms, median)" } else { "lightmap time (ms)" })
+        .y_desc("error vs ground truth (%)")
+        .draw()
+        .map_err(plot_err)?;
+    for (points, colour, name) in
+        [(with, PRM_COLOUR, "top-K + groups for the rest"), (without, PLAIN_COLOUR, "top-K alone")]
+    {
+        chart
+            .draw_series(LineSeries::new(
+                points.iter().map(|p| (ms(p), p.error * 100.0)),
+                colour.stroke_width(2),
+            ))
+            .map_err(plot_err)?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart
+            .draw_series(points.iter().map(|p| Circle::new((ms(p), p.error * 100.0), 4, colour.filled())))
+            .map_err(plot_err)?;
+        chart
+            .draw_series(points.iter().map(|p| {
+                Text::new(
+                    format!("K={}", p.label),
+                    (ms(p), (p.error * 100.0 + e1 * 0.02).min(e1 * 0.97)),
+                    ("sans-serif", 12).into_font().color(&colour),
+                )
+            }))
+            .map_err(plot_err)?;
+    }
+    if direct_ms.is_finite() {
+        chart
+            .draw_series(LineSeries::new([(direct_ms, 0.0), (direct_ms, e1)], BLACK.stroke_width(1)))
+            .map_err(plot_err)?
+            .label("direct-only frame")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+fn plot_rig(path: &Path, frames: &[Frame]) -> Result<()> {
+    let root = BitMapBackend::new(path, (900, 900)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let (top, bottom) = root.split_vertically(450);
+    plot_rig_errors(&top, frames)?;
+    plot_rig_flicker(&bottom, frames)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+const RIG_NAMES: [&str; 3] = ["PRM top-32 + groups", "PRM all panes", "reference baker"];
+const RIG_COLOURS: [RGBColor; 3] = [PRM_COLOUR, ALL_COLOUR, REF_COLOUR];
+
+/// The rig plot's upper half: each method's error per frame, and the ground truth's own noise.
+fn plot_rig_errors(area: &DrawingArea<BitMapBackend, Shift>, frames: &[Frame]) -> Result<()> {
+    let n = frames.len().max(2) as f64;
+    let e1 =
+        frames.iter().flat_map(|f| f.errors).map(|e| e * 100.0).filter(|e| e.is_finite()).fold(0.0, f64::max)
+            * 1.15
+            + 0.5;
+    let mut chart = ChartBuilder::on(area)
+        .caption("Error per frame of the moving-light rig", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(-0.2..n - 0.8, 0.0..e1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_labels(frames.len())
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .x_desc("frame")
+        .y_desc("error (%)")
+        .draw()
+        .map_err(plot_err)?;
+    for m in 0..3 {
+        let c = RIG_COLOURS[m];
+        chart
+            .draw_series(LineSeries::new(
+                frames.iter().enumerate().map(|(f, fr)| (f as f64, fr.errors[m] * 100.0)),
+                c.stroke_width(2),
+            ))
+            .map_err(plot_err)?
+            .label(RIG_NAMES[m])
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            frames.iter().enumerate().map(|(f, fr)| (f as f64, fr.gt_noise * 100.0)),
+            BLACK.stroke_width(1),
+        ))
+        .map_err(plot_err)?
+        .label("ground truth's own noise (error plot); lighting change (flicker plot)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+/// The rig plot's lower half: each method's flicker per transition, and the lighting change.
+fn plot_rig_flicker(area: &DrawingArea<BitMapBackend, Shift>, frames: &[Frame]) -> Result<()> {
+    let n = frames.len().max(2) as f64;
+    let flick = flicker(frames);
+    let f1 = flick
+        .iter()
+        .flat_map(|(v, floor)| v.iter().copied().chain([*floor]))
+        .map(|e| e * 100.0)
+        .filter(|e| e.is_finite())
+        .fold(0.0, f64::max)
+        * 1.15
+        + 0.5;
+    let mut chart = ChartBuilder::on(area)
+        .caption("Flicker: RMS change of the error image between frames", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.8..n - 0.8, 0.0..f1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_labels(frames.len())
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .x_desc("frame (change from the previous)")
+        .y_desc("flicker (% of mean)")
+        .draw()
+        .map_err(plot_err)?;
+    for m in 0..3 {
+        chart
+            .draw_series(LineSeries::new(
+                flick.iter().enumerate().map(|(f, (v, _))| ((f + 1) as f64, v[m] * 100.0)),
+                RIG_COLOURS[m].stroke_width(2),
+            ))
+            .map_err(plot_err)?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            flick.iter().enumerate().map(|(f, (_, floor))| ((f + 1) as f64, floor * 100.0)),
+            BLACK.stroke_width(1),
+        ))
+        .map_err(plot_err)?;
+    Ok(())
+}
