@@ -67,23 +67,30 @@ pub struct ComposePass {
     texels: u64,
 }
 
-impl ComposePass {
-    pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer) -> ComposePass {
+/// What the compose reads, built on the CPU once per map.
+struct Tables {
+    /// Each stored texel's place in its atlas tile's list (`NO_SLOT` elsewhere).
+    slots: Vec<u32>,
+    /// Per atlas tile, (first record, record count).
+    ranges: Vec<[u32; 2]>,
+    /// Stored tiles grouped by atlas tile, panes in order within each.
+    records: Vec<TileRecord>,
+    texels_per_cluster: Vec<u64>,
+    /// The most records any atlas tile has (at least 1).
+    stride: u32,
+}
+
+impl Tables {
+    fn new(prm: &Prm, atlas_tiles: usize) -> Tables {
         let layout = prm.layout();
-        let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
-        let ts = prm.header().tile_size;
-        let tiles_x = prm.tiles_x();
-        let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
-        // Slots: each stored texel's place in its atlas tile's list.
-        let mut slots = vec![NO_SLOT; (w * h) as usize];
+        let mut slots = vec![NO_SLOT; prm.texel_count()];
         for list in &layout.texels {
             for (k, &texel) in list.iter().enumerate() {
                 slots[texel as usize] = k as u32;
             }
         }
-        // Records grouped by atlas tile, clusters in order within each.
         let mut by_tile: Vec<Vec<TileRecord>> = vec![Vec::new(); atlas_tiles];
-        let mut texels_per_cluster = vec![0u64; prm.clusters().len() + prm.groups().len()];
+        let mut texels_per_cluster = vec![0u64; prm.pane_count()];
         for (k, t) in prm.tiles().iter().enumerate() {
             by_tile[t.index as usize].push(TileRecord {
                 scale: t.scale.to_array(),
@@ -99,8 +106,35 @@ impl ComposePass {
             ranges.push([records.len() as u32, list.len() as u32]);
             records.extend_from_slice(list);
         }
-        let data: &[u8] = bytemuck::cast_slice(prm.data());
         let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
+        Tables { slots, ranges, records, texels_per_cluster, stride }
+    }
+}
+
+/// The indirect lightmap the compose writes and shading reads.
+fn lightmap_texture(device: &wgpu::Device, w: u32, h: u32) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("indirect lightmap"),
+        size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Float,
+        usage: wgpu::TextureUsages::STORAGE_BINDING
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    })
+}
+
+impl ComposePass {
+    pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer) -> ComposePass {
+        let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
+        let ts = prm.header().tile_size;
+        let tiles_x = prm.tiles_x();
+        let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
+        let Tables { slots, ranges, records, texels_per_cluster, stride } = Tables::new(prm, atlas_tiles);
+        let data: &[u8] = bytemuck::cast_slice(prm.data());
         let params = ComposeParams {
             atlas_width: w,
             atlas_height: h,
@@ -133,18 +167,7 @@ impl ComposePass {
             none,
         );
         let count_buf = gpu::storage_buffer(device, "active counts", &vec![0u8; atlas_tiles * 4], none);
-        let lightmap = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("indirect lightmap"),
-            size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Float,
-            usage: wgpu::TextureUsages::STORAGE_BINDING
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let lightmap = lightmap_texture(device, w, h);
         let bgl = SHADER.layout(device, 0);
         let view = lightmap.create_view(&Default::default());
         let group = bind(

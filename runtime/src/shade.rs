@@ -97,75 +97,8 @@ impl Renderer {
                 ("lightmap", wgpu::BindingResource::TextureView(&lightmap_view)),
             ],
         );
-        let module = SHADER.module(device);
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("shade"),
-            bind_group_layouts: &[Some(runtime.shadows().layout()), Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shade"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: std::mem::size_of::<ShadeVertex>() as u64,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &ShadeVertex::ATTRIBUTES,
-                })],
-            },
-            primitive: wgpu::PrimitiveState {
-                front_face: wgpu::FrontFace::Ccw,
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(HDR.into())],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        let tex = |label, format, usage| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: &[],
-            })
-        };
-        let target = tex(
-            "hdr frame",
-            HDR,
-            wgpu::TextureUsages::RENDER_ATTACHMENT
-                | wgpu::TextureUsages::COPY_SRC
-                | wgpu::TextureUsages::TEXTURE_BINDING,
-        );
-        let depth =
-            tex("frame depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
-        let (lo, hi) = scene.bounds();
-        let diag = if lo.is_finite() && hi.is_finite() { (hi - lo).length().max(1e-30) } else { 1.0 };
-        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
-            camera.yfov,
-            width as f32 / height as f32,
-            diag * 1e-5,
-        );
+        let pipeline = pipeline(device, runtime.shadows().layout(), &layout);
+        let (target, depth) = frame_textures(device, width, height);
         let size = runtime.lightmap().size();
         Ok(Renderer {
             device: device.clone(),
@@ -177,7 +110,7 @@ impl Renderer {
             group,
             target,
             depth,
-            view_proj: proj * camera.to_world.inverse(),
+            view_proj: view_projection(scene, camera, width, height),
             atlas: (size.width, size.height),
         })
     }
@@ -270,4 +203,91 @@ pub fn shade_vertices(scene: &Scene) -> Vec<ShadeVertex> {
         }
     }
     out
+}
+
+/// The shading pipeline: group 0 the shadow maps and lights, group 1 the shading parameters
+/// and the lightmap; reverse-Z depth.
+fn pipeline(
+    device: &wgpu::Device,
+    shadows: &wgpu::BindGroupLayout,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::RenderPipeline {
+    let module = SHADER.module(device);
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("shade"),
+        bind_group_layouts: &[Some(shadows), Some(layout)],
+        immediate_size: 0,
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("shade"),
+        layout: Some(&pipeline_layout),
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<ShadeVertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &ShadeVertex::ATTRIBUTES,
+            })],
+        },
+        primitive: wgpu::PrimitiveState {
+            front_face: wgpu::FrontFace::Ccw,
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: wgpu::TextureFormat::Depth32Float,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs_main"),
+            compilation_options: Default::default(),
+            targets: &[Some(HDR.into())],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+/// The HDR colour target and its depth buffer.
+fn frame_textures(device: &wgpu::Device, width: u32, height: u32) -> (wgpu::Texture, wgpu::Texture) {
+    let tex = |label, format, usage| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    let target = tex(
+        "hdr frame",
+        HDR,
+        wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::TEXTURE_BINDING,
+    );
+    let depth = tex("frame depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
+    (target, depth)
+}
+
+/// The camera's reverse-Z infinite perspective times its view, near plane scaled to the level.
+fn view_projection(scene: &Scene, camera: &Camera, width: u32, height: u32) -> glam::Mat4 {
+    let (lo, hi) = scene.bounds();
+    let diag = if lo.is_finite() && hi.is_finite() { (hi - lo).length().max(1e-30) } else { 1.0 };
+    let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
+        camera.yfov,
+        width as f32 / height as f32,
+        diag * 1e-5,
+    );
+    proj * camera.to_world.inverse()
 }
