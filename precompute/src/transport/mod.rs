@@ -171,7 +171,8 @@ impl<'a> Transport<'a> {
             Estimator::Gather | Estimator::Mis => {
                 let total_area = self.scene.total_area();
                 let lookup = RegionLookup::new(self.entries, total_area);
-                let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats);
+                let owners =
+                    OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats, control.cancel)?;
                 let mis = (estimator == Estimator::Mis)
                     .then(|| MisTables::new(self.entries, self.assignment, self.clusters, total_area));
                 self.per_texel(texels, control, |scratch, t| {

@@ -2,14 +2,14 @@
 //! set of surface points whose nearest compatible, visible entry is one of its members.
 
 use std::collections::HashMap;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::Entry;
 use prm::{Bvh, Scene};
-use rayon::prelude::*;
 
 use super::TransportStats;
+use crate::parallel::{par_texels, Cancelled, Control};
 
 /// Which entry owns a surface point: nearest compatible, visible entry, found on a grid.
 pub struct RegionLookup<'a> {
@@ -86,26 +86,30 @@ pub struct OwnerMap {
 }
 
 impl OwnerMap {
-    /// Find every covered texel's owning entry and record its cluster.
+    /// Find every covered texel's owning entry and record its cluster (a pass over the texels
+    /// of its own, stopped by the run's cancel flag; its progress is not reported).
     pub fn build(
         set: &prm::TexelSet,
         lookup: &RegionLookup,
         assignment: &[u32],
         bvh: &Bvh,
         stats: &TransportStats,
-    ) -> OwnerMap {
-        let owners: Vec<u32> = set
-            .texels
-            .par_iter()
-            .map(|t| {
+        cancel: &AtomicBool,
+    ) -> Result<OwnerMap, Cancelled> {
+        let control = Control { progress: &|_| {}, cancel };
+        let owners = par_texels(
+            &set.texels,
+            control,
+            || (),
+            |_, t| {
                 lookup.owner(t.position, t.normal, bvh, stats).map_or(u32::MAX, |e| assignment[e as usize])
-            })
-            .collect();
+            },
+        )?;
         let mut cluster = vec![u32::MAX; set.index.len()];
         for (t, c) in set.texels.iter().zip(owners) {
             cluster[(t.j * set.width + t.i) as usize] = c;
         }
-        OwnerMap { width: set.width, height: set.height, cluster }
+        Ok(OwnerMap { width: set.width, height: set.height, cluster })
     }
 
     /// The cluster owning the surface point at barycentrics `bary` of triangle `tri`.
