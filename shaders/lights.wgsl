@@ -1,6 +1,6 @@
 // Lights and shadow-map visibility, shared by irradiance.wgsl and shade.wgsl (put between the
 // prelude and the pass by runtime/src/contract.rs). GpuLight, the KIND_* constants, CUBE_LAYERS,
-// range_window and the shadow group (lights, shadow_mats, shadow_tex, shadow_sampler) come from
+// range_window, spot_falloff and the shadow group (lights, shadow_mats, shadow_tex, shadow_sampler) come from
 // the generated prelude and bindings.
 //
 // Shadow maps are reverse-Z (1 = at the light, 0 = far): a receiver is lit when its depth is
@@ -11,14 +11,6 @@ struct Incident {
     to_light: vec3f,
     distance: f32,
     irradiance: vec3f,
-}
-
-fn spot_falloff(cos_angle: f32, ci: f32, co: f32) -> f32 {
-    if ci - co <= 1e-6 {
-        return select(0.0, 1.0, cos_angle >= co);
-    }
-    let t = clamp((cos_angle - co) / (ci - co), 0.0, 1.0);
-    return t * t;
 }
 
 // Unoccluded light arriving at p (the same formula as prm::Light::incident).

@@ -137,15 +137,33 @@ pub const RANGE_WINDOW_WGSL: &str = "fn range_window(distance: f32, range: f32) 
 }
 ";
 
-/// glTF spot falloff for `cos_angle` = cos of the angle off the spot axis.
+/// glTF spot falloff for `cos_angle` = cos of the angle off the spot axis, cone angles in
+/// radians.
 pub fn spot_falloff(cos_angle: f32, inner: f32, outer: f32) -> f32 {
-    let (ci, co) = (inner.cos(), outer.cos());
+    spot_falloff_cos(cos_angle, inner.cos(), outer.cos())
+}
+
+/// [`spot_falloff`] from the cones' cosines (what the GPU light carries): the glTF smooth
+/// step squared, a hard cone when the cosines (nearly) meet.
+pub fn spot_falloff_cos(cos_angle: f32, cos_inner: f32, cos_outer: f32) -> f32 {
+    let (ci, co) = (cos_inner, cos_outer);
     if ci - co <= 1e-6 {
         return if cos_angle >= co { 1.0 } else { 0.0 };
     }
     let t = ((cos_angle - co) / (ci - co)).clamp(0.0, 1.0);
     t * t
 }
+
+/// [`spot_falloff_cos`] in WGSL, for the runtime's shader prelude: the same operations in the
+/// same order; a GPU test holds the two together.
+pub const SPOT_FALLOFF_WGSL: &str = "fn spot_falloff(cos_angle: f32, ci: f32, co: f32) -> f32 {
+    if ci - co <= 1e-6 {
+        return select(0.0, 1.0, cos_angle >= co);
+    }
+    let t = clamp((cos_angle - co) / (ci - co), 0.0, 1.0);
+    return t * t;
+}
+";
 
 #[cfg(test)]
 mod tests {

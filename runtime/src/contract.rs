@@ -66,6 +66,8 @@ pub fn prelude() -> &'static str {
         );
         s += "// glTF range window (prm::light::range_window).\n";
         s += prm::light::RANGE_WINDOW_WGSL;
+        s += "\n// glTF spot falloff (prm::light::spot_falloff_cos).\n";
+        s += prm::light::SPOT_FALLOFF_WGSL;
         for (_, wgsl, _, _) in gpu_structs() {
             s += "\n";
             s += &wgsl;

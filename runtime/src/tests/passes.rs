@@ -475,9 +475,14 @@ fn the_prelude_functions_equal_their_rust_twins() {
     let body = "@compute @workgroup_size(WG_LINEAR)
 fn main(@builtin(global_invocation_id) id: vec3u) {
     let v = input[id.x];
-    output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), 0.0, 0.0);
+    let c = v.z / 2.5 - 1.0;
+    output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), spot_falloff(c, SPOT_IN, SPOT_OUT),
+        spot_falloff(c, SPOT_OUT, SPOT_OUT));
 }";
-    let src = format!("{}{}{}", crate::contract::prelude(), declarations(&[&table]), body);
+    // A smooth cone (inner 0.3, outer 0.6 rad) and a hard one, as the GPU light carries them.
+    let (ci, co) = (0.3f32.cos(), 0.6f32.cos());
+    let cones = format!("const SPOT_IN: f32 = {ci:?}f;\nconst SPOT_OUT: f32 = {co:?}f;\n");
+    let src = format!("{}{}{}{}", crate::contract::prelude(), declarations(&[&table]), cones, body);
     let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
     let mut input: Vec<[f32; 4]> = (0..crate::contract::WG_LINEAR * 4)
         .map(|_| [rng.random_range(0.0..3.0), rng.random_range(-1.0..2.5), rng.random_range(0.0..5.0), 0.0])
@@ -520,5 +525,14 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
             o[0]
         );
         assert!((o[1] - lum).abs() <= 2e-6 * lum.abs().max(1.0), "luminance{v:?}: GPU {}, CPU {lum}", o[1]);
+        let c = v[2] / 2.5 - 1.0;
+        for (gpu, cpu) in
+            [(o[2], prm::light::spot_falloff_cos(c, ci, co)), (o[3], prm::light::spot_falloff_cos(c, co, co))]
+        {
+            assert!((gpu - cpu).abs() <= 2e-6, "spot_falloff({c}): GPU {gpu}, CPU {cpu}");
+        }
     }
+    // The inputs cover the smooth cone's ramp, not just its flat ends.
+    let ramp = input.iter().filter(|v| (co..ci).contains(&(v[2] / 2.5 - 1.0))).count();
+    assert!(ramp >= 10, "only {ramp} inputs on the spot ramp");
 }
