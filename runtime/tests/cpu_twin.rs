@@ -1,41 +1,13 @@
 //! The CPU twin: top-K with K = C is the full sum, selection order, and an unchanged frame
 //! does no compose work.
 
+mod common;
+use common::open_box;
 use std::sync::atomic::AtomicBool;
 
-use glam::{Vec2, Vec3};
-use prm::{Bvh, Light, LightKind, Scene};
+use glam::Vec3;
+use prm::{Bvh, Scene};
 use prm_runtime::cpu::{self, entry_irradiance, select_top_k, CpuTwin};
-
-fn open_box() -> Scene {
-    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-    let qs = [
-        [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-        [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-        [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-    ];
-    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, q) in qs.iter().enumerate() {
-        let base = pos.len() as u32;
-        for (c, p) in q.iter().enumerate() {
-            pos.push(*p);
-            let corner =
-                [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
-            uv.push((Vec2::new(k as f32, 0.0) + Vec2::splat(0.08) + corner * 0.84) / Vec2::new(3.0, 1.0));
-        }
-        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    let mut s = Scene::from_mesh(pos, uv, &idx);
-    s.lights.push(Light {
-        name: "p".into(),
-        kind: LightKind::Point,
-        position: v(0.6, 0.8, 0.6),
-        direction: -Vec3::Y,
-        intensity: Vec3::splat(2.0),
-        range: None,
-    });
-    s
-}
 
 fn bake(scene: &Scene) -> prm::prm_file::Prm {
     let bvh = Bvh::build(scene);

@@ -58,6 +58,18 @@ fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow!("drawing a plot: {e}")
 }
 
+/// The series labels in a framed, half-transparent box (every plot's legend).
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)
+}
+
 fn bounds(points: &[&Point], f: impl Fn(&Point) -> f64) -> (f64, f64) {
     let v: Vec<f64> = points.iter().map(|p| f(p)).filter(|x| x.is_finite() && *x > 0.0).collect();
     let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -113,12 +125,7 @@ fn plot_precompute(path: &Path, prm: &[Point], reference: &[Point]) -> Result<()
             }))
             .map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
+    legend(&mut chart)?;
     root.present().map_err(plot_err)?;
     Ok(())
 }
@@ -190,12 +197,7 @@ fn plot_runtime(path: &Path, sweep: &RuntimeSweep, gpu: bool) -> Result<()> {
             .label("direct-only frame")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
+    legend(&mut chart)?;
     root.present().map_err(plot_err)?;
     Ok(())
 }
@@ -254,12 +256,7 @@ fn plot_rig_errors(area: &DrawingArea<BitMapBackend, Shift>, frames: &[Frame]) -
         .map_err(plot_err)?
         .label("ground truth's own noise (error plot); lighting change (flicker plot)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
+    legend(&mut chart)?;
     Ok(())
 }
 

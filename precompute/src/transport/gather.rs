@@ -1,7 +1,7 @@
 //! The gather estimator and its multiple-importance-sampled variant (module doc of
 //! [`super`]): walks from each texel, each vertex credited to the cluster owning it.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 
 use glam::Vec3;
 use prm::prm_file::Entry;
@@ -10,6 +10,7 @@ use prm::Texel;
 use rand::Rng;
 
 use super::{bounce, OwnerMap, RegionLookup, Scratch, TexelPanes, Transport};
+use crate::parallel::Control;
 
 /// Per-cluster members and region areas for [`Estimator::Mis`].
 pub(super) struct MisTables {
@@ -123,8 +124,8 @@ impl Transport<'_> {
     /// superposition test holds the pane sum to.
     pub fn gather_field(&self, set: &prm::TexelSet, weights: &[Vec3]) -> Vec<Vec3> {
         let lookup = RegionLookup::new(self.entries, self.scene.total_area());
-        let never = AtomicBool::new(false);
-        let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats, &never)
+        let never = Control::none().cancel;
+        let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats, never)
             .expect("never cancelled");
         let mut scratch = Scratch::new(self.clusters);
         set.texels

@@ -2,12 +2,15 @@
 //! (on a machine without a GPU: Mesa's lavapipe, `apt-get install mesa-vulkan-drivers`); with
 //! none they fail and say so.
 
+#[path = "../../tests/common/mod.rs"]
+mod common;
+use common::{open_box, point, quads, v};
 use std::sync::atomic::AtomicBool;
 
 use crate::irradiance::EntryPass;
 use crate::shadow::ShadowMaps;
 use crate::{cpu, Gpu, Renderer, Runtime, RuntimeParams};
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use prm::prm_file::Prm;
 use prm::{Bvh, Light, LightKind, Scene};
 use rand::{Rng, SeedableRng};
@@ -17,31 +20,6 @@ fn gpu() -> Gpu {
         Ok(g) => g,
         Err(e) => panic!("this GPU test needs a wgpu adapter: {e}"),
     }
-}
-
-fn v(x: f32, y: f32, z: f32) -> Vec3 {
-    Vec3::new(x, y, z)
-}
-
-/// Quads (corners counter-clockwise seen from the lit side), each in its own UV cell.
-fn quads(qs: &[[Vec3; 4]]) -> Scene {
-    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    let n = qs.len() as f32;
-    for (k, q) in qs.iter().enumerate() {
-        let base = pos.len() as u32;
-        for (c, p) in q.iter().enumerate() {
-            pos.push(*p);
-            let corner =
-                [Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)][c];
-            uv.push((Vec2::new(k as f32, 0.0) + Vec2::splat(0.08) + corner * 0.84) / Vec2::new(n, 1.0));
-        }
-        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    Scene::from_mesh(pos, uv, &idx)
-}
-
-fn point(p: Vec3, i: f32) -> Light {
-    Light::point("p", p, Vec3::splat(i))
 }
 
 /// GPU entry irradiance at arbitrary points, through the runtime's own shadow maps and pass.
@@ -175,16 +153,6 @@ fn bad_lights_are_refused_with_the_reason() {
         (0..prm::rig::MAX_LIGHTS + 1).map(|i| point(v(i as f32 * 0.01, 1.0, 0.0), 1.0)).collect();
     let err = shadows.update(&many).unwrap_err().to_string();
     assert!(err.contains("limit"), "{err}");
-}
-
-fn open_box() -> Scene {
-    let mut s = quads(&[
-        [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-        [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-        [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-    ]);
-    s.lights.push(point(v(0.6, 0.8, 0.6), 2.0));
-    s
 }
 
 fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
