@@ -35,6 +35,10 @@ pub struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Gather only: no light paths for the first bounce of point and spot lights (slower to
+    /// converge near lights; kept to cross-check the two estimators).
+    #[arg(long)]
+    no_light_paths: bool,
     /// Render this glTF camera's view (linear radiance) instead of the lightmap.
     #[arg(long)]
     camera: Option<String>,
@@ -51,7 +55,13 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     check_atlas(a.atlas)?;
-    let params = GtParams { spp: a.spp, max_bounces: a.max_bounces, seed: a.seed, ..GtParams::default() };
+    let params = GtParams {
+        spp: a.spp,
+        max_bounces: a.max_bounces,
+        seed: a.seed,
+        light_paths: !a.no_light_paths,
+        ..GtParams::default()
+    };
     params.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let mut scene = load(&a.scene, a.atlas, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
@@ -70,6 +80,7 @@ pub fn run(a: Args) -> Result<()> {
         "output": a.output.display().to_string(),
         "spp": a.spp,
         "seed": a.seed,
+        "light_paths": !a.no_light_paths,
         "seconds": seconds,
         "paths": st.paths.load(Ordering::Relaxed),
         "rays": st.rays.load(Ordering::Relaxed),
