@@ -91,3 +91,58 @@ fn direct_irradiance(p: vec3f, n: vec3f, count: u32) -> vec3f {
     }
     return sum;
 }
+
+// Power (W) light l delivers to the front of triangle (p0, p1, p2), counter-clockwise seen from
+// the front, without visibility: prm::Light::triangle_power, the same operations in the same
+// order (a GPU twin test holds them together). I x solid angle (Van Oosterom and Strackee) for
+// point and spot lights, E x projected area for directional ones.
+fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
+    let twice_area = cross(p1 - p0, p2 - p0);
+    if l.kind == KIND_DIRECTIONAL {
+        return l.intensity * max(0.5 * dot(twice_area, -l.direction), 0.0);
+    }
+    let a = p0 - l.position;
+    let b = p1 - l.position;
+    let c = p2 - l.position;
+    let triple = -dot(a, twice_area);
+    if !(triple > 0.0) {
+        return vec3f(0.0);
+    }
+    let la = length(a);
+    let lb = length(b);
+    let lc = length(c);
+    let denominator = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la;
+    var scale = 2.0 * atan2(triple, denominator);
+    if l.kind == KIND_SPOT {
+        let s = a / la + b / lb + c / lc;
+        var mean = vec3f(0.0);
+        if dot(s, s) > 0.0 {
+            mean = normalize(s);
+        }
+        scale *= spot_falloff(dot(l.direction, mean), l.cos_inner, l.cos_outer);
+    }
+    scale *= range_window(length((a + b + c) / 3.0), l.range);
+    return l.intensity * scale;
+}
+
+// Power from every light onto triangle (a, b, c), each light's shadow-mapped visibility taken
+// at the triangle's centroid (W).
+fn lit_triangle_power(a: vec3f, b: vec3f, c: vec3f, count: u32) -> vec3f {
+    let twice_area = cross(b - a, c - a);
+    let len = length(twice_area);
+    if !(len > 0.0) {
+        return vec3f(0.0);
+    }
+    let n = twice_area / len;
+    let centroid = (a + b + c) / 3.0;
+    var sum = vec3f(0.0);
+    for (var k = 0u; k < count; k++) {
+        let l = lights[k];
+        let p = triangle_power(l, a, b, c);
+        if all(p == vec3f(0.0)) {
+            continue;
+        }
+        sum += p * visibility(l, centroid, n, distance(l.position, centroid));
+    }
+    return sum;
+}

@@ -2,6 +2,7 @@
 //! ground-truth path tracer, and the generator of the bundled scenes. The reference baker joins
 //! here.
 
+pub mod cells;
 pub mod cluster;
 pub mod entries;
 pub mod ground_truth;

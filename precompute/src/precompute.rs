@@ -10,10 +10,11 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
+use prm::prm_file::{Cells, Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
+use crate::cells::{entry_cells, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
 use crate::panes::tile_panes;
@@ -127,6 +128,11 @@ pub struct Report {
     pub texels: usize,
     /// Entries dropped because they lie inside a solid.
     pub entries_enclosed: usize,
+    /// Triangles of the entries' cells (`prm::prm_file::Cells`).
+    pub cell_triangles: usize,
+    /// Surface area no entry's cell covers (triangles too small for an entry, with none near
+    /// enough facing the same way), as a fraction of the level's area.
+    pub area_without_entry: f64,
     pub seconds_texels: f64,
     pub seconds_entries: f64,
     pub seconds_clustering: f64,
@@ -182,8 +188,11 @@ pub fn precompute(
     progress(Phase::Texels, 1, 1);
 
     let mut seconds = 0.0;
-    let (entries, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
+    let (entries, cells, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
     (report.seconds_entries, report.entries_enclosed) = (seconds, enclosed);
+    report.cell_triangles = cells.0.triangles.len();
+    report.area_without_entry = cells.1.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE);
+    let cells = cells.0;
     progress(Phase::Entries, 1, 1);
     stop_if(cancel)?;
 
@@ -222,7 +231,7 @@ pub fn precompute(
 
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
-    let prm = Prm::new(PrmParts { header, entries, clusters, groups, group_of, tiles, mask, data })?;
+    let prm = Prm::new(PrmParts { header, entries, cells, clusters, groups, group_of, tiles, mask, data })?;
     Ok((prm, report))
 }
 
@@ -234,9 +243,13 @@ fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     out
 }
 
-/// The entry points, less those inside solids (how many is the second value): they never see
-/// light, and in a cluster's mean they would only dim it.
-fn lit_entries(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams) -> (Vec<Entry>, usize) {
+/// The entry points with their cells, less those inside solids (how many is the last value):
+/// they never see light, and in a cluster's mean they would only dim it.
+fn lit_entries(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+) -> (Vec<Entry>, (Cells, CellReport), usize) {
     let sampled = sample_entries(scene, params.entries as usize, params.seed);
     let enclosed: Vec<bool> = sampled
         .par_iter()
@@ -244,8 +257,10 @@ fn lit_entries(scene: &Scene, bvh: &Bvh, params: &PrecomputeParams) -> (Vec<Entr
         .map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64))
         .collect();
     let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
+    let keep: Vec<bool> = enclosed.iter().map(|&x| !x).collect();
+    let cells = entry_cells(scene, &sampled, &keep);
     let enclosed = sampled.len() - entries.len();
-    (entries, enclosed)
+    (entries, cells, enclosed)
 }
 
 /// The panes' contents at every texel (module `transport`), its counters into the report.
@@ -309,6 +324,7 @@ fn header(
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,
+            "cell_triangles": report.cell_triangles, "area_without_entry": report.area_without_entry,
         }),
     }
 }

@@ -1,19 +1,23 @@
-//! Entry irradiance on the GPU (DESIGN.md §5 step 2; `shaders/irradiance.wgsl`): one
-//! invocation per entry point sums every light's `I(w) V cos / r²`, with V from the shadow
-//! maps (normal offset + 3x3 PCF, `shaders/lights.wgsl`). Output: one `vec4f` per entry, W/m².
+//! Entry irradiance on the GPU (DESIGN.md §4-5; `shaders/irradiance.wgsl`): one invocation
+//! per entry point sums, over the triangles of its cell and every light, the power the light
+//! delivers to the triangle (`prm::Light::triangle_power`) times the triangle's visibility from
+//! the shadow maps at its centroid (normal offset + 3x3 PCF, `shaders/lights.wgsl`), and
+//! divides by the entry's area: the mean irradiance its cell stands for, however close the
+//! light. Output: one `vec4f` per entry, W/m².
 
-use glam::Vec3;
+use prm::prm_file::Cells;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
 use crate::gpu;
-use crate::layout::{GpuEntry, GpuStruct, IndirectParams};
+use crate::layout::{GpuCellTriangle, GpuEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
 
 /// Group 1 of the pass (group 0 is [`SHADOW_GROUP`]).
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("entries", Res::Read("array<GpuEntry>"), COMPUTE),
+    b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
 
@@ -34,17 +38,24 @@ pub struct EntryPass {
 }
 
 impl EntryPass {
-    /// A pass over these entry points (position, unit normal); `params` is the
-    /// [`crate::layout::IndirectParams`] uniform.
+    /// A pass over entry points with these cells and areas (an entry of zero area gets no
+    /// light); `params` is the [`crate::layout::IndirectParams`] uniform.
     pub fn new(
         device: &wgpu::Device,
         shadow_layout: &wgpu::BindGroupLayout,
         params: &wgpu::Buffer,
-        points: &[(Vec3, Vec3)],
+        cells: &Cells,
+        areas: &[f32],
     ) -> EntryPass {
-        let entries: Vec<GpuEntry> = points
+        let entries: Vec<GpuEntry> = areas
             .iter()
-            .map(|(p, n)| GpuEntry { position: p.to_array(), normal: n.to_array(), ..Default::default() })
+            .enumerate()
+            .map(|(j, &area)| GpuEntry {
+                first_cell: cells.first[j],
+                cell_count: cells.first[j + 1] - cells.first[j],
+                inv_area: if area > 0.0 { 1.0 / area } else { 0.0 },
+                ..Default::default()
+            })
             .collect();
         let entries = gpu::storage_buffer(
             device,
@@ -52,10 +63,30 @@ impl EntryPass {
             bytemuck::cast_slice(&entries),
             wgpu::BufferUsages::empty(),
         );
+        let mut triangles: Vec<GpuCellTriangle> = cells
+            .triangles
+            .iter()
+            .map(|t| GpuCellTriangle {
+                a: t[0].to_array(),
+                b: t[1].to_array(),
+                c: t[2].to_array(),
+                ..Default::default()
+            })
+            .collect();
+        // A storage binding cannot be empty.
+        if triangles.is_empty() {
+            triangles.push(GpuCellTriangle::default());
+        }
+        let cells = gpu::storage_buffer(
+            device,
+            "entry cells",
+            bytemuck::cast_slice(&triangles),
+            wgpu::BufferUsages::empty(),
+        );
         let output = gpu::storage_buffer(
             device,
             "entry irradiance",
-            &vec![0u8; points.len() * 16],
+            &vec![0u8; areas.len().max(1) * 16],
             wgpu::BufferUsages::COPY_SRC,
         );
         let layout = SHADER.layout(device, 1);
@@ -67,6 +98,7 @@ impl EntryPass {
             &[
                 ("params", params.as_entire_binding()),
                 ("entries", entries.as_entire_binding()),
+                ("cells", cells.as_entire_binding()),
                 ("entry_irradiance", output.as_entire_binding()),
             ],
         );
@@ -77,7 +109,7 @@ impl EntryPass {
             "entry_main",
             &[shadow_layout, &layout],
         );
-        EntryPass { pipeline, group, count: points.len() as u32, output }
+        EntryPass { pipeline, group, count: areas.len() as u32, output }
     }
 
     /// Records the pass; `shadows` is the lights + shadow maps group.

@@ -130,13 +130,26 @@ impl GpuLight {
 }
 
 gpu_struct! {
-    /// An entry point of the irradiance pass (`shaders/irradiance.wgsl`).
+    /// An entry point of the irradiance pass (`shaders/irradiance.wgsl`): its cell, the
+    /// triangles `first_cell .. first_cell + cell_count` of the cell buffer, and 1 / its area.
     pub struct GpuEntry {
-        pub position: [f32; 3],
+        pub first_cell: u32,
+        pub cell_count: u32,
+        pub inv_area: f32,
         pub _pad0: u32,
-        /// Unit normal (zero: the entry gets no light).
-        pub normal: [f32; 3],
+    }
+}
+
+gpu_struct! {
+    /// A triangle of an entry's cell, corners counter-clockwise seen from the front
+    /// (`prm::prm_file::Cells`).
+    pub struct GpuCellTriangle {
+        pub a: [f32; 3],
+        pub _pad0: u32,
+        pub b: [f32; 3],
         pub _pad1: u32,
+        pub c: [f32; 3],
+        pub _pad2: u32,
     }
 }
 
@@ -259,6 +272,7 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
     vec![
         one::<GpuLight>(),
         one::<GpuEntry>(),
+        one::<GpuCellTriangle>(),
         one::<IndirectParams>(),
         one::<ComposeParams>(),
         one::<TileRecord>(),

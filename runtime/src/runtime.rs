@@ -101,8 +101,8 @@ impl Runtime {
             mapped_at_creation: false,
         });
         let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
-        let points: Vec<(Vec3, Vec3)> = prm.entries().iter().map(|e| (e.position, e.normal)).collect();
-        let entries = EntryPass::new(device, shadows.layout(), &params_buf, &points);
+        let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
+        let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
         let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
         let compose = ComposePass::new(device, prm, &weights.selected);
         Ok(Runtime {
@@ -117,7 +117,7 @@ impl Runtime {
             energies: prm.clusters().iter().map(|c| c.energy).collect(),
             clusters: prm.clusters().len(),
             groups: prm.groups().len(),
-            entry_count: points.len() as u32,
+            entry_count: areas.len() as u32,
             stale: true,
             composes: 0,
         })

@@ -96,6 +96,20 @@ fn entries(p: &PrmParts) -> Result<(), String> {
         return Err(format!("entry {k} has non-finite or negative values"));
     }
     let n = p.entries.len();
+    let cells = &p.cells;
+    if cells.first.len() != n + 1
+        || cells.first.first() != Some(&0)
+        || cells.first.last().map(|&l| l as usize) != Some(cells.triangles.len())
+        || cells.first.windows(2).any(|w| w[0] > w[1])
+    {
+        return Err(format!(
+            "cell offsets do not run from 0 to the {} cell triangles over {n} entries",
+            cells.triangles.len()
+        ));
+    }
+    if let Some(k) = cells.triangles.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
+        return Err(format!("cell triangle {k} has non-finite corners"));
+    }
     for (k, c) in p.clusters.iter().enumerate() {
         if let Some(bad) = c.members.iter().find(|&&m| m as usize >= n) {
             return Err(format!("cluster {k}'s member {bad} is not an entry (there are {n})"));

@@ -1,14 +1,16 @@
-//! The `.prm` file, format v2 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v3 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 2
+//! 8   u32    version = 3
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
+//!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
+//!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
@@ -29,6 +31,12 @@
 //! chromaticity times its peak luminance) and one half-float intensity per texel, so luminance
 //! is kept exactly (to half-float precision) and colour to the tile's mean. A pane's colour is
 //! mostly its cluster's albedo, the same over the tile; the saving is 3x over RGB half floats.
+//!
+//! **Cells** (v3): the surface each entry stands for, as triangles that together tile the lit
+//! surfaces (each entry's Voronoi cell among the entries of its triangle, plus the triangles too
+//! small to hold an entry). The runtime's entry weight is the power its cell receives over the
+//! entry's area, so a light close to a surface delivers its power however small its hot spot
+//! (DESIGN.md §4). A v2 file has no cells and is refused: bake it again.
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -62,7 +70,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -76,6 +84,40 @@ pub struct Entry {
     pub area: f32,
     /// Scene triangle it lies on.
     pub triangle: u32,
+}
+
+/// The surface each entry point stands for (its *cell*), as triangles counter-clockwise seen
+/// from the front: entry j owns `triangles[first[j]..first[j + 1]]`. Together the cells tile
+/// the surfaces light can reach (module doc).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Cells {
+    /// N + 1 offsets into `triangles`, from 0 to its length, non-decreasing.
+    pub first: Vec<u32>,
+    pub triangles: Vec<[Vec3; 3]>,
+}
+
+impl Cells {
+    /// Cells from each entry's list of triangles.
+    pub fn from_lists(lists: Vec<Vec<[Vec3; 3]>>) -> Cells {
+        let mut first = Vec::with_capacity(lists.len() + 1);
+        first.push(0);
+        let mut triangles = Vec::new();
+        for l in lists {
+            triangles.extend(l);
+            first.push(triangles.len() as u32);
+        }
+        Cells { first, triangles }
+    }
+
+    /// The triangles of entry `j`'s cell.
+    pub fn of(&self, j: usize) -> &[[Vec3; 3]] {
+        &self.triangles[self.first[j] as usize..self.first[j + 1] as usize]
+    }
+
+    /// Total area of entry `j`'s cell.
+    pub fn area(&self, j: usize) -> f32 {
+        self.of(j).iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).sum()
+    }
 }
 
 /// A cluster of entry points sharing one pane and one runtime weight.
@@ -145,6 +187,8 @@ pub struct Header {
 pub struct PrmParts {
     pub header: Header,
     pub entries: Vec<Entry>,
+    /// The surface each entry stands for.
+    pub cells: Cells,
     pub clusters: Vec<Cluster>,
     /// Coarse panes over the clusters (may be empty).
     pub groups: Vec<Group>,
@@ -200,7 +244,10 @@ pub enum PrmError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
-    #[error("{path}: .prm version {found}, this build reads version {VERSION}")]
+    #[error(
+        "{path}: .prm version {found}, this build reads version {VERSION} (version 2 files have no entry \
+         cells); run prm precompute again"
+    )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
     Truncated { path: PathBuf, size: u64, what: String },
@@ -261,6 +308,7 @@ impl PrmParts {
         out.extend_from_slice(&header);
         let mut w = Writer(&mut out);
         w.entries(&self.entries);
+        w.cells(&self.cells);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
         w.mask(&self.mask);
@@ -296,6 +344,11 @@ impl Prm {
 
     pub fn entries(&self) -> &[Entry] {
         &self.parts.entries
+    }
+
+    /// The surface each entry stands for.
+    pub fn cells(&self) -> &Cells {
+        &self.parts.cells
     }
 
     pub fn clusters(&self) -> &[Cluster] {
@@ -436,13 +489,14 @@ impl Prm {
         let mut r = Reader::new(body, at);
         let parts = (|| -> Result<PrmParts, SectionError> {
             let entries = r.entries(&header)?;
+            let cells = r.cells(entries.len())?;
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
             let mask = r.mask()?;
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
             r.finish()?;
-            Ok(PrmParts { header, entries, clusters, groups, group_of, tiles, mask, data })
+            Ok(PrmParts { header, entries, cells, clusters, groups, group_of, tiles, mask, data })
         })()
         .map_err(|e| match e {
             SectionError::Truncated(what) => truncated(&what),
@@ -514,6 +568,10 @@ mod tests {
                 ..Default::default()
             },
             entries: vec![entry(0.0), entry(1.0)],
+            cells: Cells::from_lists(vec![
+                vec![[Vec3::ZERO, Vec3::Z, Vec3::X]],
+                vec![[Vec3::X, Vec3::Z, Vec3::X + Vec3::Z], [Vec3::X, Vec3::X + Vec3::Z, Vec3::X * 2.0]],
+            ]),
             clusters: vec![Cluster {
                 members: vec![0, 1],
                 centroid: Vec3::new(0.5, 0.0, 0.0),
@@ -546,6 +604,9 @@ mod tests {
             ("implausible atlas", |p| p.header.tile_size = 0),
             ("non-finite", |p| p.entries[1].area = f32::NAN),
             ("not an entry", |p| p.clusters[0].members[1] = 2),
+            ("cell offsets", |p| p.cells.first = vec![0, 1]),
+            ("cell offsets", |p| p.cells.first[1] = 4),
+            ("non-finite corners", |p| p.cells.triangles[2][1].y = f32::NAN),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

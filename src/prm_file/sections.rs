@@ -7,10 +7,11 @@
 use glam::Vec3;
 use half::f16;
 
-use super::{Cluster, Entry, Group, Header, Tile};
+use super::{Cells, Cluster, Entry, Group, Header, Tile};
 
 /// Section byte sizes.
 pub(super) const ENTRY_BYTES: usize = 48;
+pub(super) const CELL_TRIANGLE_BYTES: usize = 36;
 pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
@@ -36,6 +37,22 @@ impl Writer<'_> {
             e.extend_from_slice(&0u32.to_le_bytes());
         }
         self.section(b"ENTR", &e);
+    }
+
+    /// `CELL`: the triangle count, the offsets, the triangles.
+    pub(super) fn cells(&mut self, cells: &Cells) {
+        let mut c =
+            Vec::with_capacity(4 + cells.first.len() * 4 + cells.triangles.len() * CELL_TRIANGLE_BYTES);
+        c.extend_from_slice(&(cells.triangles.len() as u32).to_le_bytes());
+        for f in &cells.first {
+            c.extend_from_slice(&f.to_le_bytes());
+        }
+        for t in &cells.triangles {
+            for v in t {
+                c.extend_from_slice(bytemuck::bytes_of(&v.to_array()));
+            }
+        }
+        self.section(b"CELL", &c);
     }
 
     /// `CLUS` and `MEMB`: each cluster's record points at its run of the member list.
@@ -220,6 +237,31 @@ impl<'a> Reader<'a> {
             });
         }
         Ok(clusters)
+    }
+
+    /// `CELL` for `entries` entries (that the offsets run from 0 to T without going back is an
+    /// invariant, checked with the others).
+    pub(super) fn cells(&mut self, entries: usize) -> Result<Cells, SectionError> {
+        let c = self.next(b"CELL")?;
+        if c.len() < 4 {
+            return Err(Corrupt(format!("cell section of {} bytes", c.len())));
+        }
+        let t = u32_at(c, 0) as u64;
+        let want = 4 + (entries as u64 + 1) * 4 + t * CELL_TRIANGLE_BYTES as u64;
+        if c.len() as u64 != want {
+            return Err(Corrupt(format!(
+                "{t} cell triangles for {entries} entries declared, {} bytes of cells",
+                c.len()
+            )));
+        }
+        let (first, tris) = c[4..].split_at((entries + 1) * 4);
+        Ok(Cells {
+            first: first.chunks_exact(4).map(|b| u32_at(b, 0)).collect(),
+            triangles: tris
+                .chunks_exact(CELL_TRIANGLE_BYTES)
+                .map(|b| [v3(b, 0), v3(b, 12), v3(b, 24)])
+                .collect(),
+        })
     }
 
     /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).

@@ -8,9 +8,23 @@ use rayon::prelude::*;
 
 use super::{cluster_weights, compose_selected, select_top_k};
 
-/// Irradiance at every entry point from `lights`, with ray-traced visibility.
+/// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
+/// visibility, [`prm::bvh::cell_power`]) over the entry's area, as the GPU pass computes it.
 pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
-    prm.entries().par_iter().map(|e| prm::bvh::direct_irradiance(bvh, lights, e.position, e.normal)).collect()
+    let cells = prm.cells();
+    prm.entries()
+        .par_iter()
+        .enumerate()
+        .map(
+            |(j, e)| {
+                if e.area > 0.0 {
+                    prm::bvh::cell_power(bvh, lights, cells.of(j)) / e.area
+                } else {
+                    Vec3::ZERO
+                }
+            },
+        )
+        .collect()
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
