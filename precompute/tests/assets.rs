@@ -96,3 +96,73 @@ fn two_rooms_are_sealed_except_for_the_door() {
     assert!(bvh.visible_point(Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::new(-1.0, 1.0, 0.0)));
     assert!(!bvh.visible_point(Vec3::new(2.0, 0.0, -1.5), Vec3::Y, light));
 }
+
+/// Distance from `p` to triangle `t` (closest point by projecting on the plane, else on the
+/// nearest edge).
+fn distance_to_triangle(scene: &Scene, t: usize, p: Vec3) -> f32 {
+    let [a, b, c] = scene.corners(t);
+    let n = (b - a).cross(c - a).normalize();
+    let q = p - n * n.dot(p - a);
+    let inside = [(a, b), (b, c), (c, a)].iter().all(|&(u, v)| (v - u).cross(q - u).dot(n) >= 0.0);
+    if inside {
+        return (p - q).length();
+    }
+    [(a, b), (b, c), (c, a)]
+        .iter()
+        .map(|&(u, v)| {
+            let s = ((p - u).dot(v - u) / (v - u).length_squared()).clamp(0.0, 1.0);
+            (p - (u + (v - u) * s)).length()
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// The torch rigs (`assets/<level>_torches.json`) put a torch where games do: every keyframe
+/// is a place inside the level (rays from it meet only front faces; cornell's front is open), one is mid-room, one 2 cm
+/// above the floor, one near three surfaces at once (a corner), one under the ceiling.
+#[test]
+fn torch_rigs_visit_the_places_games_put_lights() {
+    // (level, corner distance: within this of three distinct planes, mid-room: at least this
+    // far from everything)
+    for (name, corner, mid) in
+        [("cornell", 0.06f32, 0.1f32), ("chamber", 0.16, 2.0), ("two_rooms", 0.16, 1.0)]
+    {
+        let scene = load(&format!("{name}.glb"));
+        let bvh = Bvh::build(&scene);
+        let rig = prm::rig::Rig::load(&asset(&format!("{name}_torches.json")), &scene.lights).unwrap();
+        let torch = rig.lights.iter().find(|l| l.base.name == "torch").expect("a light named torch");
+        let keys: Vec<Vec3> = torch.keys.iter().map(|k| k.1).collect();
+        assert!(keys.len() >= 6, "{name}: {} placements", keys.len());
+        let (mut floor, mut ceiling, mut cornered, mut middle) = (false, false, false, false);
+        let top = scene.bounds().1.y;
+        for &p in &keys {
+            for k in 0..64 {
+                let d = prm::sampling::radical_inverse(k);
+                let z = 1.0 - 2.0 * (k as f32 + 0.5) / 64.0;
+                let phi = std::f32::consts::TAU * d;
+                let r = (1.0 - z * z).sqrt();
+                let dir = Vec3::new(r * phi.cos(), z, r * phi.sin());
+                let Some(hit) = bvh.closest_hit(p, dir, f32::INFINITY) else { continue };
+                let t = hit.triangle as usize;
+                assert!(scene.facing_normal(t, dir).is_some(), "{name}: torch at {p} is inside a solid");
+            }
+            let near: Vec<(f32, Vec3)> = (0..scene.triangles.len())
+                .map(|t| (distance_to_triangle(&scene, t, p), scene.face_normal(t)))
+                .collect();
+            let nearest = near.iter().map(|x| x.0).fold(f32::INFINITY, f32::min);
+            floor |= p.y <= 0.021 && nearest <= 0.021;
+            ceiling |= top - p.y <= 0.11;
+            middle |= nearest >= mid;
+            let mut planes: Vec<Vec3> = Vec::new();
+            for (d, n) in near {
+                if d <= corner && planes.iter().all(|m| m.dot(n) < 0.9) {
+                    planes.push(n);
+                }
+            }
+            cornered |= planes.len() >= 3;
+        }
+        assert!(
+            floor && ceiling && cornered && middle,
+            "{name}: floor {floor} ceiling {ceiling} corner {cornered} mid {middle}"
+        );
+    }
+}
