@@ -2,14 +2,15 @@
 // sum over selected clusters c of selected[c] x pane_c, read only from stored tiles.
 //
 // The stored tiles covering atlas tile t are records tile_ranges[t].x .. +tile_ranges[t].y
-// (record_clusters holds their clusters densely). A record's texels are f16 intensities (two
+// (each names its pane). A record's texels are f16 intensities (two
 // per u32) at data_offset + slot, where slot is the texel's place among its atlas tile's stored
 // texels (row-major), times the record's RGB scale.
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
 // active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
-// entry and one half float each. Texels outside the stored mask are written 0.
+// entry and one half float each, plus the near field's sum where the texel has one (then
+// clamped at 0: runtime/src/near.rs). Texels outside the stored mask are written 0.
 //
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
 // generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
@@ -23,7 +24,7 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     let r = tile_ranges[t];
     var n = 0u;
     for (var k = r.x; k < r.x + r.y; k++) {
-        let w = selected[record_clusters[k]].xyz;
+        let w = selected[records[k].cluster].xyz;
         if any(w != vec3f(0.0)) {
             let rec = records[k];
             active_records[t * params.active_stride + n] = ActiveRecord(w * rec.scale, rec.data_offset);
@@ -38,7 +39,8 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     if id.x >= params.atlas_width || id.y >= params.atlas_height {
         return;
     }
-    let slot = slots[id.y * params.atlas_width + id.x];
+    let texel = slots[id.y * params.atlas_width + id.x];
+    let slot = texel.x;
     var sum = vec3f(0.0);
     if slot != NO_SLOT {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
@@ -50,6 +52,9 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
             let pair = unpack2x16float(data[i / 2u]);
             sum += rec.weighted_scale * select(pair.x, pair.y, (i & 1u) == 1u);
         }
+    }
+    if texel.y != NO_SLOT {
+        sum = max(sum + near_sum[texel.y].xyz, vec3f(0.0));
     }
     textureStore(lightmap, vec2i(id.xy), vec4f(sum, 1.0));
 }

@@ -62,6 +62,9 @@ pub struct Args {
     /// Pane tile side in texels.
     #[arg(long)]
     tile_size: Option<u32>,
+    /// Reach of the near-field links in entry spacings (0: none; default 1.5).
+    #[arg(long)]
+    near_radius: Option<f32>,
     /// Radius in texels of the geometry-guided pane smoothing (0: none).
     #[arg(long)]
     smooth: Option<u32>,
@@ -92,6 +95,7 @@ pub fn run(a: Args) -> Result<()> {
     p.seed = a.seed.unwrap_or(p.seed);
     p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
+    p.near_radius = a.near_radius.unwrap_or(p.near_radius);
     p.groups = a.groups.unwrap_or(p.groups);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {

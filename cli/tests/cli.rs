@@ -270,13 +270,15 @@ fn precompute_evaluate_and_export_panes() {
     let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "-o", s(&lm)]);
     assert!(ok, "{err}");
     let c = Channels::read(&lm).unwrap();
-    // Every pane (no --top-k): the lightmap is the slow compose of the cluster weights, the
-    // member means of the ray-traced entry irradiance. The same f32 operations in the same
+    // Every pane (no --top-k): the lightmap is the slow compose of the cluster weights (from the
+    // ray-traced entry irradiance) plus the near field. The same f32 operations in the same
     // order, so equal up to 1e-6 of the brightest texel (round-off only).
     let scene = level("cornell.glb", 32);
     let bvh = prm::Bvh::build(&scene);
     let e = prm_runtime::cpu::entry_irradiance(&file, &bvh, &scene.lights);
-    let want = prm_runtime::cpu::compose(&file, &prm_runtime::cpu::cluster_weights(&file, &e));
+    let w = prm_runtime::cpu::cluster_weights(&file, &e);
+    let mut want = prm_runtime::cpu::compose(&file, &w);
+    prm_runtime::cpu::add_near_field(&file, &e, &w, &mut want);
     assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();

@@ -6,6 +6,7 @@ pub mod cells;
 pub mod cluster;
 pub mod entries;
 pub mod ground_truth;
+pub mod near;
 pub mod panes;
 pub mod parallel;
 pub mod params;

@@ -17,6 +17,7 @@ use serde::Serialize;
 use crate::cells::{entry_cells, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
+use crate::near::near_links;
 use crate::panes::tile_panes;
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
@@ -52,6 +53,8 @@ pub struct PrecomputeParams {
     /// sum of its clusters' panes: what a runtime composing only the top K adds for the clusters
     /// it leaves out (`prm::prm_file` module doc). 0: none; default 16.
     pub groups: u32,
+    /// Reach of the near-field links in entry spacings (`crate::near`; 0: none; default 1.5).
+    pub near_radius: f32,
 }
 
 impl PrecomputeParams {
@@ -74,6 +77,7 @@ impl PrecomputeParams {
             kmeans_iterations: 30,
             smooth_radius: 1,
             groups: 16,
+            near_radius: 1.5,
         }
     }
 
@@ -93,6 +97,7 @@ impl PrecomputeParams {
         )?;
         require(self.max_bounces >= 1, "max bounces", self.max_bounces, "at least 1")?;
         require(self.smooth_radius <= 16, "smooth radius", self.smooth_radius, "0 to 16")?;
+        require((0.0..=8.0).contains(&self.near_radius), "near radius", self.near_radius, "0 to 8")?;
         if let Estimator::Scatter { clamp } = self.estimator {
             require(clamp.is_finite() && clamp >= 0.0, "clamp", clamp, "finite and >= 0")?;
         }
@@ -128,6 +133,9 @@ pub struct Report {
     pub texels: usize,
     /// Entries dropped because they lie inside a solid.
     pub entries_enclosed: usize,
+    /// Near-field links (`crate::near`) and the seconds they took.
+    pub near_links: usize,
+    pub seconds_near: f64,
     /// Triangles of the entries' cells (`prm::prm_file::Cells`).
     pub cell_triangles: usize,
     /// Surface area no entry's cell covers (triangles too small for an entry, with none near
@@ -229,9 +237,19 @@ pub fn precompute(
     report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
+    let near = timed(&mut report.seconds_near, || {
+        if params.near_radius > 0.0 {
+            near_links(bvh, &set, &entries, &cells, params.near_radius)
+        } else {
+            Vec::new()
+        }
+    });
+    report.near_links = near.len();
+    report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
-    let prm = Prm::new(PrmParts { header, entries, cells, clusters, groups, group_of, tiles, mask, data })?;
+    let prm =
+        Prm::new(PrmParts { header, entries, cells, near, clusters, groups, group_of, tiles, mask, data })?;
     Ok((prm, report))
 }
 
@@ -320,7 +338,8 @@ fn header(
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
-            "smooth_radius": params.smooth_radius,
+            "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
+            "near_links": report.near_links,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,

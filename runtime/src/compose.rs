@@ -5,10 +5,11 @@
 //! (`tile_ranges[t]` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
 //! atlas tile's stored texels (or `NO_SLOT`). The half-float texel data is uploaded as is, two
 //! to a `u32`. Per compose, one invocation per atlas tile lists the stored tiles of selected
-//! panes (reading a 4-byte pane id per tile) with their weight already applied to the tile's
+//! panes (reading the pane id of each tile's record) with their weight already applied to the tile's
 //! colour scale; then each texel sums just those: a 16-byte entry and a half float each. A
 //! compose reads `2 bytes x stored texels` of each selected pane, never a whole atlas per
-//! cluster, and its work per texel is the number of selected panes stored there.
+//! cluster, and its work per texel is the number of selected panes stored there. Texels with
+//! near-field links add the near pass's sum (`crate::near`), and the total is clamped at zero.
 //!
 //! The lightmap is `Rgba32Float` (irradiance in W/m² in RGB, A = 1), atlas-sized, row 0 at
 //! v = 0: DESIGN.md §3's layout.
@@ -19,6 +20,7 @@ use crate::bindings::{b, bind, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE};
 use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
+use crate::near::NearPass;
 
 /// The pass's one bind group.
 pub const BINDINGS: &[Binding] = &[
@@ -28,15 +30,16 @@ pub const BINDINGS: &[Binding] = &[
     // Per atlas tile: (first record, record count).
     b("tile_ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("records", Res::Read("array<TileRecord>"), COMPUTE),
-    // Per atlas texel: its slot among its atlas tile's stored texels, or NO_SLOT.
-    b("slots", Res::Read("array<u32>"), COMPUTE),
+    // Per atlas texel: its slot among its atlas tile's stored texels, or NO_SLOT; and its index
+    // in near_sum, or NO_SLOT.
+    b("slots", Res::Read("array<vec2u>"), COMPUTE),
     // f16 intensities, two per u32.
     b("data", Res::Read("array<u32>"), COMPUTE),
     b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba32Float), COMPUTE),
-    // records[k].cluster, densely (what the gather reads).
-    b("record_clusters", Res::Read("array<u32>"), COMPUTE),
     b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
     b("active_count", Res::ReadWrite("array<u32>"), COMPUTE),
+    // The near pass's output (`crate::near`).
+    b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -128,7 +131,7 @@ fn lightmap_texture(device: &wgpu::Device, w: u32, h: u32) -> wgpu::Texture {
 }
 
 impl ComposePass {
-    pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer) -> ComposePass {
+    pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer, near: &NearPass) -> ComposePass {
         let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
         let ts = prm.header().tile_size;
         let tiles_x = prm.tiles_x();
@@ -144,7 +147,7 @@ impl ComposePass {
             active_stride: stride,
             ..Default::default()
         };
-        let record_clusters: Vec<u32> = records.iter().map(|r| r.cluster).collect();
+        let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
         let params = {
             use wgpu::util::DeviceExt;
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -156,10 +159,8 @@ impl ComposePass {
         let none = wgpu::BufferUsages::empty();
         let ranges_buf = gpu::storage_buffer(device, "tile ranges", bytemuck::cast_slice(&ranges), none);
         let records_buf = gpu::storage_buffer(device, "tile records", bytemuck::cast_slice(&records), none);
-        let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&slots), none);
+        let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&texel_slots), none);
         let data_buf = gpu::storage_buffer(device, "pane data", data, none);
-        let clusters_buf =
-            gpu::storage_buffer(device, "record clusters", bytemuck::cast_slice(&record_clusters), none);
         let active_buf = gpu::storage_buffer(
             device,
             "active records",
@@ -183,9 +184,9 @@ impl ComposePass {
                 ("slots", slots_buf.as_entire_binding()),
                 ("data", data_buf.as_entire_binding()),
                 ("lightmap", wgpu::BindingResource::TextureView(&view)),
-                ("record_clusters", clusters_buf.as_entire_binding()),
                 ("active_records", active_buf.as_entire_binding()),
                 ("active_count", count_buf.as_entire_binding()),
+                ("near_sum", near.sums.as_entire_binding()),
             ],
         );
         let source = SHADER.source();

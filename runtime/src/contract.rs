@@ -143,10 +143,11 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 6] = [
+pub const SHADERS: [&Shader; 7] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::weights::SHADER,
+    &crate::near::SHADER,
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,

@@ -141,6 +141,24 @@ gpu_struct! {
 }
 
 gpu_struct! {
+    /// A near-field link on the GPU (`shaders/near.wgsl`): the entry and albedo x factor.
+    pub struct GpuNearLink {
+        pub factor: [f32; 3],
+        pub entry: u32,
+    }
+}
+
+gpu_struct! {
+    /// A texel with near-field links: links `first .. first + count` (`shaders/near.wgsl`).
+    pub struct NearTexel {
+        pub texel: u32,
+        pub first: u32,
+        pub count: u32,
+        pub _pad0: u32,
+    }
+}
+
+gpu_struct! {
     /// A triangle of an entry's cell, corners counter-clockwise seen from the front
     /// (`prm::prm_file::Cells`).
     pub struct GpuCellTriangle {
@@ -164,7 +182,8 @@ gpu_struct! {
         pub group_count: u32,
         /// 1: groups stand in for the clusters left out.
         pub residual: u32,
-        pub _pad0: u32,
+        /// Texels with near-field links (`shaders/near.wgsl`).
+        pub near_texel_count: u32,
         pub _pad1: u32,
     }
 }
@@ -273,6 +292,8 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<GpuLight>(),
         one::<GpuEntry>(),
         one::<GpuCellTriangle>(),
+        one::<GpuNearLink>(),
+        one::<NearTexel>(),
         one::<IndirectParams>(),
         one::<ComposeParams>(),
         one::<TileRecord>(),

@@ -60,6 +60,7 @@ mod gpu;
 mod irradiance;
 mod layout;
 mod lights;
+mod near;
 mod runtime;
 mod shade;
 mod shadow;

@@ -15,6 +15,7 @@ use crate::compose::{ComposeBytes, ComposePass};
 use crate::irradiance::EntryPass;
 use crate::layout::IndirectParams;
 use crate::lights::LightError;
+use crate::near::NearPass;
 use crate::shadow::ShadowMaps;
 use crate::weights::WeightPass;
 
@@ -64,6 +65,7 @@ pub struct Runtime {
     shadows: ShadowMaps,
     entries: EntryPass,
     weights: WeightPass,
+    near: NearPass,
     compose: ComposePass,
     energies: Vec<f32>,
     clusters: usize,
@@ -104,7 +106,8 @@ impl Runtime {
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
         let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
-        let compose = ComposePass::new(device, prm, &weights.selected);
+        let near = NearPass::new(device, prm, &params_buf, &entries.output, &weights.weights);
+        let compose = ComposePass::new(device, prm, &weights.selected, &near);
         Ok(Runtime {
             device: device.clone(),
             queue: queue.clone(),
@@ -113,6 +116,7 @@ impl Runtime {
             shadows,
             entries,
             weights,
+            near,
             compose,
             energies: prm.clusters().iter().map(|c| c.energy).collect(),
             clusters: prm.clusters().len(),
@@ -146,6 +150,7 @@ impl Runtime {
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
         self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
         self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
+        self.near.encode(&mut enc);
         self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
         self.queue.submit([enc.finish()]);
         self.composes += 1;
@@ -177,6 +182,7 @@ impl Runtime {
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
         self.weights.encode(&mut enc, true, None);
+        self.near.clear(&mut enc);
         self.compose.encode(&mut enc, None);
         self.queue.submit([enc.finish()]);
         self.composes += 1;
@@ -203,6 +209,7 @@ impl Runtime {
             top_k: self.params.top_k.min(u32::MAX as usize) as u32,
             group_count: self.groups as u32,
             residual: self.params.residual as u32,
+            near_texel_count: self.near.count,
             ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));

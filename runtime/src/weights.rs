@@ -19,9 +19,11 @@ pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
     // Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
-    // (first child cluster, child count) into `indices` at ranges[C + g].
+    // (first child cluster, child count) into `indices` at ranges[C + g]. Each index comes with
+    // the member's near-field energy and cell area ratio (f32 bits, `prm_runtime::cpu::
+    // NearTables`; 0 for a group's children).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
-    b("indices", Res::Read("array<u32>"), COMPUTE),
+    b("indices", Res::Read("array<vec4u>"), COMPUTE),
     // Pane energy: C clusters, then G groups.
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
@@ -68,10 +70,14 @@ impl WeightPass {
         let n = prm.clusters().len();
         let g_count = prm.groups().len();
         let mut ranges = Vec::with_capacity(n + g_count);
-        let mut indices = Vec::new();
+        let near = crate::cpu::NearTables::new(prm);
+        let mut indices: Vec<[u32; 4]> = Vec::new();
         for c in prm.clusters() {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
-            indices.extend_from_slice(&c.members);
+            indices.extend(c.members.iter().map(|&m| {
+                let m = m as usize;
+                [m as u32, near.energy[m].to_bits(), near.area_ratio[m].to_bits(), 0]
+            }));
         }
         let mut children = vec![Vec::new(); g_count];
         for (c, &g) in prm.group_of().iter().enumerate() {
@@ -79,7 +85,7 @@ impl WeightPass {
         }
         for list in &children {
             ranges.push([indices.len() as u32, list.len() as u32]);
-            indices.extend_from_slice(list);
+            indices.extend(list.iter().map(|&c| [c, 0, 0, 0]));
         }
         let energy: Vec<f32> =
             prm.clusters().iter().map(|c| c.energy).chain(prm.groups().iter().map(|g| g.energy)).collect();

@@ -110,6 +110,18 @@ fn entries(p: &PrmParts) -> Result<(), String> {
     if let Some(k) = cells.triangles.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
         return Err(format!("cell triangle {k} has non-finite corners"));
     }
+    let texels = p.header.atlas_width as u64 * p.header.atlas_height as u64;
+    for (k, l) in p.near.iter().enumerate() {
+        if l.texel as u64 >= texels || l.entry as usize >= n || !(l.factor.is_finite() && l.factor >= 0.0) {
+            return Err(format!(
+                "near-field link {k} is out of range (texel {}, entry {}, factor {})",
+                l.texel, l.entry, l.factor
+            ));
+        }
+        if k > 0 && (p.near[k - 1].texel, p.near[k - 1].entry) >= (l.texel, l.entry) {
+            return Err(format!("near-field link {k} is out of order"));
+        }
+    }
     for (k, c) in p.clusters.iter().enumerate() {
         if let Some(bad) = c.members.iter().find(|&&m| m as usize >= n) {
             return Err(format!("cluster {k}'s member {bad} is not an entry (there are {n})"));

@@ -11,6 +11,8 @@
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
+//!     NEAR  L x 12 B: texel u32 (row-major atlas index), entry u32, factor f32; sorted by
+//!           texel then entry
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
@@ -37,6 +39,11 @@
 //! small to hold an entry). The runtime's entry weight is the power its cell receives over the
 //! entry's area, so a light close to a surface delivers its power however small its hot spot
 //! (DESIGN.md §4). A v2 file has no cells and is refused: bake it again.
+//!
+//! **Near-field links** (v3): per texel, the entries whose cells lie within a few entry
+//! spacings, with the first bounce each cell sends to the texel per unit weight. The runtime
+//! adds `albedo_j (E_j - w_c(j)) factor` over them: what the cluster mean leaves out next to a
+//! hot spot (`prm_precompute::near`).
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -120,6 +127,15 @@ impl Cells {
     }
 }
 
+/// A near-field link: texel `texel` (row-major atlas index) receives `albedo x factor` W/m² of
+/// first bounce per W/m² of weight on entry `entry` (module doc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NearLink {
+    pub texel: u32,
+    pub entry: u32,
+    pub factor: f32,
+}
+
 /// A cluster of entry points sharing one pane and one runtime weight.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Cluster {
@@ -189,6 +205,8 @@ pub struct PrmParts {
     pub entries: Vec<Entry>,
     /// The surface each entry stands for.
     pub cells: Cells,
+    /// Near-field links, sorted by texel then entry (may be empty).
+    pub near: Vec<NearLink>,
     pub clusters: Vec<Cluster>,
     /// Coarse panes over the clusters (may be empty).
     pub groups: Vec<Group>,
@@ -309,6 +327,7 @@ impl PrmParts {
         let mut w = Writer(&mut out);
         w.entries(&self.entries);
         w.cells(&self.cells);
+        w.near(&self.near);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
         w.mask(&self.mask);
@@ -349,6 +368,11 @@ impl Prm {
     /// The surface each entry stands for.
     pub fn cells(&self) -> &Cells {
         &self.parts.cells
+    }
+
+    /// Near-field links, sorted by texel then entry.
+    pub fn near(&self) -> &[NearLink] {
+        &self.parts.near
     }
 
     pub fn clusters(&self) -> &[Cluster] {
@@ -490,13 +514,14 @@ impl Prm {
         let parts = (|| -> Result<PrmParts, SectionError> {
             let entries = r.entries(&header)?;
             let cells = r.cells(entries.len())?;
+            let near = r.near()?;
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
             let mask = r.mask()?;
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
             r.finish()?;
-            Ok(PrmParts { header, entries, cells, clusters, groups, group_of, tiles, mask, data })
+            Ok(PrmParts { header, entries, cells, near, clusters, groups, group_of, tiles, mask, data })
         })()
         .map_err(|e| match e {
             SectionError::Truncated(what) => truncated(&what),
@@ -572,6 +597,10 @@ mod tests {
                 vec![[Vec3::ZERO, Vec3::Z, Vec3::X]],
                 vec![[Vec3::X, Vec3::Z, Vec3::X + Vec3::Z], [Vec3::X, Vec3::X + Vec3::Z, Vec3::X * 2.0]],
             ]),
+            near: vec![
+                NearLink { texel: 3, entry: 0, factor: 0.5 },
+                NearLink { texel: 3, entry: 1, factor: 0.25 },
+            ],
             clusters: vec![Cluster {
                 members: vec![0, 1],
                 centroid: Vec3::new(0.5, 0.0, 0.0),
@@ -607,6 +636,10 @@ mod tests {
             ("cell offsets", |p| p.cells.first = vec![0, 1]),
             ("cell offsets", |p| p.cells.first[1] = 4),
             ("non-finite corners", |p| p.cells.triangles[2][1].y = f32::NAN),
+            ("near-field link 1 is out of range", |p| p.near[1].entry = 2),
+            ("near-field link 0 is out of range", |p| p.near[0].texel = 16),
+            ("near-field link 1 is out of range", |p| p.near[1].factor = f32::NAN),
+            ("near-field link 1 is out of order", |p| p.near.swap(0, 1)),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

@@ -7,11 +7,12 @@
 use glam::Vec3;
 use half::f16;
 
-use super::{Cells, Cluster, Entry, Group, Header, Tile};
+use super::{Cells, Cluster, Entry, Group, Header, NearLink, Tile};
 
 /// Section byte sizes.
 pub(super) const ENTRY_BYTES: usize = 48;
 pub(super) const CELL_TRIANGLE_BYTES: usize = 36;
+pub(super) const NEAR_BYTES: usize = 12;
 pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
@@ -53,6 +54,17 @@ impl Writer<'_> {
             }
         }
         self.section(b"CELL", &c);
+    }
+
+    /// `NEAR`: the links.
+    pub(super) fn near(&mut self, near: &[NearLink]) {
+        let mut n = Vec::with_capacity(near.len() * NEAR_BYTES);
+        for l in near {
+            n.extend_from_slice(&l.texel.to_le_bytes());
+            n.extend_from_slice(&l.entry.to_le_bytes());
+            n.extend_from_slice(&l.factor.to_le_bytes());
+        }
+        self.section(b"NEAR", &n);
     }
 
     /// `CLUS` and `MEMB`: each cluster's record points at its run of the member list.
@@ -262,6 +274,17 @@ impl<'a> Reader<'a> {
                 .map(|b| [v3(b, 0), v3(b, 12), v3(b, 24)])
                 .collect(),
         })
+    }
+
+    /// `NEAR` (what the links point at is an invariant, checked with the others).
+    pub(super) fn near(&mut self) -> Result<Vec<NearLink>, SectionError> {
+        let n = self.next(b"NEAR")?;
+        if n.len() % NEAR_BYTES != 0 {
+            return Err(Corrupt(format!("near-field links are {} bytes, not whole records", n.len())));
+        }
+        Ok(n.chunks_exact(NEAR_BYTES)
+            .map(|b| NearLink { texel: u32_at(b, 0), entry: u32_at(b, 4), factor: f32_at(b, 8) })
+            .collect())
     }
 
     /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).

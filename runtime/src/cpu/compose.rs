@@ -6,18 +6,73 @@ use glam::Vec3;
 use prm::luminance;
 use prm::prm_file::{Prm, TileLayout};
 
-/// Cluster weights from per-entry irradiance: the mean over each cluster's members.
+/// Cluster weights from per-entry irradiance: the mean `m_c` over each cluster's members, less
+/// the share the near field already delivers.
+///
+/// The near field (`add_near_field`) adds `sum_j (E_j - w_c t_j) near_j` of energy over the
+/// texels (`near_j`: entry j's links' energy per unit weight, `t_j` its cell's area over its
+/// cluster's mean cell area: [`NearTables`]); nothing makes that zero (a hot entry on a floor
+/// has no links to its coplanar floor, its colder neighbours by a wall do). So `w_c` is chosen
+/// to keep the cluster's energy, panes plus near field, at `m_c energy_c`:
+/// `w_c = (m_c energy_c - sum_j E_j near_j) / (energy_c - sum_j t_j near_j)`, the denominator
+/// kept at >= 0.1 energy_c and `w_c` at >= 0. Without links, the mean.
 pub fn cluster_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
+    let tables = NearTables::new(prm);
     prm.clusters()
         .iter()
         .map(|c| {
             if c.members.is_empty() {
                 return Vec3::ZERO;
             }
-            c.members.iter().map(|&m| entry_irradiance[m as usize]).fold(Vec3::ZERO, |a, b| a + b)
-                / c.members.len() as f32
+            let (mut sum, mut near_sum, mut near_total) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
+            for &m in &c.members {
+                let (e, m) = (entry_irradiance[m as usize], m as usize);
+                sum += e;
+                near_sum += e * tables.energy[m];
+                near_total += tables.energy[m] * tables.area_ratio[m];
+            }
+            let w = sum / c.members.len() as f32;
+            if near_total > 0.0 && c.energy > 0.0 {
+                ((w * c.energy - near_sum) / (c.energy - near_total).max(0.1 * c.energy)).max(Vec3::ZERO)
+            } else {
+                w
+            }
         })
         .collect()
+}
+
+/// Per-entry tables of the near field, built once per map.
+pub struct NearTables {
+    /// The cluster of each entry.
+    pub cluster: Vec<u32>,
+    /// `t_j`: the entry's cell area over its cluster's mean cell area. Under even light an
+    /// entry's weight is `t_j` times its cluster's mean, so `E_j - w_c t_j` is zero there: the
+    /// near field answers only to light that is uneven over the cluster.
+    pub area_ratio: Vec<f32>,
+    /// The energy the entry's links deliver per unit deviation: `sum over its links of
+    /// luminance(albedo) x factor`, in the units of a pane's energy (summed over texels).
+    pub energy: Vec<f32>,
+}
+
+impl NearTables {
+    pub fn new(prm: &Prm) -> NearTables {
+        let n = prm.entries().len();
+        let (mut cluster, mut area_ratio, mut energy) = (vec![0u32; n], vec![0.0f32; n], vec![0.0f32; n]);
+        let cells = prm.cells();
+        for (c, cl) in prm.clusters().iter().enumerate() {
+            let total: f32 = cl.members.iter().map(|&m| cells.area(m as usize)).sum();
+            let mean = total / cl.members.len().max(1) as f32;
+            for &m in &cl.members {
+                cluster[m as usize] = c as u32;
+                area_ratio[m as usize] = if mean > 0.0 { cells.area(m as usize) / mean } else { 0.0 };
+            }
+        }
+        for l in prm.near() {
+            let j = l.entry as usize;
+            energy[j] += luminance(prm.entries()[j].albedo) * l.factor;
+        }
+        NearTables { cluster, area_ratio, energy }
+    }
 }
 
 /// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,
@@ -99,4 +154,21 @@ pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
         }
     }
     img
+}
+
+/// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`): each texel with
+/// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
+/// the entries' irradiance and the cluster weights, and is then clamped at zero, as on the GPU.
+pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
+    let tables = NearTables::new(prm);
+    for links in prm.near().chunk_by(|a, b| a.texel == b.texel) {
+        let mut sum = Vec3::ZERO;
+        for l in links {
+            let j = l.entry as usize;
+            let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
+            sum += prm.entries()[j].albedo * l.factor * (entry_irradiance[j] - expected);
+        }
+        let texel = links[0].texel as usize;
+        img[texel] = (img[texel] + sum).max(Vec3::ZERO);
+    }
 }

@@ -19,6 +19,9 @@ mod compose;
 #[cfg(feature = "cpu-twin")]
 mod twin;
 
-pub use compose::{add_pane, cluster_weights, compose, compose_selected, residual_weights, select_top_k};
+pub use compose::{
+    add_near_field, add_pane, cluster_weights, compose, compose_selected, residual_weights, select_top_k,
+    NearTables,
+};
 #[cfg(feature = "cpu-twin")]
 pub use twin::{entry_irradiance, CpuTwin};

@@ -6,7 +6,7 @@ use prm::prm_file::Prm;
 use prm::{Bvh, Light};
 use rayon::prelude::*;
 
-use super::{cluster_weights, compose_selected, select_top_k};
+use super::{add_near_field, cluster_weights, compose_selected, select_top_k};
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
 /// visibility, [`prm::bvh::cell_power`]) over the entry's area, as the GPU pass computes it.
@@ -80,6 +80,7 @@ impl<'a> CpuTwin<'a> {
             chosen[c] = true;
         }
         self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
+        add_near_field(self.prm, &e, &w, &mut self.lightmap);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());

@@ -1,0 +1,70 @@
+//! Near-field links (DESIGN.md §4, `prm::prm_file::NearLink`): the first bounce from the entry
+//! cells close to each texel, for the part of it a cluster's pane cannot say.
+//!
+//! A pane answers unit irradiance spread over its whole cluster. A light close to a surface
+//! puts its power into one or two cells, and texels a few cm from them (the other walls of a
+//! corner) see that hot spot from close by: the cluster mean spreads it over metres. The
+//! runtime adds, per texel x, `sum_j albedo_j (E_j - w_c(j)) factor_xj` over the entries j
+//! linked to x: the deviation of each entry's weight from its cluster's, times the first
+//! bounce its cell sends to x per unit weight. Deviations sum to zero over a cluster, so their
+//! far field is small and links are kept only within [`NearParams::radius`] entry spacings.
+//!
+//! `factor_xj = (A / N) / A_cell F(x -> cell) V`: entry j's weight E carries `E A/N` W, which
+//! leaves its cell (area A_cell) as uniform exitance `albedo E (A/N) / A_cell`; a Lambertian
+//! polygon of exitance M gives irradiance `M F` at x, with F the point-to-polygon form factor
+//! (Lambert's contour integral, the cell clipped to x's hemisphere). V is one shadow ray from x
+//! to the entry. Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
+
+use glam::Vec3;
+use prm::prm_file::{Cells, Entry, NearLink};
+use prm::{Bvh, TexelSet};
+use rayon::prelude::*;
+
+use crate::reference::form_factor::point_to_polygon;
+
+/// Links below this factor are dropped (a deviation of 1 W/m² then adds under 1e-4 W/m²).
+pub const MIN_FACTOR: f32 = 1e-4;
+
+/// The links of every covered texel of `set` to the entries whose cell centroid lies within
+/// `radius` entry spacings (sqrt(A / N)) plus the cell's own size, sorted by texel (atlas
+/// row-major index) then entry.
+pub fn near_links(bvh: &Bvh, set: &TexelSet, entries: &[Entry], cells: &Cells, radius: f32) -> Vec<NearLink> {
+    let Some(first) = entries.first() else { return Vec::new() };
+    let reach = radius * first.area.sqrt();
+    let cell: Vec<(Vec3, f32)> = (0..entries.len())
+        .map(|j| {
+            let (mut c, mut a) = (Vec3::ZERO, 0.0);
+            for t in cells.of(j) {
+                let at = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
+                c += (t[0] + t[1] + t[2]) / 3.0 * at;
+                a += at;
+            }
+            (if a > 0.0 { c / a } else { entries[j].position }, a)
+        })
+        .collect();
+    let width = set.width as usize;
+    let per_texel: Vec<Vec<NearLink>> = set
+        .texels
+        .par_iter()
+        .map(|t| {
+            let texel = (t.j as usize * width + t.i as usize) as u32;
+            let mut out = Vec::new();
+            for (j, e) in entries.iter().enumerate() {
+                let (centroid, area) = cell[j];
+                if !(area > 0.0) || centroid.distance(t.position) > reach + area.sqrt() {
+                    continue;
+                }
+                let f: f32 = cells.of(j).iter().map(|tri| point_to_polygon(t.position, t.normal, tri)).sum();
+                let factor = e.area / area * f;
+                if !(factor >= MIN_FACTOR) || !bvh.visible(t.position, t.normal, e.position, e.normal) {
+                    continue;
+                }
+                out.push(NearLink { texel, entry: j as u32, factor });
+            }
+            out
+        })
+        .collect();
+    let mut links: Vec<NearLink> = per_texel.into_iter().flatten().collect();
+    links.sort_by_key(|l| (l.texel, l.entry));
+    links
+}
