@@ -698,6 +698,18 @@ fn report_writes_figures_and_plots() {
         assert_eq!((&r[2], &r[5]), (&r[3], &r[6]), "top-32 vs all at C = 32: {r:?}");
     }
     assert!(md.contains("runtime budget (N=512 M=8 C=32"), "{md}");
+    // Light placement: cornell_torches.json's six keyframes, then the smoke sweep (2 cm and
+    // 0.5 above the floor), each with its distance to the nearest surface.
+    let place = table(&md, "| placement");
+    assert_eq!(place.len(), 8, "{md}");
+    let distance = |r: &[String]| r[1].parse::<f32>().unwrap();
+    assert!((distance(&place[3]) - 0.02).abs() < 1e-3, "2 cm over the floor: {:?}", place[3]);
+    assert_eq!(place[6][0], "0.02 above the surface");
+    assert!((distance(&place[6]) - 0.02).abs() < 1e-3, "{:?}", place[6]);
+    for r in &place {
+        assert!(r[2..].iter().all(|c| error_ok(c)), "{r:?}");
+    }
+    assert!(out.join("placement.png").is_file());
     // With every pane composed no cluster is left out, so groups add nothing.
     assert_eq!(run[1][0], "all");
     assert_eq!(run[1][2..4], run[1][4..6], "all panes with and without groups");

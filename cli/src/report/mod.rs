@@ -20,6 +20,7 @@
 
 mod markdown;
 mod measure;
+mod placement;
 mod plots;
 mod rig;
 mod sweeps;
@@ -44,6 +45,10 @@ pub struct Args {
     /// the middle 40 % of the level's width).
     #[arg(long)]
     rig: Option<PathBuf>,
+    /// Torch rig for the light placement part (default: `<level>_torches.json` beside the
+    /// level; without one the part is left out).
+    #[arg(long)]
+    torches: Option<PathBuf>,
     /// A smaller budget: under 15 minutes per bundled scene on 2 cores.
     #[arg(long)]
     quick: bool,
@@ -72,6 +77,8 @@ struct Budget {
     /// (photons, VPLs per virtual light at the first bounce)
     reference: Vec<(usize, usize)>,
     rig_reference: (usize, usize),
+    /// Heights of the light placement sweep (scene units above the surface).
+    placement_heights: Vec<f32>,
     frame_width: u32,
     frame_reps: usize,
 }
@@ -89,6 +96,7 @@ impl Budget {
                 top_k: vec![4, usize::MAX],
                 reference: vec![(2000, 64)],
                 rig_reference: (2000, 64),
+                placement_heights: vec![0.02, 0.5],
                 frame_width: 32,
                 frame_reps: 2,
             };
@@ -103,6 +111,7 @@ impl Budget {
             top_k: vec![8, 16, 32, 64, 128, usize::MAX],
             reference: vec![(10_000, 64), (20_000, 64), (40_000, 64)],
             rig_reference: (10_000, 64),
+            placement_heights: vec![0.02, 0.15, 0.5, 2.0],
             frame_width: 640,
             frame_reps: 9,
         };
@@ -113,6 +122,7 @@ impl Budget {
             b.prm.push((8192, 256, 512));
             b.reference.extend([(80_000, 64), (40_000, 32)]);
             b.rig_reference = (40_000, 64);
+            b.placement_heights = vec![0.02, 0.05, 0.15, 0.5, 1.0, 2.0];
         }
         b
     }
@@ -130,6 +140,11 @@ struct Figures {
     runtime: RuntimeSweep,
     reference: Vec<Point>,
     frames: Vec<Frame>,
+    /// The production configuration's map (the rig and the placements use it).
+    map: prm::prm_file::Prm,
+    /// The torch rig used for the light placement section, and its placements.
+    torches: Option<PathBuf>,
+    placements: Vec<placement::Placement>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -143,7 +158,16 @@ pub fn run(a: Args) -> Result<()> {
     };
     let level = Level::new(scene, b.atlas)?;
     let gpu = Gpu::new().ok();
-    let figures = measure(&b, &level, &rig, gpu.as_ref(), a.seed)?;
+    let torches = a.torches.clone().or_else(|| placement::torch_rig_beside(&a.scene.scene));
+    let torch_rig = match &torches {
+        Some(p) => Some(Rig::load(p, &level.scene.lights)?),
+        None => None,
+    };
+    let mut figures = measure(&b, &level, &rig, gpu.as_ref(), a.seed)?;
+    if let (Some(path), Some(r)) = (&torches, &torch_rig) {
+        figures.placements = placement::placements(&b, &level, r, &figures.map, gpu.as_ref(), a.seed)?;
+        figures.torches = Some(path.clone());
+    }
     let plots = plots::write_plots(&a.output, &figures, gpu.is_some())?;
     let md = markdown::markdown(&a, &b, &level.scene, &figures, plots, start.elapsed().as_secs_f64());
     prm::fsutil::write_bytes_atomic(&a.output.join("report.md"), md.as_bytes())
@@ -167,5 +191,17 @@ fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -
     let runtime = runtime_sweep(b, level, &map, &gt, gpu)?;
     let reference = reference_sweep(b, level, &gt, seed)?;
     let frames = rig_frames(b, level, rig, &map, gpu, seed)?;
-    Ok(Figures { device, gt_seconds, gt_noise, prod: b.prm[b.production], prm, runtime, reference, frames })
+    Ok(Figures {
+        device,
+        gt_seconds,
+        gt_noise,
+        prod: b.prm[b.production],
+        prm,
+        runtime,
+        reference,
+        frames,
+        map,
+        torches: None,
+        placements: Vec::new(),
+    })
 }

@@ -25,6 +25,9 @@ pub fn write_plots(output: &Path, f: &Figures, gpu: bool) -> Result<bool> {
     plot_precompute(&output.join("precompute.png"), &f.prm, &f.reference)?;
     plot_runtime(&output.join("runtime.png"), &f.runtime, gpu)?;
     plot_rig(&output.join("rig.png"), &f.frames)?;
+    if !f.placements.is_empty() {
+        plot_placement(&output.join("placement.png"), &f.placements)?;
+    }
     Ok(true)
 }
 
@@ -301,5 +304,54 @@ fn plot_rig_flicker(area: &DrawingArea<BitMapBackend, Shift>, frames: &[Frame]) 
             BLACK.stroke_width(1),
         ))
         .map_err(plot_err)?;
+    Ok(())
+}
+
+/// Error (noise removed) against the distance to the nearest surface, log scale: lines for the
+/// height sweep, dots for the torch rig's keyframes.
+fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Result<()> {
+    let root = BitMapBackend::new(path, (900, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let clean = |p: &super::placement::Placement, m: usize| {
+        (p.frame.errors[m].powi(2) - p.frame.gt_noise.powi(2)).max(0.0).sqrt() * 100.0
+    };
+    let d = |p: &super::placement::Placement| (p.distance as f64).max(1e-3);
+    let (lo, hi) = placements.iter().map(d).fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
+    let e1 = placements.iter().flat_map(|p| [clean(p, 0), clean(p, 1), clean(p, 2)]).fold(0.0, f64::max)
+        * 1.15
+        + 0.5;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Error against the light's distance to the nearest surface", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((lo * 0.8..hi * 1.25).log_scale(), 0.0..e1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("distance to the nearest surface (scene units, log)")
+        .y_desc("error, ground-truth noise removed (%)")
+        .draw()
+        .map_err(plot_err)?;
+    let mut sweep: Vec<&super::placement::Placement> = placements.iter().filter(|p| p.sweep).collect();
+    sweep.sort_by(|a, b| a.distance.total_cmp(&b.distance));
+    for m in 0..3 {
+        let c = RIG_COLOURS[m];
+        chart
+            .draw_series(LineSeries::new(sweep.iter().map(|p| (d(p), clean(p, m))), c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(RIG_NAMES[m])
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart
+            .draw_series(
+                placements
+                    .iter()
+                    .filter(|p| !p.sweep)
+                    .map(|p| Circle::new((d(p), clean(p, m)), 4, c.filled())),
+            )
+            .map_err(plot_err)?;
+    }
+    legend(&mut chart)?;
+    root.present().map_err(plot_err)?;
     Ok(())
 }

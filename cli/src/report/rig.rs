@@ -85,7 +85,7 @@ pub fn rig_frames(
 }
 
 /// One frame of the rig: ground truth, PRM top-32, PRM all panes and the reference.
-fn rig_frame(
+pub fn rig_frame(
     b: &Budget,
     level: &Level,
     lights: &[Light],
