@@ -42,8 +42,8 @@
 //!
 //! **Near-field links** (v3): per texel, the entries whose cells lie within a few entry
 //! spacings, with the first bounce each cell sends to the texel per unit weight. The runtime
-//! adds `albedo_j (E_j - w_c(j)) factor` over them: what the cluster mean leaves out next to a
-//! hot spot (`prm_precompute::near`).
+//! adds `albedo_j (E_j - w_c(j) t_j) factor` over them: what the cluster mean leaves out next
+//! to a hot spot (`prm_precompute::near`).
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
