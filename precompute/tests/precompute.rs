@@ -290,6 +290,9 @@ fn absurd_parameters_are_refused_naming_the_parameter() {
         (PrecomputeParams { atlas: 100_000, ..preview() }, "atlas", "100000"),
         (PrecomputeParams { drop_threshold: 0.9, ..preview() }, "drop threshold", "0.9"),
         (PrecomputeParams { estimator: Estimator::Scatter { clamp: f32::NAN }, ..preview() }, "clamp", "NaN"),
+        (PrecomputeParams { near_radius: f32::NAN, ..preview() }, "near radius", "NaN"),
+        (PrecomputeParams { near_radius: -1.0, ..preview() }, "near radius", "-1"),
+        (PrecomputeParams { near_radius: 100.0, ..preview() }, "near radius", "100"),
     ] {
         let e = p.validate().unwrap_err();
         assert_eq!((e.name, e.value.as_str()), (name, value), "{e}");

@@ -623,6 +623,15 @@ mod tests {
         assert_eq!(prm.pane_tiles(0, &prm.layout()).map(|t| t.texels.len()).sum::<usize>(), 16);
     }
 
+    /// A v2 file (no cells, no near-field links) is refused, saying what to do.
+    #[test]
+    fn an_older_version_is_refused_with_a_rebake_message() {
+        let mut bytes = Prm::new(parts()).unwrap().to_bytes();
+        bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
+        assert!(err.contains("version 2") && err.contains("run prm precompute again"), "{err}");
+    }
+
     #[test]
     fn every_broken_invariant_is_refused_with_its_reason() {
         type Break = fn(&mut PrmParts);
