@@ -1,7 +1,7 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
-// weights_main: w_c = mean irradiance of cluster c's members, less the near field's share
-// (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
+// weights_main: w_c = the power on cluster c's cells over their area, less the near field's
+// share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c. select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
@@ -21,15 +21,21 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     var near_sum = vec3f(0.0);
     var near_total = 0.0;
+    var t_total = 0.0;
     for (var k = r.x; k < r.x + r.y; k++) {
         let m = indices[k];
         let e = entry_irradiance[m.x].xyz;
         let near = bitcast<f32>(m.y);
+        let t = bitcast<f32>(m.z);
         sum += e;
         near_sum += e * near;
-        near_total += near * bitcast<f32>(m.z);
+        near_total += near * t;
+        t_total += t;
     }
-    var w = sum / f32(max(r.y, 1u));
+    var w = vec3f(0.0);
+    if t_total > 0.0 {
+        w = sum / t_total;
+    }
     let energy_c = energy[c];
     if near_total > 0.0 && energy_c > 0.0 {
         w = max((w * energy_c - near_sum) / max(energy_c - near_total, 0.1 * energy_c), vec3f(0.0));

@@ -6,8 +6,7 @@
 //! corner) see that hot spot from close by: the cluster mean spreads it over metres. The
 //! runtime adds, per texel x, `sum_j albedo_j (E_j - w_c(j) t_j) factor_xj` over the entries j
 //! linked to x: the deviation of each entry's weight from what even light over its cluster
-//! would give it (`t_j`: its cell's area over the cluster's mean; `prm_runtime::cpu::
-//! NearTables`), times the first bounce its cell sends to x per unit weight. Deviations sum to
+//! would give it (`t_j`: its cell's area over A/N; `prm_runtime::cpu::NearTables`), times the first bounce its cell sends to x per unit weight. Deviations sum to
 //! about zero over a cluster, so their far field is small and links are kept only within a few
 //! entry spacings (`PrecomputeParams::near_radius`); the runtime lowers each cluster's weight
 //! by the energy its links deliver, so what the truncation leaves unbalanced is not gained or

@@ -20,8 +20,8 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
     // Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
     // (first child cluster, child count) into `indices` at ranges[C + g]. Each index comes with
-    // the member's near-field energy and cell area ratio (f32 bits, `prm_runtime::cpu::
-    // NearTables`; 0 for a group's children).
+    // the member's near-field energy and its cell's area over A/N (f32 bits,
+    // `prm_runtime::cpu::NearTables`; 0 for a group's children).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
     // Pane energy: C clusters, then G groups.
