@@ -283,6 +283,31 @@ impl Scene {
         (0..self.triangles.len()).map(|t| self.area(t) as f64).sum()
     }
 
+    /// Distance from `p` to triangle `t` (to its plane inside it, else to its nearest edge);
+    /// infinite for a degenerate triangle.
+    pub fn distance_to_triangle(&self, t: usize, p: Vec3) -> f32 {
+        let [a, b, c] = self.corners(t);
+        let Some(n) = (b - a).cross(c - a).try_normalize() else { return f32::INFINITY };
+        let q = p - n * n.dot(p - a);
+        let edges = [(a, b), (b, c), (c, a)];
+        if edges.iter().all(|&(u, v)| (v - u).cross(q - u).dot(n) >= 0.0) {
+            return (p - q).length();
+        }
+        edges
+            .iter()
+            .map(|&(u, v)| {
+                let s = ((p - u).dot(v - u) / (v - u).length_squared()).clamp(0.0, 1.0);
+                (p - (u + (v - u) * s)).length()
+            })
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    /// Distance from `p` to the nearest surface, by brute force over the triangles (for tools
+    /// and tests: where a light sits, not a per-frame query).
+    pub fn nearest_surface_distance(&self, p: Vec3) -> f32 {
+        (0..self.triangles.len()).map(|t| self.distance_to_triangle(t, p)).fold(f32::INFINITY, f32::min)
+    }
+
     /// "node N mesh M primitive P triangle T" for messages.
     pub fn describe_triangle(&self, t: usize) -> String {
         let tri = &self.triangles[t];

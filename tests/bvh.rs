@@ -187,3 +187,24 @@ fn axis_aligned_rays_with_negative_zero_components_hit() {
         assert!(hit.is_some_and(|h| (h.t - 1.0).abs() < 1e-6), "direction {dir:?} missed");
     }
 }
+
+/// `Scene::distance_to_triangle` and `nearest_surface_distance` against hand-worked answers: a
+/// right triangle in y = 0, points above its inside, beyond an edge and beyond a corner.
+#[test]
+fn distance_to_a_triangle_is_to_its_plane_edge_or_corner() {
+    let pos = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 0.0)];
+    let scene = Scene::from_mesh(pos, vec![Vec2::ZERO; 3], &[0, 1, 2]);
+    let cases = [
+        (Vec3::new(0.2, 0.5, 0.2), 0.5),           // above the inside: the plane
+        (Vec3::new(0.2, -0.3, 0.2), 0.3),          // below it
+        (Vec3::new(0.5, 0.0, -0.4), 0.4),          // beyond the edge z = 0
+        (Vec3::new(1.0, 0.0, 1.0), 0.5f32.sqrt()), // beyond the hypotenuse
+        (Vec3::new(-0.3, 0.4, -0.0), 0.5),         // beyond the corner at 0
+        (Vec3::new(2.0, 0.0, 0.0), 1.0),           // beyond the corner at x = 1
+    ];
+    for (p, want) in cases {
+        let got = scene.distance_to_triangle(0, p);
+        assert!((got - want).abs() < 1e-6, "{p}: {got} vs {want}");
+        assert_eq!(scene.nearest_surface_distance(p), got);
+    }
+}

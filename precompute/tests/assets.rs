@@ -97,25 +97,6 @@ fn two_rooms_are_sealed_except_for_the_door() {
     assert!(!bvh.visible_point(Vec3::new(2.0, 0.0, -1.5), Vec3::Y, light));
 }
 
-/// Distance from `p` to triangle `t` (closest point by projecting on the plane, else on the
-/// nearest edge).
-fn distance_to_triangle(scene: &Scene, t: usize, p: Vec3) -> f32 {
-    let [a, b, c] = scene.corners(t);
-    let n = (b - a).cross(c - a).normalize();
-    let q = p - n * n.dot(p - a);
-    let inside = [(a, b), (b, c), (c, a)].iter().all(|&(u, v)| (v - u).cross(q - u).dot(n) >= 0.0);
-    if inside {
-        return (p - q).length();
-    }
-    [(a, b), (b, c), (c, a)]
-        .iter()
-        .map(|&(u, v)| {
-            let s = ((p - u).dot(v - u) / (v - u).length_squared()).clamp(0.0, 1.0);
-            (p - (u + (v - u) * s)).length()
-        })
-        .fold(f32::INFINITY, f32::min)
-}
-
 /// The torch rigs (`assets/<level>_torches.json`) put a torch where games do: every keyframe
 /// is a place inside the level (rays from it meet only front faces; cornell's front is open), one is mid-room, one 2 cm
 /// above the floor, one near three surfaces at once (a corner), one under the ceiling.
@@ -146,7 +127,7 @@ fn torch_rigs_visit_the_places_games_put_lights() {
                 assert!(scene.facing_normal(t, dir).is_some(), "{name}: torch at {p} is inside a solid");
             }
             let near: Vec<(f32, Vec3)> = (0..scene.triangles.len())
-                .map(|t| (distance_to_triangle(&scene, t, p), scene.face_normal(t)))
+                .map(|t| (scene.distance_to_triangle(t, p), scene.face_normal(t)))
                 .collect();
             let nearest = near.iter().map(|x| x.0).fold(f32::INFINITY, f32::min);
             floor |= p.y <= 0.021 && nearest <= 0.021;

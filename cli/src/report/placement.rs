@@ -15,11 +15,10 @@ use anyhow::Result;
 use glam::Vec3;
 use prm::prm_file::Prm;
 use prm::rig::Rig;
-use prm::Scene;
-use prm_runtime::{Gpu, Runtime, RuntimeParams};
+use prm_runtime::Gpu;
 
 use super::measure::Level;
-use super::rig::{rig_frame, Frame};
+use super::rig::{report_runtime, rig_frame, Frame};
 use super::Budget;
 
 pub struct Placement {
@@ -38,29 +37,6 @@ pub fn torch_rig_beside(scene: &Path) -> Option<PathBuf> {
     p.is_file().then_some(p)
 }
 
-/// Distance from `p` to triangle `t` of `scene`.
-fn distance_to_triangle(scene: &Scene, t: usize, p: Vec3) -> f32 {
-    let [a, b, c] = scene.corners(t);
-    let Some(n) = (b - a).cross(c - a).try_normalize() else { return f32::INFINITY };
-    let q = p - n * n.dot(p - a);
-    let edges = [(a, b), (b, c), (c, a)];
-    if edges.iter().all(|&(u, v)| (v - u).cross(q - u).dot(n) >= 0.0) {
-        return (p - q).length();
-    }
-    edges
-        .iter()
-        .map(|&(u, v)| {
-            let s = ((p - u).dot(v - u) / (v - u).length_squared()).clamp(0.0, 1.0);
-            (p - (u + (v - u) * s)).length()
-        })
-        .fold(f32::INFINITY, f32::min)
-}
-
-/// Distance from `p` to the nearest surface of `scene`.
-pub fn nearest_surface(scene: &Scene, p: Vec3) -> f32 {
-    (0..scene.triangles.len()).map(|t| distance_to_triangle(scene, t, p)).fold(f32::INFINITY, f32::min)
-}
-
 /// Every placement of the torch rig's first animated light, measured.
 pub fn placements(
     b: &Budget,
@@ -72,16 +48,7 @@ pub fn placements(
 ) -> Result<Vec<Placement>> {
     let Some(k) = torches.lights.iter().position(|l| !l.keys.is_empty()) else { return Ok(Vec::new()) };
     let keys: Vec<(f64, Vec3)> = torches.lights[k].keys.iter().map(|key| (key.0, key.1)).collect();
-    let mut rt = match gpu {
-        Some(g) => Some(Runtime::new(
-            &g.device,
-            &g.queue,
-            &level.scene,
-            map,
-            RuntimeParams { top_k: 32, shadow_size: 1024, residual: true },
-        )?),
-        None => None,
-    };
+    let mut rt = report_runtime(gpu, level, map)?;
     let mut todo: Vec<(String, bool, Vec<prm::Light>)> = keys
         .iter()
         .enumerate()
@@ -89,7 +56,7 @@ pub fn placements(
         .collect();
     // The sweep: straight up from the lowest keyframe's spot.
     if let Some(&(t, low)) = keys.iter().min_by(|a, b| a.1.y.total_cmp(&b.1.y)) {
-        let floor = low.y - nearest_surface(&level.scene, low);
+        let floor = low.y - level.scene.nearest_surface_distance(low);
         let top = level.scene.bounds().1.y;
         for &h in &b.placement_heights {
             let p = Vec3::new(low.x, floor + h, low.z);
@@ -104,7 +71,7 @@ pub fn placements(
     let mut out = Vec::new();
     for (i, (label, sweep, lights)) in todo.into_iter().enumerate() {
         eprintln!("light placement {} ({label})...", i + 1);
-        let distance = nearest_surface(&level.scene, lights[k].position);
+        let distance = level.scene.nearest_surface_distance(lights[k].position);
         let frame = rig_frame(b, level, &lights, map, rt.as_mut(), seed)?;
         out.push(Placement { label, distance, sweep, frame });
     }

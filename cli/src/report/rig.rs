@@ -56,6 +56,21 @@ pub fn default_rig(scene: &Scene) -> Result<Rig> {
     Ok(Rig::parse(Path::new("(default rig)"), &json, &scene.lights)?)
 }
 
+/// The GPU runtime the report's frames are composed on (top-32 + groups, 1024² shadow maps),
+/// or none without an adapter (then the CPU twin).
+pub fn report_runtime(gpu: Option<&Gpu>, level: &Level, map: &Prm) -> Result<Option<Runtime>> {
+    Ok(match gpu {
+        Some(g) => Some(Runtime::new(
+            &g.device,
+            &g.queue,
+            &level.scene,
+            map,
+            RuntimeParams { top_k: 32, shadow_size: 1024, residual: true },
+        )?),
+        None => None,
+    })
+}
+
 /// Every frame of the rig, measured: on the GPU runtime when there is one (else the CPU twin).
 pub fn rig_frames(
     b: &Budget,
@@ -66,16 +81,7 @@ pub fn rig_frames(
     seed: u64,
 ) -> Result<Vec<Frame>> {
     let mut frames = Vec::new();
-    let mut rt = match gpu {
-        Some(g) => Some(Runtime::new(
-            &g.device,
-            &g.queue,
-            &level.scene,
-            map,
-            RuntimeParams { top_k: 32, shadow_size: 1024, residual: true },
-        )?),
-        None => None,
-    };
+    let mut rt = report_runtime(gpu, level, map)?;
     for f in 0..b.rig_frames {
         eprintln!("rig frame {} of {}...", f + 1, b.rig_frames);
         let lights = rig.frame(f, b.rig_frames);
