@@ -23,7 +23,11 @@ use prm::prm_file::{Prm, TileLayout};
 /// `w_c = (m_c energy_c - sum_j E_j near_j) / (energy_c - sum_j t_j near_j)`, the denominator
 /// kept at >= 0.1 energy_c and `w_c` at >= 0. Without links, `m_c`.
 pub fn cluster_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
-    let tables = NearTables::new(prm);
+    cluster_weights_with(prm, &NearTables::new(prm), entry_irradiance)
+}
+
+/// [`cluster_weights`] with the map's [`NearTables`] built once (per frame they are the same).
+pub fn cluster_weights_with(prm: &Prm, tables: &NearTables, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
     prm.clusters()
         .iter()
         .map(|c| {
@@ -166,7 +170,17 @@ pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
 /// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
 /// the entries' irradiance and the cluster weights, and is then clamped at zero, as on the GPU.
 pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
-    let tables = NearTables::new(prm);
+    add_near_field_with(prm, &NearTables::new(prm), entry_irradiance, weights, img);
+}
+
+/// [`add_near_field`] with the map's [`NearTables`] built once.
+pub fn add_near_field_with(
+    prm: &Prm,
+    tables: &NearTables,
+    entry_irradiance: &[Vec3],
+    weights: &[Vec3],
+    img: &mut [Vec3],
+) {
     for links in prm.near().chunk_by(|a, b| a.texel == b.texel) {
         let mut sum = Vec3::ZERO;
         for l in links {

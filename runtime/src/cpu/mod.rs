@@ -20,8 +20,8 @@ mod compose;
 mod twin;
 
 pub use compose::{
-    add_near_field, add_pane, cluster_weights, compose, compose_selected, residual_weights, select_top_k,
-    NearTables,
+    add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with, compose,
+    compose_selected, residual_weights, select_top_k, NearTables,
 };
 #[cfg(feature = "cpu-twin")]
 pub use twin::{entry_irradiance, CpuTwin};

@@ -6,7 +6,7 @@ use prm::prm_file::Prm;
 use prm::{Bvh, Light};
 use rayon::prelude::*;
 
-use super::{add_near_field, cluster_weights, compose_selected, select_top_k};
+use super::{add_near_field_with, cluster_weights_with, compose_selected, select_top_k, NearTables};
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
 /// visibility, [`prm::bvh::cell_power`]) over the entry's area, as the GPU pass computes it.
@@ -40,6 +40,7 @@ pub struct CpuTwin<'a> {
     /// Clusters composed in the last compose.
     pub last_selected: usize,
     residual: bool,
+    near: NearTables,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -56,6 +57,7 @@ impl<'a> CpuTwin<'a> {
             composes: 0,
             last_selected: 0,
             residual: true,
+            near: NearTables::new(prm),
         }
     }
 
@@ -72,7 +74,7 @@ impl<'a> CpuTwin<'a> {
             return &self.lightmap;
         }
         let e = entry_irradiance(self.prm, self.bvh, lights);
-        let w = cluster_weights(self.prm, &e);
+        let w = cluster_weights_with(self.prm, &self.near, &e);
         let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
         let selected = select_top_k(&w, &energies, self.top_k);
         let mut chosen = vec![false; w.len()];
@@ -80,7 +82,7 @@ impl<'a> CpuTwin<'a> {
             chosen[c] = true;
         }
         self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
-        add_near_field(self.prm, &e, &w, &mut self.lightmap);
+        add_near_field_with(self.prm, &self.near, &e, &w, &mut self.lightmap);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());
