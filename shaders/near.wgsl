@@ -1,7 +1,18 @@
-// Near field (runtime/src/near.rs, prm_precompute::near): for each texel with links,
-// near_sum = sum over its links of factor x (E_entry - w_cluster(entry) t_entry), t the cell's
-// area over its cluster's mean (prm_runtime::cpu::NearTables), factor = albedo x the
-// cell's first bounce per unit weight. Structs, bindings, WG_LINEAR: the generated prelude.
+// Near field (runtime/src/near.rs, prm_precompute::near). deviation_main, one invocation per
+// entry: deviation = E_entry - w_cluster(entry) t_entry, t the cell's area over A/N
+// (prm_runtime::cpu::NearTables). near_main, one per texel with links: near_sum = sum over its
+// links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
+// read per link). Structs, bindings, WG_LINEAR: the generated prelude.
+
+@compute @workgroup_size(WG_LINEAR)
+fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
+    let j = id.x;
+    if j >= params.entry_count {
+        return;
+    }
+    let ec = entry_cluster[j];
+    deviation[j] = vec4f(entry_irradiance[j].xyz - weights[ec.x].xyz * bitcast<f32>(ec.y), 0.0);
+}
 
 @compute @workgroup_size(WG_LINEAR)
 fn near_main(@builtin(global_invocation_id) id: vec3u) {
@@ -13,9 +24,7 @@ fn near_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     for (var i = t.first; i < t.first + t.count; i++) {
         let l = near_links[i];
-        let ec = entry_cluster[l.entry];
-        let deviation = entry_irradiance[l.entry].xyz - weights[ec.x].xyz * bitcast<f32>(ec.y);
-        sum += l.factor * deviation;
+        sum += l.factor * deviation[l.entry].xyz;
     }
     near_sum[k] = vec4f(sum, 0.0);
 }

@@ -62,7 +62,7 @@ pub struct Args {
     /// Pane tile side in texels.
     #[arg(long)]
     tile_size: Option<u32>,
-    /// Reach of the near-field links in entry spacings (0: none; default 1.5).
+    /// Reach of the near-field links in entry spacings (0: none; default 2.5).
     #[arg(long)]
     near_radius: Option<f32>,
     /// Radius in texels of the geometry-guided pane smoothing (0: none).

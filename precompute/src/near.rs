@@ -58,7 +58,8 @@ pub fn near_links(bvh: &Bvh, set: &TexelSet, entries: &[Entry], cells: &Cells, r
                     continue;
                 }
                 let f: f32 = cells.of(j).iter().map(|tri| point_to_polygon(t.position, t.normal, tri)).sum();
-                let factor = e.area / area * f;
+                // Rounded as the file stores it (a half float), so a bake and its file agree.
+                let factor = half::f16::from_f32(e.area / area * f).to_f32();
                 if !(factor >= MIN_FACTOR) || !bvh.visible(t.position, t.normal, e.position, e.normal) {
                     continue;
                 }

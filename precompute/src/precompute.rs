@@ -53,7 +53,7 @@ pub struct PrecomputeParams {
     /// sum of its clusters' panes: what a runtime composing only the top K adds for the clusters
     /// it leaves out (`prm::prm_file` module doc). 0: none; default 16.
     pub groups: u32,
-    /// Reach of the near-field links in entry spacings (`crate::near`; 0: none; default 1.5).
+    /// Reach of the near-field links in entry spacings (`crate::near`; 0: none; default 2.5).
     pub near_radius: f32,
 }
 
@@ -77,7 +77,7 @@ impl PrecomputeParams {
             kmeans_iterations: 30,
             smooth_radius: 1,
             groups: 16,
-            near_radius: 1.5,
+            near_radius: 2.5,
         }
     }
 

@@ -20,6 +20,8 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_cluster", Res::Read("array<vec2u>"), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
     b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
+    // Per entry, this frame's `E_j - w_c t_j` (written by `deviation_main`).
+    b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // One per linked texel, in near_texels order (the compose finds it through its slots).
     b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
@@ -29,11 +31,16 @@ pub const SHADER: Shader = Shader {
     body: include_str!("../../shaders/near.wgsl"),
     lights: false,
     groups: &[BINDINGS],
-    compute: &[Compute { entry: "near_main", workgroup: LINEAR }],
+    compute: &[
+        Compute { entry: "deviation_main", workgroup: LINEAR },
+        Compute { entry: "near_main", workgroup: LINEAR },
+    ],
 };
 
 pub struct NearPass {
+    deviation_pipeline: wgpu::ComputePipeline,
     pipeline: wgpu::ComputePipeline,
+    entries: u32,
     group: wgpu::BindGroup,
     /// Texels with links.
     pub count: u32,
@@ -84,6 +91,12 @@ impl NearPass {
             gpu::storage_buffer(device, "entry clusters", bytemuck::cast_slice(&entry_cluster), none);
         let texels_buf = gpu::storage_buffer(device, "near texels", bytemuck::cast_slice(&texels), none);
         let links_buf = gpu::storage_buffer(device, "near links", bytemuck::cast_slice(&links), none);
+        let deviation = gpu::storage_buffer(
+            device,
+            "entry deviations",
+            &vec![0u8; prm.entries().len().max(1) * 16],
+            wgpu::BufferUsages::empty(),
+        );
         let sums = gpu::storage_buffer(
             device,
             "near sums",
@@ -103,11 +116,16 @@ impl NearPass {
                 ("entry_cluster", cluster_buf.as_entire_binding()),
                 ("near_texels", texels_buf.as_entire_binding()),
                 ("near_links", links_buf.as_entire_binding()),
+                ("deviation", deviation.as_entire_binding()),
                 ("near_sum", sums.as_entire_binding()),
             ],
         );
-        let pipeline = gpu::compute_pipeline(device, "near.wgsl", &SHADER.source(), "near_main", &[&layout]);
-        NearPass { pipeline, group, count, sums, index }
+        let source = SHADER.source();
+        let pipeline = gpu::compute_pipeline(device, "near.wgsl", &source, "near_main", &[&layout]);
+        let deviation_pipeline =
+            gpu::compute_pipeline(device, "near.wgsl", &source, "deviation_main", &[&layout]);
+        let entries = prm.entries().len() as u32;
+        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index }
     }
 
     /// Records the pass (after the weights, before the compose).
@@ -119,8 +137,10 @@ impl NearPass {
             label: Some("near field"),
             timestamp_writes: None,
         });
-        pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(&self.deviation_pipeline);
+        pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
+        pass.set_pipeline(&self.pipeline);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
     }
 

@@ -70,7 +70,7 @@ fn an_unchanged_frame_does_no_compose_work() {
 /// A lamp 4 cm from the corner where the open box's floor and two walls meet: three hot spots a
 /// few cm across, each lighting the other two surfaces from close by (entry spacing ~5 cm).
 /// Against the ground truth (light paths, its noise removed), the near-field links must at
-/// least halve the PRM's error (measured: 0.81 without, 0.39 with: the cells are as large as
+/// least halve the PRM's error (measured: 0.80 without, 0.37 with: the cells are as large as
 /// the hot spots, and a cell's light is spread evenly over it).
 #[test]
 fn the_near_field_lights_a_corner_next_to_a_lamp() {
@@ -105,7 +105,7 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
         let e = prm::metric::compare(&at, &gt, None).error;
         (e * e - noise * noise).max(0.0).sqrt()
     };
-    let (without, with) = (error(0.0), error(1.5));
+    let (without, with) = (error(0.0), error(2.5));
     println!("corner lamp: error {without:.3} without the near field, {with:.3} with (ground-truth noise {noise:.3})");
     assert!(with <= 0.5 * without, "error {with} with the near field, {without} without");
 }

@@ -11,8 +11,9 @@
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
-//!     NEAR  L x 12 B: texel u32 (row-major atlas index), entry u32, factor f32; sorted by
-//!           texel then entry
+//!     NEAR  u32 R runs, u32 L links, u32 entry width W (2 or 4); R x 8 B: texel u32
+//!           (row-major atlas index), link count u32; L x W B: entry (u16 or u32); L x f16:
+//!           factor. Links sorted by texel then entry
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
@@ -128,7 +129,8 @@ impl Cells {
 }
 
 /// A near-field link: texel `texel` (row-major atlas index) receives `albedo x factor` W/m² of
-/// first bounce per W/m² of weight on entry `entry` (module doc).
+/// first bounce per W/m² of weight on entry `entry` (module doc). Stored as a half float: a
+/// bake rounds the factor to one before it makes the map, so a map and its file agree.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NearLink {
     pub texel: u32,

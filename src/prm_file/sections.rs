@@ -12,7 +12,6 @@ use super::{Cells, Cluster, Entry, Group, Header, NearLink, Tile};
 /// Section byte sizes.
 pub(super) const ENTRY_BYTES: usize = 48;
 pub(super) const CELL_TRIANGLE_BYTES: usize = 36;
-pub(super) const NEAR_BYTES: usize = 12;
 pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
@@ -56,13 +55,28 @@ impl Writer<'_> {
         self.section(b"CELL", &c);
     }
 
-    /// `NEAR`: the links.
+    /// `NEAR`: runs of links per texel, then the entries (u16 when every index fits, else
+    /// u32), then the factors as half floats.
     pub(super) fn near(&mut self, near: &[NearLink]) {
-        let mut n = Vec::with_capacity(near.len() * NEAR_BYTES);
+        let runs: Vec<&[NearLink]> = near.chunk_by(|a, b| a.texel == b.texel).collect();
+        let wide = near.iter().any(|l| l.entry > u16::MAX as u32);
+        let mut n = Vec::with_capacity(12 + runs.len() * 8 + near.len() * 6);
+        n.extend_from_slice(&(runs.len() as u32).to_le_bytes());
+        n.extend_from_slice(&(near.len() as u32).to_le_bytes());
+        n.extend_from_slice(&(if wide { 4u32 } else { 2u32 }).to_le_bytes());
+        for r in &runs {
+            n.extend_from_slice(&r[0].texel.to_le_bytes());
+            n.extend_from_slice(&(r.len() as u32).to_le_bytes());
+        }
         for l in near {
-            n.extend_from_slice(&l.texel.to_le_bytes());
-            n.extend_from_slice(&l.entry.to_le_bytes());
-            n.extend_from_slice(&l.factor.to_le_bytes());
+            if wide {
+                n.extend_from_slice(&l.entry.to_le_bytes());
+            } else {
+                n.extend_from_slice(&(l.entry as u16).to_le_bytes());
+            }
+        }
+        for l in near {
+            n.extend_from_slice(&f16::from_f32(l.factor).to_le_bytes());
         }
         self.section(b"NEAR", &n);
     }
@@ -279,12 +293,42 @@ impl<'a> Reader<'a> {
     /// `NEAR` (what the links point at is an invariant, checked with the others).
     pub(super) fn near(&mut self) -> Result<Vec<NearLink>, SectionError> {
         let n = self.next(b"NEAR")?;
-        if n.len() % NEAR_BYTES != 0 {
-            return Err(Corrupt(format!("near-field links are {} bytes, not whole records", n.len())));
+        if n.len() < 12 {
+            return Err(Corrupt(format!("near-field section of {} bytes", n.len())));
         }
-        Ok(n.chunks_exact(NEAR_BYTES)
-            .map(|b| NearLink { texel: u32_at(b, 0), entry: u32_at(b, 4), factor: f32_at(b, 8) })
-            .collect())
+        let (runs, links, width) = (u32_at(n, 0) as u64, u32_at(n, 4) as u64, u32_at(n, 8) as u64);
+        if !(width == 2 || width == 4) || n.len() as u64 != 12 + runs * 8 + links * (width + 2) {
+            return Err(Corrupt(format!(
+                "{runs} near-field runs and {links} links of {width}-byte entries declared, {} bytes",
+                n.len()
+            )));
+        }
+        let (heads, rest) = n[12..].split_at(runs as usize * 8);
+        let (entries, factors) = rest.split_at((links * width) as usize);
+        let entry = |k: usize| {
+            let i = k * width as usize;
+            if width == 2 {
+                u16::from_le_bytes([entries[i], entries[i + 1]]) as u32
+            } else {
+                u32_at(entries, i)
+            }
+        };
+        let mut out = Vec::with_capacity(links as usize);
+        for h in heads.chunks_exact(8) {
+            let (texel, count) = (u32_at(h, 0), u32_at(h, 4) as u64);
+            if out.len() as u64 + count > links {
+                return Err(Corrupt("near-field runs hold more links than declared".into()));
+            }
+            for _ in 0..count {
+                let k = out.len();
+                let factor = f16::from_le_bytes([factors[2 * k], factors[2 * k + 1]]).to_f32();
+                out.push(NearLink { texel, entry: entry(k), factor });
+            }
+        }
+        if out.len() as u64 != links {
+            return Err(Corrupt("near-field runs hold fewer links than declared".into()));
+        }
+        Ok(out)
     }
 
     /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).
