@@ -296,7 +296,15 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
     let tables = [
         ("pane data", prm.data().len() as u64 * 2),
-        ("texel slots", w as u64 * h as u64 * 4),
+        ("texel slots", w as u64 * h as u64 * 8),
+        (
+            "entry cells",
+            prm.cells().triangles.len() as u64 * std::mem::size_of::<crate::layout::GpuCellTriangle>() as u64,
+        ),
+        (
+            "near-field links",
+            prm.near().len() as u64 * std::mem::size_of::<crate::layout::GpuNearLink>() as u64,
+        ),
         (
             "active-record lists",
             per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64,
