@@ -16,6 +16,11 @@
 //! texel toward the triangle's centroid: edges are often seams with another wall, and a point on
 //! one lets rays leak through it (DESIGN.md §3). The normal is the owner's geometric normal.
 //!
+//! **Buried points** (`buried`): a sample point under something standing on its surface (a
+//! texel half under a pillar) moves to the visible part of its texel, and a texel with no
+//! visible part is dropped and filled like the gutter. Every estimator uses
+//! [`TexelSet::build_visible`]; [`TexelSet::build`] alone is the geometric set.
+//!
 //! **Dilation.** Bilinear lookup at a point inside a triangle reads the 2x2 texels around it,
 //! all within one texel (8-neighbourhood) of a covered texel. So every empty texel with a covered
 //! 8-neighbour gets a [`Dilation`] entry: its value is the mean of its covered 4-neighbours, or
@@ -26,6 +31,11 @@ use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
 use crate::scene::Scene;
+
+#[cfg(all(feature = "bvh", feature = "sampling"))]
+mod buried;
+#[cfg(all(feature = "bvh", feature = "sampling"))]
+pub use buried::{is_buried, Burial, BURIAL_RAYS};
 
 /// Overlap (in texels) below which a triangle and a texel square are taken as only touching.
 pub const COVERAGE_EPS: f64 = 1e-7;
@@ -74,6 +84,9 @@ pub struct TexelSet {
     pub zero_uv_area_triangles: usize,
     /// Dilated texels whose sources lie in different UV charts (too little padding at this size).
     pub shared_gutter_texels: usize,
+    /// What [`TexelSet::unbury`] moved and dropped (zero until it runs).
+    #[cfg(all(feature = "bvh", feature = "sampling"))]
+    pub buried: Burial,
 }
 
 /// A candidate owner of a texel.
@@ -135,6 +148,8 @@ impl TexelSet {
             dilation: Vec::new(),
             zero_uv_area_triangles,
             shared_gutter_texels: 0,
+            #[cfg(all(feature = "bvh", feature = "sampling"))]
+            buried: Burial::default(),
         };
         set.dilation = set.dilation_ring();
         set.shared_gutter_texels = set.count_shared_gutters(&crate::uv::charts(scene));

@@ -224,3 +224,73 @@ fn texel_set_is_the_same_at_any_thread_count() {
     assert_eq!(one.texels, two.texels);
     assert_eq!(one.dilation, two.dilation);
 }
+
+/// A 1 m floor (its own UVs over the whole 16² atlas: texel (i, j) is x, z in [i, i+1] / 16,
+/// [j, j+1] / 16) with a closed box of side 0.3 m standing on it over x, z in [0.3, 0.6]. The
+/// box has zero UV area, so it owns no texels.
+fn floor_with_box() -> Scene {
+    let mut pos = Vec::new();
+    let mut uv = Vec::new();
+    let mut quad = |c: [Vec3; 4], floor: bool| {
+        for k in [0, 1, 2, 0, 2, 3] {
+            pos.push(c[k]);
+            uv.push(if floor { Vec2::new(c[k].x, c[k].z) } else { Vec2::ZERO });
+        }
+    };
+    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    quad([v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)], true);
+    let (a, b, h) = (0.3, 0.6, 0.3);
+    quad([v(a, h, a), v(a, h, b), v(b, h, b), v(b, h, a)], false); // top, up
+    quad([v(b, 0., a), v(b, h, a), v(b, h, b), v(b, 0., b)], false); // +x
+    quad([v(a, 0., b), v(a, h, b), v(a, h, a), v(a, 0., a)], false); // -x
+    quad([v(b, 0., b), v(b, h, b), v(a, h, b), v(a, 0., b)], false); // +z
+    quad([v(a, 0., a), v(a, h, a), v(b, h, a), v(b, 0., a)], false); // -z
+    let idx: Vec<u32> = (0..pos.len() as u32).collect();
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+#[test]
+fn buried_points_move_to_the_visible_part_and_buried_texels_are_dropped() {
+    let scene = floor_with_box();
+    let bvh = prm::Bvh::build(&scene);
+    let plain = TexelSet::build(&scene, 16, 16);
+    assert_eq!(plain.len(), 256);
+    let set = TexelSet::build_visible(&scene, &bvh, 16, 16);
+    // Texel columns (and rows) 5..=8 lie wholly under the box (x in [0.3125, 0.5625] within
+    // [0.3, 0.6]); column 9 ([0.5625, 0.625]) has its centre under it and a visible strip
+    // beyond x = 0.6; column 4's centre (0.28) is already outside.
+    let under = |i: u32| (5..=8).contains(&i);
+    let edge = |i: u32| (5..=9).contains(&i);
+    assert_eq!(set.buried.dropped, 16, "the 4 x 4 texels wholly under the box");
+    assert_eq!(set.buried.moved, 9, "column 9 and row 9 next to the box, their corner included");
+    assert_eq!(set.len(), 256 - 16);
+    for t in &set.texels {
+        assert!(!(under(t.i) && under(t.j)), "texel ({}, {}) is wholly under the box", t.i, t.j);
+        assert!(
+            !prm::texels::is_buried(&scene, &bvh, t.position, t.normal),
+            "texel ({}, {}) buried",
+            t.i,
+            t.j
+        );
+        let p = t.position;
+        let in_square = |x: f32, i: u32| x >= i as f32 / 16.0 - 1e-6 && x <= (i + 1) as f32 / 16.0 + 1e-6;
+        assert!(in_square(p.x, t.i) && in_square(p.z, t.j), "texel ({}, {}) left its square: {p}", t.i, t.j);
+        if edge(t.i) && edge(t.j) {
+            assert!(p.x > 0.6 || p.z > 0.6, "texel ({}, {}) point {p} is under the box", t.i, t.j);
+        } else {
+            let centre = Vec3::new((t.i as f32 + 0.5) / 16.0, 0.0, (t.j as f32 + 0.5) / 16.0);
+            // 1e-3: a centre on the floor's diagonal is pulled 0.01 texel off it (`EDGE_PULL`).
+            assert!(p.distance(centre) < 1e-3, "texel ({}, {}) moved though its centre is visible", t.i, t.j);
+        }
+    }
+    // The dropped texels next to visible ones are filled from them, like the gutter.
+    let targets: Vec<u32> = set.dilation.iter().map(|d| d.target).collect();
+    for (i, j) in [(5, 5), (8, 8), (5, 8), (8, 5)] {
+        assert!(targets.contains(&(j * 16 + i)), "corner texel ({i}, {j}) under the box is not dilated");
+    }
+    // Without the box nothing moves.
+    let mut bare = floor_with_box();
+    bare.triangles.truncate(2);
+    let bare_set = TexelSet::build_visible(&bare, &prm::Bvh::build(&bare), 16, 16);
+    assert_eq!((bare_set.buried.moved, bare_set.buried.dropped, bare_set.len()), (0, 0, 256));
+}

@@ -66,7 +66,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut scene = load(&a.scene, a.atlas, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
-    let set = TexelSet::build(&scene, a.atlas, a.atlas);
+    let set = TexelSet::build_visible(&scene, &bvh, a.atlas, a.atlas);
     let t = Instant::now();
     let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
     let lights_s = t.elapsed().as_secs_f64();

@@ -33,8 +33,13 @@ pub fn run(a: Args) -> Result<()> {
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
     twin.set_residual(!a.no_residual);
+    let set = TexelSet::build_visible(
+        &scene,
+        &bvh,
+        bytes_prm.header().atlas_width,
+        bytes_prm.header().atlas_height,
+    );
     let img = twin.frame(&lights).to_vec();
-    let set = TexelSet::build(&scene, bytes_prm.header().atlas_width, bytes_prm.header().atlas_height);
     let (w, h) = (set.width as usize, set.height as usize);
     let mut ch = Channels::new(w, h);
     ch.insert_rgb("", &img);

@@ -96,7 +96,7 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -> Result<serde_json::Value> {
-    let set = TexelSet::build(tracer.scene, a.atlas, a.atlas);
+    let set = TexelSet::build_visible(tracer.scene, tracer.bvh, a.atlas, a.atlas);
     if set.is_empty() {
         bail!("the level has no lightmap texels at {}^2", a.atlas);
     }

@@ -40,7 +40,7 @@ pub fn run(a: Args) -> Result<()> {
     check_atlas(a.atlas)?;
     let scene = load(&a.scene, a.atlas, a.json)?;
     let start = Instant::now();
-    let set = TexelSet::build(&scene, a.atlas, a.atlas);
+    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), a.atlas, a.atlas);
     let build_seconds = start.elapsed().as_secs_f64();
     let charts = prm::uv::charts(&scene).iter().max().map_or(0, |m| m + 1);
     let lm = Lightmap { set, atlas: a.atlas, charts, build_seconds };
@@ -98,6 +98,8 @@ fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
             "coverage": set.len() as f64 / lm.total(),
             "dilated": set.dilation.len(),
             "gutter_texels_shared_by_charts": set.shared_gutter_texels,
+            "buried_points_moved": set.buried.moved,
+            "buried_texels_dropped": set.buried.dropped,
             "world_texel_size": (scene.total_area() / set.len().max(1) as f64).sqrt(),
             "build_seconds": lm.build_seconds,
         },
@@ -153,13 +155,15 @@ fn print_lightmap(scene: &Scene, lm: &Lightmap, summary: &Value) {
         set.zero_uv_area_triangles
     );
     println!(
-        "  texels      {} of {}^2 covered ({:.1} %), {} dilated, {} gutter texels shared by charts, ~{:.4} \
-            units per texel, built in {:.3} s",
+        "  texels      {} of {}^2 covered ({:.1} %), {} dilated, {} gutter texels shared by charts, {} buried \
+            points moved and {} buried texels dropped, ~{:.4} units per texel, built in {:.3} s",
         set.len(),
         lm.atlas,
         100.0 * set.len() as f64 / lm.total(),
         set.dilation.len(),
         set.shared_gutter_texels,
+        set.buried.moved,
+        set.buried.dropped,
         summary["texels"]["world_texel_size"].as_f64().unwrap_or(0.0),
         lm.build_seconds
     );

@@ -25,17 +25,19 @@ pub fn run(a: Args) -> Result<()> {
     check_atlas(a.atlas)?;
     let scene = load(&a.scene, a.atlas, false)?;
     let start = Instant::now();
-    let set = TexelSet::build(&scene, a.atlas, a.atlas);
+    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), a.atlas, a.atlas);
     let built = start.elapsed();
     texel_channels(&set).write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
     println!(
-        "{}: {} of {}x{} texels covered ({:.1} %), {} dilated, built in {:.3} s -> {}",
+        "{}: {} of {}x{} texels covered ({:.1} %), {} dilated, {} buried points moved, {} buried texels dropped, built in {:.3} s -> {}",
         a.scene.scene.display(),
         set.len(),
         a.atlas,
         a.atlas,
         100.0 * set.len() as f64 / (a.atlas as f64 * a.atlas as f64),
         set.dilation.len(),
+        set.buried.moved,
+        set.buried.dropped,
         built.as_secs_f64(),
         a.output.display()
     );

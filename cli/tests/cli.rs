@@ -34,7 +34,7 @@ fn level(name: &str, atlas: u32) -> prm::Scene {
 /// as the CLI's images store it: a full atlas, dilated.
 fn direct_image(scene: &prm::Scene, atlas: u32) -> Vec<Vec3> {
     let bvh = prm::Bvh::build(scene);
-    let set = prm::TexelSet::build(scene, atlas, atlas);
+    let set = prm::TexelSet::build_visible(scene, &bvh, atlas, atlas);
     let v: Vec<Vec3> = set
         .texels
         .iter()

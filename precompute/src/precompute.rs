@@ -191,7 +191,8 @@ pub fn precompute(
         threads: rayon::current_num_threads(),
         ..Default::default()
     };
-    let set = timed(&mut report.seconds_texels, || TexelSet::build(scene, params.atlas, params.atlas));
+    let set =
+        timed(&mut report.seconds_texels, || TexelSet::build_visible(scene, bvh, params.atlas, params.atlas));
     report.texels = set.len();
     progress(Phase::Texels, 1, 1);
 

@@ -22,7 +22,7 @@ impl Level {
     /// The BVH and the texel set at `atlas`²; a level without texels there is refused.
     pub fn new(scene: Scene, atlas: u32) -> Result<Level> {
         let bvh = Bvh::build(&scene);
-        let set = TexelSet::build(&scene, atlas, atlas);
+        let set = TexelSet::build_visible(&scene, &bvh, atlas, atlas);
         if set.is_empty() {
             bail!("the level has no lightmap texels at {}^2", atlas);
         }
