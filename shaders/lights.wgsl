@@ -124,25 +124,3 @@ fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     scale *= range_window(length((a + b + c) / 3.0), l.range);
     return l.intensity * scale;
 }
-
-// Power from every light onto triangle (a, b, c), each light's shadow-mapped visibility taken
-// at the triangle's centroid (W).
-fn lit_triangle_power(a: vec3f, b: vec3f, c: vec3f, count: u32) -> vec3f {
-    let twice_area = cross(b - a, c - a);
-    let len = length(twice_area);
-    if !(len > 0.0) {
-        return vec3f(0.0);
-    }
-    let n = twice_area / len;
-    let centroid = (a + b + c) / 3.0;
-    var sum = vec3f(0.0);
-    for (var k = 0u; k < count; k++) {
-        let l = lights[k];
-        let p = triangle_power(l, a, b, c);
-        if all(p == vec3f(0.0)) {
-            continue;
-        }
-        sum += p * visibility(l, centroid, n, distance(l.position, centroid));
-    }
-    return sum;
-}

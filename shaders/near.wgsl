@@ -2,7 +2,8 @@
 // entry: deviation = E_entry - w_cluster(entry) t_entry, t the cell's area over A/N
 // (prm_runtime::cpu::NearTables). near_main, one per texel with links: near_sum = sum over its
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
-// read per link). Structs, bindings, WG_LINEAR: the generated prelude.
+// read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
+// in place of the entry's. Structs, bindings, WG_LINEAR: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
 fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
@@ -24,7 +25,13 @@ fn near_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     for (var i = t.first; i < t.first + t.count; i++) {
         let l = near_links[i];
-        sum += l.factor * deviation[l.entry].xyz;
+        var d = deviation[l.entry].xyz;
+        let own = link_light[i];
+        if own.w == params.frame {
+            // A hot cell: the link's own light in place of the entry's.
+            d += bitcast<vec3f>(own.xyz) - entry_irradiance[l.entry].xyz;
+        }
+        sum += l.factor * d;
     }
     near_sum[k] = vec4f(sum, 0.0);
 }

@@ -28,7 +28,9 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         let near = bitcast<f32>(m.y);
         let t = bitcast<f32>(m.z);
         sum += e;
-        near_sum += e * near;
+        let hot = hot_energy[m.x];
+        // A hot entry's links deliver what their own light says (concentrate.wgsl).
+        near_sum += select(e * near, bitcast<vec3f>(hot.xyz), hot.w == params.frame);
         near_total += near * t;
         t_total += t;
     }

@@ -267,18 +267,37 @@ fn precompute_evaluate_and_export_panes() {
     assert_eq!(v["tiles_kept"].as_u64().unwrap(), file.header().tiles as u64);
     assert_eq!(v["tiles_dropped"].as_u64().unwrap(), file.header().tiles_dropped as u64);
     let lm = dir.path().join("lm.exr");
-    let (ok, _, err) = prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&prm_path), "-o", s(&lm)]);
+    // The torch rig's corner keyframe (5 cm from three surfaces), so that hot cells are seen.
+    let torches = asset("cornell_torches.json");
+    let (ok, _, err) = prm(&[
+        "evaluate",
+        &asset("cornell.glb"),
+        "--prm",
+        s(&prm_path),
+        "--rig",
+        &torches,
+        "--frames",
+        "6",
+        "--frame",
+        "4",
+        "-o",
+        s(&lm),
+    ]);
     assert!(ok, "{err}");
     let c = Channels::read(&lm).unwrap();
     // Every pane (no --top-k): the lightmap is the slow compose of the cluster weights (from the
-    // ray-traced entry irradiance) plus the near field. The same f32 operations in the same
-    // order, so equal up to 1e-6 of the brightest texel (round-off only).
+    // ray-traced entry irradiance) plus the near field, hot cells as their texels see them. The
+    // same f32 operations in the same order, so equal up to 1e-6 of the brightest texel.
     let scene = level("cornell.glb", 32);
     let bvh = prm::Bvh::build(&scene);
-    let e = prm_runtime::cpu::entry_irradiance(&file, &bvh, &scene.lights);
-    let w = prm_runtime::cpu::cluster_weights(&file, &e);
+    let lights = prm::rig::Rig::load(std::path::Path::new(&torches), &scene.lights).unwrap().frame(4, 6);
+    let e = prm_runtime::cpu::entry_irradiance(&file, &bvh, &lights);
+    let tables = prm_runtime::cpu::NearTables::new(&file);
+    let hot = prm_runtime::cpu::link_light(&file, &bvh, &tables, &e, &lights);
+    assert!(hot.hot.iter().any(|&h| h), "the corner torch makes no cell hot: this checks less");
+    let w = prm_runtime::cpu::cluster_weights_with(&file, &tables, &hot, &e);
     let mut want = prm_runtime::cpu::compose(&file, &w);
-    prm_runtime::cpu::add_near_field(&file, &e, &w, &mut want);
+    prm_runtime::cpu::add_near_field_with(&file, &tables, &hot, &e, &w, &mut want);
     assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();

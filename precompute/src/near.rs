@@ -19,7 +19,7 @@
 //! to the entry. Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
 
 use glam::Vec3;
-use prm::prm_file::{Cells, Entry, NearLink};
+use prm::prm_file::{round_near_points, Cells, Entry, NearLink, NearPoint};
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
 
@@ -30,9 +30,16 @@ pub const MIN_FACTOR: f32 = 1e-4;
 
 /// The links of every covered texel of `set` to the entries whose cell centroid lies within
 /// `radius` entry spacings (sqrt(A / N)) plus the cell's own size, sorted by texel (atlas
-/// row-major index) then entry.
-pub fn near_links(bvh: &Bvh, set: &TexelSet, entries: &[Entry], cells: &Cells, radius: f32) -> Vec<NearLink> {
-    let Some(first) = entries.first() else { return Vec::new() };
+/// row-major index) then entry; and the sample point of each texel with links, rounded as the
+/// file stores it.
+pub fn near_links(
+    bvh: &Bvh,
+    set: &TexelSet,
+    entries: &[Entry],
+    cells: &Cells,
+    radius: f32,
+) -> (Vec<NearLink>, Vec<NearPoint>) {
+    let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
     let cell: Vec<(Vec3, f32)> = (0..entries.len())
         .map(|j| {
@@ -70,5 +77,15 @@ pub fn near_links(bvh: &Bvh, set: &TexelSet, entries: &[Entry], cells: &Cells, r
         .collect();
     let mut links: Vec<NearLink> = per_texel.into_iter().flatten().collect();
     links.sort_by_key(|l| (l.texel, l.entry));
-    links
+    let width = set.width;
+    let mut points: Vec<NearPoint> = links
+        .chunk_by(|a, b| a.texel == b.texel)
+        .map(|r| {
+            let t = &set.texels[set.index[r[0].texel as usize] as usize];
+            debug_assert_eq!(t.j * width + t.i, r[0].texel);
+            NearPoint { texel: r[0].texel, position: t.position, normal: t.normal }
+        })
+        .collect();
+    round_near_points(&mut points);
+    (links, points)
 }

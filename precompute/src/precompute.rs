@@ -238,19 +238,30 @@ pub fn precompute(
     report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
-    let near = timed(&mut report.seconds_near, || {
+    let (near, near_points) = timed(&mut report.seconds_near, || {
         if params.near_radius > 0.0 {
             near_links(bvh, &set, &entries, &cells, params.near_radius)
         } else {
-            Vec::new()
+            (Vec::new(), Vec::new())
         }
     });
     report.near_links = near.len();
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
-    let prm =
-        Prm::new(PrmParts { header, entries, cells, near, clusters, groups, group_of, tiles, mask, data })?;
+    let prm = Prm::new(PrmParts {
+        header,
+        entries,
+        cells,
+        near,
+        near_points,
+        clusters,
+        groups,
+        group_of,
+        tiles,
+        mask,
+        data,
+    })?;
     Ok((prm, report))
 }
 

@@ -46,6 +46,8 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("KIND_POINT", KIND_POINT),
     ("KIND_SPOT", KIND_SPOT),
     ("KIND_DIRECTIONAL", KIND_DIRECTIONAL),
+    ("CONCENTRATION_SUB", crate::cpu::concentrate::SUB),
+    ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
 ];
 
 /// The WGSL every shader starts with: shared constants, functions and structs.
@@ -63,6 +65,15 @@ pub fn prelude() -> &'static str {
             s,
             "\n// Rec. 709 luminance (prm::luminance).\nfn luminance(c: vec3f) -> f32 {{\n    \
              return dot(c, vec3f({r:?}f, {g:?}f, {b:?}f));\n}}\n\n"
+        );
+        let _ = writeln!(
+            s,
+            "// A cell is hot within this many cell sizes of a light (prm_runtime::cpu::concentrate).\n\
+             const HOT_REACH: f32 = {:?}f;\n\
+             // Nearer than this many cell sizes, the quadrature is the fine one.\n\
+             const NEAR_SIZES: f32 = {:?}f;\n",
+            crate::cpu::concentrate::HOT_REACH,
+            crate::cpu::concentrate::NEAR_SIZES
         );
         s += "// glTF range window (prm::light::range_window).\n";
         s += prm::light::RANGE_WINDOW_WGSL;
@@ -143,9 +154,11 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 7] = [
+pub const SHADERS: [&Shader; 9] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
+    &crate::concentrate::CONCENTRATE,
+    &crate::concentrate::LINK_ENERGY,
     &crate::weights::SHADER,
     &crate::near::SHADER,
     &crate::compose::SHADER,

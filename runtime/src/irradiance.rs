@@ -17,7 +17,8 @@ use crate::shadow::SHADOW_GROUP;
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("entries", Res::Read("array<GpuEntry>"), COMPUTE),
-    b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
+    // Read-write: the pass writes each triangle's visible share (`GpuCellTriangle::visibility`).
+    b("cells", Res::ReadWrite("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
 
@@ -35,6 +36,8 @@ pub struct EntryPass {
     count: u32,
     /// Per-entry irradiance, `vec4f` each (w unused).
     pub output: wgpu::Buffer,
+    /// The cells' triangles, with this frame's visibility (`GpuCellTriangle`).
+    pub cells: wgpu::Buffer,
 }
 
 impl EntryPass {
@@ -109,7 +112,7 @@ impl EntryPass {
             "entry_main",
             &[shadow_layout, &layout],
         );
-        EntryPass { pipeline, group, count: areas.len() as u32, output }
+        EntryPass { pipeline, group, count: areas.len() as u32, output, cells }
     }
 
     /// Records the pass; `shadows` is the lights + shadow maps group.

@@ -149,12 +149,31 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// A texel with near-field links: links `first .. first + count` (`shaders/near.wgsl`).
+    /// A texel with near-field links: links `first .. first + count` (`shaders/near.wgsl`),
+    /// and its sample point and unit normal (`shaders/concentrate.wgsl`).
     pub struct NearTexel {
         pub texel: u32,
         pub first: u32,
         pub count: u32,
         pub _pad0: u32,
+        pub position: [f32; 3],
+        pub _pad1: u32,
+        pub normal: [f32; 3],
+        pub _pad2: u32,
+    }
+}
+
+gpu_struct! {
+    /// An entry's cell as the near field's concentration sees it (`shaders/concentrate.wgsl`):
+    /// its centroid and size (square root of its area), its triangles `first_cell ..
+    /// first_cell + cell_count`, and its links `link_ids[first_link .. first_link + link_count]`.
+    pub struct GpuHotEntry {
+        pub centroid: [f32; 3],
+        pub size: f32,
+        pub first_cell: u32,
+        pub cell_count: u32,
+        pub first_link: u32,
+        pub link_count: u32,
     }
 }
 
@@ -163,7 +182,9 @@ gpu_struct! {
     /// (`prm::prm_file::Cells`).
     pub struct GpuCellTriangle {
         pub a: [f32; 3],
-        pub _pad0: u32,
+        /// The visible share of the lights' power on it, written by the entry pass
+        /// (`prm_runtime::cpu::concentrate::cell_visibility`).
+        pub visibility: f32,
         pub b: [f32; 3],
         pub _pad1: u32,
         pub c: [f32; 3],
@@ -184,7 +205,9 @@ gpu_struct! {
         pub residual: u32,
         /// Texels with near-field links (`shaders/near.wgsl`).
         pub near_texel_count: u32,
-        pub _pad1: u32,
+        /// This update's number (from 1): link light written this update carries it, so a
+        /// value left from an earlier update is never read (`shaders/concentrate.wgsl`).
+        pub frame: u32,
     }
 }
 
@@ -294,6 +317,7 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<GpuCellTriangle>(),
         one::<GpuNearLink>(),
         one::<NearTexel>(),
+        one::<GpuHotEntry>(),
         one::<IndirectParams>(),
         one::<ComposeParams>(),
         one::<TileRecord>(),

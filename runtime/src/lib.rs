@@ -54,6 +54,7 @@
 
 mod bindings;
 mod compose;
+mod concentrate;
 mod contract;
 pub mod cpu;
 mod gpu;

@@ -12,10 +12,11 @@ use prm::prm_file::{Prm, PrmError};
 use prm::{Light, Scene};
 
 use crate::compose::{ComposeBytes, ComposePass};
+use crate::concentrate::{ConcentratePass, NearBuffers};
 use crate::irradiance::EntryPass;
 use crate::layout::IndirectParams;
 use crate::lights::LightError;
-use crate::near::NearPass;
+use crate::near::{NearData, NearPass};
 use crate::shadow::ShadowMaps;
 use crate::weights::WeightPass;
 
@@ -64,6 +65,7 @@ pub struct Runtime {
     params_buf: wgpu::Buffer,
     shadows: ShadowMaps,
     entries: EntryPass,
+    concentrate: ConcentratePass,
     weights: WeightPass,
     near: NearPass,
     compose: ComposePass,
@@ -73,6 +75,8 @@ pub struct Runtime {
     entry_count: u32,
     stale: bool,
     composes: u64,
+    /// Updates that ran the indirect passes (`IndirectParams::frame`).
+    frame: u32,
 }
 
 impl Runtime {
@@ -105,8 +109,26 @@ impl Runtime {
         let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
-        let weights = WeightPass::new(device, &params_buf, &entries.output, prm);
-        let near = NearPass::new(device, prm, &params_buf, &entries.output, &weights.weights);
+        let near_data = NearData::new(device, prm);
+        let concentrate = ConcentratePass::new(
+            device,
+            shadows.layout(),
+            prm,
+            &params_buf,
+            &entries.cells,
+            &entries.output,
+            NearBuffers { texels: &near_data.texels, links: &near_data.links, texel_count: near_data.count },
+        );
+        let weights = WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm);
+        let near = NearPass::new(
+            device,
+            prm,
+            &params_buf,
+            &entries.output,
+            &weights.weights,
+            &near_data,
+            &concentrate.link_light,
+        );
         let compose = ComposePass::new(device, prm, &weights.selected, &near);
         Ok(Runtime {
             device: device.clone(),
@@ -115,6 +137,7 @@ impl Runtime {
             params_buf,
             shadows,
             entries,
+            concentrate,
             weights,
             near,
             compose,
@@ -124,6 +147,7 @@ impl Runtime {
             entry_count: areas.len() as u32,
             stale: true,
             composes: 0,
+            frame: 0,
         })
     }
 
@@ -144,11 +168,14 @@ impl Runtime {
         if !changed && !self.stale {
             return Ok(Update { composed: false });
         }
+        // From 1, and never 0 again: buffers start zeroed, so 0 would read as this update's.
+        self.frame = self.frame.checked_add(1).unwrap_or(1);
         self.write_params();
         let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
         self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
+        self.concentrate.encode(&mut enc, shadows);
         self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
         self.near.encode(&mut enc);
         self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
@@ -210,7 +237,7 @@ impl Runtime {
             group_count: self.groups as u32,
             residual: self.params.residual as u32,
             near_texel_count: self.near.count,
-            ..Default::default()
+            frame: self.frame,
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }
@@ -304,6 +331,15 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
         (
             "near-field links",
             prm.near().len() as u64 * std::mem::size_of::<crate::layout::GpuNearLink>() as u64,
+        ),
+        ("near-field link light", prm.near().len() as u64 * 16),
+        (
+            "near-field texels",
+            prm.near_points().len() as u64 * std::mem::size_of::<crate::layout::NearTexel>() as u64,
+        ),
+        (
+            "hot-entry table",
+            prm.entries().len() as u64 * std::mem::size_of::<crate::layout::GpuHotEntry>() as u64,
         ),
         (
             "active-record lists",

@@ -29,6 +29,8 @@ pub const BINDINGS: &[Binding] = &[
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
     b("selected", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Per entry: its hot links' energy this update, stamped (`crate::concentrate`).
+    b("hot_energy", Res::Read("array<vec4u>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -63,6 +65,7 @@ impl WeightPass {
         device: &wgpu::Device,
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
+        hot_energy: &wgpu::Buffer,
         prm: &Prm,
     ) -> WeightPass {
         // One ranges/indices/energy table for both levels: clusters (ranges into entries), then
@@ -127,6 +130,7 @@ impl WeightPass {
                 ("weights", weights.as_entire_binding()),
                 ("scores", scores.as_entire_binding()),
                 ("selected", selected.as_entire_binding()),
+                ("hot_energy", hot_energy.as_entire_binding()),
             ],
         );
         let source = SHADER.source();

@@ -122,6 +122,28 @@ fn entries(p: &PrmParts) -> Result<(), String> {
             return Err(format!("near-field link {k} is out of order"));
         }
     }
+    let runs: Vec<u32> = p.near.chunk_by(|a, b| a.texel == b.texel).map(|r| r[0].texel).collect();
+    if runs.len() != p.near_points.len() {
+        return Err(format!(
+            "{} texels have near-field links but {} points are given",
+            runs.len(),
+            p.near_points.len()
+        ));
+    }
+    for (k, (pt, &texel)) in p.near_points.iter().zip(&runs).enumerate() {
+        if pt.texel != texel {
+            return Err(format!(
+                "near-field point {k} is for texel {} but its links are texel {texel}'s",
+                pt.texel
+            ));
+        }
+        if !pt.position.is_finite() || !pt.normal.is_finite() || (pt.normal.length() - 1.0).abs() > 1e-3 {
+            return Err(format!(
+                "near-field point {k} is not a point with a unit normal ({}, {})",
+                pt.position, pt.normal
+            ));
+        }
+    }
     for (k, c) in p.clusters.iter().enumerate() {
         if let Some(bad) = c.members.iter().find(|&&m| m as usize >= n) {
             return Err(format!("cluster {k}'s member {bad} is not an entry (there are {n})"));

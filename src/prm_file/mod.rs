@@ -4,16 +4,18 @@
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 3
+//! 8   u32    version = 4
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
-//!     NEAR  u32 R runs, u32 L links, u32 entry width W (2 or 4); R x 8 B: texel u32
-//!           (row-major atlas index), link count u32; L x W B: entry (u16 or u32); L x f16:
-//!           factor. Links sorted by texel then entry
+//!     NEAR  u32 R runs, u32 L links, u32 entry width W (2 or 4); the box of the runs' points
+//!           (min, max: 6 x f32); R x 16 B: texel u32 (row-major atlas index), link count u16,
+//!           the texel's sample point (3 x u16 across the box), its normal (octahedral,
+//!           2 x i16 snorm); L x W B: entry (u16 or u32); L x f16: factor. Links sorted by
+//!           texel then entry
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
@@ -44,7 +46,9 @@
 //! **Near-field links** (v3): per texel, the entries whose cells lie within a few entry
 //! spacings, with the first bounce each cell sends to the texel per unit weight. The runtime
 //! adds `albedo_j (E_j - w_c(j) t_j) factor` over them: what the cluster mean leaves out next
-//! to a hot spot (`prm_precompute::near`).
+//! to a hot spot (`prm_precompute::near`). Since v4 each linked texel also carries its sample
+//! point and normal, so the runtime can weigh a cell's light by how the texel sees it (a hot
+//! spot at the near edge of a cell counts for more than one at its far edge).
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -78,7 +82,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -136,6 +140,77 @@ pub struct NearLink {
     pub texel: u32,
     pub entry: u32,
     pub factor: f32,
+}
+
+/// The sample point and unit normal of a texel with near-field links (one per run of links,
+/// in the same order). Stored as 16-bit positions across the box of all of them and an
+/// octahedral 16-bit normal; [`round_near_points`] rounds them as the file stores them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NearPoint {
+    pub texel: u32,
+    pub position: Vec3,
+    pub normal: Vec3,
+}
+
+/// The box of `points` (min, max); zero-size for none.
+pub fn near_point_box(points: &[NearPoint]) -> (Vec3, Vec3) {
+    if points.is_empty() {
+        return (Vec3::ZERO, Vec3::ZERO);
+    }
+    points
+        .iter()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p.position), hi.max(p.position)))
+}
+
+/// Position `p` as 16-bit steps across the box `(lo, hi)`.
+pub(crate) fn quantize_position(p: Vec3, (lo, hi): (Vec3, Vec3)) -> [u16; 3] {
+    let span = hi - lo;
+    let q = |x: f32, l: f32, s: f32| {
+        if s > 0.0 {
+            ((x - l) / s * 65535.0).round().clamp(0.0, 65535.0) as u16
+        } else {
+            0
+        }
+    };
+    [q(p.x, lo.x, span.x), q(p.y, lo.y, span.y), q(p.z, lo.z, span.z)]
+}
+
+/// The position 16-bit steps `q` stand for across the box `(lo, hi)`.
+pub(crate) fn dequantize_position(q: [u16; 3], (lo, hi): (Vec3, Vec3)) -> Vec3 {
+    lo + (hi - lo) * Vec3::new(q[0] as f32, q[1] as f32, q[2] as f32) / 65535.0
+}
+
+/// Unit vector `n` in octahedral coordinates, snorm16.
+pub(crate) fn encode_octahedral(n: Vec3) -> [i16; 2] {
+    let p = n / (n.x.abs() + n.y.abs() + n.z.abs()).max(1e-30);
+    let (x, y) = if p.z >= 0.0 {
+        (p.x, p.y)
+    } else {
+        ((1.0 - p.y.abs()) * p.x.signum(), (1.0 - p.x.abs()) * p.y.signum())
+    };
+    let s = |v: f32| (v.clamp(-1.0, 1.0) * 32767.0).round() as i16;
+    [s(x), s(y)]
+}
+
+/// The unit vector of octahedral snorm16 coordinates `q`.
+pub(crate) fn decode_octahedral(q: [i16; 2]) -> Vec3 {
+    let (x, y) = (q[0] as f32 / 32767.0, q[1] as f32 / 32767.0);
+    let z = 1.0 - x.abs() - y.abs();
+    let v = if z >= 0.0 {
+        Vec3::new(x, y, z)
+    } else {
+        Vec3::new((1.0 - y.abs()) * x.signum(), (1.0 - x.abs()) * y.signum(), z)
+    };
+    v.normalize_or_zero()
+}
+
+/// Round `points` as the file stores them (a bake keeps what its file will say).
+pub fn round_near_points(points: &mut [NearPoint]) {
+    let bounds = near_point_box(points);
+    for p in points {
+        p.position = dequantize_position(quantize_position(p.position, bounds), bounds);
+        p.normal = decode_octahedral(encode_octahedral(p.normal));
+    }
 }
 
 /// A cluster of entry points sharing one pane and one runtime weight.
@@ -209,6 +284,8 @@ pub struct PrmParts {
     pub cells: Cells,
     /// Near-field links, sorted by texel then entry (may be empty).
     pub near: Vec<NearLink>,
+    /// The sample point of each texel with links, in texel order (one per run of `near`).
+    pub near_points: Vec<NearPoint>,
     pub clusters: Vec<Cluster>,
     /// Coarse panes over the clusters (may be empty).
     pub groups: Vec<Group>,
@@ -265,8 +342,8 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (version 2 files have no entry \
-         cells); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 3 and older \
+         lack what the near field needs); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -329,7 +406,7 @@ impl PrmParts {
         let mut w = Writer(&mut out);
         w.entries(&self.entries);
         w.cells(&self.cells);
-        w.near(&self.near);
+        w.near(&self.near, &self.near_points);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
         w.mask(&self.mask);
@@ -375,6 +452,11 @@ impl Prm {
     /// Near-field links, sorted by texel then entry.
     pub fn near(&self) -> &[NearLink] {
         &self.parts.near
+    }
+
+    /// The sample point of each texel with links, in the order of their runs in [`Prm::near`].
+    pub fn near_points(&self) -> &[NearPoint] {
+        &self.parts.near_points
     }
 
     pub fn clusters(&self) -> &[Cluster] {
@@ -516,14 +598,26 @@ impl Prm {
         let parts = (|| -> Result<PrmParts, SectionError> {
             let entries = r.entries(&header)?;
             let cells = r.cells(entries.len())?;
-            let near = r.near()?;
+            let (near, near_points) = r.near()?;
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
             let mask = r.mask()?;
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
             r.finish()?;
-            Ok(PrmParts { header, entries, cells, near, clusters, groups, group_of, tiles, mask, data })
+            Ok(PrmParts {
+                header,
+                entries,
+                cells,
+                near,
+                near_points,
+                clusters,
+                groups,
+                group_of,
+                tiles,
+                mask,
+                data,
+            })
         })()
         .map_err(|e| match e {
             SectionError::Truncated(what) => truncated(&what),
@@ -602,6 +696,12 @@ mod tests {
             near: vec![
                 NearLink { texel: 3, entry: 0, factor: 0.5 },
                 NearLink { texel: 3, entry: 1, factor: 0.25 },
+                NearLink { texel: 5, entry: 1, factor: 0.125 },
+            ],
+            // The box's corners and axis normals: what the file stores exactly.
+            near_points: vec![
+                NearPoint { texel: 3, position: Vec3::ZERO, normal: Vec3::Y },
+                NearPoint { texel: 5, position: Vec3::new(1.0, 2.0, 3.0), normal: Vec3::NEG_Z },
             ],
             clusters: vec![Cluster {
                 members: vec![0, 1],
@@ -625,13 +725,45 @@ mod tests {
         assert_eq!(prm.pane_tiles(0, &prm.layout()).map(|t| t.texels.len()).sum::<usize>(), 16);
     }
 
-    /// A v2 file (no cells, no near-field links) is refused, saying what to do.
+    /// A v3 file (no texel points for the near field) is refused, saying what to do.
     #[test]
     fn an_older_version_is_refused_with_a_rebake_message() {
         let mut bytes = Prm::new(parts()).unwrap().to_bytes();
-        bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 2") && err.contains("run prm precompute again"), "{err}");
+        assert!(err.contains("version 3") && err.contains("run prm precompute again"), "{err}");
+    }
+
+    /// Points anywhere in the box come back within half a 16-bit step, normals within 1e-4,
+    /// and rounding twice changes nothing.
+    #[test]
+    fn near_points_round_as_stored() {
+        let mut pts: Vec<NearPoint> = (0..50)
+            .map(|k| {
+                let t = k as f32 * 0.37;
+                NearPoint {
+                    texel: k,
+                    position: Vec3::new(t.sin() * 9.0, t.cos() * 3.0 - 10.0, t * 0.1),
+                    normal: Vec3::new(t.cos(), (2.0 * t).sin(), (3.0 * t).cos() - 0.5).normalize(),
+                }
+            })
+            .collect();
+        let exact = pts.clone();
+        round_near_points(&mut pts);
+        let (lo, hi) = near_point_box(&exact);
+        for (a, b) in pts.iter().zip(&exact) {
+            assert!(
+                ((a.position - b.position).abs() - (hi - lo) / 65535.0 * 0.5).max_element() <= 1e-5,
+                "{a:?} {b:?}"
+            );
+            assert!(
+                a.normal.distance(b.normal) < 1e-4 && (a.normal.length() - 1.0).abs() < 1e-6,
+                "{a:?} {b:?}"
+            );
+        }
+        let once = pts.clone();
+        round_near_points(&mut pts);
+        assert_eq!(pts, once);
     }
 
     #[test]
@@ -651,6 +783,14 @@ mod tests {
             ("near-field link 0 is out of range", |p| p.near[0].texel = 16),
             ("near-field link 1 is out of range", |p| p.near[1].factor = f32::NAN),
             ("near-field link 1 is out of order", |p| p.near.swap(0, 1)),
+            ("2 texels have near-field links but 1 points", |p| {
+                p.near_points.pop();
+            }),
+            ("near-field point 0 is for texel 4", |p| p.near_points[0].texel = 4),
+            ("near-field point 1 is not a point with a unit normal", |p| {
+                p.near_points[1].normal = Vec3::ZERO
+            }),
+            ("near-field point 0 is not a point", |p| p.near_points[0].position.x = f32::NAN),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

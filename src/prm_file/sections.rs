@@ -7,7 +7,13 @@
 use glam::Vec3;
 use half::f16;
 
-use super::{Cells, Cluster, Entry, Group, Header, NearLink, Tile};
+use super::{
+    decode_octahedral, dequantize_position, encode_octahedral, near_point_box, quantize_position, Cells,
+    Cluster, Entry, Group, Header, NearLink, NearPoint, Tile,
+};
+
+/// Bytes of one run of near-field links: texel, count, point, normal.
+const NEAR_RUN_BYTES: usize = 16;
 
 /// Section byte sizes.
 pub(super) const ENTRY_BYTES: usize = 48;
@@ -55,18 +61,40 @@ impl Writer<'_> {
         self.section(b"CELL", &c);
     }
 
-    /// `NEAR`: runs of links per texel, then the entries (u16 when every index fits, else
-    /// u32), then the factors as half floats.
-    pub(super) fn near(&mut self, near: &[NearLink]) {
-        let runs: Vec<&[NearLink]> = near.chunk_by(|a, b| a.texel == b.texel).collect();
+    /// `NEAR`: the box of the points, runs of links per texel with the texel's point, then
+    /// the entries (u16 when every index fits, else u32), then the factors as half floats.
+    /// A run longer than u16 allows is split (the reader joins runs of one texel again).
+    pub(super) fn near(&mut self, near: &[NearLink], points: &[NearPoint]) {
+        let runs: Vec<&[NearLink]> =
+            near.chunk_by(|a, b| a.texel == b.texel).flat_map(|r| r.chunks(u16::MAX as usize)).collect();
         let wide = near.iter().any(|l| l.entry > u16::MAX as u32);
-        let mut n = Vec::with_capacity(12 + runs.len() * 8 + near.len() * 6);
+        let bounds = near_point_box(points);
+        let mut n = Vec::with_capacity(36 + runs.len() * NEAR_RUN_BYTES + near.len() * 6);
         n.extend_from_slice(&(runs.len() as u32).to_le_bytes());
         n.extend_from_slice(&(near.len() as u32).to_le_bytes());
         n.extend_from_slice(&(if wide { 4u32 } else { 2u32 }).to_le_bytes());
+        for v in bounds.0.to_array().into_iter().chain(bounds.1.to_array()) {
+            n.extend_from_slice(&v.to_le_bytes());
+        }
+        let mut point = points.iter().peekable();
         for r in &runs {
             n.extend_from_slice(&r[0].texel.to_le_bytes());
-            n.extend_from_slice(&(r.len() as u32).to_le_bytes());
+            n.extend_from_slice(&(r.len() as u16).to_le_bytes());
+            // The point of this run's texel (a missing one is written as zeros and refused on
+            // reading, as the checks refuse it in memory).
+            while point.peek().is_some_and(|p| p.texel < r[0].texel) {
+                point.next();
+            }
+            let p = point.peek().filter(|p| p.texel == r[0].texel);
+            let (q, o) = p.map_or(([0; 3], [0; 2]), |p| {
+                (quantize_position(p.position, bounds), encode_octahedral(p.normal))
+            });
+            for v in q {
+                n.extend_from_slice(&v.to_le_bytes());
+            }
+            for v in o {
+                n.extend_from_slice(&v.to_le_bytes());
+            }
         }
         for l in near {
             if wide {
@@ -291,19 +319,22 @@ impl<'a> Reader<'a> {
     }
 
     /// `NEAR` (what the links point at is an invariant, checked with the others).
-    pub(super) fn near(&mut self) -> Result<Vec<NearLink>, SectionError> {
+    pub(super) fn near(&mut self) -> Result<(Vec<NearLink>, Vec<NearPoint>), SectionError> {
         let n = self.next(b"NEAR")?;
-        if n.len() < 12 {
+        if n.len() < 36 {
             return Err(Corrupt(format!("near-field section of {} bytes", n.len())));
         }
         let (runs, links, width) = (u32_at(n, 0) as u64, u32_at(n, 4) as u64, u32_at(n, 8) as u64);
-        if !(width == 2 || width == 4) || n.len() as u64 != 12 + runs * 8 + links * (width + 2) {
+        if !(width == 2 || width == 4)
+            || n.len() as u64 != 36 + runs * NEAR_RUN_BYTES as u64 + links * (width + 2)
+        {
             return Err(Corrupt(format!(
                 "{runs} near-field runs and {links} links of {width}-byte entries declared, {} bytes",
                 n.len()
             )));
         }
-        let (heads, rest) = n[12..].split_at(runs as usize * 8);
+        let bounds = (v3(n, 12), v3(n, 24));
+        let (heads, rest) = n[36..].split_at(runs as usize * NEAR_RUN_BYTES);
         let (entries, factors) = rest.split_at((links * width) as usize);
         let entry = |k: usize| {
             let i = k * width as usize;
@@ -314,10 +345,22 @@ impl<'a> Reader<'a> {
             }
         };
         let mut out = Vec::with_capacity(links as usize);
-        for h in heads.chunks_exact(8) {
-            let (texel, count) = (u32_at(h, 0), u32_at(h, 4) as u64);
+        let mut points: Vec<NearPoint> = Vec::with_capacity(runs as usize);
+        let i16_at = |b: &[u8], i: usize| i16::from_le_bytes([b[i], b[i + 1]]);
+        let u16_at = |b: &[u8], i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
+        for h in heads.chunks_exact(NEAR_RUN_BYTES) {
+            let (texel, count) = (u32_at(h, 0), u16_at(h, 4) as u64);
             if out.len() as u64 + count > links {
                 return Err(Corrupt("near-field runs hold more links than declared".into()));
+            }
+            if points.last().is_none_or(|p| p.texel != texel) {
+                let q = [u16_at(h, 6), u16_at(h, 8), u16_at(h, 10)];
+                let position = dequantize_position(q, bounds);
+                points.push(NearPoint {
+                    texel,
+                    position,
+                    normal: decode_octahedral([i16_at(h, 12), i16_at(h, 14)]),
+                });
             }
             for _ in 0..count {
                 let k = out.len();
@@ -328,7 +371,7 @@ impl<'a> Reader<'a> {
         if out.len() as u64 != links {
             return Err(Corrupt("near-field runs hold fewer links than declared".into()));
         }
-        Ok(out)
+        Ok((out, points))
     }
 
     /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).

@@ -6,6 +6,8 @@ use glam::Vec3;
 use prm::luminance;
 use prm::prm_file::{Prm, TileLayout};
 
+use super::concentrate::LinkLight;
+
 /// Cluster weights from per-entry irradiance: the mean irradiance `m_c` over the cluster's
 /// cells, less the share the near field already delivers.
 ///
@@ -21,13 +23,20 @@ use prm::prm_file::{Prm, TileLayout};
 /// entry on a floor has no links to its coplanar floor, its colder neighbours by a wall do). So
 /// `w_c` is chosen to keep the cluster's energy, panes plus near field, at `m_c energy_c`:
 /// `w_c = (m_c energy_c - sum_j E_j near_j) / (energy_c - sum_j t_j near_j)`, the denominator
-/// kept at >= 0.1 energy_c and `w_c` at >= 0. Without links, `m_c`.
+/// kept at >= 0.1 energy_c and `w_c` at >= 0. Without links, `m_c`. (For a hot entry,
+/// `E_j near_j` is its links' energy under the light as they see it: [`LinkLight`].)
 pub fn cluster_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
-    cluster_weights_with(prm, &NearTables::new(prm), entry_irradiance)
+    cluster_weights_with(prm, &NearTables::new(prm), &LinkLight::none(prm), entry_irradiance)
 }
 
-/// [`cluster_weights`] with the map's [`NearTables`] built once (per frame they are the same).
-pub fn cluster_weights_with(prm: &Prm, tables: &NearTables, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
+/// [`cluster_weights`] with the map's [`NearTables`] built once (per frame they are the same)
+/// and this frame's light on the links of hot cells.
+pub fn cluster_weights_with(
+    prm: &Prm,
+    tables: &NearTables,
+    link_light: &LinkLight,
+    entry_irradiance: &[Vec3],
+) -> Vec<Vec3> {
     prm.clusters()
         .iter()
         .map(|c| {
@@ -38,7 +47,7 @@ pub fn cluster_weights_with(prm: &Prm, tables: &NearTables, entry_irradiance: &[
             for &m in &c.members {
                 let (e, m) = (entry_irradiance[m as usize], m as usize);
                 sum += e;
-                near_sum += e * tables.energy[m];
+                near_sum += if link_light.hot[m] { link_light.energy[m] } else { e * tables.energy[m] };
                 near_total += tables.energy[m] * tables.area_ratio[m];
             }
             let t_sum: f32 = c.members.iter().map(|&m| tables.area_ratio[m as usize]).sum();
@@ -63,6 +72,10 @@ pub struct NearTables {
     /// The energy the entry's links deliver per unit deviation: `sum over its links of
     /// luminance(albedo) x factor`, in the units of a pane's energy (summed over texels).
     pub energy: Vec<f32>,
+    /// The centroid of the entry's cell.
+    pub centroid: Vec<Vec3>,
+    /// The size of the entry's cell: the square root of its area.
+    pub size: Vec<f32>,
 }
 
 impl NearTables {
@@ -81,8 +94,22 @@ impl NearTables {
             let j = l.entry as usize;
             energy[j] += luminance(prm.entries()[j].albedo) * l.factor;
         }
-        NearTables { cluster, area_ratio, energy }
+        let (centroid, size) =
+            (0..n).map(|j| cell_centroid_and_size(cells.of(j), prm.entries()[j].position)).unzip();
+        NearTables { cluster, area_ratio, energy, centroid, size }
     }
+}
+
+/// The area-weighted centroid of a cell's triangles (`fallback` for an empty cell) and the
+/// square root of its area.
+pub fn cell_centroid_and_size(tris: &[[Vec3; 3]], fallback: Vec3) -> (Vec3, f32) {
+    let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
+    for t in tris {
+        let at = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
+        c += (t[0] + t[1] + t[2]) / 3.0 * at;
+        a += at;
+    }
+    (if a > 0.0 { c / a } else { fallback }, a.sqrt())
 }
 
 /// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,
@@ -170,23 +197,28 @@ pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
 /// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
 /// the entries' irradiance and the cluster weights, and is then clamped at zero, as on the GPU.
 pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
-    add_near_field_with(prm, &NearTables::new(prm), entry_irradiance, weights, img);
+    add_near_field_with(prm, &NearTables::new(prm), &LinkLight::none(prm), entry_irradiance, weights, img);
 }
 
-/// [`add_near_field`] with the map's [`NearTables`] built once.
+/// [`add_near_field`] with the map's [`NearTables`] built once and this frame's light on the
+/// links of hot cells (each such link uses its own `E_j kappa` for `E_j`).
 pub fn add_near_field_with(
     prm: &Prm,
     tables: &NearTables,
+    link_light: &LinkLight,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
     img: &mut [Vec3],
 ) {
+    let mut k = 0;
     for links in prm.near().chunk_by(|a, b| a.texel == b.texel) {
         let mut sum = Vec3::ZERO;
         for l in links {
             let j = l.entry as usize;
             let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
-            sum += prm.entries()[j].albedo * l.factor * (entry_irradiance[j] - expected);
+            let e = if link_light.hot[j] { link_light.value[k] } else { entry_irradiance[j] };
+            sum += prm.entries()[j].albedo * l.factor * (e - expected);
+            k += 1;
         }
         let texel = links[0].texel as usize;
         img[texel] = (img[texel] + sum).max(Vec3::ZERO);

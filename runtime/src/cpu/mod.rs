@@ -16,12 +16,14 @@
 //! and come with the `cpu-twin` feature.
 
 mod compose;
+pub mod concentrate;
 #[cfg(feature = "cpu-twin")]
 mod twin;
 
 pub use compose::{
-    add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with, compose,
-    compose_selected, residual_weights, select_top_k, NearTables,
+    add_near_field, add_near_field_with, add_pane, cell_centroid_and_size, cluster_weights,
+    cluster_weights_with, compose, compose_selected, residual_weights, select_top_k, NearTables,
 };
+pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]
-pub use twin::{entry_irradiance, CpuTwin};
+pub use twin::{entry_irradiance, link_light, CpuTwin};

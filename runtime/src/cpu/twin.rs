@@ -6,7 +6,10 @@ use prm::prm_file::Prm;
 use prm::{Bvh, Light};
 use rayon::prelude::*;
 
-use super::{add_near_field_with, cluster_weights_with, compose_selected, select_top_k, NearTables};
+use super::concentrate::cell_visibility;
+use super::{
+    add_near_field_with, cluster_weights_with, compose_selected, select_top_k, LinkLight, NearTables,
+};
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
 /// visibility, [`prm::bvh::cell_power`]) over the entry's area, as the GPU pass computes it.
@@ -25,6 +28,25 @@ pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
             },
         )
         .collect()
+}
+
+/// The light on the near-field links of hot cells ([`LinkLight`]), each cell triangle's
+/// visibility ray-traced from its centroid as for the entries' irradiance.
+pub fn link_light(
+    prm: &Prm,
+    bvh: &Bvh,
+    tables: &NearTables,
+    entry_irradiance: &[Vec3],
+    lights: &[Light],
+) -> LinkLight {
+    let vis = cell_visibility(prm.cells(), lights, |c, n, l| {
+        if l.is_positional() {
+            bvh.visible_point(c, n, l.position)
+        } else {
+            bvh.visible_dir(c, n, -l.direction)
+        }
+    });
+    LinkLight::new(prm, tables, entry_irradiance, &vis, lights)
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
@@ -74,7 +96,8 @@ impl<'a> CpuTwin<'a> {
             return &self.lightmap;
         }
         let e = entry_irradiance(self.prm, self.bvh, lights);
-        let w = cluster_weights_with(self.prm, &self.near, &e);
+        let link_light = link_light(self.prm, self.bvh, &self.near, &e, lights);
+        let w = cluster_weights_with(self.prm, &self.near, &link_light, &e);
         let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
         let selected = select_top_k(&w, &energies, self.top_k);
         let mut chosen = vec![false; w.len()];
@@ -82,7 +105,7 @@ impl<'a> CpuTwin<'a> {
             chosen[c] = true;
         }
         self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
-        add_near_field_with(self.prm, &self.near, &e, &w, &mut self.lightmap);
+        add_near_field_with(self.prm, &self.near, &link_light, &e, &w, &mut self.lightmap);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());

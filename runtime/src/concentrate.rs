@@ -1,0 +1,200 @@
+//! The near field where a light is close, on the GPU (`shaders/concentrate.wgsl`,
+//! `shaders/link_energy.wgsl`; [`crate::cpu::concentrate`] says what and why, and is the twin).
+//!
+//! After the entry pass: `concentrate_main` gives each near-field link of a hot cell its own
+//! light (`E_j kappa`, stamped with the update's number), then `link_energy_main` sums each hot
+//! entry's links into the energy the weight pass balances against. The near pass reads a link's
+//! light only when its stamp is this update's.
+
+use prm::prm_file::Prm;
+
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::gpu;
+use crate::layout::{GpuHotEntry, GpuStruct, IndirectParams};
+use crate::shadow::SHADOW_GROUP;
+
+pub const CONCENTRATE_BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
+    b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
+    b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
+    // The entry pass's cell triangles, with their visibility.
+    b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
+    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
+    // Per link: (bits of E_j kappa, update number).
+    b("link_light", Res::ReadWrite("array<vec4u>"), COMPUTE),
+];
+
+pub const CONCENTRATE: Shader = Shader {
+    stem: "concentrate",
+    body: include_str!("../../shaders/concentrate.wgsl"),
+    lights: true,
+    groups: &[SHADOW_GROUP, CONCENTRATE_BINDINGS],
+    compute: &[Compute { entry: "concentrate_main", workgroup: LINEAR }],
+};
+
+pub const ENERGY_BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
+    // Link indices grouped by entry (each entry's run: `GpuHotEntry::first_link`, `link_count`).
+    b("link_ids", Res::Read("array<u32>"), COMPUTE),
+    b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
+    b("link_light", Res::Read("array<vec4u>"), COMPUTE),
+    // Per entry: (bits of its hot links' energy, update number).
+    b("hot_energy", Res::ReadWrite("array<vec4u>"), COMPUTE),
+];
+
+pub const LINK_ENERGY: Shader = Shader {
+    stem: "link_energy",
+    body: include_str!("../../shaders/link_energy.wgsl"),
+    lights: false,
+    groups: &[ENERGY_BINDINGS],
+    compute: &[Compute { entry: "link_energy_main", workgroup: LINEAR }],
+};
+
+/// The two passes and the per-link and per-entry tables they fill.
+pub struct ConcentratePass {
+    concentrate: wgpu::ComputePipeline,
+    energy: wgpu::ComputePipeline,
+    concentrate_group: wgpu::BindGroup,
+    energy_group: wgpu::BindGroup,
+    texels: u32,
+    entries: u32,
+    /// Per link: `vec4u` (bits of E_j kappa, update number).
+    pub link_light: wgpu::Buffer,
+    /// Per entry: `vec4u` (bits of its hot links' energy, update number).
+    pub hot_energy: wgpu::Buffer,
+}
+
+/// The buffers the near pass already holds, shared here.
+pub struct NearBuffers<'a> {
+    pub texels: &'a wgpu::Buffer,
+    pub links: &'a wgpu::Buffer,
+    pub texel_count: u32,
+}
+
+impl ConcentratePass {
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        device: &wgpu::Device,
+        shadow_layout: &wgpu::BindGroupLayout,
+        prm: &Prm,
+        params: &wgpu::Buffer,
+        cells: &wgpu::Buffer,
+        entry_irradiance: &wgpu::Buffer,
+        near: NearBuffers,
+    ) -> ConcentratePass {
+        let tables = crate::cpu::NearTables::new(prm);
+        let n = prm.entries().len();
+        // Link indices grouped by entry.
+        let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for (k, l) in prm.near().iter().enumerate() {
+            per_entry[l.entry as usize].push(k as u32);
+        }
+        let cells_of = &prm.cells().first;
+        let mut link_ids: Vec<u32> = Vec::with_capacity(prm.near().len());
+        let mut hot: Vec<GpuHotEntry> = (0..n)
+            .map(|j| {
+                let first_link = link_ids.len() as u32;
+                link_ids.extend_from_slice(&per_entry[j]);
+                GpuHotEntry {
+                    centroid: tables.centroid[j].to_array(),
+                    size: tables.size[j],
+                    first_cell: cells_of[j],
+                    cell_count: cells_of[j + 1] - cells_of[j],
+                    first_link,
+                    link_count: per_entry[j].len() as u32,
+                }
+            })
+            .collect();
+        // Storage bindings cannot be empty.
+        if hot.is_empty() {
+            hot.push(GpuHotEntry::default());
+        }
+        if link_ids.is_empty() {
+            link_ids.push(0);
+        }
+        let none = wgpu::BufferUsages::empty();
+        let hot_buf = gpu::storage_buffer(device, "hot entries", bytemuck::cast_slice(&hot), none);
+        let ids_buf = gpu::storage_buffer(device, "link ids by entry", bytemuck::cast_slice(&link_ids), none);
+        let link_light =
+            gpu::storage_buffer(device, "link light", &vec![0u8; prm.near().len().max(1) * 16], none);
+        let hot_energy = gpu::storage_buffer(device, "hot link energy", &vec![0u8; n.max(1) * 16], none);
+
+        let layout = CONCENTRATE.layout(device, 1);
+        let concentrate_group = bind(
+            device,
+            "concentrate",
+            &layout,
+            CONCENTRATE_BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("near_texels", near.texels.as_entire_binding()),
+                ("near_links", near.links.as_entire_binding()),
+                ("hot_entries", hot_buf.as_entire_binding()),
+                ("cells", cells.as_entire_binding()),
+                ("entry_irradiance", entry_irradiance.as_entire_binding()),
+                ("link_light", link_light.as_entire_binding()),
+            ],
+        );
+        let concentrate = gpu::compute_pipeline(
+            device,
+            "concentrate.wgsl",
+            &CONCENTRATE.source(),
+            "concentrate_main",
+            &[shadow_layout, &layout],
+        );
+        let energy_layout = LINK_ENERGY.layout(device, 0);
+        let energy_group = bind(
+            device,
+            "link energy",
+            &energy_layout,
+            ENERGY_BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("hot_entries", hot_buf.as_entire_binding()),
+                ("link_ids", ids_buf.as_entire_binding()),
+                ("near_links", near.links.as_entire_binding()),
+                ("link_light", link_light.as_entire_binding()),
+                ("hot_energy", hot_energy.as_entire_binding()),
+            ],
+        );
+        let energy = gpu::compute_pipeline(
+            device,
+            "link_energy.wgsl",
+            &LINK_ENERGY.source(),
+            "link_energy_main",
+            &[&energy_layout],
+        );
+        ConcentratePass {
+            concentrate,
+            energy,
+            concentrate_group,
+            energy_group,
+            texels: near.texel_count,
+            entries: n as u32,
+            link_light,
+            hot_energy,
+        }
+    }
+
+    /// Records both passes (after the entry pass, before the weights); `shadows` is the lights
+    /// group.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, shadows: &wgpu::BindGroup) {
+        if self.texels == 0 {
+            return;
+        }
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("concentrate"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.concentrate);
+        pass.set_bind_group(0, shadows, &[]);
+        pass.set_bind_group(1, &self.concentrate_group, &[]);
+        pass.dispatch_workgroups(self.texels.div_ceil(WG_LINEAR), 1, 1);
+        pass.set_pipeline(&self.energy);
+        pass.set_bind_group(0, &self.energy_group, &[]);
+        pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
+    }
+}

@@ -1,0 +1,280 @@
+//! How a texel sees a hot cell (DESIGN.md §4; the GPU's `shaders/concentrate.wgsl`).
+//!
+//! A near-field link adds `albedo factor (E_j - w_c t_j)`: entry j's cell power spread evenly
+//! over the cell. A light a few cm from a wall puts its power into a spot much smaller than the
+//! cell, and a texel next to that cell (the floor at the foot of the wall, the other walls of a
+//! corner) sees the part of the cell nearest to it far more than the rest. Measured on the
+//! chamber's corner torch, 15 cm from three surfaces: the three texels at the corner read 67
+//! W/m² against the ground truth's 200-231.
+//!
+//! So when entry j's cell is *hot* (a point or spot light closer to its centroid than
+//! [`HOT_REACH`] times the cell's size, the square root of its area), its links use
+//! `E_j kappa` instead of `E_j`. kappa (per colour channel) is the ratio of two means of the
+//! unshadowed irradiance over the cell, each quadrature point's value times its cell triangle's
+//! visibility (from the entry pass):
+//!
+//! - the mean weighted by how the texel sees each point, the point-to-point form factor kernel
+//!   `cos_x cos_y / r²` from the texel's point and normal (`.prm` v4 stores them per linked
+//!   texel);
+//! - the plain area mean.
+//!
+//! Both use the same quadrature: the centroids of [`SUB`]² equal sub-triangles of every cell
+//! triangle. Under even light kappa is 1, the quadrature's own error largely cancels in the
+//! ratio, and the cell's power stays what the entry pass integrated exactly (the solid angle).
+//!
+//! The cluster weight keeps its energy balance with the energy these links then deliver: for a
+//! hot entry, `sum over its links of luminance(albedo) factor E_j kappa` replaces `E_j near_j`
+//! (`crate::cpu::cluster_weights`).
+
+use glam::Vec3;
+use prm::prm_file::{Cells, Prm};
+use prm::Light;
+
+use super::NearTables;
+
+/// Sub-triangles per side of a cell triangle in the quadrature (SUB² centroids each) for a
+/// texel within [`NEAR_SIZES`] cell sizes of the cell's centroid.
+pub const SUB: u32 = 6;
+/// The same for a texel farther away, which sees the cell under a kernel that varies little.
+pub const SUB_FAR: u32 = 2;
+/// Where the quadrature turns from [`SUB`] to [`SUB_FAR`], in cell sizes from the centroid.
+pub const NEAR_SIZES: f32 = 2.0;
+/// A cell is hot for a point or spot light closer to its centroid than this many cell sizes.
+pub const HOT_REACH: f32 = 2.0;
+
+/// True when a point or spot light is closer to the cell (centroid, size) than
+/// [`HOT_REACH`] sizes: its irradiance may then vary over the cell by more than a few times.
+pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light]) -> bool {
+    lights.iter().any(|l| l.is_positional() && l.position.distance(centroid) < HOT_REACH * size)
+}
+
+/// Per cell triangle, the luminance-weighted share of the lights' power on it that is visible
+/// (`visible(centroid, normal, light)`, as the entry pass takes it); 1 where no light reaches it.
+pub fn cell_visibility(
+    cells: &Cells,
+    lights: &[Light],
+    visible: impl Fn(Vec3, Vec3, &Light) -> bool,
+) -> Vec<f32> {
+    cells
+        .triangles
+        .iter()
+        .map(|t| {
+            let Some(n) = (t[1] - t[0]).cross(t[2] - t[0]).try_normalize() else { return 1.0 };
+            let centroid = (t[0] + t[1] + t[2]) / 3.0;
+            let (mut lit, mut all) = (0.0f32, 0.0f32);
+            for l in lights {
+                let p = prm::luminance(l.triangle_power(t));
+                if p > 0.0 {
+                    all += p;
+                    if visible(centroid, n, l) {
+                        lit += p;
+                    }
+                }
+            }
+            if all > 0.0 {
+                lit / all
+            } else {
+                1.0
+            }
+        })
+        .collect()
+}
+
+/// kappa of the module doc for the texel at `x` (unit normal `nx`) and the cell `tris` (with
+/// each triangle's visibility `vis`; centroid and size as [`crate::cpu::NearTables`] has
+/// them): 1 in a channel with no light or no view of the cell.
+pub fn concentration(
+    x: Vec3,
+    nx: Vec3,
+    (centroid, size): (Vec3, f32),
+    tris: &[[Vec3; 3]],
+    vis: &[f32],
+    lights: &[Light],
+) -> Vec3 {
+    let (mut seen, mut weight, mut plain, mut area_sum) = (Vec3::ZERO, 0.0f32, Vec3::ZERO, 0.0f32);
+    let sub = if x.distance(centroid) < NEAR_SIZES * size { SUB } else { SUB_FAR };
+    let s = sub as f32;
+    for (t, &v) in tris.iter().zip(vis) {
+        let cross = (t[1] - t[0]).cross(t[2] - t[0]);
+        let Some(n) = cross.try_normalize() else { continue };
+        let area = 0.5 * cross.length() / (s * s);
+        let (e1, e2) = (t[1] - t[0], t[2] - t[0]);
+        for a in 0..sub {
+            for b in 0..sub - a {
+                // The upward sub-triangle at (a, b), then the downward one beside it if any.
+                for (fa, fb) in [
+                    (a as f32 + 1.0 / 3.0, b as f32 + 1.0 / 3.0),
+                    (a as f32 + 2.0 / 3.0, b as f32 + 2.0 / 3.0),
+                ] {
+                    if fa + fb > s {
+                        continue;
+                    }
+                    let y = t[0] + e1 * (fa / s) + e2 * (fb / s);
+                    let mut e = Vec3::ZERO;
+                    for l in lights {
+                        e += l.irradiance(y, n);
+                    }
+                    let e = e * v * area;
+                    plain += e;
+                    area_sum += area;
+                    let d = y - x;
+                    let r2 = d.length_squared();
+                    let g = nx.dot(d).max(0.0) * (-n.dot(d)).max(0.0) / (r2 * r2).max(1e-30);
+                    seen += e * g;
+                    weight += g * area;
+                }
+            }
+        }
+    }
+    if !(weight > 0.0 && area_sum > 0.0) {
+        return Vec3::ONE;
+    }
+    let ratio = |seen: f32, plain: f32| if plain > 0.0 { (seen / weight) / (plain / area_sum) } else { 1.0 };
+    Vec3::new(ratio(seen.x, plain.x), ratio(seen.y, plain.y), ratio(seen.z, plain.z))
+}
+
+/// This frame's light on the near-field links of hot cells.
+#[derive(Clone, Debug, Default)]
+pub struct LinkLight {
+    /// Per entry: whether its cell is hot this frame.
+    pub hot: Vec<bool>,
+    /// Per link (in `Prm::near` order): `E_j kappa` where the link's entry is hot, else unused.
+    pub value: Vec<Vec3>,
+    /// Per entry: the energy its links deliver per unit deviation when hot
+    /// (`sum luminance(albedo) factor E_j kappa`), else unused.
+    pub energy: Vec<Vec3>,
+}
+
+impl LinkLight {
+    /// No hot cells: every link uses its entry's mean irradiance.
+    pub fn none(prm: &Prm) -> LinkLight {
+        let n = prm.entries().len();
+        LinkLight { hot: vec![false; n], value: Vec::new(), energy: vec![Vec3::ZERO; n] }
+    }
+
+    /// The link light of `lights` from the entries' irradiance and the cell triangles'
+    /// visibility ([`cell_visibility`]).
+    pub fn new(
+        prm: &Prm,
+        tables: &NearTables,
+        entry_irradiance: &[Vec3],
+        vis: &[f32],
+        lights: &[Light],
+    ) -> LinkLight {
+        let n = prm.entries().len();
+        let hot: Vec<bool> = (0..n).map(|j| is_hot(tables.centroid[j], tables.size[j], lights)).collect();
+        let mut value = vec![Vec3::ZERO; prm.near().len()];
+        let mut energy = vec![Vec3::ZERO; n];
+        if hot.iter().any(|&h| h) {
+            let cells = prm.cells();
+            let mut k = 0;
+            for (links, p) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(prm.near_points()) {
+                for l in links {
+                    let j = l.entry as usize;
+                    if hot[j] {
+                        let range = cells.first[j] as usize..cells.first[j + 1] as usize;
+                        let cell = (tables.centroid[j], tables.size[j]);
+                        let kappa =
+                            concentration(p.position, p.normal, cell, cells.of(j), &vis[range], lights);
+                        value[k] = entry_irradiance[j] * kappa;
+                        energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor);
+                    }
+                    k += 1;
+                }
+            }
+        }
+        LinkLight { hot, value, energy }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1 m square cell on the floor (y = 0, facing up), as two triangles.
+    const GEOM: (Vec3, f32) = (Vec3::new(0.5, 0.0, 0.5), 1.0);
+
+    fn floor_cell() -> Vec<[Vec3; 3]> {
+        let (a, b, c, d) = (Vec3::ZERO, Vec3::Z, Vec3::new(1.0, 0.0, 1.0), Vec3::X);
+        vec![[a, b, c], [a, c, d]]
+    }
+
+    /// kappa by brute force: a 400 x 400 grid of the cell's square, the same two means.
+    fn kappa_dense(x: Vec3, nx: Vec3, light: &Light) -> f32 {
+        let (mut seen, mut weight, mut plain) = (0.0f64, 0.0f64, 0.0f64);
+        let k = 400;
+        for i in 0..k {
+            for j in 0..k {
+                let y = Vec3::new((i as f32 + 0.5) / k as f32, 0.0, (j as f32 + 0.5) / k as f32);
+                let e = prm::luminance(light.irradiance(y, Vec3::Y)) as f64;
+                let d = y - x;
+                let r2 = d.length_squared();
+                let g = (nx.dot(d).max(0.0) * (-Vec3::Y.dot(d)).max(0.0) / (r2 * r2)) as f64;
+                seen += e * g;
+                weight += g;
+                plain += e;
+            }
+        }
+        ((seen / weight) / (plain / (k * k) as f64)) as f32
+    }
+
+    #[test]
+    fn even_light_gives_one_and_a_far_texel_sees_the_mean() {
+        let cell = floor_cell();
+        let geom = GEOM;
+        let vis = [1.0, 1.0];
+        let mut sun = Light::point("sun", Vec3::ZERO, Vec3::ONE);
+        sun.kind = prm::LightKind::Directional;
+        sun.direction = Vec3::NEG_Y;
+        let wall_texel = (Vec3::new(-0.01, 0.3, 0.5), Vec3::X);
+        let k = concentration(wall_texel.0, wall_texel.1, geom, &cell, &vis, &[sun]);
+        assert!((k - Vec3::ONE).abs().max_element() < 1e-5, "even light: kappa {k}");
+        // A lamp 10 cm over one corner, seen from 20 m away: every point of the cell looks
+        // the same, so the seen mean is the plain mean.
+        let lamp = Light::point("lamp", Vec3::new(0.05, 0.1, 0.05), Vec3::ONE);
+        let k = concentration(
+            Vec3::new(0.5, 20.0, 0.5),
+            Vec3::NEG_Y,
+            geom,
+            &cell,
+            &vis,
+            std::slice::from_ref(&lamp),
+        );
+        assert!((k - Vec3::ONE).abs().max_element() < 0.01, "far texel: kappa {k}");
+        // No light at all: 1, not NaN.
+        assert_eq!(concentration(wall_texel.0, wall_texel.1, geom, &cell, &vis, &[]), Vec3::ONE);
+    }
+
+    /// A lamp 15 cm over a corner of a 1 m floor cell, texels on the wall at that corner and at
+    /// the far one: the quadrature's kappa follows a brute-force twin (20 % at the hot corner,
+    /// where 16 points a triangle resolve a 15 cm spot only roughly; 10 % at the far corner),
+    /// and is far above 1 where the hot spot is near, below 1 where it is far.
+    #[test]
+    fn the_quadrature_follows_a_dense_twin() {
+        let cell = floor_cell();
+        let geom = GEOM;
+        let lamp = Light::point("lamp", Vec3::new(0.15, 0.15, 0.15), Vec3::ONE);
+        let near = (Vec3::new(-0.02, 0.05, 0.1), Vec3::X);
+        let far = (Vec3::new(-0.02, 0.05, 0.9), Vec3::X);
+        let k_near = concentration(near.0, near.1, geom, &cell, &[1.0, 1.0], std::slice::from_ref(&lamp)).x;
+        let k_far = concentration(far.0, far.1, geom, &cell, &[1.0, 1.0], std::slice::from_ref(&lamp)).x;
+        let (d_near, d_far) = (kappa_dense(near.0, near.1, &lamp), kappa_dense(far.0, far.1, &lamp));
+        assert!(d_near > 3.0 && d_far < 0.7, "dense twin: near {d_near}, far {d_far}");
+        assert!((k_near / d_near - 1.0).abs() < 0.2, "near the hot spot: {k_near} vs dense {d_near}");
+        assert!((k_far / d_far - 1.0).abs() < 0.1, "far from it: {k_far} vs dense {d_far}");
+        // Each triangle's visibility scales its points: a shadowed half darkens what it holds.
+        let half = concentration(near.0, near.1, geom, &cell, &[1.0, 0.0], &[lamp]).x;
+        assert!(half != k_near && half.is_finite());
+    }
+
+    #[test]
+    fn a_cell_is_hot_only_for_a_point_or_spot_light_within_reach() {
+        let lamp = Light::point("lamp", Vec3::new(0.0, 1.0, 0.0), Vec3::ONE);
+        // 1 m away: hot for a cell of 0.6 m (1 < 2 x 0.6), not for one of 0.4 m.
+        assert!(is_hot(Vec3::ZERO, 0.6, std::slice::from_ref(&lamp)));
+        assert!(!is_hot(Vec3::ZERO, 0.4, std::slice::from_ref(&lamp)));
+        let mut sun = lamp.clone();
+        sun.kind = prm::LightKind::Directional;
+        assert!(!is_hot(Vec3::ZERO, 10.0, &[sun]));
+    }
+}
