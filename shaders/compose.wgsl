@@ -2,14 +2,14 @@
 // sum over selected clusters c of selected[c] x pane_c, read only from stored tiles.
 //
 // The stored tiles covering atlas tile t are records tile_ranges[t].x .. +tile_ranges[t].y
-// (each names its pane). A record's texels are f16 intensities (two
-// per u32) at data_offset + slot, where slot is the texel's place among its atlas tile's stored
-// texels (row-major), times the record's RGB scale.
+// (each names its pane). A record's texels are 8-bit intensity codes (four per u32, decoded by
+// the prelude's intensity) at data_offset + slot, where slot is the texel's place among its
+// atlas tile's stored texels (row-major), times the record's RGB scale.
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
 // active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
-// entry and one half float each, plus the near field's sum where the texel has one (then
+// entry and one byte each, plus the near field's sum where the texel has one (then
 // clamped at 0: runtime/src/near.rs). Texels outside the stored mask are written 0.
 //
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
@@ -49,8 +49,8 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
         for (var a = 0u; a < n; a++) {
             let rec = active_records[base + a];
             let i = rec.data_offset + slot;
-            let pair = unpack2x16float(data[i / 2u]);
-            sum += rec.weighted_scale * select(pair.x, pair.y, (i & 1u) == 1u);
+            let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
+            sum += rec.weighted_scale * intensity(code);
         }
     }
     if texel.y != NO_SLOT {

@@ -1,5 +1,5 @@
 //! Pane atlases: per-texel contributions become per-cluster panes, dilated, tiled and stored as
-//! half-float intensities with an RGB scale per tile (format in `prm::prm_file`).
+//! 8-bit logarithmic intensities with an RGB scale per tile (format in `prm::prm_file`).
 //!
 //! **Dropping tiles.** A cluster's light reaches mostly nearby surfaces; far tiles hold little.
 //! For each pane, tiles are sorted by energy (sum of texel luminance) and the smallest are left
@@ -13,8 +13,7 @@
 //! dilated panes is the dilated sum): the runtime's bilinear lookups need no extra pass.
 
 use glam::Vec3;
-use half::f16;
-use prm::prm_file::{Cluster, Tile};
+use prm::prm_file::{intensity_code, Cluster, Tile};
 use prm::{luminance, TexelSet};
 use rayon::prelude::*;
 
@@ -26,7 +25,7 @@ pub struct Tiled {
     /// Stored-texel mask (covered or dilated), packed.
     pub mask: Vec<u8>,
     pub tiles: Vec<Tile>,
-    pub data: Vec<f16>,
+    pub data: Vec<u8>,
     pub tiles_dropped: u32,
     pub dropped_energy: f64,
 }
@@ -144,7 +143,7 @@ struct PaneOut {
     /// Signed luminance over the covered texels (the runtime's ranking energy).
     energy: f32,
     /// (atlas tile, RGB scale, half-float intensities of the stored texels).
-    tiles: Vec<(u32, Vec3, Vec<f16>)>,
+    tiles: Vec<(u32, Vec3, Vec<u8>)>,
     dropped: u32,
     dropped_energy: f64,
     total_energy: f64,
@@ -208,15 +207,15 @@ fn drop_tiles(tiles: &[(u32, f64)], budget: f64) -> (Vec<bool>, u32, f64) {
 }
 
 /// A tile's stored texels as an RGB scale (the mean chromaticity at luminance 1, times the
-/// peak luminance) and half-float intensities (luminance over the peak).
-fn encode_tile(vals: &[Vec3]) -> (Vec3, Vec<f16>) {
+/// peak luminance) and intensity codes (luminance over the peak, `prm::prm_file::intensity`).
+fn encode_tile(vals: &[Vec3]) -> (Vec3, Vec<u8>) {
     let (sum, sum_y) = vals
         .iter()
         .fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.max(Vec3::ZERO), y + luminance(v.max(Vec3::ZERO))));
     let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
     let peak =
         vals.iter().map(|v| luminance(v.max(Vec3::ZERO))).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
-    let data = vals.iter().map(|v| f16::from_f32(luminance(v.max(Vec3::ZERO)) / peak)).collect();
+    let data = vals.iter().map(|v| intensity_code(luminance(v.max(Vec3::ZERO)) / peak)).collect();
     (chroma * peak, data)
 }
 

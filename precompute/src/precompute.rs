@@ -234,7 +234,7 @@ pub fn precompute(
     report.tiles_kept = tiled.tiles.len() as u32;
     report.tiles_dropped = tiled.tiles_dropped;
     report.dropped_energy = tiled.dropped_energy;
-    report.pane_bytes = tiled.data.len() * 2;
+    report.pane_bytes = tiled.data.len();
     report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 

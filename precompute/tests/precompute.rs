@@ -108,8 +108,11 @@ fn superposition_and_clustering_invariance() {
     let direct = tr.gather_field(&set, &weights);
     let peak = direct.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
     for (a, b) in composed.iter().zip(&direct) {
-        // Half floats carry 11 bits; tiles share a colour, exact here (grey albedo).
-        assert!((*a - *b).abs().max_element() <= 2e-3 * peak, "{a} vs {b}");
+        // Each pane texel is stored within half a logarithmic step (1.9 %) of its value, and
+        // every term here is positive, so the sum is within 1.9 % of its own value (plus float
+        // round-off); tiles share a colour, exact here (grey albedo).
+        let bound = (*b * 0.0186 + Vec3::splat(1e-5 * peak)).max_element();
+        assert!((*a - *b).abs().max_element() <= bound, "{a} vs {b}");
     }
     // With uniform weights the sum of all panes does not depend on the clustering: C = N
     // (each entry its own cluster) and C = 12 give the same lightmap.
@@ -118,7 +121,9 @@ fn superposition_and_clustering_invariance() {
     assert_eq!(per_entry.clusters().len(), 256);
     assert!(per_entry.clusters().iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
     for (a, b) in ones(&per_entry).iter().zip(&ones(&prm)) {
-        assert!((*a - *b).abs().max_element() <= 3e-3 * peak.max(1.0), "{a} vs {b}");
+        // Each side within 1.9 % of the exact sum (stored codes), so within 3.8 % of each other.
+        let bound = (a.max(*b) * 0.0373 + Vec3::splat(1e-5 * peak.max(1.0))).max_element();
+        assert!((*a - *b).abs().max_element() <= bound, "{a} vs {b}");
     }
 }
 

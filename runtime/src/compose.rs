@@ -3,11 +3,11 @@
 //!
 //! The `.prm`'s tiles are regrouped once, at load, by the atlas tile they cover
 //! (`tile_ranges[t]` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
-//! atlas tile's stored texels (or `NO_SLOT`). The half-float texel data is uploaded as is, two
+//! atlas tile's stored texels (or `NO_SLOT`). The 8-bit texel codes are uploaded as is, four
 //! to a `u32`. Per compose, one invocation per atlas tile lists the stored tiles of selected
 //! panes (reading the pane id of each tile's record) with their weight already applied to the tile's
-//! colour scale; then each texel sums just those: a 16-byte entry and a half float each. A
-//! compose reads `2 bytes x stored texels` of each selected pane, never a whole atlas per
+//! colour scale; then each texel sums just those: a 16-byte entry and a byte each. A
+//! compose reads `1 byte x stored texels` of each selected pane, never a whole atlas per
 //! cluster, and its work per texel is the number of selected panes stored there. Texels with
 //! near-field links add the near pass's sum (`crate::near`), and the total is clamped at zero.
 //!
@@ -137,7 +137,7 @@ impl ComposePass {
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
         let Tables { slots, ranges, records, texels_per_cluster, stride } = Tables::new(prm, atlas_tiles);
-        let data: &[u8] = bytemuck::cast_slice(prm.data());
+        let data: &[u8] = prm.data();
         let params = ComposeParams {
             atlas_width: w,
             atlas_height: h,
@@ -233,7 +233,7 @@ impl ComposePass {
     /// gather), the slot table, the selection table, and the RGBA32F lightmap written.
     pub fn bytes(&self, selected: &[bool]) -> ComposeBytes {
         let pane: u64 =
-            self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| t * 2).sum();
+            self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| *t).sum();
         let (w, h) = self.size;
         let texels = (w * h) as u64;
         let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * 4).sum::<u64>()

@@ -75,6 +75,14 @@ pub fn prelude() -> &'static str {
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES
         );
+        let _ = writeln!(
+            s,
+            "// A pane texel's intensity from its 8-bit code (prm::prm_file::intensity).\n\
+             fn intensity(code: u32) -> f32 {{\n    \
+             if code == 0u {{\n        return 0.0;\n    }}\n    \
+             return exp2({:?}f * f32(255u - code) / 254.0);\n}}\n",
+            prm::prm_file::INTENSITY_FLOOR.log2()
+        );
         s += "// glTF range window (prm::light::range_window).\n";
         s += prm::light::RANGE_WINDOW_WGSL;
         s += "\n// glTF spot falloff (prm::light::spot_falloff_cos).\n";

@@ -322,7 +322,7 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     }
     let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
     let tables = [
-        ("pane data", prm.data().len() as u64 * 2),
+        ("pane data", prm.data().len() as u64),
         ("texel slots", w as u64 * h as u64 * 8),
         (
             "entry cells",

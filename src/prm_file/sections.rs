@@ -160,8 +160,8 @@ impl Writer<'_> {
         self.section(b"TILE", &t);
     }
 
-    pub(super) fn data(&mut self, data: &[f16]) {
-        self.section(b"DATA", bytemuck::cast_slice::<f16, u8>(data));
+    pub(super) fn data(&mut self, data: &[u8]) {
+        self.section(b"DATA", data);
     }
 }
 
@@ -407,13 +407,9 @@ impl<'a> Reader<'a> {
             .collect())
     }
 
-    /// `DATA`: the half floats of every tile's stored texels (how many is the tile layout's
-    /// business, checked with the other invariants).
-    pub(super) fn data(&mut self) -> Result<Vec<f16>, SectionError> {
-        let d = self.next(b"DATA")?;
-        if d.len() % 2 != 0 {
-            return Err(Corrupt(format!("tile data is {} bytes, not whole half floats", d.len())));
-        }
-        Ok(d.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]])).collect())
+    /// `DATA`: the intensity codes of every tile's stored texels (how many is the tile
+    /// layout's business, checked with the other invariants).
+    pub(super) fn data(&mut self) -> Result<Vec<u8>, SectionError> {
+        Ok(self.next(b"DATA")?.to_vec())
     }
 }

@@ -148,7 +148,7 @@ pub fn add_pane(prm: &Prm, pane: usize, weight: Vec3, img: &mut [Vec3], layout: 
     for t in prm.pane_tiles(pane, layout) {
         let s = weight * t.tile.scale;
         for (&texel, v) in t.texels.iter().zip(t.data) {
-            img[texel as usize] += s * v.to_f32();
+            img[texel as usize] += s * prm::prm_file::intensity(*v);
         }
     }
 }

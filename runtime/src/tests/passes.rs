@@ -486,6 +486,7 @@ fn the_prelude_functions_equal_their_rust_twins() {
     let table = [
         b("input", Res::Read("array<vec4f>"), COMPUTE),
         b("output", Res::ReadWrite("array<vec4f>"), COMPUTE),
+        b("codes", Res::ReadWrite("array<f32>"), COMPUTE),
     ];
     let body = "@compute @workgroup_size(WG_LINEAR)
 fn main(@builtin(global_invocation_id) id: vec3u) {
@@ -493,6 +494,7 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
     let c = v.z / 2.5 - 1.0;
     output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), spot_falloff(c, SPOT_IN, SPOT_OUT),
         spot_falloff(c, SPOT_OUT, SPOT_OUT));
+    codes[id.x] = intensity(u32(v.w));
 }";
     // A smooth cone (inner 0.3, outer 0.6 rad) and a hard one, as the GPU light carries them.
     let (ci, co) = (0.3f32.cos(), 0.6f32.cos());
@@ -500,7 +502,16 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
     let src = format!("{}{}{}{}", crate::contract::prelude(), declarations(&[&table]), cones, body);
     let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
     let mut input: Vec<[f32; 4]> = (0..crate::contract::WG_LINEAR * 4)
-        .map(|_| [rng.random_range(0.0..3.0), rng.random_range(-1.0..2.5), rng.random_range(0.0..5.0), 0.0])
+        .enumerate()
+        .map(|(k, _)| {
+            // w: every pane intensity code, 0 to 255.
+            [
+                rng.random_range(0.0..3.0),
+                rng.random_range(-1.0..2.5),
+                rng.random_range(0.0..5.0),
+                (k % 256) as f32,
+            ]
+        })
         .collect();
     input.extend([[0.0, 2.0, 0.0, 0.0], [2.0, 2.0, 1.0, 0.0], [1.0, 0.0, 1.0, 0.0], [1.0, -1.0, 1.0, 0.0]]);
     let n = input.len();
@@ -512,13 +523,19 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
     );
     let out_buf =
         crate::gpu::storage_buffer(&g.device, "out", &vec![0u8; n * 16], wgpu::BufferUsages::COPY_SRC);
+    let codes_buf =
+        crate::gpu::storage_buffer(&g.device, "codes", &vec![0u8; n * 4], wgpu::BufferUsages::COPY_SRC);
     let bgl = layout(&g.device, "twins", &table);
     let group = bind(
         &g.device,
         "twins",
         &bgl,
         &table,
-        &[("output", out_buf.as_entire_binding()), ("input", in_buf.as_entire_binding())],
+        &[
+            ("output", out_buf.as_entire_binding()),
+            ("input", in_buf.as_entire_binding()),
+            ("codes", codes_buf.as_entire_binding()),
+        ],
     );
     let pipeline = crate::gpu::compute_pipeline(&g.device, "twins", &src, "main", &[&bgl]);
     let mut enc = g.device.create_command_encoder(&Default::default());
@@ -546,6 +563,13 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
         {
             assert!((gpu - cpu).abs() <= 2e-6, "spot_falloff({c}): GPU {gpu}, CPU {cpu}");
         }
+    }
+    // Pane intensity codes: exp2 on the GPU against Rust's, to 1e-5 (WGSL allows a few ULP).
+    let bytes = crate::gpu::read_buffer(&g.device, &g.queue, &codes_buf).unwrap();
+    let codes: &[f32] = bytemuck::cast_slice(&bytes[..n * 4]);
+    for (v, &gpu) in input.iter().zip(codes) {
+        let cpu = prm::prm_file::intensity(v[3] as u8);
+        assert!((gpu - cpu).abs() <= 1e-5 * cpu, "intensity({}): GPU {gpu}, CPU {cpu}", v[3]);
     }
     // The inputs cover the smooth cone's ramp, not just its flat ends.
     let ramp = input.iter().filter(|v| (co..ci).contains(&(v[2] / 2.5 - 1.0))).count();
