@@ -26,10 +26,12 @@ fn near_main(@builtin(global_invocation_id) id: vec3u) {
     for (var i = t.first; i < t.first + t.count; i++) {
         let l = near_links[i];
         var d = deviation[l.entry].xyz;
-        let own = link_light[i];
-        if own.w == params.frame {
-            // A hot cell: the link's own light in place of the entry's.
-            d += bitcast<vec3f>(own.xyz) - entry_irradiance[l.entry].xyz;
+        if params.any_hot != 0u {
+            let own = link_light[i];
+            if own.w == params.frame {
+                // A hot cell: the link's own light in place of the entry's.
+                d += bitcast<vec3f>(own.xyz) - entry_irradiance[l.entry].xyz;
+            }
         }
         sum += l.factor * d;
     }

@@ -28,9 +28,15 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         let near = bitcast<f32>(m.y);
         let t = bitcast<f32>(m.z);
         sum += e;
-        let hot = hot_energy[m.x];
-        // A hot entry's links deliver what their own light says (concentrate.wgsl).
-        near_sum += select(e * near, bitcast<vec3f>(hot.xyz), hot.w == params.frame);
+        var linked = e * near;
+        if params.any_hot != 0u {
+            // A hot entry's links deliver what their own light says (concentrate.wgsl).
+            let hot = hot_energy[m.x];
+            if hot.w == params.frame {
+                linked = bitcast<vec3f>(hot.xyz);
+            }
+        }
+        near_sum += linked;
         near_total += near * t;
         t_total += t;
     }

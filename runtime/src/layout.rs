@@ -208,6 +208,12 @@ gpu_struct! {
         /// This update's number (from 1): link light written this update carries it, so a
         /// value left from an earlier update is never read (`shaders/concentrate.wgsl`).
         pub frame: u32,
+        /// 1 when some cell is hot this update (else the concentration pass did not run and
+        /// no link light is read).
+        pub any_hot: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 

@@ -77,6 +77,11 @@ pub struct Runtime {
     composes: u64,
     /// Updates that ran the indirect passes (`IndirectParams::frame`).
     frame: u32,
+    /// The cell centroid and size of each entry with near-field links, to tell whether a
+    /// light makes any linked cell hot.
+    cells: Vec<(glam::Vec3, f32)>,
+    /// Whether the last update's lights made any cell hot.
+    any_hot: bool,
 }
 
 impl Runtime {
@@ -148,6 +153,15 @@ impl Runtime {
             stale: true,
             composes: 0,
             frame: 0,
+            cells: {
+                let t = crate::cpu::NearTables::new(prm);
+                let mut linked = vec![false; t.size.len()];
+                for l in prm.near() {
+                    linked[l.entry as usize] = true;
+                }
+                (0..t.size.len()).filter(|&j| linked[j]).map(|j| (t.centroid[j], t.size[j])).collect()
+            },
+            any_hot: false,
         })
     }
 
@@ -170,12 +184,16 @@ impl Runtime {
         }
         // From 1, and never 0 again: buffers start zeroed, so 0 would read as this update's.
         self.frame = self.frame.checked_add(1).unwrap_or(1);
+        // The concentration only matters (and only runs) where a light makes a cell hot.
+        self.any_hot = self.cells.iter().any(|&(c, s)| crate::cpu::concentrate::is_hot(c, s, lights));
         self.write_params();
         let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
         self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
-        self.concentrate.encode(&mut enc, shadows);
+        if self.any_hot {
+            self.concentrate.encode(&mut enc, shadows);
+        }
         self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
         self.near.encode(&mut enc);
         self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
@@ -238,6 +256,8 @@ impl Runtime {
             residual: self.params.residual as u32,
             near_texel_count: self.near.count,
             frame: self.frame,
+            any_hot: self.any_hot as u32,
+            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }
