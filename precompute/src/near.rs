@@ -42,15 +42,7 @@ pub fn near_links(
     let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
     let cell: Vec<(Vec3, f32)> = (0..entries.len())
-        .map(|j| {
-            let (mut c, mut a) = (Vec3::ZERO, 0.0);
-            for t in cells.of(j) {
-                let at = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
-                c += (t[0] + t[1] + t[2]) / 3.0 * at;
-                a += at;
-            }
-            (if a > 0.0 { c / a } else { entries[j].position }, a)
-        })
+        .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
         .collect();
     let width = set.width as usize;
     let per_texel: Vec<Vec<NearLink>> = set

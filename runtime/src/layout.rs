@@ -183,7 +183,7 @@ gpu_struct! {
     pub struct GpuCellTriangle {
         pub a: [f32; 3],
         /// The visible share of the lights' power on it, written by the entry pass
-        /// (`prm_runtime::cpu::concentrate::cell_visibility`).
+        /// (`prm_runtime::cpu::concentrate::triangle_visibility`).
         pub visibility: f32,
         pub b: [f32; 3],
         pub _pad1: u32,

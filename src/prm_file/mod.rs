@@ -133,6 +133,17 @@ impl Cells {
     pub fn area(&self, j: usize) -> f32 {
         self.of(j).iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).sum()
     }
+
+    /// The area-weighted centroid of entry `j`'s cell (None for a cell of no area).
+    pub fn centroid(&self, j: usize) -> Option<Vec3> {
+        let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
+        for t in self.of(j) {
+            let at = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
+            c += (t[0] + t[1] + t[2]) / 3.0 * at;
+            a += at;
+        }
+        (a > 0.0).then(|| c / a)
+    }
 }
 
 /// A near-field link: texel `texel` (row-major atlas index) receives `albedo x factor` W/m² of

@@ -94,22 +94,10 @@ impl NearTables {
             let j = l.entry as usize;
             energy[j] += luminance(prm.entries()[j].albedo) * l.factor;
         }
-        let (centroid, size) =
-            (0..n).map(|j| cell_centroid_and_size(cells.of(j), prm.entries()[j].position)).unzip();
+        let centroid = (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
+        let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
         NearTables { cluster, area_ratio, energy, centroid, size }
     }
-}
-
-/// The area-weighted centroid of a cell's triangles (`fallback` for an empty cell) and the
-/// square root of its area.
-pub fn cell_centroid_and_size(tris: &[[Vec3; 3]], fallback: Vec3) -> (Vec3, f32) {
-    let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
-    for t in tris {
-        let at = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
-        c += (t[0] + t[1] + t[2]) / 3.0 * at;
-        a += at;
-    }
-    (if a > 0.0 { c / a } else { fallback }, a.sqrt())
 }
 
 /// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,

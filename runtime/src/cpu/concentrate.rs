@@ -27,7 +27,7 @@
 //! (`crate::cpu::cluster_weights`).
 
 use glam::Vec3;
-use prm::prm_file::{Cells, Prm};
+use prm::prm_file::Prm;
 use prm::Light;
 
 use super::NearTables;
@@ -48,36 +48,30 @@ pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light]) -> bool {
     lights.iter().any(|l| l.is_positional() && l.position.distance(centroid) < HOT_REACH * size)
 }
 
-/// Per cell triangle, the luminance-weighted share of the lights' power on it that is visible
+/// The luminance-weighted share of the lights' power on cell triangle `t` that is visible
 /// (`visible(centroid, normal, light)`, as the entry pass takes it); 1 where no light reaches it.
-pub fn cell_visibility(
-    cells: &Cells,
+pub fn triangle_visibility(
+    t: &[Vec3; 3],
     lights: &[Light],
     visible: impl Fn(Vec3, Vec3, &Light) -> bool,
-) -> Vec<f32> {
-    cells
-        .triangles
-        .iter()
-        .map(|t| {
-            let Some(n) = (t[1] - t[0]).cross(t[2] - t[0]).try_normalize() else { return 1.0 };
-            let centroid = (t[0] + t[1] + t[2]) / 3.0;
-            let (mut lit, mut all) = (0.0f32, 0.0f32);
-            for l in lights {
-                let p = prm::luminance(l.triangle_power(t));
-                if p > 0.0 {
-                    all += p;
-                    if visible(centroid, n, l) {
-                        lit += p;
-                    }
-                }
+) -> f32 {
+    let Some(n) = (t[1] - t[0]).cross(t[2] - t[0]).try_normalize() else { return 1.0 };
+    let centroid = (t[0] + t[1] + t[2]) / 3.0;
+    let (mut lit, mut all) = (0.0f32, 0.0f32);
+    for l in lights {
+        let p = prm::luminance(l.triangle_power(t));
+        if p > 0.0 {
+            all += p;
+            if visible(centroid, n, l) {
+                lit += p;
             }
-            if all > 0.0 {
-                lit / all
-            } else {
-                1.0
-            }
-        })
-        .collect()
+        }
+    }
+    if all > 0.0 {
+        lit / all
+    } else {
+        1.0
+    }
 }
 
 /// kappa of the module doc for the texel at `x` (unit normal `nx`) and the cell `tris` (with
@@ -152,13 +146,13 @@ impl LinkLight {
         LinkLight { hot: vec![false; n], value: Vec::new(), energy: vec![Vec3::ZERO; n] }
     }
 
-    /// The link light of `lights` from the entries' irradiance and the cell triangles'
-    /// visibility ([`cell_visibility`]).
+    /// The link light of `lights` from the entries' irradiance; `vis` gives a cell triangle's
+    /// visibility ([`triangle_visibility`]) and is asked only for the triangles of hot cells.
     pub fn new(
         prm: &Prm,
         tables: &NearTables,
         entry_irradiance: &[Vec3],
-        vis: &[f32],
+        vis: impl Fn(&[Vec3; 3]) -> f32,
         lights: &[Light],
     ) -> LinkLight {
         let n = prm.entries().len();
@@ -167,15 +161,17 @@ impl LinkLight {
         let mut energy = vec![Vec3::ZERO; n];
         if hot.iter().any(|&h| h) {
             let cells = prm.cells();
+            let cell_vis: Vec<Vec<f32>> = (0..n)
+                .map(|j| if hot[j] { cells.of(j).iter().map(&vis).collect() } else { Vec::new() })
+                .collect();
             let mut k = 0;
             for (links, p) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(prm.near_points()) {
                 for l in links {
                     let j = l.entry as usize;
                     if hot[j] {
-                        let range = cells.first[j] as usize..cells.first[j + 1] as usize;
                         let cell = (tables.centroid[j], tables.size[j]);
                         let kappa =
-                            concentration(p.position, p.normal, cell, cells.of(j), &vis[range], lights);
+                            concentration(p.position, p.normal, cell, cells.of(j), &cell_vis[j], lights);
                         value[k] = entry_irradiance[j] * kappa;
                         energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor);
                     }

@@ -21,8 +21,8 @@ pub mod concentrate;
 mod twin;
 
 pub use compose::{
-    add_near_field, add_near_field_with, add_pane, cell_centroid_and_size, cluster_weights,
-    cluster_weights_with, compose, compose_selected, residual_weights, select_top_k, NearTables,
+    add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with, compose,
+    compose_selected, residual_weights, select_top_k, NearTables,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

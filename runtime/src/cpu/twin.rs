@@ -6,7 +6,7 @@ use prm::prm_file::Prm;
 use prm::{Bvh, Light};
 use rayon::prelude::*;
 
-use super::concentrate::cell_visibility;
+use super::concentrate::triangle_visibility;
 use super::{
     add_near_field_with, cluster_weights_with, compose_selected, select_top_k, LinkLight, NearTables,
 };
@@ -39,14 +39,14 @@ pub fn link_light(
     entry_irradiance: &[Vec3],
     lights: &[Light],
 ) -> LinkLight {
-    let vis = cell_visibility(prm.cells(), lights, |c, n, l| {
+    let visible = |c: Vec3, n: Vec3, l: &Light| {
         if l.is_positional() {
             bvh.visible_point(c, n, l.position)
         } else {
             bvh.visible_dir(c, n, -l.direction)
         }
-    });
-    LinkLight::new(prm, tables, entry_irradiance, &vis, lights)
+    };
+    LinkLight::new(prm, tables, entry_irradiance, |t| triangle_visibility(t, lights, visible), lights)
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
