@@ -75,6 +75,10 @@ pub struct Args {
     /// Relative energy of a pane its dropped tiles may hold.
     #[arg(long)]
     drop_threshold: Option<f64>,
+    /// Cap on the walks' bounces (1: the panes hold the first bounce only, as
+    /// `prm ground-truth --max-bounces 1` does; default: none but Russian roulette).
+    #[arg(long)]
+    max_bounces: Option<u32>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -97,6 +101,7 @@ pub fn run(a: Args) -> Result<()> {
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
     p.near_radius = a.near_radius.unwrap_or(p.near_radius);
     p.groups = a.groups.unwrap_or(p.groups);
+    p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {
         p.estimator = match e {
