@@ -1,7 +1,8 @@
 // The energy a hot entry's links deliver this update (prm_runtime::cpu::concentrate,
 // LinkLight::energy): one invocation per entry; when its first link carries this update's
 // number (concentrate.wgsl wrote it: the cell is hot), hot_energy = (sum over its links of
-// luminance(albedo x factor) x link light, the number). The weight pass uses it for the
+// link_weight x link light, the number); link_weight = luminance(albedo) x factor x the echo
+// gain of the link's texel. The weight pass uses it for the
 // entry's share of the near field's energy. Structs, constants, bindings: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -17,7 +18,7 @@ fn link_energy_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     for (var k = h.first_link; k < h.first_link + h.link_count; k++) {
         let i = link_ids[k];
-        sum += luminance(near_links[i].factor) * bitcast<vec3f>(link_light[i].xyz);
+        sum += link_weight[i] * bitcast<vec3f>(link_light[i].xyz);
     }
     hot_energy[j] = vec4u(bitcast<vec3u>(sum), params.frame);
 }

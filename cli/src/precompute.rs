@@ -65,6 +65,10 @@ pub struct Args {
     /// Reach of the near-field links in entry spacings (0: none; default 2.5).
     #[arg(long)]
     near_radius: Option<f32>,
+    /// Reach of the near field's echo (its second and third bounce) in entry spacings (0: none;
+    /// default 1).
+    #[arg(long)]
+    echo_radius: Option<f32>,
     /// Radius in texels of the geometry-guided pane smoothing (0: none).
     #[arg(long)]
     smooth: Option<u32>,
@@ -100,6 +104,7 @@ pub fn run(a: Args) -> Result<()> {
     p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
     p.near_radius = a.near_radius.unwrap_or(p.near_radius);
+    p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.groups = a.groups.unwrap_or(p.groups);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);

@@ -19,7 +19,7 @@
 //! to the entry. Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
 
 use glam::Vec3;
-use prm::prm_file::{round_near_points, Cells, Entry, NearLink, NearPoint};
+use prm::prm_file::{round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, NearLink, NearPoint};
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
 
@@ -80,4 +80,98 @@ pub fn near_links(
         .collect();
     round_near_points(&mut points);
     (links, points)
+}
+
+/// The near field's echo (`prm::prm_file::Echo`): between the texels with links, the light the
+/// near field puts on one texel bounces to the others close by. A hot spot in a corner lights
+/// the walls next to it from a few cm away (the links' first bounce), and those walls light
+/// each other and the floor as strongly again; a pane spreads that second bounce over its whole
+/// cluster. Each link is the form factor from the receiver's point to the source texel's square
+/// (its footprint on the source triangle), for sources within `radius` entry spacings that the
+/// receiver sees in front of it and that see it in front of them (coplanar texels have none).
+/// The runtime applies it twice (second and third bounce) to the near field's own irradiance.
+pub fn echo_links(
+    scene: &prm::Scene,
+    bvh: &Bvh,
+    set: &TexelSet,
+    entries: &[Entry],
+    points: &[NearPoint],
+    radius: f32,
+) -> Echo {
+    let Some(first) = entries.first() else { return Echo::default() };
+    if points.is_empty() || !(radius > 0.0) {
+        return Echo::default();
+    }
+    let reach = radius * first.area.sqrt();
+    let texels: Vec<&prm::Texel> =
+        points.iter().map(|p| &set.texels[set.index[p.texel as usize] as usize]).collect();
+    let albedo: Vec<Vec3> =
+        texels.iter().map(|t| round_albedo(scene.albedo(t.triangle as usize, t.bary))).collect();
+    let squares: Vec<Option<[Vec3; 4]>> = texels.iter().map(|t| texel_square(scene, set, t)).collect();
+    // A grid of `reach`-sized cells: each receiver looks at its own and the 26 around it.
+    let key = |p: Vec3| (p / reach).floor().as_ivec3();
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
+    for (k, t) in texels.iter().enumerate() {
+        grid.entry(key(t.position)).or_default().push(k as u32);
+    }
+    let per_receiver: Vec<Vec<EchoLink>> = texels
+        .par_iter()
+        .enumerate()
+        .map(|(y, ty)| {
+            let mut out = Vec::new();
+            let c = key(ty.position);
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let Some(cands) = grid.get(&(c + glam::IVec3::new(dx, dy, dz))) else { continue };
+                        for &x in cands {
+                            let tx = texels[x as usize];
+                            let v = ty.position - tx.position;
+                            if x as usize == y || v.length() > reach || !(tx.normal.dot(v) > 0.0) {
+                                continue;
+                            }
+                            let Some(square) = &squares[x as usize] else { continue };
+                            let f = half::f16::from_f32(point_to_polygon(ty.position, ty.normal, square))
+                                .to_f32();
+                            if !(f >= MIN_FACTOR)
+                                || !bvh.visible(ty.position, ty.normal, tx.position, tx.normal)
+                            {
+                                continue;
+                            }
+                            out.push(EchoLink { receiver: y as u32, source: x, factor: f });
+                        }
+                    }
+                }
+            }
+            out.sort_by_key(|l| l.source);
+            out
+        })
+        .collect();
+    Echo { albedo, links: per_receiver.into_iter().flatten().collect() }
+}
+
+/// The world-space square of texel `t`: its square in the lightmap mapped through its owning
+/// triangle's UV-to-surface map (None for a triangle degenerate in UV).
+fn texel_square(scene: &prm::Scene, set: &TexelSet, t: &prm::Texel) -> Option<[Vec3; 4]> {
+    let tri = t.triangle as usize;
+    let (p, uv) = (scene.corners(tri), scene.uv1_corners(tri));
+    let (e1, e2) = (uv[1] - uv[0], uv[2] - uv[0]);
+    let det = e1.perp_dot(e2);
+    if !(det.abs() > 1e-20) {
+        return None;
+    }
+    let to_world = |u: glam::Vec2| {
+        let d = u - uv[0];
+        let (a, b) = (d.perp_dot(e2) / det, e1.perp_dot(d) / det);
+        p[0] + (p[1] - p[0]) * a + (p[2] - p[0]) * b
+    };
+    let (w, h) = (set.width as f32, set.height as f32);
+    let (u0, v0, u1, v1) = (t.i as f32 / w, t.j as f32 / h, (t.i + 1) as f32 / w, (t.j + 1) as f32 / h);
+    let q = [
+        to_world(glam::Vec2::new(u0, v0)),
+        to_world(glam::Vec2::new(u1, v0)),
+        to_world(glam::Vec2::new(u1, v1)),
+        to_world(glam::Vec2::new(u0, v1)),
+    ];
+    q.iter().all(|v| v.is_finite()).then_some(q)
 }

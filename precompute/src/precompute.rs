@@ -17,7 +17,7 @@ use serde::Serialize;
 use crate::cells::{entry_cells, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
-use crate::near::near_links;
+use crate::near::{echo_links, near_links};
 use crate::panes::tile_panes;
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
@@ -55,6 +55,9 @@ pub struct PrecomputeParams {
     pub groups: u32,
     /// Reach of the near-field links in entry spacings (`crate::near`; 0: none; default 2.5).
     pub near_radius: f32,
+    /// Reach of the near field's echo in entry spacings (`crate::near::echo_links`; 0: none;
+    /// default 1).
+    pub echo_radius: f32,
 }
 
 impl PrecomputeParams {
@@ -78,6 +81,7 @@ impl PrecomputeParams {
             smooth_radius: 1,
             groups: 16,
             near_radius: 2.5,
+            echo_radius: 1.0,
         }
     }
 
@@ -98,6 +102,7 @@ impl PrecomputeParams {
         require(self.max_bounces >= 1, "max bounces", self.max_bounces, "at least 1")?;
         require(self.smooth_radius <= 16, "smooth radius", self.smooth_radius, "0 to 16")?;
         require((0.0..=8.0).contains(&self.near_radius), "near radius", self.near_radius, "0 to 8")?;
+        require((0.0..=4.0).contains(&self.echo_radius), "echo radius", self.echo_radius, "0 to 4")?;
         if let Estimator::Scatter { clamp } = self.estimator {
             require(clamp.is_finite() && clamp >= 0.0, "clamp", clamp, "finite and >= 0")?;
         }
@@ -135,6 +140,8 @@ pub struct Report {
     pub entries_enclosed: usize,
     /// Near-field links (`crate::near`) and the seconds they took.
     pub near_links: usize,
+    /// Links of the near field's echo.
+    pub echo_links: usize,
     pub seconds_near: f64,
     /// Triangles of the entries' cells (`prm::prm_file::Cells`).
     pub cell_triangles: usize,
@@ -246,6 +253,10 @@ pub fn precompute(
         }
     });
     report.near_links = near.len();
+    let echo = timed(&mut report.seconds_near, || {
+        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+    });
+    report.echo_links = echo.links.len();
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
@@ -255,6 +266,7 @@ pub fn precompute(
         cells,
         near,
         near_points,
+        echo,
         clusters,
         groups,
         group_of,
@@ -351,7 +363,8 @@ fn header(
             "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
-            "near_links": report.near_links,
+            "near_links": report.near_links, "echo_radius": params.echo_radius,
+            "echo_links": report.echo_links,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,

@@ -39,7 +39,8 @@ pub const ENERGY_BINDINGS: &[Binding] = &[
     b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
     // Link indices grouped by entry (each entry's run: `GpuHotEntry::first_link`, `link_count`).
     b("link_ids", Res::Read("array<u32>"), COMPUTE),
-    b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
+    // Per link: luminance(albedo) x factor x its texel's echo gain (`crate::cpu::echo_gain`).
+    b("link_weight", Res::Read("array<f32>"), COMPUTE),
     b("link_light", Res::Read("array<vec4u>"), COMPUTE),
     // Per entry: (bits of its hot links' energy, update number).
     b("hot_energy", Res::ReadWrite("array<vec4u>"), COMPUTE),
@@ -118,6 +119,17 @@ impl ConcentratePass {
         let none = wgpu::BufferUsages::empty();
         let hot_buf = gpu::storage_buffer(device, "hot entries", bytemuck::cast_slice(&hot), none);
         let ids_buf = gpu::storage_buffer(device, "link ids by entry", bytemuck::cast_slice(&link_ids), none);
+        let mut link_weight: Vec<f32> = Vec::with_capacity(prm.near().len().max(1));
+        for (links, gain) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(&tables.echo_gain) {
+            for l in links {
+                link_weight.push(prm::luminance(prm.entries()[l.entry as usize].albedo) * l.factor * gain);
+            }
+        }
+        if link_weight.is_empty() {
+            link_weight.push(0.0);
+        }
+        let weight_buf =
+            gpu::storage_buffer(device, "link weights", bytemuck::cast_slice(&link_weight), none);
         let link_light =
             gpu::storage_buffer(device, "link light", &vec![0u8; prm.near().len().max(1) * 16], none);
         let hot_energy = gpu::storage_buffer(device, "hot link energy", &vec![0u8; n.max(1) * 16], none);
@@ -155,7 +167,7 @@ impl ConcentratePass {
                 ("params", params.as_entire_binding()),
                 ("hot_entries", hot_buf.as_entire_binding()),
                 ("link_ids", ids_buf.as_entire_binding()),
-                ("near_links", near.links.as_entire_binding()),
+                ("link_weight", weight_buf.as_entire_binding()),
                 ("link_light", link_light.as_entire_binding()),
                 ("hot_energy", hot_energy.as_entire_binding()),
             ],

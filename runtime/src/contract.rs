@@ -162,13 +162,14 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 9] = [
+pub const SHADERS: [&Shader; 10] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
     &crate::concentrate::LINK_ENERGY,
     &crate::weights::SHADER,
     &crate::near::SHADER,
+    &crate::near::ECHO,
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,

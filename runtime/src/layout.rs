@@ -149,6 +149,15 @@ gpu_struct! {
 }
 
 gpu_struct! {
+    /// A link of the near field's echo on the GPU (`shaders/echo.wgsl`): the source point and
+    /// the source's albedo x the form factor.
+    pub struct GpuEchoLink {
+        pub factor: [f32; 3],
+        pub source: u32,
+    }
+}
+
+gpu_struct! {
     /// A texel with near-field links: links `first .. first + count` (`shaders/near.wgsl`),
     /// and its sample point and unit normal (`shaders/concentrate.wgsl`).
     pub struct NearTexel {
@@ -322,6 +331,7 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<GpuEntry>(),
         one::<GpuCellTriangle>(),
         one::<GpuNearLink>(),
+        one::<GpuEchoLink>(),
         one::<NearTexel>(),
         one::<GpuHotEntry>(),
         one::<IndirectParams>(),

@@ -10,7 +10,7 @@ use prm::prm_file::Prm;
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
 use crate::gpu;
-use crate::layout::{GpuNearLink, GpuStruct, IndirectParams, NearTexel};
+use crate::layout::{GpuEchoLink, GpuNearLink, GpuStruct, IndirectParams, NearTexel};
 
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
@@ -39,6 +39,82 @@ pub const SHADER: Shader = Shader {
         Compute { entry: "near_main", workgroup: LINEAR },
     ],
 };
+
+pub const ECHO_BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    // Per near point: its echo links `first .. first + count`.
+    b("echo_runs", Res::Read("array<vec2u>"), COMPUTE),
+    b("echo_links", Res::Read("array<GpuEchoLink>"), COMPUTE),
+    b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Per near point, the echo's first bounce.
+    b("echo_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const ECHO: Shader = Shader {
+    stem: "echo",
+    body: include_str!("../../shaders/echo.wgsl"),
+    lights: false,
+    groups: &[ECHO_BINDINGS],
+    compute: &[
+        Compute { entry: "echo_first_main", workgroup: LINEAR },
+        Compute { entry: "echo_second_main", workgroup: LINEAR },
+    ],
+};
+
+/// The echo's pipelines and tables (`shaders/echo.wgsl`); none when the map has no echo.
+struct EchoPass {
+    first: wgpu::ComputePipeline,
+    second: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+}
+
+impl EchoPass {
+    fn new(device: &wgpu::Device, prm: &Prm, params: &wgpu::Buffer, sums: &wgpu::Buffer) -> Option<EchoPass> {
+        let echo = prm.echo();
+        if echo.links.is_empty() {
+            return None;
+        }
+        let points = prm.near_points().len();
+        let mut runs = vec![[0u32; 2]; points.max(1)];
+        for (k, l) in echo.links.iter().enumerate() {
+            let r = &mut runs[l.receiver as usize];
+            if r[1] == 0 {
+                r[0] = k as u32;
+            }
+            r[1] += 1;
+        }
+        let links: Vec<GpuEchoLink> = echo
+            .links
+            .iter()
+            .map(|l| GpuEchoLink {
+                factor: (echo.albedo[l.source as usize] * l.factor).to_array(),
+                source: l.source,
+            })
+            .collect();
+        let none = wgpu::BufferUsages::empty();
+        let runs = gpu::storage_buffer(device, "echo runs", bytemuck::cast_slice(&runs), none);
+        let links = gpu::storage_buffer(device, "echo links", bytemuck::cast_slice(&links), none);
+        let echo_sum = gpu::storage_buffer(device, "echo sums", &vec![0u8; points.max(1) * 16], none);
+        let layout = ECHO.layout(device, 0);
+        let group = bind(
+            device,
+            "near field echo",
+            &layout,
+            ECHO_BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("echo_runs", runs.as_entire_binding()),
+                ("echo_links", links.as_entire_binding()),
+                ("near_sum", sums.as_entire_binding()),
+                ("echo_sum", echo_sum.as_entire_binding()),
+            ],
+        );
+        let source = ECHO.source();
+        let first = gpu::compute_pipeline(device, "echo.wgsl", &source, "echo_first_main", &[&layout]);
+        let second = gpu::compute_pipeline(device, "echo.wgsl", &source, "echo_second_main", &[&layout]);
+        Some(EchoPass { first, second, group })
+    }
+}
 
 /// The near field's tables on the GPU: its linked texels (with their points) and links.
 pub struct NearData {
@@ -107,6 +183,7 @@ pub struct NearPass {
     pub sums: wgpu::Buffer,
     /// Per atlas texel, its index in `sums`, or `NO_SLOT`.
     pub index: Vec<u32>,
+    echo: Option<EchoPass>,
 }
 
 impl NearPass {
@@ -164,7 +241,8 @@ impl NearPass {
         let deviation_pipeline =
             gpu::compute_pipeline(device, "near.wgsl", &source, "deviation_main", &[&layout]);
         let entries = prm.entries().len() as u32;
-        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index }
+        let echo = EchoPass::new(device, prm, params, &sums);
+        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo }
     }
 
     /// Records the pass (after the weights, before the compose).
@@ -181,6 +259,14 @@ impl NearPass {
         pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
         pass.set_pipeline(&self.pipeline);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        if let Some(echo) = &self.echo {
+            // Two bounces (`crate::cpu::ECHO_BOUNCES`).
+            pass.set_bind_group(0, &echo.group, &[]);
+            pass.set_pipeline(&echo.first);
+            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+            pass.set_pipeline(&echo.second);
+            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        }
     }
 
     /// Records clearing the sums (a compose from caller-chosen weights has no near field).

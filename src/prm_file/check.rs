@@ -4,6 +4,8 @@
 
 use std::collections::HashSet;
 
+use glam::Vec3;
+
 use super::{tile_layout, Header, PrmParts};
 
 /// Largest atlas side and tile side a map may declare.
@@ -135,6 +137,34 @@ fn entries(p: &PrmParts) -> Result<(), String> {
                 "near-field point {k} is not a point with a unit normal ({}, {})",
                 pt.position, pt.normal
             ));
+        }
+    }
+    let echo = &p.echo;
+    if !echo.links.is_empty() && echo.albedo.len() != p.near_points.len() {
+        return Err(format!(
+            "the echo has {} albedos for {} near-field points",
+            echo.albedo.len(),
+            p.near_points.len()
+        ));
+    }
+    if let Some(k) = echo.albedo.iter().position(|a| !(a.cmpge(Vec3::ZERO).all() && a.cmple(Vec3::ONE).all()))
+    {
+        return Err(format!("echo albedo {k} is not in [0, 1] ({})", echo.albedo[k]));
+    }
+    let points = p.near_points.len();
+    for (k, l) in echo.links.iter().enumerate() {
+        if l.receiver as usize >= points
+            || l.source as usize >= points
+            || l.receiver == l.source
+            || !(l.factor.is_finite() && l.factor >= 0.0)
+        {
+            return Err(format!(
+                "echo link {k} is out of range (receiver {}, source {}, factor {})",
+                l.receiver, l.source, l.factor
+            ));
+        }
+        if k > 0 && (echo.links[k - 1].receiver, echo.links[k - 1].source) >= (l.receiver, l.source) {
+            return Err(format!("echo link {k} is out of order"));
         }
     }
     for (k, c) in p.clusters.iter().enumerate() {

@@ -85,7 +85,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 4;
+pub const VERSION: u32 = 5;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,6 +164,30 @@ pub struct NearPoint {
     pub texel: u32,
     pub position: Vec3,
     pub normal: Vec3,
+}
+
+/// The near field's second and third bounce (`prm_precompute::near`, the echo): point
+/// `receiver` gets `factor` (the form factor from its point to the source texel's square) times
+/// the source's albedo times the source's near-field irradiance. Both are indices into
+/// [`Prm::near_points`]. Stored as a half float, rounded by the bake as for [`NearLink`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EchoLink {
+    pub receiver: u32,
+    pub source: u32,
+    pub factor: f32,
+}
+
+/// The echo of the near field: each near point's albedo (8-bit linear, [`round_albedo`]) and
+/// the links, sorted by receiver then source. Empty when the map has none.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Echo {
+    pub albedo: Vec<Vec3>,
+    pub links: Vec<EchoLink>,
+}
+
+/// An albedo as the file stores it: each channel in 1/255 steps of [0, 1].
+pub fn round_albedo(a: Vec3) -> Vec3 {
+    (a.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round() / 255.0
 }
 
 /// The box of `points` (min, max); zero-size for none.
@@ -300,6 +324,8 @@ pub struct PrmParts {
     pub near: Vec<NearLink>,
     /// The sample point of each texel with links, in texel order (one per run of `near`).
     pub near_points: Vec<NearPoint>,
+    /// The near field's echo between those points (may be empty).
+    pub echo: Echo,
     pub clusters: Vec<Cluster>,
     /// Coarse panes over the clusters (may be empty).
     pub groups: Vec<Group>,
@@ -382,7 +408,7 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 3 and older \
+        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 4 and older \
          lack what the near field needs); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
@@ -447,6 +473,7 @@ impl PrmParts {
         w.entries(&self.entries);
         w.cells(&self.cells);
         w.near(&self.near, &self.near_points);
+        w.echo(&self.echo);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
         w.mask(&self.mask);
@@ -497,6 +524,11 @@ impl Prm {
     /// The sample point of each texel with links, in the order of their runs in [`Prm::near`].
     pub fn near_points(&self) -> &[NearPoint] {
         &self.parts.near_points
+    }
+
+    /// The near field's echo between the near points.
+    pub fn echo(&self) -> &Echo {
+        &self.parts.echo
     }
 
     pub fn clusters(&self) -> &[Cluster] {
@@ -639,6 +671,7 @@ impl Prm {
             let entries = r.entries(&header)?;
             let cells = r.cells(entries.len())?;
             let (near, near_points) = r.near()?;
+            let echo = r.echo(near_points.len())?;
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
             let mask = r.mask()?;
@@ -651,6 +684,7 @@ impl Prm {
                 cells,
                 near,
                 near_points,
+                echo,
                 clusters,
                 groups,
                 group_of,
@@ -743,6 +777,14 @@ mod tests {
                 NearPoint { texel: 3, position: Vec3::ZERO, normal: Vec3::Y },
                 NearPoint { texel: 5, position: Vec3::new(1.0, 2.0, 3.0), normal: Vec3::NEG_Z },
             ],
+            // Albedos in 1/255 steps and half-float factors: stored exactly.
+            echo: Echo {
+                albedo: vec![Vec3::new(0.2, 0.4, 1.0), Vec3::ZERO],
+                links: vec![
+                    EchoLink { receiver: 0, source: 1, factor: 0.25 },
+                    EchoLink { receiver: 1, source: 0, factor: 0.5 },
+                ],
+            },
             clusters: vec![Cluster {
                 members: vec![0, 1],
                 centroid: Vec3::new(0.5, 0.0, 0.0),
@@ -851,6 +893,14 @@ mod tests {
                 p.near_points[1].normal = Vec3::ZERO
             }),
             ("near-field point 0 is not a point", |p| p.near_points[0].position.x = f32::NAN),
+            ("the echo has 1 albedos for 2", |p| {
+                p.echo.albedo.pop();
+            }),
+            ("echo albedo 0 is not in [0, 1]", |p| p.echo.albedo[0].x = 1.5),
+            ("echo link 1 is out of range", |p| p.echo.links[1].source = 2),
+            ("echo link 0 is out of range", |p| p.echo.links[0].source = 0),
+            ("echo link 1 is out of range", |p| p.echo.links[1].factor = f32::NAN),
+            ("echo link 1 is out of order", |p| p.echo.links.swap(0, 1)),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

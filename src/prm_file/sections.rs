@@ -9,7 +9,7 @@ use half::f16;
 
 use super::{
     decode_octahedral, dequantize_position, encode_octahedral, near_point_box, quantize_position, Cells,
-    Cluster, Entry, Group, Header, NearLink, NearPoint, Tile,
+    Cluster, Echo, EchoLink, Entry, Group, Header, NearLink, NearPoint, Tile,
 };
 
 /// Bytes of one run of near-field links: texel, count, point, normal.
@@ -107,6 +107,28 @@ impl Writer<'_> {
             n.extend_from_slice(&f16::from_f32(l.factor).to_le_bytes());
         }
         self.section(b"NEAR", &n);
+    }
+
+    /// `ECHO`: point and link counts, each point's albedo (3 bytes, linear / 255), then the
+    /// links' receivers and sources (u32) and factors (half floats).
+    pub(super) fn echo(&mut self, echo: &Echo) {
+        let mut n = Vec::with_capacity(8 + echo.albedo.len() * 3 + echo.links.len() * 10);
+        n.extend_from_slice(&(echo.albedo.len() as u32).to_le_bytes());
+        n.extend_from_slice(&(echo.links.len() as u32).to_le_bytes());
+        for a in &echo.albedo {
+            let q = (a.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
+            n.extend_from_slice(&[q.x as u8, q.y as u8, q.z as u8]);
+        }
+        for l in &echo.links {
+            n.extend_from_slice(&l.receiver.to_le_bytes());
+        }
+        for l in &echo.links {
+            n.extend_from_slice(&l.source.to_le_bytes());
+        }
+        for l in &echo.links {
+            n.extend_from_slice(&f16::from_f32(l.factor).to_le_bytes());
+        }
+        self.section(b"ECHO", &n);
     }
 
     /// `CLUS` and `MEMB`: each cluster's record points at its run of the member list.
@@ -316,6 +338,37 @@ impl<'a> Reader<'a> {
                 .map(|b| [v3(b, 0), v3(b, 12), v3(b, 24)])
                 .collect(),
         })
+    }
+
+    /// `ECHO` for `points` near points (what the links point at is checked with the others).
+    pub(super) fn echo(&mut self, points: usize) -> Result<Echo, SectionError> {
+        let n = self.next(b"ECHO")?;
+        if n.len() < 8 {
+            return Err(Corrupt(format!("echo section of {} bytes", n.len())));
+        }
+        let (albedos, links) = (u32_at(n, 0) as u64, u32_at(n, 4) as u64);
+        if n.len() as u64 != 8 + albedos * 3 + links * 10 {
+            return Err(Corrupt(format!(
+                "{albedos} echo albedos and {links} links declared, {} bytes",
+                n.len()
+            )));
+        }
+        if albedos != 0 && albedos != points as u64 {
+            return Err(Corrupt(format!("{albedos} echo albedos for {points} near-field points")));
+        }
+        let (a, rest) = n[8..].split_at(albedos as usize * 3);
+        let (receivers, rest) = rest.split_at(links as usize * 4);
+        let (sources, factors) = rest.split_at(links as usize * 4);
+        let albedo =
+            a.chunks_exact(3).map(|c| Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) / 255.0).collect();
+        let links = (0..links as usize)
+            .map(|k| EchoLink {
+                receiver: u32_at(receivers, 4 * k),
+                source: u32_at(sources, 4 * k),
+                factor: f16::from_le_bytes([factors[2 * k], factors[2 * k + 1]]).to_f32(),
+            })
+            .collect();
+        Ok(Echo { albedo, links })
     }
 
     /// `NEAR` (what the links point at is an invariant, checked with the others).

@@ -76,6 +76,9 @@ pub struct NearTables {
     pub centroid: Vec<Vec3>,
     /// The size of the entry's cell: the square root of its area.
     pub size: Vec<f32>,
+    /// Per near point: the energy the near field delivers there per unit of its own, with what
+    /// the echo carries on to the points around it (1 without an echo; [`echo_gain`]).
+    pub echo_gain: Vec<f32>,
 }
 
 impl NearTables {
@@ -90,14 +93,52 @@ impl NearTables {
                 area_ratio[m as usize] = if a > 0.0 { cells.area(m as usize) / a } else { 0.0 };
             }
         }
-        for l in prm.near() {
-            let j = l.entry as usize;
-            energy[j] += luminance(prm.entries()[j].albedo) * l.factor;
+        let echo_gain = echo_gain(prm);
+        for (links, g) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(&echo_gain) {
+            for l in links {
+                let j = l.entry as usize;
+                energy[j] += luminance(prm.entries()[j].albedo) * l.factor * g;
+            }
         }
         let centroid = (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
-        NearTables { cluster, area_ratio, energy, centroid, size }
+        NearTables { cluster, area_ratio, energy, centroid, size, echo_gain }
     }
+}
+
+/// Bounces of the near field's echo the runtime applies (the second and the third).
+pub const ECHO_BOUNCES: usize = 2;
+
+/// Per near point x, the energy (summed over texels, luminance) that one unit of near-field
+/// irradiance at x delivers with its echo: `1 + a_x S_x + a_x sum_y F_yx a_y S_y`, where `a`
+/// is the point's albedo luminance and `S_x` the sum of the echo factors with source x (what
+/// the echo's first bounce from x puts on all receivers per unit of radiosity).
+pub fn echo_gain(prm: &Prm) -> Vec<f32> {
+    let echo = prm.echo();
+    let n = prm.near_points().len();
+    let mut spread = vec![0.0f32; n];
+    for l in &echo.links {
+        spread[l.source as usize] += l.factor;
+    }
+    let a: Vec<f32> = (0..n).map(|k| echo.albedo.get(k).map_or(0.0, |&v| luminance(v))).collect();
+    let mut second = vec![0.0f32; n];
+    for l in &echo.links {
+        let (x, y) = (l.source as usize, l.receiver as usize);
+        second[x] += l.factor * a[y] * spread[y];
+    }
+    (0..n).map(|x| 1.0 + a[x] * (spread[x] + second[x])).collect()
+}
+
+/// One bounce of the echo: per near point, `sum over its links of factor x albedo(source) x
+/// from(source)`.
+pub fn echo_bounce(prm: &Prm, from: &[Vec3]) -> Vec<Vec3> {
+    let echo = prm.echo();
+    let mut out = vec![Vec3::ZERO; from.len()];
+    for l in &echo.links {
+        let x = l.source as usize;
+        out[l.receiver as usize] += echo.albedo[x] * from[x] * l.factor;
+    }
+    out
 }
 
 /// Indices of the (at most) `k` clusters with the largest `luminance(weight) x energy`,
@@ -199,15 +240,31 @@ pub fn add_near_field_with(
     img: &mut [Vec3],
 ) {
     let mut k = 0;
-    for links in prm.near().chunk_by(|a, b| a.texel == b.texel) {
-        let mut sum = Vec3::ZERO;
-        for l in links {
-            let j = l.entry as usize;
-            let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
-            let e = if link_light.hot[j] { link_light.value[k] } else { entry_irradiance[j] };
-            sum += prm.entries()[j].albedo * l.factor * (e - expected);
-            k += 1;
+    let runs: Vec<&[prm::prm_file::NearLink]> = prm.near().chunk_by(|a, b| a.texel == b.texel).collect();
+    let mut near: Vec<Vec3> = runs
+        .iter()
+        .map(|links| {
+            let mut sum = Vec3::ZERO;
+            for l in links.iter() {
+                let j = l.entry as usize;
+                let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
+                let e = if link_light.hot[j] { link_light.value[k] } else { entry_irradiance[j] };
+                sum += prm.entries()[j].albedo * l.factor * (e - expected);
+                k += 1;
+            }
+            sum
+        })
+        .collect();
+    if !prm.echo().links.is_empty() {
+        let mut bounce = near.clone();
+        for _ in 0..ECHO_BOUNCES {
+            bounce = echo_bounce(prm, &bounce);
+            for (n, b) in near.iter_mut().zip(&bounce) {
+                *n += *b;
+            }
         }
+    }
+    for (links, sum) in runs.iter().zip(near) {
         let texel = links[0].texel as usize;
         img[texel] = (img[texel] + sum).max(Vec3::ZERO);
     }

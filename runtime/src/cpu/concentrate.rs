@@ -165,7 +165,8 @@ impl LinkLight {
                 .map(|j| if hot[j] { cells.of(j).iter().map(&vis).collect() } else { Vec::new() })
                 .collect();
             let mut k = 0;
-            for (links, p) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(prm.near_points()) {
+            let runs = prm.near().chunk_by(|a, b| a.texel == b.texel);
+            for ((links, p), gain) in runs.zip(prm.near_points()).zip(&tables.echo_gain) {
                 for l in links {
                     let j = l.entry as usize;
                     if hot[j] {
@@ -173,7 +174,7 @@ impl LinkLight {
                         let kappa =
                             concentration(p.position, p.normal, cell, cells.of(j), &cell_vis[j], lights);
                         value[k] = entry_irradiance[j] * kappa;
-                        energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor);
+                        energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor * gain);
                     }
                     k += 1;
                 }

@@ -22,7 +22,7 @@ mod twin;
 
 pub use compose::{
     add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with, compose,
-    compose_selected, residual_weights, select_top_k, NearTables,
+    compose_selected, echo_bounce, echo_gain, residual_weights, select_top_k, NearTables, ECHO_BOUNCES,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

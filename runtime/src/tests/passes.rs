@@ -340,6 +340,15 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     assert!(near_share > 0.1, "the near field changes the corner's lightmap by only {near_share}");
     let m = prm::metric::compare(&gpu_l, &cpu, None);
     assert!(m.error < 0.01, "corner lamp: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    // The echo is part of what the two agree on: it must change the corner's lightmap (by 19 %
+    // when measured).
+    assert!(!prm.echo().links.is_empty());
+    let mut parts = prm.clone().into_parts();
+    parts.echo = Default::default();
+    let silent = prm::prm_file::Prm::new(parts).unwrap();
+    let without = crate::cpu::CpuTwin::new(&silent, &bvh, c).frame(&corner).to_vec();
+    let echo_share = prm::metric::compare(&without, &cpu, None).error;
+    assert!(echo_share > 0.05, "the echo changes the corner's lightmap by only {echo_share}");
 }
 
 #[test]
