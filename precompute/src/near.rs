@@ -154,16 +154,17 @@ pub fn echo_links(
 /// triangle's UV-to-surface map (None for a triangle degenerate in UV).
 fn texel_square(scene: &prm::Scene, set: &TexelSet, t: &prm::Texel) -> Option<[Vec3; 4]> {
     let tri = t.triangle as usize;
-    let (p, uv) = (scene.corners(tri), scene.uv1_corners(tri));
+    let uv = scene.uv1_corners(tri);
     let (e1, e2) = (uv[1] - uv[0], uv[2] - uv[0]);
     let det = e1.perp_dot(e2);
     if !(det.abs() > 1e-20) {
         return None;
     }
+    // Barycentrics of a lightmap point, unclamped: the square may reach past the triangle.
     let to_world = |u: glam::Vec2| {
         let d = u - uv[0];
         let (a, b) = (d.perp_dot(e2) / det, e1.perp_dot(d) / det);
-        p[0] + (p[1] - p[0]) * a + (p[2] - p[0]) * b
+        scene.point(tri, Vec3::new(1.0 - a - b, a, b))
     };
     let (w, h) = (set.width as f32, set.height as f32);
     let (u0, v0, u1, v1) = (t.i as f32 / w, t.j as f32 / h, (t.i + 1) as f32 / w, (t.j + 1) as f32 / h);

@@ -81,12 +81,12 @@ impl ConcentratePass {
         device: &wgpu::Device,
         shadow_layout: &wgpu::BindGroupLayout,
         prm: &Prm,
+        tables: &crate::cpu::NearTables,
         params: &wgpu::Buffer,
         cells: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
         near: NearBuffers,
     ) -> ConcentratePass {
-        let tables = crate::cpu::NearTables::new(prm);
         let n = prm.entries().len();
         // Link indices grouped by entry.
         let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];

@@ -187,16 +187,17 @@ pub struct NearPass {
 }
 
 impl NearPass {
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         device: &wgpu::Device,
         prm: &Prm,
+        tables: &crate::cpu::NearTables,
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
         weights: &wgpu::Buffer,
         data: &NearData,
         link_light: &wgpu::Buffer,
     ) -> NearPass {
-        let tables = crate::cpu::NearTables::new(prm);
         let mut entry_cluster: Vec<[u32; 2]> =
             tables.cluster.iter().zip(&tables.area_ratio).map(|(&c, t)| [c, t.to_bits()]).collect();
         if entry_cluster.is_empty() {

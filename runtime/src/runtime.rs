@@ -115,19 +115,24 @@ impl Runtime {
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
         let near_data = NearData::new(device, prm);
+        // Built once: the concentration, weight and near passes all read it.
+        let tables = crate::cpu::NearTables::new(prm);
         let concentrate = ConcentratePass::new(
             device,
             shadows.layout(),
             prm,
+            &tables,
             &params_buf,
             &entries.cells,
             &entries.output,
             NearBuffers { texels: &near_data.texels, links: &near_data.links, texel_count: near_data.count },
         );
-        let weights = WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm);
+        let weights =
+            WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
         let near = NearPass::new(
             device,
             prm,
+            &tables,
             &params_buf,
             &entries.output,
             &weights.weights,
@@ -154,7 +159,7 @@ impl Runtime {
             composes: 0,
             frame: 0,
             cells: {
-                let t = crate::cpu::NearTables::new(prm);
+                let t = &tables;
                 let mut linked = vec![false; t.size.len()];
                 for l in prm.near() {
                     linked[l.entry as usize] = true;

@@ -67,13 +67,13 @@ impl WeightPass {
         entry_irradiance: &wgpu::Buffer,
         hot_energy: &wgpu::Buffer,
         prm: &Prm,
+        near: &crate::cpu::NearTables,
     ) -> WeightPass {
         // One ranges/indices/energy table for both levels: clusters (ranges into entries), then
         // groups (ranges into clusters), to stay within 8 storage buffers per stage.
         let n = prm.clusters().len();
         let g_count = prm.groups().len();
         let mut ranges = Vec::with_capacity(n + g_count);
-        let near = crate::cpu::NearTables::new(prm);
         let mut indices: Vec<[u32; 4]> = Vec::new();
         for c in prm.clusters() {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
