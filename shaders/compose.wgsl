@@ -9,8 +9,12 @@
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
 // active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
-// entry and one byte each, plus the near field's sum where the texel has one (then
-// clamped at 0: runtime/src/near.rs). Texels outside the stored mask are written 0.
+// entry and one byte each, plus the near field's sum where the texel has one, then clamped at
+// 0 (runtime/src/near.rs). Texels outside the stored mask are written 0.
+//
+// A record whose data offset has DIPOLE_RECORD set is a dipole tile (prm::prm_file::Dipoles):
+// one signed code (i8 / 127) per dipole_block x dipole_block block of the tile, dipole_side a
+// row; its weight in `selected` is the cluster's moment along the axis (weights.wgsl).
 //
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
 // generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
@@ -48,13 +52,25 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
         let base = t * params.active_stride;
         for (var a = 0u; a < n; a++) {
             let rec = active_records[base + a];
-            let i = rec.data_offset + slot;
-            let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
-            sum += rec.weighted_scale * intensity(code);
+            if (rec.data_offset & DIPOLE_RECORD) != 0u {
+                let ts = params.tile_size;
+                let b = params.dipole_block;
+                let q = ((id.y % ts) / b) * params.dipole_side + (id.x % ts) / b;
+                let i = (rec.data_offset & ~DIPOLE_RECORD) + q;
+                let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
+                let v = max(f32(bitcast<i32>(code << 24u) >> 24u), -127.0) / 127.0;
+                sum += rec.weighted_scale * v;
+            } else {
+                let i = rec.data_offset + slot;
+                let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
+                sum += rec.weighted_scale * intensity(code);
+            }
         }
     }
     if texel.y != NO_SLOT {
-        sum = max(sum + near_sum[texel.y].xyz, vec3f(0.0));
+        sum += near_sum[texel.y].xyz;
     }
+    // The near field and the dipole panes are signed.
+    sum = max(sum, vec3f(0.0));
     textureStore(lightmap, vec2i(id.xy), vec4f(sum, 1.0));
 }

@@ -1,6 +1,7 @@
 // Near field (runtime/src/near.rs, prm_precompute::near). deviation_main, one invocation per
-// entry: deviation = E_entry - w_cluster(entry) t_entry, t the cell's area over A/N
-// (prm_runtime::cpu::NearTables). near_main, one per texel with links: near_sum = sum over its
+// entry: deviation = E_entry - (w_cluster(entry) + lin_entry) t_entry, t the cell's area over
+// A/N (prm_runtime::cpu::NearTables), lin the cluster's linear fit there, which dipole.wgsl
+// left in `deviation` this update. near_main, one per texel with links: near_sum = sum over its
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
 // read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
 // in place of the entry's. Structs, bindings, WG_LINEAR: the generated prelude.
@@ -12,7 +13,8 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
         return;
     }
     let ec = entry_cluster[j];
-    deviation[j] = vec4f(entry_irradiance[j].xyz - weights[ec.x].xyz * bitcast<f32>(ec.y), 0.0);
+    let fit = weights[ec.x].xyz + deviation[j].xyz;
+    deviation[j] = vec4f(entry_irradiance[j].xyz - fit * bitcast<f32>(ec.y), 0.0);
 }
 
 @compute @workgroup_size(WG_LINEAR)

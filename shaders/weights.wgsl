@@ -8,6 +8,10 @@
 // sum over its left-out clusters of w_c x energy_c / energy_g (prm_runtime::cpu::
 // residual_weights), 0 without residual. selected is all compose.wgsl reads.
 //
+// Dipoles (dipole.wgsl wrote each cluster's moments m_k at weights[C + 3 c + k]): the balance
+// keeps sum_j lin_j t_j near_j = sum_k m_k N_k, N_k = energy[C + G + 3 c + k]; a kept cluster's
+// moments go to selected[C + G + 3 c + k], zero for the rest (the dipole tiles' weights).
+//
 // Bindings (their meaning: runtime/src/weights.rs), IndirectParams, luminance and WG_LINEAR:
 // the generated prelude (runtime/src/contract.rs).
 
@@ -45,6 +49,11 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         w = sum / t_total;
     }
     let energy_c = energy[c];
+    let dipole = params.cluster_count + 3u * c;
+    let balance = params.cluster_count + params.group_count + 3u * c;
+    for (var k = 0u; k < 3u; k++) {
+        near_sum -= weights[dipole + k].xyz * energy[balance + k];
+    }
     if near_total > 0.0 && energy_c > 0.0 {
         w = max((w * energy_c - near_sum) / max(energy_c - near_total, 0.1 * energy_c), vec3f(0.0));
     }
@@ -68,6 +77,11 @@ fn select_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let keep = s > 0.0 && rank < params.top_k;
     selected[c] = select(vec4f(0.0), weights[c], keep);
+    let dipole = params.cluster_count + 3u * c;
+    let slot = params.cluster_count + params.group_count + 3u * c;
+    for (var k = 0u; k < 3u; k++) {
+        selected[slot + k] = select(vec4f(0.0), weights[dipole + k], keep);
+    }
 }
 
 @compute @workgroup_size(WG_LINEAR)

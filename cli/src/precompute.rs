@@ -69,6 +69,10 @@ pub struct Args {
     /// default 1).
     #[arg(long)]
     echo_radius: Option<f32>,
+    /// Side in texels of the blocks the clusters' dipole panes (their response to light uneven
+    /// over the cluster) are stored at (0: none, the default; 2 measured best).
+    #[arg(long)]
+    dipole_block: Option<u32>,
     /// Radius in texels of the geometry-guided pane smoothing (0: none).
     #[arg(long)]
     smooth: Option<u32>,
@@ -105,6 +109,7 @@ pub fn run(a: Args) -> Result<()> {
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
     p.near_radius = a.near_radius.unwrap_or(p.near_radius);
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
+    p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
     p.groups = a.groups.unwrap_or(p.groups);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);

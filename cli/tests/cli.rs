@@ -295,9 +295,11 @@ fn precompute_evaluate_and_export_panes() {
     let tables = prm_runtime::cpu::NearTables::new(&file);
     let hot = prm_runtime::cpu::link_light(&file, &bvh, &tables, &e, &lights);
     assert!(hot.hot.iter().any(|&h| h), "the corner torch makes no cell hot: this checks less");
-    let w = prm_runtime::cpu::cluster_weights_with(&file, &tables, &hot, &e);
-    let mut want = prm_runtime::cpu::compose(&file, &w);
-    prm_runtime::cpu::add_near_field_with(&file, &tables, &hot, &e, &w, &mut want);
+    let moments = prm_runtime::cpu::dipole_moments(&file, &tables, &e);
+    let lin = prm_runtime::cpu::dipole_offsets(&file, &tables, &moments);
+    let w = prm_runtime::cpu::cluster_weights_with(&file, &tables, &hot, &e, &lin);
+    let mut want = prm_runtime::cpu::compose(&file, &w, &moments);
+    prm_runtime::cpu::add_near_field_with(&file, &tables, &hot, &e, &w, &lin, &mut want);
     assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();

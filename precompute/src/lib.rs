@@ -4,6 +4,7 @@
 
 pub mod cells;
 pub mod cluster;
+pub mod dipole;
 pub mod entries;
 pub mod ground_truth;
 pub mod near;

@@ -13,11 +13,11 @@
 //! dilated panes is the dilated sum): the runtime's bilinear lookups need no extra pass.
 
 use glam::Vec3;
-use prm::prm_file::{intensity_code, Cluster, Tile};
+use prm::prm_file::{dipole_code, intensity_code, Cluster, Dipole, Dipoles, Tile};
 use prm::{luminance, TexelSet};
 use rayon::prelude::*;
 
-use crate::transport::TexelPanes;
+use crate::transport::{TexelDipoles, TexelPanes};
 
 /// Tiles and their data for all clusters, plus drop statistics.
 pub struct Tiled {
@@ -248,4 +248,139 @@ fn assemble(panes: Vec<PaneOut>, members: &[Vec<u32>], centroids: &[Vec3], store
     }
     out.dropped_energy = if total_e > 0.0 { dropped_e / total_e } else { 0.0 };
     out
+}
+
+/// The clusters' dipole panes (`prm::prm_file::Dipoles`): per cluster and used axis, the
+/// texels' dipole responses smoothed and dilated like the panes (the smoothing matters more
+/// here: a dipole pane is a difference of walks, noisier than its pane), averaged over `block`
+/// x `block` blocks of stored texels, tiled, and stored as signed codes with an RGB scale per
+/// tile; tiles are dropped by the same rule as the panes'. `dipoles` (from
+/// `crate::dipole::frames`) gets its tile counts, first tiles and energies filled in.
+#[allow(clippy::too_many_arguments)]
+pub fn tile_dipoles(
+    set: &TexelSet,
+    kernel: Option<&[Vec<(u32, f32)>]>,
+    texel_panes: &[TexelPanes],
+    texel_dipoles: &[TexelDipoles],
+    mut dipoles: Vec<Dipole>,
+    tile_size: u32,
+    block: u32,
+    drop_threshold: f64,
+) -> Dipoles {
+    let grid = Grid::new(set, tile_size);
+    let stored = stored_mask(set);
+    let clusters = dipoles.len();
+    let b = block as usize;
+    let (bw, bh) = (grid.w.div_ceil(b), grid.h.div_ceil(b));
+    let mut count = vec![0u32; bw * bh];
+    for (k, _) in stored.iter().enumerate().filter(|(_, s)| **s) {
+        count[(k / grid.w / b) * bw + (k % grid.w) / b] += 1;
+    }
+    let mut per_cluster = vec![0usize; clusters];
+    for tp in texel_panes {
+        for &(c, _) in tp {
+            per_cluster[c as usize] += 1;
+        }
+    }
+    let mut start = vec![0usize; clusters + 1];
+    for c in 0..clusters {
+        start[c + 1] = start[c] + per_cluster[c];
+    }
+    let mut fill = start.clone();
+    let mut list = vec![(0u32, [Vec3::ZERO; 3]); start[clusters]];
+    for (k, (tp, td)) in texel_panes.iter().zip(texel_dipoles).enumerate() {
+        for (&(c, _), d) in tp.iter().zip(td) {
+            list[fill[c as usize]] = (k as u32, *d);
+            fill[c as usize] += 1;
+        }
+    }
+    let per_axis: Vec<(f32, Vec<EncodedTile>)> = (0..clusters * 3)
+        .into_par_iter()
+        .map(|pk| {
+            let (c, k) = (pk / 3, pk % 3);
+            if dipoles[c].axes[k].inv_lambda == 0.0 {
+                return (0.0, Vec::new());
+            }
+            let axis: Vec<(u32, Vec3)> =
+                list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
+            let img = pane_image(set, kernel, &axis);
+            let w = grid.w;
+            let energy: f64 =
+                set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
+            let mut means = vec![Vec3::ZERO; bw * bh];
+            for (k, v) in img.iter().enumerate() {
+                if stored[k] {
+                    means[(k / w / b) * bw + (k % w) / b] += *v;
+                }
+            }
+            for (m, &n) in means.iter_mut().zip(&count) {
+                if n > 0 {
+                    *m /= n as f32;
+                }
+            }
+            (energy as f32, encode_dipole(&grid, &means, &count, b, bw, drop_threshold))
+        })
+        .collect();
+    let mut out = Dipoles { block, clusters: Vec::new(), tiles: Vec::new(), data: Vec::new() };
+    for (pk, (energy, tiles)) in per_axis.into_iter().enumerate() {
+        let (c, k) = (pk / 3, pk % 3);
+        if k == 0 {
+            dipoles[c].first_tile = out.tiles.len() as u32;
+        }
+        dipoles[c].axes[k].energy = energy;
+        dipoles[c].axes[k].tile_count = tiles.len() as u32;
+        for (index, scale, data) in tiles {
+            out.tiles.push(Tile { cluster: pk as u32, index, scale });
+            out.data.extend(data);
+        }
+    }
+    out.clusters = dipoles;
+    out
+}
+/// A stored tile: (atlas tile, RGB scale, codes).
+type EncodedTile = (u32, Vec3, Vec<u8>);
+
+/// One dipole pane's kept tiles from its block means (`bw` blocks a row; `count`: covered
+/// texels per block): (atlas tile, RGB scale, one code per block of the tile, row-major).
+fn encode_dipole(
+    grid: &Grid,
+    means: &[Vec3],
+    count: &[u32],
+    b: usize,
+    bw: usize,
+    drop_threshold: f64,
+) -> Vec<EncodedTile> {
+    let side = grid.ts.div_ceil(b);
+    let bh = means.len() / bw;
+    let blocks: Vec<(u32, Vec<Vec3>, f64)> = (0..grid.tx * grid.ty)
+        .filter_map(|index| {
+            let (ti, tj) = (index % grid.tx, index / grid.tx);
+            let mut vals = vec![Vec3::ZERO; side * side];
+            let mut energy = 0.0f64;
+            for (q, v) in vals.iter_mut().enumerate() {
+                let (x, y) = (ti * side + q % side, tj * side + q / side);
+                if x < bw && y < bh {
+                    *v = means[y * bw + x];
+                    energy += (luminance(*v).abs() * count[y * bw + x] as f32) as f64;
+                }
+            }
+            (energy > 0.0).then_some((index as u32, vals, energy))
+        })
+        .collect();
+    let energies: Vec<(u32, f64)> = blocks.iter().map(|(i, _, e)| (*i, *e)).collect();
+    let total: f64 = energies.iter().map(|t| t.1).sum();
+    let (keep, _, _) = drop_tiles(&energies, drop_threshold * total);
+    blocks
+        .into_iter()
+        .zip(keep)
+        .filter(|(_, k)| *k)
+        .map(|((index, vals, _), _)| {
+            let (sum, sum_y) =
+                vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.abs(), y + luminance(*v).abs()));
+            let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
+            let peak = vals.iter().map(|v| luminance(*v).abs()).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+            let data = vals.iter().map(|v| dipole_code(luminance(*v) / peak)).collect();
+            (index, chroma * peak, data)
+        })
+        .collect()
 }

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{Cells, Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
+use prm::prm_file::{Cells, Dipoles, Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
@@ -18,10 +18,10 @@ use crate::cells::{entry_cells, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
 use crate::near::{echo_links, near_links};
-use crate::panes::tile_panes;
+use crate::panes::{tile_dipoles, tile_panes};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
-use crate::transport::{Estimator, TexelPanes, Transport};
+use crate::transport::{Estimator, Frame, TexelDipoles, TexelPanes, Transport};
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
@@ -58,6 +58,9 @@ pub struct PrecomputeParams {
     /// Reach of the near field's echo in entry spacings (`crate::near::echo_links`; 0: none;
     /// default 1).
     pub echo_radius: f32,
+    /// Side in texels of the blocks the clusters' dipole panes are stored at (`crate::dipole`;
+    /// 0: no dipoles, the default; 2 is the measured choice; a divisor of the tile size).
+    pub dipole_block: u32,
 }
 
 impl PrecomputeParams {
@@ -82,6 +85,9 @@ impl PrecomputeParams {
             groups: 16,
             near_radius: 2.5,
             echo_radius: 1.0,
+            // Off: measured mixed (chamber torches 1-6 points better, two_rooms' floor and
+            // wall torches 2-3 points worse) and +1 s of precompute (README).
+            dipole_block: 0,
         }
     }
 
@@ -103,6 +109,9 @@ impl PrecomputeParams {
         require(self.smooth_radius <= 16, "smooth radius", self.smooth_radius, "0 to 16")?;
         require((0.0..=8.0).contains(&self.near_radius), "near radius", self.near_radius, "0 to 8")?;
         require((0.0..=4.0).contains(&self.echo_radius), "echo radius", self.echo_radius, "0 to 4")?;
+        let block_ok =
+            self.dipole_block == 0 || (self.dipole_block <= 64 && self.tile_size % self.dipole_block == 0);
+        require(block_ok, "dipole block", self.dipole_block, "0, or a divisor of the tile size up to 64")?;
         if let Estimator::Scatter { clamp } = self.estimator {
             require(clamp.is_finite() && clamp >= 0.0, "clamp", clamp, "finite and >= 0")?;
         }
@@ -163,6 +172,9 @@ pub struct Report {
     pub tiles_dropped: u32,
     pub dropped_energy: f64,
     pub pane_bytes: usize,
+    /// Dipole tiles kept and their codes' bytes.
+    pub dipole_tiles: usize,
+    pub dipole_bytes: usize,
     pub threads: usize,
 }
 
@@ -217,6 +229,11 @@ pub fn precompute(
         cluster_entries(&entries, k, scene.total_area(), params.kmeans_iterations as usize, params.seed)
     });
     let cents = centroids(&entries, &clustering);
+    let (frames, dipoles) = if params.dipole_block > 0 {
+        crate::dipole::frames(&entries, &cells, &clustering.members)
+    } else {
+        (Vec::new(), Vec::new())
+    };
     report.clusters = clustering.members.len() as u32;
     progress(Phase::Clustering, 1, 1);
     stop_if(cancel)?;
@@ -225,7 +242,10 @@ pub fn precompute(
     let n = set.len();
     let on_texels = |done| progress(Phase::Transport, done, n);
     let control = Control { progress: &on_texels, cancel };
-    let texel_panes = transport(scene, bvh, params, &entries, &clustering, &set, control, &mut report)?;
+    let (texel_panes, texel_dipoles): (Vec<TexelPanes>, Vec<TexelDipoles>) =
+        transport(scene, bvh, params, &entries, &clustering, &frames, &set, control, &mut report)?
+            .into_iter()
+            .unzip();
     report.seconds_transport = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
@@ -235,7 +255,15 @@ pub fn precompute(
     let mut tiled = tile_panes(&set, kernel, &texel_panes, members, &cents, params.tile_size, threshold);
     let (groups, group_of) =
         group_panes(scene, &entries, members, &cents, &texel_panes, params, &set, kernel, &mut tiled);
-    drop(texel_panes);
+    let dipoles = if dipoles.is_empty() {
+        Dipoles::default()
+    } else {
+        let (block, ts) = (params.dipole_block, params.tile_size);
+        tile_dipoles(&set, kernel, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
+    };
+    report.dipole_tiles = dipoles.tiles.len();
+    report.dipole_bytes = dipoles.data.len();
+    drop((texel_panes, texel_dipoles));
     report.seconds_panes = t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
     report.tiles_kept = tiled.tiles.len() as u32;
@@ -273,6 +301,7 @@ pub fn precompute(
         tiles,
         mask,
         data,
+        dipoles,
     })?;
     Ok((prm, report))
 }
@@ -313,16 +342,18 @@ fn transport(
     params: &PrecomputeParams,
     entries: &[Entry],
     clustering: &Clustering,
+    frames: &[Frame],
     set: &TexelSet,
     control: Control,
     report: &mut Report,
-) -> Result<Vec<TexelPanes>, Cancelled> {
+) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
     let transport = Transport {
         scene,
         bvh,
         entries,
         assignment: &clustering.assignment,
         clusters: clustering.members.len(),
+        frames,
         paths: params.paths,
         max_bounces: params.max_bounces,
         seed: params.seed,
@@ -364,7 +395,8 @@ fn header(
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
             "near_links": report.near_links, "echo_radius": params.echo_radius,
-            "echo_links": report.echo_links,
+            "echo_links": report.echo_links, "dipole_block": params.dipole_block,
+            "dipole_tiles": report.dipole_tiles,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "entries_enclosed": report.entries_enclosed,

@@ -46,7 +46,7 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
         let p = params(512, 256, 24, 24);
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 24, 24);
-        let img = cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]);
+        let img = cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]);
         let vals = at_texels(&set, &img);
         let want = a / (1.0 - a);
         let sigma_walk = a * (a).sqrt() / (1.0 - a);
@@ -89,7 +89,7 @@ fn superposition_and_clustering_invariance() {
     let set = TexelSet::build(&scene, 20, 20);
     let weights: Vec<Vec3> =
         (0..prm.clusters().len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
-    let composed = at_texels(&set, &cpu::compose(&prm, &weights));
+    let composed = at_texels(&set, &cpu::compose(&prm, &weights, &[]));
     // The same walks evaluated directly for that field.
     let entries = sample_entries(&scene, 256, p.seed);
     let clustering = cluster_entries(&entries, 12, scene.total_area(), p.kmeans_iterations as usize, p.seed);
@@ -100,6 +100,7 @@ fn superposition_and_clustering_invariance() {
         entries: &entries,
         assignment: &clustering.assignment,
         clusters: clustering.members.len(),
+        frames: &[],
         paths: p.paths,
         max_bounces: p.max_bounces,
         seed: p.seed,
@@ -116,7 +117,7 @@ fn superposition_and_clustering_invariance() {
     }
     // With uniform weights the sum of all panes does not depend on the clustering: C = N
     // (each entry its own cluster) and C = 12 give the same lightmap.
-    let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()]));
+    let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
     let per_entry = bake(&scene, &PrecomputeParams { smooth_radius: 0, ..params(256, 32, 256, 20) });
     assert_eq!(per_entry.clusters().len(), 256);
     assert!(per_entry.clusters().iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
@@ -125,6 +126,99 @@ fn superposition_and_clustering_invariance() {
         let bound = (a.max(*b) * 0.0373 + Vec3::splat(1e-5 * peak.max(1.0))).max_element();
         assert!((*a - *b).abs().max_element() <= bound, "{a} vs {b}");
     }
+}
+
+/// Light that varies linearly over each cluster, `w_c + g_c . (y - o_c)`: the panes weighted by
+/// w_c plus the dipole panes weighted by the slopes along their axes are the walks evaluated
+/// with that field (the same random streams), to within the stored codes: half a logarithmic
+/// step (1.9 %) of each pane term, half a signed step (1/254 of the tile's peak) of each dipole
+/// term. Blocks of one texel and no smoothing, so texel values are compared as walked.
+#[test]
+fn dipole_panes_answer_a_linear_field_over_each_cluster() {
+    let scene = quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        ],
+        0.7,
+    );
+    let bvh = Bvh::build(&scene);
+    let p = PrecomputeParams { smooth_radius: 0, dipole_block: 1, ..params(256, 32, 12, 20) };
+    let prm = bake(&scene, &p);
+    let d = prm.dipoles();
+    assert_eq!(d.clusters.len(), prm.clusters().len());
+    assert!(d.clusters.iter().all(|c| c.axes[0].inv_lambda > 0.0 && c.axes[1].inv_lambda > 0.0));
+    // Flat clusters: no axis along the normal.
+    assert!(d.clusters.iter().all(|c| c.axes[2].inv_lambda == 0.0));
+    let members: Vec<Vec<u32>> = prm.clusters().iter().map(|c| c.members.clone()).collect();
+    let mut assignment = vec![0u32; prm.entries().len()];
+    for (c, m) in members.iter().enumerate() {
+        for &j in m {
+            assignment[j as usize] = c as u32;
+        }
+    }
+    let (frames, _) = prm_precompute::dipole::frames(prm.entries(), prm.cells(), &members);
+    let tr = Transport {
+        scene: &scene,
+        bvh: &bvh,
+        entries: prm.entries(),
+        assignment: &assignment,
+        clusters: members.len(),
+        frames: &frames,
+        paths: p.paths,
+        max_bounces: p.max_bounces,
+        seed: p.seed,
+        stats: Default::default(),
+    };
+    let set = TexelSet::build_visible(&scene, &bvh, 20, 20);
+    let walked = tr.run(Estimator::Gather, &set, prm_precompute::parallel::Control::none()).unwrap();
+    let w: Vec<Vec3> = (0..members.len()).map(|c| Vec3::new(1.0 + c as f32 * 0.2, 1.0, 0.5)).collect();
+    // Slopes of up to 2 W/m² per metre along each axis, different per channel.
+    let m: Vec<[Vec3; 3]> = (0..members.len())
+        .map(|c| {
+            let s = (c % 5) as f32 - 2.0;
+            [Vec3::new(s, -0.5 * s, 1.0), Vec3::new(1.0, s, -1.5), Vec3::ZERO]
+        })
+        .collect();
+    let direct: Vec<Vec3> = walked
+        .iter()
+        .map(|(panes, dips)| {
+            panes.iter().zip(dips).fold(Vec3::ZERO, |acc, (&(c, v), dk)| {
+                let c = c as usize;
+                acc + w[c] * v + m[c][0] * dk[0] + m[c][1] * dk[1] + m[c][2] * dk[2]
+            })
+        })
+        .collect();
+    let composed = cpu::compose(&prm, &w, &m);
+    let panes_only = cpu::compose(&prm, &w, &[]);
+    // Per texel, what the dipole codes may be off by: half a step of each covering tile's peak.
+    let layout = prm.layout();
+    let mut slack = vec![Vec3::ZERO; prm.texel_count()];
+    for t in &d.tiles {
+        let (c, axis) = (t.cluster as usize / 3, t.cluster as usize % 3);
+        for &texel in &layout.texels[t.index as usize] {
+            slack[texel as usize] += (m[c][axis] * t.scale).abs() / 254.0;
+        }
+    }
+    let peak = direct.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
+    let mut moved = 0.0f64;
+    for (t, b) in set.texels.iter().zip(&direct) {
+        let k = (t.j * set.width + t.i) as usize;
+        let a = composed[k];
+        let bound = (panes_only[k] * 0.0186 + slack[k] + Vec3::splat(1e-5 * peak)).max_element();
+        assert!(
+            (a - *b).abs().max_element() <= bound,
+            "texel ({}, {}): {a} vs walked {b} (bound {bound})",
+            t.i,
+            t.j
+        );
+        moved += (a - panes_only[k]).abs().max_element() as f64;
+    }
+    // The slopes matter here, or this checks only the panes.
+    let mean_moved = moved / set.len() as f64;
+    assert!(mean_moved > 0.005 * peak as f64, "the dipoles move a texel by {mean_moved} on average");
 }
 
 #[test]
@@ -143,7 +237,7 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
         let prm = bake(&scene, &PrecomputeParams { estimator: est, ..params(1024, 1024, 16, 16) });
         let e: Vec<Vec3> =
             prm.entries().iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
-        at_texels(&set, &cpu::compose(&prm, &cpu::cluster_weights(&prm, &e)))
+        at_texels(&set, &cpu::compose(&prm, &cpu::cluster_weights(&prm, &e), &[]))
     };
     let ours = [("gather", estimate(Estimator::Gather)), ("mis", estimate(Estimator::Mis))];
 
@@ -327,7 +421,7 @@ fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
         };
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 16, 16);
-        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]));
+        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
         vals.iter().map(|v| v.x as f64).sum::<f64>() / vals.len() as f64
     };
     let want = (a / (1.0 - a)) as f64;
@@ -409,7 +503,7 @@ fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
         b.extend_from_slice(&sum.to_le_bytes());
         let r = std::panic::catch_unwind(|| {
             Prm::from_bytes(Path::new("m.prm"), &b)
-                .map(|p| cpu::compose(&p, &vec![Vec3::ONE; p.clusters().len()]))
+                .map(|p| cpu::compose(&p, &vec![Vec3::ONE; p.clusters().len()], &[]))
         });
         match r {
             Ok(Ok(img)) => assert!(
@@ -435,17 +529,17 @@ fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
     assert_eq!(prm.group_of().len(), prm.clusters().len());
     let layout = prm.layout();
     let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat(0.5 + (c % 7) as f32)).collect();
-    let full = cpu::compose(&prm, &w);
+    let full = cpu::compose(&prm, &w, &[]);
     let energy = |img: &[Vec3]| img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>();
     let chosen: Vec<bool> = (0..prm.clusters().len()).map(|c| c % 4 == 0).collect();
-    let with = cpu::compose_selected(&prm, &w, &chosen, true, &layout);
-    let without = cpu::compose_selected(&prm, &w, &chosen, false, &layout);
+    let with = cpu::compose_selected(&prm, &w, &[], &chosen, true, &layout);
+    let without = cpu::compose_selected(&prm, &w, &[], &chosen, false, &layout);
     let (ef, ew, eo) = (energy(&full), energy(&with), energy(&without));
     assert!((ew / ef - 1.0).abs() < 0.01, "top-K + groups {ew} vs full {ef}");
     assert!(eo < 0.5 * ef, "a quarter of the clusters should carry well under the full light: {eo} vs {ef}");
     // Everything selected: the groups add nothing.
     let all = vec![true; prm.clusters().len()];
-    assert_eq!(cpu::compose_selected(&prm, &w, &all, true, &layout), full);
+    assert_eq!(cpu::compose_selected(&prm, &w, &[], &all, true, &layout), full);
     // And the file keeps the groups.
     let back = Prm::from_bytes(std::path::Path::new("g.prm"), &prm.to_bytes()).unwrap();
     assert_eq!(back, prm);

@@ -17,7 +17,7 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE};
+use crate::contract::{Compute, Shader, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE};
 use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 use crate::near::NearPass;
@@ -103,8 +103,20 @@ impl Tables {
             });
             texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
         }
+        // Dipole tiles: pane C + G + 3 c + axis, codes after the panes' in the data buffer,
+        // their offset flagged (`DIPOLE_RECORD`).
+        let d = prm.dipoles();
+        let codes = d.tile_codes(prm.header().tile_size);
+        for (k, t) in d.tiles.iter().enumerate() {
+            by_tile[t.index as usize].push(TileRecord {
+                scale: t.scale.to_array(),
+                cluster: prm.pane_count() as u32 + t.cluster,
+                data_offset: DIPOLE_RECORD | (prm.data().len() + k * codes) as u32,
+                ..Default::default()
+            });
+        }
         let mut ranges = Vec::with_capacity(atlas_tiles);
-        let mut records = Vec::with_capacity(prm.tiles().len());
+        let mut records = Vec::with_capacity(prm.tiles().len() + d.tiles.len());
         for list in &by_tile {
             ranges.push([records.len() as u32, list.len() as u32]);
             records.extend_from_slice(list);
@@ -137,15 +149,19 @@ impl ComposePass {
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
         let Tables { slots, ranges, records, texels_per_cluster, stride } = Tables::new(prm, atlas_tiles);
-        let data: &[u8] = prm.data();
+        let mut data: Vec<u8> = prm.data().to_vec();
+        data.extend_from_slice(&prm.dipoles().data);
+        data.resize(data.len().next_multiple_of(4).max(4), 0);
+        let block = prm.dipoles().block.max(1);
         let params = ComposeParams {
+            dipole_block: block,
+            dipole_side: ts.div_ceil(block),
             atlas_width: w,
             atlas_height: h,
             tile_size: ts,
             tiles_x,
             tile_count: atlas_tiles as u32,
             active_stride: stride,
-            ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
         let params = {
@@ -160,7 +176,7 @@ impl ComposePass {
         let ranges_buf = gpu::storage_buffer(device, "tile ranges", bytemuck::cast_slice(&ranges), none);
         let records_buf = gpu::storage_buffer(device, "tile records", bytemuck::cast_slice(&records), none);
         let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&texel_slots), none);
-        let data_buf = gpu::storage_buffer(device, "pane data", data, none);
+        let data_buf = gpu::storage_buffer(device, "pane data", &data, none);
         let active_buf = gpu::storage_buffer(
             device,
             "active records",

@@ -28,6 +28,9 @@ pub const WG_LINEAR: u32 = 64;
 pub const WG_TILE: u32 = 8;
 /// The slot of an atlas texel no stored tile covers (`runtime/src/compose.rs`).
 pub const NO_SLOT: u32 = u32::MAX;
+/// Set in a compose record's data offset when the record is a dipole tile (signed codes, one
+/// per block: `shaders/compose.wgsl`); pane data must stay below it.
+pub const DIPOLE_RECORD: u32 = 1 << 31;
 /// Shadow-map layers of a cube (a point light or a wide spot): +X -X +Y -Y +Z -Z.
 pub const CUBE_LAYERS: u32 = 6;
 /// [`crate::layout::GpuLight::kind`] of a point light.
@@ -42,6 +45,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
     ("WG_TILE", WG_TILE),
     ("NO_SLOT", NO_SLOT),
+    ("DIPOLE_RECORD", DIPOLE_RECORD),
     ("CUBE_LAYERS", CUBE_LAYERS),
     ("KIND_POINT", KIND_POINT),
     ("KIND_SPOT", KIND_SPOT),
@@ -162,11 +166,12 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 10] = [
+pub const SHADERS: [&Shader; 11] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
     &crate::concentrate::LINK_ENERGY,
+    &crate::weights::DIPOLE,
     &crate::weights::SHADER,
     &crate::near::SHADER,
     &crate::near::ECHO,

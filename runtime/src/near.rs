@@ -195,6 +195,7 @@ impl NearPass {
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
         weights: &wgpu::Buffer,
+        lin: &wgpu::Buffer,
         data: &NearData,
         link_light: &wgpu::Buffer,
     ) -> NearPass {
@@ -207,12 +208,8 @@ impl NearPass {
         let none = wgpu::BufferUsages::empty();
         let cluster_buf =
             gpu::storage_buffer(device, "entry clusters", bytemuck::cast_slice(&entry_cluster), none);
-        let deviation = gpu::storage_buffer(
-            device,
-            "entry deviations",
-            &vec![0u8; prm.entries().len().max(1) * 16],
-            wgpu::BufferUsages::empty(),
-        );
+        // The dipole pass writes each entry's lin_j there; deviation_main replaces it.
+        let deviation = lin;
         let sums = gpu::storage_buffer(
             device,
             "near sums",

@@ -136,6 +136,7 @@ impl Runtime {
             &params_buf,
             &entries.output,
             &weights.weights,
+            &weights.lin,
             &near_data,
             &concentrate.link_light,
         );
@@ -340,14 +341,14 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     }
     let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
-    for t in prm.tiles() {
+    for t in prm.tiles().iter().chain(&prm.dipoles().tiles) {
         if let Some(n) = per_tile.get_mut(t.index as usize) {
             *n += 1;
         }
     }
     let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
     let tables = [
-        ("pane data", prm.data().len() as u64),
+        ("pane data", (prm.data().len() + prm.dipoles().data.len()) as u64),
         ("texel slots", w as u64 * h as u64 * 8),
         (
             "entry cells",
@@ -372,6 +373,10 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
         ),
         ("tile records", prm.tiles().len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
     ];
+    let data = (prm.data().len() + prm.dipoles().data.len()) as u64;
+    if data >= crate::contract::DIPOLE_RECORD as u64 {
+        return Err(RuntimeError::Params(format!("the .prm's pane data ({data} bytes) exceed 2 GiB")));
+    }
     for (what, bytes) in tables {
         if bytes > max_buf {
             return Err(RuntimeError::Params(format!(

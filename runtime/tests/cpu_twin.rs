@@ -28,7 +28,8 @@ fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     let bvh = Bvh::build(&scene);
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let w = cpu::cluster_weights(&prm, &e);
-    let mut full = cpu::compose(&prm, &w);
+    let moments = cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e);
+    let mut full = cpu::compose(&prm, &w, &moments);
     cpu::add_near_field(&prm, &e, &w, &mut full);
     let mut twin = CpuTwin::new(&prm, &bvh, prm.clusters().len());
     let all = twin.frame(&scene.lights).to_vec();
@@ -111,7 +112,8 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
             // The twin's frame with every cell's light spread evenly over it.
             let e = entry_irradiance(&prm, &bvh, &scene.lights);
             let w = cpu::cluster_weights(&prm, &e);
-            let mut img = cpu::compose(&prm, &w);
+            let moments = cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e);
+            let mut img = cpu::compose(&prm, &w, &moments);
             cpu::add_near_field(&prm, &e, &w, &mut img);
             img
         };

@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 4
+//! 8   u32    version = 6
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
@@ -27,6 +27,10 @@
 //!     DATA  u8 per-texel intensity code (`intensity`: 0, or 1e-4 .. 1 logarithmically, 3.7 %
 //!           a step): for each tile in TILE order, its masked texels
 //!           in row-major order (empty atlas texels are not stored)
+//!     DIPO  u32 D (0 or C), u32 K tiles, u32 block side b; D x 88 B: origin (3 x f32), first
+//!           tile u32, 3 x (direction 3 x f32, 1/lambda f32, energy f32, tile count u32);
+//!           K x 20 B tiles as in TILE (pane 3 c + axis); K x ceil(tile size / b)² B: signed
+//!           codes (`dipole_value`), one per b x b block of the tile, row-major
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -53,6 +57,14 @@
 //! to a hot spot (`prm_precompute::near`). Since v4 each linked texel also carries its sample
 //! point and normal, so the runtime can weigh a cell's light by how the texel sees it (a hot
 //! spot at the near edge of a cell counts for more than one at its far edge).
+//!
+//! **Dipoles** (v6): the first-order part of each cluster's response. A pane answers light spread
+//! evenly over its cluster; a lamp beside a wall lights one edge of it, and the surfaces a few
+//! metres away see that edge, not the cluster's middle (measured on the chamber: the first
+//! bounce of a torch 5 cm from a wall 35 % off with one pane per cluster, 9 % with one per
+//! entry). Per cluster, up to three more panes answer irradiance that grows linearly along an
+//! axis of the cluster; the runtime weights them by the light's first moment over the cluster.
+//! They are smooth, so they are stored at half resolution with signed 8-bit codes.
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -85,7 +97,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 5;
+pub const VERSION: u32 = 6;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -183,6 +195,68 @@ pub struct EchoLink {
 pub struct Echo {
     pub albedo: Vec<Vec3>,
     pub links: Vec<EchoLink>,
+}
+
+/// One axis of a cluster's dipole (`Dipole`): a unit direction along which the cluster's
+/// entries spread, `1 / lambda` (lambda: the entries' second moment along it, sum of cell area
+/// x offset², m⁴), and the signed luminance energy of its pane (as `Cluster::energy`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DipoleAxis {
+    pub direction: Vec3,
+    pub inv_lambda: f32,
+    pub energy: f32,
+    /// Tiles of this axis's pane, after those of the axes before it.
+    pub tile_count: u32,
+}
+
+/// The first-order (dipole) part of a cluster's response: light that is uneven over the
+/// cluster, fitted as `w_c + g . (y - origin)`, adds `sum_k m_k D_k(x)` where `D_k` is the
+/// response to irradiance `direction_k . (y - origin)` (the pane of axis k) and `m_k = g .
+/// direction_k = inv_lambda_k sum_j P_j direction_k . (x_j - origin)` (P_j: entry j's cell power,
+/// x_j its cell centroid). Unused axes have `inv_lambda` 0 and no tiles.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Dipole {
+    /// Cell-area-weighted mean of the members' cell centroids.
+    pub origin: Vec3,
+    pub axes: [DipoleAxis; 3],
+    /// The first of the cluster's tiles in [`Dipoles::tiles`] (axis 0's, then 1's, then 2's).
+    pub first_tile: u32,
+}
+
+/// The clusters' dipole panes (empty, or one [`Dipole`] per cluster). Their tiles are stored at
+/// `block` x `block` texels a value (a signed code, [`dipole_value`]), every value of the tile:
+/// `ceil(tile_size / block)²` codes each. A tile's `cluster` is `3 c + axis`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Dipoles {
+    pub block: u32,
+    pub clusters: Vec<Dipole>,
+    pub tiles: Vec<Tile>,
+    pub data: Vec<u8>,
+}
+
+impl Dipoles {
+    /// Codes per stored tile for this tile size.
+    pub fn tile_codes(&self, tile_size: u32) -> usize {
+        (tile_size.div_ceil(self.block.max(1)) as usize).pow(2)
+    }
+
+    /// Tile range of cluster `c`'s axis `k` in [`Dipoles::tiles`].
+    pub fn range(&self, c: usize, k: usize) -> Range<usize> {
+        let d = &self.clusters[c];
+        let start = d.first_tile as usize + d.axes[..k].iter().map(|a| a.tile_count as usize).sum::<usize>();
+        start..start + d.axes[k].tile_count as usize
+    }
+}
+
+/// The signed value in [-1, 1] a dipole code stands for: the byte as an i8 over 127.
+#[inline]
+pub fn dipole_value(code: u8) -> f32 {
+    (code as i8).max(-127) as f32 / 127.0
+}
+
+/// The code of `v` in [-1, 1] (relative to its tile's peak): the nearest of 255 steps.
+pub fn dipole_code(v: f32) -> u8 {
+    ((v.clamp(-1.0, 1.0) * 127.0).round() as i8) as u8
 }
 
 /// An albedo as the file stores it: each channel in 1/255 steps of [0, 1].
@@ -336,6 +410,8 @@ pub struct PrmParts {
     pub mask: Vec<u8>,
     /// Half-float intensities of all tiles' masked texels, in tile order.
     pub data: Vec<u8>,
+    /// The clusters' dipole panes (may be empty).
+    pub dipoles: Dipoles,
 }
 
 /// A radiance map that holds every invariant of the format (see [`Prm::new`]).
@@ -408,8 +484,8 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 4 and older \
-         lack what the near field needs); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 5 and older \
+         lack the dipole panes); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -479,6 +555,7 @@ impl PrmParts {
         w.mask(&self.mask);
         w.tiles(&self.tiles);
         w.data(&self.data);
+        w.dipoles(&self.dipoles);
         let sum = fnv1a(FNV_START, &out);
         out.extend_from_slice(&sum.to_le_bytes());
         out
@@ -557,6 +634,10 @@ impl Prm {
     /// Half-float intensities of all tiles' masked texels, in tile order.
     pub fn data(&self) -> &[u8] {
         &self.parts.data
+    }
+
+    pub fn dipoles(&self) -> &Dipoles {
+        &self.parts.dipoles
     }
 
     /// Atlas width and height in texels.
@@ -677,6 +758,7 @@ impl Prm {
             let mask = r.mask()?;
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
+            let dipoles = r.dipoles()?;
             r.finish()?;
             Ok(PrmParts {
                 header,
@@ -691,6 +773,7 @@ impl Prm {
                 tiles,
                 mask,
                 data,
+                dipoles,
             })
         })()
         .map_err(|e| match e {

@@ -9,7 +9,7 @@ use half::f16;
 
 use super::{
     decode_octahedral, dequantize_position, encode_octahedral, near_point_box, quantize_position, Cells,
-    Cluster, Echo, EchoLink, Entry, Group, Header, NearLink, NearPoint, Tile,
+    Cluster, Dipole, DipoleAxis, Dipoles, Echo, EchoLink, Entry, Group, Header, NearLink, NearPoint, Tile,
 };
 
 /// Bytes of one run of near-field links: texel, count, point, normal.
@@ -21,6 +21,7 @@ pub(super) const CELL_TRIANGLE_BYTES: usize = 36;
 pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
+pub(super) const DIPOLE_BYTES: usize = 88;
 
 /// Appends tagged, length-prefixed sections to a byte buffer.
 pub(super) struct Writer<'a>(pub(super) &'a mut Vec<u8>);
@@ -174,17 +175,46 @@ impl Writer<'_> {
 
     pub(super) fn tiles(&mut self, tiles: &[Tile]) {
         let mut t = Vec::with_capacity(tiles.len() * TILE_BYTES);
-        for tile in tiles {
-            t.extend_from_slice(&tile.cluster.to_le_bytes());
-            t.extend_from_slice(&tile.index.to_le_bytes());
-            t.extend_from_slice(bytemuck::bytes_of(&tile.scale.to_array()));
-        }
+        put_tiles(&mut t, tiles);
         self.section(b"TILE", &t);
+    }
+
+    /// `DIPO`: counts, the clusters' records, the tiles, the codes.
+    pub(super) fn dipoles(&mut self, d: &Dipoles) {
+        let mut b = Vec::with_capacity(12 + d.clusters.len() * DIPOLE_BYTES + d.tiles.len() * TILE_BYTES);
+        for x in [d.clusters.len() as u32, d.tiles.len() as u32, d.block] {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        for c in &d.clusters {
+            b.extend_from_slice(bytemuck::bytes_of(&c.origin.to_array()));
+            b.extend_from_slice(&c.first_tile.to_le_bytes());
+            for a in &c.axes {
+                b.extend_from_slice(bytemuck::bytes_of(&a.direction.to_array()));
+                b.extend_from_slice(&a.inv_lambda.to_le_bytes());
+                b.extend_from_slice(&a.energy.to_le_bytes());
+                b.extend_from_slice(&a.tile_count.to_le_bytes());
+            }
+        }
+        put_tiles(&mut b, &d.tiles);
+        b.extend_from_slice(&d.data);
+        self.section(b"DIPO", &b);
     }
 
     pub(super) fn data(&mut self, data: &[u8]) {
         self.section(b"DATA", data);
     }
+}
+
+fn put_tiles(out: &mut Vec<u8>, tiles: &[Tile]) {
+    for tile in tiles {
+        out.extend_from_slice(&tile.cluster.to_le_bytes());
+        out.extend_from_slice(&tile.index.to_le_bytes());
+        out.extend_from_slice(bytemuck::bytes_of(&tile.scale.to_array()));
+    }
+}
+
+fn get_tile(b: &[u8]) -> Tile {
+    Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) }
 }
 
 /// Why a section could not be read: cut short, or saying something impossible.
@@ -455,9 +485,41 @@ impl<'a> Reader<'a> {
         if !holds(t.len(), header.tiles as u64, TILE_BYTES) {
             return Err(Corrupt(format!("{} tiles declared, {} bytes of tiles", header.tiles, t.len())));
         }
-        Ok(t.chunks_exact(TILE_BYTES)
-            .map(|b| Tile { cluster: u32_at(b, 0), index: u32_at(b, 4), scale: v3(b, 8) })
-            .collect())
+        Ok(t.chunks_exact(TILE_BYTES).map(get_tile).collect())
+    }
+
+    /// `DIPO` (its codes' count against the tile size, and what its tiles point at, are checked
+    /// with the other invariants).
+    pub(super) fn dipoles(&mut self) -> Result<Dipoles, SectionError> {
+        let d = self.next(b"DIPO")?;
+        if d.len() < 12 {
+            return Err(Corrupt(format!("dipole section of {} bytes", d.len())));
+        }
+        let (n, k, block) = (u32_at(d, 0) as u64, u32_at(d, 4) as u64, u32_at(d, 8));
+        let fixed = 12 + n * DIPOLE_BYTES as u64 + k * TILE_BYTES as u64;
+        if (d.len() as u64) < fixed {
+            return Err(Corrupt(format!("{n} dipoles and {k} dipole tiles declared, {} bytes", d.len())));
+        }
+        let (records, rest) = d[12..].split_at(n as usize * DIPOLE_BYTES);
+        let (tiles, data) = rest.split_at(k as usize * TILE_BYTES);
+        let clusters = records
+            .chunks_exact(DIPOLE_BYTES)
+            .map(|b| {
+                let axis = |i: usize| DipoleAxis {
+                    direction: v3(b, i),
+                    inv_lambda: f32_at(b, i + 12),
+                    energy: f32_at(b, i + 16),
+                    tile_count: u32_at(b, i + 20),
+                };
+                Dipole { origin: v3(b, 0), first_tile: u32_at(b, 12), axes: [axis(16), axis(40), axis(64)] }
+            })
+            .collect();
+        Ok(Dipoles {
+            block,
+            clusters,
+            tiles: tiles.chunks_exact(TILE_BYTES).map(get_tile).collect(),
+            data: data.to_vec(),
+        })
     }
 
     /// `DATA`: the intensity codes of every tile's stored texels (how many is the tile

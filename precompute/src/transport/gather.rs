@@ -9,7 +9,7 @@ use prm::sampling::{cosine_direction, radical_inverse, stream};
 use prm::Texel;
 use rand::Rng;
 
-use super::{bounce, OwnerMap, RegionLookup, Scratch, TexelPanes, Transport};
+use super::{bounce, OwnerMap, RegionLookup, Scratch, TexelDipoles, TexelPanes, Transport};
 use crate::parallel::Control;
 
 /// Per-cluster members and region areas for [`Estimator::Mis`].
@@ -39,7 +39,7 @@ impl Transport<'_> {
         width: u32,
         owners: &OwnerMap,
         mis: Option<&MisTables>,
-    ) -> TexelPanes {
+    ) -> (TexelPanes, TexelDipoles) {
         let mut rng = stream(self.seed, 3, t.j as u64 * width as u64 + t.i as u64);
         let k = self.paths.max(1);
         // First directions: a Hammersley set shifted by a random rotation (Cranley-Patterson),
@@ -74,9 +74,9 @@ impl Transport<'_> {
                         let p_b = (t.normal.dot(y - t.position).max(0.0) * ny.dot(t.position - y).max(0.0))
                             / (std::f32::consts::PI * r2 * r2);
                         let w = 1.0 / (1.0 + 1.0 / (k as f32 * p_b * area_c).max(1e-30));
-                        scratch.add(c, beta * w);
+                        scratch.add(c, beta * w, y);
                     }
-                    Some(c) => scratch.add(c, beta),
+                    Some(c) => scratch.add(c, beta, y),
                     None => {
                         self.stats.unowned.fetch_add(1, Ordering::Relaxed);
                     }
@@ -113,7 +113,7 @@ impl Transport<'_> {
                 }
                 let area_c = m.area[c];
                 let value = e.albedo * (g_pi * area_c / (1.0 + k as f32 * g_pi * area_c));
-                scratch.add(c as u32, value * k as f32);
+                scratch.add(c as u32, value * k as f32, e.position);
             }
         }
         scratch.take(1.0 / k as f32)
@@ -127,11 +127,12 @@ impl Transport<'_> {
         let never = Control::none().cancel;
         let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats, never)
             .expect("never cancelled");
-        let mut scratch = Scratch::new(self.clusters);
+        let mut scratch = Scratch::new(self.clusters, &[]);
         set.texels
             .iter()
             .map(|t| {
                 self.gather_texel(&mut scratch, t, set.width, &owners, None)
+                    .0
                     .iter()
                     .map(|&(c, v)| v * weights[c as usize])
                     .fold(Vec3::ZERO, |a, b| a + b)

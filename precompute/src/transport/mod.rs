@@ -75,6 +75,25 @@ impl std::fmt::Display for Estimator {
 /// Per-texel pane contributions: (cluster, irradiance per unit cluster irradiance), ascending.
 pub type TexelPanes = Vec<(u32, Vec3)>;
 
+/// Per-texel dipole contributions, one per entry of the texel's [`TexelPanes`] (same order):
+/// the response along each of the cluster's [`Frame`] axes (`prm::prm_file::Dipole`).
+pub type TexelDipoles = Vec<[Vec3; 3]>;
+
+/// Where a cluster's dipole panes are measured from, and along which unit axes (zero: unused).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Frame {
+    pub origin: Vec3,
+    pub axes: [Vec3; 3],
+}
+
+impl Frame {
+    /// The coordinates of `y` along the axes.
+    fn coords(&self, y: Vec3) -> Vec3 {
+        let d = y - self.origin;
+        Vec3::new(self.axes[0].dot(d), self.axes[1].dot(d), self.axes[2].dot(d))
+    }
+}
+
 /// Counters of a transport run.
 #[derive(Debug, Default)]
 pub struct TransportStats {
@@ -88,33 +107,58 @@ pub struct TransportStats {
 }
 
 /// Accumulates one texel's contributions densely, then emits them sparse.
-struct Scratch {
+struct Scratch<'f> {
     dense: Vec<Vec3>,
+    dipole: Vec<[Vec3; 3]>,
     touched: Vec<u32>,
+    /// The clusters' dipole frames (empty: no dipoles).
+    frames: &'f [Frame],
 }
 
-impl Scratch {
-    fn new(clusters: usize) -> Self {
-        Scratch { dense: vec![Vec3::ZERO; clusters], touched: Vec::new() }
+impl<'f> Scratch<'f> {
+    fn new(clusters: usize, frames: &'f [Frame]) -> Self {
+        let dipoles = if frames.is_empty() { 0 } else { clusters };
+        Scratch {
+            dense: vec![Vec3::ZERO; clusters],
+            dipole: vec![[Vec3::ZERO; 3]; dipoles],
+            touched: Vec::new(),
+            frames,
+        }
     }
-    fn add(&mut self, c: u32, v: Vec3) {
-        if self.dense[c as usize] == Vec3::ZERO {
+    /// Adds `v` to cluster `c`, the light having entered the cluster at `at`.
+    fn add(&mut self, c: u32, v: Vec3, at: Vec3) {
+        let k = c as usize;
+        if self.dense[k] == Vec3::ZERO {
             self.touched.push(c);
         }
-        self.dense[c as usize] += v;
-        if self.dense[c as usize] == Vec3::ZERO {
+        self.dense[k] += v;
+        if self.dense[k] == Vec3::ZERO {
             // Keep it listed; a sum that lands on exactly zero is rare and harmless.
-            self.dense[c as usize] = Vec3::splat(f32::MIN_POSITIVE);
+            self.dense[k] = Vec3::splat(f32::MIN_POSITIVE);
+        }
+        if let Some(f) = self.frames.get(k) {
+            let u = f.coords(at);
+            for (a, d) in self.dipole[k].iter_mut().zip(u.to_array()) {
+                *a += v * d;
+            }
         }
     }
-    fn take(&mut self, scale: f32) -> TexelPanes {
+    fn take(&mut self, scale: f32) -> (TexelPanes, TexelDipoles) {
         self.touched.sort_unstable();
         let out = self.touched.iter().map(|&c| (c, self.dense[c as usize] * scale)).collect();
+        let dipoles = if self.frames.is_empty() {
+            Vec::new()
+        } else {
+            self.touched.iter().map(|&c| self.dipole[c as usize].map(|d| d * scale)).collect()
+        };
         for &c in &self.touched {
             self.dense[c as usize] = Vec3::ZERO;
+            if let Some(d) = self.dipole.get_mut(c as usize) {
+                *d = [Vec3::ZERO; 3];
+            }
         }
         self.touched.clear();
-        out
+        (out, dipoles)
     }
 }
 
@@ -126,6 +170,8 @@ pub struct Transport<'a> {
     /// Cluster of each entry.
     pub assignment: &'a [u32],
     pub clusters: usize,
+    /// Each cluster's dipole frame (empty: no dipole panes).
+    pub frames: &'a [Frame],
     /// Paths per texel (gather) or per entry (scatter).
     pub paths: u32,
     pub max_bounces: u32,
@@ -159,13 +205,14 @@ fn bounce(scene: &Scene, bvh: &Bvh, x: Vec3, n: Vec3, d: Vec3, stats: &Transport
 }
 
 impl<'a> Transport<'a> {
-    /// Pane contributions at every texel; `control` reports texels done and stops the run.
+    /// Pane (and dipole) contributions at every texel; `control` reports texels done and
+    /// stops the run.
     pub fn run(
         &self,
         estimator: Estimator,
         set: &prm::TexelSet,
         control: Control,
-    ) -> Result<Vec<TexelPanes>, Cancelled> {
+    ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
         let (texels, width) = (&set.texels[..], set.width);
         match estimator {
             Estimator::Gather | Estimator::Mis => {
@@ -193,9 +240,9 @@ impl<'a> Transport<'a> {
         &self,
         texels: &[Texel],
         control: Control,
-        f: impl Fn(&mut Scratch, &Texel) -> TexelPanes + Sync + Send,
-    ) -> Result<Vec<TexelPanes>, Cancelled> {
-        par_texels(texels, control, || Scratch::new(self.clusters), f)
+        f: impl Fn(&mut Scratch, &Texel) -> (TexelPanes, TexelDipoles) + Sync + Send,
+    ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
+        par_texels(texels, control, || Scratch::new(self.clusters, self.frames), f)
     }
 
     /// Paper 004's Russian roulette after a vertex of albedo `a` at walk depth `depth`:

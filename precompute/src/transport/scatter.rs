@@ -9,11 +9,11 @@ use prm::Texel;
 use rand::Rng;
 use rayon::prelude::*;
 
-use super::{bounce, Scratch, TexelPanes, Transport};
+use super::{bounce, Scratch, TexelDipoles, TexelPanes, Transport};
 
 impl Transport<'_> {
     /// Virtual point lights of every entry's walks, for unit entry irradiance: (position,
-    /// normal, flux, cluster).
+    /// normal, flux, the entry whose walk it is on).
     pub fn vpls(&self) -> Vec<(Vec3, Vec3, Vec3, u32)> {
         let m = self.paths.max(1);
         let per_entry: Vec<Vec<(Vec3, Vec3, Vec3, u32)>> = self
@@ -21,7 +21,7 @@ impl Transport<'_> {
             .par_iter()
             .enumerate()
             .map(|(j, e)| {
-                let c = self.assignment[j];
+                let c = j as u32;
                 let mut rng = stream(self.seed, 4, j as u64);
                 let phi0 = e.albedo * e.area;
                 // The entry itself is the l = 0 light; every path shares it, so it is added once
@@ -59,8 +59,8 @@ impl Transport<'_> {
         t: &Texel,
         vpls: &[(Vec3, Vec3, Vec3, u32)],
         rc2: f32,
-    ) -> TexelPanes {
-        for &(z, nz, phi, c) in vpls {
+    ) -> (TexelPanes, TexelDipoles) {
+        for &(z, nz, phi, j) in vpls {
             let d = t.position - z;
             let r2 = d.length_squared();
             if !(r2 > 0.0) {
@@ -75,7 +75,8 @@ impl Transport<'_> {
             if !self.bvh.visible(z, nz, t.position, t.normal) {
                 continue;
             }
-            scratch.add(c, phi * (cz * cx / (std::f32::consts::PI * r2.max(rc2))));
+            let (c, at) = (self.assignment[j as usize], self.entries[j as usize].position);
+            scratch.add(c, phi * (cz * cx / (std::f32::consts::PI * r2.max(rc2))), at);
         }
         scratch.take(1.0)
     }

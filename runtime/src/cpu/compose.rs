@@ -26,16 +26,21 @@ use super::concentrate::LinkLight;
 /// kept at >= 0.1 energy_c and `w_c` at >= 0. Without links, `m_c`. (For a hot entry,
 /// `E_j near_j` is its links' energy under the light as they see it: [`LinkLight`].)
 pub fn cluster_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
-    cluster_weights_with(prm, &NearTables::new(prm), &LinkLight::none(prm), entry_irradiance)
+    let tables = NearTables::new(prm);
+    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
+    cluster_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin)
 }
 
 /// [`cluster_weights`] with the map's [`NearTables`] built once (per frame they are the same)
-/// and this frame's light on the links of hot cells.
+/// and this frame's light on the links of hot cells. With dipoles, an entry's expected weight
+/// is `t_j (w_c + lin_j)` (`lin`: [`dipole_offsets`], empty for none), so the balance adds
+/// `sum_j lin_j t_j near_j` to the energy to keep.
 pub fn cluster_weights_with(
     prm: &Prm,
     tables: &NearTables,
     link_light: &LinkLight,
     entry_irradiance: &[Vec3],
+    lin: &[Vec3],
 ) -> Vec<Vec3> {
     prm.clusters()
         .iter()
@@ -48,6 +53,9 @@ pub fn cluster_weights_with(
                 let (e, m) = (entry_irradiance[m as usize], m as usize);
                 sum += e;
                 near_sum += if link_light.hot[m] { link_light.energy[m] } else { e * tables.energy[m] };
+                if let Some(l) = lin.get(m) {
+                    near_sum -= *l * (tables.energy[m] * tables.area_ratio[m]);
+                }
                 near_total += tables.energy[m] * tables.area_ratio[m];
             }
             let t_sum: f32 = c.members.iter().map(|&m| tables.area_ratio[m as usize]).sum();
@@ -79,6 +87,12 @@ pub struct NearTables {
     /// Per near point: the energy the near field delivers there per unit of its own, with what
     /// the echo carries on to the points around it (1 without an echo; [`echo_gain`]).
     pub echo_gain: Vec<f32>,
+    /// Per entry, its cluster's dipole axes: `v_k . (x_j - o)` (x_j: cell centroid; zero for
+    /// an unused axis or no dipoles).
+    pub dipole_offset: Vec<[f32; 3]>,
+    /// Per entry: what one W/m² of its weight adds to its cluster's moment along each axis,
+    /// `A/N (1 / lambda_k) v_k . (x_j - o)` ([`dipole_moments`]).
+    pub dipole_coef: Vec<[f32; 3]>,
 }
 
 impl NearTables {
@@ -102,7 +116,85 @@ impl NearTables {
         }
         let centroid = (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
-        NearTables { cluster, area_ratio, energy, centroid, size, echo_gain }
+        let (mut dipole_offset, mut dipole_coef) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+        for (d, cl) in prm.dipoles().clusters.iter().zip(prm.clusters()) {
+            for &m in &cl.members {
+                let (j, area) = (m as usize, prm.entries()[m as usize].area);
+                let at: Vec3 = centroid_of(prm, j);
+                for (k, a) in d.axes.iter().enumerate() {
+                    let u = a.direction.dot(at - d.origin);
+                    dipole_offset[j][k] = u;
+                    dipole_coef[j][k] = area * a.inv_lambda * u;
+                }
+            }
+        }
+        NearTables { cluster, area_ratio, energy, centroid, size, echo_gain, dipole_offset, dipole_coef }
+    }
+}
+
+/// The centroid of entry j's cell (its position when it has no cell), as the bake's dipole
+/// frames take it.
+fn centroid_of(prm: &Prm, j: usize) -> Vec3 {
+    prm.cells().centroid(j).unwrap_or(prm.entries()[j].position)
+}
+
+/// Per cluster, the weights of its dipole panes (`prm::prm_file::Dipole`): along each axis,
+/// `m_k = sum_j E_j dipole_coef_jk` (RGB), the slope of the least-squares linear fit of the
+/// light over the cluster's cells. Empty without dipoles.
+pub fn dipole_moments(prm: &Prm, tables: &NearTables, entry_irradiance: &[Vec3]) -> Vec<[Vec3; 3]> {
+    if prm.dipoles().clusters.is_empty() {
+        return Vec::new();
+    }
+    prm.clusters()
+        .iter()
+        .map(|c| {
+            let mut m = [Vec3::ZERO; 3];
+            for &j in &c.members {
+                let (e, coef) = (entry_irradiance[j as usize], tables.dipole_coef[j as usize]);
+                for k in 0..3 {
+                    m[k] += e * coef[k];
+                }
+            }
+            m
+        })
+        .collect()
+}
+
+/// Per entry, the linear fit's part of its expected weight per unit area ratio: `lin_j = sum_k
+/// m_k(c(j)) dipole_offset_jk` (empty without dipoles).
+pub fn dipole_offsets(prm: &Prm, tables: &NearTables, moments: &[[Vec3; 3]]) -> Vec<Vec3> {
+    if moments.is_empty() {
+        return Vec::new();
+    }
+    (0..prm.entries().len())
+        .map(|j| {
+            let m = &moments[tables.cluster[j] as usize];
+            let u = tables.dipole_offset[j];
+            m[0] * u[0] + m[1] * u[1] + m[2] * u[2]
+        })
+        .collect()
+}
+
+/// Add cluster `c`'s dipole panes, weighted by its `moments`, into a full-atlas image.
+pub fn add_dipole(prm: &Prm, c: usize, moments: &[Vec3; 3], img: &mut [Vec3], layout: &TileLayout) {
+    let d = prm.dipoles();
+    let ts = prm.header().tile_size as usize;
+    let (b, w) = (d.block as usize, prm.atlas().0 as usize);
+    let (side, codes) = (ts.div_ceil(b), d.tile_codes(prm.header().tile_size));
+    for (k, m) in moments.iter().enumerate() {
+        if *m == Vec3::ZERO {
+            continue;
+        }
+        for t in d.range(c, k) {
+            let tile = &d.tiles[t];
+            let s = *m * tile.scale;
+            let data = &d.data[t * codes..(t + 1) * codes];
+            for &texel in &layout.texels[tile.index as usize] {
+                let (x, y) = (texel as usize % w, texel as usize / w);
+                let q = ((y % ts) / b) * side + (x % ts) / b;
+                img[texel as usize] += s * prm::prm_file::dipole_value(data[q]);
+            }
+        }
     }
 }
 
@@ -182,11 +274,12 @@ pub fn add_pane(prm: &Prm, pane: usize, weight: Vec3, img: &mut [Vec3], layout: 
     }
 }
 
-/// The lightmap from the clusters in `selected` (weights `weights`), plus, with `residual`,
-/// the groups standing in for the rest.
+/// The lightmap from the clusters in `selected` (weights `weights`, dipole weights `moments`,
+/// empty for none), plus, with `residual`, the groups standing in for the rest.
 pub fn compose_selected(
     prm: &Prm,
     weights: &[Vec3],
+    moments: &[[Vec3; 3]],
     selected: &[bool],
     residual: bool,
     layout: &TileLayout,
@@ -195,6 +288,9 @@ pub fn compose_selected(
     for c in 0..prm.clusters().len() {
         if selected[c] && weights[c] != Vec3::ZERO {
             add_pane(prm, c, weights[c], &mut img, layout);
+            if let Some(m) = moments.get(c) {
+                add_dipole(prm, c, m, &mut img, layout);
+            }
         }
     }
     if residual {
@@ -208,9 +304,9 @@ pub fn compose_selected(
     img
 }
 
-/// The indirect lightmap for per-cluster weights (W/m² of entry irradiance): every pane times
-/// its weight, no selection.
-pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
+/// The indirect lightmap for per-cluster weights (W/m² of entry irradiance) and dipole weights
+/// (`moments`, empty for none): every pane times its weight, no selection.
+pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> {
     assert_eq!(weights.len(), prm.clusters().len(), "one weight per cluster");
     let mut img = vec![Vec3::ZERO; prm.texel_count()];
     let layout = prm.layout();
@@ -218,25 +314,34 @@ pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
         if *w != Vec3::ZERO {
             add_pane(prm, c, *w, &mut img, &layout);
         }
+        if let Some(m) = moments.get(c) {
+            add_dipole(prm, c, m, &mut img, &layout);
+        }
     }
     img
 }
 
 /// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`): each texel with
 /// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
-/// the entries' irradiance and the cluster weights, and is then clamped at zero, as on the GPU.
+/// the entries' irradiance and the cluster weights; then every texel is clamped at zero (the
+/// near field and the dipole panes are signed), as on the GPU.
 pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
-    add_near_field_with(prm, &NearTables::new(prm), &LinkLight::none(prm), entry_irradiance, weights, img);
+    let tables = NearTables::new(prm);
+    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
+    add_near_field_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, weights, &lin, img);
 }
 
 /// [`add_near_field`] with the map's [`NearTables`] built once and this frame's light on the
-/// links of hot cells (each such link uses its own `E_j kappa` for `E_j`).
+/// links of hot cells (each such link uses its own `E_j kappa` for `E_j`); with dipoles
+/// (`lin`: [`dipole_offsets`]) a link's deviation is from the cluster's linear fit, `E_j - t_j
+/// (w_c + lin_j)`, since the dipole panes already carry the fit's slope.
 pub fn add_near_field_with(
     prm: &Prm,
     tables: &NearTables,
     link_light: &LinkLight,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
+    lin: &[Vec3],
     img: &mut [Vec3],
 ) {
     let mut k = 0;
@@ -247,7 +352,8 @@ pub fn add_near_field_with(
             let mut sum = Vec3::ZERO;
             for l in links.iter() {
                 let j = l.entry as usize;
-                let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
+                let fit = weights[tables.cluster[j] as usize] + lin.get(j).copied().unwrap_or(Vec3::ZERO);
+                let expected = fit * tables.area_ratio[j];
                 let e = if link_light.hot[j] { link_light.value[k] } else { entry_irradiance[j] };
                 sum += prm.entries()[j].albedo * l.factor * (e - expected);
                 k += 1;
@@ -266,6 +372,10 @@ pub fn add_near_field_with(
     }
     for (links, sum) in runs.iter().zip(near) {
         let texel = links[0].texel as usize;
-        img[texel] = (img[texel] + sum).max(Vec3::ZERO);
+        img[texel] += sum;
+    }
+    // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
+    for v in img.iter_mut() {
+        *v = v.max(Vec3::ZERO);
     }
 }

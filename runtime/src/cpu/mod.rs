@@ -21,8 +21,9 @@ pub mod concentrate;
 mod twin;
 
 pub use compose::{
-    add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with, compose,
-    compose_selected, echo_bounce, echo_gain, residual_weights, select_top_k, NearTables, ECHO_BOUNCES,
+    add_dipole, add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with,
+    compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain, residual_weights,
+    select_top_k, NearTables, ECHO_BOUNCES,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

@@ -8,7 +8,8 @@ use rayon::prelude::*;
 
 use super::concentrate::triangle_visibility;
 use super::{
-    add_near_field_with, cluster_weights_with, compose_selected, select_top_k, LinkLight, NearTables,
+    add_near_field_with, cluster_weights_with, compose_selected, dipole_moments, dipole_offsets,
+    select_top_k, LinkLight, NearTables,
 };
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
@@ -97,15 +98,17 @@ impl<'a> CpuTwin<'a> {
         }
         let e = entry_irradiance(self.prm, self.bvh, lights);
         let link_light = link_light(self.prm, self.bvh, &self.near, &e, lights);
-        let w = cluster_weights_with(self.prm, &self.near, &link_light, &e);
+        let moments = dipole_moments(self.prm, &self.near, &e);
+        let lin = dipole_offsets(self.prm, &self.near, &moments);
+        let w = cluster_weights_with(self.prm, &self.near, &link_light, &e, &lin);
         let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
         let selected = select_top_k(&w, &energies, self.top_k);
         let mut chosen = vec![false; w.len()];
         for &c in &selected {
             chosen[c] = true;
         }
-        self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
-        add_near_field_with(self.prm, &self.near, &link_light, &e, &w, &mut self.lightmap);
+        self.lightmap = compose_selected(self.prm, &w, &moments, &chosen, self.residual, &self.layout);
+        add_near_field_with(self.prm, &self.near, &link_light, &e, &w, &lin, &mut self.lightmap);
         self.composes += 1;
         self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());

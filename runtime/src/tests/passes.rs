@@ -194,6 +194,8 @@ fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
         paths: 16,
         clusters,
         atlas,
+        // The dipole panes are off by default; the GPU is held to the twin with them on.
+        dipole_block: 2,
         ..Default::default()
     };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
@@ -238,7 +240,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         // K = C: the full sum (f16 data, f32 sums in another order: 1e-5 of the brightest).
         rt.set_top_k(c).unwrap();
         rt.compose_weights(&w).unwrap();
-        assert_close(&rt.read_lightmap().unwrap(), &cpu::compose(&prm, &w), 1e-5, "K = C");
+        assert_close(&rt.read_lightmap().unwrap(), &cpu::compose(&prm, &w, &[]), 1e-5, "K = C");
         // K = 5: the same clusters as the CPU's selection, and the same sum, with and without
         // the groups standing in for the clusters left out.
         rt.set_top_k(5).unwrap();
@@ -257,7 +259,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
             );
             assert_close(
                 &rt.read_lightmap().unwrap(),
-                &cpu::compose_selected(&prm, &w, &chosen, residual, &layout),
+                &cpu::compose_selected(&prm, &w, &[], &chosen, residual, &layout),
                 1e-5,
                 "K = 5",
             );
@@ -335,20 +337,21 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let cpu = twin.frame(&corner).to_vec();
     let e = crate::cpu::entry_irradiance(&prm, &bvh, &corner);
     let w = cpu::cluster_weights(&prm, &e);
-    let panes_only = cpu::compose(&prm, &w);
+    let panes_only = cpu::compose(&prm, &w, &cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e));
     let near_share = prm::metric::compare(&panes_only, &cpu, None).error;
     assert!(near_share > 0.1, "the near field changes the corner's lightmap by only {near_share}");
     let m = prm::metric::compare(&gpu_l, &cpu, None);
     assert!(m.error < 0.01, "corner lamp: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
     // The echo is part of what the two agree on: it must change the corner's lightmap (by 19 %
-    // when measured).
-    assert!(!prm.echo().links.is_empty());
+    // when measured before the dipoles; 3.8 % with them, which now carry the linear part of the
+    // hot spot's light and all its bounces, leaving the echo the rest).
+    assert!(!prm.echo().links.is_empty() && !prm.dipoles().tiles.is_empty());
     let mut parts = prm.clone().into_parts();
     parts.echo = Default::default();
     let silent = prm::prm_file::Prm::new(parts).unwrap();
     let without = crate::cpu::CpuTwin::new(&silent, &bvh, c).frame(&corner).to_vec();
     let echo_share = prm::metric::compare(&without, &cpu, None).error;
-    assert!(echo_share > 0.05, "the echo changes the corner's lightmap by only {echo_share}");
+    assert!(echo_share > 0.02, "the echo changes the corner's lightmap by only {echo_share}");
 }
 
 #[test]
