@@ -42,7 +42,7 @@ pub fn tile_panes(
 ) -> Tiled {
     let grid = Grid::new(set, tile_size);
     let stored = stored_mask(set);
-    let (start, by_cluster) = transpose(texel_panes, members.len());
+    let (start, by_cluster) = transpose(texel_panes, members.len(), |k, i| texel_panes[k][i].1);
     let panes: Vec<PaneOut> = (0..members.len())
         .into_par_iter()
         .map(|c| {
@@ -86,8 +86,13 @@ fn stored_mask(set: &TexelSet) -> Vec<bool> {
 }
 
 /// Texel-major contributions as cluster-major lists (a counting sort): cluster c's
-/// (texel, value) pairs are `list[start[c]..start[c + 1]]`, in texel order.
-fn transpose(texel_panes: &[TexelPanes], clusters: usize) -> (Vec<usize>, Vec<(u32, Vec3)>) {
+/// (texel, value) pairs are `list[start[c]..start[c + 1]]`, in texel order; `value(k, i)` is
+/// what texel k's i-th contribution carries.
+fn transpose<T: Copy + Default>(
+    texel_panes: &[TexelPanes],
+    clusters: usize,
+    value: impl Fn(usize, usize) -> T,
+) -> (Vec<usize>, Vec<(u32, T)>) {
     let mut counts = vec![0usize; clusters];
     for tp in texel_panes {
         for &(c, _) in tp {
@@ -99,10 +104,10 @@ fn transpose(texel_panes: &[TexelPanes], clusters: usize) -> (Vec<usize>, Vec<(u
         start[c + 1] = start[c] + counts[c];
     }
     let mut fill = start.clone();
-    let mut list = vec![(0u32, Vec3::ZERO); start[clusters]];
+    let mut list = vec![(0u32, T::default()); start[clusters]];
     for (k, tp) in texel_panes.iter().enumerate() {
-        for &(c, v) in tp {
-            list[fill[c as usize]] = (k as u32, v);
+        for (i, &(c, _)) in tp.iter().enumerate() {
+            list[fill[c as usize]] = (k as u32, value(k, i));
             fill[c as usize] += 1;
         }
     }
@@ -276,24 +281,7 @@ pub fn tile_dipoles(
     for (k, _) in stored.iter().enumerate().filter(|(_, s)| **s) {
         count[(k / grid.w / b) * bw + (k % grid.w) / b] += 1;
     }
-    let mut per_cluster = vec![0usize; clusters];
-    for tp in texel_panes {
-        for &(c, _) in tp {
-            per_cluster[c as usize] += 1;
-        }
-    }
-    let mut start = vec![0usize; clusters + 1];
-    for c in 0..clusters {
-        start[c + 1] = start[c] + per_cluster[c];
-    }
-    let mut fill = start.clone();
-    let mut list = vec![(0u32, [Vec3::ZERO; 3]); start[clusters]];
-    for (k, (tp, td)) in texel_panes.iter().zip(texel_dipoles).enumerate() {
-        for (&(c, _), d) in tp.iter().zip(td) {
-            list[fill[c as usize]] = (k as u32, *d);
-            fill[c as usize] += 1;
-        }
-    }
+    let (start, list) = transpose(texel_panes, clusters, |k, i| texel_dipoles[k][i]);
     let per_axis: Vec<(f32, Vec<EncodedTile>)> = (0..clusters * 3)
         .into_par_iter()
         .map(|pk| {

@@ -21,6 +21,19 @@ fn closed_box(albedo: f32) -> Scene {
     quads(&unit_box_faces(), albedo)
 }
 
+/// An open box (floor and three walls), albedo 0.7.
+fn open_box() -> Scene {
+    quads(
+        &[
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        ],
+        0.7,
+    )
+}
+
 fn params(entries: u32, paths: u32, clusters: u32, atlas: u32) -> PrecomputeParams {
     PrecomputeParams { entries, paths, clusters, atlas, ..PrecomputeParams::production() }
 }
@@ -73,15 +86,7 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
 #[test]
 fn superposition_and_clustering_invariance() {
     // An open box (floor and three walls) lit unevenly.
-    let scene = quads(
-        &[
-            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-        ],
-        0.7,
-    );
+    let scene = open_box();
     let bvh = Bvh::build(&scene);
     // Smoothing off: the walks' own values are compared, not their filtered neighbourhood.
     let p = PrecomputeParams { smooth_radius: 0, ..params(256, 32, 12, 20) };
@@ -135,15 +140,7 @@ fn superposition_and_clustering_invariance() {
 /// term. Blocks of one texel and no smoothing, so texel values are compared as walked.
 #[test]
 fn dipole_panes_answer_a_linear_field_over_each_cluster() {
-    let scene = quads(
-        &[
-            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-        ],
-        0.7,
-    );
+    let scene = open_box();
     let bvh = Bvh::build(&scene);
     let p = PrecomputeParams { smooth_radius: 0, dipole_block: 1, ..params(256, 32, 12, 20) };
     let prm = bake(&scene, &p);

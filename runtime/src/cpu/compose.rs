@@ -114,15 +114,15 @@ impl NearTables {
                 energy[j] += luminance(prm.entries()[j].albedo) * l.factor * g;
             }
         }
-        let centroid = (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
+        let centroid: Vec<Vec3> =
+            (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
         let (mut dipole_offset, mut dipole_coef) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
         for (d, cl) in prm.dipoles().clusters.iter().zip(prm.clusters()) {
             for &m in &cl.members {
                 let (j, area) = (m as usize, prm.entries()[m as usize].area);
-                let at: Vec3 = centroid_of(prm, j);
                 for (k, a) in d.axes.iter().enumerate() {
-                    let u = a.direction.dot(at - d.origin);
+                    let u = a.direction.dot(centroid[j] - d.origin);
                     dipole_offset[j][k] = u;
                     dipole_coef[j][k] = area * a.inv_lambda * u;
                 }
@@ -130,12 +130,6 @@ impl NearTables {
         }
         NearTables { cluster, area_ratio, energy, centroid, size, echo_gain, dipole_offset, dipole_coef }
     }
-}
-
-/// The centroid of entry j's cell (its position when it has no cell), as the bake's dipole
-/// frames take it.
-fn centroid_of(prm: &Prm, j: usize) -> Vec3 {
-    prm.cells().centroid(j).unwrap_or(prm.entries()[j].position)
 }
 
 /// Per cluster, the weights of its dipole panes (`prm::prm_file::Dipole`): along each axis,
