@@ -73,6 +73,10 @@ pub struct Args {
     /// over the cluster) are stored at (0: none, the default; 2 measured best).
     #[arg(long)]
     dipole_block: Option<u32>,
+    /// Leave out the far field (the first bounce of light uneven over a cluster, carried past
+    /// the near links to the whole level; on by default).
+    #[arg(long)]
+    no_far_field: bool,
     /// Radius in texels of the geometry-guided pane smoothing (0: none).
     #[arg(long)]
     smooth: Option<u32>,
@@ -110,6 +114,7 @@ pub fn run(a: Args) -> Result<()> {
     p.near_radius = a.near_radius.unwrap_or(p.near_radius);
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
+    p.far_field &= !a.no_far_field;
     p.groups = a.groups.unwrap_or(p.groups);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);

@@ -6,6 +6,7 @@ pub mod cells;
 pub mod cluster;
 pub mod dipole;
 pub mod entries;
+pub mod far;
 pub mod ground_truth;
 pub mod near;
 pub mod panes;

@@ -19,7 +19,9 @@
 //! to the entry. Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
 
 use glam::Vec3;
-use prm::prm_file::{round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, NearLink, NearPoint};
+use prm::prm_file::{
+    far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, NearLink, NearPoint,
+};
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
 
@@ -31,13 +33,16 @@ pub const MIN_FACTOR: f32 = 1e-4;
 /// The links of every covered texel of `set` to the entries whose cell centroid lies within
 /// `radius` entry spacings (sqrt(A / N)) plus the cell's own size, sorted by texel (atlas
 /// row-major index) then entry; and the sample point of each texel with links, rounded as the
-/// file stores it.
+/// file stores it. With a far field (`far`: true) each link keeps `1 - far_share` of its factor
+/// (`prm::prm_file::far_share`, from `radius` entry spacings to that plus the cell's size): the
+/// far field has the rest (`crate::far`).
 pub fn near_links(
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
     cells: &Cells,
     radius: f32,
+    far: bool,
 ) -> (Vec<NearLink>, Vec<NearPoint>) {
     let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
@@ -56,7 +61,11 @@ pub fn near_links(
                 if !(area > 0.0) || centroid.distance(t.position) > reach + area.sqrt() {
                     continue;
                 }
-                let f: f32 = cells.of(j).iter().map(|tri| point_to_polygon(t.position, t.normal, tri)).sum();
+                let mut f: f32 =
+                    cells.of(j).iter().map(|tri| point_to_polygon(t.position, t.normal, tri)).sum();
+                if far {
+                    f *= 1.0 - far_share(centroid.distance(t.position), reach, area.sqrt());
+                }
                 // Rounded as the file stores it (a half float), so a bake and its file agree.
                 let factor = half::f16::from_f32(e.area / area * f).to_f32();
                 if !(factor >= MIN_FACTOR) || !bvh.visible(t.position, t.normal, e.position, e.normal) {

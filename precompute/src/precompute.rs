@@ -10,13 +10,14 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{Cells, Dipoles, Entry, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
+use prm::prm_file::{Cells, Dipoles, Entry, Far, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
 use crate::cells::{entry_cells, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, sample_entries};
+use crate::far::far_field;
 use crate::near::{echo_links, near_links};
 use crate::panes::{tile_dipoles, tile_panes};
 use crate::parallel::{stop_if, Cancelled, Control};
@@ -61,6 +62,9 @@ pub struct PrecomputeParams {
     /// Side in texels of the blocks the clusters' dipole panes are stored at (`crate::dipole`;
     /// 0: no dipoles, the default; 2 is the measured choice; a divisor of the tile size).
     pub dipole_block: u32,
+    /// The far field of the deviations (`crate::far`; default on): the near links' first
+    /// bounce carried on to every texel for the entries that hold a share of it.
+    pub far_field: bool,
 }
 
 impl PrecomputeParams {
@@ -88,6 +92,7 @@ impl PrecomputeParams {
             // Off: measured mixed (chamber torches 1-6 points better, two_rooms' floor and
             // wall torches 2-3 points worse) and +1 s of precompute (README).
             dipole_block: 0,
+            far_field: true,
         }
     }
 
@@ -152,6 +157,10 @@ pub struct Report {
     /// Links of the near field's echo.
     pub echo_links: usize,
     pub seconds_near: f64,
+    /// Covered texels the far field lights, and pairs of entries that see each other.
+    pub far_texels: usize,
+    pub far_pairs: usize,
+    pub seconds_far: f64,
     /// Triangles of the entries' cells (`prm::prm_file::Cells`).
     pub cell_triangles: usize,
     /// Surface area no entry's cell covers (triangles too small for an entry, with none near
@@ -275,7 +284,7 @@ pub fn precompute(
 
     let (near, near_points) = timed(&mut report.seconds_near, || {
         if params.near_radius > 0.0 {
-            near_links(bvh, &set, &entries, &cells, params.near_radius)
+            near_links(bvh, &set, &entries, &cells, params.near_radius, params.far_field)
         } else {
             (Vec::new(), Vec::new())
         }
@@ -285,6 +294,16 @@ pub fn precompute(
         echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
     });
     report.echo_links = echo.links.len();
+    let far = timed(&mut report.seconds_far, || {
+        let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
+        if params.far_field {
+            far_field(bvh, &set, &entries, params.near_radius * spacing)
+        } else {
+            Far::default()
+        }
+    });
+    report.far_texels = far.texels.len();
+    report.far_pairs = far.visible.iter().map(|w| w.count_ones() as usize).sum();
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
@@ -302,6 +321,7 @@ pub fn precompute(
         mask,
         data,
         dipoles,
+        far,
     })?;
     Ok((prm, report))
 }
@@ -396,6 +416,7 @@ fn header(
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
             "near_links": report.near_links, "echo_radius": params.echo_radius,
             "echo_links": report.echo_links, "dipole_block": params.dipole_block,
+            "far_field": params.far_field, "far_texels": report.far_texels, "far_pairs": report.far_pairs,
             "dipole_tiles": report.dipole_tiles,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,

@@ -51,6 +51,8 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("KIND_SPOT", KIND_SPOT),
     ("KIND_DIRECTIONAL", KIND_DIRECTIONAL),
     ("CONCENTRATION_SUB", crate::cpu::concentrate::SUB),
+    ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
+    ("WG_FAR_SOURCES", crate::far::WG_SOURCES),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
 ];
 
@@ -166,7 +168,7 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 11] = [
+pub const SHADERS: [&Shader; 12] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
@@ -175,6 +177,7 @@ pub const SHADERS: [&Shader; 11] = [
     &crate::weights::SHADER,
     &crate::near::SHADER,
     &crate::near::ECHO,
+    &crate::far::SHADER,
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,

@@ -57,7 +57,7 @@ macro_rules! wgsl_type {
 }
 
 wgsl_type!(f32 => "f32", u32 => "u32", [f32; 2] => "vec2f", [f32; 3] => "vec3f", [f32; 4] => "vec4f",
-    [[f32; 4]; 4] => "mat4x4f");
+    [u32; 4] => "vec4u", [[f32; 4]; 4] => "mat4x4f");
 
 /// Declares a `#[repr(C)]`, `Pod` struct and implements [`GpuStruct`] for it from the same
 /// field list, so the Rust and WGSL sides cannot differ in names, types or order.
@@ -220,9 +220,38 @@ gpu_struct! {
         /// 1 when some cell is hot this update (else the concentration pass did not run and
         /// no link light is read).
         pub any_hot: u32,
+        /// Texels the far field lights (`shaders/far.wgsl`; 0: none).
+        pub far_texel_count: u32,
+        /// `prm::prm_file::Far::reach`.
+        pub far_reach: f32,
         pub _pad0: u32,
+    }
+}
+
+gpu_struct! {
+    /// An entry as the far field sees it (`shaders/far.wgsl`): its cell's centroid and size
+    /// (the square root of its area), its normal, and albedo x A/N (what turns its deviation
+    /// into flux).
+    pub struct FarEntry {
+        pub centroid: [f32; 3],
+        pub size: f32,
+        pub normal: [f32; 3],
+        pub _pad0: u32,
+        pub flux: [f32; 3],
         pub _pad1: u32,
-        pub _pad2: u32,
+    }
+}
+
+gpu_struct! {
+    /// A texel the far field lights (`prm::prm_file::FarTexel`): its point, normal, the slot of
+    /// its sum in the near field's `near_sum`, and the entries it borrows visibility from.
+    pub struct GpuFarTexel {
+        pub position: [f32; 3],
+        pub slot: u32,
+        pub normal: [f32; 3],
+        pub _pad0: u32,
+        pub entries: [u32; 4],
+        pub weights: [f32; 4],
     }
 }
 
@@ -336,6 +365,8 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<GpuEchoLink>(),
         one::<NearTexel>(),
         one::<GpuHotEntry>(),
+        one::<FarEntry>(),
+        one::<GpuFarTexel>(),
         one::<IndirectParams>(),
         one::<ComposeParams>(),
         one::<TileRecord>(),

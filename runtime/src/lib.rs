@@ -57,6 +57,7 @@ mod compose;
 mod concentrate;
 mod contract;
 pub mod cpu;
+mod far;
 mod gpu;
 mod irradiance;
 mod layout;

@@ -2,13 +2,15 @@
 //! are): per texel with near-field links, `sum albedo_j factor (E_j - w_c(j) t_j)` over its links,
 //! from this frame's entry irradiance and cluster weights, into `near_sum`, which the compose
 //! adds to the panes (and clamps at zero). A link of a hot cell uses its own light instead of
-//! `E_j` (`crate::concentrate`). Only the texels with links are visited; a frame composed from
-//! caller-chosen weights has no entry irradiance, so the sums are cleared.
+//! `E_j` (`crate::concentrate`). Only the texels with links are visited; then the far field
+//! (`crate::far`) adds its light to the same sums. A frame composed from caller-chosen weights
+//! has no entry irradiance, so the sums are cleared.
 
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
+use crate::far::FarPass;
 use crate::gpu;
 use crate::layout::{GpuEchoLink, GpuNearLink, GpuStruct, IndirectParams, NearTexel};
 
@@ -124,7 +126,10 @@ pub struct NearData {
     pub links: wgpu::Buffer,
     /// Texels with links.
     pub count: u32,
-    /// Per atlas texel, its index in `texels`, or `NO_SLOT`.
+    /// Texels with a sum: those with links (`0 .. count`, in `texels` order), then those only
+    /// the far field lights (`crate::far`).
+    pub total: u32,
+    /// Per atlas texel, its slot among the sums, or `NO_SLOT`.
     pub index: Vec<u32>,
 }
 
@@ -158,6 +163,13 @@ impl NearData {
             links.push(GpuNearLink { factor: (albedo * l.factor).to_array(), entry: l.entry });
         }
         let count = texels.len() as u32;
+        let mut total = count;
+        for t in &prm.far().texels {
+            if index[t.texel as usize] == NO_SLOT {
+                index[t.texel as usize] = total;
+                total += 1;
+            }
+        }
         // Storage bindings cannot be empty.
         if texels.is_empty() {
             texels.push(NearTexel::default());
@@ -168,7 +180,7 @@ impl NearData {
         let none = wgpu::BufferUsages::empty();
         let texels = gpu::storage_buffer(device, "near texels", bytemuck::cast_slice(&texels), none);
         let links = gpu::storage_buffer(device, "near links", bytemuck::cast_slice(&links), none);
-        NearData { texels, links, count, index }
+        NearData { texels, links, count, total, index }
     }
 }
 
@@ -179,11 +191,13 @@ pub struct NearPass {
     group: wgpu::BindGroup,
     /// Texels with links.
     pub count: u32,
-    /// Per linked texel, its near-field irradiance (`vec4f`).
+    /// Per texel with links or far field, its near- plus far-field irradiance (`vec4f`).
     pub sums: wgpu::Buffer,
     /// Per atlas texel, its index in `sums`, or `NO_SLOT`.
     pub index: Vec<u32>,
     echo: Option<EchoPass>,
+    /// The far field, added to the sums after the echo.
+    pub far: Option<FarPass>,
 }
 
 impl NearPass {
@@ -213,7 +227,7 @@ impl NearPass {
         let sums = gpu::storage_buffer(
             device,
             "near sums",
-            &vec![0u8; count.max(1) as usize * 16],
+            &vec![0u8; data.total.max(1) as usize * 16],
             wgpu::BufferUsages::COPY_DST,
         );
         let layout = SHADER.layout(device, 0);
@@ -240,12 +254,13 @@ impl NearPass {
             gpu::compute_pipeline(device, "near.wgsl", &source, "deviation_main", &[&layout]);
         let entries = prm.entries().len() as u32;
         let echo = EchoPass::new(device, prm, params, &sums);
-        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo }
+        let far = FarPass::new(device, prm, tables, params, deviation, &sums, &index);
+        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo, far }
     }
 
     /// Records the pass (after the weights, before the compose).
     pub fn encode(&self, enc: &mut wgpu::CommandEncoder) {
-        if self.count == 0 {
+        if self.count == 0 && self.far.is_none() {
             return;
         }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -255,8 +270,10 @@ impl NearPass {
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.deviation_pipeline);
         pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
-        pass.set_pipeline(&self.pipeline);
-        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        if self.count > 0 {
+            pass.set_pipeline(&self.pipeline);
+            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        }
         if let Some(echo) = &self.echo {
             // Two bounces (`crate::cpu::ECHO_BOUNCES`).
             pass.set_bind_group(0, &echo.group, &[]);
@@ -264,6 +281,9 @@ impl NearPass {
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
             pass.set_pipeline(&echo.second);
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        }
+        if let Some(far) = &self.far {
+            far.encode(&mut pass);
         }
     }
 

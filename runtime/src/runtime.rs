@@ -263,6 +263,8 @@ impl Runtime {
             near_texel_count: self.near.count,
             frame: self.frame,
             any_hot: self.any_hot as u32,
+            far_texel_count: self.near.far.as_ref().map_or(0, |f| f.count),
+            far_reach: self.near.far.as_ref().map_or(0.0, |f| f.reach),
             ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));

@@ -6,7 +6,7 @@ use std::collections::HashSet;
 
 use glam::Vec3;
 
-use super::{tile_layout, Header, PrmParts};
+use super::{tile_layout, Far, Header, PrmParts};
 
 /// Largest atlas side and tile side a map may declare.
 const MAX_ATLAS: u32 = 65536;
@@ -21,6 +21,7 @@ pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
     tiles(p)?;
     ranges(p)?;
     dipoles(p)?;
+    far(p)?;
     if let Some(c) = p.group_of.iter().position(|&g| g as usize >= p.groups.len()) {
         return Err(format!("cluster {c} is in group {}, of {}", p.group_of[c], p.groups.len()));
     }
@@ -296,6 +297,34 @@ fn dipoles(p: &PrmParts) -> Result<(), String> {
     let want = d.tiles.len() as u64 * d.tile_codes(h.tile_size) as u64;
     if d.data.len() as u64 != want {
         return Err(format!("dipole data is {} bytes, its tiles need {want}", d.data.len()));
+    }
+    Ok(())
+}
+
+/// The far field: empty, or visibility words for every pair of entries, a finite reach and
+/// texels in atlas order with finite points, unit normals, entries in range and weights >= 0.
+fn far(p: &PrmParts) -> Result<(), String> {
+    let (f, h, n) = (&p.far, &p.header, p.entries.len());
+    if f.visible.is_empty() && f.texels.is_empty() {
+        return Ok(());
+    }
+    if n > Far::MAX_ENTRIES || f.visible.len() != Far::words(n) {
+        return Err(format!("{} far-field visibility words for {n} entries", f.visible.len()));
+    }
+    if !(f.reach.is_finite() && f.reach >= 0.0) {
+        return Err(format!("far-field reach {} is not finite and >= 0", f.reach));
+    }
+    let atlas = h.atlas_width as u64 * h.atlas_height as u64;
+    for (k, t) in f.texels.iter().enumerate() {
+        let ok = (t.texel as u64) < atlas
+            && (k == 0 || f.texels[k - 1].texel < t.texel)
+            && t.position.is_finite()
+            && (t.normal.length() - 1.0).abs() < 1e-3
+            && t.entries.iter().all(|&e| (e as usize) < n)
+            && t.weights.iter().all(|w| w.is_finite() && *w >= 0.0);
+        if !ok {
+            return Err(format!("far-field texel {k} is out of range, out of order or not finite"));
+        }
     }
     Ok(())
 }

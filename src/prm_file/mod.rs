@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 6
+//! 8   u32    version = 7
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
@@ -31,6 +31,9 @@
 //!           tile u32, 3 x (direction 3 x f32, 1/lambda f32, energy f32, tile count u32);
 //!           K x 20 B tiles as in TILE (pane 3 c + axis); K x ceil(tile size / b)² B: signed
 //!           codes (`dipole_value`), one per b x b block of the tile, row-major
+//!     FARF  u32 T texels, u32 V words, f32 reach; V x u32: the entries' mutual visibility, one
+//!           bit per pair i < j ([`Far::pair_bit`]); T x 60 B: texel u32, point (3 x f32), normal
+//!           (3 x f32), 4 entries u32, 4 weights f32. T = V = 0: no far field
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -66,6 +69,15 @@
 //! axis of the cluster; the runtime weights them by the light's first moment over the cluster.
 //! They are smooth, so they are stored at half resolution with signed 8-bit codes.
 //!
+//! **Far field** (v7): what the near links leave out of the deviations' first bounce. A hot spot's
+//! light reaches the whole room, and a pane spreads it over its cluster: the pillar faces 3 m
+//! from a lamp beside a wall see the lamp's end of the wall, not the cluster's middle. Each
+//! frame the runtime takes the entries whose deviation carries a share of the light and sends
+//! it to every texel as from a point (its cell's flux, the two cosines over pi r²), the
+//! visibility read from the entries' mutual visibility bits at the texel's nearest entries.
+//! The near links fade out over `reach .. reach + cell size` from a cell as the far field fades
+//! in, so the two add up to the whole first bounce (`prm_precompute::far`).
+//!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
 //! weighted by the light of its clusters left out (the runtime's residual weights), so the light
@@ -97,7 +109,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 6;
+pub const VERSION: u32 = 7;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -325,6 +337,64 @@ pub fn round_near_points(points: &mut [NearPoint]) {
     }
 }
 
+/// A texel the far field lights (`Far`): its sample point and unit normal, and the entries
+/// (up to four; weight 0 for an unused one) whose visibility it borrows, weights summing to 1.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FarTexel {
+    /// Row-major atlas index.
+    pub texel: u32,
+    pub position: Vec3,
+    pub normal: Vec3,
+    pub entries: [u32; 4],
+    pub weights: [f32; 4],
+}
+
+/// The far field (`prm_precompute::far`; module doc): the distance where it starts to take over
+/// from the near links, the entries' mutual visibility (one bit per pair, [`Far::pair_bit`]) and
+/// the texels it lights, sorted by texel. Empty when the map has none.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Far {
+    /// The far field has no share of a cell's light closer than this (scene units) and all of
+    /// it beyond `reach` plus the cell's size ([`far_share`]).
+    pub reach: f32,
+    pub visible: Vec<u32>,
+    pub texels: Vec<FarTexel>,
+}
+
+impl Far {
+    /// Bit index of the pair (i, j), i != j, among `n` entries: the pairs i < j row by row.
+    /// Fits u32 for n up to 65,536 (`MAX_ENTRIES`).
+    pub fn pair_bit(n: usize, i: usize, j: usize) -> Option<usize> {
+        let (a, b) = (i.min(j), i.max(j));
+        (a != b && b < n).then(|| a * (2 * n - a - 1) / 2 + (b - a - 1))
+    }
+
+    /// u32 words holding the bits of `n` entries' pairs.
+    pub fn words(n: usize) -> usize {
+        (n * n.saturating_sub(1) / 2).div_ceil(32)
+    }
+
+    /// Whether entries i and j see each other (an entry sees itself).
+    pub fn sees(&self, n: usize, i: usize, j: usize) -> bool {
+        match Far::pair_bit(n, i, j) {
+            None => i == j,
+            Some(k) => self.visible.get(k / 32).is_some_and(|w| w >> (k % 32) & 1 == 1),
+        }
+    }
+
+    /// Most entries a map with a far field may have (its pair bits are indexed by u32).
+    pub const MAX_ENTRIES: usize = 65_536;
+}
+
+/// The far field's share of a cell's light at distance `d` from its centroid: 0 up to
+/// `reach`, 1 from `reach + size` (size: the cell's square root of area), smooth between; the
+/// near links keep `1 - far_share`.
+#[inline]
+pub fn far_share(d: f32, reach: f32, size: f32) -> f32 {
+    let t = ((d - reach) / size.max(1e-6)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
 /// A cluster of entry points sharing one pane and one runtime weight.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Cluster {
@@ -412,6 +482,8 @@ pub struct PrmParts {
     pub data: Vec<u8>,
     /// The clusters' dipole panes (may be empty).
     pub dipoles: Dipoles,
+    /// The far field of the deviations (may be empty).
+    pub far: Far,
 }
 
 /// A radiance map that holds every invariant of the format (see [`Prm::new`]).
@@ -484,8 +556,8 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 5 and older \
-         lack the dipole panes); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 6 and older \
+         lack the far field); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -556,6 +628,7 @@ impl PrmParts {
         w.tiles(&self.tiles);
         w.data(&self.data);
         w.dipoles(&self.dipoles);
+        w.far(&self.far);
         let sum = fnv1a(FNV_START, &out);
         out.extend_from_slice(&sum.to_le_bytes());
         out
@@ -606,6 +679,11 @@ impl Prm {
     /// The near field's echo between the near points.
     pub fn echo(&self) -> &Echo {
         &self.parts.echo
+    }
+
+    /// The far field of the deviations (empty when the map has none).
+    pub fn far(&self) -> &Far {
+        &self.parts.far
     }
 
     pub fn clusters(&self) -> &[Cluster] {
@@ -759,6 +837,7 @@ impl Prm {
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
             let dipoles = r.dipoles()?;
+            let far = r.far()?;
             r.finish()?;
             Ok(PrmParts {
                 header,
@@ -774,6 +853,7 @@ impl Prm {
                 mask,
                 data,
                 dipoles,
+                far,
             })
         })()
         .map_err(|e| match e {
@@ -878,8 +958,48 @@ mod tests {
             tiles: vec![Tile { cluster: 0, index: 0, scale: Vec3::ONE }],
             mask: pack_mask(&[true; 16]),
             data: (0..16).map(|k| k * 16).collect(),
+            far: Far {
+                reach: 0.5,
+                visible: vec![1],
+                texels: vec![
+                    FarTexel {
+                        texel: 2,
+                        position: Vec3::new(0.5, 1.0, 0.0),
+                        normal: Vec3::NEG_Y,
+                        entries: [0, 1, 0, 0],
+                        weights: [0.75, 0.25, 0.0, 0.0],
+                    },
+                    FarTexel {
+                        texel: 9,
+                        normal: Vec3::X,
+                        entries: [1, 0, 0, 0],
+                        weights: [1.0; 4],
+                        ..Default::default()
+                    },
+                ],
+            },
             ..Default::default()
         }
+    }
+
+    /// Pair bits run row by row over i < j, each pair once, both orders alike.
+    #[test]
+    fn far_pair_bits_number_every_pair_once() {
+        for n in [1usize, 2, 5, 33] {
+            let mut seen = vec![false; n * n.saturating_sub(1) / 2];
+            for i in 0..n {
+                assert_eq!(Far::pair_bit(n, i, i), None);
+                for j in i + 1..n {
+                    let k = Far::pair_bit(n, i, j).unwrap();
+                    assert_eq!(Far::pair_bit(n, j, i), Some(k));
+                    assert!(!std::mem::replace(&mut seen[k], true), "pair {i} {j} twice");
+                }
+            }
+            assert!(seen.iter().all(|&s| s));
+            assert!(Far::words(n) * 32 >= seen.len() && Far::words(n) * 32 < seen.len() + 32);
+        }
+        assert_eq!((far_share(0.4, 0.5, 0.2), far_share(0.7, 0.5, 0.2)), (0.0, 1.0));
+        assert!((far_share(0.6, 0.5, 0.2) - 0.5).abs() < 1e-5);
     }
 
     #[test]
@@ -984,6 +1104,12 @@ mod tests {
             ("echo link 0 is out of range", |p| p.echo.links[0].source = 0),
             ("echo link 1 is out of range", |p| p.echo.links[1].factor = f32::NAN),
             ("echo link 1 is out of order", |p| p.echo.links.swap(0, 1)),
+            ("2 far-field visibility words for 2 entries", |p| p.far.visible.push(0)),
+            ("far-field reach", |p| p.far.reach = f32::NAN),
+            ("far-field texel 1 is out of range", |p| p.far.texels[1].entries[2] = 2),
+            ("far-field texel 1 is out of range", |p| p.far.texels.swap(0, 1)),
+            ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[3] = -1.0),
+            ("far-field texel 1 is out of range", |p| p.far.texels[1].texel = 16),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

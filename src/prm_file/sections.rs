@@ -9,7 +9,8 @@ use half::f16;
 
 use super::{
     decode_octahedral, dequantize_position, encode_octahedral, near_point_box, quantize_position, Cells,
-    Cluster, Dipole, DipoleAxis, Dipoles, Echo, EchoLink, Entry, Group, Header, NearLink, NearPoint, Tile,
+    Cluster, Dipole, DipoleAxis, Dipoles, Echo, EchoLink, Entry, Far, FarTexel, Group, Header, NearLink,
+    NearPoint, Tile,
 };
 
 /// Bytes of one run of near-field links: texel, count, point, normal.
@@ -22,6 +23,7 @@ pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
 pub(super) const DIPOLE_BYTES: usize = 88;
+pub(super) const FAR_TEXEL_BYTES: usize = 60;
 
 /// Appends tagged, length-prefixed sections to a byte buffer.
 pub(super) struct Writer<'a>(pub(super) &'a mut Vec<u8>);
@@ -200,6 +202,23 @@ impl Writer<'_> {
         self.section(b"DIPO", &b);
     }
 
+    /// `FARF`: counts and reach, the visibility words, the texels.
+    pub(super) fn far(&mut self, f: &Far) {
+        let mut b = Vec::with_capacity(12 + f.visible.len() * 4 + f.texels.len() * FAR_TEXEL_BYTES);
+        b.extend_from_slice(&(f.texels.len() as u32).to_le_bytes());
+        b.extend_from_slice(&(f.visible.len() as u32).to_le_bytes());
+        b.extend_from_slice(&f.reach.to_le_bytes());
+        b.extend_from_slice(bytemuck::cast_slice(&f.visible));
+        for t in &f.texels {
+            b.extend_from_slice(&t.texel.to_le_bytes());
+            b.extend_from_slice(bytemuck::bytes_of(&t.position.to_array()));
+            b.extend_from_slice(bytemuck::bytes_of(&t.normal.to_array()));
+            b.extend_from_slice(bytemuck::cast_slice(&t.entries));
+            b.extend_from_slice(bytemuck::cast_slice(&t.weights));
+        }
+        self.section(b"FARF", &b);
+    }
+
     pub(super) fn data(&mut self, data: &[u8]) {
         self.section(b"DATA", data);
     }
@@ -368,6 +387,36 @@ impl<'a> Reader<'a> {
                 .map(|b| [v3(b, 0), v3(b, 12), v3(b, 24)])
                 .collect(),
         })
+    }
+
+    /// `FARF` (what its indices point at is checked with the other invariants).
+    pub(super) fn far(&mut self) -> Result<Far, SectionError> {
+        let b = self.next(b"FARF")?;
+        if b.len() < 12 {
+            return Err(Corrupt(format!("far-field section of {} bytes", b.len())));
+        }
+        let (texels, words) = (u32_at(b, 0) as u64, u32_at(b, 4) as u64);
+        if b.len() as u64 != 12 + words * 4 + texels * FAR_TEXEL_BYTES as u64 {
+            return Err(Corrupt(format!(
+                "{texels} far-field texels and {words} visibility words declared, {} bytes",
+                b.len()
+            )));
+        }
+        let reach = f32_at(b, 8);
+        let (v, t) = b[12..].split_at(words as usize * 4);
+        let visible = v.chunks_exact(4).map(|c| u32_at(c, 0)).collect();
+        let at = |c: &[u8], i: usize| [u32_at(c, i), u32_at(c, i + 4), u32_at(c, i + 8), u32_at(c, i + 12)];
+        let texels = t
+            .chunks_exact(FAR_TEXEL_BYTES)
+            .map(|c| FarTexel {
+                texel: u32_at(c, 0),
+                position: v3(c, 4),
+                normal: v3(c, 16),
+                entries: at(c, 28),
+                weights: at(c, 44).map(f32::from_bits),
+            })
+            .collect();
+        Ok(Far { reach, visible, texels })
     }
 
     /// `ECHO` for `points` near points (what the links point at is checked with the others).

@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 use prm::luminance;
-use prm::prm_file::{Prm, TileLayout};
+use prm::prm_file::{far_share, Prm, TileLayout};
 
 use super::concentrate::LinkLight;
 
@@ -298,6 +298,78 @@ pub fn compose_selected(
     img
 }
 
+/// Most entries the far field sends in one frame ([`far_sources`]).
+pub const FAR_SOURCES: usize = 1024;
+
+/// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending, with their
+/// deviation flux `phi_j = albedo_j (A/N) (E_j - t_j (w_c + lin_j))` (W): those whose
+/// luminance |phi_j| is at least 1/[`FAR_SOURCES`] of the sum over all entries, so there are never
+/// more than that and each one left out carries under 0.1 % of the deviation. Empty without a
+/// far field.
+pub fn far_sources(
+    prm: &Prm,
+    tables: &NearTables,
+    entry_irradiance: &[Vec3],
+    weights: &[Vec3],
+    lin: &[Vec3],
+) -> Vec<(u32, Vec3)> {
+    if prm.far().texels.is_empty() {
+        return Vec::new();
+    }
+    let phi: Vec<Vec3> = prm
+        .entries()
+        .iter()
+        .enumerate()
+        .map(|(j, e)| {
+            let fit = weights[tables.cluster[j] as usize] + lin.get(j).copied().unwrap_or(Vec3::ZERO);
+            e.albedo * e.area * (entry_irradiance[j] - fit * tables.area_ratio[j])
+        })
+        .collect();
+    let total: f32 = phi.iter().map(|p| luminance(p.abs())).sum();
+    let threshold = total / FAR_SOURCES as f32;
+    phi.iter()
+        .enumerate()
+        .filter(|(_, p)| {
+            let l = luminance(p.abs());
+            l > 0.0 && l >= threshold
+        })
+        .take(FAR_SOURCES)
+        .map(|(j, p)| (j as u32, *p))
+        .collect()
+}
+
+/// The far field at each of the map's far texels (in their order): `sum over sources j of
+/// phi_j share V cos_x cos_j / (pi r² max(r², s_j²))`, r from the texel's point to the centroid
+/// of the entry's cell (its light's centre, where the entry point is only a sample of it),
+/// share = `far_share(|x - centroid_j|, reach, s_j)` (s_j: the cell's size), V the texel's
+/// neighbours' visibility of j weighted as stored. The `max` only matters with no near links
+/// (reach 0), where it bounds the spike a source next to the texel would make.
+pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec<Vec3> {
+    let (far, entries, n) = (prm.far(), prm.entries(), prm.entries().len());
+    far.texels
+        .iter()
+        .map(|t| {
+            let mut sum = Vec3::ZERO;
+            for &(j, phi) in sources {
+                let (j, e) = (j as usize, &entries[j as usize]);
+                let (size, centroid) = (tables.size[j], tables.centroid[j]);
+                let share = far_share(centroid.distance(t.position), far.reach, size);
+                let d = centroid - t.position;
+                let r2 = d.length_squared();
+                let (cx, cy) = (t.normal.dot(d), -e.normal.dot(d));
+                if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
+                    continue;
+                }
+                let v: f32 = (0..4)
+                    .map(|k| if far.sees(n, t.entries[k] as usize, j) { t.weights[k] } else { 0.0 })
+                    .sum();
+                sum += phi * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(size * size)));
+            }
+            sum
+        })
+        .collect()
+}
+
 /// The indirect lightmap for per-cluster weights (W/m² of entry irradiance) and dipole weights
 /// (`moments`, empty for none): every pane times its weight, no selection.
 pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> {
@@ -317,8 +389,9 @@ pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> 
 
 /// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`): each texel with
 /// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
-/// the entries' irradiance and the cluster weights; then every texel is clamped at zero (the
-/// near field and the dipole panes are signed), as on the GPU.
+/// the entries' irradiance and the cluster weights, its echo, and the far field
+/// ([`far_sources`], [`far_field`]); then every texel is clamped at zero (the near and far
+/// fields and the dipole panes are signed), as on the GPU.
 pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
     let tables = NearTables::new(prm);
     let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
@@ -367,6 +440,10 @@ pub fn add_near_field_with(
     for (links, sum) in runs.iter().zip(near) {
         let texel = links[0].texel as usize;
         img[texel] += sum;
+    }
+    let sources = far_sources(prm, tables, entry_irradiance, weights, lin);
+    for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources)) {
+        img[t.texel as usize] += v;
     }
     // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
     for v in img.iter_mut() {

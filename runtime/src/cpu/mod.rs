@@ -22,8 +22,8 @@ mod twin;
 
 pub use compose::{
     add_dipole, add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with,
-    compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain, residual_weights,
-    select_top_k, NearTables, ECHO_BOUNCES,
+    compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain, far_field,
+    far_sources, residual_weights, select_top_k, NearTables, ECHO_BOUNCES, FAR_SOURCES,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

@@ -1,0 +1,144 @@
+//! The far field on the GPU (`shaders/far.wgsl`; `prm_precompute::far` says what it is, and
+//! `crate::cpu::far_sources` / `crate::cpu::far_field` are its twin). Two dispatches after the
+//! near field and its echo:
+//!
+//! 1. `sources_main`, one workgroup: each entry's deviation flux `albedo_j (A/N) deviation_j`
+//!    (the near pass's `deviation`, `E_j - (w_c + lin_j) t_j`), the sum of their luminances, and
+//!    the entries holding at least 1/`FAR_SOURCES` of it, ascending, listed by a prefix sum over
+//!    the workgroup (the same list at any speed, and the CPU twin's).
+//! 2. `far_main`, one invocation per far texel: the sources' light at the texel, added to the
+//!    texel's `near_sum` slot (written there when the texel has no near links of its own), which
+//!    the compose adds to the panes.
+
+use prm::prm_file::Prm;
+
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::cpu::{NearTables, FAR_SOURCES};
+use crate::gpu;
+use crate::layout::{FarEntry, GpuFarTexel, GpuStruct, IndirectParams};
+
+/// Invocations of the one workgroup that lists the sources (`@workgroup_size(WG_FAR_SOURCES)`).
+pub const WG_SOURCES: u32 = 256;
+
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    // Per entry, this update's `E_j - (w_c + lin_j) t_j` (the near pass's `deviation_main`).
+    b("deviation", Res::Read("array<vec4f>"), COMPUTE),
+    b("far_entries", Res::Read("array<FarEntry>"), COMPUTE),
+    // One bit per pair of entries (prm::prm_file::Far::pair_bit).
+    b("far_visible", Res::Read("array<u32>"), COMPUTE),
+    b("far_texels", Res::Read("array<GpuFarTexel>"), COMPUTE),
+    // The sources' entries, then (at FAR_SOURCES) their number.
+    b("source_index", Res::ReadWrite("array<u32>"), COMPUTE),
+    // The sources' flux (W, RGB).
+    b("source_flux", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // The near field's per-texel sums (crate::near), where the compose reads both fields.
+    b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "far",
+    body: include_str!("../../shaders/far.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[
+        Compute { entry: "sources_main", workgroup: [WG_SOURCES, 1, 1] },
+        Compute { entry: "far_main", workgroup: LINEAR },
+    ],
+};
+
+/// The far field's pipelines and tables; none when the map has no far field.
+pub struct FarPass {
+    sources: wgpu::ComputePipeline,
+    texels: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+    /// Texels the far field lights.
+    pub count: u32,
+    /// `prm::prm_file::Far::reach`.
+    pub reach: f32,
+}
+
+impl FarPass {
+    /// `slot_of(texel)`: the texel's place in `sums` (`crate::near::NearData::index`).
+    pub fn new(
+        device: &wgpu::Device,
+        prm: &Prm,
+        tables: &NearTables,
+        params: &wgpu::Buffer,
+        deviation: &wgpu::Buffer,
+        sums: &wgpu::Buffer,
+        slot_of: &[u32],
+    ) -> Option<FarPass> {
+        let far = prm.far();
+        if far.texels.is_empty() {
+            return None;
+        }
+        let entries: Vec<FarEntry> = prm
+            .entries()
+            .iter()
+            .enumerate()
+            .map(|(j, e)| FarEntry {
+                size: tables.size[j],
+                normal: e.normal.to_array(),
+                centroid: tables.centroid[j].to_array(),
+                flux: (e.albedo * e.area).to_array(),
+                ..Default::default()
+            })
+            .collect();
+        let texels: Vec<GpuFarTexel> = far
+            .texels
+            .iter()
+            .map(|t| GpuFarTexel {
+                position: t.position.to_array(),
+                slot: slot_of[t.texel as usize],
+                normal: t.normal.to_array(),
+                entries: t.entries,
+                weights: t.weights,
+                ..Default::default()
+            })
+            .collect();
+        let none = wgpu::BufferUsages::empty();
+        let entries = gpu::storage_buffer(device, "far entries", bytemuck::cast_slice(&entries), none);
+        let visible = gpu::storage_buffer(device, "far visibility", bytemuck::cast_slice(&far.visible), none);
+        let texel_buf = gpu::storage_buffer(device, "far texels", bytemuck::cast_slice(&texels), none);
+        let index = gpu::storage_buffer(device, "far sources", &vec![0u8; (FAR_SOURCES + 1) * 4], none);
+        let flux = gpu::storage_buffer(device, "far source flux", &vec![0u8; FAR_SOURCES * 16], none);
+        let layout = SHADER.layout(device, 0);
+        let group = bind(
+            device,
+            "far field",
+            &layout,
+            BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("deviation", deviation.as_entire_binding()),
+                ("far_entries", entries.as_entire_binding()),
+                ("far_visible", visible.as_entire_binding()),
+                ("far_texels", texel_buf.as_entire_binding()),
+                ("source_index", index.as_entire_binding()),
+                ("source_flux", flux.as_entire_binding()),
+                ("near_sum", sums.as_entire_binding()),
+            ],
+        );
+        let source = SHADER.source();
+        let sources = gpu::compute_pipeline(device, "far.wgsl", &source, "sources_main", &[&layout]);
+        let texels_pipeline = gpu::compute_pipeline(device, "far.wgsl", &source, "far_main", &[&layout]);
+        Some(FarPass {
+            sources,
+            texels: texels_pipeline,
+            group,
+            count: texels.len() as u32,
+            reach: far.reach,
+        })
+    }
+
+    /// Records the two dispatches into an open compute pass (after the near field's).
+    pub fn encode(&self, pass: &mut wgpu::ComputePass) {
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(&self.sources);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(&self.texels);
+        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+    }
+}

@@ -1,0 +1,133 @@
+// Far field (runtime/src/far.rs; prm_precompute::far; twin: prm_runtime::cpu::far_sources and
+// far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sum of
+// their luminances, and the entries whose |phi| luminance is at least sum / FAR_SOURCES,
+// ascending, into source_index / source_flux (their number at source_index[FAR_SOURCES]).
+// far_main, one invocation per far texel: sum over the sources of
+// phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the texel's near_sum slot (written
+// when the slot is past the near field's own texels). Structs, bindings, WG_LINEAR,
+// WG_FAR_SOURCES, FAR_SOURCES, luminance: the generated prelude.
+
+const PI: f32 = 3.14159265358979;
+
+var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
+var<workgroup> scan: array<u32, WG_FAR_SOURCES>;
+var<workgroup> listed: u32;
+
+fn flux_of(j: u32) -> vec3f {
+    return far_entries[j].flux * deviation[j].xyz;
+}
+
+@compute @workgroup_size(WG_FAR_SOURCES)
+fn sources_main(@builtin(local_invocation_index) lid: u32) {
+    let n = params.entry_count;
+    var s = 0.0;
+    for (var j = lid; j < n; j += WG_FAR_SOURCES) {
+        s += luminance(abs(flux_of(j)));
+    }
+    partial[lid] = s;
+    if lid == 0u {
+        listed = 0u;
+    }
+    workgroupBarrier();
+    for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
+        if lid < stride {
+            partial[lid] += partial[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    let threshold = partial[0] / f32(FAR_SOURCES);
+    for (var start = 0u; start < n; start += WG_FAR_SOURCES) {
+        let j = start + lid;
+        var keep = 0u;
+        var phi = vec3f(0.0);
+        if j < n {
+            phi = flux_of(j);
+            let l = luminance(abs(phi));
+            if l > 0.0 && l >= threshold {
+                keep = 1u;
+            }
+        }
+        scan[lid] = keep;
+        workgroupBarrier();
+        // Inclusive prefix sum (Hillis-Steele).
+        for (var off = 1u; off < WG_FAR_SOURCES; off *= 2u) {
+            var v = scan[lid];
+            if lid >= off {
+                v += scan[lid - off];
+            }
+            workgroupBarrier();
+            scan[lid] = v;
+            workgroupBarrier();
+        }
+        let at = listed + scan[lid] - keep;
+        if keep == 1u && at < FAR_SOURCES {
+            source_index[at] = j;
+            source_flux[at] = vec4f(phi, 0.0);
+        }
+        workgroupBarrier();
+        if lid == 0u {
+            listed += scan[WG_FAR_SOURCES - 1u];
+        }
+        workgroupBarrier();
+    }
+    if lid == 0u {
+        source_index[FAR_SOURCES] = min(listed, FAR_SOURCES);
+    }
+}
+
+// prm::prm_file::far_share.
+fn far_share(d: f32, reach: f32, size: f32) -> f32 {
+    let t = clamp((d - reach) / max(size, 1e-6), 0.0, 1.0);
+    return t * t * (3.0 - 2.0 * t);
+}
+
+// prm::prm_file::Far::sees: bit a (2n - a - 1) / 2 + b - a - 1 for a < b, kept within u32.
+fn sees(i: u32, j: u32) -> f32 {
+    if i == j {
+        return 1.0;
+    }
+    let a = min(i, j);
+    let b = max(i, j);
+    let m = 2u * params.entry_count - a - 1u;
+    var row = 0u;
+    if (a & 1u) == 0u {
+        row = (a / 2u) * m;
+    } else {
+        row = a * (m / 2u);
+    }
+    let k = row + b - a - 1u;
+    return f32((far_visible[k / 32u] >> (k % 32u)) & 1u);
+}
+
+@compute @workgroup_size(WG_LINEAR)
+fn far_main(@builtin(global_invocation_id) id: vec3u) {
+    let k = id.x;
+    if k >= params.far_texel_count {
+        return;
+    }
+    let t = far_texels[k];
+    let count = source_index[FAR_SOURCES];
+    var sum = vec3f(0.0);
+    for (var s = 0u; s < count; s++) {
+        let j = source_index[s];
+        let e = far_entries[j];
+        let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
+        let d = e.centroid - t.position;
+        let r2 = dot(d, d);
+        let cx = dot(t.normal, d);
+        let cy = -dot(e.normal, d);
+        if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
+            continue;
+        }
+        var v = 0.0;
+        for (var q = 0u; q < 4u; q++) {
+            v += t.weights[q] * sees(t.entries[q], j);
+        }
+        sum += source_flux[s].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+    }
+    if t.slot < params.near_texel_count {
+        near_sum[t.slot] += vec4f(sum, 0.0);
+    } else {
+        near_sum[t.slot] = vec4f(sum, 0.0);
+    }
+}
