@@ -1,4 +1,4 @@
-//! The `.prm` file, format v3 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v7 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
