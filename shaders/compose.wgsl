@@ -10,7 +10,8 @@
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
 // active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
 // entry and one byte each, plus the near field's sum where the texel has one, then clamped at
-// 0 (runtime/src/near.rs). Texels outside the stored mask are written 0.
+// 0 (runtime/src/near.rs; the far field's light is in the same sums, runtime/src/far.rs).
+// Texels with neither a stored tile nor a sum are written 0.
 //
 // A record whose data offset has DIPOLE_RECORD set is a dipole tile (prm::prm_file::Dipoles):
 // one signed code (i8 / 127) per dipole_block x dipole_block block of the tile, dipole_side a

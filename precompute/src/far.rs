@@ -27,7 +27,7 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
-use prm::prm_file::{Far, FarTexel};
+use prm::prm_file::{Entry, Far, FarTexel};
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
 
@@ -40,7 +40,7 @@ const MIN_NORMAL_DOT: f32 = 0.5;
 /// The far field for these entries: visibility bits between every pair that could exchange
 /// light and each covered texel's neighbours. `reach` is in scene units. Entries beyond
 /// [`Far::MAX_ENTRIES`] get no far field (empty).
-pub fn far_field(bvh: &Bvh, set: &TexelSet, entries: &[prm::prm_file::Entry], reach: f32) -> Far {
+pub fn far_field(bvh: &Bvh, set: &TexelSet, entries: &[Entry], reach: f32) -> Far {
     let n = entries.len();
     if n == 0 || n > Far::MAX_ENTRIES || !(reach >= 0.0) {
         return Far::default();
@@ -51,7 +51,7 @@ pub fn far_field(bvh: &Bvh, set: &TexelSet, entries: &[prm::prm_file::Entry], re
 /// One bit per pair i < j ([`Far::pair_bit`]): set when the two points see each other and at
 /// least one faces the other with the other not turned more than 60 degrees away (a texel near
 /// either may face the other even where its entry only grazes it).
-fn pair_visibility(bvh: &Bvh, entries: &[prm::prm_file::Entry]) -> Vec<u32> {
+fn pair_visibility(bvh: &Bvh, entries: &[Entry]) -> Vec<u32> {
     let n = entries.len();
     // Each row's bits on their own, then laid end to end: the same words at any thread count.
     let rows: Vec<Vec<u64>> = (0..n)
@@ -90,7 +90,7 @@ fn pair_visibility(bvh: &Bvh, entries: &[prm::prm_file::Entry]) -> Vec<u32> {
 /// from borrowing across a thin wall or a corner; a shadow ray to each neighbour would also
 /// refuse the next facet of a convex pillar (the chord runs inside it), and measured 1-2 points
 /// worse on the chamber's torches.
-fn texel_neighbours(set: &TexelSet, entries: &[prm::prm_file::Entry]) -> Vec<FarTexel> {
+fn texel_neighbours(set: &TexelSet, entries: &[Entry]) -> Vec<FarTexel> {
     let spacing = entries[0].area.max(0.0).sqrt();
     let cell = (2.0 * spacing).max(1e-6);
     let key = |p: Vec3| (p / cell).floor().as_ivec3();
@@ -155,7 +155,6 @@ fn texel_neighbours(set: &TexelSet, entries: &[prm::prm_file::Entry]) -> Vec<Far
 #[cfg(test)]
 mod tests {
     use super::*;
-    use prm::prm_file::Entry;
     use prm::Scene;
 
     fn entry(p: Vec3, n: Vec3) -> Entry {

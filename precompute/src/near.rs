@@ -20,7 +20,7 @@
 
 use glam::Vec3;
 use prm::prm_file::{
-    far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, NearLink, NearPoint,
+    far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, Far, NearLink, NearPoint,
 };
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
@@ -33,16 +33,17 @@ pub const MIN_FACTOR: f32 = 1e-4;
 /// The links of every covered texel of `set` to the entries whose cell centroid lies within
 /// `radius` entry spacings (sqrt(A / N)) plus the cell's own size, sorted by texel (atlas
 /// row-major index) then entry; and the sample point of each texel with links, rounded as the
-/// file stores it. With a far field (`far`: true) each link keeps `1 - far_share` of its factor
-/// (`prm::prm_file::far_share`, from `radius` entry spacings to that plus the cell's size): the
-/// far field has the rest (`crate::far`).
+/// file stores it. Where the far field (`crate::far`) lights the texel, each link keeps `1 -
+/// far_share` of its factor (`prm::prm_file::far_share`, from the far field's reach to that
+/// plus the cell's size) and the far field has the rest; elsewhere (no far field, or a texel it
+/// leaves out) the link keeps it all.
 pub fn near_links(
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
     cells: &Cells,
     radius: f32,
-    far: bool,
+    far: &Far,
 ) -> (Vec<NearLink>, Vec<NearPoint>) {
     let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
@@ -55,6 +56,7 @@ pub fn near_links(
         .par_iter()
         .map(|t| {
             let texel = (t.j as usize * width + t.i as usize) as u32;
+            let fades = far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok();
             let mut out = Vec::new();
             for (j, e) in entries.iter().enumerate() {
                 let (centroid, area) = cell[j];
@@ -63,8 +65,8 @@ pub fn near_links(
                 }
                 let mut f: f32 =
                     cells.of(j).iter().map(|tri| point_to_polygon(t.position, t.normal, tri)).sum();
-                if far {
-                    f *= 1.0 - far_share(centroid.distance(t.position), reach, area.sqrt());
+                if fades {
+                    f *= 1.0 - far_share(centroid.distance(t.position), far.reach, area.sqrt());
                 }
                 // Rounded as the file stores it (a half float), so a bake and its file agree.
                 let factor = half::f16::from_f32(e.area / area * f).to_f32();

@@ -282,18 +282,6 @@ pub fn precompute(
     report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
-    let (near, near_points) = timed(&mut report.seconds_near, || {
-        if params.near_radius > 0.0 {
-            near_links(bvh, &set, &entries, &cells, params.near_radius, params.far_field)
-        } else {
-            (Vec::new(), Vec::new())
-        }
-    });
-    report.near_links = near.len();
-    let echo = timed(&mut report.seconds_near, || {
-        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
-    });
-    report.echo_links = echo.links.len();
     let far = timed(&mut report.seconds_far, || {
         let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
         if params.far_field {
@@ -304,6 +292,18 @@ pub fn precompute(
     });
     report.far_texels = far.texels.len();
     report.far_pairs = far.visible.iter().map(|w| w.count_ones() as usize).sum();
+    let (near, near_points) = timed(&mut report.seconds_near, || {
+        if params.near_radius > 0.0 {
+            near_links(bvh, &set, &entries, &cells, params.near_radius, &far)
+        } else {
+            (Vec::new(), Vec::new())
+        }
+    });
+    report.near_links = near.len();
+    let echo = timed(&mut report.seconds_near, || {
+        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+    });
+    report.echo_links = echo.links.len();
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
     let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);

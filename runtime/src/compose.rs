@@ -9,7 +9,8 @@
 //! colour scale; then each texel sums just those: a 16-byte entry and a byte each. A
 //! compose reads `1 byte x stored texels` of each selected pane, never a whole atlas per
 //! cluster, and its work per texel is the number of selected panes stored there. Texels with
-//! near-field links add the near pass's sum (`crate::near`), and the total is clamped at zero.
+//! near-field links or far field add their sum (`crate::near`, `crate::far`), and the total is
+//! clamped at zero.
 //!
 //! The lightmap is `Rgba32Float` (irradiance in W/m² in RGB, A = 1), atlas-sized, row 0 at
 //! v = 0: DESIGN.md §3's layout.

@@ -51,9 +51,9 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("KIND_SPOT", KIND_SPOT),
     ("KIND_DIRECTIONAL", KIND_DIRECTIONAL),
     ("CONCENTRATION_SUB", crate::cpu::concentrate::SUB),
-    ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
-    ("WG_FAR_SOURCES", crate::far::WG_SOURCES),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
+    ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
+    ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
 ];
 
 /// The WGSL every shader starts with: shared constants, functions and structs.

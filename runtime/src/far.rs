@@ -5,7 +5,8 @@
 //! 1. `sources_main`, one workgroup: each entry's deviation flux `albedo_j (A/N) deviation_j`
 //!    (the near pass's `deviation`, `E_j - (w_c + lin_j) t_j`), the sum of their luminances, and
 //!    the entries holding at least 1/`FAR_SOURCES` of it, ascending, listed by a prefix sum over
-//!    the workgroup (the same list at any speed, and the CPU twin's).
+//!    the workgroup (the same list every time; the CPU twin's up to the rounding of the sum,
+//!    which it adds in another order, at the threshold).
 //! 2. `far_main`, one invocation per far texel: the sources' light at the texel, added to the
 //!    texel's `near_sum` slot (written there when the texel has no near links of its own), which
 //!    the compose adds to the panes.
@@ -19,7 +20,7 @@ use crate::gpu;
 use crate::layout::{FarEntry, GpuFarTexel, GpuStruct, IndirectParams};
 
 /// Invocations of the one workgroup that lists the sources (`@workgroup_size(WG_FAR_SOURCES)`).
-pub const WG_SOURCES: u32 = 256;
+pub const WG_FAR_SOURCES: u32 = 256;
 
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
@@ -43,7 +44,7 @@ pub const SHADER: Shader = Shader {
     lights: false,
     groups: &[BINDINGS],
     compute: &[
-        Compute { entry: "sources_main", workgroup: [WG_SOURCES, 1, 1] },
+        Compute { entry: "sources_main", workgroup: [WG_FAR_SOURCES, 1, 1] },
         Compute { entry: "far_main", workgroup: LINEAR },
     ],
 };

@@ -365,6 +365,12 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
             "near-field texels",
             prm.near_points().len() as u64 * std::mem::size_of::<crate::layout::NearTexel>() as u64,
         ),
+        ("far-field visibility", prm.far().visible.len() as u64 * 4),
+        (
+            "far-field texels",
+            prm.far().texels.len() as u64 * std::mem::size_of::<crate::layout::GpuFarTexel>() as u64,
+        ),
+        ("near- and far-field sums", (prm.near_points().len() + prm.far().texels.len()) as u64 * 16),
         (
             "hot-entry table",
             prm.entries().len() as u64 * std::mem::size_of::<crate::layout::GpuHotEntry>() as u64,

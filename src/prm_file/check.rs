@@ -302,14 +302,22 @@ fn dipoles(p: &PrmParts) -> Result<(), String> {
 }
 
 /// The far field: empty, or visibility words for every pair of entries, a finite reach and
-/// texels in atlas order with finite points, unit normals, entries in range and weights >= 0.
+/// texels in atlas order with finite points, unit normals, entries in range and weights >= 0
+/// summing to 1.
 fn far(p: &PrmParts) -> Result<(), String> {
     let (f, h, n) = (&p.far, &p.header, p.entries.len());
     if f.visible.is_empty() && f.texels.is_empty() {
         return Ok(());
     }
-    if n > Far::MAX_ENTRIES || f.visible.len() != Far::words(n) {
-        return Err(format!("{} far-field visibility words for {n} entries", f.visible.len()));
+    if n > Far::MAX_ENTRIES {
+        return Err(format!("a far field for {n} entries (at most {})", Far::MAX_ENTRIES));
+    }
+    if f.texels.is_empty() || f.visible.len() != Far::words(n) {
+        return Err(format!(
+            "{} far-field visibility words for {n} entries and {} texels",
+            f.visible.len(),
+            f.texels.len()
+        ));
     }
     if !(f.reach.is_finite() && f.reach >= 0.0) {
         return Err(format!("far-field reach {} is not finite and >= 0", f.reach));
@@ -321,7 +329,8 @@ fn far(p: &PrmParts) -> Result<(), String> {
             && t.position.is_finite()
             && (t.normal.length() - 1.0).abs() < 1e-3
             && t.entries.iter().all(|&e| (e as usize) < n)
-            && t.weights.iter().all(|w| w.is_finite() && *w >= 0.0);
+            && t.weights.iter().all(|w| w.is_finite() && *w >= 0.0)
+            && (t.weights.iter().sum::<f32>() - 1.0).abs() < 1e-3;
         if !ok {
             return Err(format!("far-field texel {k} is out of range, out of order or not finite"));
         }
