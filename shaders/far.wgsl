@@ -5,7 +5,7 @@
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the texel's near_sum slot (written
 // when the slot is past the near field's own texels). Structs, bindings, WG_LINEAR,
-// WG_FAR_SOURCES, FAR_SOURCES, luminance: the generated prelude.
+// WG_FAR_SOURCES, FAR_SOURCES, luminance, far_share: the generated prelude.
 
 const PI: f32 = 3.14159265358979;
 
@@ -73,12 +73,6 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     if lid == 0u {
         source_index[FAR_SOURCES] = min(listed, FAR_SOURCES);
     }
-}
-
-// prm::prm_file::far_share.
-fn far_share(d: f32, reach: f32, size: f32) -> f32 {
-    let t = clamp((d - reach) / max(size, 1e-6), 0.0, 1.0);
-    return t * t * (3.0 - 2.0 * t);
 }
 
 // prm::prm_file::Far::sees: bit a (2n - a - 1) / 2 + b - a - 1 for a < b, kept within u32.

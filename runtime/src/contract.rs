@@ -93,6 +93,8 @@ pub fn prelude() -> &'static str {
         s += prm::light::RANGE_WINDOW_WGSL;
         s += "\n// glTF spot falloff (prm::light::spot_falloff_cos).\n";
         s += prm::light::SPOT_FALLOFF_WGSL;
+        s += "\n// The far field's share of a cell's light (prm::prm_file::far_share).\n";
+        s += prm::prm_file::FAR_SHARE_WGSL;
         for (_, wgsl, _, _) in gpu_structs() {
             s += "\n";
             s += &wgsl;

@@ -395,6 +395,14 @@ pub fn far_share(d: f32, reach: f32, size: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// [`far_share`] in WGSL, for the runtime's shader prelude: the same operations in the same
+/// order; a GPU test holds the two together.
+pub const FAR_SHARE_WGSL: &str = "fn far_share(d: f32, reach: f32, size: f32) -> f32 {
+    let t = clamp((d - reach) / max(size, 1e-6), 0.0, 1.0);
+    return t * t * (3.0 - 2.0 * t);
+}
+";
+
 /// A cluster of entry points sharing one pane and one runtime weight.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Cluster {

@@ -512,8 +512,9 @@ fn ranged_point_and_spot_lights_follow_the_gltf_window() {
     }
 }
 
-/// The prelude's WGSL `range_window` and `luminance` (generated next to their Rust twins)
-/// against `prm::light::range_window` and `prm::luminance`, inputs on and around the window's
+/// The prelude's WGSL `range_window`, `luminance`, `spot_falloff`, `intensity` and `far_share`
+/// (generated next to their Rust twins) against `prm::light::range_window`, `prm::luminance`,
+/// the others' Rust twins, inputs on and around the window's
 /// edges. Tolerance 2e-6 relative: Vulkan allows 2.5 ulp for f32 division and may fuse the
 /// dot product's multiply-adds, so the GPU need not round exactly as the CPU does.
 #[test]
@@ -524,6 +525,7 @@ fn the_prelude_functions_equal_their_rust_twins() {
         b("input", Res::Read("array<vec4f>"), COMPUTE),
         b("output", Res::ReadWrite("array<vec4f>"), COMPUTE),
         b("codes", Res::ReadWrite("array<f32>"), COMPUTE),
+        b("shares", Res::ReadWrite("array<f32>"), COMPUTE),
     ];
     let body = "@compute @workgroup_size(WG_LINEAR)
 fn main(@builtin(global_invocation_id) id: vec3u) {
@@ -532,6 +534,7 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
     output[id.x] = vec4f(range_window(v.x, v.y), luminance(v.xyz), spot_falloff(c, SPOT_IN, SPOT_OUT),
         spot_falloff(c, SPOT_OUT, SPOT_OUT));
     codes[id.x] = intensity(u32(v.w));
+    shares[id.x] = far_share(v.x, 1.0, v.z * 0.5);
 }";
     // A smooth cone (inner 0.3, outer 0.6 rad) and a hard one, as the GPU light carries them.
     let (ci, co) = (0.3f32.cos(), 0.6f32.cos());
@@ -562,6 +565,8 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
         crate::gpu::storage_buffer(&g.device, "out", &vec![0u8; n * 16], wgpu::BufferUsages::COPY_SRC);
     let codes_buf =
         crate::gpu::storage_buffer(&g.device, "codes", &vec![0u8; n * 4], wgpu::BufferUsages::COPY_SRC);
+    let shares_buf =
+        crate::gpu::storage_buffer(&g.device, "shares", &vec![0u8; n * 4], wgpu::BufferUsages::COPY_SRC);
     let bgl = layout(&g.device, "twins", &table);
     let group = bind(
         &g.device,
@@ -572,6 +577,7 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
             ("output", out_buf.as_entire_binding()),
             ("input", in_buf.as_entire_binding()),
             ("codes", codes_buf.as_entire_binding()),
+            ("shares", shares_buf.as_entire_binding()),
         ],
     );
     let pipeline = crate::gpu::compute_pipeline(&g.device, "twins", &src, "main", &[&bgl]);
@@ -608,6 +614,16 @@ fn main(@builtin(global_invocation_id) id: vec3u) {
         let cpu = prm::prm_file::intensity(v[3] as u8);
         assert!((gpu - cpu).abs() <= 1e-5 * cpu, "intensity({}): GPU {gpu}, CPU {cpu}", v[3]);
     }
+    // The far field's share: reach 1, sizes 0 to 2.5 (0 meets its 1e-6 floor), distances 0 to 3.
+    let bytes = crate::gpu::read_buffer(&g.device, &g.queue, &shares_buf).unwrap();
+    let shares: &[f32] = bytemuck::cast_slice(&bytes[..n * 4]);
+    let mut ramp = 0;
+    for (v, &gpu) in input.iter().zip(shares) {
+        let cpu = prm::prm_file::far_share(v[0], 1.0, v[2] * 0.5);
+        assert!((gpu - cpu).abs() <= 2e-6, "far_share({}, 1, {}): GPU {gpu}, CPU {cpu}", v[0], v[2] * 0.5);
+        ramp += (0.05..0.95).contains(&cpu) as usize;
+    }
+    assert!(ramp >= 10, "only {ramp} inputs on the far share's ramp");
     // The inputs cover the smooth cone's ramp, not just its flat ends.
     let ramp = input.iter().filter(|v| (co..ci).contains(&(v[2] / 2.5 - 1.0))).count();
     assert!(ramp >= 10, "only {ramp} inputs on the spot ramp");
