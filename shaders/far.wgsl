@@ -101,6 +101,15 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let t = far_texels[k];
     let count = source_index[FAR_SOURCES];
+    // The neighbours' cells, for which of them face a source (their bits say nothing of one
+    // their own surface hides: prm_runtime::cpu's far-field vote).
+    var at: array<vec3f, 4>;
+    var facing: array<vec3f, 4>;
+    for (var q = 0u; q < 4u; q++) {
+        let m = far_entries[t.entries[q]];
+        at[q] = m.centroid;
+        facing[q] = m.normal;
+    }
     var sum = vec3f(0.0);
     for (var s = 0u; s < count; s++) {
         let j = source_index[s];
@@ -113,9 +122,20 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
         if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
             continue;
         }
-        var v = 0.0;
+        var seen = 0.0;
+        var total = 0.0;
+        var every = 0.0;
         for (var q = 0u; q < 4u; q++) {
-            v += t.weights[q] * sees(t.entries[q], j);
+            let vote = t.weights[q] * sees(t.entries[q], j);
+            every += vote;
+            if dot(facing[q], e.centroid - at[q]) > 0.0 {
+                seen += vote;
+                total += t.weights[q];
+            }
+        }
+        var v = every;
+        if total > 0.0 {
+            v = seen / total;
         }
         sum += source_flux[s].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
     }
