@@ -4,13 +4,28 @@
 //! cells must tile the lit surfaces: then the weights carry all the power that reaches them,
 //! however close a light comes (a point sample misses a hot spot smaller than the entry
 //! spacing). A cell is the entry's Voronoi region among the entries of its own triangle,
-//! clipped to the triangle and cut into a fan of triangles around the entry. A triangle too
-//! small to get an entry joins the cell of the nearest entry facing the same way (normals
-//! within ~45°, at most a few entry spacings away); what no entry takes is reported.
-//! Entries inside solids are sampled, given their cells, and then dropped with them: that
-//! surface is never lit.
+//! clipped to the triangle and cut into a fan of triangles around the entry.
+//!
+//! A triangle too small to get an entry joins the cell of an entry on the same surface: the
+//! nearest one reached across shared edges (welded positions) between triangles facing that
+//! entry's way (normals within ~45°), at most a few entry spacings along the way. Nearness in
+//! space alone is not enough: the gather once credited a walk's hit to the nearest entry
+//! facing the same way (the first of four it could see, else the nearest), and on the top of
+//! a plinth 30 cm high that was the floor beside it, so a lamp lighting the floor lit the
+//! plinth top in the panes (the chamber's pillar bases 2-3x too bright). Where no edge path
+//! leads (an unwelded mesh, a detail of its own), the nearest entry facing the same way whose
+//! nearly parallel plane lies within half a spacing is taken; what no entry takes is reported.
+//! Entries inside solids are dropped before the cells are cut: the kept entries of a triangle
+//! share all of it, and a triangle whose entries were all dropped joins a neighbour's cell as
+//! one without entries does (a plinth top whose entries stood under its pillar).
+//!
+//! [`CellOwners`] answers which cell holds a given point of a triangle, by the same rules, so
+//! the gather credits a walk's hit to exactly the cell whose power weights it.
 
-use glam::{DVec2, Vec3};
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap};
+
+use glam::{DVec2, IVec3, Vec3};
 use prm::prm_file::{Cells, Entry};
 use prm::Scene;
 use rayon::prelude::*;
@@ -22,16 +37,171 @@ pub struct CellReport {
     pub area_without_entry: f64,
 }
 
+/// Which kept entry's cell holds each point of each triangle ([`entry_cells`]'s rules).
+#[derive(Clone, Debug, Default)]
+pub struct CellOwners {
+    /// Per triangle, `first[t]..first[t + 1]` into `sites`.
+    first: Vec<u32>,
+    /// The kept entries on each triangle in sampled order: position and kept index.
+    sites: Vec<(Vec3, u32)>,
+    /// Per triangle without a kept entry: the kept entry whose cell it joined, or [`NONE`].
+    joined: Vec<u32>,
+    /// Per triangle, its site grid in `grids` ([`NONE`]: up to [`FEW_SITES`] sites, tried in
+    /// turn). A floor of two triangles holds hundreds of sites, and the gather asks for the
+    /// owner of every walk vertex.
+    grid_of: Vec<u32>,
+    grids: Vec<SiteGrid>,
+}
+
+/// A triangle's sites on a grid in its own plane, cells one entry spacing wide.
+#[derive(Clone, Debug)]
+struct SiteGrid {
+    origin: Vec3,
+    /// Unit in-plane axes.
+    axes: [Vec3; 2],
+    cell: f32,
+    size: [i32; 2],
+    /// Per cell (row-major), `first[c]..first[c + 1]` into `items`: site indices.
+    first: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl SiteGrid {
+    fn new(corners: [Vec3; 3], sites: &[(Vec3, u32)], offset: usize, cell: f32) -> SiteGrid {
+        let u = (corners[1] - corners[0]).normalize_or_zero();
+        let n = (corners[1] - corners[0]).cross(corners[2] - corners[0]);
+        let v = n.cross(u).normalize_or_zero();
+        let (mut lo, mut hi) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
+        for c in corners {
+            let q = glam::Vec2::new(u.dot(c - corners[0]), v.dot(c - corners[0]));
+            (lo, hi) = (lo.min(q), hi.max(q));
+        }
+        let origin = corners[0] + u * lo.x + v * lo.y;
+        let size = [((hi.x - lo.x) / cell).floor() as i32 + 1, ((hi.y - lo.y) / cell).floor() as i32 + 1];
+        let mut grid = SiteGrid { origin, axes: [u, v], cell, size, first: Vec::new(), items: Vec::new() };
+        let cells = (size[0] * size[1]) as usize;
+        let mut lists = vec![Vec::new(); cells];
+        for (i, &(q, _)) in sites.iter().enumerate() {
+            let [x, y] = grid.coords(q);
+            lists[(y * size[0] + x) as usize].push((offset + i) as u32);
+        }
+        grid.first.push(0);
+        for l in lists {
+            grid.items.extend(l);
+            grid.first.push(grid.items.len() as u32);
+        }
+        grid
+    }
+
+    /// The cell holding `p` (clamped into the grid).
+    fn coords(&self, p: Vec3) -> [i32; 2] {
+        let d = p - self.origin;
+        let c = |k: usize| ((self.axes[k].dot(d) / self.cell).floor() as i32).clamp(0, self.size[k] - 1);
+        [c(0), c(1)]
+    }
+
+    fn cell(&self, x: i32, y: i32) -> &[u32] {
+        if x < 0 || y < 0 || x >= self.size[0] || y >= self.size[1] {
+            return &[];
+        }
+        let c = (y * self.size[0] + x) as usize;
+        &self.items[self.first[c] as usize..self.first[c + 1] as usize]
+    }
+}
+
+/// Up to this many sites on a triangle, the owner is found by trying each.
+const FEW_SITES: usize = 8;
+/// Grid rings searched around a point before trying every site of its triangle.
+const MAX_RING: i32 = 6;
+
+/// No entry.
+const NONE: u32 = u32::MAX;
+
+impl CellOwners {
+    /// The kept entry whose cell holds point `p` of triangle `triangle`: the nearest kept
+    /// entry on the triangle (ties to the lower index, as the Voronoi fans), else the entry the
+    /// triangle joined.
+    pub fn owner(&self, triangle: usize, p: Vec3) -> Option<u32> {
+        let (a, b) = (*self.first.get(triangle)? as usize, self.first[triangle + 1] as usize);
+        let owner = if a == b {
+            self.joined.get(triangle).copied().unwrap_or(NONE)
+        } else {
+            match self.grid_of.get(triangle) {
+                Some(&g) if g != NONE => self.nearest_on_grid(p, &self.grids[g as usize], a..b),
+                _ => self.nearest(p, a..b),
+            }
+        };
+        (owner != NONE).then_some(owner)
+    }
+
+    /// The kept index of the site in `range` nearest `p` (ties to the first).
+    fn nearest(&self, p: Vec3, range: std::ops::Range<usize>) -> u32 {
+        let mut best = (f32::INFINITY, NONE);
+        for &(q, k) in &self.sites[range] {
+            let d2 = q.distance_squared(p);
+            if d2 < best.0 {
+                best = (d2, k);
+            }
+        }
+        best.1
+    }
+
+    /// [`CellOwners::nearest`] through the triangle's grid: rings of cells around `p` until no
+    /// further ring can hold a nearer site; every site past [`MAX_RING`].
+    fn nearest_on_grid(&self, p: Vec3, grid: &SiteGrid, range: std::ops::Range<usize>) -> u32 {
+        let [hx, hy] = grid.coords(p);
+        // (distance², site index): the lower index wins a tie, as in a plain scan.
+        let mut best = (f32::INFINITY, usize::MAX);
+        let visit = |best: &mut (f32, usize), x: i32, y: i32| {
+            for &i in grid.cell(x, y) {
+                let i = i as usize;
+                let d2 = self.sites[i].0.distance_squared(p);
+                if d2 < best.0 || (d2 == best.0 && i < best.1) {
+                    *best = (d2, i);
+                }
+            }
+        };
+        for ring in 0..=MAX_RING {
+            if ring == 0 {
+                visit(&mut best, hx, hy);
+            } else {
+                for d in -ring..=ring {
+                    visit(&mut best, hx + d, hy - ring);
+                    visit(&mut best, hx + d, hy + ring);
+                }
+                for d in 1 - ring..ring {
+                    visit(&mut best, hx - ring, hy + d);
+                    visit(&mut best, hx + ring, hy + d);
+                }
+            }
+            // Sites outside rings 0..=ring lie at least `ring` cells away in the plane.
+            let reach = ring as f32 * grid.cell;
+            if best.1 != usize::MAX && best.0 <= reach * reach {
+                return self.sites[best.1].1;
+            }
+        }
+        self.nearest(p, range)
+    }
+}
+
 /// Smallest cosine between a triangle without an entry and the entry whose cell it joins.
 const MIN_NORMAL_COS: f32 = 0.7;
-/// How far (in entry spacings, sqrt(A / N)) such a triangle's centroid may be from that entry.
-const MAX_SPACINGS: f32 = 3.0;
+/// How far (in entry spacings, sqrt(A / N)) such a triangle's centroid may be from that entry,
+/// along the surface.
+const MAX_SPACINGS: f32 = 6.0;
+/// Without an edge path: how far (in entry spacings) the entry may be, and how far off the
+/// triangle's plane.
+const MAX_SPACINGS_APART: f32 = 3.0;
+const MAX_PLANE_OFFSET: f32 = 0.5;
 
 /// The cells of `entries` (all sampled entries, in order); those with `keep[j]` false are
-/// dropped from the result. The result is in the kept entries' order.
-pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, CellReport) {
+/// dropped from the result. The result is in the kept entries' order, with the owners of the
+/// level's points in that order too.
+pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, CellOwners, CellReport) {
+    // Only kept entries share out their triangles: a triangle whose entries were all dropped
+    // (inside a solid) is as one without entries, and is joined to a neighbour's cell.
     let mut by_triangle: Vec<Vec<usize>> = vec![Vec::new(); scene.triangles.len()];
-    for (j, e) in entries.iter().enumerate() {
+    for (j, e) in entries.iter().enumerate().filter(|&(j, _)| keep[j]) {
         by_triangle[e.triangle as usize].push(j);
     }
     let mut lists: Vec<Vec<[Vec3; 3]>> = (0..entries.len())
@@ -39,33 +209,157 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
         .map(|j| {
             let e = &entries[j];
             let t = e.triangle as usize;
+            if !keep[j] {
+                return Vec::new();
+            }
             let others = by_triangle[t].iter().filter(|&&k| k != j).map(|&k| (k, entries[k].position));
             voronoi_fan(scene.corners(t), (j, e.position), others)
         })
         .collect();
-    let kept: Vec<usize> = (0..entries.len()).filter(|&j| keep[j]).collect();
+    let mut kept_index = vec![NONE; entries.len()];
+    let mut k = 0;
+    for (j, &keep) in keep.iter().enumerate() {
+        if keep {
+            kept_index[j] = k;
+            k += 1;
+        }
+    }
     let spacing = entries.first().map_or(0.0, |e| e.area.sqrt());
+    let mut joined = join_along_surfaces(scene, entries, &by_triangle, spacing);
     let mut report = CellReport::default();
     for (t, members) in by_triangle.iter().enumerate() {
         if !members.is_empty() || scene.area(t) <= 0.0 {
             continue;
         }
         let corners = scene.corners(t);
-        let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
-        let n = scene.face_normal(t);
-        let nearest = kept
-            .iter()
-            .filter(|&&j| entries[j].normal.dot(n) >= MIN_NORMAL_COS)
-            .map(|&j| (j, entries[j].position.distance_squared(centroid)))
-            .filter(|&(_, d2)| d2 <= (MAX_SPACINGS * spacing).powi(2))
-            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        match nearest {
-            Some((j, _)) => lists[j].push(corners),
-            None => report.area_without_entry += scene.area(t) as f64,
+        if joined[t] == NONE {
+            joined[t] = nearest_in_plane(entries, keep, corners, spacing);
+        }
+        match joined[t] {
+            NONE => report.area_without_entry += scene.area(t) as f64,
+            j => lists[j as usize].push(corners),
+        }
+    }
+    let mut first = Vec::with_capacity(by_triangle.len() + 1);
+    let mut sites = Vec::with_capacity(entries.len());
+    first.push(0);
+    for members in &by_triangle {
+        sites.extend(members.iter().map(|&j| (entries[j].position, kept_index[j])));
+        first.push(sites.len() as u32);
+    }
+    let joined = joined.iter().map(|&j| if j == NONE { NONE } else { kept_index[j as usize] }).collect();
+    let (mut grid_of, mut grids) = (vec![NONE; by_triangle.len()], Vec::new());
+    for t in 0..by_triangle.len() {
+        let (a, b) = (first[t] as usize, first[t + 1] as usize);
+        if b - a > FEW_SITES && spacing > 0.0 {
+            grid_of[t] = grids.len() as u32;
+            grids.push(SiteGrid::new(scene.corners(t), &sites[a..b], a, spacing));
         }
     }
     let kept_lists = lists.drain(..).zip(keep).filter(|(_, &k)| k).map(|(l, _)| l).collect();
-    (Cells::from_lists(kept_lists), report)
+    (Cells::from_lists(kept_lists), CellOwners { first, sites, joined, grid_of, grids }, report)
+}
+
+/// For each triangle without an entry, the kept entry (sampled index) nearest along the
+/// surface: a shortest path over triangle centroids from the triangles holding kept entries,
+/// across edges shared by welded positions, through triangles without entries that face the
+/// entry's way, no longer than [`MAX_SPACINGS`]. [`NONE`] where none is reached.
+fn join_along_surfaces(
+    scene: &Scene,
+    entries: &[Entry],
+    by_triangle: &[Vec<usize>],
+    spacing: f32,
+) -> Vec<u32> {
+    let n = scene.triangles.len();
+    let mut joined = vec![NONE; n];
+    if !(spacing > 0.0) {
+        return joined;
+    }
+    let neighbours = edge_neighbours(scene);
+    let centroid = |t: usize| {
+        let [a, b, c] = scene.corners(t);
+        (a + b + c) / 3.0
+    };
+    let limit = MAX_SPACINGS * spacing;
+    // (length in f32 bits: non-negative floats order as their bits; entry; triangle)
+    let mut heap = BinaryHeap::new();
+    for (t, members) in by_triangle.iter().enumerate() {
+        for &j in members {
+            heap.push(Reverse((entries[j].position.distance(centroid(t)).to_bits(), j as u32, t as u32)));
+        }
+    }
+    let mut done = vec![false; n];
+    while let Some(Reverse((d, j, t))) = heap.pop() {
+        let t = t as usize;
+        if done[t] {
+            continue;
+        }
+        done[t] = true;
+        if by_triangle[t].is_empty() {
+            joined[t] = j;
+        }
+        let (d, normal) = (f32::from_bits(d), entries[j as usize].normal);
+        for &u in &neighbours[t] {
+            let u = u as usize;
+            if done[u] || !by_triangle[u].is_empty() || scene.face_normal(u).dot(normal) < MIN_NORMAL_COS {
+                continue;
+            }
+            let du = d + centroid(t).distance(centroid(u));
+            if du <= limit {
+                heap.push(Reverse((du.to_bits(), j, u as u32)));
+            }
+        }
+    }
+    joined
+}
+
+/// Per triangle, the triangles sharing an edge with it (corners welded at 1e-6 of the level's
+/// size, so meshes split per face still connect).
+fn edge_neighbours(scene: &Scene) -> Vec<Vec<u32>> {
+    let weld = (1e-6 * scene.diagonal()).max(f32::MIN_POSITIVE);
+    let mut ids: HashMap<IVec3, u32> = HashMap::new();
+    let mut id = |p: Vec3| {
+        let next = ids.len() as u32;
+        *ids.entry((p / weld).round().as_ivec3()).or_insert(next)
+    };
+    let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+    for t in 0..scene.triangles.len() {
+        let c = scene.corners(t).map(&mut id);
+        for (a, b) in [(c[0], c[1]), (c[1], c[2]), (c[2], c[0])] {
+            if a != b {
+                edges.entry((a.min(b), a.max(b))).or_default().push(t as u32);
+            }
+        }
+    }
+    let mut neighbours = vec![Vec::new(); scene.triangles.len()];
+    let mut shared: Vec<_> = edges.into_values().filter(|ts| ts.len() > 1).collect();
+    shared.sort_unstable();
+    for ts in shared {
+        for &a in &ts {
+            neighbours[a as usize].extend(ts.iter().filter(|&&b| b != a));
+        }
+    }
+    for list in &mut neighbours {
+        list.sort_unstable();
+        list.dedup();
+    }
+    neighbours
+}
+
+/// The nearest kept entry (sampled index) facing the way of the triangle `corners`, within
+/// [`MAX_SPACINGS_APART`] of its centroid and [`MAX_PLANE_OFFSET`] spacings of its plane (a
+/// coplanar neighbour that shares no edge with it, or the pillar face 15 cm behind a plinth
+/// side that got no entry; not the floor 30 cm under a plinth top); [`NONE`] if there is none.
+fn nearest_in_plane(entries: &[Entry], keep: &[bool], corners: [Vec3; 3], spacing: f32) -> u32 {
+    let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+    let n = (corners[1] - corners[0]).cross(corners[2] - corners[0]).normalize_or_zero();
+    (0..entries.len())
+        .filter(|&j| keep[j] && entries[j].normal.dot(n) >= MIN_NORMAL_COS)
+        .filter(|&j| n.dot(entries[j].position - centroid).abs() <= MAX_PLANE_OFFSET * spacing)
+        .map(|j| (j, entries[j].position.distance_squared(centroid)))
+        .filter(|&(_, d2)| d2 <= (MAX_SPACINGS_APART * spacing).powi(2))
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+        .map_or(NONE, |(j, _)| j as u32)
 }
 
 /// Entry `me`'s Voronoi region among `others` (entries on the same triangle), clipped to the

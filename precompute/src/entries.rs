@@ -68,3 +68,20 @@ pub fn is_enclosed(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u
     }
     inside * 4 >= ENCLOSURE_RAYS * 3
 }
+
+/// Points tried when moving an enclosed entry.
+const RELOCATION_TRIES: u64 = 8;
+
+/// An enclosed entry moved to a point of its own triangle outside the solid, if one of
+/// [`RELOCATION_TRIES`] uniform points is (a plinth top whose entry fell under the pillar
+/// standing on it keeps its share of entries on the part that is lit); `None` if none is.
+pub fn relocate(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u64) -> Option<Entry> {
+    let mut rng = stream(seed, 6, index);
+    let t = e.triangle as usize;
+    (0..RELOCATION_TRIES).find_map(|k| {
+        let (s, r) = (rng.random::<f32>().sqrt(), rng.random::<f32>());
+        let bary = Vec3::new(1.0 - s, r * s, (1.0 - r) * s);
+        let moved = Entry { position: scene.point(t, bary), albedo: scene.albedo(t, bary), ..*e };
+        (!is_enclosed(scene, bvh, &moved, seed, index + (k + 1) * (1 << 40))).then_some(moved)
+    })
+}

@@ -35,6 +35,7 @@ pub fn tile_panes(
     set: &TexelSet,
     kernel: Option<&[Vec<(u32, f32)>]>,
     texel_panes: &[TexelPanes],
+    exact: &[TexelPanes],
     members: &[Vec<u32>],
     centroids: &[Vec3],
     tile_size: u32,
@@ -43,10 +44,12 @@ pub fn tile_panes(
     let grid = Grid::new(set, tile_size);
     let stored = stored_mask(set);
     let (start, by_cluster) = transpose(texel_panes, members.len(), |k, i| texel_panes[k][i].1);
+    let (exact_start, exact_by_cluster) = transpose(exact, members.len(), |k, i| exact[k][i].1);
     let panes: Vec<PaneOut> = (0..members.len())
         .into_par_iter()
         .map(|c| {
-            let img = pane_image(set, kernel, &by_cluster[start[c]..start[c + 1]]);
+            let exact = &exact_by_cluster[exact_start[c]..exact_start[c + 1]];
+            let img = pane_image(set, kernel, &by_cluster[start[c]..start[c + 1]], exact);
             encode_pane(set, &grid, &stored, &img, drop_threshold)
         })
         .collect();
@@ -114,11 +117,14 @@ fn transpose<T: Copy + Default>(
     (start, list)
 }
 
-/// One pane as a full-atlas image: its texels' values, smoothed with `kernel`, dilated.
+/// One pane as a full-atlas image: its texels' walked values smoothed with `kernel`, plus the
+/// part known exactly (`exact`: the near links' first bounce, sharp where a texel meets a
+/// wall, so not smoothed), dilated.
 fn pane_image(
     set: &TexelSet,
     kernel: Option<&[Vec<(u32, f32)>]>,
     contributions: &[(u32, Vec3)],
+    exact: &[(u32, Vec3)],
 ) -> Vec<Vec3> {
     let w = set.width as usize;
     let at = |t: &prm::Texel| t.j as usize * w + t.i as usize;
@@ -138,6 +144,9 @@ fn pane_image(
         for (t, v) in set.texels.iter().zip(smoothed) {
             img[at(t)] = v;
         }
+    }
+    for &(k, v) in exact {
+        img[at(&set.texels[k as usize])] += v;
     }
     set.dilate(&mut img);
     img
@@ -291,7 +300,7 @@ pub fn tile_dipoles(
             }
             let axis: Vec<(u32, Vec3)> =
                 list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
-            let img = pane_image(set, kernel, &axis);
+            let img = pane_image(set, kernel, &axis, &[]);
             let w = grid.w;
             let energy: f64 =
                 set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();

@@ -1,8 +1,9 @@
 //! `prm precompute`: a level becomes a precomputed radiance map (DESIGN.md §4, paper 004).
 //!
-//! Phases: texel set -> entry points (those inside solids left out) -> clustering -> light
-//! transport (the panes' contents, `transport`) -> pane atlases (geometry-guided smoothing,
-//! dilation, tiles, `panes`). Every random stream is seeded from (seed, purpose, index), so the
+//! Phases: texel set -> entry points (those inside solids moved out, or left out) and their
+//! cells -> clustering -> far field and near links -> light transport (the panes' contents,
+//! `transport`, leaving the links' first bounce to them) -> pane atlases (geometry-guided
+//! smoothing, the links' first bounce added back exactly, dilation, tiles, `panes`). Every random stream is seeded from (seed, purpose, index), so the
 //! result is the same bytes at any thread count.
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -10,19 +11,21 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{Cells, Dipoles, Entry, Far, Group, Header, InvalidPrm, Prm, PrmParts, Tile};
+use prm::prm_file::{
+    far_share, Cells, Dipoles, Entry, Far, Group, Header, InvalidPrm, NearLink, Prm, PrmParts, Tile,
+};
 use prm::{Bvh, Scene, TexelSet};
 use serde::Serialize;
 
-use crate::cells::{entry_cells, CellReport};
+use crate::cells::{entry_cells, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
-use crate::entries::{is_enclosed, sample_entries};
+use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::far_field;
 use crate::near::{echo_links, near_links};
 use crate::panes::{tile_dipoles, tile_panes};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
-use crate::transport::{Estimator, Frame, TexelDipoles, TexelPanes, Transport};
+use crate::transport::{Estimator, Frame, LinkedCells, TexelDipoles, TexelPanes, Transport};
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
@@ -150,7 +153,8 @@ pub struct Report {
     pub atlas: u32,
     pub seed: u64,
     pub texels: usize,
-    /// Entries dropped because they lie inside a solid.
+    /// Entries dropped because they lie inside a solid and no point of their triangle tried
+    /// outside it was free (the others are moved there).
     pub entries_enclosed: usize,
     /// Near-field links (`crate::near`) and the seconds they took.
     pub near_links: usize,
@@ -227,9 +231,9 @@ pub fn precompute(
     let mut seconds = 0.0;
     let (entries, cells, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
     (report.seconds_entries, report.entries_enclosed) = (seconds, enclosed);
-    report.cell_triangles = cells.0.triangles.len();
-    report.area_without_entry = cells.1.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE);
-    let cells = cells.0;
+    let (cells, owners, cell_report) = cells;
+    report.cell_triangles = cells.triangles.len();
+    report.area_without_entry = cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE);
     progress(Phase::Entries, 1, 1);
     stop_if(cancel)?;
 
@@ -246,41 +250,6 @@ pub fn precompute(
     report.clusters = clustering.members.len() as u32;
     progress(Phase::Clustering, 1, 1);
     stop_if(cancel)?;
-
-    let t = Instant::now();
-    let n = set.len();
-    let on_texels = |done| progress(Phase::Transport, done, n);
-    let control = Control { progress: &on_texels, cancel };
-    let (texel_panes, texel_dipoles): (Vec<TexelPanes>, Vec<TexelDipoles>) =
-        transport(scene, bvh, params, &entries, &clustering, &frames, &set, control, &mut report)?
-            .into_iter()
-            .unzip();
-    report.seconds_transport = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
-    let kernel = kernel.as_deref();
-    let (members, threshold) = (&clustering.members, params.drop_threshold);
-    let mut tiled = tile_panes(&set, kernel, &texel_panes, members, &cents, params.tile_size, threshold);
-    let (groups, group_of) =
-        group_panes(scene, &entries, members, &cents, &texel_panes, params, &set, kernel, &mut tiled);
-    let dipoles = if dipoles.is_empty() {
-        Dipoles::default()
-    } else {
-        let (block, ts) = (params.dipole_block, params.tile_size);
-        tile_dipoles(&set, kernel, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
-    };
-    report.dipole_tiles = dipoles.tiles.len();
-    report.dipole_bytes = dipoles.data.len();
-    drop((texel_panes, texel_dipoles));
-    report.seconds_panes = t.elapsed().as_secs_f64();
-    progress(Phase::Panes, 1, 1);
-    report.tiles_kept = tiled.tiles.len() as u32;
-    report.tiles_dropped = tiled.tiles_dropped;
-    report.dropped_energy = tiled.dropped_energy;
-    report.pane_bytes = tiled.data.len();
-    report.seconds_total = all.elapsed().as_secs_f64();
-    report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
 
     let far = timed(&mut report.seconds_far, || {
         let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
@@ -300,6 +269,60 @@ pub fn precompute(
         }
     });
     report.near_links = near.len();
+    // The links' first bounce, exact: the gather leaves it out of its first hits and the panes
+    // get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does this (the
+    // MIS and scatter estimators, and dipole panes, walk it as before).
+    let linked = (params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty())
+        .then(|| linked_cells(&set, &entries, &cells, &near, &far));
+    let exact =
+        linked.as_ref().map_or_else(Vec::new, |l| exact_first_bounce(&set, &entries, &cells, l, &clustering));
+    let t = Instant::now();
+    let n = set.len();
+    let on_texels = |done| progress(Phase::Transport, done, n);
+    let control = Control { progress: &on_texels, cancel };
+    let (texel_panes, texel_dipoles): (Vec<TexelPanes>, Vec<TexelDipoles>) = transport(
+        scene,
+        bvh,
+        params,
+        &entries,
+        &owners,
+        linked.as_ref(),
+        &clustering,
+        &frames,
+        &set,
+        control,
+        &mut report,
+    )?
+    .into_iter()
+    .unzip();
+    report.seconds_transport = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
+    let kernel = kernel.as_deref();
+    let (members, threshold) = (&clustering.members, params.drop_threshold);
+    let mut tiled =
+        tile_panes(&set, kernel, &texel_panes, &exact, members, &cents, params.tile_size, threshold);
+    let (groups, group_of) =
+        group_panes(scene, &entries, members, &cents, &texel_panes, &exact, params, &set, kernel, &mut tiled);
+    let dipoles = if dipoles.is_empty() {
+        Dipoles::default()
+    } else {
+        let (block, ts) = (params.dipole_block, params.tile_size);
+        tile_dipoles(&set, kernel, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
+    };
+    report.dipole_tiles = dipoles.tiles.len();
+    report.dipole_bytes = dipoles.data.len();
+    drop((texel_panes, texel_dipoles));
+    report.seconds_panes = t.elapsed().as_secs_f64();
+    progress(Phase::Panes, 1, 1);
+    report.tiles_kept = tiled.tiles.len() as u32;
+    report.tiles_dropped = tiled.tiles_dropped;
+    report.dropped_energy = tiled.dropped_energy;
+    report.pane_bytes = tiled.data.len();
+    report.seconds_total = all.elapsed().as_secs_f64();
+    report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
+
     let echo = timed(&mut report.seconds_near, || {
         echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
     });
@@ -326,6 +349,62 @@ pub fn precompute(
     Ok((prm, report))
 }
 
+/// Per link, the share of its cell's first bounce the gather's walks keep: the far field's
+/// share where it lights the texel (what the link's fade leaves to it), else none.
+fn linked_cells<'a>(
+    set: &TexelSet,
+    entries: &[Entry],
+    cells: &Cells,
+    near: &'a [NearLink],
+    far: &Far,
+) -> LinkedCells<'a> {
+    let keep = near
+        .par_iter()
+        .map(|l| {
+            let j = l.entry as usize;
+            let fades = far.texels.binary_search_by_key(&l.texel, |f| f.texel).is_ok();
+            let k = set.index[l.texel as usize] as usize;
+            let centroid = cells.centroid(j).unwrap_or(entries[j].position);
+            let d = centroid.distance(set.texels[k].position);
+            if fades {
+                far_share(d, far.reach, cells.area(j).sqrt())
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    LinkedCells { links: near, keep }
+}
+
+/// Per covered texel, what the links left out of the walks add to each cluster's pane: per
+/// unit of cluster irradiance, cell j takes `t_j` of it (its area over A/N), which its link
+/// turns into `albedo_j factor t_j` at the texel; exactly what the runtime's near field takes
+/// back from `w_c` (`prm_runtime::cpu::add_near_field`).
+fn exact_first_bounce(
+    set: &TexelSet,
+    entries: &[Entry],
+    cells: &Cells,
+    linked: &LinkedCells,
+    clustering: &Clustering,
+) -> Vec<TexelPanes> {
+    let mut out: Vec<TexelPanes> = vec![Vec::new(); set.len()];
+    for l in linked.links {
+        let j = l.entry as usize;
+        let e = &entries[j];
+        let t = if e.area > 0.0 { cells.area(j) / e.area } else { 0.0 };
+        let (k, c) = (set.index[l.texel as usize] as usize, clustering.assignment[j]);
+        let v = e.albedo * (l.factor * t);
+        match out[k].iter_mut().find(|(x, _)| *x == c) {
+            Some(slot) => slot.1 += v,
+            None => out[k].push((c, v)),
+        }
+    }
+    for tp in &mut out {
+        tp.sort_by_key(|&(c, _)| c);
+    }
+    out
+}
+
 /// `f()`, with its run time in seconds added to `seconds`.
 fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     let t = Instant::now();
@@ -334,22 +413,32 @@ fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     out
 }
 
-/// The entry points with their cells, less those inside solids (how many is the last value):
-/// they never see light, and in a cluster's mean they would only dim it.
+/// The entry points with their cells. An entry inside a solid moves to a point of its
+/// triangle outside it, or is left out (how many are is the last value): it would never see
+/// light, and in a cluster's mean it would only dim it.
 fn lit_entries(
     scene: &Scene,
     bvh: &Bvh,
     params: &PrecomputeParams,
-) -> (Vec<Entry>, (Cells, CellReport), usize) {
-    let sampled = sample_entries(scene, params.entries as usize, params.seed);
-    let enclosed: Vec<bool> = sampled
+) -> (Vec<Entry>, (Cells, CellOwners, CellReport), usize) {
+    let first = sample_entries(scene, params.entries as usize, params.seed);
+    let sampled: Vec<Option<Entry>> = first
         .par_iter()
         .enumerate()
-        .map(|(j, e)| is_enclosed(scene, bvh, e, params.seed, j as u64))
+        .map(|(j, e)| {
+            let (seed, j) = (params.seed, j as u64);
+            if is_enclosed(scene, bvh, e, seed, j) {
+                relocate(scene, bvh, e, seed, j)
+            } else {
+                Some(*e)
+            }
+        })
         .collect();
-    let entries: Vec<_> = sampled.iter().zip(&enclosed).filter(|(_, &x)| !x).map(|(e, _)| *e).collect();
-    let keep: Vec<bool> = enclosed.iter().map(|&x| !x).collect();
-    let cells = entry_cells(scene, &sampled, &keep);
+    let keep: Vec<bool> = sampled.iter().map(Option::is_some).collect();
+    // A left-out entry keeps its first point: it takes no cell.
+    let placed: Vec<Entry> = sampled.iter().zip(&first).map(|(e, f)| e.unwrap_or(*f)).collect();
+    let entries: Vec<Entry> = sampled.iter().flatten().copied().collect();
+    let cells = entry_cells(scene, &placed, &keep);
     let enclosed = sampled.len() - entries.len();
     (entries, cells, enclosed)
 }
@@ -361,6 +450,8 @@ fn transport(
     bvh: &Bvh,
     params: &PrecomputeParams,
     entries: &[Entry],
+    owners: &CellOwners,
+    linked: Option<&LinkedCells>,
     clustering: &Clustering,
     frames: &[Frame],
     set: &TexelSet,
@@ -371,6 +462,8 @@ fn transport(
         scene,
         bvh,
         entries,
+        owners,
+        linked,
         assignment: &clustering.assignment,
         clusters: clustering.members.len(),
         frames,
@@ -436,6 +529,7 @@ fn group_panes(
     members: &[Vec<u32>],
     cents: &[Vec3],
     texel_panes: &[TexelPanes],
+    exact: &[TexelPanes],
     params: &PrecomputeParams,
     set: &TexelSet,
     kernel: Option<&[Vec<(u32, f32)>]>,
@@ -465,20 +559,23 @@ fn group_panes(
         params.seed ^ 0x6772_6f75_7073,
     );
     let g_count = grouping.members.len();
-    let group_tp: Vec<TexelPanes> = texel_panes
-        .par_iter()
-        .map(|tp| {
-            let mut out: TexelPanes = Vec::new();
-            for &(cl, v) in tp {
-                let g = grouping.assignment[cl as usize];
-                match out.iter_mut().find(|(x, _)| *x == g) {
-                    Some(slot) => slot.1 += v,
-                    None => out.push((g, v)),
+    let by_group = |panes: &[TexelPanes]| -> Vec<TexelPanes> {
+        panes
+            .par_iter()
+            .map(|tp| {
+                let mut out: TexelPanes = Vec::new();
+                for &(cl, v) in tp {
+                    let g = grouping.assignment[cl as usize];
+                    match out.iter_mut().find(|(x, _)| *x == g) {
+                        Some(slot) => slot.1 += v,
+                        None => out.push((g, v)),
+                    }
                 }
-            }
-            out
-        })
-        .collect();
+                out
+            })
+            .collect()
+    };
+    let (group_tp, group_exact) = (by_group(texel_panes), by_group(exact));
     let g_cents: Vec<Vec3> = grouping
         .members
         .iter()
@@ -488,6 +585,7 @@ fn group_panes(
         set,
         kernel,
         &group_tp,
+        &group_exact,
         &vec![Vec::new(); g_count],
         &g_cents,
         params.tile_size,

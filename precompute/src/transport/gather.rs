@@ -9,8 +9,7 @@ use prm::sampling::{cosine_direction, radical_inverse, stream};
 use prm::Texel;
 use rand::Rng;
 
-use super::{bounce, OwnerMap, RegionLookup, Scratch, TexelDipoles, TexelPanes, Transport};
-use crate::parallel::Control;
+use super::{bounce, kept_share, Scratch, TexelDipoles, TexelPanes, Transport};
 
 /// Per-cluster members and region areas for [`Estimator::Mis`].
 pub(super) struct MisTables {
@@ -37,7 +36,6 @@ impl Transport<'_> {
         scratch: &mut Scratch,
         t: &Texel,
         width: u32,
-        owners: &OwnerMap,
         mis: Option<&MisTables>,
     ) -> (TexelPanes, TexelDipoles) {
         let mut rng = stream(self.seed, 3, t.j as u64 * width as u64 + t.i as u64);
@@ -46,6 +44,7 @@ impl Transport<'_> {
         // so each is uniformly distributed (unbiased) while together they stratify the
         // hemisphere; the first bounce carries most of the indirect light.
         let shift: (f32, f32) = (rng.random(), rng.random());
+        let linked = self.linked.map(|l| l.of(t.j * width + t.i));
         for path in 0..k {
             let (mut x, mut n) = (t.position, t.normal);
             let mut beta = Vec3::ONE;
@@ -66,7 +65,17 @@ impl Transport<'_> {
                 if beta == Vec3::ZERO {
                     break;
                 }
-                match owners.at(self.scene, v.triangle, v.bary) {
+                // Cells lie on the front of their triangles (entries face that way); the back of
+                // a double-sided one has none, and its light is lost (counted).
+                let front = ny.dot(self.scene.face_normal(v.triangle)) > 0.0;
+                let owner = if front { self.owners.owner(v.triangle, y) } else { None };
+                // A linked cell's first bounce is the links' (the walk goes on through it).
+                let credit = match (depth, owner, linked) {
+                    (0, Some(e), Some(linked)) => kept_share(linked, e),
+                    _ => 1.0,
+                };
+                match owner.map(|e| self.assignment[e as usize]) {
+                    Some(_) if credit == 0.0 => {}
                     Some(c) if depth == 0 && mis.is_some() => {
                         // First vertex under MIS: weight against the entry samples of c.
                         let area_c = mis.map_or(0.0, |m| m.area[c as usize]);
@@ -76,7 +85,7 @@ impl Transport<'_> {
                         let w = 1.0 / (1.0 + 1.0 / (k as f32 * p_b * area_c).max(1e-30));
                         scratch.add(c, beta * w, y);
                     }
-                    Some(c) => scratch.add(c, beta, y),
+                    Some(c) => scratch.add(c, beta * credit, y),
                     None => {
                         self.stats.unowned.fetch_add(1, Ordering::Relaxed);
                     }
@@ -123,15 +132,11 @@ impl Transport<'_> {
     /// irradiance `weights`), with the same random streams as [`Transport::run`]: the twin the
     /// superposition test holds the pane sum to.
     pub fn gather_field(&self, set: &prm::TexelSet, weights: &[Vec3]) -> Vec<Vec3> {
-        let lookup = RegionLookup::new(self.entries, self.scene.total_area());
-        let never = Control::none().cancel;
-        let owners = OwnerMap::build(set, &lookup, self.assignment, self.bvh, &self.stats, never)
-            .expect("never cancelled");
         let mut scratch = Scratch::new(self.clusters, &[]);
         set.texels
             .iter()
             .map(|t| {
-                self.gather_texel(&mut scratch, t, set.width, &owners, None)
+                self.gather_texel(&mut scratch, t, set.width, None)
                     .0
                     .iter()
                     .map(|&(c, v)| v * weights[c as usize])

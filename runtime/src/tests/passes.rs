@@ -640,7 +640,7 @@ fn entry_weights_deliver_the_power_a_plane_receives_at_any_light_height() {
     let scene = quads(&[[v(-2., 0., -2.), v(-2., 0., 2.), v(2., 0., 2.), v(2., 0., -2.)]]);
     let bvh = Bvh::build(&scene);
     let entries = prm_precompute::entries::sample_entries(&scene, 256, 7);
-    let (cells, _) = prm_precompute::cells::entry_cells(&scene, &entries, &[true; 256]);
+    let (cells, _, _) = prm_precompute::cells::entry_cells(&scene, &entries, &[true; 256]);
     let areas: Vec<f32> = entries.iter().map(|e| e.area).collect();
     let (fx, fz) = (0.3f32, -0.2f32);
     for h in [1.0f32, 0.1, 0.01, 1e-3] {
