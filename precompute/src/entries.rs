@@ -73,7 +73,7 @@ pub fn is_enclosed(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u
 const RELOCATION_TRIES: u64 = 8;
 
 /// An enclosed entry moved to a point of its own triangle outside the solid, if one of
-/// [`RELOCATION_TRIES`] uniform points is (a plinth top whose entry fell under the pillar
+/// eight uniform points is (a plinth top whose entry fell under the pillar
 /// standing on it keeps its share of entries on the part that is lit); `None` if none is.
 pub fn relocate(scene: &Scene, bvh: &prm::Bvh, e: &Entry, seed: u64, index: u64) -> Option<Entry> {
     let mut rng = stream(seed, 6, index);

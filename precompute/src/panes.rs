@@ -31,6 +31,7 @@ pub struct Tiled {
 }
 
 /// Build the pane atlases. `members` are the clusters' entries; `centroids` their means.
+#[allow(clippy::too_many_arguments)]
 pub fn tile_panes(
     set: &TexelSet,
     kernel: Option<&[Vec<(u32, f32)>]>,

@@ -187,7 +187,7 @@ pub struct Transport<'a> {
 /// The cells a texel's near links (`crate::near`) carry the first bounce of, in closed form:
 /// a gather walk's first hit in such a cell keeps only the share of it the links leave to the
 /// far field (`keep`, 0 within the links' reach), and the panes get the rest exactly
-/// ([`LinkedCells::exact`]), added after smoothing. A pane and the near field then say the same
+/// (`precompute::exact_first_bounce`), added after smoothing. A pane and the near field then say the same
 /// thing of every linked cell, so their difference is the deviation alone: before, a texel at
 /// a wall's foot took 30 % of a hot cluster's pane from one cell that its link took back, and
 /// the walks' noise on it (128 paths) was left over as error larger than the light (the
