@@ -273,9 +273,19 @@ pub fn precompute(
     // get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does this (the
     // MIS and scatter estimators, and dipole panes, walk it as before).
     let linked = (params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty())
-        .then(|| linked_cells(&set, &entries, &cells, &near, &far));
-    let exact =
-        linked.as_ref().map_or_else(Vec::new, |l| exact_first_bounce(&set, &entries, &cells, l, &clustering));
+        .then(|| {
+            // Each cell's centroid and area, once (a cell's are sums over its pieces).
+            let cell: Vec<(Vec3, f32)> = (0..entries.len())
+                .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
+                .collect();
+            let linked = linked_cells(&set, &cell, &near, &far);
+            let exact = exact_first_bounce(&set, &entries, &cell, &linked, &clustering);
+            (linked, exact)
+        });
+    let (linked, exact) = match linked {
+        Some((l, e)) => (Some(l), e),
+        None => (None, Vec::new()),
+    };
     let t = Instant::now();
     let n = set.len();
     let on_texels = |done| progress(Phase::Transport, done, n);
@@ -353,21 +363,18 @@ pub fn precompute(
 /// share where it lights the texel (what the link's fade leaves to it), else none.
 fn linked_cells<'a>(
     set: &TexelSet,
-    entries: &[Entry],
-    cells: &Cells,
+    cell: &[(Vec3, f32)],
     near: &'a [NearLink],
     far: &Far,
 ) -> LinkedCells<'a> {
     let keep = near
         .par_iter()
         .map(|l| {
-            let j = l.entry as usize;
+            let (centroid, area) = cell[l.entry as usize];
             let fades = far.texels.binary_search_by_key(&l.texel, |f| f.texel).is_ok();
-            let k = set.index[l.texel as usize] as usize;
-            let centroid = cells.centroid(j).unwrap_or(entries[j].position);
-            let d = centroid.distance(set.texels[k].position);
+            let d = centroid.distance(set.texels[set.index[l.texel as usize] as usize].position);
             if fades {
-                far_share(d, far.reach, cells.area(j).sqrt())
+                far_share(d, far.reach, area.sqrt())
             } else {
                 0.0
             }
@@ -383,15 +390,15 @@ fn linked_cells<'a>(
 fn exact_first_bounce(
     set: &TexelSet,
     entries: &[Entry],
-    cells: &Cells,
+    cell: &[(Vec3, f32)],
     linked: &LinkedCells,
     clustering: &Clustering,
 ) -> Vec<TexelPanes> {
     let mut out: Vec<TexelPanes> = vec![Vec::new(); set.len()];
     for l in linked.links {
-        let j = l.entry as usize;
+        let (j, area) = (l.entry as usize, cell[l.entry as usize].1);
         let e = &entries[j];
-        let t = if e.area > 0.0 { cells.area(j) / e.area } else { 0.0 };
+        let t = if e.area > 0.0 { area / e.area } else { 0.0 };
         let (k, c) = (set.index[l.texel as usize] as usize, clustering.assignment[j]);
         let v = e.albedo * (l.factor * t);
         match out[k].iter_mut().find(|(x, _)| *x == c) {
