@@ -34,10 +34,11 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         sum += e;
         var linked = e * near;
         if params.any_hot != 0u {
-            // A hot entry's links deliver what their own light says (concentrate.wgsl).
+            // A hot entry's links deliver what their own light says (concentrate.wgsl); its far
+            // field, what its mean irradiance says.
             let hot = hot_energy[m.x];
             if hot.w == params.frame {
-                linked = bitcast<vec3f>(hot.xyz);
+                linked = bitcast<vec3f>(hot.xyz) + e * bitcast<f32>(m.w);
             }
         }
         near_sum += linked;

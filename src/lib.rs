@@ -51,7 +51,7 @@ pub use gltf_load::{load_scene, LoadOptions, SceneError};
 pub use light::{Light, LightKind};
 pub use scene::{Camera, Material, Scene, Triangle};
 #[cfg(feature = "texels")]
-pub use texels::{Texel, TexelSet};
+pub use texels::{Smoothing, Texel, TexelSet};
 
 /// Rec. 709 luminance weights of linear R, G and B; the GPU's `luminance` (the runtime's WGSL
 /// prelude) is generated from these.

@@ -34,8 +34,10 @@ use crate::scene::Scene;
 
 #[cfg(all(feature = "bvh", feature = "sampling"))]
 mod buried;
+mod smoothing;
 #[cfg(all(feature = "bvh", feature = "sampling"))]
 pub use buried::{is_buried, Burial, BURIAL_RAYS};
+pub use smoothing::Smoothing;
 
 /// Overlap (in texels) below which a triangle and a texel square are taken as only touching.
 pub const COVERAGE_EPS: f64 = 1e-7;
@@ -197,56 +199,6 @@ impl TexelSet {
         let texels =
             0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() * (self.width as f32 * self.height as f32);
         (scene.area(t) / texels.max(1e-12)).sqrt()
-    }
-
-    /// Geometry-guided smoothing weights: for each covered texel, the covered texels within
-    /// `radius` (in texels) that lie on the same surface (normals within ~25 degrees, off each
-    /// other's plane by under a quarter of the filter's world size, and no farther in the world
-    /// than the filter's footprint), with Gaussian weights that sum to one. Weights depend on
-    /// geometry only, so smoothing is linear: smoothing panes then summing them equals summing
-    /// then smoothing.
-    pub fn smoothing_kernel(&self, scene: &Scene, radius: u32) -> Vec<Vec<(u32, f32)>> {
-        let r = radius as i64;
-        let (w, h) = (self.width as i64, self.height as i64);
-        let texel_size: Vec<f32> =
-            self.texels.iter().map(|t| self.world_texel_size(scene, t.triangle as usize)).collect();
-        let sigma2 = (0.5 * radius as f32 + 0.5).powi(2);
-        self.texels
-            .par_iter()
-            .enumerate()
-            .map(|(k, t)| {
-                let reach = (radius as f32 + 1.5) * texel_size[k];
-                let mut taps = Vec::new();
-                let mut total = 0.0;
-                for dj in -r..=r {
-                    for di in -r..=r {
-                        let (i, j) = (t.i as i64 + di, t.j as i64 + dj);
-                        if i < 0 || j < 0 || i >= w || j >= h {
-                            continue;
-                        }
-                        let n = self.index[(j * w + i) as usize];
-                        if n == Self::EMPTY {
-                            continue;
-                        }
-                        let o = &self.texels[n as usize];
-                        let d = o.position - t.position;
-                        if o.normal.dot(t.normal) < 0.9
-                            || d.dot(t.normal).abs() > 0.25 * reach
-                            || d.length() > reach
-                        {
-                            continue;
-                        }
-                        let wgt = (-((di * di + dj * dj) as f32) / (2.0 * sigma2)).exp();
-                        taps.push((n, wgt));
-                        total += wgt;
-                    }
-                }
-                for tap in &mut taps {
-                    tap.1 /= total;
-                }
-                taps
-            })
-            .collect()
     }
 
     fn dilation_ring(&self) -> Vec<Dilation> {

@@ -77,9 +77,9 @@ pub struct Args {
     /// the near links to the whole level; on by default).
     #[arg(long)]
     no_far_field: bool,
-    /// Radius in texels of the geometry-guided pane smoothing (0: none).
+    /// Reach of the geometry-guided pane smoothing in entry spacings (0: none; default 1)
     #[arg(long)]
-    smooth: Option<u32>,
+    smooth: Option<f32>,
     /// Groups of clusters whose summed panes stand in for the clusters a top-K runtime leaves
     /// out (0: none; default 16).
     #[arg(long)]

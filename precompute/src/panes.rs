@@ -14,7 +14,7 @@
 
 use glam::Vec3;
 use prm::prm_file::{dipole_code, intensity_code, Cluster, Dipole, Dipoles, Tile};
-use prm::{luminance, TexelSet};
+use prm::{luminance, Smoothing, TexelSet};
 use rayon::prelude::*;
 
 use crate::transport::{TexelDipoles, TexelPanes};
@@ -34,7 +34,7 @@ pub struct Tiled {
 #[allow(clippy::too_many_arguments)]
 pub fn tile_panes(
     set: &TexelSet,
-    kernel: Option<&[Vec<(u32, f32)>]>,
+    smoothing: Option<&Smoothing>,
     texel_panes: &[TexelPanes],
     exact: &[TexelPanes],
     members: &[Vec<u32>],
@@ -50,7 +50,7 @@ pub fn tile_panes(
         .into_par_iter()
         .map(|c| {
             let exact = &exact_by_cluster[exact_start[c]..exact_start[c + 1]];
-            let img = pane_image(set, kernel, &by_cluster[start[c]..start[c + 1]], exact);
+            let img = pane_image(set, smoothing, &by_cluster[start[c]..start[c + 1]], exact);
             encode_pane(set, &grid, &stored, &img, drop_threshold)
         })
         .collect();
@@ -118,12 +118,12 @@ fn transpose<T: Copy + Default>(
     (start, list)
 }
 
-/// One pane as a full-atlas image: its texels' walked values smoothed with `kernel`, plus the
+/// One pane as a full-atlas image: its texels' walked values smoothed with `smoothing`, plus the
 /// part known exactly (`exact`: the near links' first bounce, sharp where a texel meets a
 /// wall, so not smoothed), dilated.
 fn pane_image(
     set: &TexelSet,
-    kernel: Option<&[Vec<(u32, f32)>]>,
+    smoothing: Option<&Smoothing>,
     contributions: &[(u32, Vec3)],
     exact: &[(u32, Vec3)],
 ) -> Vec<Vec3> {
@@ -133,18 +133,8 @@ fn pane_image(
     for &(k, v) in contributions {
         img[at(&set.texels[k as usize])] = v;
     }
-    if let Some(kernel) = kernel {
-        let smoothed: Vec<Vec3> = kernel
-            .iter()
-            .map(|taps| {
-                taps.iter()
-                    .map(|&(n, wgt)| img[at(&set.texels[n as usize])] * wgt)
-                    .fold(Vec3::ZERO, |a, b| a + b)
-            })
-            .collect();
-        for (t, v) in set.texels.iter().zip(smoothed) {
-            img[at(t)] = v;
-        }
+    if let Some(smoothing) = smoothing {
+        smoothing.apply(&mut img);
     }
     for &(k, v) in exact {
         img[at(&set.texels[k as usize])] += v;
@@ -274,7 +264,7 @@ fn assemble(panes: Vec<PaneOut>, members: &[Vec<u32>], centroids: &[Vec3], store
 #[allow(clippy::too_many_arguments)]
 pub fn tile_dipoles(
     set: &TexelSet,
-    kernel: Option<&[Vec<(u32, f32)>]>,
+    smoothing: Option<&Smoothing>,
     texel_panes: &[TexelPanes],
     texel_dipoles: &[TexelDipoles],
     mut dipoles: Vec<Dipole>,
@@ -301,7 +291,7 @@ pub fn tile_dipoles(
             }
             let axis: Vec<(u32, Vec3)> =
                 list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
-            let img = pane_image(set, kernel, &axis, &[]);
+            let img = pane_image(set, smoothing, &axis, &[]);
             let w = grid.w;
             let energy: f64 =
                 set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();

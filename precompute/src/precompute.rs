@@ -14,7 +14,7 @@ use prm::fingerprint::fingerprint_hex;
 use prm::prm_file::{
     far_share, Cells, Dipoles, Entry, Far, Group, Header, InvalidPrm, NearLink, Prm, PrmParts, Tile,
 };
-use prm::{Bvh, Scene, TexelSet};
+use prm::{Bvh, Scene, Smoothing, TexelSet};
 use serde::Serialize;
 
 use crate::cells::{entry_cells, CellOwners, CellReport};
@@ -51,8 +51,9 @@ pub struct PrecomputeParams {
     pub max_bounces: u32,
     /// k-means iterations (default 30).
     pub kmeans_iterations: u32,
-    /// Radius in texels of the geometry-guided smoothing applied to every pane (0: none; default 1).
-    pub smooth_radius: u32,
+    /// Reach of the geometry-guided smoothing applied to every pane, in entry spacings
+    /// (`prm::Smoothing`, per texel converted to texels; 0: none; default 1, measured: README).
+    pub smooth_radius: f32,
     /// Groups G of clusters (k-means on the clusters' centroids and normals), each storing the
     /// sum of its clusters' panes: what a runtime composing only the top K adds for the clusters
     /// it leaves out (`prm::prm_file` module doc). 0: none; default 16.
@@ -88,7 +89,7 @@ impl PrecomputeParams {
             drop_threshold: 1e-3,
             max_bounces: 1000,
             kmeans_iterations: 30,
-            smooth_radius: 1,
+            smooth_radius: 1.0,
             groups: 16,
             near_radius: 2.5,
             echo_radius: 1.0,
@@ -114,7 +115,7 @@ impl PrecomputeParams {
             "in [0, 0.5)",
         )?;
         require(self.max_bounces >= 1, "max bounces", self.max_bounces, "at least 1")?;
-        require(self.smooth_radius <= 16, "smooth radius", self.smooth_radius, "0 to 16")?;
+        require((0.0..=4.0).contains(&self.smooth_radius), "smooth radius", self.smooth_radius, "0 to 4")?;
         require((0.0..=8.0).contains(&self.near_radius), "near radius", self.near_radius, "0 to 8")?;
         require((0.0..=4.0).contains(&self.echo_radius), "echo radius", self.echo_radius, "0 to 4")?;
         let block_ok =
@@ -251,10 +252,14 @@ pub fn precompute(
     progress(Phase::Clustering, 1, 1);
     stop_if(cancel)?;
 
+    // Each cell's centroid and area, once (a cell's are sums over its pieces).
+    let cell: Vec<(Vec3, f32)> = (0..entries.len())
+        .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
+        .collect();
     let far = timed(&mut report.seconds_far, || {
         let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
         if params.far_field {
-            far_field(bvh, &set, &entries, params.near_radius * spacing)
+            far_field(scene, bvh, &set, &entries, &cell, params.near_radius * spacing, params.seed)
         } else {
             Far::default()
         }
@@ -274,10 +279,6 @@ pub fn precompute(
     // MIS and scatter estimators, and dipole panes, walk it as before).
     let linked = (params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty())
         .then(|| {
-            // Each cell's centroid and area, once (a cell's are sums over its pieces).
-            let cell: Vec<(Vec3, f32)> = (0..entries.len())
-                .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
-                .collect();
             let linked = linked_cells(&set, &cell, &near, &far);
             let exact = exact_first_bounce(&set, &entries, &cell, &linked, &clustering);
             (linked, exact)
@@ -308,18 +309,30 @@ pub fn precompute(
     report.seconds_transport = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let kernel = (params.smooth_radius > 0).then(|| set.smoothing_kernel(scene, params.smooth_radius));
-    let kernel = kernel.as_deref();
+    let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
+    let smoothing =
+        (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
+    let smoothing = smoothing.as_ref();
     let (members, threshold) = (&clustering.members, params.drop_threshold);
     let mut tiled =
-        tile_panes(&set, kernel, &texel_panes, &exact, members, &cents, params.tile_size, threshold);
-    let (groups, group_of) =
-        group_panes(scene, &entries, members, &cents, &texel_panes, &exact, params, &set, kernel, &mut tiled);
+        tile_panes(&set, smoothing, &texel_panes, &exact, members, &cents, params.tile_size, threshold);
+    let (groups, group_of) = group_panes(
+        scene,
+        &entries,
+        members,
+        &cents,
+        &texel_panes,
+        &exact,
+        params,
+        &set,
+        smoothing,
+        &mut tiled,
+    );
     let dipoles = if dipoles.is_empty() {
         Dipoles::default()
     } else {
         let (block, ts) = (params.dipole_block, params.tile_size);
-        tile_dipoles(&set, kernel, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
+        tile_dipoles(&set, smoothing, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
     };
     report.dipole_tiles = dipoles.tiles.len();
     report.dipole_bytes = dipoles.data.len();
@@ -539,7 +552,7 @@ fn group_panes(
     exact: &[TexelPanes],
     params: &PrecomputeParams,
     set: &TexelSet,
-    kernel: Option<&[Vec<(u32, f32)>]>,
+    smoothing: Option<&Smoothing>,
     tiled: &mut crate::panes::Tiled,
 ) -> (Vec<Group>, Vec<u32>) {
     let c = members.len();
@@ -590,7 +603,7 @@ fn group_panes(
         .collect();
     let g_tiled = tile_panes(
         set,
-        kernel,
+        smoothing,
         &group_tp,
         &group_exact,
         &vec![Vec::new(); g_count],

@@ -20,8 +20,9 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
     // Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
     // (first child cluster, child count) into `indices` at ranges[C + g]. Each index comes with
-    // the member's near-field energy and its cell's area over A/N (f32 bits,
-    // `prm_runtime::cpu::NearTables`; 0 for a group's children).
+    // the member's near-field energy (links and far field), its cell's area over A/N and its
+    // far field's energy alone (f32 bits, `prm_runtime::cpu::NearTables`; 0 for a group's
+    // children).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
     // Pane energy: C clusters, then G groups.
@@ -114,7 +115,12 @@ impl WeightPass {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
             indices.extend(c.members.iter().map(|&m| {
                 let m = m as usize;
-                [m as u32, near.energy[m].to_bits(), near.area_ratio[m].to_bits(), 0]
+                [
+                    m as u32,
+                    near.energy[m].to_bits(),
+                    near.area_ratio[m].to_bits(),
+                    near.far_energy[m].to_bits(),
+                ]
             }));
         }
         let mut children = vec![Vec::new(); g_count];

@@ -230,13 +230,11 @@ fn a_light_a_hair_above_a_surface_and_one_exactly_on_it() {
             let m = mean(img) / expect;
             println!("{case}: {name}: mean indirect {m:.4} of exact");
             // Every method conserves the power: the ground truth by its light paths, the PRM
-            // by its entry cells, the reference by shooting photons. 5 %: the noise of 256
-            // samples, 256 entries x 32 walks and 5000 photons; 6 % for the PRM, which since
-            // its gather credits walks to the exact cells (not the cell of the texel under
-            // the hit) reads 1.055 above the floor (1.026 before; 1.011 on it, 0.986 before):
-            // not understood yet, an open item.
-            let tol = if name.starts_with("PRM") { 0.06 } else { 0.05 };
-            assert!((m - 1.0).abs() < tol, "{case}: {name}: mean indirect {m:.3} of exact");
+            // by its entry cells and a cluster balance that counts the far field's energy
+            // (without it, 1.06 above the floor), the reference by shooting photons. 5 %: the
+            // noise of 256 samples, 256 entries x 32 walks and 5000 photons (measured above
+            // the floor: the PRM 1.016-1.017, the ground truth 1.010-1.011).
+            assert!((m - 1.0).abs() < 0.05, "{case}: {name}: mean indirect {m:.3} of exact");
         }
     }
 }

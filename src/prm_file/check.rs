@@ -301,13 +301,16 @@ fn dipoles(p: &PrmParts) -> Result<(), String> {
     Ok(())
 }
 
-/// The far field: empty, or visibility words for every pair of entries, a finite reach and
+/// The far field: empty, or visibility words for every pair of entries, a finite reach,
 /// texels in atlas order with finite points, unit normals, entries in range and weights >= 0
-/// summing to 1.
+/// summing to 1, and a finite energy >= 0 per entry.
 fn far(p: &PrmParts) -> Result<(), String> {
     let (f, h, n) = (&p.far, &p.header, p.entries.len());
     if f.visible.is_empty() && f.texels.is_empty() {
-        return Ok(());
+        return match f.energy.len() {
+            0 => Ok(()),
+            e => Err(format!("{e} far-field energies without a far field")),
+        };
     }
     if n > Far::MAX_ENTRIES {
         return Err(format!("a far field for {n} entries (at most {})", Far::MAX_ENTRIES));
@@ -321,6 +324,12 @@ fn far(p: &PrmParts) -> Result<(), String> {
     }
     if !(f.reach.is_finite() && f.reach >= 0.0) {
         return Err(format!("far-field reach {} is not finite and >= 0", f.reach));
+    }
+    if f.energy.len() != n {
+        return Err(format!("{} far-field energies for {n} entries", f.energy.len()));
+    }
+    if let Some(j) = f.energy.iter().position(|e| !(e.is_finite() && *e >= 0.0)) {
+        return Err(format!("far-field energy of entry {j} is {} (not finite and >= 0)", f.energy[j]));
     }
     let atlas = h.atlas_width as u64 * h.atlas_height as u64;
     for (k, t) in f.texels.iter().enumerate() {

@@ -33,7 +33,8 @@
 //!           codes (`dipole_value`), one per b x b block of the tile, row-major
 //!     FARF  u32 T texels, u32 V words, f32 reach; V x u32: the entries' mutual visibility, one
 //!           bit per pair i < j ([`Far::pair_bit`]); T x 60 B: texel u32, point (3 x f32), normal
-//!           (3 x f32), 4 entries u32, 4 weights f32. T = V = 0: no far field
+//!           (3 x f32), 4 entries u32, 4 weights f32; then (when T > 0) N x f32: each entry's
+//!           far-field energy per unit deviation (`Far::energy`). T = V = 0: no far field
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -76,7 +77,10 @@
 //! it to every texel as from a point (its cell's flux, the two cosines over pi r²), the
 //! visibility read from the entries' mutual visibility bits at the texel's nearest entries.
 //! The near links fade out over `reach .. reach + cell size` from a cell as the far field fades
-//! in, so the two add up to the whole first bounce (`prm_precompute::far`).
+//! in, so the two add up to the whole first bounce (`prm_precompute::far`). Since v8 each
+//! entry also carries the far field's energy per unit of its deviation, which the runtime's
+//! cluster balance counts with the links' (v7's far field added its light on top of panes that
+//! already held all of it: 6 % too much indirect light under a lamp 1 cm over a floor).
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -109,7 +113,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 7;
+pub const VERSION: u32 = 8;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -359,6 +363,11 @@ pub struct Far {
     pub reach: f32,
     pub visible: Vec<u32>,
     pub texels: Vec<FarTexel>,
+    /// Per entry (v8): the energy (luminance summed over texels, a pane's unit) the far field
+    /// delivers per W/m² of the entry's deviation, for the runtime's cluster balance, which
+    /// counts it with the near links' so that panes, links and far field together keep a
+    /// cluster's light (`prm_precompute::far`).
+    pub energy: Vec<f32>,
 }
 
 impl Far {
@@ -564,8 +573,8 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (files of version 6 and older \
-         lack the far field); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (version 7 lacks the far \
+         field's energy, 6 and older the far field); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -985,6 +994,7 @@ mod tests {
                         ..Default::default()
                     },
                 ],
+                energy: vec![0.5, 2.0],
             },
             ..Default::default()
         }
@@ -1116,6 +1126,11 @@ mod tests {
             ("1 far-field visibility words for 2 entries and 0 texels", |p| p.far.texels.clear()),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[0] = 0.5),
             ("far-field reach", |p| p.far.reach = f32::NAN),
+            ("1 far-field energies for 2 entries", |p| {
+                p.far.energy.pop();
+            }),
+            ("far-field energy of entry 1", |p| p.far.energy[1] = f32::INFINITY),
+            ("far-field energy of entry 0", |p| p.far.energy[0] = -1.0),
             ("far-field texel 1 is out of range", |p| p.far.texels[1].entries[2] = 2),
             ("far-field texel 1 is out of range", |p| p.far.texels.swap(0, 1)),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[3] = -1.0),

@@ -202,7 +202,7 @@ impl Writer<'_> {
         self.section(b"DIPO", &b);
     }
 
-    /// `FARF`: counts and reach, the visibility words, the texels.
+    /// `FARF`: counts and reach, the visibility words, the texels, the entries' energies.
     pub(super) fn far(&mut self, f: &Far) {
         let mut b = Vec::with_capacity(12 + f.visible.len() * 4 + f.texels.len() * FAR_TEXEL_BYTES);
         b.extend_from_slice(&(f.texels.len() as u32).to_le_bytes());
@@ -216,6 +216,7 @@ impl Writer<'_> {
             b.extend_from_slice(bytemuck::cast_slice(&t.entries));
             b.extend_from_slice(bytemuck::cast_slice(&t.weights));
         }
+        b.extend_from_slice(bytemuck::cast_slice(&f.energy));
         self.section(b"FARF", &b);
     }
 
@@ -396,14 +397,17 @@ impl<'a> Reader<'a> {
             return Err(Corrupt(format!("far-field section of {} bytes", b.len())));
         }
         let (texels, words) = (u32_at(b, 0) as u64, u32_at(b, 4) as u64);
-        if b.len() as u64 != 12 + words * 4 + texels * FAR_TEXEL_BYTES as u64 {
+        let fixed = 12 + words * 4 + texels * FAR_TEXEL_BYTES as u64;
+        if (b.len() as u64) < fixed || (b.len() as u64 - fixed) % 4 != 0 {
             return Err(Corrupt(format!(
                 "{texels} far-field texels and {words} visibility words declared, {} bytes",
                 b.len()
             )));
         }
         let reach = f32_at(b, 8);
-        let (v, t) = b[12..].split_at(words as usize * 4);
+        let (v, rest) = b[12..].split_at(words as usize * 4);
+        let (t, e) = rest.split_at(texels as usize * FAR_TEXEL_BYTES);
+        let energy = e.chunks_exact(4).map(|c| f32_at(c, 0)).collect();
         let visible = v.chunks_exact(4).map(|c| u32_at(c, 0)).collect();
         let at = |c: &[u8], i: usize| [u32_at(c, i), u32_at(c, i + 4), u32_at(c, i + 8), u32_at(c, i + 12)];
         let texels = t
@@ -416,7 +420,7 @@ impl<'a> Reader<'a> {
                 weights: at(c, 44).map(f32::from_bits),
             })
             .collect();
-        Ok(Far { reach, visible, texels })
+        Ok(Far { reach, visible, texels, energy })
     }
 
     /// `ECHO` for `points` near points (what the links point at is checked with the others).
