@@ -8,13 +8,16 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 const SIDE: u32 = 32;
+/// The charts' places in the atlas (`three_charts`; C, the wall, is 0).
+const A: u32 = 1;
+const B: u32 = 2;
 
-/// Three 1 m charts side by side in a 96 x 32 atlas, each 32 x 32 texels:
-/// - A: a floor at x, z in [0, 1] (atlas columns 0-31);
-/// - B: a 2 m floor as high, facing the same way, 5 m away (columns 32-63; texels twice A's
-///   size): atlas neighbour of A;
-/// - C: a wall at x = 1 facing -x, rising from A's edge (columns 64-95): atlas neighbour of B,
-///   world neighbour of A across a crease.
+/// Three charts side by side in a 96 x 32 atlas, each 32 x 32 texels:
+/// - C: a 1 m wall at x = 1 facing -x (atlas columns 0-31), rising from A's edge: A's
+///   neighbour in the world across a crease, and in the atlas;
+/// - A: a 1 m floor at x, z in [0, 1] (columns 32-63);
+/// - B: a 2 m floor as high, facing the same way, 5 m away (columns 64-95; texels twice A's
+///   size): A's neighbour in the atlas only.
 fn three_charts() -> Scene {
     let mut pos = Vec::new();
     let mut uv = Vec::new();
@@ -26,9 +29,9 @@ fn three_charts() -> Scene {
         }
     };
     let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-    quad([v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)], 0.0);
-    quad([v(5., 0., 0.), v(5., 0., 2.), v(7., 0., 2.), v(7., 0., 0.)], 1.0);
-    quad([v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)], 2.0);
+    quad([v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)], 0.0);
+    quad([v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)], 1.0);
+    quad([v(5., 0., 0.), v(5., 0., 2.), v(7., 0., 2.), v(7., 0., 0.)], 2.0);
     let idx: Vec<u32> = (0..pos.len() as u32).collect();
     Scene::from_mesh(pos, uv, &idx)
 }
@@ -58,16 +61,16 @@ fn weights_sum_to_one_and_no_light_crosses_charts_or_creases() {
         let (set, smoothing) = setup(radius);
         let mut ones = image(&set, |_, _, _| Vec3::ONE);
         smoothing.apply(&mut ones);
-        let mut only_a = image(&set, |c, _, _| if c == 0 { Vec3::ONE } else { Vec3::ZERO });
+        let mut only_a = image(&set, |c, _, _| if c == A { Vec3::ONE } else { Vec3::ZERO });
         smoothing.apply(&mut only_a);
         for t in &set.texels {
             let k = (t.j * set.width + t.i) as usize;
-            // f32 sums of up to 13 weights: 1e-5 is rounding.
+            // f32 sums of up to 33 weights: 1e-5 is rounding.
             assert!(
                 (ones[k] - Vec3::ONE).abs().max_element() < 1e-5,
                 "radius {radius}: constant image moved at {t:?}"
             );
-            let want = if t.i / SIDE == 0 { 1.0 } else { 0.0 };
+            let want = if t.i / SIDE == A { 1.0 } else { 0.0 };
             assert!(
                 (only_a[k].x - want).abs() < 1e-5,
                 "radius {radius}: texel ({}, {}) of chart {} reads {} (A's light leaked or was lost)",
@@ -115,7 +118,7 @@ fn noise_falls_as_the_gaussian_says() {
         let mut img = image(&set, |_, _, _| Vec3::splat((rng.random::<f32>() * 2.0 - 1.0) * 3f32.sqrt()));
         smoothing.apply(&mut img);
         for t in &set.texels {
-            if t.i / SIDE == 0 && interior(t.i % SIDE, t.j) {
+            if t.i / SIDE == A && interior(t.i % SIDE, t.j) {
                 sum2 += (img[(t.j * set.width + t.i) as usize].x as f64).powi(2);
                 n += 1;
             }
@@ -135,7 +138,7 @@ fn the_radius_in_texels_follows_the_texel_size() {
     let centre = |chart: u32| {
         set.texels.iter().position(|t| t.i == chart * SIDE + SIDE / 2 && t.j == SIDE / 2).expect("covered")
     };
-    for (chart, r) in [(0, 3), (1, 2)] {
+    for (chart, r) in [(A, 3), (B, 2)] {
         for pass in 0..2 {
             assert_eq!(smoothing.taps(pass, centre(chart)).len(), 2 * r + 1, "chart {chart}, pass {pass}");
         }

@@ -56,12 +56,9 @@ pub fn far_field(
     if n == 0 || n > Far::MAX_ENTRIES || !(reach >= 0.0) {
         return Far::default();
     }
-    Far {
-        reach,
-        visible: pair_visibility(bvh, entries),
-        texels: texel_neighbours(set, entries),
-        energy: far_energy(scene, bvh, set, entries, cell, reach, seed),
-    }
+    let texels = texel_neighbours(set, entries);
+    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, seed);
+    Far { reach, visible: pair_visibility(bvh, entries), texels, energy }
 }
 
 /// Rays per entry of [`far_energy`]. The estimate only sets how much of a cluster's light the
@@ -78,23 +75,29 @@ const ENERGY_RAYS: u32 = 64;
 /// the near links' energy: without it the far field's light came on top of a cluster's panes,
 /// which already carry all of it (a lamp 1 cm over a closed box's floor: 6 % more indirect
 /// light than the power allows). First directions as the gather's: a shifted Hammersley set.
+#[allow(clippy::too_many_arguments)]
 fn far_energy(
     scene: &Scene,
     bvh: &Bvh,
     set: &TexelSet,
+    lit: &[FarTexel],
     entries: &[Entry],
     cell: &[(Vec3, f32)],
     reach: f32,
     seed: u64,
 ) -> Vec<f32> {
-    // Texels per m² of each UV chart: the covered texels its triangles own over its area (a
-    // chart's partly covered edge texels count whole, as sums over texels count them; per
-    // triangle, which of two owns a texel on their shared edge would skew it).
+    // Texels per m² of each UV chart: the texels the far field lights (`lit`) that its
+    // triangles own, over its area (a chart's partly covered edge texels count whole, as sums
+    // over texels count them; per triangle, which of two owns a texel on their shared edge
+    // would skew it).
     let chart = prm::uv::charts(scene);
     let charts = chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0);
     let (mut texels, mut area) = (vec![0.0f64; charts], vec![0.0f64; charts]);
-    for t in &set.texels {
-        texels[chart[t.triangle as usize] as usize] += 1.0;
+    for f in lit {
+        let k = set.index[f.texel as usize];
+        if let Some(t) = set.texels.get(k as usize) {
+            texels[chart[t.triangle as usize] as usize] += 1.0;
+        }
     }
     for (t, &c) in chart.iter().enumerate() {
         area[c as usize] += scene.area(t) as f64;

@@ -1,4 +1,4 @@
-//! The `.prm` file, format v7 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v8 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
@@ -1126,6 +1126,9 @@ mod tests {
             ("1 far-field visibility words for 2 entries and 0 texels", |p| p.far.texels.clear()),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[0] = 0.5),
             ("far-field reach", |p| p.far.reach = f32::NAN),
+            ("1 far-field energies without a far field", |p| {
+                p.far = Far { energy: vec![1.0], ..Far::default() }
+            }),
             ("1 far-field energies for 2 entries", |p| {
                 p.far.energy.pop();
             }),

@@ -23,7 +23,8 @@
 //! ratio, and the cell's power stays what the entry pass integrated exactly (the solid angle).
 //!
 //! The cluster weight keeps its energy balance with the energy these links then deliver: for a
-//! hot entry, `sum over its links of luminance(albedo) factor E_j kappa` replaces `E_j near_j`
+//! hot entry, `sum over its links of luminance(albedo) factor E_j kappa` replaces the links'
+//! part of `E_j near_j`; its far field's part stays `E_j` times its far energy
 //! (`crate::cpu::cluster_weights`).
 
 use glam::Vec3;
