@@ -37,6 +37,13 @@ pub fn radical_inverse(i: u32) -> f32 {
     (i.reverse_bits() as f64 / 4_294_967_296.0) as f32
 }
 
+/// Point `i` of an `n`-point Hammersley set shifted by `shift` modulo 1 (Cranley-Patterson
+/// rotation): each point is uniform in [0, 1)² (unbiased), the set stratifies the square. The
+/// first directions of the gather's walks and of the far field's energy rays.
+pub fn shifted_hammersley(i: u32, n: u32, shift: (f32, f32)) -> (f32, f32) {
+    (((i as f32 + 0.5) / n as f32 + shift.0).fract(), (radical_inverse(i) + shift.1).fract())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

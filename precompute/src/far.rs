@@ -28,7 +28,7 @@ use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::{far_share, Entry, Far, FarTexel};
-use prm::sampling::{cosine_direction, radical_inverse, stream};
+use prm::sampling::{cosine_direction, shifted_hammersley, stream};
 use prm::{luminance, Bvh, Scene, TexelSet};
 use rand::Rng;
 use rayon::prelude::*;
@@ -115,8 +115,7 @@ fn far_energy(
             let (centroid, area) = cell[j];
             let mut sum = 0.0f64;
             for k in 0..ENERGY_RAYS {
-                let u1 = ((k as f32 + 0.5) / ENERGY_RAYS as f32 + shift.0).fract();
-                let u2 = (radical_inverse(k) + shift.1).fract();
+                let (u1, u2) = shifted_hammersley(k, ENERGY_RAYS, shift);
                 let d = cosine_direction(e.normal, u1, u2);
                 let Some(hit) = bvh.trace_from_surface(e.position, e.normal, d) else { continue };
                 let t = hit.triangle as usize;

@@ -5,7 +5,7 @@ use std::sync::atomic::Ordering;
 
 use glam::Vec3;
 use prm::prm_file::Entry;
-use prm::sampling::{cosine_direction, radical_inverse, stream};
+use prm::sampling::{cosine_direction, shifted_hammersley, stream};
 use prm::Texel;
 use rand::Rng;
 
@@ -51,10 +51,7 @@ impl Transport<'_> {
             let mut depth = 0;
             loop {
                 let (u1, u2) = if depth == 0 {
-                    (
-                        ((path as f32 + 0.5) / k as f32 + shift.0).fract(),
-                        (radical_inverse(path) + shift.1).fract(),
-                    )
+                    shifted_hammersley(path, k, shift)
                 } else {
                     (rng.random(), rng.random())
                 };
