@@ -252,12 +252,13 @@ pub fn precompute(
     progress(Phase::Clustering, 1, 1);
     stop_if(cancel)?;
 
+    // The entry spacing sqrt(A / N), the unit of the near, far and smoothing reaches.
+    let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
     // Each cell's centroid and area, once (a cell's are sums over its pieces).
     let cell: Vec<(Vec3, f32)> = (0..entries.len())
         .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
         .collect();
     let far = timed(&mut report.seconds_far, || {
-        let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
         if params.far_field {
             far_field(scene, bvh, &set, &entries, &cell, params.near_radius * spacing, params.seed)
         } else {
@@ -309,7 +310,6 @@ pub fn precompute(
     report.seconds_transport = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
     let smoothing =
         (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
     let smoothing = smoothing.as_ref();
