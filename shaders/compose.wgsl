@@ -8,10 +8,17 @@
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[t * active_stride ..] as (weight x scale, data offset), their number in
-// active_count[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
+// counts[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
 // entry and one byte each, plus the near field's sum where the texel has one, then clamped at
 // 0 (runtime/src/near.rs; the far field's light is in the same sums, runtime/src/far.rs).
 // Texels with neither a stored tile nor a sum are written 0.
+//
+// Under a local budget (params.local_k > 0; runtime/src/cpu/budget.rs is the twin) selected
+// holds every cluster's weight and no group's; select_main marks, per atlas tile,
+// the local_k cluster records with the largest luminance(weight) x record energy (ties to the
+// earlier record: records are in pane order), and gather_main lists those, each group record
+// weighted by the light of its clusters' records left out there over its own energy, and the
+// dipole records of the clusters it composes.
 //
 // A record whose data offset has DIPOLE_RECORD set is a dipole tile (prm::prm_file::Dipoles):
 // one signed code (i8 / 127) per dipole_block x dipole_block block of the tile, dipole_side a
@@ -20,10 +27,148 @@
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
 // generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
 
+// counts holds three arrays: per atlas tile the records gather_main listed, then (under a
+// local budget) per record the bits of its score and whether its tile composes it.
+fn score_at(k: u32) -> u32 {
+    return params.tile_count + k;
+}
+
+fn chosen_at(k: u32) -> u32 {
+    return params.tile_count + params.record_count + k;
+}
+
+// Under a local budget, select_main (one workgroup per atlas tile) writes each record's score,
+// luminance(weight) x energy for a cluster's (0 for group and dipole records), and marks the
+// local_k strongest: every record above the local_k-th strongest score, and the first of those
+// equal to it (in record order) up to local_k. The local_k-th score is found by bisection over
+// the scores' bits, which order non-negative floats as their values: 31 counts of the tile.
+var<workgroup> wg_sum: atomic<u32>;
+var<workgroup> wg_total: u32;
+
+// How many of the records r.x .. r.x + r.y score at least `bits` (uniform over the workgroup).
+fn count_at_least(r: vec2u, li: u32, bits: u32) -> u32 {
+    if li == 0u {
+        atomicStore(&wg_sum, 0u);
+    }
+    workgroupBarrier();
+    var n = 0u;
+    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+        n += select(0u, 1u, counts[score_at(k)] >= bits);
+    }
+    atomicAdd(&wg_sum, n);
+    workgroupBarrier();
+    if li == 0u {
+        wg_total = atomicLoad(&wg_sum);
+    }
+    return workgroupUniformLoad(&wg_total);
+}
+
+@compute @workgroup_size(WG_LINEAR)
+fn select_main(
+    @builtin(workgroup_id) wid: vec3u,
+    @builtin(num_workgroups) groups: vec3u,
+    @builtin(local_invocation_index) li: u32,
+) {
+    let t = wid.y * groups.x + wid.x;
+    if t >= params.tile_count {
+        return;
+    }
+    let r = tile_ranges[t];
+    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+        let rec = records[k];
+        var s = 0.0;
+        if rec.cluster < params.cluster_count {
+            s = luminance(selected[rec.cluster].xyz) * rec.energy;
+        }
+        counts[score_at(k)] = bitcast<u32>(max(s, 0.0));
+    }
+    storageBarrier();
+    // kth: the local_k-th strongest score's bits (1, the least positive, when fewer are lit).
+    var kth = 1u;
+    if count_at_least(r, li, 1u) > params.local_k {
+        // count(>= lo) >= local_k > count(>= hi) throughout.
+        var lo = 1u;
+        var hi = 0x7f800001u;
+        for (var i = 0u; i < 32u; i++) {
+            if hi - lo <= 1u {
+                break;
+            }
+            let mid = lo + (hi - lo) / 2u;
+            if count_at_least(r, li, mid) >= params.local_k {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        kth = lo;
+    }
+    // Records tied at kth fill what those above it leave of the budget, in record order.
+    let ties = params.local_k - min(count_at_least(r, li, kth + 1u), params.local_k);
+    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+        let bits = counts[score_at(k)];
+        var keep = bits > kth;
+        if bits == kth {
+            var before = 0u;
+            for (var j = r.x; j < k; j++) {
+                before += select(0u, 1u, counts[score_at(j)] == kth);
+            }
+            keep = before < ties;
+        }
+        counts[chosen_at(k)] = select(0u, 1u, keep);
+    }
+}
+
+fn gather_local(t: u32) {
+    let r = tile_ranges[t];
+    let end = r.x + r.y;
+    let groups_end = params.cluster_count + params.group_count;
+    var n = 0u;
+    for (var k = r.x; k < end; k++) {
+        let rec = records[k];
+        var w = vec3f(0.0);
+        if rec.cluster < params.cluster_count {
+            if counts[chosen_at(k)] == 1u {
+                w = selected[rec.cluster].xyz;
+            }
+        } else if rec.cluster < groups_end {
+            if params.residual == 1u && rec.energy > 0.0 {
+                let g = rec.cluster - params.cluster_count;
+                var left = vec3f(0.0);
+                for (var j = r.x; j < end; j++) {
+                    let q = records[j];
+                    if q.group == g && counts[chosen_at(j)] == 0u {
+                        left += selected[q.cluster].xyz * q.energy;
+                    }
+                }
+                w = left / rec.energy;
+            }
+        } else {
+            let c = (rec.cluster - groups_end) / 3u;
+            for (var j = r.x; j < end; j++) {
+                if records[j].cluster == c {
+                    if counts[chosen_at(j)] == 1u {
+                        w = selected[rec.cluster].xyz;
+                    }
+                    break;
+                }
+            }
+        }
+        if any(w != vec3f(0.0)) {
+            active_records[t * params.active_stride + n] = ActiveRecord(w * rec.scale, rec.data_offset);
+            n++;
+        }
+    }
+    counts[t] = n;
+}
+
 @compute @workgroup_size(WG_LINEAR)
 fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     let t = id.x;
     if t >= params.tile_count {
+        return;
+    }
+    if params.local_k > 0u {
+        gather_local(t);
         return;
     }
     let r = tile_ranges[t];
@@ -36,7 +181,7 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
             n++;
         }
     }
-    active_count[t] = n;
+    counts[t] = n;
 }
 
 @compute @workgroup_size(WG_TILE, WG_TILE)
@@ -49,7 +194,7 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     if slot != NO_SLOT {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
-        let n = active_count[t];
+        let n = counts[t];
         let base = t * params.active_stride;
         for (var a = 0u; a < n; a++) {
             let rec = active_records[base + a];

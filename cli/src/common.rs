@@ -132,12 +132,33 @@ impl MapArgs {
     }
 }
 
+/// Where the runtime's pane budget applies (`prm_runtime::Budget`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BudgetArg {
+    /// Each atlas tile composes the K panes that bring it the most light.
+    Tile,
+    /// The K panes that bring the whole map the most light, everywhere.
+    Global,
+}
+
+impl From<BudgetArg> for prm_runtime::Budget {
+    fn from(b: BudgetArg) -> Self {
+        match b {
+            BudgetArg::Tile => prm_runtime::Budget::Tile,
+            BudgetArg::Global => prm_runtime::Budget::Global,
+        }
+    }
+}
+
 /// How many panes the runtime composes per frame.
 #[derive(clap::Args, Clone, Copy, Debug)]
 pub struct ComposeArgs {
     /// Panes composed per frame: the strongest by luminance(weight) x energy.
     #[arg(long, default_value_t = 32)]
     pub top_k: usize,
+    /// Where --top-k applies: per atlas tile, or one list for the whole map.
+    #[arg(long, value_enum, default_value_t = BudgetArg::Tile)]
+    pub budget: BudgetArg,
     /// Drop the left-out clusters' light instead of composing their groups' panes for it.
     #[arg(long)]
     pub no_residual: bool,
@@ -149,7 +170,12 @@ impl ComposeArgs {
         if self.top_k == 0 {
             bail!("--top-k must be at least 1");
         }
-        Ok(prm_runtime::RuntimeParams { top_k: self.top_k, shadow_size, residual: !self.no_residual })
+        Ok(prm_runtime::RuntimeParams {
+            top_k: self.top_k,
+            budget: self.budget.into(),
+            shadow_size,
+            residual: !self.no_residual,
+        })
     }
 }
 

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use prm::exr_io::Channels;
 use prm::{Bvh, TexelSet};
 
-use crate::common::{MapArgs, RigArgs};
+use crate::common::{BudgetArg, MapArgs, RigArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -19,6 +19,9 @@ pub struct Args {
     /// Compose only the K strongest panes (default: all).
     #[arg(long)]
     top_k: Option<usize>,
+    /// With --top-k: where it applies, per atlas tile or one list for the whole map.
+    #[arg(long, value_enum, default_value_t = BudgetArg::Tile)]
+    budget: BudgetArg,
     /// With --top-k: drop the left-out clusters' light instead of composing their groups' panes.
     #[arg(long)]
     no_residual: bool,
@@ -33,6 +36,7 @@ pub fn run(a: Args) -> Result<()> {
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
     twin.set_residual(!a.no_residual);
+    twin.set_budget(a.budget.into());
     let set = TexelSet::build_visible(
         &scene,
         &bvh,

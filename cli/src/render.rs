@@ -128,6 +128,7 @@ pub fn run(a: Args) -> Result<()> {
             let bvh = Bvh::build(&scene);
             let mut twin = CpuTwin::new(&prm_file, &bvh, params.top_k);
             twin.set_residual(params.residual);
+            twin.set_budget(params.budget);
             let atlas = (prm_file.header().atlas_width as usize, prm_file.header().atlas_height as usize);
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {

@@ -38,7 +38,10 @@ pub const BINDINGS: &[Binding] = &[
     b("data", Res::Read("array<u32>"), COMPUTE),
     b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba32Float), COMPUTE),
     b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
-    b("active_count", Res::ReadWrite("array<u32>"), COMPUTE),
+    // Per atlas tile, the records gathered; then, under a local budget, per record the bits
+    // of its score and whether its tile composes it (`shaders/compose.wgsl`: one buffer, for
+    // the stage's 8 storage buffers).
+    b("counts", Res::ReadWrite("array<u32>"), COMPUTE),
     // The near pass's output (`crate::near`).
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
 ];
@@ -49,6 +52,7 @@ pub const SHADER: Shader = Shader {
     lights: false,
     groups: &[BINDINGS],
     compute: &[
+        Compute { entry: "select_main", workgroup: LINEAR },
         Compute { entry: "gather_main", workgroup: LINEAR },
         Compute { entry: "compose_main", workgroup: TILE },
     ],
@@ -56,6 +60,9 @@ pub const SHADER: Shader = Shader {
 
 pub struct ComposePass {
     pipeline: wgpu::ComputePipeline,
+    select: wgpu::ComputePipeline,
+    params: ComposeParams,
+    params_buf: wgpu::Buffer,
     gather: wgpu::ComputePipeline,
     tiles: u32,
     group: wgpu::BindGroup,
@@ -64,10 +71,10 @@ pub struct ComposePass {
     pub lightmap: wgpu::Texture,
     /// Per atlas tile, the records covering it (for byte counts).
     records_per_tile: Vec<u32>,
-    /// Per cluster, stored tiles (for byte counts).
-    tiles_per_cluster: Vec<u64>,
-    /// Per cluster, stored texels over all its tiles (for byte counts).
-    texels_per_cluster: Vec<u64>,
+    /// Per atlas tile, its stored texels (for byte counts).
+    texels_per_tile: Vec<u64>,
+    /// Per atlas tile, the records the last compose summed (`gather_main`'s count).
+    counts: wgpu::Buffer,
     texels: u64,
 }
 
@@ -79,7 +86,6 @@ struct Tables {
     ranges: Vec<[u32; 2]>,
     /// Stored tiles grouped by atlas tile, panes in order within each.
     records: Vec<TileRecord>,
-    texels_per_cluster: Vec<u64>,
     /// The most records any atlas tile has (at least 1).
     stride: u32,
 }
@@ -94,15 +100,15 @@ impl Tables {
             }
         }
         let mut by_tile: Vec<Vec<TileRecord>> = vec![Vec::new(); atlas_tiles];
-        let mut texels_per_cluster = vec![0u64; prm.pane_count()];
         for (k, t) in prm.tiles().iter().enumerate() {
             by_tile[t.index as usize].push(TileRecord {
                 scale: t.scale.to_array(),
                 cluster: t.cluster,
                 data_offset: layout.offsets[k] as u32,
-                ..Default::default()
+                energy: crate::cpu::stored_tile_energy(prm, &layout, k),
+                group: prm.group_of().get(t.cluster as usize).copied().unwrap_or(NO_SLOT),
+                tile: t.index,
             });
-            texels_per_cluster[t.cluster as usize] += layout.texels[t.index as usize].len() as u64;
         }
         // Dipole tiles: pane C + G + 3 c + axis, codes after the panes' in the data buffer,
         // their offset flagged (`DIPOLE_RECORD`).
@@ -113,8 +119,15 @@ impl Tables {
                 scale: t.scale.to_array(),
                 cluster: prm.pane_count() as u32 + t.cluster,
                 data_offset: DIPOLE_RECORD | (prm.data().len() + k * codes) as u32,
-                ..Default::default()
+                energy: 0.0,
+                group: NO_SLOT,
+                tile: t.index,
             });
+        }
+        // Pane order within each atlas tile (clusters, groups, dipoles), as the local budget's
+        // ties want (`cpu::tile_selection`).
+        for list in &mut by_tile {
+            list.sort_by_key(|r| r.cluster);
         }
         let mut ranges = Vec::with_capacity(atlas_tiles);
         let mut records = Vec::with_capacity(prm.tiles().len() + d.tiles.len());
@@ -123,7 +136,7 @@ impl Tables {
             records.extend_from_slice(list);
         }
         let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
-        Tables { slots, ranges, records, texels_per_cluster, stride }
+        Tables { slots, ranges, records, stride }
     }
 }
 
@@ -149,7 +162,7 @@ impl ComposePass {
         let ts = prm.header().tile_size;
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
-        let Tables { slots, ranges, records, texels_per_cluster, stride } = Tables::new(prm, atlas_tiles);
+        let Tables { slots, ranges, records, stride } = Tables::new(prm, atlas_tiles);
         let mut data: Vec<u8> = prm.data().to_vec();
         data.extend_from_slice(&prm.dipoles().data);
         data.resize(data.len().next_multiple_of(4).max(4), 0);
@@ -163,14 +176,20 @@ impl ComposePass {
             tiles_x,
             tile_count: atlas_tiles as u32,
             active_stride: stride,
+            local_k: 0,
+            cluster_count: prm.clusters().len() as u32,
+            group_count: prm.groups().len() as u32,
+            residual: 0,
+            record_count: records.len() as u32,
+            ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
-        let params = {
+        let params_buf = {
             use wgpu::util::DeviceExt;
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("compose params"),
                 contents: bytemuck::bytes_of(&params),
-                usage: wgpu::BufferUsages::UNIFORM,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             })
         };
         let none = wgpu::BufferUsages::empty();
@@ -184,7 +203,12 @@ impl ComposePass {
             &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<ActiveRecord>()],
             none,
         );
-        let count_buf = gpu::storage_buffer(device, "active counts", &vec![0u8; atlas_tiles * 4], none);
+        let count_buf = gpu::storage_buffer(
+            device,
+            "active counts, record scores and choices",
+            &vec![0u8; (atlas_tiles + 2 * records.len()) * 4],
+            wgpu::BufferUsages::COPY_SRC,
+        );
         let lightmap = lightmap_texture(device, w, h);
         let bgl = SHADER.layout(device, 0);
         let view = lightmap.create_view(&Default::default());
@@ -194,7 +218,7 @@ impl ComposePass {
             &bgl,
             BINDINGS,
             &[
-                ("params", params.as_entire_binding()),
+                ("params", params_buf.as_entire_binding()),
                 ("selected", selected.as_entire_binding()),
                 ("tile_ranges", ranges_buf.as_entire_binding()),
                 ("records", records_buf.as_entire_binding()),
@@ -202,29 +226,38 @@ impl ComposePass {
                 ("data", data_buf.as_entire_binding()),
                 ("lightmap", wgpu::BindingResource::TextureView(&view)),
                 ("active_records", active_buf.as_entire_binding()),
-                ("active_count", count_buf.as_entire_binding()),
+                ("counts", count_buf.as_entire_binding()),
                 ("near_sum", near.sums.as_entire_binding()),
             ],
         );
         let source = SHADER.source();
         let pipeline = gpu::compute_pipeline(device, "compose.wgsl", &source, "compose_main", &[&bgl]);
         let gather = gpu::compute_pipeline(device, "compose.wgsl", &source, "gather_main", &[&bgl]);
+        let select = gpu::compute_pipeline(device, "compose.wgsl", &source, "select_main", &[&bgl]);
         ComposePass {
             pipeline,
+            select,
+            params,
+            params_buf,
             gather,
             tiles: atlas_tiles as u32,
             group,
             size: (w, h),
             lightmap,
             records_per_tile: ranges.iter().map(|r| r[1]).collect(),
-            texels_per_cluster,
-            tiles_per_cluster: prm
-                .clusters()
-                .iter()
-                .map(|c| c.tile_count as u64)
-                .chain(prm.groups().iter().map(|g| g.tile_count as u64))
-                .collect(),
+            texels_per_tile: prm.layout().texels.iter().map(|t| t.len() as u64).collect(),
+            counts: count_buf,
             texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64,
+        }
+    }
+
+    /// The budget the next composes apply: `local_k` panes per atlas tile (0: the weight pass's
+    /// global selection as it is), with `residual` groups for each tile's others.
+    pub fn set_budget(&mut self, queue: &wgpu::Queue, local_k: u32, residual: bool) {
+        let next = ComposeParams { local_k, residual: residual as u32, ..self.params };
+        if next != self.params {
+            self.params = next;
+            queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         }
     }
 
@@ -239,34 +272,55 @@ impl ComposePass {
             timestamp_writes: timestamps,
         });
         pass.set_bind_group(0, &self.group, &[]);
+        if self.params.local_k > 0 {
+            // One workgroup per atlas tile, in rows of at most 32768 (the limit is 65535).
+            let x = self.tiles.min(32768);
+            pass.set_pipeline(&self.select);
+            pass.dispatch_workgroups(x, self.tiles.div_ceil(x.max(1)), 1);
+        }
         pass.set_pipeline(&self.gather);
         pass.dispatch_workgroups(self.tiles.div_ceil(WG_LINEAR), 1, 1);
         pass.set_pipeline(&self.pipeline);
         pass.dispatch_workgroups(self.size.0.div_ceil(WG_TILE), self.size.1.div_ceil(WG_TILE), 1);
     }
 
-    /// Bytes one compose reads and writes for this set of selected clusters: the selected
-    /// panes' f16 texels and their 32-byte records, a 4-byte pane id per stored tile (the
-    /// gather), the slot table, the selection table, and the RGBA32F lightmap written.
-    pub fn bytes(&self, selected: &[bool]) -> ComposeBytes {
-        let pane: u64 =
-            self.texels_per_cluster.iter().zip(selected).filter(|(_, s)| **s).map(|(t, _)| *t).sum();
+    /// The records each atlas tile's last compose summed (read back; waits for the GPU).
+    pub fn read_active_counts(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<u32>, gpu::GpuError> {
+        let bytes = gpu::read_buffer(device, queue, &self.counts)?;
+        Ok(bytes
+            .chunks_exact(4)
+            .take(self.tiles as usize)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect())
+    }
+
+    /// Bytes a compose that summed `active[t]` records in atlas tile t reads and writes: one
+    /// byte per stored texel of each summed record, the gather's reads of the tile's records (a
+    /// 4-byte pane id each for the weight pass's global selection; whole 32-byte records, for
+    /// the scores, under a local budget) and its 16-byte active entries (written once, read
+    /// per texel from cache), the slot table, the selection table, and the RGBA32F lightmap
+    /// written.
+    pub fn bytes(&self, active: &[u32]) -> ComposeBytes {
+        let local = self.params.local_k > 0;
+        let pane: u64 = active.iter().zip(&self.texels_per_tile).map(|(&a, &t)| a as u64 * t).sum();
         let (w, h) = self.size;
         let texels = (w * h) as u64;
-        let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * 4).sum::<u64>()
-            + self
-                .tiles_per_cluster
-                .iter()
-                .zip(selected)
-                .filter(|(_, s)| **s)
-                .map(|(t, _)| t * 32)
-                .sum::<u64>();
+        let record_bytes = if local { 32 } else { 4 };
+        let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * record_bytes).sum::<u64>()
+            + active.iter().map(|&a| a as u64 * 32).sum::<u64>();
+        let panes = (self.params.cluster_count + self.params.group_count) as u64;
         ComposeBytes {
             pane_data: pane,
             headers,
-            tables: texels * 4 + selected.len() as u64 * 16,
+            tables: texels * 4 + panes * 16,
             written: texels * 16,
             stored_texels: self.texels,
+            records: active.iter().map(|&a| a as u64).sum(),
+            most_per_tile: active.iter().copied().max().unwrap_or(0),
         }
     }
 }
@@ -275,9 +329,13 @@ impl ComposePass {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ComposeBytes {
     pub pane_data: u64,
-    /// Cluster ids of every stored tile (gather) and full records of the selected ones.
+    /// The gather's reads of the records and its active entries.
     pub headers: u64,
     pub tables: u64,
     pub written: u64,
     pub stored_texels: u64,
+    /// Stored tiles summed, over all atlas tiles (panes, groups and dipole tiles).
+    pub records: u64,
+    /// The most stored tiles one atlas tile summed: the compose's work per texel.
+    pub most_per_tile: u32,
 }

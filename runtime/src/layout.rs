@@ -270,6 +270,18 @@ gpu_struct! {
         pub dipole_block: u32,
         /// Dipole codes per row of a dipole tile.
         pub dipole_side: u32,
+        /// Panes per atlas tile under a local budget (`cpu::compose_local`); 0: the weight
+        /// pass's global selection is composed as it is.
+        pub local_k: u32,
+        pub cluster_count: u32,
+        pub group_count: u32,
+        /// 1: under a local budget, groups stand in for each tile's clusters left out.
+        pub residual: u32,
+        /// Records over all atlas tiles.
+        pub record_count: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 
@@ -281,9 +293,12 @@ gpu_struct! {
         pub cluster: u32,
         /// Index (in f16 units) of the tile's first stored texel in the data buffer.
         pub data_offset: u32,
-        pub _pad0: u32,
-        pub _pad1: u32,
-        pub _pad2: u32,
+        /// Luminance energy per unit weight (`cpu::TileRecord::energy`; 0 for dipole tiles).
+        pub energy: f32,
+        /// A cluster tile's group (`NO_SLOT` for none, group and dipole tiles).
+        pub group: u32,
+        /// The atlas tile it covers.
+        pub tile: u32,
     }
 }
 

@@ -76,7 +76,7 @@ mod tests;
 pub use compose::ComposeBytes;
 pub use gpu::{Gpu, GpuError};
 pub use lights::LightError;
-pub use runtime::{Runtime, RuntimeError, RuntimeParams, Update};
+pub use runtime::{Budget, Runtime, RuntimeError, RuntimeParams, Update};
 pub use shade::Renderer;
 pub use shadow::ShadowMaps;
 pub use timer::PassTimer;

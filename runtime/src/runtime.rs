@@ -20,12 +20,26 @@ use crate::near::{NearData, NearPass};
 use crate::shadow::ShadowMaps;
 use crate::weights::WeightPass;
 
+/// Where the runtime's pane budget applies.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Budget {
+    /// Per atlas tile: each tile composes the `top_k` clusters that bring it the most light,
+    /// the groups standing in for its others (`cpu::compose_local`; the default).
+    #[default]
+    Tile,
+    /// One list for the whole map: the `top_k` clusters with the most light over all texels,
+    /// the groups standing in for the others everywhere (`cpu::compose_selected`).
+    Global,
+}
+
 /// Runtime settings.
 #[derive(Clone, Copy, Debug)]
 pub struct RuntimeParams {
-    /// Panes composed per frame, the strongest by `luminance(weight) x energy` (default 32;
-    /// >= the cluster count means all).
+    /// Panes composed per frame (default 32; >= the cluster count means all): per atlas tile or
+    /// for the whole map, as `budget` says, the strongest by `luminance(weight) x energy`.
     pub top_k: usize,
+    /// Where `top_k` applies (default per atlas tile).
+    pub budget: Budget,
     /// Texels per side of each shadow-map layer (default 1024).
     pub shadow_size: u32,
     /// Compose each group's pane for the light of its clusters left out of the top K
@@ -35,7 +49,7 @@ pub struct RuntimeParams {
 
 impl Default for RuntimeParams {
     fn default() -> Self {
-        RuntimeParams { top_k: 32, shadow_size: 1024, residual: true }
+        RuntimeParams { top_k: 32, budget: Budget::Tile, shadow_size: 1024, residual: true }
     }
 }
 
@@ -252,14 +266,21 @@ impl Runtime {
         Ok(())
     }
 
-    fn write_params(&self) {
+    fn write_params(&mut self) {
+        let k = self.params.top_k.min(u32::MAX as usize) as u32;
+        // A local budget: the weight pass keeps every cluster and the compose picks per tile.
+        let (global_k, local_k) = match self.params.budget {
+            Budget::Tile => (u32::MAX, k),
+            Budget::Global => (k, 0),
+        };
+        self.compose.set_budget(&self.queue, local_k, self.params.residual);
         let p = IndirectParams {
             entry_count: self.entry_count,
             light_count: self.shadows.light_count(),
             cluster_count: self.clusters as u32,
-            top_k: self.params.top_k.min(u32::MAX as usize) as u32,
+            top_k: global_k,
             group_count: self.groups as u32,
-            residual: self.params.residual as u32,
+            residual: (self.params.residual && local_k == 0) as u32,
             near_texel_count: self.near.count,
             frame: self.frame,
             any_hot: self.any_hot as u32,
@@ -301,7 +322,9 @@ impl Runtime {
         ))
     }
 
-    /// Reads back which panes the last compose used: C clusters, then G groups.
+    /// Reads back which panes the weight pass kept: C clusters, then G groups (under a local
+    /// budget every lit cluster and no group: the compose picks per tile, and
+    /// [`Runtime::compose_bytes`] counts what it summed).
     pub fn read_selected(&self) -> Result<Vec<bool>, RuntimeError> {
         let w = read_vec4(
             &crate::gpu::read_buffer(&self.device, &self.queue, &self.weights.selected)?,
@@ -310,15 +333,28 @@ impl Runtime {
         Ok(w.iter().map(|w| *w != Vec3::ZERO).collect())
     }
 
+    /// Where the budget of `top_k` panes applies; the next update recomposes.
+    pub fn set_budget(&mut self, budget: Budget) {
+        self.params.budget = budget;
+        self.stale = true;
+    }
+
     /// Whether groups stand in for left-out clusters; the next update recomposes.
     pub fn set_residual(&mut self, on: bool) {
         self.params.residual = on;
         self.stale = true;
     }
 
-    /// Bytes a compose with this selection moves.
-    pub fn compose_bytes(&self, selected: &[bool]) -> ComposeBytes {
-        self.compose.bytes(selected)
+    /// Bytes the last compose moved, from the records each atlas tile summed (read back:
+    /// waits for the GPU).
+    pub fn compose_bytes(&self) -> Result<ComposeBytes, RuntimeError> {
+        Ok(self.compose.bytes(&self.compose.read_active_counts(&self.device, &self.queue)?))
+    }
+
+    /// The records each atlas tile's last compose summed: panes, groups and dipole tiles
+    /// (read back: waits for the GPU).
+    pub fn read_active_counts(&self) -> Result<Vec<u32>, RuntimeError> {
+        Ok(self.compose.read_active_counts(&self.device, &self.queue)?)
     }
 
     pub fn params(&self) -> RuntimeParams {

@@ -100,7 +100,7 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
         &g.queue,
         scene,
         &map,
-        RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true },
+        RuntimeParams { top_k: usize::MAX, shadow_size: 512, residual: true, ..Default::default() },
     )
     .unwrap();
     rt.update(&scene.lights).unwrap();

@@ -5,8 +5,8 @@
 //! beside it). The report sweeps:
 //! - the PRM's precompute budget (entries, paths, clusters): error of all panes with exact
 //!   (ray-traced) weights against precompute time;
-//! - its runtime budget (top-K, with and without the groups standing in for the left-out
-//!   clusters): error of the runtime's lightmap against frame time, on the GPU when an adapter
+//! - its runtime budget (top-K per atlas tile, the default, and over the whole map with and
+//!   without the groups standing in for the left-out clusters): error of the runtime's lightmap against frame time, on the GPU when an adapter
 //!   exists (else the CPU twin, said so);
 //! - the reference baker (photons, hence VPLs, and VPLs per virtual light);
 //! - a moving-light rig: per frame, the error of PRM top-32, PRM all panes and the reference,

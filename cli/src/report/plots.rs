@@ -136,7 +136,7 @@ fn plot_precompute(path: &Path, prm: &[Point], reference: &[Point]) -> Result<()
 /// The runtime plot's time axis (ms, the direct-only frame time included) and its top error (%).
 fn runtime_axes(sweep: &RuntimeSweep) -> (Range<f64>, f64) {
     let direct_ms = sweep.direct_ms;
-    let all: Vec<&Point> = sweep.with.iter().chain(&sweep.without).collect();
+    let all: Vec<&Point> = sweep.tile.iter().chain(&sweep.with).chain(&sweep.without).collect();
     let (t0, t1) = bounds(&all, |p| p.seconds * 1e3);
     let (t0, t1) = if direct_ms.is_finite() { (t0.min(direct_ms), t1.max(direct_ms)) } else { (t0, t1) };
     let e1 = (all.iter().map(|p| p.error * 100.0).filter(|e| e.is_finite()).fold(0.0, f64::max) * 1.1 + 0.5)
@@ -146,7 +146,8 @@ fn runtime_axes(sweep: &RuntimeSweep) -> (Range<f64>, f64) {
 }
 
 fn plot_runtime(path: &Path, sweep: &RuntimeSweep, gpu: bool) -> Result<()> {
-    let (with, without, direct_ms) = (&sweep.with[..], &sweep.without[..], sweep.direct_ms);
+    let (tile, with, without) = (&sweep.tile[..], &sweep.with[..], &sweep.without[..]);
+    let direct_ms = sweep.direct_ms;
     let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
     let ms = |p: &Point| p.seconds * 1e3;
@@ -169,9 +170,11 @@ fn plot_runtime(path: &Path, sweep: &RuntimeSweep, gpu: bool) -> Result<()> {
         .y_desc("error vs ground truth (%)")
         .draw()
         .map_err(plot_err)?;
-    for (points, colour, name) in
-        [(with, PRM_COLOUR, "top-K + groups for the rest"), (without, PLAIN_COLOUR, "top-K alone")]
-    {
+    for (points, colour, name) in [
+        (tile, PRM_COLOUR, "K per atlas tile + groups (default)"),
+        (with, ALL_COLOUR, "K over the map + groups"),
+        (without, PLAIN_COLOUR, "K over the map alone"),
+    ] {
         chart
             .draw_series(LineSeries::new(
                 points.iter().map(|p| (ms(p), p.error * 100.0)),
@@ -215,7 +218,7 @@ fn plot_rig(path: &Path, frames: &[Frame]) -> Result<()> {
     Ok(())
 }
 
-const RIG_NAMES: [&str; 3] = ["PRM top-32 + groups", "PRM all panes", "reference baker"];
+const RIG_NAMES: [&str; 3] = ["PRM top-32 per tile + groups", "PRM all panes", "reference baker"];
 const RIG_COLOURS: [RGBColor; 3] = [PRM_COLOUR, ALL_COLOUR, REF_COLOUR];
 
 /// The rig plot's upper half: each method's error per frame, and the ground truth's own noise.

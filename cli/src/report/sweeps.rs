@@ -9,7 +9,7 @@ use glam::Vec3;
 use prm::prm_file::Prm;
 use prm_precompute::precompute::{precompute, PrecomputeParams};
 use prm_runtime::cpu::CpuTwin;
-use prm_runtime::{Gpu, Renderer, Runtime, RuntimeParams};
+use prm_runtime::{Budget as RtBudget, Gpu, Renderer, Runtime, RuntimeParams};
 
 use super::measure::{compare, compare_texels, reference, Level};
 use super::Budget;
@@ -79,16 +79,19 @@ pub fn reference_sweep(b: &Budget, level: &Level, gt: &[Vec3], seed: u64) -> Res
     Ok(points)
 }
 
-/// The runtime budget: error and frame time per top-K, with the groups standing in for the
-/// left-out clusters and without them.
+/// The runtime budget: error and frame time per top-K, K per atlas tile with the groups for
+/// each tile's others (the runtime's default), K over the whole map with the groups, and K
+/// over the map alone.
 pub struct RuntimeSweep {
+    pub tile: Vec<Point>,
     pub with: Vec<Point>,
     pub without: Vec<Point>,
     /// Median direct-only frame time; NaN without a GPU (the times are then the CPU twin's).
     pub direct_ms: f64,
 }
 
-/// Error and frame time per top-K (with groups, then without), and the direct-only frame time.
+/// Error and frame time per top-K (per tile, over the map with groups, over the map alone), and
+/// the direct-only frame time.
 pub fn runtime_sweep(
     b: &Budget,
     level: &Level,
@@ -118,11 +121,16 @@ fn k_label(map: &Prm, k: usize) -> String {
 /// The sweep on the CPU twin: the time is one lightmap's (ray-traced entry visibility, weights,
 /// selection, compose).
 fn cpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3]) -> RuntimeSweep {
-    let (mut with, mut without) = (Vec::new(), Vec::new());
+    let (mut tile, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
     for &k in &b.top_k {
-        for (residual, out) in [(true, &mut with), (false, &mut without)] {
+        for (budget, residual, out) in [
+            (RtBudget::Tile, true, &mut tile),
+            (RtBudget::Global, true, &mut with),
+            (RtBudget::Global, false, &mut without),
+        ] {
             let mut twin = CpuTwin::new(map, &level.bvh, k);
             twin.set_residual(residual);
+            twin.set_budget(budget);
             let t = Instant::now();
             let img = twin.frame(&level.scene.lights).to_vec();
             let c = compare(&level.set, &img, gt);
@@ -134,7 +142,7 @@ fn cpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3]) -> Runti
             });
         }
     }
-    RuntimeSweep { with, without, direct_ms: f64::NAN }
+    RuntimeSweep { tile, with, without, direct_ms: f64::NAN }
 }
 
 /// The sweep on the GPU: median full-frame times, each frame recomposing.
@@ -145,7 +153,7 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
         &g.queue,
         scene,
         map,
-        RuntimeParams { top_k: 32, shadow_size: 1024, residual: true },
+        RuntimeParams { top_k: 32, shadow_size: 1024, residual: true, ..Default::default() },
     )?;
     let cam = camera(scene, None)?;
     let (w, h) = cam.image_size(b.frame_width);
@@ -158,10 +166,15 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
         renderer.wait();
         direct.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    let (mut with, mut without) = (Vec::new(), Vec::new());
+    let (mut tile, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
     for &k in &b.top_k {
-        for (residual, out) in [(true, &mut with), (false, &mut without)] {
+        for (budget, residual, out) in [
+            (RtBudget::Tile, true, &mut tile),
+            (RtBudget::Global, true, &mut with),
+            (RtBudget::Global, false, &mut without),
+        ] {
             rt.set_residual(residual);
+            rt.set_budget(budget);
             let mut times = Vec::new();
             for _ in 0..b.frame_reps {
                 // Changing K marks the lightmap stale: every repetition recomposes (the shadow
@@ -177,5 +190,5 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
             out.push(Point { label: k_label(map, k), seconds: median(times) / 1e3, error: c.0, bias: c.1 });
         }
     }
-    Ok(RuntimeSweep { with, without, direct_ms: median(direct) })
+    Ok(RuntimeSweep { tile, with, without, direct_ms: median(direct) })
 }

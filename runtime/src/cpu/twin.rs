@@ -4,12 +4,14 @@
 use glam::Vec3;
 use prm::prm_file::Prm;
 use prm::{Bvh, Light};
+
+use crate::Budget;
 use rayon::prelude::*;
 
 use super::concentrate::triangle_visibility;
 use super::{
-    add_near_field_with, cluster_weights_with, compose_selected, dipole_moments, dipole_offsets,
-    select_top_k, LinkLight, NearTables,
+    add_near_field_with, cluster_weights_with, compose_local, compose_selected, dipole_moments,
+    dipole_offsets, select_top_k, LinkLight, NearTables, TileBudget,
 };
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
@@ -60,9 +62,11 @@ pub struct CpuTwin<'a> {
     lightmap: Vec<Vec3>,
     /// Composes performed (a frame with unchanged lights adds none).
     pub composes: usize,
-    /// Clusters composed in the last compose.
+    /// Clusters composed in the last compose (with a budget per tile: by some tile).
     pub last_selected: usize,
     residual: bool,
+    budget: Budget,
+    tile_budget: Option<TileBudget>,
     near: NearTables,
 }
 
@@ -80,6 +84,8 @@ impl<'a> CpuTwin<'a> {
             composes: 0,
             last_selected: 0,
             residual: true,
+            budget: Budget::default(),
+            tile_budget: None,
             near: NearTables::new(prm),
         }
     }
@@ -88,6 +94,13 @@ impl<'a> CpuTwin<'a> {
     /// recomposes.
     pub fn set_residual(&mut self, on: bool) {
         self.residual = on;
+        self.last_lights = None;
+    }
+
+    /// Where the budget of `top_k` panes applies (default per atlas tile); the next frame
+    /// recomposes.
+    pub fn set_budget(&mut self, budget: Budget) {
+        self.budget = budget;
         self.last_lights = None;
     }
 
@@ -101,16 +114,24 @@ impl<'a> CpuTwin<'a> {
         let moments = dipole_moments(self.prm, &self.near, &e);
         let lin = dipole_offsets(self.prm, &self.near, &moments);
         let w = cluster_weights_with(self.prm, &self.near, &link_light, &e, &lin);
-        let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
-        let selected = select_top_k(&w, &energies, self.top_k);
-        let mut chosen = vec![false; w.len()];
-        for &c in &selected {
-            chosen[c] = true;
+        if self.budget == Budget::Tile {
+            let budget = self.tile_budget.get_or_insert_with(|| TileBudget::new(self.prm, &self.layout));
+            let (img, composed) =
+                compose_local(self.prm, budget, &self.layout, &w, &moments, self.top_k, self.residual);
+            self.lightmap = img;
+            self.last_selected = composed.iter().filter(|&&c| c).count();
+        } else {
+            let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
+            let selected = select_top_k(&w, &energies, self.top_k);
+            let mut chosen = vec![false; w.len()];
+            for &c in &selected {
+                chosen[c] = true;
+            }
+            self.lightmap = compose_selected(self.prm, &w, &moments, &chosen, self.residual, &self.layout);
+            self.last_selected = selected.len();
         }
-        self.lightmap = compose_selected(self.prm, &w, &moments, &chosen, self.residual, &self.layout);
         add_near_field_with(self.prm, &self.near, &link_light, &e, &w, &lin, &mut self.lightmap);
         self.composes += 1;
-        self.last_selected = selected.len();
         self.last_lights = Some(lights.to_vec());
         &self.lightmap
     }
