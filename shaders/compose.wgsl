@@ -7,18 +7,23 @@
 // atlas tile's stored texels (row-major), times the record's RGB scale.
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
-// active_records[t * active_stride ..] as (weight x scale, data offset), their number in
-// counts[t]; compose_main (one invocation per atlas texel) sums only those, one 16-byte
-// entry and one byte each, plus the near field's sum where the texel has one, then clamped at
+// active_records[t * active_stride ..] as (weight x scale at the tile's four corners, data
+// offset), their number in counts[t]; compose_main (one invocation per atlas texel) sums only
+// those, one 64-byte entry (the corners blended at the texel) and one byte each, plus the near field's sum where the texel has one, then clamped at
 // 0 (runtime/src/near.rs; the far field's light is in the same sums, runtime/src/far.rs).
 // Texels with neither a stored tile nor a sum are written 0.
 //
 // Under a local budget (params.local_k > 0; runtime/src/cpu/budget.rs is the twin) selected
-// holds every cluster's weight and no group's; select_main marks, per atlas tile,
-// the local_k cluster records with the largest luminance(weight) x record energy (ties to the
-// earlier record: records are in pane order), and gather_main lists those, each group record
-// weighted by the light of its clusters' records left out there over its own energy, and the
-// dipole records of the clusters it composes.
+// holds every cluster's weight and no group's, and each pane's weight is chosen at the
+// vertices of the atlas tile grid, then blended bilinearly over each tile from its four
+// corners (no step where neighbouring tiles pick differently). select_main (one workgroup per
+// vertex) takes the panes stored in the up-to-four tiles around the vertex, each pane's energy
+// summed over them, and keeps the local_k clusters with the largest luminance(weight) x energy
+// (ties to the lower pane; the local_k-th score found a byte at a time by histograms of the
+// scores' bits, which order non-negative floats as their values); a group's weight there is the light of its
+// clusters left out over its own energy, a kept cluster's dipoles get its moments. It writes
+// each record's weight at that corner of its tile; gather_main lists the records weighed at
+// any corner, and compose_main blends the four.
 //
 // A record whose data offset has DIPOLE_RECORD set is a dipole tile (prm::prm_file::Dipoles):
 // one signed code (i8 / 127) per dipole_block x dipole_block block of the tile, dipole_side a
@@ -27,33 +32,81 @@
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
 // generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
 
-// counts holds three arrays: per atlas tile the records gather_main listed, then (under a
-// local budget) per record the bits of its score and whether its tile composes it.
-fn score_at(k: u32) -> u32 {
-    return params.tile_count + k;
+// counts holds, after the per-tile record counts gather_main writes, CORNER_WORDS words per
+// record and corner of its tile ((0,0), (1,0), (0,1), (1,1)), for the vertex there: the state
+// of the pane if the record stands for it there (TileRecord::owner; 1: not kept, 2: kept), and
+// the bits of the pane's weight at the vertex (3 words). Other records read their pane's
+// owner's words.
+fn word_at(owner: u32) -> u32 {
+    return params.tile_count + owner * CORNER_WORDS;
 }
 
-fn chosen_at(k: u32) -> u32 {
-    return params.tile_count + params.record_count + k;
-}
-
-// Under a local budget, select_main (one workgroup per atlas tile) writes each record's score,
-// luminance(weight) x energy for a cluster's (0 for group and dipole records), and marks the
-// local_k strongest: every record above the local_k-th strongest score, and the first of those
-// equal to it (in record order) up to local_k. The local_k-th score is found by bisection over
-// the scores' bits, which order non-negative floats as their values: 31 counts of the tile.
 var<workgroup> wg_sum: atomic<u32>;
 var<workgroup> wg_total: u32;
+var<workgroup> wg_hist: array<atomic<u32>, 256>;
+var<workgroup> wg_prefix: u32;
+var<workgroup> wg_need: u32;
 
-// How many of the records r.x .. r.x + r.y score at least `bits` (uniform over the workgroup).
-fn count_at_least(r: vec2u, li: u32, bits: u32) -> u32 {
+// The tiles around vertex v, in the order (x-1, y-1), (x, y-1), (x-1, y), (x, y); off the grid
+// an empty range. The vertex is corner 3 - slot of the tile in slot `slot`.
+fn around(v: u32, slot: u32) -> vec2u {
+    let vx = v % (params.tiles_x + 1u);
+    let vy = v / (params.tiles_x + 1u);
+    let tiles_y = params.tile_count / params.tiles_x;
+    let x = vx + (slot & 1u);
+    let y = vy + (slot >> 1u);
+    if x == 0u || y == 0u || x > params.tiles_x || y > tiles_y {
+        return vec2u(0u, 0u);
+    }
+    return tile_ranges[(y - 1u) * params.tiles_x + x - 1u];
+}
+
+// The record of `pane` in range r, or NO_SLOT (records are in pane order).
+fn find(r: vec2u, pane: u32) -> u32 {
+    var lo = r.x;
+    var hi = r.x + r.y;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if records[mid].cluster < pane {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    if lo < r.x + r.y && records[lo].cluster == pane {
+        return lo;
+    }
+    return NO_SLOT;
+}
+
+// The score at vertex v of record k in slot `slot`: luminance(weight) x the pane's energy
+// around v for a cluster's record standing for its pane there, else 0. select_main keeps it in
+// the record's own words for the corner (where the pane's weight goes afterwards).
+fn vertex_score(k: u32, slot: u32) -> u32 {
+    let corner = 3u - slot;
+    let cluster = records[k].cluster;
+    if records[k].owner[corner] != k * 4u + corner || cluster >= params.cluster_count {
+        return 0u;
+    }
+    return bitcast<u32>(max(luminance(selected[cluster].xyz) * records[k].summed[corner], 0.0));
+}
+
+fn score_at(k: u32, slot: u32) -> u32 {
+    return counts[word_at(k * 4u + 3u - slot) + 1u];
+}
+
+// How many clusters around vertex v score at least `bits` (uniform over the workgroup).
+fn count_at_least(v: u32, li: u32, bits: u32) -> u32 {
     if li == 0u {
         atomicStore(&wg_sum, 0u);
     }
     workgroupBarrier();
     var n = 0u;
-    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
-        n += select(0u, 1u, counts[score_at(k)] >= bits);
+    for (var slot = 0u; slot < 4u; slot++) {
+        let r = around(v, slot);
+        for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+            n += select(0u, 1u, score_at(k, slot) >= bits);
+        }
     }
     atomicAdd(&wg_sum, n);
     workgroupBarrier();
@@ -63,98 +116,168 @@ fn count_at_least(r: vec2u, li: u32, bits: u32) -> u32 {
     return workgroupUniformLoad(&wg_total);
 }
 
+// Whether the pane of record j (in slot s around the vertex) is kept there.
+fn kept_at(j: u32, s: u32) -> bool {
+    return counts[word_at(records[j].owner[3u - s])] == 2u;
+}
+
 @compute @workgroup_size(WG_LINEAR)
 fn select_main(
     @builtin(workgroup_id) wid: vec3u,
     @builtin(num_workgroups) groups: vec3u,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let t = wid.y * groups.x + wid.x;
-    if t >= params.tile_count {
+    let v = wid.y * groups.x + wid.x;
+    let tiles_y = params.tile_count / params.tiles_x;
+    if v >= (params.tiles_x + 1u) * (tiles_y + 1u) {
         return;
     }
-    let r = tile_ranges[t];
-    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
-        let rec = records[k];
-        var s = 0.0;
-        if rec.cluster < params.cluster_count {
-            s = luminance(selected[rec.cluster].xyz) * rec.energy;
+    for (var slot = 0u; slot < 4u; slot++) {
+        let r = around(v, slot);
+        for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+            counts[word_at(k * 4u + 3u - slot) + 1u] = vertex_score(k, slot);
         }
-        counts[score_at(k)] = bitcast<u32>(max(s, 0.0));
     }
     storageBarrier();
-    // kth: the local_k-th strongest score's bits (1, the least positive, when fewer are lit).
+    // kth: the local_k-th strongest score's bits (1, the least positive, when fewer are lit),
+    // found a byte at a time from the top (the bits order non-negative floats as their values).
     var kth = 1u;
-    if count_at_least(r, li, 1u) > params.local_k {
-        // count(>= lo) >= local_k > count(>= hi) throughout.
-        var lo = 1u;
-        var hi = 0x7f800001u;
-        for (var i = 0u; i < 32u; i++) {
-            if hi - lo <= 1u {
-                break;
+    if count_at_least(v, li, 1u) > params.local_k {
+        // prefix: the bytes found so far, under mask.
+        var prefix = 0u;
+        var mask = 0u;
+        var need = params.local_k;
+        for (var round = 0u; round < 4u; round++) {
+            let shift = 24u - 8u * round;
+            for (var b = li; b < 256u; b += WG_LINEAR) {
+                atomicStore(&wg_hist[b], 0u);
             }
-            let mid = lo + (hi - lo) / 2u;
-            if count_at_least(r, li, mid) >= params.local_k {
-                lo = mid;
+            workgroupBarrier();
+            for (var slot = 0u; slot < 4u; slot++) {
+                let r = around(v, slot);
+                for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+                    let bits = score_at(k, slot);
+                    if bits > 0u && (bits & mask) == prefix {
+                        atomicAdd(&wg_hist[(bits >> shift) & 0xffu], 1u);
+                    }
+                }
+            }
+            workgroupBarrier();
+            if li == 0u {
+                // The byte whose bucket holds the need-th strongest of those left.
+                var above = 0u;
+                var digit = 0u;
+                for (var b = 255i; b >= 0i; b--) {
+                    let h = atomicLoad(&wg_hist[b]);
+                    if above + h >= need {
+                        digit = u32(b);
+                        break;
+                    }
+                    above += h;
+                }
+                wg_prefix = prefix | (digit << shift);
+                wg_need = need - above;
+            }
+            prefix = workgroupUniformLoad(&wg_prefix);
+            need = workgroupUniformLoad(&wg_need);
+            mask |= 0xffu << shift;
+        }
+        kth = prefix;
+    }
+    // Clusters tied at kth fill what those above it leave of the budget, lower panes first.
+    let ties = params.local_k - min(count_at_least(v, li, kth + 1u), params.local_k);
+    for (var slot = 0u; slot < 4u; slot++) {
+        let r = around(v, slot);
+        for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+            let corner = 3u - slot;
+            if records[k].owner[corner] != k * 4u + corner {
+                continue;
+            }
+            let bits = score_at(k, slot);
+            var keep = bits > kth;
+            if bits == kth {
+                var before = 0u;
+                for (var s = 0u; s < 4u; s++) {
+                    let q = around(v, s);
+                    for (var j = q.x; j < q.x + q.y; j++) {
+                        let lower = records[j].cluster < records[k].cluster;
+                        before += select(0u, 1u, lower && score_at(j, s) == kth);
+                    }
+                }
+                keep = before < ties;
+            }
+            counts[word_at(k * 4u + corner)] = select(1u, 2u, keep);
+        }
+    }
+    storageBarrier();
+    // Each pane's weight at the vertex, in the words of the record standing for it.
+    let groups_end = params.cluster_count + params.group_count;
+    for (var slot = 0u; slot < 4u; slot++) {
+        let r = around(v, slot);
+        for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
+            let corner = 3u - slot;
+            let rec = records[k];
+            if rec.owner[corner] != k * 4u + corner {
+                continue;
+            }
+            var w = vec3f(0.0);
+            if rec.cluster < params.cluster_count {
+                w = select(vec3f(0.0), selected[rec.cluster].xyz, kept_at(k, slot));
+            } else if rec.cluster < groups_end {
+                // The light of the group's clusters left out, in the tiles around that store the
+                // group's pane, over its energy there.
+                let e = rec.summed[corner];
+                if params.residual == 1u && e > 0.0 {
+                    for (var s = slot; s < 4u; s++) {
+                        let g = select(find(around(v, s), rec.cluster), k, s == slot);
+                        if g == NO_SLOT {
+                            continue;
+                        }
+                        for (var j = records[g].next; j != NO_SLOT; j = records[j].next) {
+                            if !kept_at(j, s) {
+                                w += selected[records[j].cluster].xyz * records[j].energy;
+                            }
+                        }
+                    }
+                    w /= e;
+                }
             } else {
-                hi = mid;
+                let cluster = (rec.cluster - groups_end) / 3u;
+                for (var s = 0u; s < 4u; s++) {
+                    let j = find(around(v, s), cluster);
+                    if j != NO_SLOT {
+                        if kept_at(j, s) {
+                            w = selected[rec.cluster].xyz;
+                        }
+                        break;
+                    }
+                }
             }
+            let c = word_at(k * 4u + corner);
+            counts[c + 1u] = bitcast<u32>(w.x);
+            counts[c + 2u] = bitcast<u32>(w.y);
+            counts[c + 3u] = bitcast<u32>(w.z);
         }
-        kth = lo;
     }
-    // Records tied at kth fill what those above it leave of the budget, in record order.
-    let ties = params.local_k - min(count_at_least(r, li, kth + 1u), params.local_k);
-    for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
-        let bits = counts[score_at(k)];
-        var keep = bits > kth;
-        if bits == kth {
-            var before = 0u;
-            for (var j = r.x; j < k; j++) {
-                before += select(0u, 1u, counts[score_at(j)] == kth);
-            }
-            keep = before < ties;
-        }
-        counts[chosen_at(k)] = select(0u, 1u, keep);
-    }
+}
+
+fn corner_weight(k: u32, corner: u32) -> vec3f {
+    let c = word_at(records[k].owner[corner]);
+    return vec3f(bitcast<f32>(counts[c + 1u]), bitcast<f32>(counts[c + 2u]), bitcast<f32>(counts[c + 3u]));
 }
 
 fn gather_local(t: u32) {
     let r = tile_ranges[t];
-    let end = r.x + r.y;
-    let groups_end = params.cluster_count + params.group_count;
     var n = 0u;
-    for (var k = r.x; k < end; k++) {
-        let rec = records[k];
-        var w = vec3f(0.0);
-        if rec.cluster < params.cluster_count {
-            if counts[chosen_at(k)] == 1u {
-                w = selected[rec.cluster].xyz;
-            }
-        } else if rec.cluster < groups_end {
-            if params.residual == 1u && rec.energy > 0.0 {
-                let g = rec.cluster - params.cluster_count;
-                var left = vec3f(0.0);
-                for (var j = r.x; j < end; j++) {
-                    let q = records[j];
-                    if q.group == g && counts[chosen_at(j)] == 0u {
-                        left += selected[q.cluster].xyz * q.energy;
-                    }
-                }
-                w = left / rec.energy;
-            }
-        } else {
-            let c = (rec.cluster - groups_end) / 3u;
-            for (var j = r.x; j < end; j++) {
-                if records[j].cluster == c {
-                    if counts[chosen_at(j)] == 1u {
-                        w = selected[rec.cluster].xyz;
-                    }
-                    break;
-                }
-            }
-        }
-        if any(w != vec3f(0.0)) {
-            active_records[t * params.active_stride + n] = ActiveRecord(w * rec.scale, rec.data_offset);
+    for (var k = r.x; k < r.x + r.y; k++) {
+        let s = records[k].scale;
+        let w0 = corner_weight(k, 0u);
+        let w1 = corner_weight(k, 1u);
+        let w2 = corner_weight(k, 2u);
+        let w3 = corner_weight(k, 3u);
+        if any(w0 != vec3f(0.0)) || any(w1 != vec3f(0.0)) || any(w2 != vec3f(0.0)) || any(w3 != vec3f(0.0)) {
+            active_records[t * params.active_stride + n] =
+                ActiveRecord(w0 * s, records[k].data_offset, w1 * s, 0u, w2 * s, 0u, w3 * s, 0u);
             n++;
         }
     }
@@ -176,8 +299,8 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     for (var k = r.x; k < r.x + r.y; k++) {
         let w = selected[records[k].cluster].xyz;
         if any(w != vec3f(0.0)) {
-            let rec = records[k];
-            active_records[t * params.active_stride + n] = ActiveRecord(w * rec.scale, rec.data_offset);
+            let ws = w * records[k].scale;
+            active_records[t * params.active_stride + n] = ActiveRecord(ws, records[k].data_offset, ws, 0u, ws, 0u, ws, 0u);
             n++;
         }
     }
@@ -196,20 +319,23 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
         let n = counts[t];
         let base = t * params.active_stride;
+        let ts = params.tile_size;
+        // The texel's place in its tile, for the blend of each record's corner weights.
+        let f = (vec2f(id.xy % vec2u(ts)) + 0.5) / f32(ts);
         for (var a = 0u; a < n; a++) {
             let rec = active_records[base + a];
+            let weighted_scale = mix(mix(rec.c00, rec.c10, f.x), mix(rec.c01, rec.c11, f.x), f.y);
             if (rec.data_offset & DIPOLE_RECORD) != 0u {
-                let ts = params.tile_size;
                 let b = params.dipole_block;
                 let q = ((id.y % ts) / b) * params.dipole_side + (id.x % ts) / b;
                 let i = (rec.data_offset & ~DIPOLE_RECORD) + q;
                 let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
                 let v = max(f32(bitcast<i32>(code << 24u) >> 24u), -127.0) / 127.0;
-                sum += rec.weighted_scale * v;
+                sum += weighted_scale * v;
             } else {
                 let i = rec.data_offset + slot;
                 let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
-                sum += rec.weighted_scale * intensity(code);
+                sum += weighted_scale * intensity(code);
             }
         }
     }

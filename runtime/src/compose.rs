@@ -5,8 +5,11 @@
 //! (`tile_ranges[t]` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
 //! atlas tile's stored texels (or `NO_SLOT`). The 8-bit texel codes are uploaded as is, four
 //! to a `u32`. Per compose, one invocation per atlas tile lists the stored tiles of selected
-//! panes (reading the pane id of each tile's record) with their weight already applied to the tile's
-//! colour scale; then each texel sums just those: a 16-byte entry and a byte each. A
+//! panes with their weight at the tile's four corners already applied to the tile's colour
+//! scale (one weight under a global budget; a local budget's picks at the tile grid's vertices
+//! come first, one workgroup per vertex: `cpu::compose_local` says what and why, and is the
+//! twin); then each texel sums just those: a 64-byte entry (the corners blended at the texel)
+//! and a byte each. A
 //! compose reads `1 byte x stored texels` of each selected pane, never a whole atlas per
 //! cluster, and its work per texel is the number of selected panes stored there. Texels with
 //! near-field links or far field add their sum (`crate::near`, `crate::far`), and the total is
@@ -18,7 +21,9 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE};
+use crate::contract::{
+    Compute, Shader, CORNER_WORDS, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE,
+};
 use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 use crate::near::NearPass;
@@ -38,9 +43,9 @@ pub const BINDINGS: &[Binding] = &[
     b("data", Res::Read("array<u32>"), COMPUTE),
     b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba32Float), COMPUTE),
     b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
-    // Per atlas tile, the records gathered; then, under a local budget, per record the bits
-    // of its score and whether its tile composes it (`shaders/compose.wgsl`: one buffer, for
-    // the stage's 8 storage buffers).
+    // Per atlas tile, the records gathered; then, under a local budget, per record and corner
+    // of its tile its pane's state and weight at that vertex (`shaders/compose.wgsl`: one
+    // buffer, for the stage's 8 storage buffers).
     b("counts", Res::ReadWrite("array<u32>"), COMPUTE),
     // The near pass's output (`crate::near`).
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
@@ -107,7 +112,7 @@ impl Tables {
                 data_offset: layout.offsets[k] as u32,
                 energy: crate::cpu::stored_tile_energy(prm, &layout, k),
                 group: prm.group_of().get(t.cluster as usize).copied().unwrap_or(NO_SLOT),
-                tile: t.index,
+                ..Default::default()
             });
         }
         // Dipole tiles: pane C + G + 3 c + axis, codes after the panes' in the data buffer,
@@ -119,13 +124,12 @@ impl Tables {
                 scale: t.scale.to_array(),
                 cluster: prm.pane_count() as u32 + t.cluster,
                 data_offset: DIPOLE_RECORD | (prm.data().len() + k * codes) as u32,
-                energy: 0.0,
                 group: NO_SLOT,
-                tile: t.index,
+                ..Default::default()
             });
         }
-        // Pane order within each atlas tile (clusters, groups, dipoles), as the local budget's
-        // ties want (`cpu::tile_selection`).
+        // Pane order within each atlas tile (clusters, groups, dipoles): a local budget finds
+        // panes by binary search and breaks ties to the lower pane (`cpu::vertex_weights`).
         for list in &mut by_tile {
             list.sort_by_key(|r| r.cluster);
         }
@@ -135,8 +139,64 @@ impl Tables {
             ranges.push([records.len() as u32, list.len() as u32]);
             records.extend_from_slice(list);
         }
+        link_corners(prm, &ranges, &mut records);
         let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
         Tables { slots, ranges, records, stride }
+    }
+}
+
+/// Fills what a local budget's picks need of each record (`TileRecord::next`, `owner`,
+/// `summed`): the chains of each group's clusters within a tile, and per corner of the tile the
+/// record standing for the pane at that vertex and the pane's energy around it (as
+/// `cpu::vertex_weights` merges them).
+fn link_corners(prm: &Prm, ranges: &[[u32; 2]], records: &mut [TileRecord]) {
+    let (tx, ty) = (prm.tiles_x() as usize, prm.tiles_y() as usize);
+    for &[first, count] in ranges {
+        let range = first as usize..(first + count) as usize;
+        let mut head: std::collections::HashMap<u32, u32> = Default::default();
+        for k in range.rev() {
+            let r = records[k];
+            if r.group != NO_SLOT {
+                records[k].next = head.insert(r.group, k as u32).unwrap_or(NO_SLOT);
+            } else {
+                records[k].next = NO_SLOT;
+            }
+        }
+        let (c, g) = (prm.clusters().len() as u32, prm.groups().len() as u32);
+        for r in &mut records[first as usize..(first + count) as usize] {
+            if r.cluster >= c && r.cluster < c + g {
+                r.next = head.get(&(r.cluster - c)).copied().unwrap_or(NO_SLOT);
+            }
+        }
+    }
+    let find = |t: usize, pane: u32| -> Option<usize> {
+        let [first, count] = ranges[t];
+        let list = &records[first as usize..(first + count) as usize];
+        list.binary_search_by_key(&pane, |r| r.cluster).ok().map(|i| first as usize + i)
+    };
+    let mut corners = vec![([0u32; 4], [0.0f32; 4]); records.len()];
+    for (t, &[first, count]) in ranges.iter().enumerate() {
+        let (x, y) = (t % tx, t / tx);
+        for k in first as usize..(first + count) as usize {
+            let pane = records[k].cluster;
+            for q in 0..4 {
+                let around = crate::cpu::tiles_around(x + (q & 1), y + (q >> 1), tx, ty);
+                // The record itself is in the tile around its corner (slot 3 - q).
+                let (mut owner, mut summed) = (None, 0.0f32);
+                for (slot, tile) in around.iter().enumerate() {
+                    if let Some(j) = tile.and_then(|u| find(u, pane)) {
+                        // The vertex is corner 3 - slot of the tile in slot `slot`.
+                        owner.get_or_insert((j * 4 + 3 - slot) as u32);
+                        summed += records[j].energy;
+                    }
+                }
+                corners[k].0[q] = owner.unwrap_or((k * 4 + q) as u32);
+                corners[k].1[q] = summed;
+            }
+        }
+    }
+    for (r, (owner, summed)) in records.iter_mut().zip(corners) {
+        (r.owner, r.summed) = (owner, summed);
     }
 }
 
@@ -180,8 +240,6 @@ impl ComposePass {
             cluster_count: prm.clusters().len() as u32,
             group_count: prm.groups().len() as u32,
             residual: 0,
-            record_count: records.len() as u32,
-            ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
         let params_buf = {
@@ -203,10 +261,11 @@ impl ComposePass {
             &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<ActiveRecord>()],
             none,
         );
+        // Per atlas tile a count, then per record and corner of its tile CORNER_WORDS words.
         let count_buf = gpu::storage_buffer(
             device,
-            "active counts, record scores and choices",
-            &vec![0u8; (atlas_tiles + 2 * records.len()) * 4],
+            "active counts and corner weights",
+            &vec![0u8; (atlas_tiles + records.len() * 4 * CORNER_WORDS as usize) * 4],
             wgpu::BufferUsages::COPY_SRC,
         );
         let lightmap = lightmap_texture(device, w, h);
@@ -251,8 +310,9 @@ impl ComposePass {
         }
     }
 
-    /// The budget the next composes apply: `local_k` panes per atlas tile (0: the weight pass's
-    /// global selection as it is), with `residual` groups for each tile's others.
+    /// The budget the next composes apply: `local_k` panes picked at each vertex of the tile
+    /// grid (0: the weight pass's global selection as it is), with `residual` groups for the
+    /// others.
     pub fn set_budget(&mut self, queue: &wgpu::Queue, local_k: u32, residual: bool) {
         let next = ComposeParams { local_k, residual: residual as u32, ..self.params };
         if next != self.params {
@@ -273,10 +333,13 @@ impl ComposePass {
         });
         pass.set_bind_group(0, &self.group, &[]);
         if self.params.local_k > 0 {
-            // One workgroup per atlas tile, in rows of at most 32768 (the limit is 65535).
-            let x = self.tiles.min(32768);
+            // One workgroup per vertex of the tile grid, in rows of at most 32768 (the limit
+            // is 65535).
+            let p = &self.params;
+            let vertices = (p.tiles_x + 1) * (p.tile_count / p.tiles_x.max(1) + 1);
+            let x = vertices.min(32768);
             pass.set_pipeline(&self.select);
-            pass.dispatch_workgroups(x, self.tiles.div_ceil(x.max(1)), 1);
+            pass.dispatch_workgroups(x, vertices.div_ceil(x), 1);
         }
         pass.set_pipeline(&self.gather);
         pass.dispatch_workgroups(self.tiles.div_ceil(WG_LINEAR), 1, 1);
@@ -300,18 +363,18 @@ impl ComposePass {
 
     /// Bytes a compose that summed `active[t]` records in atlas tile t reads and writes: one
     /// byte per stored texel of each summed record, the gather's reads of the tile's records (a
-    /// 4-byte pane id each for the weight pass's global selection; whole 32-byte records, for
-    /// the scores, under a local budget) and its 16-byte active entries (written once, read
-    /// per texel from cache), the slot table, the selection table, and the RGBA32F lightmap
+    /// 4-byte pane id each for the weight pass's global selection; whole 32-byte records and
+    /// their four corners' 20-byte states, for the vertices' picks, under a local budget) and
+    /// its 64-byte active entries (written once, read per texel from cache), the slot table, the selection table, and the RGBA32F lightmap
     /// written.
     pub fn bytes(&self, active: &[u32]) -> ComposeBytes {
         let local = self.params.local_k > 0;
         let pane: u64 = active.iter().zip(&self.texels_per_tile).map(|(&a, &t)| a as u64 * t).sum();
         let (w, h) = self.size;
         let texels = (w * h) as u64;
-        let record_bytes = if local { 32 } else { 4 };
+        let record_bytes = if local { 32 + 4 * 4 * CORNER_WORDS as u64 } else { 4 };
         let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * record_bytes).sum::<u64>()
-            + active.iter().map(|&a| a as u64 * 32).sum::<u64>();
+            + active.iter().map(|&a| a as u64 * 2 * 64).sum::<u64>();
         let panes = (self.params.cluster_count + self.params.group_count) as u64;
         ComposeBytes {
             pane_data: pane,

@@ -31,6 +31,9 @@ pub const NO_SLOT: u32 = u32::MAX;
 /// Set in a compose record's data offset when the record is a dipole tile (signed codes, one
 /// per block: `shaders/compose.wgsl`); pane data must stay below it.
 pub const DIPOLE_RECORD: u32 = 1 << 31;
+/// Words per record and corner of its tile in the compose's `counts` buffer under a local budget
+/// (the state of the pane standing there and its weight: `shaders/compose.wgsl`).
+pub const CORNER_WORDS: u32 = 4;
 /// Shadow-map layers of a cube (a point light or a wide spot): +X -X +Y -Y +Z -Z.
 pub const CUBE_LAYERS: u32 = 6;
 /// [`crate::layout::GpuLight::kind`] of a point light.
@@ -46,6 +49,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_TILE", WG_TILE),
     ("NO_SLOT", NO_SLOT),
     ("DIPOLE_RECORD", DIPOLE_RECORD),
+    ("CORNER_WORDS", CORNER_WORDS),
     ("CUBE_LAYERS", CUBE_LAYERS),
     ("KIND_POINT", KIND_POINT),
     ("KIND_SPOT", KIND_SPOT),

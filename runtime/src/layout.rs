@@ -270,44 +270,55 @@ gpu_struct! {
         pub dipole_block: u32,
         /// Dipole codes per row of a dipole tile.
         pub dipole_side: u32,
-        /// Panes per atlas tile under a local budget (`cpu::compose_local`); 0: the weight
+        /// Panes picked per tile grid vertex under a local budget (`cpu::compose_local`); 0: the weight
         /// pass's global selection is composed as it is.
         pub local_k: u32,
         pub cluster_count: u32,
         pub group_count: u32,
         /// 1: under a local budget, groups stand in for each tile's clusters left out.
         pub residual: u32,
-        /// Records over all atlas tiles.
-        pub record_count: u32,
-        pub _pad0: u32,
-        pub _pad1: u32,
-        pub _pad2: u32,
     }
 }
 
 gpu_struct! {
-    /// One stored pane tile (`shaders/compose.wgsl`).
+    /// One stored pane tile (`shaders/compose.wgsl`), with what a local budget's picks at the
+    /// tile's four corners ((0,0), (1,0), (0,1), (1,1)) need of it.
     pub struct TileRecord {
-        /// RGB scale of the tile's f16 intensities.
+        /// RGB scale of the tile's 8-bit intensities.
         pub scale: [f32; 3],
         pub cluster: u32,
-        /// Index (in f16 units) of the tile's first stored texel in the data buffer.
+        /// Index (in bytes) of the tile's first stored texel in the data buffer.
         pub data_offset: u32,
         /// Luminance energy per unit weight (`cpu::TileRecord::energy`; 0 for dipole tiles).
         pub energy: f32,
         /// A cluster tile's group (`NO_SLOT` for none, group and dipole tiles).
         pub group: u32,
-        /// The atlas tile it covers.
-        pub tile: u32,
+        /// In this atlas tile's records: for a cluster's, the next of a cluster of the same
+        /// group; for a group's, the first of its clusters (`NO_SLOT`: none).
+        pub next: u32,
+        /// Per corner, `4 x record + corner` of the record that stands for this pane at that
+        /// vertex: the first of the pane's records in the tiles around it (in the order (x-1,
+        /// y-1), (x, y-1), (x-1, y), (x, y)), whose words in the compose's `counts` hold its
+        /// state and weight there.
+        pub owner: [u32; 4],
+        /// Per corner, the pane's energy summed over the tiles around that vertex.
+        pub summed: [f32; 4],
     }
 }
 
 gpu_struct! {
-    /// A stored tile of a selected pane, as the compose reads it (`shaders/compose.wgsl`).
+    /// A stored tile of a selected pane, as the compose reads it (`shaders/compose.wgsl`): the
+    /// pane's weight times the tile's colour scale at the tile's four corners, blended
+    /// bilinearly at each texel (all four the same under a global budget).
     pub struct ActiveRecord {
-        /// The pane's weight times the tile's colour scale.
-        pub weighted_scale: [f32; 3],
+        pub c00: [f32; 3],
         pub data_offset: u32,
+        pub c10: [f32; 3],
+        pub _pad0: u32,
+        pub c01: [f32; 3],
+        pub _pad1: u32,
+        pub c11: [f32; 3],
+        pub _pad2: u32,
     }
 }
 

@@ -23,8 +23,9 @@ use crate::weights::WeightPass;
 /// Where the runtime's pane budget applies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Budget {
-    /// Per atlas tile: each tile composes the `top_k` clusters that bring it the most light,
-    /// the groups standing in for its others (`cpu::compose_local`; the default).
+    /// Local: at each vertex of the atlas tile grid, the `top_k` clusters that bring the tiles
+    /// around it the most light, the groups standing in for the others, each pane's weight
+    /// blended over a tile from its four corners (`cpu::compose_local`; the default).
     #[default]
     Tile,
     /// One list for the whole map: the `top_k` clusters with the most light over all texels,

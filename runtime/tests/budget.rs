@@ -1,7 +1,9 @@
-//! Local pane budgets (`cpu::compose_local`): K panes per atlas tile, the groups standing in
-//! for each tile's others. A budget as large as any tile holds is the full sum; each tile keeps
-//! the energy of composing everything; each tile's pick is its strongest; and at the same K a
-//! local budget comes nearer the full sum than a global one.
+//! Local pane budgets (`cpu::compose_local`): K panes picked at each vertex of the atlas tile
+//! grid, the groups standing in for the others, blended over each tile from its corners. A
+//! budget as large as the panes around any vertex is the full sum; each vertex keeps the energy
+//! of composing everything around it; each vertex's pick is its strongest; the blend leaves no
+//! step at tile borders; and at the same K a local budget comes nearer the full sum than a
+//! global one.
 
 mod common;
 use common::{open_box, point, v};
@@ -9,7 +11,9 @@ use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
 use prm::{luminance, Bvh, Scene};
-use prm_runtime::cpu::{self, compose_local, entry_irradiance, tile_selection, TileBudget};
+use prm_runtime::cpu::{
+    self, compose_local, entry_irradiance, tiles_around, vertex_weights, TileBudget, TileRecord,
+};
 
 fn bake(scene: &Scene) -> prm::prm_file::Prm {
     let bvh = Bvh::build(scene);
@@ -37,86 +41,162 @@ fn lit() -> (prm::prm_file::Prm, Vec<Vec3>, Vec<[Vec3; 3]>) {
     (prm, w, moments)
 }
 
-fn tile_energy(img: &[Vec3], texels: &[u32]) -> f32 {
-    texels.iter().map(|&t| luminance(img[t as usize])).sum()
+/// The records of the tiles around every vertex of the map's tile grid.
+fn vertices(prm: &prm::prm_file::Prm, budget: &TileBudget) -> Vec<Vec<&'static [TileRecord]>> {
+    let (tx, ty) = (prm.tiles_x() as usize, prm.tiles_y() as usize);
+    let tiles: &'static Vec<Vec<TileRecord>> = Box::leak(Box::new(budget.tiles.clone()));
+    (0..(tx + 1) * (ty + 1))
+        .map(|v| {
+            tiles_around(v % (tx + 1), v / (tx + 1), tx, ty)
+                .iter()
+                .flatten()
+                .map(|&t| &tiles[t][..])
+                .collect()
+        })
+        .collect()
 }
 
 #[test]
-fn a_budget_as_large_as_any_tile_holds_is_the_full_sum() {
+fn a_budget_as_large_as_the_panes_around_any_vertex_is_the_full_sum() {
     let (prm, w, moments) = lit();
     let layout = prm.layout();
     let budget = TileBudget::new(&prm, &layout);
-    let k = budget.most_clusters(w.len());
+    let c = w.len() as u32;
+    let k = vertices(&prm, &budget)
+        .iter()
+        .map(|around| {
+            let mut panes: Vec<u32> =
+                around.iter().flat_map(|l| l.iter().map(|r| r.pane)).filter(|&p| p < c).collect();
+            panes.sort();
+            panes.dedup();
+            panes.len()
+        })
+        .max()
+        .unwrap();
+    assert!(k >= budget.most_clusters());
     let full = cpu::compose(&prm, &w, &moments);
-    let (local, composed) = compose_local(&prm, &budget, &layout, &w, &moments, k, true);
+    let local = compose_local(&prm, &budget, &layout, &w, &moments, k, true);
     let peak = full.iter().map(|c| c.max_element()).fold(0.0f32, f32::max);
-    for (a, b) in local.iter().zip(&full) {
+    for (a, b) in local.lightmap.iter().zip(&full) {
         assert!((*a - *b).abs().max_element() <= 1e-5 * peak, "{a} vs {b}");
     }
     let lit = w.iter().filter(|w| **w != Vec3::ZERO).count();
-    assert_eq!(composed.iter().filter(|&&c| c).count(), lit, "every lit cluster is composed somewhere");
+    assert_eq!(local.kept.iter().filter(|&&c| c).count(), lit, "every lit cluster is kept somewhere");
 }
 
 #[test]
-fn each_tile_keeps_the_energy_of_composing_everything() {
-    let (prm, w, _) = lit();
-    let layout = prm.layout();
-    let budget = TileBudget::new(&prm, &layout);
-    let full = cpu::compose(&prm, &w, &[]);
-    let (with, _) = compose_local(&prm, &budget, &layout, &w, &[], 2, true);
-    let (without, _) = compose_local(&prm, &budget, &layout, &w, &[], 2, false);
-    let (mut kept, mut lost) = (0usize, 0.0f32);
-    for (t, records) in budget.tiles.iter().enumerate() {
-        let texels = &layout.texels[t];
-        let e = tile_energy(&full, texels);
-        if e <= 0.0 {
-            continue;
-        }
-        // A left-out cluster whose group stored no tile here has nowhere to go.
-        let homeless = records.iter().any(|r| {
-            (r.pane as usize) < w.len()
-                && !records
-                    .iter()
-                    .any(|q| q.pane as usize == w.len() + prm.group_of()[r.pane as usize] as usize)
-        });
-        if homeless {
-            continue;
-        }
-        kept += 1;
-        let got = tile_energy(&with, texels);
-        assert!((got - e).abs() <= 1e-4 * e, "tile {t}: {got} with the groups vs {e} in full");
-        lost = lost.max(1.0 - tile_energy(&without, texels) / e);
-    }
-    assert!(kept * 2 > budget.tiles.iter().filter(|r| !r.is_empty()).count(), "only {kept} tiles checked");
-    assert!(lost > 0.2, "2 panes per tile leave out at most {lost} of a tile: nothing was tested");
-}
-
-#[test]
-fn each_tile_picks_its_strongest_clusters() {
+fn each_vertex_keeps_the_energy_of_composing_everything_around_it() {
     let (prm, w, _) = lit();
     let budget = TileBudget::new(&prm, &prm.layout());
     let c = w.len();
+    let (mut checked, mut lost) = (0usize, 0.0f32);
+    for around in vertices(&prm, &budget) {
+        // The energy each pane brings the tiles around, by pane.
+        let mut energy: std::collections::BTreeMap<u32, f32> = Default::default();
+        for r in around.iter().flat_map(|l| l.iter()) {
+            *energy.entry(r.pane).or_default() += r.energy;
+        }
+        let all: f32 = energy
+            .iter()
+            .filter(|(&p, _)| (p as usize) < c)
+            .map(|(&p, e)| luminance(w[p as usize]) * e)
+            .sum();
+        if all <= 0.0 {
+            continue;
+        }
+        // A cluster in a tile where its group stores no tile has nowhere to go.
+        let homeless = around.iter().any(|l| {
+            l.iter().any(|r| {
+                (r.pane as usize) < c
+                    && !l.iter().any(|q| q.pane == c as u32 + prm.group_of()[r.pane as usize])
+            })
+        });
+        let kept = |residual| -> f32 {
+            vertex_weights(&around, &w, &[], prm.group_of(), prm.groups().len(), 2, residual)
+                .iter()
+                .map(|(p, wt)| luminance(*wt) * energy[p])
+                .sum()
+        };
+        lost = lost.max(1.0 - kept(false) / all);
+        if !homeless {
+            checked += 1;
+            let got = kept(true);
+            assert!((got - all).abs() <= 1e-4 * all, "{got} with the groups vs {all} in full");
+        }
+    }
+    assert!(checked > 10, "only {checked} vertices checked");
+    assert!(lost > 0.2, "2 panes per vertex leave out at most {lost}: nothing was tested");
+}
+
+#[test]
+fn each_vertex_picks_its_strongest_clusters() {
+    let (prm, w, _) = lit();
+    let budget = TileBudget::new(&prm, &prm.layout());
+    let c = w.len() as u32;
     // Every other cluster dark: never picked, whatever its pane holds.
     let half: Vec<Vec3> =
         w.iter().enumerate().map(|(k, x)| if k % 2 == 0 { Vec3::ZERO } else { *x }).collect();
     for weights in [&w, &half] {
-        for records in &budget.tiles {
-            let picked = tile_selection(records, weights, prm.group_of(), 3, false);
-            let score = |i: usize| luminance(weights[records[i].pane as usize]) * records[i].energy;
-            let lit =
-                (0..records.len()).filter(|&i| (records[i].pane as usize) < c && score(i) > 0.0).count();
-            assert_eq!(picked.len(), lit.min(3));
-            let weakest = picked.iter().map(|&(i, _)| score(i)).fold(f32::INFINITY, f32::min);
-            for (i, r) in records.iter().enumerate() {
-                if (r.pane as usize) < c && !picked.iter().any(|p| p.0 == i) {
-                    assert!(score(i) <= weakest, "a stronger record was left out");
-                }
+        for around in vertices(&prm, &budget) {
+            let picked = vertex_weights(&around, weights, &[], prm.group_of(), prm.groups().len(), 3, false);
+            let mut energy: std::collections::BTreeMap<u32, f32> = Default::default();
+            for r in around.iter().flat_map(|l| l.iter()) {
+                *energy.entry(r.pane).or_default() += r.energy;
             }
-            for &(i, wt) in &picked {
-                assert!(score(i) > 0.0 && wt == weights[records[i].pane as usize]);
+            let score = |p: u32| luminance(weights[p as usize]) * energy[&p];
+            let lit = energy.keys().filter(|&&p| p < c && score(p) > 0.0).count();
+            let kept: Vec<u32> =
+                picked.iter().filter(|(p, wt)| *p < c && *wt != Vec3::ZERO).map(|(p, _)| *p).collect();
+            assert_eq!(kept.len(), lit.min(3));
+            let weakest = kept.iter().map(|&p| score(p)).fold(f32::INFINITY, f32::min);
+            for &p in energy.keys().filter(|&&p| p < c && !kept.contains(&p)) {
+                assert!(score(p) <= weakest, "a stronger cluster was left out");
+            }
+            for &p in &kept {
+                assert_eq!(picked.iter().find(|q| q.0 == p).unwrap().1, weights[p as usize]);
             }
         }
     }
+}
+
+/// Picked per tile, a pane kept on one side of a border and left to its group on the other
+/// stepped along it (chamber: 2.6 % of the mean irradiance across borders, 0.4 % between other
+/// neighbours). Blended from shared vertices, a pane's weight on the two sides of a border
+/// differs by at most 1/ts of its weights at the vertices involved.
+#[test]
+fn a_panes_weight_does_not_step_at_tile_borders() {
+    let (prm, w, _) = lit();
+    let budget = TileBudget::new(&prm, &prm.layout());
+    let (tx, ty) = (prm.tiles_x() as usize, prm.tiles_y() as usize);
+    let ts = prm.header().tile_size as usize;
+    let weights: Vec<Vec<(u32, Vec3)>> = vertices(&prm, &budget)
+        .iter()
+        .map(|around| vertex_weights(around, &w, &[], prm.group_of(), prm.groups().len(), 3, true))
+        .collect();
+    let at = |vx: usize, vy: usize, pane: u32| {
+        let l = &weights[vy * (tx + 1) + vx];
+        l.binary_search_by_key(&pane, |p| p.0).map_or(Vec3::ZERO, |i| l[i].1)
+    };
+    let corners =
+        |x: usize, y: usize, p: u32| [at(x, y, p), at(x + 1, y, p), at(x, y + 1, p), at(x + 1, y + 1, p)];
+    let (mut pairs, mut stepped) = (0, 0);
+    for y in 0..ty {
+        for x in 0..tx - 1 {
+            let (left, right) = (&budget.tiles[y * tx + x], &budget.tiles[y * tx + x + 1]);
+            for r in left.iter().filter(|r| right.iter().any(|q| q.pane == r.pane)) {
+                let (a, b) = (corners(x, y, r.pane), corners(x + 1, y, r.pane));
+                let most = a.iter().chain(&b).map(|v| v.max_element()).fold(0.0f32, f32::max);
+                for j in 0..ts {
+                    let step = (cpu::blend(&a, ts - 1, j, ts) - cpu::blend(&b, 0, j, ts)).abs().max_element();
+                    assert!(step <= most / ts as f32 + 1e-6, "pane {} steps {step} of {most}", r.pane);
+                    pairs += 1;
+                }
+                // Tiles that differ at their far corners: a pick per tile would step here.
+                stepped += (a[0] != b[1] || a[2] != b[3]) as usize;
+            }
+        }
+    }
+    assert!(pairs > 100 && stepped > 10, "{pairs} texel pairs, {stepped} panes picked differently");
 }
 
 #[test]
@@ -131,7 +211,7 @@ fn a_local_budget_comes_nearer_the_full_sum_than_a_global_one() {
     let chosen: Vec<bool> = (0..w.len()).map(|c| top.contains(&c)).collect();
     for residual in [false, true] {
         let global = cpu::compose_selected(&prm, &w, &[], &chosen, residual, &layout);
-        let (local, _) = compose_local(&prm, &budget, &layout, &w, &[], k, residual);
+        let local = compose_local(&prm, &budget, &layout, &w, &[], k, residual).lightmap;
         let eg = prm::metric::compare(&global, &full, None).error;
         let el = prm::metric::compare(&local, &full, None).error;
         // Measured: 0.21 vs 0.35 without the groups, 0.046 vs 0.16 with them.

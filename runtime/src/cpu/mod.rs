@@ -21,7 +21,10 @@ pub mod concentrate;
 #[cfg(feature = "cpu-twin")]
 mod twin;
 
-pub use budget::{compose_local, stored_tile_energy, tile_selection, TileBudget, TileRecord};
+pub use budget::{
+    blend, compose_local, stored_tile_energy, tiles_around, vertex_weights, LocalCompose, TileBudget,
+    TileRecord,
+};
 pub use compose::{
     add_dipole, add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with,
     compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain, far_field,

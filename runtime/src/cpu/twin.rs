@@ -116,10 +116,10 @@ impl<'a> CpuTwin<'a> {
         let w = cluster_weights_with(self.prm, &self.near, &link_light, &e, &lin);
         if self.budget == Budget::Tile {
             let budget = self.tile_budget.get_or_insert_with(|| TileBudget::new(self.prm, &self.layout));
-            let (img, composed) =
+            let local =
                 compose_local(self.prm, budget, &self.layout, &w, &moments, self.top_k, self.residual);
-            self.lightmap = img;
-            self.last_selected = composed.iter().filter(|&&c| c).count();
+            self.lightmap = local.lightmap;
+            self.last_selected = local.kept.iter().filter(|&&c| c).count();
         } else {
             let energies: Vec<f32> = self.prm.clusters().iter().map(|c| c.energy).collect();
             let selected = select_top_k(&w, &energies, self.top_k);
