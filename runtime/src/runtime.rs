@@ -386,6 +386,7 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
         }
     }
     let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
+    let records = (prm.tiles().len() + prm.dipoles().tiles.len()) as u64;
     let tables = [
         ("pane data", (prm.data().len() + prm.dipoles().data.len()) as u64),
         ("texel slots", w as u64 * h as u64 * 8),
@@ -416,7 +417,11 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
             "active-record lists",
             per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64,
         ),
-        ("tile records", prm.tiles().len() as u64 * std::mem::size_of::<crate::layout::TileRecord>() as u64),
+        ("tile records", records * std::mem::size_of::<crate::layout::TileRecord>() as u64),
+        (
+            "local-budget corner words",
+            (per_tile.len() as u64 + records * 4 * crate::contract::CORNER_WORDS as u64) * 4,
+        ),
     ];
     let data = (prm.data().len() + prm.dipoles().data.len()) as u64;
     if data >= crate::contract::DIPOLE_RECORD as u64 {
