@@ -88,7 +88,9 @@ fn vertex_score(k: u32, slot: u32) -> u32 {
     if records[k].owner[corner] != k * 4u + corner || cluster >= params.cluster_count {
         return 0u;
     }
-    return bitcast<u32>(max(luminance(selected[cluster].xyz) * records[k].summed[corner], 0.0));
+    // Positive scores only (not -0 or NaN, whose bits would rank first), as the CPU's.
+    let s = luminance(selected[cluster].xyz) * records[k].summed[corner];
+    return select(0u, bitcast<u32>(s), s > 0.0);
 }
 
 fn score_at(k: u32, slot: u32) -> u32 {

@@ -135,8 +135,9 @@ impl MapArgs {
 /// Where the runtime's pane budget applies (`prm_runtime::Budget`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum BudgetArg {
-    /// Each atlas tile composes the K panes that bring it the most light.
-    Tile,
+    /// At each vertex of the atlas tile grid, the K panes that bring the tiles around it the
+    /// most light, blended over each tile from its corners.
+    Local,
     /// The K panes that bring the whole map the most light, everywhere.
     Global,
 }
@@ -144,7 +145,7 @@ pub enum BudgetArg {
 impl From<BudgetArg> for prm_runtime::Budget {
     fn from(b: BudgetArg) -> Self {
         match b {
-            BudgetArg::Tile => prm_runtime::Budget::Tile,
+            BudgetArg::Local => prm_runtime::Budget::Local,
             BudgetArg::Global => prm_runtime::Budget::Global,
         }
     }
@@ -156,8 +157,9 @@ pub struct ComposeArgs {
     /// Panes composed per frame: the strongest by luminance(weight) x energy.
     #[arg(long, default_value_t = 32)]
     pub top_k: usize,
-    /// Where --top-k applies: per atlas tile, or one list for the whole map.
-    #[arg(long, value_enum, default_value_t = BudgetArg::Tile)]
+    /// Where --top-k applies: local (picked at each vertex of the atlas tile grid), or one
+    /// list for the whole map.
+    #[arg(long, value_enum, default_value_t = BudgetArg::Local)]
     pub budget: BudgetArg,
     /// Drop the left-out clusters' light instead of composing their groups' panes for it.
     #[arg(long)]

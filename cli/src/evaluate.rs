@@ -19,8 +19,9 @@ pub struct Args {
     /// Compose only the K strongest panes (default: all).
     #[arg(long)]
     top_k: Option<usize>,
-    /// With --top-k: where it applies, per atlas tile or one list for the whole map.
-    #[arg(long, value_enum, default_value_t = BudgetArg::Tile)]
+    /// With --top-k: where it applies, local (picked at each vertex of the atlas tile grid) or
+    /// one list for the whole map.
+    #[arg(long, value_enum, default_value_t = BudgetArg::Local)]
     budget: BudgetArg,
     /// With --top-k: drop the left-out clusters' light instead of composing their groups' panes.
     #[arg(long)]

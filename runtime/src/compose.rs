@@ -362,17 +362,19 @@ impl ComposePass {
     }
 
     /// Bytes a compose that summed `active[t]` records in atlas tile t reads and writes: one
-    /// byte per stored texel of each summed record, the gather's reads of the tile's records (a
-    /// 4-byte pane id each for the weight pass's global selection; whole 32-byte records and
-    /// their four corners' 20-byte states, for the vertices' picks, under a local budget) and
-    /// its 64-byte active entries (written once, read per texel from cache), the slot table, the selection table, and the RGBA32F lightmap
-    /// written.
+    /// byte per stored texel of each summed record (a dipole's codes counted per texel too),
+    /// the gather's reads of the tile's records (a 4-byte pane id each for the weight pass's
+    /// global selection; under a local budget each 64-byte record read by the four vertices
+    /// around its tile, and its four corners' 16 bytes of state and weight written and read),
+    /// its 64-byte active entries (written once, read per texel from cache), the slot table,
+    /// the selection table, and the RGBA32F lightmap written.
     pub fn bytes(&self, active: &[u32]) -> ComposeBytes {
         let local = self.params.local_k > 0;
         let pane: u64 = active.iter().zip(&self.texels_per_tile).map(|(&a, &t)| a as u64 * t).sum();
         let (w, h) = self.size;
         let texels = (w * h) as u64;
-        let record_bytes = if local { 32 + 4 * 4 * CORNER_WORDS as u64 } else { 4 };
+        let record = std::mem::size_of::<TileRecord>() as u64;
+        let record_bytes = if local { 4 * record + 2 * 4 * 4 * CORNER_WORDS as u64 } else { 4 };
         let headers: u64 = self.records_per_tile.iter().map(|&r| r as u64 * record_bytes).sum::<u64>()
             + active.iter().map(|&a| a as u64 * 2 * 64).sum::<u64>();
         let panes = (self.params.cluster_count + self.params.group_count) as u64;

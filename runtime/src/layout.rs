@@ -275,7 +275,7 @@ gpu_struct! {
         pub local_k: u32,
         pub cluster_count: u32,
         pub group_count: u32,
-        /// 1: under a local budget, groups stand in for each tile's clusters left out.
+        /// 1: under a local budget, groups stand in for the clusters each vertex leaves out.
         pub residual: u32,
     }
 }

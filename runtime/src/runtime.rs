@@ -27,7 +27,7 @@ pub enum Budget {
     /// around it the most light, the groups standing in for the others, each pane's weight
     /// blended over a tile from its four corners (`cpu::compose_local`; the default).
     #[default]
-    Tile,
+    Local,
     /// One list for the whole map: the `top_k` clusters with the most light over all texels,
     /// the groups standing in for the others everywhere (`cpu::compose_selected`).
     Global,
@@ -36,10 +36,11 @@ pub enum Budget {
 /// Runtime settings.
 #[derive(Clone, Copy, Debug)]
 pub struct RuntimeParams {
-    /// Panes composed per frame (default 32; >= the cluster count means all): per atlas tile or
-    /// for the whole map, as `budget` says, the strongest by `luminance(weight) x energy`.
+    /// Panes composed per frame (default 32; >= the cluster count means all): picked at each
+    /// vertex of the atlas tile grid or for the whole map, as `budget` says, the strongest by
+    /// `luminance(weight) x energy`.
     pub top_k: usize,
-    /// Where `top_k` applies (default per atlas tile).
+    /// Where `top_k` applies (default local: at each tile grid vertex).
     pub budget: Budget,
     /// Texels per side of each shadow-map layer (default 1024).
     pub shadow_size: u32,
@@ -50,7 +51,7 @@ pub struct RuntimeParams {
 
 impl Default for RuntimeParams {
     fn default() -> Self {
-        RuntimeParams { top_k: 32, budget: Budget::Tile, shadow_size: 1024, residual: true }
+        RuntimeParams { top_k: 32, budget: Budget::Local, shadow_size: 1024, residual: true }
     }
 }
 
@@ -269,9 +270,9 @@ impl Runtime {
 
     fn write_params(&mut self) {
         let k = self.params.top_k.min(u32::MAX as usize) as u32;
-        // A local budget: the weight pass keeps every cluster and the compose picks per tile.
+        // A local budget: the weight pass keeps every cluster and the compose picks per vertex.
         let (global_k, local_k) = match self.params.budget {
-            Budget::Tile => (u32::MAX, k),
+            Budget::Local => (u32::MAX, k),
             Budget::Global => (k, 0),
         };
         self.compose.set_budget(&self.queue, local_k, self.params.residual);
@@ -324,7 +325,7 @@ impl Runtime {
     }
 
     /// Reads back which panes the weight pass kept: C clusters, then G groups (under a local
-    /// budget every lit cluster and no group: the compose picks per tile, and
+    /// budget every lit cluster and no group: the compose picks per tile grid vertex, and
     /// [`Runtime::compose_bytes`] counts what it summed).
     pub fn read_selected(&self) -> Result<Vec<bool>, RuntimeError> {
         let w = read_vec4(

@@ -127,9 +127,10 @@ fn runtime_section(s: &mut String, b: &Budget, prod: (u32, u32, u32), sweep: &Ru
     }
     let _ = writeln!(
         s,
-        "K per atlas tile (the runtime's default) or over the whole map; groups stand in for \
+        "K picked at each vertex of the atlas tile grid (local, the runtime's default) or over \
+        the whole map; groups stand in for \
         the clusters left out (a tile's, or the map's).\n\n\
-        | top-K | frame (ms), per tile | error, per tile + groups | bias | error, map + groups | \
+        | top-K | frame (ms), local | error, local + groups | bias | error, map + groups | \
         bias | error, map alone | bias |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
     );
     for ((p, g), q) in sweep.tile.iter().zip(&sweep.with).zip(&sweep.without) {

@@ -5,7 +5,7 @@
 //! beside it). The report sweeps:
 //! - the PRM's precompute budget (entries, paths, clusters): error of all panes with exact
 //!   (ray-traced) weights against precompute time;
-//! - its runtime budget (top-K per atlas tile, the default, and over the whole map with and
+//! - its runtime budget (top-K picked locally, the default, and over the whole map with and
 //!   without the groups standing in for the left-out clusters): error of the runtime's lightmap against frame time, on the GPU when an adapter
 //!   exists (else the CPU twin, said so);
 //! - the reference baker (photons, hence VPLs, and VPLs per virtual light);

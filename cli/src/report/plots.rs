@@ -171,7 +171,7 @@ fn plot_runtime(path: &Path, sweep: &RuntimeSweep, gpu: bool) -> Result<()> {
         .draw()
         .map_err(plot_err)?;
     for (points, colour, name) in [
-        (tile, PRM_COLOUR, "K per atlas tile + groups (default)"),
+        (tile, PRM_COLOUR, "K picked locally + groups (default)"),
         (with, ALL_COLOUR, "K over the map + groups"),
         (without, PLAIN_COLOUR, "K over the map alone"),
     ] {
@@ -218,7 +218,7 @@ fn plot_rig(path: &Path, frames: &[Frame]) -> Result<()> {
     Ok(())
 }
 
-const RIG_NAMES: [&str; 3] = ["PRM top-32 per tile + groups", "PRM all panes", "reference baker"];
+const RIG_NAMES: [&str; 3] = ["PRM top-32 + groups", "PRM all panes", "reference baker"];
 const RIG_COLOURS: [RGBColor; 3] = [PRM_COLOUR, ALL_COLOUR, REF_COLOUR];
 
 /// The rig plot's upper half: each method's error per frame, and the ground truth's own noise.

@@ -56,7 +56,7 @@ pub fn default_rig(scene: &Scene) -> Result<Rig> {
     Ok(Rig::parse(Path::new("(default rig)"), &json, &scene.lights)?)
 }
 
-/// The GPU runtime the report's frames are composed on (top-32 per atlas tile + groups, 1024² shadow maps),
+/// The GPU runtime the report's frames are composed on (top-32 picked locally + groups, 1024² shadow maps),
 /// or none without an adapter (then the CPU twin).
 pub fn report_runtime(gpu: Option<&Gpu>, level: &Level, map: &Prm) -> Result<Option<Runtime>> {
     Ok(match gpu {

@@ -79,7 +79,7 @@ pub fn reference_sweep(b: &Budget, level: &Level, gt: &[Vec3], seed: u64) -> Res
     Ok(points)
 }
 
-/// The runtime budget: error and frame time per top-K, K per atlas tile with the groups for
+/// The runtime budget: error and frame time per top-K, K picked locally with the groups for
 /// each tile's others (the runtime's default), K over the whole map with the groups, and K
 /// over the map alone.
 pub struct RuntimeSweep {
@@ -90,7 +90,7 @@ pub struct RuntimeSweep {
     pub direct_ms: f64,
 }
 
-/// Error and frame time per top-K (per tile, over the map with groups, over the map alone), and
+/// Error and frame time per top-K (local, over the map with groups, over the map alone), and
 /// the direct-only frame time.
 pub fn runtime_sweep(
     b: &Budget,
@@ -124,7 +124,7 @@ fn cpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3]) -> Runti
     let (mut tile, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
     for &k in &b.top_k {
         for (budget, residual, out) in [
-            (RtBudget::Tile, true, &mut tile),
+            (RtBudget::Local, true, &mut tile),
             (RtBudget::Global, true, &mut with),
             (RtBudget::Global, false, &mut without),
         ] {
@@ -169,7 +169,7 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
     let (mut tile, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
     for &k in &b.top_k {
         for (budget, residual, out) in [
-            (RtBudget::Tile, true, &mut tile),
+            (RtBudget::Local, true, &mut tile),
             (RtBudget::Global, true, &mut with),
             (RtBudget::Global, false, &mut without),
         ] {

@@ -72,12 +72,6 @@ impl TileBudget {
         }
         TileBudget { tiles, clusters: prm.clusters().len(), groups: prm.groups().len() }
     }
-
-    /// The most cluster records any atlas tile holds: a K at least this picks every one.
-    pub fn most_clusters(&self) -> usize {
-        let c = self.clusters as u32;
-        self.tiles.iter().map(|l| l.iter().filter(|r| r.pane < c).count()).max().unwrap_or(0)
-    }
 }
 
 /// The atlas tiles around vertex (vx, vy) of the tile grid, in the order (vx-1, vy-1), (vx,
@@ -190,15 +184,15 @@ pub fn blend(corners: &[Vec3; 4], x: usize, y: usize, ts: usize) -> Vec3 {
 /// What [`compose_local`] did besides the lightmap.
 pub struct LocalCompose {
     pub lightmap: Vec<Vec3>,
-    /// Per cluster: some tile kept it.
+    /// Per cluster: some vertex kept it.
     pub kept: Vec<bool>,
     /// Per atlas tile: the stored tiles summed there (panes any of its vertices weighs).
     pub summed: Vec<u32>,
 }
 
 /// The lightmap under a local budget of `k` panes picked per vertex of the tile grid (weights `weights`, dipole
-/// weights `moments`, empty for none), with, under `residual`, the groups standing in for each
-/// tile's other clusters; each pane's weight blended from the tile grid's vertices.
+/// weights `moments`, empty for none), with, under `residual`, the groups standing in for the
+/// clusters each vertex leaves out; each pane's weight blended from its tile's corners.
 pub fn compose_local(
     prm: &Prm,
     budget: &TileBudget,
@@ -208,6 +202,7 @@ pub fn compose_local(
     k: usize,
     residual: bool,
 ) -> LocalCompose {
+    assert_eq!(weights.len(), budget.clusters, "one weight per cluster");
     let (tx, ty) = (prm.tiles_x() as usize, prm.tiles_y() as usize);
     let vertices: Vec<Vec<(u32, Vec3)>> = (0..(tx + 1) * (ty + 1))
         .map(|v| {

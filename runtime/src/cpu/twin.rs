@@ -62,7 +62,7 @@ pub struct CpuTwin<'a> {
     lightmap: Vec<Vec3>,
     /// Composes performed (a frame with unchanged lights adds none).
     pub composes: usize,
-    /// Clusters composed in the last compose (with a budget per tile: by some tile).
+    /// Clusters composed in the last compose (under a local budget: kept at some vertex).
     pub last_selected: usize,
     residual: bool,
     budget: Budget,
@@ -97,7 +97,7 @@ impl<'a> CpuTwin<'a> {
         self.last_lights = None;
     }
 
-    /// Where the budget of `top_k` panes applies (default per atlas tile); the next frame
+    /// Where the budget of `top_k` panes applies (default local: at each tile grid vertex); the next frame
     /// recomposes.
     pub fn set_budget(&mut self, budget: Budget) {
         self.budget = budget;
@@ -114,7 +114,7 @@ impl<'a> CpuTwin<'a> {
         let moments = dipole_moments(self.prm, &self.near, &e);
         let lin = dipole_offsets(self.prm, &self.near, &moments);
         let w = cluster_weights_with(self.prm, &self.near, &link_light, &e, &lin);
-        if self.budget == Budget::Tile {
+        if self.budget == Budget::Local {
             let budget = self.tile_budget.get_or_insert_with(|| TileBudget::new(self.prm, &self.layout));
             let local =
                 compose_local(self.prm, budget, &self.layout, &w, &moments, self.top_k, self.residual);

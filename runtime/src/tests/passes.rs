@@ -279,7 +279,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
             );
         }
         rt.set_residual(true);
-        rt.set_budget(Budget::Tile);
+        rt.set_budget(Budget::Local);
     }
 }
 
@@ -337,7 +337,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         );
     }
     rt.set_top_k(c).unwrap();
-    rt.set_budget(Budget::Tile);
+    rt.set_budget(Budget::Local);
     rt.update(&scene.lights).unwrap();
     let mut twin = crate::cpu::CpuTwin::new(&prm, &bvh, c);
     let cpu = twin.frame(&scene.lights).to_vec();
@@ -394,7 +394,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let cpu_far: Vec<Vec3> = cpu.iter().zip(&without).map(|(a, b)| *a - *b).collect();
     let m = prm::metric::compare(&gpu_far, &cpu_far, None);
     assert!(m.error < 0.05, "corner lamp: GPU vs CPU far field: normalised RMSE {}", m.error);
-    // A local budget of 4 panes per atlas tile under the corner lamp, the dipoles of the panes
+    // A local budget of 4 panes per tile grid vertex under the corner lamp, the dipoles of the panes
     // each tile keeps with them: the GPU's pick against the twin's, without the groups (which
     // must leave light out, or this checks nothing) and with them.
     rt.set_top_k(4).unwrap();
@@ -407,9 +407,9 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         let cpu_4 = twin_4.frame(&corner).to_vec();
         let left_out = prm::metric::compare(&cpu_4, &cpu, None).error;
         // Measured 0.017 without the groups: a few clusters light most of a corner.
-        assert!(residual || left_out > 0.01, "4 panes per tile leave out only {left_out}");
+        assert!(residual || left_out > 0.01, "4 panes per vertex leave out only {left_out}");
         let m = prm::metric::compare(&gpu_4, &cpu_4, None);
-        assert!(m.error < 0.01, "corner lamp, 4 per tile, residual {residual}: GPU vs twin: {}", m.error);
+        assert!(m.error < 0.01, "corner lamp, 4 per vertex, residual {residual}: GPU vs twin: {}", m.error);
     }
 }
 
