@@ -9,7 +9,8 @@
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[t * active_stride ..] as (weight x scale at the tile's four corners, data
 // offset), their number in counts[t]; compose_main (one invocation per atlas texel) sums only
-// those, one 64-byte entry (the corners blended at the texel) and one byte each, plus the near field's sum where the texel has one, then clamped at
+// those, one entry (its four corners blended at the texel, or the first alone when they are
+// equal) and one byte each, plus the near field's sum where the texel has one, then clamped at
 // 0 (runtime/src/near.rs; the far field's light is in the same sums, runtime/src/far.rs).
 // Texels with neither a stored tile nor a sum are written 0.
 //
@@ -278,8 +279,10 @@ fn gather_local(t: u32) {
         let w2 = corner_weight(k, 2u);
         let w3 = corner_weight(k, 3u);
         if any(w0 != vec3f(0.0)) || any(w1 != vec3f(0.0)) || any(w2 != vec3f(0.0)) || any(w3 != vec3f(0.0)) {
+            let same = all(w0 == w1) && all(w0 == w2) && all(w0 == w3);
+            let blend = select(1u, 0u, same);
             active_records[t * params.active_stride + n] =
-                ActiveRecord(w0 * s, records[k].data_offset, w1 * s, 0u, w2 * s, 0u, w3 * s, 0u);
+                ActiveRecord(w0 * s, records[k].data_offset, w1 * s, blend, w2 * s, 0u, w3 * s, 0u);
             n++;
         }
     }
@@ -325,17 +328,22 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
         // The texel's place in its tile, for the blend of each record's corner weights.
         let f = (vec2f(id.xy % vec2u(ts)) + 0.5) / f32(ts);
         for (var a = 0u; a < n; a++) {
-            let rec = active_records[base + a];
-            let weighted_scale = mix(mix(rec.c00, rec.c10, f.x), mix(rec.c01, rec.c11, f.x), f.y);
-            if (rec.data_offset & DIPOLE_RECORD) != 0u {
+            // Most records weigh the same at all four corners: read just the first.
+            let data_offset = active_records[base + a].data_offset;
+            var weighted_scale = active_records[base + a].c00;
+            if active_records[base + a].blend != 0u {
+                let rec = active_records[base + a];
+                weighted_scale = mix(mix(rec.c00, rec.c10, f.x), mix(rec.c01, rec.c11, f.x), f.y);
+            }
+            if (data_offset & DIPOLE_RECORD) != 0u {
                 let b = params.dipole_block;
                 let q = ((id.y % ts) / b) * params.dipole_side + (id.x % ts) / b;
-                let i = (rec.data_offset & ~DIPOLE_RECORD) + q;
+                let i = (data_offset & ~DIPOLE_RECORD) + q;
                 let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
                 let v = max(f32(bitcast<i32>(code << 24u) >> 24u), -127.0) / 127.0;
                 sum += weighted_scale * v;
             } else {
-                let i = rec.data_offset + slot;
+                let i = data_offset + slot;
                 let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
                 sum += weighted_scale * intensity(code);
             }

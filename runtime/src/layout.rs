@@ -314,7 +314,9 @@ gpu_struct! {
         pub c00: [f32; 3],
         pub data_offset: u32,
         pub c10: [f32; 3],
-        pub _pad0: u32,
+        /// 1 when the corners differ; 0: `c00` is the weight everywhere in the tile, and the
+        /// texel reads only it.
+        pub blend: u32,
         pub c01: [f32; 3],
         pub _pad1: u32,
         pub c11: [f32; 3],

@@ -176,6 +176,10 @@ pub fn vertex_weights(
 /// The blend of a pane's four vertex weights (`[(0,0), (1,0), (0,1), (1,1)]` corners of the
 /// tile) at texel offset `(x, y)` within a tile of side `ts`: bilinear in the texel's centre.
 pub fn blend(corners: &[Vec3; 4], x: usize, y: usize, ts: usize) -> Vec3 {
+    // Equal corners: that weight, exactly (the GPU reads just the first).
+    if corners[1..].iter().all(|c| *c == corners[0]) {
+        return corners[0];
+    }
     let (fx, fy) = ((x as f32 + 0.5) / ts as f32, (y as f32 + 0.5) / ts as f32);
     (corners[0] * (1.0 - fx) + corners[1] * fx) * (1.0 - fy)
         + (corners[2] * (1.0 - fx) + corners[3] * fx) * fy
