@@ -256,6 +256,14 @@ impl Dipoles {
         (tile_size.div_ceil(self.block.max(1)) as usize).pow(2)
     }
 
+    /// Where atlas texel `texel` (row-major, atlas `width` wide) reads its code within a stored
+    /// dipole tile of its atlas tile: its block's place, row-major, `ceil(tile_size / block)` a row.
+    pub fn code_index(&self, tile_size: u32, width: u32, texel: u32) -> usize {
+        let (ts, b) = (tile_size as usize, self.block.max(1) as usize);
+        let (x, y) = (texel as usize % width as usize, texel as usize / width as usize);
+        ((y % ts) / b) * ts.div_ceil(b) + (x % ts) / b
+    }
+
     /// Tile range of cluster `c`'s axis `k` in [`Dipoles::tiles`].
     pub fn range(&self, c: usize, k: usize) -> Range<usize> {
         let d = &self.clusters[c];

@@ -150,7 +150,8 @@ pub fn vertex_weights(
                 let g = (p - c_count) as u32;
                 let mut left = Vec3::ZERO;
                 if residual && energy > 0.0 {
-                    for list in around.iter().filter(|l| l.iter().any(|r| r.pane == pane)) {
+                    let stores = |l: &&&[TileRecord]| l.binary_search_by_key(&pane, |r| r.pane).is_ok();
+                    for list in around.iter().filter(stores) {
                         for q in list.iter() {
                             let c = q.pane as usize;
                             if c < c_count && group_of.get(c) == Some(&g) && !kept(c) {
@@ -226,10 +227,9 @@ pub fn compose_local(
             }
         }
     }
-    let (d, w) = (prm.dipoles(), prm.atlas().0 as usize);
-    let ts = prm.header().tile_size as usize;
-    let (block, codes) = (d.block.max(1) as usize, d.tile_codes(prm.header().tile_size));
-    let side = ts.div_ceil(block);
+    let (d, w) = (prm.dipoles(), prm.atlas().0);
+    let tile_size = prm.header().tile_size;
+    let (ts, codes) = (tile_size as usize, d.tile_codes(tile_size));
     let first_dipole = (budget.clusters + budget.groups) as u32;
     // Pane `pane`'s weight at vertex (vx, vy) (every pane of a tile is listed at its corners).
     let vertex = |vx: usize, vy: usize, pane: u32| -> Vec3 {
@@ -257,15 +257,15 @@ pub fn compose_local(
                 let scale = prm.tiles()[s].scale;
                 let data = &prm.data()[layout.offsets[s]..layout.offsets[s] + texels.len()];
                 for (&texel, &v) in texels.iter().zip(data) {
-                    let (x, y) = (texel as usize % w, texel as usize / w);
+                    let (x, y) = (texel as usize % w as usize, texel as usize / w as usize);
                     img[texel as usize] += blend(&c, x % ts, y % ts, ts) * scale * intensity(v);
                 }
             } else {
                 let scale = d.tiles[s].scale;
                 let data = &d.data[s * codes..(s + 1) * codes];
                 for &texel in texels {
-                    let (x, y) = (texel as usize % w, texel as usize / w);
-                    let v = dipole_value(data[((y % ts) / block) * side + (x % ts) / block]);
+                    let (x, y) = (texel as usize % w as usize, texel as usize / w as usize);
+                    let v = dipole_value(data[d.code_index(tile_size, w, texel)]);
                     img[texel as usize] += blend(&c, x % ts, y % ts, ts) * scale * v;
                 }
             }

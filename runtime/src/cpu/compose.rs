@@ -199,9 +199,8 @@ pub fn dipole_offsets(prm: &Prm, tables: &NearTables, moments: &[[Vec3; 3]]) -> 
 /// Add cluster `c`'s dipole panes, weighted by its `moments`, into a full-atlas image.
 pub fn add_dipole(prm: &Prm, c: usize, moments: &[Vec3; 3], img: &mut [Vec3], layout: &TileLayout) {
     let d = prm.dipoles();
-    let ts = prm.header().tile_size as usize;
-    let (b, w) = (d.block as usize, prm.atlas().0 as usize);
-    let (side, codes) = (ts.div_ceil(b), d.tile_codes(prm.header().tile_size));
+    let (ts, w) = (prm.header().tile_size, prm.atlas().0);
+    let codes = d.tile_codes(ts);
     for (k, m) in moments.iter().enumerate() {
         if *m == Vec3::ZERO {
             continue;
@@ -211,9 +210,7 @@ pub fn add_dipole(prm: &Prm, c: usize, moments: &[Vec3; 3], img: &mut [Vec3], la
             let s = *m * tile.scale;
             let data = &d.data[t * codes..(t + 1) * codes];
             for &texel in &layout.texels[tile.index as usize] {
-                let (x, y) = (texel as usize % w, texel as usize / w);
-                let q = ((y % ts) / b) * side + (x % ts) / b;
-                img[texel as usize] += s * prm::prm_file::dipole_value(data[q]);
+                img[texel as usize] += s * prm::prm_file::dipole_value(data[d.code_index(ts, w, texel)]);
             }
         }
     }
