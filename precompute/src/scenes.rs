@@ -108,6 +108,25 @@ impl Builder {
         }
     }
 
+    /// The level without lightmap UVs (`TEXCOORD_1`): the loader generates them.
+    pub fn finish_without_uv1(self) -> GlbScene {
+        let mut scene = GlbScene { materials: self.materials, ..Default::default() };
+        for (m, p) in self.parts.into_iter().enumerate() {
+            if p.indices.is_empty() {
+                continue;
+            }
+            scene.add_mesh(GlbMesh {
+                name: scene.materials[m].name.clone(),
+                positions: p.positions,
+                normals: Some(p.normals),
+                uv1: None,
+                indices: Some(p.indices),
+                material: Some(m),
+            });
+        }
+        scene
+    }
+
     /// Unwrap lightmap UVs and produce the level.
     pub fn finish(self, resolution: u32) -> Result<GlbScene, String> {
         let used: Vec<usize> = (0..self.parts.len()).filter(|&m| !self.parts[m].indices.is_empty()).collect();
@@ -476,10 +495,143 @@ pub fn two_rooms() -> Result<GlbScene, String> {
     Ok(scene)
 }
 
+/// Room interior (x and z) and height, corridor length (the gap between rooms) and its cross
+/// section, for [`halls`].
+const HALL: f32 = 10.0;
+const HALL_HEIGHT: f32 = 4.5;
+const CORRIDOR: f32 = 3.0;
+const DOOR_WIDTH: f32 = 2.0;
+const DOOR_HEIGHT: f32 = 2.6;
+
+/// A level of `nx` x `nz` pillared halls on a grid, each joined to its neighbours by a
+/// corridor through doors in the walls; no lightmap UVs, so the loader's unwrapper lays out
+/// the atlas. Every hall has a hanging lamp; every other one a torch 15 cm from a wall. Six
+/// pillars of `sides` facets and `bands` bands per hall give the triangle count (32 x 8: about
+/// 3,300 triangles a hall). Wall tints vary from hall to hall. A camera looks down the first
+/// row from its first hall.
+pub fn halls(nx: u32, nz: u32, sides: u32, bands: u32) -> GlbScene {
+    let mut b = Builder::default();
+    let floor = b.material("floor", [0.5, 0.46, 0.42]);
+    let ceiling = b.material("ceiling", [0.78, 0.76, 0.72]);
+    let stone = b.material("pillar", [0.8, 0.78, 0.74]);
+    let corridor = b.material("corridor", [0.65, 0.63, 0.6]);
+    let tints: [[f32; 3]; 4] = [[0.75, 0.72, 0.68], [0.62, 0.3, 0.22], [0.3, 0.5, 0.62], [0.45, 0.6, 0.35]];
+    let walls: Vec<usize> =
+        tints.iter().enumerate().map(|(k, &t)| b.material(&format!("wall_{k}"), t)).collect();
+    let pitch = HALL + CORRIDOR;
+    let origin = |i: u32, j: u32| Vec3::new(i as f32 * pitch, 0.0, j as f32 * pitch);
+    let mut lights = Vec::new();
+    for j in 0..nz {
+        for i in 0..nx {
+            let o = origin(i, j);
+            let wall = walls[((i + 2 * j) % 4) as usize];
+            let doors = [i > 0, i + 1 < nx, j > 0, j + 1 < nz];
+            hall_shell(&mut b, o, floor, ceiling, wall, doors);
+            // Six pillars in two rows, floor to ceiling.
+            for (px, pz) in [(-2.5f32, -3.0f32), (-2.5, 0.0), (-2.5, 3.0), (2.5, -3.0), (2.5, 0.0), (2.5, 3.0)] {
+                let c = o + Vec3::new(HALL * 0.5 + px, 0.0, HALL * 0.5 + pz);
+                b.boxed(stone, c + Vec3::new(-0.45, 0.0, -0.45), c + Vec3::new(0.45, 0.3, 0.45), false, &[2]);
+                b.cylinder(stone, c + Vec3::new(0.0, 0.3, 0.0), 0.3, HALL_HEIGHT - 0.6, sides, bands);
+                let (lo, hi) = (Vec3::new(-0.4, HALL_HEIGHT - 0.3, -0.4), Vec3::new(0.4, HALL_HEIGHT, 0.4));
+                b.boxed(stone, c + lo, c + hi, false, &[3]);
+            }
+            // A table in every hall, placed differently from hall to hall.
+            let t = o + Vec3::new(HALL * 0.5 + [-0.8f32, 0.8][(i % 2) as usize], 0.0, 1.5 + (j % 3) as f32 * 3.0);
+            b.boxed(floor, t + Vec3::new(-0.6, 0.0, -0.4), t + Vec3::new(0.6, 0.8, 0.4), false, &[2]);
+            let shade = 0.8 + 0.05 * ((i * 7 + j * 3) % 5) as f32;
+            let lamp = o + Vec3::new(HALL * 0.5 + 0.7 * (i % 3) as f32 - 0.7, 3.6, HALL * 0.5 - 1.5);
+            lights.push((point_light(&format!("lamp_{i}_{j}"), [1.0, 0.9 * shade, 0.75], 30.0), lamp));
+            if (i + j) % 2 == 0 {
+                // A torch 15 cm off the hall's -x wall, 2 m up.
+                let torch = o + Vec3::new(0.15, 2.0, HALL * 0.5 + 2.0);
+                lights.push((point_light(&format!("torch_{i}_{j}"), [1.0, 0.6, 0.3], 6.0), torch));
+            }
+        }
+    }
+    // Corridors: +x from hall (i, j) to (i + 1, j), and +z from (i, j) to (i, j + 1).
+    for j in 0..nz {
+        for i in 0..nx {
+            let o = origin(i, j);
+            let (d0, d1) = (HALL * 0.5 - DOOR_WIDTH * 0.5, HALL * 0.5 + DOOR_WIDTH * 0.5);
+            if i + 1 < nx {
+                corridor_x(&mut b, corridor, floor, o.x + HALL, o.x + pitch, o.z + d0, o.z + d1);
+            }
+            if j + 1 < nz {
+                corridor_z(&mut b, corridor, floor, o.z + HALL, o.z + pitch, o.x + d0, o.x + d1);
+            }
+        }
+    }
+    let mut scene = b.finish_without_uv1();
+    for (light, at) in lights {
+        scene.add_light(light, at, -Vec3::Y);
+    }
+    let eye = origin(0, 0) + Vec3::new(HALL * 0.5, 1.7, 0.6);
+    camera(&mut scene, "camera", eye, eye + Vec3::new(0.0, -0.1, 1.0), 1.1);
+    scene
+}
+
+/// A hall's floor, ceiling and four walls facing in, at corner `o`; `doors` (-x, +x, -z, +z)
+/// cuts a door in the middle of that wall.
+fn hall_shell(b: &mut Builder, o: Vec3, floor: usize, ceiling: usize, wall: usize, doors: [bool; 4]) {
+    let (s, h) = (HALL, HALL_HEIGHT);
+    let p = |x: f32, y: f32, z: f32| o + Vec3::new(x, y, z);
+    b.quad(floor, p(0.0, 0.0, 0.0), p(0.0, 0.0, s), p(s, 0.0, s), p(s, 0.0, 0.0));
+    b.quad(ceiling, p(0.0, h, 0.0), p(s, h, 0.0), p(s, h, s), p(0.0, h, s));
+    // Each wall as a map from (along, up) to a point, with `along` running so that the quad
+    // (a0,0)-(a1,0)-(a1,y)-(a0,y) faces into the hall.
+    let faces: [(Box<dyn Fn(f32, f32) -> Vec3>, bool); 4] = [
+        (Box::new(move |a, y| p(0.0, y, s - a)), doors[0]),
+        (Box::new(move |a, y| p(s, y, a)), doors[1]),
+        (Box::new(move |a, y| p(a, y, 0.0)), doors[2]),
+        (Box::new(move |a, y| p(s - a, y, s)), doors[3]),
+    ];
+    let (d0, d1) = (0.5 * (s - DOOR_WIDTH), 0.5 * (s + DOOR_WIDTH));
+    for (f, door) in &faces {
+        let mut rect = |a0: f32, a1: f32, y0: f32, y1: f32| b.quad(wall, f(a0, y0), f(a1, y0), f(a1, y1), f(a0, y1));
+        if *door {
+            rect(0.0, d0, 0.0, h);
+            rect(d1, s, 0.0, h);
+            rect(d0, d1, DOOR_HEIGHT, h);
+        } else {
+            rect(0.0, s, 0.0, h);
+        }
+    }
+}
+
+/// A corridor along x from `x0` to `x1` between `z0` and `z1`, faces in.
+fn corridor_x(b: &mut Builder, m: usize, floor: usize, x0: f32, x1: f32, z0: f32, z1: f32) {
+    let h = DOOR_HEIGHT;
+    let v = Vec3::new;
+    b.quad(floor, v(x0, 0.0, z0), v(x0, 0.0, z1), v(x1, 0.0, z1), v(x1, 0.0, z0));
+    b.quad(m, v(x0, h, z0), v(x1, h, z0), v(x1, h, z1), v(x0, h, z1));
+    b.quad(m, v(x0, 0.0, z0), v(x1, 0.0, z0), v(x1, h, z0), v(x0, h, z0));
+    b.quad(m, v(x1, 0.0, z1), v(x0, 0.0, z1), v(x0, h, z1), v(x1, h, z1));
+}
+
+/// A corridor along z from `z0` to `z1` between `x0` and `x1`, faces in.
+fn corridor_z(b: &mut Builder, m: usize, floor: usize, z0: f32, z1: f32, x0: f32, x1: f32) {
+    let h = DOOR_HEIGHT;
+    let v = Vec3::new;
+    b.quad(floor, v(x0, 0.0, z0), v(x0, 0.0, z1), v(x1, 0.0, z1), v(x1, 0.0, z0));
+    b.quad(m, v(x0, h, z0), v(x1, h, z0), v(x1, h, z1), v(x0, h, z1));
+    b.quad(m, v(x0, 0.0, z1), v(x0, 0.0, z0), v(x0, h, z0), v(x0, h, z1));
+    b.quad(m, v(x1, 0.0, z0), v(x1, 0.0, z1), v(x1, h, z1), v(x1, h, z0));
+}
+
+/// The bundled large level: 4 x 4 halls, about 53,000 triangles, 24 lights.
+pub fn halls_large() -> Result<GlbScene, String> {
+    Ok(halls(4, 4, 32, 8))
+}
+
 /// A bundled scene's generator.
 pub type SceneBuilder = fn() -> Result<GlbScene, String>;
 
 /// All bundled scenes by file name.
 pub fn all() -> Vec<(&'static str, SceneBuilder)> {
-    vec![("cornell.glb", cornell), ("chamber.glb", chamber), ("two_rooms.glb", two_rooms)]
+    vec![
+        ("cornell.glb", cornell),
+        ("chamber.glb", chamber),
+        ("two_rooms.glb", two_rooms),
+        ("halls.glb", halls_large),
+    ]
 }
