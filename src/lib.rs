@@ -3,6 +3,8 @@
 //! - [`scene`]: a glTF level flattened into one world-space triangle soup with Lambertian
 //!   materials, punctual lights and cameras ([`gltf_load`] reads it, [`glb`] writes one).
 //! - [`light`]: the radiometric light model (DESIGN.md §3) used by every stage.
+//! - [`density`]: the atlas size a texel size in metres gives a level.
+//! - [`zones`]: generated UVs packed zone by zone, so nearby geometry stays together.
 //! - [`uv`]: lightmap-UV checks (range, overlap) and generation when a level has none.
 //! - [`texels`]: the lightmap texel set: exit points with exact conservative coverage.
 //! - [`bvh`]: closest-hit and occlusion queries with a scale-independent offset scheme.
@@ -26,6 +28,7 @@
 
 #[cfg(feature = "bvh")]
 pub mod bvh;
+pub mod density;
 #[cfg(feature = "exr")]
 pub mod exr_io;
 pub mod fingerprint;
@@ -43,6 +46,8 @@ pub mod scene;
 #[cfg(feature = "texels")]
 pub mod texels;
 pub mod uv;
+#[cfg(feature = "unwrap")]
+pub mod zones;
 
 #[cfg(feature = "bvh")]
 pub use bvh::{Bvh, Hit};

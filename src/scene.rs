@@ -128,6 +128,8 @@ pub struct LoadReport {
     pub non_triangle_primitives: usize,
     /// Lightmap UVs were generated because the file had no `TEXCOORD_1` (on some primitive).
     pub uv1_generated: bool,
+    /// The atlas side generated lightmap UVs were packed for.
+    pub generated_atlas: Option<u32>,
     /// Primitives that lacked `TEXCOORD_1`.
     pub primitives_without_uv1: usize,
     /// Triangles whose lightmap UVs leave [0, 1] (those parts get no texels).

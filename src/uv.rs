@@ -26,25 +26,99 @@ pub struct UnwrapPrim<'a> {
 
 #[cfg(feature = "unwrap")]
 /// Generate lightmap UVs for all primitives together, packed into one square atlas page laid
-/// out for `resolution`^2 texels with 2 texels of padding around each chart.
+/// out for `resolution`^2 texels with 2 texels of padding around each chart. The level is cut
+/// into spatial zones ([`crate::zones`]), each packed into its own rectangle of the page.
 pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Result<(), String> {
     if resolution < 16 {
         return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
     }
-    let positions: Vec<Vec<[f32; 3]>> =
-        prims.iter().map(|p| p.positions.iter().map(|v| v.to_array()).collect()).collect();
-    let inputs: Vec<uvunwrap::MeshInput> =
-        prims.iter().zip(&positions).map(|(p, pos)| uvunwrap::MeshInput::new(pos, p.indices)).collect();
+    // Every triangle as (primitive, triangle), its corners, and its zone.
+    let tris: Vec<(usize, usize)> = prims
+        .iter()
+        .enumerate()
+        .flat_map(|(p, prim)| (0..prim.indices.len() / 3).map(move |t| (p, t)))
+        .collect();
+    let corners: Vec<[glam::Vec3; 3]> = tris
+        .iter()
+        .map(|&(p, t)| [0, 1, 2].map(|k| prims[p].positions[prims[p].indices[3 * t + k] as usize]))
+        .collect();
+    let zone = crate::zones::zones(&corners, crate::zones::ZONE_AREA);
+    let zone_count = zone.iter().map(|&z| z as usize + 1).max().unwrap_or(0);
+    // Each zone as one mesh: its vertices are (primitive, vertex) pairs.
+    let mut meshes = vec![ZoneMesh::default(); zone_count];
+    let mut slot = vec![(0u32, 0usize); tris.len()];
+    for (k, &(p, t)) in tris.iter().enumerate() {
+        let m = &mut meshes[zone[k] as usize];
+        slot[k] = (zone[k], m.indices.len() / 3);
+        for c in 0..3 {
+            let v = prims[p].indices[3 * t + c];
+            let next = m.source.len() as u32;
+            let local = *m.local.entry((p, v)).or_insert(next);
+            if local == next {
+                m.source.push((p, v));
+                m.positions.push(prims[p].positions[v as usize].to_array());
+            }
+            m.indices.push(local);
+        }
+    }
+    let one = [1.0f32];
+    let inputs: Vec<uvunwrap::MeshInput> = meshes
+        .iter()
+        .map(|m| uvunwrap::MeshInput {
+            instance_scales: &one,
+            ..uvunwrap::MeshInput::new(&m.positions, &m.indices)
+        })
+        .collect();
     let (atlas, v_scale) = unwrap_meshes(&inputs, resolution)?;
-    for (p, out) in prims.iter_mut().zip(&atlas.meshes) {
-        let xref: Vec<usize> = out.vertices.iter().map(|v| v.xref as usize).collect();
-        *p.positions = xref.iter().map(|&i| p.positions[i]).collect();
-        *p.normals = xref.iter().map(|&i| p.normals[i]).collect();
-        *p.uv_albedo = xref.iter().map(|&i| p.uv_albedo[i]).collect();
-        *p.uv1 = Some(out.vertices.iter().map(|v| Vec2::new(v.uv[0], v.uv[1] * v_scale)).collect());
-        *p.indices = out.indices.clone();
+    // Rebuild each primitive, its triangles in their order, from the zones' output vertices.
+    let mut rebuilt: Vec<Rebuilt> = prims.iter().map(|_| Rebuilt::default()).collect();
+    for (k, &(p, _)) in tris.iter().enumerate() {
+        let (z, local_t) = slot[k];
+        let out = &atlas.meshes[z as usize];
+        let rect = out.instances.first().ok_or("uvunwrap placed a zone nowhere")?;
+        let r = &mut rebuilt[p];
+        for c in 0..3 {
+            let ov = out.indices[3 * local_t + c];
+            let next = r.source.len() as u32;
+            let index = *r.index.entry((z, ov)).or_insert(next);
+            if index == next {
+                let v = &out.vertices[ov as usize];
+                let (_, src) = meshes[z as usize].source[v.xref as usize];
+                let uv = [0, 1].map(|a| rect.min[a] + v.uv[a] * (rect.max[a] - rect.min[a]));
+                r.source.push(src);
+                r.uv1.push(Vec2::new(uv[0], uv[1] * v_scale));
+            }
+            r.indices.push(index);
+        }
+    }
+    for (p, r) in prims.iter_mut().zip(rebuilt) {
+        *p.positions = r.source.iter().map(|&i| p.positions[i as usize]).collect();
+        *p.normals = r.source.iter().map(|&i| p.normals[i as usize]).collect();
+        *p.uv_albedo = r.source.iter().map(|&i| p.uv_albedo[i as usize]).collect();
+        *p.uv1 = Some(r.uv1);
+        *p.indices = r.indices;
     }
     Ok(())
+}
+
+#[cfg(feature = "unwrap")]
+/// One zone as an unwrap input: its vertices, where each came from, its triangles.
+#[derive(Clone, Default)]
+struct ZoneMesh {
+    positions: Vec<[f32; 3]>,
+    source: Vec<(usize, u32)>,
+    local: HashMap<(usize, u32), u32>,
+    indices: Vec<u32>,
+}
+
+#[cfg(feature = "unwrap")]
+/// A primitive's arrays being rebuilt: per new vertex, its old vertex and lightmap UV.
+#[derive(Default)]
+struct Rebuilt {
+    source: Vec<u32>,
+    uv1: Vec<Vec2>,
+    index: HashMap<(u32, u32), u32>,
+    indices: Vec<u32>,
 }
 
 #[cfg(feature = "unwrap")]

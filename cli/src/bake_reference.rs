@@ -10,7 +10,7 @@ use prm::exr_io::Channels;
 use prm::{Bvh, TexelSet};
 use prm_precompute::reference::bake::{evaluate, to_obj, virtual_lights, BakeParams};
 
-use crate::common::{cancel_flag, load, progress_bar, RigArgs, SceneArgs};
+use crate::common::{cancel_flag, progress_bar, AtlasArgs, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -34,9 +34,8 @@ pub struct Args {
     /// Shadow rays per texel and virtual light.
     #[arg(long, default_value_t = 2)]
     visibility_samples: u32,
-    /// Atlas width and height in texels.
-    #[arg(long, default_value_t = 256)]
-    atlas: u32,
+    #[command(flatten)]
+    lightmap: AtlasArgs,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Bake only the indirect light.
@@ -51,22 +50,22 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     let p = BakeParams {
         photons: a.vpls,
         bounces: a.bounces,
         cluster_size: a.cluster_size,
         visibility_samples: a.visibility_samples,
-        atlas: a.atlas,
+        atlas,
         seed: a.seed,
         indirect_only: a.indirect_only,
         ..BakeParams::default()
     };
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let start = Instant::now();
-    let mut scene = load(&a.scene, a.atlas, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
-    let set = TexelSet::build_visible(&scene, &bvh, a.atlas, a.atlas);
+    let set = TexelSet::build_visible(&scene, &bvh, atlas, atlas);
     let t = Instant::now();
     let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
     let lights_s = t.elapsed().as_secs_f64();

@@ -29,12 +29,44 @@ pub fn check_atlas(atlas: u32) -> Result<()> {
     Ok(())
 }
 
+/// The lightmap's size: given in texels, or from a texel size in metres.
+#[derive(clap::Args, Clone, Debug)]
+pub struct AtlasArgs {
+    /// Atlas width and height in texels (default: what --texel-size gives the level's surface,
+    /// at least 256).
+    #[arg(long)]
+    pub atlas: Option<u32>,
+    /// World size of a lightmap texel in metres, when --atlas is not given.
+    #[arg(long, default_value_t = prm::density::DEFAULT_TEXEL_SIZE)]
+    pub texel_size: f32,
+}
+
+impl AtlasArgs {
+    /// The level loaded for this lightmap size, and the atlas side.
+    pub fn load(&self, args: &SceneArgs, quiet: bool) -> Result<(Scene, u32)> {
+        if let Some(atlas) = self.atlas {
+            check_atlas(atlas)?;
+            return Ok((load(args, atlas, quiet)?, atlas));
+        }
+        prm::density::check_texel_size(self.texel_size).map_err(|e| anyhow::anyhow!("--{e}"))?;
+        let scene = load_with(args, None, self.texel_size, quiet)?;
+        let atlas = prm::density::atlas_side(&scene, self.texel_size).map_err(anyhow::Error::msg)?;
+        Ok((scene, atlas))
+    }
+}
+
 /// Load the level, printing what the loader had to fix or generate.
 pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
+    load_with(args, Some(atlas), prm::density::DEFAULT_TEXEL_SIZE, quiet)
+}
+
+/// [`load`] with generated UVs packed for `atlas`, or for what `texel_size` gives the level.
+fn load_with(args: &SceneArgs, atlas: Option<u32>, texel_size: f32, quiet: bool) -> Result<Scene> {
     let opts = LoadOptions {
         require_uv1: args.require_uv1,
         allow_overlap: args.allow_overlap,
-        unwrap_resolution: atlas.clamp(16, 4096),
+        unwrap_resolution: atlas.map(|a| a.clamp(16, prm::density::MAX_DENSITY_ATLAS)),
+        texel_size,
     };
     let scene = load_scene(&args.scene, &opts).with_context(|| "loading the level failed")?;
     if !quiet {

@@ -15,7 +15,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde_json::json;
 
-use crate::common::{cancel_flag, check_atlas, load, progress_bar, RigArgs, SceneArgs};
+use crate::common::{cancel_flag, progress_bar, AtlasArgs, RigArgs, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -26,9 +26,8 @@ pub struct Args {
     /// Paths per texel (per pixel with --camera).
     #[arg(long, default_value_t = 256)]
     spp: u32,
-    /// Atlas width and height in texels.
-    #[arg(long, default_value_t = 256)]
-    atlas: u32,
+    #[command(flatten)]
+    lightmap: AtlasArgs,
     /// Hard cap on path length (paths cut there are reported).
     #[arg(long, default_value_t = 1000)]
     max_bounces: u32,
@@ -54,7 +53,6 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    check_atlas(a.atlas)?;
     let params = GtParams {
         spp: a.spp,
         max_bounces: a.max_bounces,
@@ -63,7 +61,7 @@ pub fn run(a: Args) -> Result<()> {
         ..GtParams::default()
     };
     params.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
-    let mut scene = load(&a.scene, a.atlas, a.json)?;
+    let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, params);
@@ -71,7 +69,7 @@ pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let summary = match &a.camera {
         Some(name) => camera_image(&a, &tracer, name, cancel)?,
-        None => lightmap(&a, &tracer, cancel)?,
+        None => lightmap(&a, atlas, &tracer, cancel)?,
     };
     let seconds = start.elapsed().as_secs_f64();
     let st = &tracer.stats;
@@ -95,10 +93,15 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -> Result<serde_json::Value> {
-    let set = TexelSet::build_visible(tracer.scene, tracer.bvh, a.atlas, a.atlas);
+fn lightmap(
+    a: &Args,
+    atlas: u32,
+    tracer: &Tracer,
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<serde_json::Value> {
+    let set = TexelSet::build_visible(tracer.scene, tracer.bvh, atlas, atlas);
     if set.is_empty() {
-        bail!("the level has no lightmap texels at {}^2", a.atlas);
+        bail!("the level has no lightmap texels at {atlas}^2");
     }
     let bar = progress_bar(set.len() as u64, "texels");
     if a.json {
@@ -138,7 +141,7 @@ fn lightmap(a: &Args, tracer: &Tracer, cancel: &std::sync::atomic::AtomicBool) -
         mean += v.indirect / values.len() as f32;
     }
     Ok(json!({
-        "atlas": a.atlas,
+        "atlas": atlas,
         "texels": set.len(),
         "mean_indirect": mean.to_array(),
         "indirect_noise_normalised": prm_precompute::ground_truth::indirect_noise(&values),

@@ -7,15 +7,15 @@ use anyhow::Result;
 use prm::{Light, LightKind, Scene, TexelSet};
 use serde_json::{json, Value};
 
-use crate::common::{check_atlas, load, SceneArgs};
+use crate::common::{AtlasArgs, SceneArgs};
+use crate::precompute::Preset;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Atlas width and height in texels for the texel facts.
-    #[arg(long, default_value_t = 256)]
-    atlas: u32,
+    #[command(flatten)]
+    lightmap: AtlasArgs,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -25,6 +25,9 @@ pub struct Args {
 struct Lightmap {
     set: TexelSet,
     atlas: u32,
+    /// The texel size asked for, and which option set the atlas side.
+    texel_size: f32,
+    atlas_from: &'static str,
     charts: u32,
     build_seconds: f64,
 }
@@ -37,13 +40,13 @@ impl Lightmap {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    check_atlas(a.atlas)?;
-    let scene = load(&a.scene, a.atlas, a.json)?;
+    let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     let start = Instant::now();
-    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), a.atlas, a.atlas);
+    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), atlas, atlas);
     let build_seconds = start.elapsed().as_secs_f64();
     let charts = prm::uv::charts(&scene).iter().max().map_or(0, |m| m + 1);
-    let lm = Lightmap { set, atlas: a.atlas, charts, build_seconds };
+    let atlas_from = if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" };
+    let lm = Lightmap { set, atlas, texel_size: a.lightmap.texel_size, atlas_from, charts, build_seconds };
     let summary = summary(&a.scene.scene, &scene, &lm);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
@@ -103,7 +106,28 @@ fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
             "world_texel_size": (scene.total_area() / set.len().max(1) as f64).sqrt(),
             "build_seconds": lm.build_seconds,
         },
+        "density": density_json(scene, lm),
         "notes": r.notes,
+    })
+}
+
+/// The densities the presets stand for and the counts they give this level (what
+/// `prm precompute` uses when no count is given).
+fn density_json(scene: &Scene, lm: &Lightmap) -> Value {
+    let area = scene.total_area();
+    let counts = |preset: Preset| {
+        let (d, p) = (preset.density(), preset.params());
+        let entries = d.entries(area, p.entries);
+        let clusters = d.clusters(entries, p.clusters);
+        json!({
+            "entries_per_m2": d.entries_per_m2, "entries_per_cluster": d.entries_per_cluster,
+            "clusters_per_group": d.clusters_per_group,
+            "entries": entries, "clusters": clusters, "groups": d.groups(clusters, p.groups),
+        })
+    };
+    json!({
+        "texel_size_m": lm.texel_size, "atlas_from": lm.atlas_from,
+        "production": counts(Preset::Production), "preview": counts(Preset::Preview),
     })
 }
 
@@ -166,6 +190,18 @@ fn print_lightmap(scene: &Scene, lm: &Lightmap, summary: &Value) {
         set.buried.dropped,
         summary["texels"]["world_texel_size"].as_f64().unwrap_or(0.0),
         lm.build_seconds
+    );
+    let d = &summary["density"];
+    for preset in ["production", "preview"] {
+        let c = &d[preset];
+        println!(
+            "  {preset:<11} {} entries ({} per m^2), {} clusters, {} groups",
+            c["entries"], c["entries_per_m2"], c["clusters"], c["groups"]
+        );
+    }
+    println!(
+        "  density     atlas {}^2 from {} ({} m texels asked for)",
+        lm.atlas, lm.atlas_from, lm.texel_size
     );
     for n in &r.notes {
         println!("  note        {n}");

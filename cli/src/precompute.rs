@@ -6,11 +6,11 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use prm::Bvh;
-use prm_precompute::precompute::{precompute, Phase, PrecomputeError, PrecomputeParams};
+use prm_precompute::precompute::{precompute, Density, Phase, PrecomputeError, PrecomputeParams};
 use prm_precompute::transport::Estimator;
 use serde_json::json;
 
-use crate::common::{cancel_flag, load, progress_bar, SceneArgs};
+use crate::common::{cancel_flag, progress_bar, AtlasArgs, SceneArgs};
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum Preset {
@@ -38,18 +38,17 @@ pub struct Args {
     /// Parameter preset; the options below override it.
     #[arg(long, value_enum, default_value = "production")]
     preset: Preset,
-    /// Entry points N.
+    /// Entry points N (default: the preset's entries per m^2 of surface, at least its count).
     #[arg(long)]
     entries: Option<u32>,
     /// Light paths: per texel (gather) or per entry (scatter).
     #[arg(long)]
     paths: Option<u32>,
-    /// Clusters C (panes).
+    /// Clusters C, one pane each (default: one per 16 entries, at least the preset's count).
     #[arg(long)]
     clusters: Option<u32>,
-    /// Atlas width and height in texels.
-    #[arg(long)]
-    atlas: Option<u32>,
+    #[command(flatten)]
+    lightmap: AtlasArgs,
     /// Random seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -81,7 +80,7 @@ pub struct Args {
     #[arg(long)]
     smooth: Option<f32>,
     /// Groups of clusters whose summed panes stand in for the clusters a top-K runtime leaves
-    /// out (0: none; default 16).
+    /// out (0: none; default: one per 16 clusters, at least 16).
     #[arg(long)]
     groups: Option<u32>,
     /// Relative energy of a pane its dropped tiles may hold.
@@ -100,14 +99,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut p = match a.preset {
-        Preset::Preview => PrecomputeParams::preview(),
-        Preset::Production => PrecomputeParams::production(),
-    };
-    p.entries = a.entries.unwrap_or(p.entries);
+    let mut p = a.preset.params();
     p.paths = a.paths.unwrap_or(p.paths);
-    p.clusters = a.clusters.unwrap_or(p.clusters);
-    p.atlas = a.atlas.unwrap_or(p.atlas);
     p.seed = a.seed.unwrap_or(p.seed);
     p.drop_threshold = a.drop_threshold.unwrap_or(p.drop_threshold);
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
@@ -115,7 +108,6 @@ pub fn run(a: Args) -> Result<()> {
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
     p.far_field &= !a.no_far_field;
-    p.groups = a.groups.unwrap_or(p.groups);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {
@@ -125,6 +117,7 @@ pub fn run(a: Args) -> Result<()> {
             EstimatorArg::Mis => Estimator::Mis,
         };
     }
+    // Everything but the level-dependent counts, checked before the level is read.
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let threads = a.threads.unwrap_or(0);
     if threads > 1024 {
@@ -132,12 +125,44 @@ pub fn run(a: Args) -> Result<()> {
     }
     let pool =
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
-    pool.install(|| bake(&a, &p))
+    pool.install(|| bake(&a, p))
 }
 
-fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
+impl Preset {
+    /// The preset's parameters, its counts the floor of what its density gives a level.
+    pub fn params(self) -> PrecomputeParams {
+        match self {
+            Preset::Preview => PrecomputeParams::preview(),
+            Preset::Production => PrecomputeParams::production(),
+        }
+    }
+
+    /// What the preset means per square metre.
+    pub fn density(self) -> Density {
+        match self {
+            Preset::Preview => Density::PREVIEW,
+            Preset::Production => Density::PRODUCTION,
+        }
+    }
+}
+
+/// The counts that follow the level's size: explicit values, else the preset's density over
+/// `area` square metres.
+fn fit_to_level(a: &Args, p: &mut PrecomputeParams, area: f64) {
+    let d = Density { texel_size: a.lightmap.texel_size, ..a.preset.density() };
+    p.entries = a.entries.unwrap_or_else(|| d.entries(area, p.entries));
+    p.clusters = a.clusters.unwrap_or_else(|| d.clusters(p.entries, p.clusters));
+    p.groups = a.groups.unwrap_or_else(|| d.groups(p.clusters, p.groups));
+}
+
+fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let start = Instant::now();
-    let scene = load(&a.scene, p.atlas, a.json)?;
+    let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
+    p.atlas = atlas;
+    let area = scene.total_area();
+    fit_to_level(a, &mut p, area);
+    p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
+    let p = &p;
     let bvh = Bvh::build(&scene);
     let cancel = cancel_flag();
     let bar = Mutex::new(progress_bar(1, "texels"));
@@ -184,6 +209,15 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
     v["seconds_write"] = write_s.into();
     v["seconds_wall"] = start.elapsed().as_secs_f64().into();
     v["peak_memory_bytes"] = peak_rss().map_or(serde_json::Value::Null, |b| b.into());
+    v["density"] = json!({
+        "surface_area_m2": area,
+        "atlas": p.atlas,
+        "texel_size_m": (area / (report.texels.max(1) as f64)).sqrt(),
+        "entries_per_m2": report.entries as f64 / area.max(1e-12),
+        "entries_per_cluster": report.entries as f64 / report.clusters.max(1) as f64,
+        "groups": p.groups,
+        "atlas_from": if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" },
+    });
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
@@ -205,6 +239,18 @@ fn bake(a: &Args, p: &PrecomputeParams) -> Result<()> {
             report.tiles_dropped,
             100.0 * report.dropped_energy,
             bytes.len() as f64 / 1e6
+        );
+        let d = &v["density"];
+        println!(
+            "  density: {:.0} m^2 of surface, atlas {}^2 (from {}), {:.3} m texels, {:.2} entries per m^2, \
+                {:.1} entries per cluster, {} groups",
+            area,
+            p.atlas,
+            d["atlas_from"].as_str().unwrap_or(""),
+            d["texel_size_m"].as_f64().unwrap_or(0.0),
+            d["entries_per_m2"].as_f64().unwrap_or(0.0),
+            d["entries_per_cluster"].as_f64().unwrap_or(0.0),
+            p.groups
         );
         if report.walks_truncated > 0 || report.unowned_vertices > 0 {
             println!(

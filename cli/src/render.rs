@@ -94,7 +94,7 @@ pub fn run(a: Args) -> Result<()> {
         Some(g) => {
             println!("device: {}", g.describe());
             let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
-            let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, cam, iw, ih)?;
+            let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, &cam, iw, ih)?;
             let mut total = 0.0;
             for f in 0..a.frames {
                 let lights = rig.frame(f, a.frames);
@@ -137,7 +137,7 @@ pub fn run(a: Args) -> Result<()> {
                 let lightmap = twin.frame(&lights).to_vec();
                 let compose_s = t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let img = shade(&scene, &bvh, cam, &lights, &lightmap, atlas, out.size);
+                let img = shade(&scene, &bvh, &cam, &lights, &lightmap, atlas, out.size);
                 let shade_s = t.elapsed().as_secs_f64();
                 totals.0 += compose_s;
                 totals.1 += shade_s;
@@ -164,11 +164,54 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// The named camera, or the level's first.
-pub fn camera<'a>(scene: &'a Scene, name: Option<&str>) -> Result<&'a Camera> {
+/// The named camera, or the level's first; a level without cameras is framed by
+/// [`default_camera`], and a note says so.
+pub fn camera(scene: &Scene, name: Option<&str>) -> Result<Camera> {
     match name {
-        Some(n) => scene.cameras.iter().find(|c| c.name == n).ok_or_else(|| anyhow!("no camera named '{n}'")),
-        None => scene.cameras.first().ok_or_else(|| anyhow!("the level has no camera; add one to the glTF")),
+        Some(n) => scene
+            .cameras
+            .iter()
+            .find(|c| c.name == n)
+            .cloned()
+            .ok_or_else(|| anyhow!("no camera named '{n}'")),
+        None => Ok(match scene.cameras.first() {
+            Some(c) => c.clone(),
+            None => {
+                let c = default_camera(scene, &Bvh::build(scene));
+                let eye = c.to_world.col(3).truncate();
+                let look = -c.to_world.col(2).truncate();
+                eprintln!(
+                    "note: the level has no camera; viewing it from {:.2?} along {:.2?} (add a camera to \
+                        the glTF to choose the view)",
+                    eye.to_array(),
+                    look.to_array()
+                );
+                c
+            }
+        }),
+    }
+}
+
+/// A view of a level that has no camera: from its first positional light (inside a room, in
+/// a level of rooms), or the middle of its bounds, looking level along whichever of 16
+/// directions sees farthest before a surface (a miss counts as the level's diagonal), 16:9.
+pub fn default_camera(scene: &Scene, bvh: &Bvh) -> Camera {
+    let (lo, hi) = scene.bounds();
+    let diag = scene.diagonal().max(1e-3);
+    let eye = scene.lights.iter().find(|l| l.is_positional()).map_or(0.5 * (lo + hi), |l| l.position);
+    let reach = |d: Vec3| bvh.closest_hit(eye, d, diag).map_or(diag, |h| h.t);
+    let dirs = (0..16).map(|k| {
+        let a = std::f32::consts::TAU * k as f32 / 16.0;
+        Vec3::new(a.cos(), -0.15, a.sin()).normalize()
+    });
+    let look =
+        dirs.fold((Vec3::Z, -1.0f32), |best, d| if reach(d) > best.1 { (d, reach(d)) } else { best }).0;
+    let rotation = glam::Quat::from_array(prm::glb::look_rotation(look, Vec3::Y));
+    Camera {
+        name: "default".into(),
+        to_world: glam::Mat4::from_rotation_translation(rotation, eye),
+        yfov: 1.0,
+        aspect: Some(16.0 / 9.0),
     }
 }
 

@@ -55,7 +55,7 @@ struct App {
 
 pub fn run(a: Args) -> Result<()> {
     let (scene, prm) = a.map.load()?;
-    let camera = camera(&scene, a.camera.as_deref())?.clone();
+    let camera = camera(&scene, a.camera.as_deref())?;
     let mut lights = scene.lights.clone();
     if lights.is_empty() {
         let (lo, hi) = scene.bounds();

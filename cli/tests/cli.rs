@@ -26,7 +26,8 @@ fn s(p: &Path) -> &str {
 
 /// A bundled level loaded as the CLI loads it at `atlas` (generated UVs are packed for it).
 fn level(name: &str, atlas: u32) -> prm::Scene {
-    let opts = prm::gltf_load::LoadOptions { unwrap_resolution: atlas.clamp(16, 4096), ..Default::default() };
+    let opts =
+        prm::gltf_load::LoadOptions { unwrap_resolution: Some(atlas.clamp(16, 8192)), ..Default::default() };
     prm::gltf_load::load_scene(asset(name), &opts).unwrap()
 }
 
@@ -598,6 +599,89 @@ fn render_writes_frames_that_follow_the_rig() {
 }
 
 #[test]
+fn a_level_without_a_camera_or_uvs_is_framed_and_rendered() {
+    // One of the generated halls, its camera taken out: no camera and no TEXCOORD_1.
+    let dir = tempfile::tempdir().unwrap();
+    let mut level = prm_precompute::scenes::halls(1, 1, 8, 2);
+    for node in &mut level.nodes {
+        node.camera = None;
+    }
+    let glb = dir.path().join("hall.glb");
+    std::fs::write(&glb, level.to_glb()).unwrap();
+    let map = dir.path().join("hall.prm");
+    let (ok, stdout, err) = prm(&[
+        "precompute",
+        s(&glb),
+        "--preset",
+        "preview",
+        "--atlas",
+        "64",
+        "--entries",
+        "256",
+        "--paths",
+        "4",
+        "-o",
+        s(&map),
+    ]);
+    assert!(ok, "{err}");
+    // Counts not given follow the density: one cluster per 16 entries, the preview's 64 at
+    // least.
+    assert!(stdout.contains("256 entries") && stdout.contains("64 clusters"), "{stdout}");
+    let out = dir.path().join("frames");
+    let (ok, stdout, err) = prm(&[
+        "render",
+        s(&glb),
+        "--prm",
+        s(&map),
+        "--frames",
+        "1",
+        "--width",
+        "32",
+        "--backend",
+        "cpu",
+        "-o",
+        s(&out),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("the level has no camera; viewing it from"), "{err}");
+    assert!(stdout.contains("1 frames"), "{stdout}");
+    let img = Channels::read(&out.join("frame_0000.exr")).unwrap().rgb("").unwrap();
+    // The default view is inside the hall, from its lamp: most pixels see a lit surface.
+    let lit = img.iter().filter(|v| v.max_element() > 0.0).count();
+    assert!(
+        img.iter().all(|v| v.is_finite()) && lit > img.len() * 9 / 10,
+        "{lit} of {} pixels lit",
+        img.len()
+    );
+}
+
+#[test]
+fn bench_with_still_lights_still_measures_the_compose() {
+    let dir = tempfile::tempdir().unwrap();
+    let prm_path = cornell_preview_map(dir.path());
+    let (ok, stdout, err) = prm(&[
+        "bench",
+        &asset("cornell.glb"),
+        "--prm",
+        s(&prm_path),
+        "--frames",
+        "3",
+        "--rounds",
+        "2",
+        "--width",
+        "16",
+        "--shadow-size",
+        "64",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    // The level's own lights never move: each of the 2 x 3 full frames is made to recompose.
+    assert_eq!(j["composes_forced"], true, "{stdout}");
+    assert_eq!(j["composes"], 6, "{stdout}");
+}
+
+#[test]
 fn bench_reports_both_frame_kinds_and_the_compose() {
     let (_dir, prm_path, rig) = cornell_map_and_moving_rig();
     let (ok, stdout, err) = prm(&[
@@ -620,6 +704,7 @@ fn bench_reports_both_frame_kinds_and_the_compose() {
     assert!(ok, "{err}");
     let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(j["composes"], 4, "{stdout}");
+    assert_eq!(j["composes_forced"], false, "the rig moves: {stdout}");
     let f = |k: &str| j[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {stdout}"));
     // The figures hang together (bench.rs): the ratio is of the two medians; the compose bytes
     // are the sum of their parts; the bandwidth estimate is bytes over measured bandwidth.

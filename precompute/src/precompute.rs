@@ -128,6 +128,51 @@ impl PrecomputeParams {
     }
 }
 
+/// What a preset means per square metre of level (issue 13), so a level of one room and one
+/// of a hundred get the same quality per room. The preset's own counts are the floor: a level
+/// smaller than the bundled chamber keeps them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Density {
+    /// Entry points per square metre of surface.
+    pub entries_per_m2: f64,
+    /// Entries per cluster (pane).
+    pub entries_per_cluster: u32,
+    /// Clusters per group (a group's summed pane stands in for the clusters a top-K runtime
+    /// leaves out).
+    pub clusters_per_group: u32,
+    /// World size of a lightmap texel in metres (`prm::density`).
+    pub texel_size: f32,
+}
+
+impl Density {
+    /// The production preset's: the bundled chamber's 4096 entries over its 1208 m^2, 16
+    /// entries a cluster and 16 clusters a group, 0.18 m texels.
+    pub const PRODUCTION: Density = Density {
+        entries_per_m2: 3.39,
+        entries_per_cluster: 16,
+        clusters_per_group: 16,
+        texel_size: prm::density::DEFAULT_TEXEL_SIZE,
+    };
+    /// The preview preset's: a quarter of production's entries.
+    pub const PREVIEW: Density = Density { entries_per_m2: 3.39 / 4.0, ..Density::PRODUCTION };
+
+    /// Entries for `area` square metres, at least `floor` and at most the parameter's limit.
+    pub fn entries(&self, area: f64, floor: u32) -> u32 {
+        let n = (self.entries_per_m2 * area.max(0.0)).floor().min((1 << 20) as f64) as u32;
+        n.max(floor)
+    }
+
+    /// Clusters for `entries` entries, at least `floor` (and at most the entries).
+    pub fn clusters(&self, entries: u32, floor: u32) -> u32 {
+        (entries / self.entries_per_cluster.max(1)).max(floor).min(entries.max(1)).min(65536)
+    }
+
+    /// Groups for `clusters` clusters, at least `floor`.
+    pub fn groups(&self, clusters: u32, floor: u32) -> u32 {
+        (clusters / self.clusters_per_group.max(1)).max(floor).min(4096)
+    }
+}
+
 impl Default for PrecomputeParams {
     fn default() -> Self {
         Self::production()

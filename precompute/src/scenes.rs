@@ -528,7 +528,9 @@ pub fn halls(nx: u32, nz: u32, sides: u32, bands: u32) -> GlbScene {
             let doors = [i > 0, i + 1 < nx, j > 0, j + 1 < nz];
             hall_shell(&mut b, o, floor, ceiling, wall, doors);
             // Six pillars in two rows, floor to ceiling.
-            for (px, pz) in [(-2.5f32, -3.0f32), (-2.5, 0.0), (-2.5, 3.0), (2.5, -3.0), (2.5, 0.0), (2.5, 3.0)] {
+            for (px, pz) in
+                [(-2.5f32, -3.0f32), (-2.5, 0.0), (-2.5, 3.0), (2.5, -3.0), (2.5, 0.0), (2.5, 3.0)]
+            {
                 let c = o + Vec3::new(HALL * 0.5 + px, 0.0, HALL * 0.5 + pz);
                 b.boxed(stone, c + Vec3::new(-0.45, 0.0, -0.45), c + Vec3::new(0.45, 0.3, 0.45), false, &[2]);
                 b.cylinder(stone, c + Vec3::new(0.0, 0.3, 0.0), 0.3, HALL_HEIGHT - 0.6, sides, bands);
@@ -536,7 +538,8 @@ pub fn halls(nx: u32, nz: u32, sides: u32, bands: u32) -> GlbScene {
                 b.boxed(stone, c + lo, c + hi, false, &[3]);
             }
             // A table in every hall, placed differently from hall to hall.
-            let t = o + Vec3::new(HALL * 0.5 + [-0.8f32, 0.8][(i % 2) as usize], 0.0, 1.5 + (j % 3) as f32 * 3.0);
+            let t =
+                o + Vec3::new(HALL * 0.5 + [-0.8f32, 0.8][(i % 2) as usize], 0.0, 1.5 + (j % 3) as f32 * 3.0);
             b.boxed(floor, t + Vec3::new(-0.6, 0.0, -0.4), t + Vec3::new(0.6, 0.8, 0.4), false, &[2]);
             let shade = 0.8 + 0.05 * ((i * 7 + j * 3) % 5) as f32;
             let lamp = o + Vec3::new(HALL * 0.5 + 0.7 * (i % 3) as f32 - 0.7, 3.6, HALL * 0.5 - 1.5);
@@ -577,18 +580,20 @@ fn hall_shell(b: &mut Builder, o: Vec3, floor: usize, ceiling: usize, wall: usiz
     let p = |x: f32, y: f32, z: f32| o + Vec3::new(x, y, z);
     b.quad(floor, p(0.0, 0.0, 0.0), p(0.0, 0.0, s), p(s, 0.0, s), p(s, 0.0, 0.0));
     b.quad(ceiling, p(0.0, h, 0.0), p(s, h, 0.0), p(s, h, s), p(0.0, h, s));
-    // Each wall as a map from (along, up) to a point, with `along` running so that the quad
+    // Wall k (-x, +x, -z, +z) maps (along, up) to a point, `along` running so that the quad
     // (a0,0)-(a1,0)-(a1,y)-(a0,y) faces into the hall.
-    let faces: [(Box<dyn Fn(f32, f32) -> Vec3>, bool); 4] = [
-        (Box::new(move |a, y| p(0.0, y, s - a)), doors[0]),
-        (Box::new(move |a, y| p(s, y, a)), doors[1]),
-        (Box::new(move |a, y| p(a, y, 0.0)), doors[2]),
-        (Box::new(move |a, y| p(s - a, y, s)), doors[3]),
-    ];
+    let at = |k: usize, a: f32, y: f32| match k {
+        0 => p(0.0, y, s - a),
+        1 => p(s, y, a),
+        2 => p(a, y, 0.0),
+        _ => p(s - a, y, s),
+    };
     let (d0, d1) = (0.5 * (s - DOOR_WIDTH), 0.5 * (s + DOOR_WIDTH));
-    for (f, door) in &faces {
-        let mut rect = |a0: f32, a1: f32, y0: f32, y1: f32| b.quad(wall, f(a0, y0), f(a1, y0), f(a1, y1), f(a0, y1));
-        if *door {
+    for (k, &door) in doors.iter().enumerate() {
+        let mut rect = |a0: f32, a1: f32, y0: f32, y1: f32| {
+            b.quad(wall, at(k, a0, y0), at(k, a1, y0), at(k, a1, y1), at(k, a0, y1))
+        };
+        if door {
             rect(0.0, d0, 0.0, h);
             rect(d1, s, 0.0, h);
             rect(d0, d1, DOOR_HEIGHT, h);

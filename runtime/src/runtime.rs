@@ -225,6 +225,12 @@ impl Runtime {
         Ok(Update { composed: true })
     }
 
+    /// Makes the next [`Runtime::update`] recompose even if no light moved (a benchmark's
+    /// worst case: every frame pays for the indirect light).
+    pub fn invalidate(&mut self) {
+        self.stale = true;
+    }
+
     /// Updates only the shadow maps and light buffer: what a direct-only frame needs. The next
     /// [`Runtime::update`] recomposes.
     pub fn update_direct(&mut self, lights: &[Light]) -> Result<(), RuntimeError> {

@@ -7,7 +7,7 @@ use std::path::Path;
 use super::primitive::Prim;
 use super::{LoadOptions, SceneError};
 use crate::scene::{LoadReport, Scene};
-use crate::uv;
+use crate::{density, uv};
 
 /// How many primitives have no lightmap UVs; with `require_uv1`, the first one is an error.
 pub(super) fn count_missing(path: &Path, prims: &[Prim], opts: &LoadOptions) -> Result<usize, SceneError> {
@@ -28,13 +28,25 @@ pub(super) fn generate(
     opts: &LoadOptions,
     report: &mut LoadReport,
 ) -> Result<(), SceneError> {
-    uv::unwrap_primitives(&mut prims_uv_view(prims), opts.unwrap_resolution)
-        .map_err(|reason| SceneError::Unwrap { path: path.into(), reason })?;
+    let unwrap_error = |reason| SceneError::Unwrap { path: path.into(), reason };
+    let resolution = match opts.unwrap_resolution {
+        Some(r) => r,
+        None => {
+            let area = prims.iter().map(Prim::area).sum();
+            density::atlas_for_area(area, density::UNWRAP_COVERAGE, opts.texel_size).map_err(unwrap_error)?
+        }
+    };
+    uv::unwrap_primitives(&mut prims_uv_view(prims), resolution).map_err(unwrap_error)?;
     report.uv1_generated = true;
+    report.generated_atlas = Some(resolution);
+    let why = match opts.unwrap_resolution {
+        Some(_) => String::new(),
+        None => format!(", the size {} m texels give the level", opts.texel_size),
+    };
     report.notes.push(format!(
         "{} primitive(s) had no TEXCOORD_1: lightmap UVs were generated for the whole level (uvunwrap, \
-            packed for {}^2 with 2-texel padding)",
-        report.primitives_without_uv1, opts.unwrap_resolution
+            packed for {resolution}^2{why}, with 2-texel padding)",
+        report.primitives_without_uv1
     ));
     Ok(())
 }

@@ -32,13 +32,21 @@ pub struct LoadOptions {
     pub require_uv1: bool,
     /// Overlapping lightmap UVs are reported instead of being an error.
     pub allow_overlap: bool,
-    /// Atlas resolution generated lightmap UVs are packed for (chart padding is 2 texels there).
-    pub unwrap_resolution: u32,
+    /// Atlas resolution generated lightmap UVs are packed for (chart padding is 2 texels there);
+    /// `None`: the side [`crate::density::atlas_for_area`] gives the level at `texel_size`.
+    pub unwrap_resolution: Option<u32>,
+    /// World size in metres of a texel of generated UVs when `unwrap_resolution` is `None`.
+    pub texel_size: f32,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { require_uv1: false, allow_overlap: false, unwrap_resolution: 256 }
+        LoadOptions {
+            require_uv1: false,
+            allow_overlap: false,
+            unwrap_resolution: Some(256),
+            texel_size: crate::density::DEFAULT_TEXEL_SIZE,
+        }
     }
 }
 

@@ -20,6 +20,19 @@ pub(super) struct Prim {
     pub material: u32,
 }
 
+impl Prim {
+    /// World-space surface area of the triangles, in square metres.
+    pub fn area(&self) -> f64 {
+        self.indices
+            .chunks_exact(3)
+            .map(|t| {
+                let [a, b, c] = [0, 1, 2].map(|k| self.positions[t[k] as usize]);
+                0.5 * (b - a).cross(c - a).length() as f64
+            })
+            .sum()
+    }
+}
+
 /// A glTF primitive being read, with what its errors name.
 pub(super) struct PrimSource<'a> {
     pub path: &'a Path,

@@ -157,7 +157,7 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
     )?;
     let cam = camera(scene, None)?;
     let (w, h) = cam.image_size(b.frame_width);
-    let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, cam, w, h)?;
+    let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, &cam, w, h)?;
     let mut direct = Vec::new();
     for _ in 0..b.frame_reps {
         let t = Instant::now();
