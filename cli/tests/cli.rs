@@ -214,6 +214,12 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     assert!(!ok && err.contains("spp 0 must be 1 to 16777216"), "{err}");
     let (ok, _, err) = prm(&["compare", s(&junk), s(&junk)]);
     assert!(!ok && err.contains("junk.glb"), "{err}");
+    for grid in ["0x3", "4", "2x17", "ax2"] {
+        let (ok, _, err) = prm(&["gen-assets", "--halls", grid, "-o", s(dir.path())]);
+        assert!(!ok && err.contains(&format!("--halls {grid}")), "{err}");
+    }
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--texel-size", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("texel size 0"), "{err}");
     assert_eq!(
         std::fs::read_dir(dir.path()).unwrap().count(),
         1,

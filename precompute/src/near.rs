@@ -18,7 +18,9 @@
 //! (Lambert's contour integral, the cell clipped to x's hemisphere). V is one shadow ray from x
 //! to the entry. Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
 
-use glam::Vec3;
+use std::collections::HashMap;
+
+use glam::{IVec3, Vec3};
 use prm::prm_file::{
     far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, Far, NearLink, NearPoint,
 };
@@ -50,6 +52,7 @@ pub fn near_links(
     let cell: Vec<(Vec3, f32)> = (0..entries.len())
         .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
         .collect();
+    let reaches = ReachGrid::new(&cell, reach);
     let width = set.width as usize;
     let per_texel: Vec<Vec<NearLink>> = set
         .texels
@@ -58,8 +61,8 @@ pub fn near_links(
             let texel = (t.j as usize * width + t.i as usize) as u32;
             let fades = far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok();
             let mut out = Vec::new();
-            for (j, e) in entries.iter().enumerate() {
-                let (centroid, area) = cell[j];
+            for j in reaches.around(t.position) {
+                let (e, (centroid, area)) = (&entries[j], cell[j]);
                 if !(area > 0.0) || centroid.distance(t.position) > reach + area.sqrt() {
                     continue;
                 }
@@ -91,6 +94,59 @@ pub fn near_links(
         .collect();
     round_near_points(&mut points);
     (links, points)
+}
+
+/// The cells that may reach a point: each cell `(centroid, area)` is listed in every grid box
+/// its sphere of radius `reach + sqrt(area)` overlaps (a cell too large for that is checked
+/// everywhere), so a point looks in its own box only. This keeps the near links linear in the
+/// level's size: each texel tests the cells around it, not every cell of the level.
+struct ReachGrid {
+    side: f32,
+    boxes: HashMap<IVec3, Vec<u32>>,
+    everywhere: Vec<u32>,
+}
+
+impl ReachGrid {
+    /// Grid boxes a cell may be listed in before it is checked everywhere instead.
+    const MAX_BOXES: i64 = 4096;
+
+    fn new(cell: &[(Vec3, f32)], reach: f32) -> ReachGrid {
+        let side = (2.0 * reach).max(1e-6);
+        let mut grid = ReachGrid { side, boxes: HashMap::new(), everywhere: Vec::new() };
+        for (j, &(centroid, area)) in cell.iter().enumerate() {
+            if !(area > 0.0) {
+                continue;
+            }
+            let r = reach + area.sqrt();
+            let (lo, hi) = (grid.key(centroid - Vec3::splat(r)), grid.key(centroid + Vec3::splat(r)));
+            let span = (hi - lo + IVec3::ONE).as_i64vec3();
+            if span.x * span.y * span.z > Self::MAX_BOXES {
+                grid.everywhere.push(j as u32);
+                continue;
+            }
+            for z in lo.z..=hi.z {
+                for y in lo.y..=hi.y {
+                    for x in lo.x..=hi.x {
+                        grid.boxes.entry(IVec3::new(x, y, z)).or_default().push(j as u32);
+                    }
+                }
+            }
+        }
+        grid
+    }
+
+    fn key(&self, p: Vec3) -> IVec3 {
+        (p / self.side).floor().as_ivec3()
+    }
+
+    /// The cells that may reach `p`, in increasing order.
+    fn around(&self, p: Vec3) -> Vec<usize> {
+        let mut out: Vec<usize> =
+            self.boxes.get(&self.key(p)).into_iter().flatten().map(|&j| j as usize).collect();
+        out.extend(self.everywhere.iter().map(|&j| j as usize));
+        out.sort_unstable();
+        out
+    }
 }
 
 /// The near field's echo (`prm::prm_file::Echo`): between the texels with links, the light the
@@ -186,4 +242,45 @@ fn texel_square(scene: &prm::Scene, set: &TexelSet, t: &prm::Texel) -> Option<[V
         to_world(glam::Vec2::new(u0, v1)),
     ];
     q.iter().all(|v| v.is_finite()).then_some(q)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_reach_grid_lists_every_cell_that_reaches_a_point() {
+        // Cells of varied sizes (one too large for the grid) against brute force.
+        let mut rng = rand_pcg::Pcg32::seed_from_u64(7);
+        let mut cells: Vec<(Vec3, f32)> = (0..400)
+            .map(|_| {
+                let c = Vec3::new(
+                    rng.random_range(-20.0..20.0),
+                    rng.random_range(0.0..5.0),
+                    rng.random_range(-20.0..20.0),
+                );
+                (c, rng.random_range(0.0..2.0f32).powi(2))
+            })
+            .collect();
+        cells.push((Vec3::ZERO, 1e4));
+        cells.push((Vec3::ONE, 0.0));
+        let reach = 0.8;
+        let grid = ReachGrid::new(&cells, reach);
+        assert_eq!(grid.everywhere, vec![400], "the huge cell is checked everywhere");
+        for _ in 0..500 {
+            let p = Vec3::new(
+                rng.random_range(-22.0..22.0),
+                rng.random_range(-1.0..6.0),
+                rng.random_range(-22.0..22.0),
+            );
+            let listed = grid.around(p);
+            assert!(listed.windows(2).all(|w| w[0] < w[1]), "in order, once each");
+            for (j, &(c, area)) in cells.iter().enumerate() {
+                if area > 0.0 && c.distance(p) <= reach + area.sqrt() {
+                    assert!(listed.contains(&j), "cell {j} reaches {p} but is not listed");
+                }
+            }
+        }
+    }
 }
