@@ -235,7 +235,18 @@ pub fn find_overlaps(scene: &Scene) -> Vec<(usize, usize)> {
 /// Chart id per triangle: triangles that share a lightmap-UV edge (both UV endpoints
 /// bit-identical) are in one chart. Ids are dense, in order of first triangle.
 pub fn charts(scene: &Scene) -> Vec<u32> {
-    let n = scene.triangles.len();
+    let key = |v: Vec2| (v.x.to_bits(), v.y.to_bits());
+    edge_components(scene.triangles.len(), |t| scene.uv1_corners(t).map(key), |_, _| true)
+}
+
+/// Component id per triangle, triangles joined across edges: `corners(t)` gives triangle t's
+/// three corner keys, and two triangles with an edge of equal keys (either direction) are
+/// joined when `joins(t, other)` says so. Ids are dense, in order of first triangle.
+pub fn edge_components<K: Copy + Ord + std::hash::Hash>(
+    n: usize,
+    corners: impl Fn(usize) -> [K; 3],
+    joins: impl Fn(usize, usize) -> bool,
+) -> Vec<u32> {
     let mut parent: Vec<usize> = (0..n).collect();
     fn find(p: &mut [usize], mut x: usize) -> usize {
         while p[x] != x {
@@ -244,21 +255,20 @@ pub fn charts(scene: &Scene) -> Vec<u32> {
         }
         x
     }
-    type Key = (u32, u32);
-    let key = |v: Vec2| -> Key { (v.x.to_bits(), v.y.to_bits()) };
-    let mut edges: HashMap<(Key, Key), usize> = HashMap::new();
+    let mut edges: HashMap<(K, K), usize> = HashMap::new();
     for t in 0..n {
-        let uv = scene.uv1_corners(t);
+        let c = corners(t);
         for k in 0..3 {
-            let (a, b) = (key(uv[k]), key(uv[(k + 1) % 3]));
+            let (a, b) = (c[k], c[(k + 1) % 3]);
             let e = if a < b { (a, b) } else { (b, a) };
             match edges.get(&e) {
-                Some(&other) => {
+                Some(&other) if joins(t, other) => {
                     let (ra, rb) = (find(&mut parent, t), find(&mut parent, other));
                     if ra != rb {
                         parent[ra.max(rb)] = ra.min(rb);
                     }
                 }
+                Some(_) => {}
                 None => {
                     edges.insert(e, t);
                 }
@@ -267,16 +277,16 @@ pub fn charts(scene: &Scene) -> Vec<u32> {
     }
     let mut ids = vec![u32::MAX; n];
     let mut next = 0u32;
-    let mut out = vec![0u32; n];
-    for (t, chart) in out.iter_mut().enumerate() {
-        let r = find(&mut parent, t);
-        if ids[r] == u32::MAX {
-            ids[r] = next;
-            next += 1;
-        }
-        *chart = ids[r];
-    }
-    out
+    (0..n)
+        .map(|t| {
+            let r = find(&mut parent, t);
+            if ids[r] == u32::MAX {
+                ids[r] = next;
+                next += 1;
+            }
+            ids[r]
+        })
+        .collect()
 }
 
 #[cfg(test)]

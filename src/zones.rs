@@ -13,8 +13,6 @@
 //! centroids within the middle half of the area, until a zone's area is at most [`ZONE_AREA`]
 //! or it is a single patch.
 
-use std::collections::HashMap;
-
 use glam::Vec3;
 
 /// Largest surface area of a zone, in square metres (before a split; a single patch may be
@@ -119,52 +117,14 @@ fn split(mut set: Vec<Patch>, max_area: f64, zone_of_patch: &mut [u32], next: &m
 /// Patch index per triangle (dense, in order of first triangle): coplanar triangles sharing an
 /// edge, by endpoint positions, are one patch.
 fn patches(triangles: &[Corners]) -> Vec<u32> {
-    let n = triangles.len();
-    let mut parent: Vec<usize> = (0..n).collect();
-    fn find(p: &mut [usize], mut x: usize) -> usize {
-        while p[x] != x {
-            p[x] = p[p[x]];
-            x = p[x];
-        }
-        x
-    }
-    let normal = |t: usize| {
-        let c = &triangles[t];
-        (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero()
-    };
-    type Key = [u32; 3];
-    let key = |v: Vec3| -> Key { [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()] };
-    let mut edges: HashMap<(Key, Key), usize> = HashMap::new();
-    for (t, c) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (key(c[k]), key(c[(k + 1) % 3]));
-            let e = if a < b { (a, b) } else { (b, a) };
-            match edges.get(&e) {
-                Some(&other) if normal(t).dot(normal(other)) >= COPLANAR => {
-                    let (ra, rb) = (find(&mut parent, t), find(&mut parent, other));
-                    if ra != rb {
-                        parent[ra.max(rb)] = ra.min(rb);
-                    }
-                }
-                Some(_) => {}
-                None => {
-                    edges.insert(e, t);
-                }
-            }
-        }
-    }
-    let mut ids = vec![u32::MAX; n];
-    let mut next = 0u32;
-    (0..n)
-        .map(|t| {
-            let r = find(&mut parent, t);
-            if ids[r] == u32::MAX {
-                ids[r] = next;
-                next += 1;
-            }
-            ids[r]
-        })
-        .collect()
+    let normal: Vec<Vec3> =
+        triangles.iter().map(|c| (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero()).collect();
+    let key = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+    crate::uv::edge_components(
+        triangles.len(),
+        |t| triangles[t].map(key),
+        |t, other| normal[t].dot(normal[other]) >= COPLANAR,
+    )
 }
 
 #[cfg(test)]

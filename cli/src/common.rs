@@ -48,7 +48,7 @@ impl AtlasArgs {
             check_atlas(atlas)?;
             return Ok((load(args, atlas, quiet)?, atlas));
         }
-        prm::density::check_texel_size(self.texel_size).map_err(|e| anyhow::anyhow!("--{e}"))?;
+        prm::density::check_texel_size(self.texel_size).map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
         let scene = load_with(args, None, self.texel_size, quiet)?;
         let atlas = prm::density::atlas_side(&scene, self.texel_size).map_err(anyhow::Error::msg)?;
         Ok((scene, atlas))

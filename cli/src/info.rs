@@ -116,13 +116,12 @@ fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
 fn density_json(scene: &Scene, lm: &Lightmap) -> Value {
     let area = scene.total_area();
     let counts = |preset: Preset| {
-        let (d, p) = (preset.density(), preset.params());
-        let entries = d.entries(area, p.entries);
-        let clusters = d.clusters(entries, p.clusters);
+        let (d, mut p) = (preset.density(), preset.params());
+        p.fit_to_area(&d, area, [None; 3]);
         json!({
             "entries_per_m2": d.entries_per_m2, "entries_per_cluster": d.entries_per_cluster,
             "clusters_per_group": d.clusters_per_group,
-            "entries": entries, "clusters": clusters, "groups": d.groups(clusters, p.groups),
+            "entries": p.entries, "clusters": p.clusters, "groups": p.groups,
         })
     };
     json!({

@@ -146,21 +146,12 @@ impl Preset {
     }
 }
 
-/// The counts that follow the level's size: explicit values, else the preset's density over
-/// `area` square metres.
-fn fit_to_level(a: &Args, p: &mut PrecomputeParams, area: f64) {
-    let d = Density { texel_size: a.lightmap.texel_size, ..a.preset.density() };
-    p.entries = a.entries.unwrap_or_else(|| d.entries(area, p.entries));
-    p.clusters = a.clusters.unwrap_or_else(|| d.clusters(p.entries, p.clusters));
-    p.groups = a.groups.unwrap_or_else(|| d.groups(p.clusters, p.groups));
-}
-
 fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let start = Instant::now();
     let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     p.atlas = atlas;
     let area = scene.total_area();
-    fit_to_level(a, &mut p, area);
+    p.fit_to_area(&a.preset.density(), area, [a.entries, a.clusters, a.groups]);
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let p = &p;
     let bvh = Bvh::build(&scene);

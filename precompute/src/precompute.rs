@@ -140,19 +140,14 @@ pub struct Density {
     /// Clusters per group (a group's summed pane stands in for the clusters a top-K runtime
     /// leaves out).
     pub clusters_per_group: u32,
-    /// World size of a lightmap texel in metres (`prm::density`).
-    pub texel_size: f32,
 }
 
 impl Density {
     /// The production preset's: the bundled chamber's 4096 entries over its 1208 m^2, 16
-    /// entries a cluster and 16 clusters a group, 0.18 m texels.
-    pub const PRODUCTION: Density = Density {
-        entries_per_m2: 3.39,
-        entries_per_cluster: 16,
-        clusters_per_group: 16,
-        texel_size: prm::density::DEFAULT_TEXEL_SIZE,
-    };
+    /// entries a cluster and 16 clusters a group. (The texel density is the atlas's:
+    /// `prm::density`.)
+    pub const PRODUCTION: Density =
+        Density { entries_per_m2: 3.39, entries_per_cluster: 16, clusters_per_group: 16 };
     /// The preview preset's: a quarter of production's entries.
     pub const PREVIEW: Density = Density { entries_per_m2: 3.39 / 4.0, ..Density::PRODUCTION };
 
@@ -170,6 +165,18 @@ impl Density {
     /// Groups for `clusters` clusters, at least `floor`.
     pub fn groups(&self, clusters: u32, floor: u32) -> u32 {
         (clusters / self.clusters_per_group.max(1)).max(floor).min(4096)
+    }
+}
+
+impl PrecomputeParams {
+    /// Entries, clusters and groups for a level of `area` square metres at `density`: each
+    /// given count is kept, the others follow the density with these params' counts as the
+    /// floor (clusters from the entries, groups from the clusters).
+    pub fn fit_to_area(&mut self, density: &Density, area: f64, given: [Option<u32>; 3]) {
+        let [entries, clusters, groups] = given;
+        self.entries = entries.unwrap_or_else(|| density.entries(area, self.entries));
+        self.clusters = clusters.unwrap_or_else(|| density.clusters(self.entries, self.clusters));
+        self.groups = groups.unwrap_or_else(|| density.groups(self.clusters, self.groups));
     }
 }
 
