@@ -186,9 +186,26 @@ impl TexelSet {
 
     /// Fill the dilation ring of a full atlas image from its covered texels.
     pub fn dilate<T: Copy + Dilatable>(&self, img: &mut [T]) {
-        for d in &self.dilation {
+        self.dilate_rows(img, 0, 0..self.height);
+    }
+
+    /// [`TexelSet::dilate`] on a window of whole atlas rows (`img` holds the rows from
+    /// `first_row` on, row-major), filling only the targets in `rows`: their sources lie at
+    /// most one row away, which the window must hold.
+    pub fn dilate_rows<T: Copy + Dilatable>(
+        &self,
+        img: &mut [T],
+        first_row: u32,
+        rows: std::ops::Range<u32>,
+    ) {
+        let w = self.width as usize;
+        let offset = first_row as usize * w;
+        let from = self.dilation.partition_point(|d| (d.target as usize) < rows.start as usize * w);
+        let to = self.dilation.partition_point(|d| (d.target as usize) < rows.end as usize * w);
+        for d in &self.dilation[from..to.max(from)] {
             let src = &d.sources[..d.count as usize];
-            img[d.target as usize] = T::mean(src.iter().map(|&s| img[s as usize]), src.len());
+            img[d.target as usize - offset] =
+                T::mean(src.iter().map(|&s| img[s as usize - offset]), src.len());
         }
     }
 

@@ -144,3 +144,37 @@ fn the_radius_in_texels_follows_the_texel_size() {
         }
     }
 }
+
+/// A window of atlas rows, smoothed on its own (how the precompute encodes panes a
+/// band at a time), gives exactly the whole atlas's values `row_reach` rows inside the window,
+/// and at the atlas's edge: windows at the top, in the middle and at the bottom.
+#[test]
+fn a_window_of_rows_is_smoothed_as_the_whole_atlas() {
+    let (set, smoothing) = setup(3);
+    let reach = smoothing.row_reach();
+    assert!((3..=4).contains(&reach), "the column pass reaches 3 rows: {reach}");
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let walked = image(&set, |_, _, _| Vec3::new(rng.random(), rng.random(), rng.random()));
+    let mut whole = walked.clone();
+    smoothing.apply(&mut whole);
+    set.dilate(&mut whole);
+    let w = set.width as usize;
+    for window in [0..12u32, 6..20, 9..SIDE, 0..SIDE] {
+        let rows = window.clone();
+        let mut img = walked[rows.start as usize * w..rows.end as usize * w].to_vec();
+        smoothing.apply_rows(&mut img, rows.clone(), SIDE);
+        // Exact from reach + 1 rows inside a cut (the dilation's row), up to the atlas's edge.
+        // (Every texel here is covered: the dilation's rows are checked by the precompute's
+        // `same_bytes_at_any_band_height`.)
+        let lo = if rows.start == 0 { 0 } else { rows.start + reach + 1 };
+        let hi = if rows.end == SIDE { SIDE } else { rows.end - reach - 1 };
+        set.dilate_rows(&mut img, rows.start, lo..hi);
+        for j in lo..hi {
+            for i in 0..w {
+                let (a, b) = (img[(j - rows.start) as usize * w + i], whole[j as usize * w + i]);
+                assert!(a == b, "window {window:?}, texel ({i}, {j}): {a} vs {b}");
+            }
+        }
+        assert!(hi > lo, "window {window:?} has rows to check");
+    }
+}

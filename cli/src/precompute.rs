@@ -186,17 +186,15 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         e => anyhow!("{e}; {} not written", a.output.display()),
     })?;
     let t = Instant::now();
-    let bytes = prm.to_bytes();
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         bail!("stopped by Ctrl-C; {} not written", a.output.display());
     }
-    prm::fsutil::write_bytes_atomic(&a.output, &bytes)
-        .with_context(|| format!("writing {}", a.output.display()))?;
+    let file_bytes = prm.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
     let write_s = t.elapsed().as_secs_f64();
     let mut v = serde_json::to_value(&report)?;
     v["scene"] = a.scene.scene.display().to_string().into();
     v["output"] = a.output.display().to_string().into();
-    v["file_bytes"] = bytes.len().into();
+    v["file_bytes"] = file_bytes.into();
     v["seconds_write"] = write_s.into();
     v["seconds_wall"] = start.elapsed().as_secs_f64().into();
     v["peak_memory_bytes"] = peak_rss().map_or(serde_json::Value::Null, |b| b.into());
@@ -229,7 +227,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             report.tiles_kept,
             report.tiles_dropped,
             100.0 * report.dropped_energy,
-            bytes.len() as f64 / 1e6
+            file_bytes as f64 / 1e6
         );
         let d = &v["density"];
         println!(

@@ -1,60 +1,53 @@
 //! Pane atlases: per-texel contributions become per-cluster panes, dilated, tiled and stored as
 //! 8-bit logarithmic intensities with an RGB scale per tile (format in `prm::prm_file`).
 //!
+//! **A band at a time.** The walks are not held for the whole atlas: the precompute walks the
+//! texels of a band of a few tile rows ([`BAND_TILE_ROWS`]), plus a margin of the smoothing's and the
+//! dilation's reach above and below ([`Encoder::bands`]), encodes every pane's tiles in that
+//! band ([`Encoder::encode_band`]), and frees the walks that no later band needs. Smoothing
+//! and dilation read at most `margin` rows away, so a band's tiles are exactly those of the
+//! whole-atlas pane (the same bytes), while the memory the walks take is a band's, not the
+//! level's: on the 4 x 4 halls the walks of every texel took 330 MB.
+//!
 //! **Dropping tiles.** A cluster's light reaches mostly nearby surfaces; far tiles hold little.
 //! For each pane, tiles are sorted by energy (sum of texel luminance) and the smallest are left
 //! out while their total stays within `drop_threshold` of the pane's energy (default 1e-3: at
 //! most 0.1 % of every pane's light is lost). The rule is relative to the pane, so the light a
 //! cluster sends into a dim room is a small share of its total and goes first: at 1e-2 the
 //! second room of two_rooms lost 12 % of its indirect light, at 1e-3 none measurable. The file
-//! records the fraction dropped overall.
+//! records the fraction dropped overall. The rule needs the pane's whole energy, so tiles are
+//! encoded as the bands pass ([`Accumulated`]) and dropped once all have.
 //!
 //! Panes are dilated before tiling (the dilation of [`prm::TexelSet`] is linear, so a sum of
 //! dilated panes is the dilated sum): the runtime's bilinear lookups need no extra pass.
 
+use std::ops::Range;
+
 use glam::Vec3;
-use prm::prm_file::{dipole_code, intensity_code, Cluster, Dipole, Dipoles, Tile};
+use prm::prm_file::{dipole_code, intensity_code, Cluster, Dipole, Dipoles, Group, Tile};
 use prm::{luminance, Smoothing, TexelSet};
 use rayon::prelude::*;
 
 use crate::transport::{TexelDipoles, TexelPanes};
 
-/// Tiles and their data for all clusters, plus drop statistics.
+/// Tile rows a band encodes at once, by default. With the margin (at most 17 rows each side)
+/// a band of 2 holds the walks of up to 66 texel rows; taller bands hold more walks, shorter
+/// ones smooth the margins' texels more often (walked once, smoothed once per band they are
+/// in). 4 rows took more memory on the 4 x 4 halls, in the same time.
+pub const BAND_TILE_ROWS: u32 = 2;
+
+/// Tiles and their data for all panes (clusters, then groups), plus drop statistics.
 pub struct Tiled {
     pub clusters: Vec<Cluster>,
+    pub groups: Vec<Group>,
     /// Stored-texel mask (covered or dilated), packed.
     pub mask: Vec<u8>,
     pub tiles: Vec<Tile>,
     pub data: Vec<u8>,
+    /// Tiles dropped from the clusters' panes (the groups' are not counted).
     pub tiles_dropped: u32,
+    /// The share of the clusters' pane energy dropped.
     pub dropped_energy: f64,
-}
-
-/// Build the pane atlases. `members` are the clusters' entries; `centroids` their means.
-#[allow(clippy::too_many_arguments)]
-pub fn tile_panes(
-    set: &TexelSet,
-    smoothing: Option<&Smoothing>,
-    texel_panes: &[TexelPanes],
-    exact: &[TexelPanes],
-    members: &[Vec<u32>],
-    centroids: &[Vec3],
-    tile_size: u32,
-    drop_threshold: f64,
-) -> Tiled {
-    let grid = Grid::new(set, tile_size);
-    let stored = stored_mask(set);
-    let (start, by_cluster) = transpose(texel_panes, members.len(), |k, i| texel_panes[k][i].1);
-    let (exact_start, exact_by_cluster) = transpose(exact, members.len(), |k, i| exact[k][i].1);
-    let panes: Vec<PaneOut> = (0..members.len())
-        .into_par_iter()
-        .map(|c| {
-            let exact = &exact_by_cluster[exact_start[c]..exact_start[c + 1]];
-            let img = pane_image(set, smoothing, &by_cluster[start[c]..start[c + 1]], exact);
-            encode_pane(set, &grid, &stored, &img, drop_threshold)
-        })
-        .collect();
-    assemble(panes, members, centroids, &stored)
 }
 
 /// The atlas cut into square tiles, row-major.
@@ -80,6 +73,217 @@ impl Grid {
     }
 }
 
+/// One band: the tile rows it encodes, their texel rows, and the texel rows whose walks those
+/// need (the rows widened by the encoder's margin, within the atlas).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Band {
+    pub tile_rows: Range<usize>,
+    pub rows: Range<u32>,
+    pub window: Range<u32>,
+}
+
+/// Encodes panes a band at a time (module doc).
+pub struct Encoder<'a> {
+    set: &'a TexelSet,
+    smoothing: Option<&'a Smoothing>,
+    grid: Grid,
+    stored: Vec<bool>,
+    /// Walked rows a band needs beyond its own: the smoothing's reach and the dilation's row.
+    margin: u32,
+    /// Tile rows per band.
+    band_tile_rows: usize,
+}
+
+impl<'a> Encoder<'a> {
+    pub fn new(
+        set: &'a TexelSet,
+        smoothing: Option<&'a Smoothing>,
+        tile_size: u32,
+        band_tile_rows: u32,
+    ) -> Self {
+        let margin = smoothing.map_or(0, Smoothing::row_reach) + 1;
+        let band_tile_rows = band_tile_rows.max(1) as usize;
+        Encoder {
+            set,
+            smoothing,
+            grid: Grid::new(set, tile_size),
+            stored: stored_mask(set),
+            margin,
+            band_tile_rows,
+        }
+    }
+
+    /// The bands, top to bottom; their windows only move down.
+    pub fn bands(&self) -> Vec<Band> {
+        let h = self.grid.h as u32;
+        (0..self.grid.ty)
+            .step_by(self.band_tile_rows)
+            .map(|t0| {
+                let tile_rows = t0..(t0 + self.band_tile_rows).min(self.grid.ty);
+                let rows =
+                    (tile_rows.start * self.grid.ts) as u32..((tile_rows.end * self.grid.ts) as u32).min(h);
+                let window = rows.start.saturating_sub(self.margin)..(rows.end + self.margin).min(h);
+                Band { tile_rows, rows, window }
+            })
+            .collect()
+    }
+
+    /// The covered texels (indices into `TexelSet::texels`, which are row-major) in `rows`.
+    pub fn texel_range(&self, rows: Range<u32>) -> Range<usize> {
+        let texels = &self.set.texels;
+        texels.partition_point(|t| t.j < rows.start)..texels.partition_point(|t| t.j < rows.end)
+    }
+
+    /// Encode the band's tiles of `acc`'s panes into it (an error if its scratch file fails). `panes` and `exact` hold what each
+    /// texel of the band's window gives each pane (texel-major from texel `first`; `exact`
+    /// may be empty): the walked part, smoothed, and the exact part, added after smoothing.
+    pub fn encode_band(
+        &self,
+        band: &Band,
+        first: usize,
+        panes: &[TexelPanes],
+        exact: &[TexelPanes],
+        acc: &mut Accumulated,
+    ) -> std::io::Result<()> {
+        let n = acc.len();
+        let (start, list) = transpose(panes, first, n, |k, i| panes[k][i].1);
+        let (exact_start, exact_list) = transpose(exact, first, n, |k, i| exact[k][i].1);
+        let own = self.texel_range(band.rows.clone());
+        let out: Vec<Option<PaneBand>> = (0..n)
+            .into_par_iter()
+            .map(|c| {
+                let walked = &list[start[c]..start[c + 1]];
+                let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
+                if walked.is_empty() && exact.is_empty() {
+                    return None;
+                }
+                let img = self.band_image(band, walked, exact);
+                Some(self.encode_pane_band(band, own.clone(), &img, acc.energy[c]))
+            })
+            .collect();
+        acc.add(out)
+    }
+
+    /// The band's tiles of every dipole pane in `acc` (3 per cluster: `3 c + axis`; axes with
+    /// `inv_lambda` 0 are skipped): the clusters' dipole responses at the window's texels
+    /// (`texel_panes`' clusters, `texel_dipoles`' values), smoothed and dilated like the
+    /// panes, averaged over blocks of `block` x `block` stored texels.
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode_dipole_band(
+        &self,
+        band: &Band,
+        first: usize,
+        texel_panes: &[TexelPanes],
+        texel_dipoles: &[TexelDipoles],
+        dipoles: &[Dipole],
+        block: u32,
+        acc: &mut Accumulated,
+    ) -> std::io::Result<()> {
+        let (grid, b) = (&self.grid, block as usize);
+        let clusters = dipoles.len();
+        let (start, list) = transpose(texel_panes, first, clusters, |k, i| texel_dipoles[k][i]);
+        let own = self.texel_range(band.rows.clone());
+        let bw = grid.w.div_ceil(b);
+        let block_rows = band.rows.start as usize / b..(band.rows.end as usize).div_ceil(b);
+        let mut count = vec![0u32; bw * block_rows.len()];
+        let r0 = band.rows.start as usize;
+        for k in r0 * grid.w..band.rows.end as usize * grid.w {
+            if self.stored[k] {
+                count[(k / grid.w - r0) / b * bw + (k % grid.w) / b] += 1;
+            }
+        }
+        let out: Vec<Option<PaneBand>> = (0..clusters * 3)
+            .into_par_iter()
+            .map(|pk| {
+                let (c, k) = (pk / 3, pk % 3);
+                if dipoles[c].axes[k].inv_lambda == 0.0 {
+                    return None;
+                }
+                let axis: Vec<(u32, Vec3)> =
+                    list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
+                let img = self.band_image(band, &axis, &[]);
+                let offset = band.window.start as usize * grid.w;
+                let mut energy = acc.energy[pk];
+                for t in &self.set.texels[own.clone()] {
+                    energy += luminance(img[t.j as usize * grid.w + t.i as usize - offset]) as f64;
+                }
+                let mut means = vec![Vec3::ZERO; bw * block_rows.len()];
+                for k in r0 * grid.w..band.rows.end as usize * grid.w {
+                    if self.stored[k] {
+                        means[(k / grid.w - r0) / b * bw + (k % grid.w) / b] += img[k - offset];
+                    }
+                }
+                for (m, &n) in means.iter_mut().zip(&count) {
+                    if n > 0 {
+                        *m /= n as f32;
+                    }
+                }
+                let tiles = encode_dipole_band(grid, band, &means, &count, b, bw);
+                Some(PaneBand { energy, tiles })
+            })
+            .collect();
+        acc.add(out)
+    }
+
+    /// One pane over the band's window rows: its walked values smoothed, its exact part
+    /// added, dilated; exact in the band's own rows (module doc).
+    fn band_image(&self, band: &Band, walked: &[(u32, Vec3)], exact: &[(u32, Vec3)]) -> Vec<Vec3> {
+        let w = self.grid.w;
+        let r0 = band.window.start as usize;
+        let at = |k: u32| {
+            let t = &self.set.texels[k as usize];
+            (t.j as usize - r0) * w + t.i as usize
+        };
+        let mut img = vec![Vec3::ZERO; w * band.window.len()];
+        for &(k, v) in walked {
+            img[at(k)] = v;
+        }
+        if let Some(smoothing) = self.smoothing {
+            smoothing.apply_rows(&mut img, band.window.clone(), self.grid.h as u32);
+        }
+        for &(k, v) in exact {
+            img[at(k)] += v;
+        }
+        self.set.dilate_rows(&mut img, band.window.start, band.rows.clone());
+        img
+    }
+
+    /// A pane's tiles in the band (those holding any non-zero texel), encoded, and its energy
+    /// (signed luminance over the covered texels, the runtime's ranking energy) carried on
+    /// from `energy` over the band's texels `own`.
+    fn encode_pane_band(&self, band: &Band, own: Range<usize>, img: &[Vec3], mut energy: f64) -> PaneBand {
+        let grid = &self.grid;
+        let offset = band.window.start as usize * grid.w;
+        for t in &self.set.texels[own] {
+            energy += luminance(img[t.j as usize * grid.w + t.i as usize - offset]) as f64;
+        }
+        let mut tiles = Vec::new();
+        for index in band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx {
+            let mut e = 0.0f64;
+            let mut any = false;
+            for k in grid.texels(index) {
+                let v = img[k - offset];
+                if v != Vec3::ZERO {
+                    any = true;
+                    e += luminance(v).abs() as f64;
+                }
+            }
+            if any {
+                let vals: Vec<Vec3> =
+                    grid.texels(index).filter(|&k| self.stored[k]).map(|k| img[k - offset]).collect();
+                let (scale, data) = encode_tile(&vals);
+                tiles.push(EncodedTile { index: index as u32, scale, energy: e, data });
+            }
+        }
+        PaneBand { energy, tiles }
+    }
+
+    /// The stored-texel mask, packed, as the file keeps it.
+    pub fn mask(&self) -> Vec<u8> {
+        prm::prm_file::pack_mask(&self.stored)
+    }
+}
+
 /// Texels a pane stores: covered or a dilation target.
 fn stored_mask(set: &TexelSet) -> Vec<bool> {
     let mut stored = set.mask();
@@ -89,122 +293,275 @@ fn stored_mask(set: &TexelSet) -> Vec<bool> {
     stored
 }
 
-/// Texel-major contributions as cluster-major lists (a counting sort): cluster c's
-/// (texel, value) pairs are `list[start[c]..start[c + 1]]`, in texel order; `value(k, i)` is
-/// what texel k's i-th contribution carries.
+/// Texel-major contributions as pane-major lists (a counting sort): pane c's (texel, value)
+/// pairs are `list[start[c]..start[c + 1]]`, in texel order, texels numbered from `first`;
+/// `value(k, i)` is what texel k's i-th contribution carries.
 fn transpose<T: Copy + Default>(
     texel_panes: &[TexelPanes],
-    clusters: usize,
+    first: usize,
+    panes: usize,
     value: impl Fn(usize, usize) -> T,
 ) -> (Vec<usize>, Vec<(u32, T)>) {
-    let mut counts = vec![0usize; clusters];
+    let mut counts = vec![0usize; panes];
     for tp in texel_panes {
         for &(c, _) in tp {
             counts[c as usize] += 1;
         }
     }
-    let mut start = vec![0usize; clusters + 1];
-    for c in 0..clusters {
+    let mut start = vec![0usize; panes + 1];
+    for c in 0..panes {
         start[c + 1] = start[c] + counts[c];
     }
     let mut fill = start.clone();
-    let mut list = vec![(0u32, T::default()); start[clusters]];
+    let mut list = vec![(0u32, T::default()); start[panes]];
     for (k, tp) in texel_panes.iter().enumerate() {
         for (i, &(c, _)) in tp.iter().enumerate() {
-            list[fill[c as usize]] = (k as u32, value(k, i));
+            list[fill[c as usize]] = ((first + k) as u32, value(k, i));
             fill[c as usize] += 1;
         }
     }
     (start, list)
 }
 
-/// One pane as a full-atlas image: its texels' walked values smoothed with `smoothing`, plus the
-/// part known exactly (`exact`: the near links' first bounce, sharp where a texel meets a
-/// wall, so not smoothed), dilated.
-fn pane_image(
-    set: &TexelSet,
-    smoothing: Option<&Smoothing>,
-    contributions: &[(u32, Vec3)],
-    exact: &[(u32, Vec3)],
-) -> Vec<Vec3> {
-    let w = set.width as usize;
-    let at = |t: &prm::Texel| t.j as usize * w + t.i as usize;
-    let mut img = vec![Vec3::ZERO; w * set.height as usize];
-    for &(k, v) in contributions {
-        img[at(&set.texels[k as usize])] = v;
-    }
-    if let Some(smoothing) = smoothing {
-        smoothing.apply(&mut img);
-    }
-    for &(k, v) in exact {
-        img[at(&set.texels[k as usize])] += v;
-    }
-    set.dilate(&mut img);
-    img
+/// A tile encoded before the drop rule: its atlas index, RGB scale, energy and codes.
+struct EncodedTile {
+    index: u32,
+    scale: Vec3,
+    energy: f64,
+    data: Vec<u8>,
 }
 
-/// One pane's stored tiles and what its dropped tiles held.
-struct PaneOut {
-    /// Signed luminance over the covered texels (the runtime's ranking energy).
-    energy: f32,
-    /// (atlas tile, RGB scale, half-float intensities of the stored texels).
-    tiles: Vec<(u32, Vec3, Vec<u8>)>,
-    dropped: u32,
-    dropped_energy: f64,
-    total_energy: f64,
+/// One pane's tiles in one band and its energy so far.
+struct PaneBand {
+    energy: f64,
+    tiles: Vec<EncodedTile>,
 }
 
-fn encode_pane(set: &TexelSet, grid: &Grid, stored: &[bool], img: &[Vec3], drop_threshold: f64) -> PaneOut {
-    let w = grid.w;
-    let energy: f64 = set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
-    let tiles = tile_energies(grid, img);
-    let total: f64 = tiles.iter().map(|t| t.1).sum();
-    let (keep, dropped, dropped_energy) = drop_tiles(&tiles, drop_threshold * total);
-    let tiles = tiles
-        .iter()
-        .zip(&keep)
-        .filter(|(_, &k)| k)
-        .map(|(&(index, _), _)| {
-            let vals: Vec<Vec3> =
-                grid.texels(index as usize).filter(|&k| stored[k]).map(|k| img[k]).collect();
-            let (scale, data) = encode_tile(&vals);
-            (index, scale, data)
+/// Every pane's tiles encoded so far, before the drop rule. The tiles' codes wait in an
+/// anonymous scratch file, band after band, and only their records stay in memory: the
+/// output is then filled pane after pane from the file (`drain_into`), so the codes are held
+/// once, in the output, instead of once per band and again in the output (on the 4 x 4 halls,
+/// 124 MB of codes; held in memory, the heap kept the bands' pieces and the peak grew by
+/// twice that).
+pub struct Accumulated {
+    /// Each pane's energy so far.
+    energy: Vec<f64>,
+    /// Each pane's tiles so far, in atlas tile order: (atlas tile, RGB scale, energy).
+    tiles: Vec<Vec<(u32, Vec3, f64)>>,
+    /// Each pane's runs of codes in the scratch file, one per band holding any of its tiles:
+    /// (offset, tiles).
+    runs: Vec<Vec<(u64, u32)>>,
+    spill: std::io::BufWriter<std::fs::File>,
+    written: u64,
+}
+
+impl Accumulated {
+    /// Room for `panes` panes, with a scratch file (the error if none can be made).
+    pub fn new(panes: usize) -> std::io::Result<Self> {
+        Ok(Accumulated {
+            energy: vec![0.0; panes],
+            tiles: vec![Vec::new(); panes],
+            runs: vec![Vec::new(); panes],
+            spill: std::io::BufWriter::new(tempfile::tempfile()?),
+            written: 0,
         })
-        .collect();
-    PaneOut { energy: energy as f32, tiles, dropped, dropped_energy, total_energy: total }
-}
+    }
 
-/// The tiles holding any non-zero texel, with their energy (sum of |luminance|).
-fn tile_energies(grid: &Grid, img: &[Vec3]) -> Vec<(u32, f64)> {
-    let mut tiles = Vec::new();
-    for index in 0..grid.tx * grid.ty {
-        let mut e = 0.0f64;
-        let mut any = false;
-        for k in grid.texels(index) {
-            if img[k] != Vec3::ZERO {
-                any = true;
-                e += luminance(img[k]).abs() as f64;
+    pub fn len(&self) -> usize {
+        self.energy.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.energy.is_empty()
+    }
+
+    /// Add one band's output, pane by pane (None: nothing of that pane in the band).
+    fn add(&mut self, out: Vec<Option<PaneBand>>) -> std::io::Result<()> {
+        use std::io::Write;
+        for (c, pane) in out.into_iter().enumerate() {
+            let Some(pane) = pane else { continue };
+            self.energy[c] = pane.energy;
+            if pane.tiles.is_empty() {
+                continue;
+            }
+            self.runs[c].push((self.written, pane.tiles.len() as u32));
+            for t in pane.tiles {
+                self.tiles[c].push((t.index, t.scale, t.energy));
+                self.spill.write_all(&t.data)?;
+                self.written += t.data.len() as u64;
             }
         }
-        if any {
-            tiles.push((index as u32, e));
-        }
+        Ok(())
     }
-    tiles
+
+    /// The drop rule on each pane: its keep flags, and the tiles and codes kept in all
+    /// (`codes(index)`: codes a tile at atlas tile `index` has) with what was dropped.
+    fn keep(
+        &self,
+        drop_threshold: f64,
+        codes: &impl Fn(u32) -> usize,
+    ) -> (Vec<Vec<bool>>, usize, usize, DropTotals) {
+        let mut dropped = DropTotals::default();
+        let (mut tiles, mut kept_codes) = (0, 0);
+        let keep = self
+            .tiles
+            .iter()
+            .map(|pane| {
+                let e: Vec<f64> = pane.iter().map(|t| t.2).collect();
+                let total: f64 = e.iter().sum();
+                let (keep, n, energy) = drop_tiles(&e, drop_threshold * total);
+                dropped.tiles += n;
+                dropped.energy += energy;
+                dropped.total += total;
+                for (t, &k) in pane.iter().zip(&keep) {
+                    if k {
+                        tiles += 1;
+                        kept_codes += codes(t.0);
+                    }
+                }
+                keep
+            })
+            .collect();
+        (keep, tiles, kept_codes, dropped)
+    }
+
+    /// Append the kept tiles (their `cluster` the pane plus `first_pane`) to `tiles` and
+    /// their codes, read back from the scratch file, to `data`, pane after pane. Per pane:
+    /// (energy, first tile, tile count).
+    fn drain_into(
+        self,
+        keep: &[Vec<bool>],
+        first_pane: u32,
+        codes: &impl Fn(u32) -> usize,
+        tiles: &mut Vec<Tile>,
+        data: &mut Vec<u8>,
+    ) -> std::io::Result<Vec<(f32, u32, u32)>> {
+        use std::io::{Read, Seek, SeekFrom};
+        let mut file = self.spill.into_inner().map_err(|e| e.into_error())?;
+        let mut buf = Vec::new();
+        let mut out = Vec::with_capacity(self.energy.len());
+        for (c, (pane, runs)) in self.tiles.iter().zip(&self.runs).enumerate() {
+            let first = tiles.len() as u32;
+            let mut t = 0;
+            for &(offset, count) in runs {
+                let run = &pane[t..t + count as usize];
+                let len: usize = run.iter().map(|r| codes(r.0)).sum();
+                buf.resize(len, 0);
+                file.seek(SeekFrom::Start(offset))?;
+                file.read_exact(&mut buf)?;
+                let mut at = 0;
+                for (k, &(index, scale, _)) in run.iter().enumerate() {
+                    let n = codes(index);
+                    if keep[c][t + k] {
+                        tiles.push(Tile { cluster: first_pane + c as u32, index, scale });
+                        data.extend_from_slice(&buf[at..at + n]);
+                    }
+                    at += n;
+                }
+                t += count as usize;
+            }
+            out.push((self.energy[c] as f32, first, tiles.len() as u32 - first));
+        }
+        Ok(out)
+    }
+}
+
+/// What the drop rule left out of some panes: tiles, their energy, and the panes' whole energy.
+#[derive(Default)]
+struct DropTotals {
+    tiles: u32,
+    energy: f64,
+    total: f64,
+}
+
+/// The panes' part of the file: the clusters' (`members`, `centroids`) and the groups' tiles
+/// after the drop rule, in the order the file keeps them (each pane's tiles together,
+/// clusters then groups); an error if the scratch file fails.
+pub fn assemble(
+    encoder: &Encoder,
+    fine: Accumulated,
+    groups: Accumulated,
+    members: &[Vec<u32>],
+    centroids: &[Vec3],
+    drop_threshold: f64,
+) -> std::io::Result<Tiled> {
+    let layout = tile_codes(&encoder.grid, &encoder.stored);
+    let codes = |index: u32| layout[index as usize];
+    let (fine_keep, fine_tiles, fine_codes, dropped) = fine.keep(drop_threshold, &codes);
+    let (group_keep, group_tiles, group_codes, _) = groups.keep(drop_threshold, &codes);
+    let mut tiles = Vec::with_capacity(fine_tiles + group_tiles);
+    let mut data = Vec::with_capacity(fine_codes + group_codes);
+    let fine_panes = fine.drain_into(&fine_keep, 0, &codes, &mut tiles, &mut data)?;
+    let clusters = fine_panes
+        .into_iter()
+        .zip(members.iter().zip(centroids))
+        .map(|((energy, first_tile, tile_count), (m, &centroid))| Cluster {
+            members: m.clone(),
+            centroid,
+            energy,
+            first_tile,
+            tile_count,
+        })
+        .collect::<Vec<_>>();
+    let first_group = clusters.len() as u32;
+    let groups = groups
+        .drain_into(&group_keep, first_group, &codes, &mut tiles, &mut data)?
+        .into_iter()
+        .map(|(energy, first_tile, tile_count)| Group { energy, first_tile, tile_count })
+        .collect();
+    Ok(Tiled {
+        clusters,
+        groups,
+        mask: encoder.mask(),
+        tiles,
+        data,
+        tiles_dropped: dropped.tiles,
+        dropped_energy: if dropped.total > 0.0 { dropped.energy / dropped.total } else { 0.0 },
+    })
+}
+
+/// The dipole panes' part of the file: `dipoles` (from `crate::dipole::frames`) with their
+/// tile counts, first tiles and energies filled in, and their tiles after the drop rule.
+pub fn assemble_dipoles(
+    encoder: &Encoder,
+    acc: Accumulated,
+    mut dipoles: Vec<Dipole>,
+    block: u32,
+    drop_threshold: f64,
+) -> std::io::Result<Dipoles> {
+    let side = encoder.grid.ts.div_ceil(block as usize);
+    let codes = |_: u32| side * side;
+    let (keep, n_tiles, n_codes, _) = acc.keep(drop_threshold, &codes);
+    let (mut tiles, mut data) = (Vec::with_capacity(n_tiles), Vec::with_capacity(n_codes));
+    let axes = acc.drain_into(&keep, 0, &codes, &mut tiles, &mut data)?;
+    for (pk, (energy, first, count)) in axes.into_iter().enumerate() {
+        let (c, k) = (pk / 3, pk % 3);
+        if k == 0 {
+            dipoles[c].first_tile = first;
+        }
+        dipoles[c].axes[k].energy = energy;
+        dipoles[c].axes[k].tile_count = count;
+    }
+    Ok(Dipoles { block, clusters: dipoles, tiles, data })
+}
+
+/// Codes a stored pane tile holds, per atlas tile: its stored texels.
+fn tile_codes(grid: &Grid, stored: &[bool]) -> Vec<usize> {
+    (0..grid.tx * grid.ty).map(|index| grid.texels(index).filter(|&k| stored[k]).count()).collect()
 }
 
 /// Which tiles to keep: the weakest go while their total stays within `budget` (ties by
 /// index). Returns the keep flags, the count dropped and the energy dropped.
-fn drop_tiles(tiles: &[(u32, f64)], budget: f64) -> (Vec<bool>, u32, f64) {
-    let mut order: Vec<usize> = (0..tiles.len()).collect();
-    order.sort_by(|&a, &b| tiles[a].1.total_cmp(&tiles[b].1).then(a.cmp(&b)));
-    let mut keep = vec![true; tiles.len()];
+fn drop_tiles(energies: &[f64], budget: f64) -> (Vec<bool>, u32, f64) {
+    let mut order: Vec<usize> = (0..energies.len()).collect();
+    order.sort_by(|&a, &b| energies[a].total_cmp(&energies[b]).then(a.cmp(&b)));
+    let mut keep = vec![true; energies.len()];
     let (mut dropped, mut dropped_energy) = (0u32, 0.0f64);
     for &k in &order {
-        if dropped_energy + tiles[k].1 > budget {
+        if dropped_energy + energies[k] > budget {
             break;
         }
-        dropped_energy += tiles[k].1;
+        dropped_energy += energies[k];
         dropped += 1;
         keep[k] = false;
     }
@@ -224,151 +581,41 @@ fn encode_tile(vals: &[Vec3]) -> (Vec3, Vec<u8>) {
     (chroma * peak, data)
 }
 
-/// The panes in cluster order as clusters, tiles and data, with the drop statistics.
-fn assemble(panes: Vec<PaneOut>, members: &[Vec<u32>], centroids: &[Vec3], stored: &[bool]) -> Tiled {
-    let mut out = Tiled {
-        clusters: Vec::with_capacity(members.len()),
-        mask: prm::prm_file::pack_mask(stored),
-        tiles: Vec::new(),
-        data: Vec::new(),
-        tiles_dropped: 0,
-        dropped_energy: 0.0,
-    };
-    let (mut dropped_e, mut total_e) = (0.0f64, 0.0f64);
-    for (c, p) in panes.into_iter().enumerate() {
-        out.clusters.push(Cluster {
-            members: members[c].clone(),
-            centroid: centroids[c],
-            energy: p.energy,
-            first_tile: out.tiles.len() as u32,
-            tile_count: p.tiles.len() as u32,
-        });
-        for (index, scale, data) in p.tiles {
-            out.tiles.push(Tile { cluster: c as u32, index, scale });
-            out.data.extend(data);
-        }
-        out.tiles_dropped += p.dropped;
-        dropped_e += p.dropped_energy;
-        total_e += p.total_energy;
-    }
-    out.dropped_energy = if total_e > 0.0 { dropped_e / total_e } else { 0.0 };
-    out
-}
-
-/// The clusters' dipole panes (`prm::prm_file::Dipoles`): per cluster and used axis, the
-/// texels' dipole responses smoothed and dilated like the panes (the smoothing matters more
-/// here: a dipole pane is a difference of walks, noisier than its pane), averaged over `block`
-/// x `block` blocks of stored texels, tiled, and stored as signed codes with an RGB scale per
-/// tile; tiles are dropped by the same rule as the panes'. `dipoles` (from
-/// `crate::dipole::frames`) gets its tile counts, first tiles and energies filled in.
-#[allow(clippy::too_many_arguments)]
-pub fn tile_dipoles(
-    set: &TexelSet,
-    smoothing: Option<&Smoothing>,
-    texel_panes: &[TexelPanes],
-    texel_dipoles: &[TexelDipoles],
-    mut dipoles: Vec<Dipole>,
-    tile_size: u32,
-    block: u32,
-    drop_threshold: f64,
-) -> Dipoles {
-    let grid = Grid::new(set, tile_size);
-    let stored = stored_mask(set);
-    let clusters = dipoles.len();
-    let b = block as usize;
-    let (bw, bh) = (grid.w.div_ceil(b), grid.h.div_ceil(b));
-    let mut count = vec![0u32; bw * bh];
-    for (k, _) in stored.iter().enumerate().filter(|(_, s)| **s) {
-        count[(k / grid.w / b) * bw + (k % grid.w) / b] += 1;
-    }
-    let (start, list) = transpose(texel_panes, clusters, |k, i| texel_dipoles[k][i]);
-    let per_axis: Vec<(f32, Vec<EncodedTile>)> = (0..clusters * 3)
-        .into_par_iter()
-        .map(|pk| {
-            let (c, k) = (pk / 3, pk % 3);
-            if dipoles[c].axes[k].inv_lambda == 0.0 {
-                return (0.0, Vec::new());
-            }
-            let axis: Vec<(u32, Vec3)> =
-                list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
-            let img = pane_image(set, smoothing, &axis, &[]);
-            let w = grid.w;
-            let energy: f64 =
-                set.texels.iter().map(|t| luminance(img[t.j as usize * w + t.i as usize]) as f64).sum();
-            let mut means = vec![Vec3::ZERO; bw * bh];
-            for (k, v) in img.iter().enumerate() {
-                if stored[k] {
-                    means[(k / w / b) * bw + (k % w) / b] += *v;
-                }
-            }
-            for (m, &n) in means.iter_mut().zip(&count) {
-                if n > 0 {
-                    *m /= n as f32;
-                }
-            }
-            (energy as f32, encode_dipole(&grid, &means, &count, b, bw, drop_threshold))
-        })
-        .collect();
-    let mut out = Dipoles { block, clusters: Vec::new(), tiles: Vec::new(), data: Vec::new() };
-    for (pk, (energy, tiles)) in per_axis.into_iter().enumerate() {
-        let (c, k) = (pk / 3, pk % 3);
-        if k == 0 {
-            dipoles[c].first_tile = out.tiles.len() as u32;
-        }
-        dipoles[c].axes[k].energy = energy;
-        dipoles[c].axes[k].tile_count = tiles.len() as u32;
-        for (index, scale, data) in tiles {
-            out.tiles.push(Tile { cluster: pk as u32, index, scale });
-            out.data.extend(data);
-        }
-    }
-    out.clusters = dipoles;
-    out
-}
-/// A stored tile: (atlas tile, RGB scale, codes).
-type EncodedTile = (u32, Vec3, Vec<u8>);
-
-/// One dipole pane's kept tiles from its block means (`bw` blocks a row; `count`: covered
-/// texels per block): (atlas tile, RGB scale, one code per block of the tile, row-major).
-fn encode_dipole(
+/// One dipole pane's tiles in the band from its block means (`bw` blocks a row, the band's
+/// block rows; `count`: stored texels per block), those with any energy: one signed code
+/// per block of the tile, row-major.
+fn encode_dipole_band(
     grid: &Grid,
+    band: &Band,
     means: &[Vec3],
     count: &[u32],
     b: usize,
     bw: usize,
-    drop_threshold: f64,
 ) -> Vec<EncodedTile> {
     let side = grid.ts.div_ceil(b);
     let bh = means.len() / bw;
-    let blocks: Vec<(u32, Vec<Vec3>, f64)> = (0..grid.tx * grid.ty)
+    let first_block_row = band.rows.start as usize / b;
+    (band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx)
         .filter_map(|index| {
             let (ti, tj) = (index % grid.tx, index / grid.tx);
             let mut vals = vec![Vec3::ZERO; side * side];
             let mut energy = 0.0f64;
             for (q, v) in vals.iter_mut().enumerate() {
-                let (x, y) = (ti * side + q % side, tj * side + q / side);
+                let (x, y) = (ti * side + q % side, tj * side + q / side - first_block_row);
                 if x < bw && y < bh {
                     *v = means[y * bw + x];
                     energy += (luminance(*v).abs() * count[y * bw + x] as f32) as f64;
                 }
             }
-            (energy > 0.0).then_some((index as u32, vals, energy))
-        })
-        .collect();
-    let energies: Vec<(u32, f64)> = blocks.iter().map(|(i, _, e)| (*i, *e)).collect();
-    let total: f64 = energies.iter().map(|t| t.1).sum();
-    let (keep, _, _) = drop_tiles(&energies, drop_threshold * total);
-    blocks
-        .into_iter()
-        .zip(keep)
-        .filter(|(_, k)| *k)
-        .map(|((index, vals, _), _)| {
+            if energy <= 0.0 {
+                return None;
+            }
             let (sum, sum_y) =
                 vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.abs(), y + luminance(*v).abs()));
             let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
             let peak = vals.iter().map(|v| luminance(*v).abs()).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
             let data = vals.iter().map(|v| dipole_code(luminance(*v) / peak)).collect();
-            (index, chroma * peak, data)
+            Some(EncodedTile { index: index as u32, scale: chroma * peak, energy, data })
         })
         .collect()
 }

@@ -1,19 +1,19 @@
 //! `prm precompute`: a level becomes a precomputed radiance map (DESIGN.md §4, paper 004).
 //!
 //! Phases: texel set -> entry points (those inside solids moved out, or left out) and their
-//! cells -> clustering -> far field and near links -> light transport (the panes' contents,
-//! `transport`, leaving the links' first bounce to them) -> pane atlases (geometry-guided
-//! smoothing, the links' first bounce added back exactly, dilation, tiles, `panes`). Every random stream is seeded from (seed, purpose, index), so the
-//! result is the same bytes at any thread count.
+//! cells -> clustering -> far field, near and echo links -> light transport (the panes'
+//! contents, `transport`, leaving the links' first bounce to them) and pane atlases
+//! (geometry-guided smoothing, the links' first bounce added back exactly, dilation, tiles,
+//! `panes`), the two together a band of tile rows at a time so that only a band's walks are
+//! ever held -> the drop rule and the file's parts. Every random stream is seeded from (seed,
+//! purpose, index), so the result is the same bytes at any thread count and any band height.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{
-    far_share, Cells, Dipoles, Entry, Far, Group, Header, InvalidPrm, NearLink, Prm, PrmParts, Tile,
-};
+use prm::prm_file::{far_share, Cells, Dipoles, Entry, Far, Header, InvalidPrm, NearLink, Prm, PrmParts};
 use prm::{Bvh, Scene, Smoothing, TexelSet};
 use serde::Serialize;
 
@@ -22,10 +22,10 @@ use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::far_field;
 use crate::near::{echo_links, near_links};
-use crate::panes::{tile_dipoles, tile_panes};
+use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, ParamError};
-use crate::transport::{Estimator, Frame, LinkedCells, TexelDipoles, TexelPanes, Transport};
+use crate::transport::{Estimator, LinkedCells, TexelDipoles, TexelPanes, Transport};
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
@@ -69,6 +69,9 @@ pub struct PrecomputeParams {
     /// The far field of the deviations (`crate::far`; default on): the near links' first
     /// bounce carried on to every texel for the entries that hold a share of it.
     pub far_field: bool,
+    /// Tile rows walked and encoded at a time (`crate::panes`; default 2): memory and time
+    /// only, the result is the same bytes at any value.
+    pub band_tile_rows: u32,
 }
 
 impl PrecomputeParams {
@@ -97,6 +100,7 @@ impl PrecomputeParams {
             // wall torches 2-3 points worse) and +1 s of precompute (README).
             dipole_block: 0,
             far_field: true,
+            band_tile_rows: crate::panes::BAND_TILE_ROWS,
         }
     }
 
@@ -121,6 +125,12 @@ impl PrecomputeParams {
         let block_ok =
             self.dipole_block == 0 || (self.dipole_block <= 64 && self.tile_size % self.dipole_block == 0);
         require(block_ok, "dipole block", self.dipole_block, "0, or a divisor of the tile size up to 64")?;
+        require(
+            (1..=8192).contains(&self.band_tile_rows),
+            "band tile rows",
+            self.band_tile_rows,
+            "1 to 8192",
+        )?;
         if let Estimator::Scatter { clamp } = self.estimator {
             require(clamp.is_finite() && clamp >= 0.0, "clamp", clamp, "finite and >= 0")?;
         }
@@ -251,6 +261,9 @@ pub enum PrecomputeError {
     Params(#[from] ParamError),
     #[error(transparent)]
     Cancelled(#[from] Cancelled),
+    /// The scratch file the encoded panes wait in could not be made, written or read.
+    #[error("the precompute's scratch file (in the system's temporary folder) failed: {0}")]
+    Scratch(#[from] std::io::Error),
     /// The bake assembled a map the format refuses: a bug, reported rather than written.
     #[error("the precompute produced an inconsistent map (a bug): {0}")]
     Invalid(#[from] InvalidPrm),
@@ -340,71 +353,73 @@ pub fn precompute(
         Some((l, e)) => (Some(l), e),
         None => (None, Vec::new()),
     };
-    let t = Instant::now();
-    let n = set.len();
-    let on_texels = |done| progress(Phase::Transport, done, n);
-    let control = Control { progress: &on_texels, cancel };
-    let (texel_panes, texel_dipoles): (Vec<TexelPanes>, Vec<TexelDipoles>) = transport(
-        scene,
-        bvh,
-        params,
-        &entries,
-        &owners,
-        linked.as_ref(),
-        &clustering,
-        &frames,
-        &set,
-        control,
-        &mut report,
-    )?
-    .into_iter()
-    .unzip();
-    report.seconds_transport = t.elapsed().as_secs_f64();
+    // The echo links need the near links' points only; made now, so nothing of the walks is
+    // held while they are.
+    let echo = timed(&mut report.seconds_near, || {
+        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+    });
+    report.echo_links = echo.links.len();
 
     let t = Instant::now();
     let smoothing =
         (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
-    let smoothing = smoothing.as_ref();
-    let (members, threshold) = (&clustering.members, params.drop_threshold);
-    let mut tiled =
-        tile_panes(&set, smoothing, &texel_panes, &exact, members, &cents, params.tile_size, threshold);
-    let (groups, group_of) = group_panes(
+    let grouping = group_clusters(scene, &entries, &clustering.members, &cents, params);
+    report.seconds_panes += t.elapsed().as_secs_f64();
+    let transport = Transport {
         scene,
-        &entries,
-        members,
-        &cents,
-        &texel_panes,
-        &exact,
+        bvh,
+        entries: &entries,
+        owners: &owners,
+        linked: linked.as_ref(),
+        assignment: &clustering.assignment,
+        clusters: clustering.members.len(),
+        frames: &frames,
+        paths: params.paths,
+        max_bounces: params.max_bounces,
+        seed: params.seed,
+        stats: Default::default(),
+    };
+    let acc = walk_and_encode(
+        &transport,
         params,
         &set,
-        smoothing,
-        &mut tiled,
-    );
-    let dipoles = if dipoles.is_empty() {
-        Dipoles::default()
-    } else {
-        let (block, ts) = (params.dipole_block, params.tile_size);
-        tile_dipoles(&set, smoothing, &texel_panes, &texel_dipoles, dipoles, ts, block, threshold)
+        smoothing.as_ref(),
+        &exact,
+        grouping.as_ref(),
+        &dipoles,
+        cancel,
+        progress,
+        &mut report,
+    )?;
+    report.rays = transport.stats.rays.load(Ordering::Relaxed);
+    report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
+    report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
+    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
+    // The links' shares and exact first bounce are the walks' only; freed before the
+    // panes' codes come back from the scratch file.
+    drop((linked, exact));
+
+    let t = Instant::now();
+    let encoder = Encoder::new(&set, smoothing.as_ref(), params.tile_size, params.band_tile_rows);
+    let (members, threshold) = (&clustering.members, params.drop_threshold);
+    let tiled = assemble(&encoder, acc.fine, acc.groups, members, &cents, threshold)?;
+    let dipoles = match acc.dipoles {
+        Some(d) => assemble_dipoles(&encoder, d, dipoles, params.dipole_block, threshold)?,
+        None => Dipoles::default(),
     };
     report.dipole_tiles = dipoles.tiles.len();
     report.dipole_bytes = dipoles.data.len();
-    drop((texel_panes, texel_dipoles));
-    report.seconds_panes = t.elapsed().as_secs_f64();
+    report.seconds_panes += t.elapsed().as_secs_f64();
     progress(Phase::Panes, 1, 1);
     report.tiles_kept = tiled.tiles.len() as u32;
     report.tiles_dropped = tiled.tiles_dropped;
     report.dropped_energy = tiled.dropped_energy;
     report.pane_bytes = tiled.data.len();
-    report.seconds_total = all.elapsed().as_secs_f64();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
-
-    let echo = timed(&mut report.seconds_near, || {
-        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
-    });
-    report.echo_links = echo.links.len();
     report.seconds_total = all.elapsed().as_secs_f64();
-    let header = header(scene, params, &report, entries.len(), &tiled, groups.len());
-    let (clusters, tiles, mask, data) = (tiled.clusters, tiled.tiles, tiled.mask, tiled.data);
+    let header = header(scene, params, &report, entries.len(), &tiled);
+    let group_of = grouping.map_or_else(Vec::new, |g| g.assignment);
+    let Tiled { clusters, groups, mask, tiles, data, .. } = tiled;
     let prm = Prm::new(PrmParts {
         header,
         entries,
@@ -515,41 +530,90 @@ fn lit_entries(
     (entries, cells, enclosed)
 }
 
-/// The panes' contents at every texel (module `transport`), its counters into the report.
+/// The panes being encoded: the clusters', the groups' and the dipoles' (if any).
+struct Encoded {
+    fine: Accumulated,
+    groups: Accumulated,
+    dipoles: Option<Accumulated>,
+}
+
+/// Walk the texels (module `transport`) a band of tile rows at a time and encode every pane's
+/// tiles in each band as it is done (`crate::panes`), holding only the walks the next bands
+/// still need.
 #[allow(clippy::too_many_arguments)]
-fn transport(
-    scene: &Scene,
-    bvh: &Bvh,
+fn walk_and_encode(
+    transport: &Transport,
     params: &PrecomputeParams,
-    entries: &[Entry],
-    owners: &CellOwners,
-    linked: Option<&LinkedCells>,
-    clustering: &Clustering,
-    frames: &[Frame],
     set: &TexelSet,
-    control: Control,
+    smoothing: Option<&Smoothing>,
+    exact: &[TexelPanes],
+    grouping: Option<&Clustering>,
+    dipoles: &[prm::prm_file::Dipole],
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(Phase, usize, usize) + Sync),
     report: &mut Report,
-) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
-    let transport = Transport {
-        scene,
-        bvh,
-        entries,
-        owners,
-        linked,
-        assignment: &clustering.assignment,
-        clusters: clustering.members.len(),
-        frames,
-        paths: params.paths,
-        max_bounces: params.max_bounces,
-        seed: params.seed,
-        stats: Default::default(),
+) -> Result<Encoded, PrecomputeError> {
+    let encoder = Encoder::new(set, smoothing, params.tile_size, params.band_tile_rows);
+    let prepared = transport.prepare(params.estimator);
+    let mut out = Encoded {
+        fine: Accumulated::new(transport.clusters)?,
+        groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
+        dipoles: if dipoles.is_empty() { None } else { Some(Accumulated::new(3 * dipoles.len())?) },
     };
-    let texel_panes = transport.run(params.estimator, set, control)?;
-    report.rays = transport.stats.rays.load(Ordering::Relaxed);
-    report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
-    report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
-    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
-    Ok(texel_panes)
+    // The walks of texels first..first + panes.len().
+    let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
+        (0, Vec::new(), Vec::new());
+    let n = set.len();
+    for band in encoder.bands() {
+        let range = encoder.texel_range(band.window.clone());
+        let gone = (range.start - first).min(panes.len());
+        panes.drain(..gone);
+        dips.drain(..gone.min(dips.len()));
+        first = range.start;
+        let have = first + panes.len();
+        if range.end > have {
+            let t = Instant::now();
+            let on_texels = |done| progress(Phase::Transport, have + done, n);
+            let control = Control { progress: &on_texels, cancel };
+            let walked = transport.run_texels(&prepared, &set.texels[have..range.end], set.width, control)?;
+            for (p, d) in walked {
+                panes.push(p);
+                dips.push(d);
+            }
+            report.seconds_transport += t.elapsed().as_secs_f64();
+        }
+        stop_if(cancel)?;
+        let t = Instant::now();
+        let exact = exact.get(range.clone()).unwrap_or(&[]);
+        encoder.encode_band(&band, first, &panes, exact, &mut out.fine)?;
+        if let Some(g) = grouping {
+            let (group_panes, group_exact) = (by_group(&panes, g), by_group(exact, g));
+            encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups)?;
+        }
+        if let Some(acc) = out.dipoles.as_mut() {
+            encoder.encode_dipole_band(&band, first, &panes, &dips, dipoles, params.dipole_block, acc)?;
+        }
+        report.seconds_panes += t.elapsed().as_secs_f64();
+    }
+    Ok(out)
+}
+
+/// Each texel's contributions summed by group.
+fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
+    panes
+        .par_iter()
+        .map(|tp| {
+            let mut out: TexelPanes = Vec::new();
+            for &(cl, v) in tp {
+                let g = grouping.assignment[cl as usize];
+                match out.iter_mut().find(|(x, _)| *x == g) {
+                    Some(slot) => slot.1 += v,
+                    None => out.push((g, v)),
+                }
+            }
+            out
+        })
+        .collect()
 }
 
 /// The file header: what the map was baked for, its counts, and the parameters and counters
@@ -559,8 +623,7 @@ fn header(
     params: &PrecomputeParams,
     report: &Report,
     entries: usize,
-    tiled: &crate::panes::Tiled,
-    groups: usize,
+    tiled: &Tiled,
 ) -> Header {
     Header {
         fingerprint: fingerprint_hex(scene, params.atlas, params.atlas),
@@ -569,7 +632,7 @@ fn header(
         tile_size: params.tile_size,
         entries: entries as u32,
         clusters: tiled.clusters.len() as u32,
-        groups: groups as u32,
+        groups: tiled.groups.len() as u32,
         tiles: tiled.tiles.len() as u32,
         tiles_dropped: tiled.tiles_dropped,
         dropped_energy: tiled.dropped_energy,
@@ -591,25 +654,19 @@ fn header(
     }
 }
 
-/// Groups the clusters (k-means on centroid and mean normal, area-weighted like the entries)
-/// and appends each group's pane, the sum of its clusters' contributions, smoothed, dilated and
-/// tiled like theirs, to `tiled`. Returns the groups and each cluster's group.
-#[allow(clippy::too_many_arguments)]
-fn group_panes(
+/// Groups the clusters (k-means on centroid and mean normal, area-weighted like the entries):
+/// each group's pane is the sum of its clusters' contributions, smoothed, dilated and tiled
+/// like theirs (`walk_and_encode`). None without groups.
+fn group_clusters(
     scene: &Scene,
     entries: &[Entry],
     members: &[Vec<u32>],
     cents: &[Vec3],
-    texel_panes: &[TexelPanes],
-    exact: &[TexelPanes],
     params: &PrecomputeParams,
-    set: &TexelSet,
-    smoothing: Option<&Smoothing>,
-    tiled: &mut crate::panes::Tiled,
-) -> (Vec<Group>, Vec<u32>) {
+) -> Option<Clustering> {
     let c = members.len();
     if params.groups == 0 || c < 2 {
-        return (Vec::new(), Vec::new());
+        return None;
     }
     let pseudo: Vec<Entry> = members
         .iter()
@@ -623,54 +680,11 @@ fn group_panes(
             Entry { position, normal, albedo: Vec3::ZERO, area, triangle: 0 }
         })
         .collect();
-    let grouping = cluster_entries(
+    Some(cluster_entries(
         &pseudo,
         (params.groups as usize).min(c),
         scene.total_area(),
         params.kmeans_iterations as usize,
         params.seed ^ 0x6772_6f75_7073,
-    );
-    let g_count = grouping.members.len();
-    let by_group = |panes: &[TexelPanes]| -> Vec<TexelPanes> {
-        panes
-            .par_iter()
-            .map(|tp| {
-                let mut out: TexelPanes = Vec::new();
-                for &(cl, v) in tp {
-                    let g = grouping.assignment[cl as usize];
-                    match out.iter_mut().find(|(x, _)| *x == g) {
-                        Some(slot) => slot.1 += v,
-                        None => out.push((g, v)),
-                    }
-                }
-                out
-            })
-            .collect()
-    };
-    let (group_tp, group_exact) = (by_group(texel_panes), by_group(exact));
-    let g_cents: Vec<Vec3> = grouping
-        .members
-        .iter()
-        .map(|m| m.iter().fold(Vec3::ZERO, |a, &cl| a + cents[cl as usize]) / m.len().max(1) as f32)
-        .collect();
-    let g_tiled = tile_panes(
-        set,
-        smoothing,
-        &group_tp,
-        &group_exact,
-        &vec![Vec::new(); g_count],
-        &g_cents,
-        params.tile_size,
-        params.drop_threshold,
-    );
-    let (fine_tiles, fine_data) = (tiled.tiles.len() as u32, tiled.data.len());
-    let groups = g_tiled
-        .clusters
-        .iter()
-        .map(|g| Group { energy: g.energy, first_tile: g.first_tile + fine_tiles, tile_count: g.tile_count })
-        .collect();
-    tiled.tiles.extend(g_tiled.tiles.iter().map(|t| Tile { cluster: t.cluster + c as u32, ..*t }));
-    tiled.data.extend_from_slice(&g_tiled.data);
-    debug_assert_eq!(tiled.data.len(), fine_data + g_tiled.data.len());
-    (groups, grouping.assignment)
+    ))
 }

@@ -394,6 +394,39 @@ fn same_bytes_at_one_and_two_threads() {
     }
 }
 
+/// The panes are walked and encoded a band of tile rows at a time (`panes` module doc): bands
+/// of any height give the bytes of one band over the whole atlas (what the precompute did
+/// before it streamed), with smoothing, near links, groups and dipoles on, and with bands
+/// (2 texel rows) shorter than the margin the smoothing needs, so a band's walks span several.
+#[test]
+fn same_bytes_at_any_band_height() {
+    let scene = open_box();
+    for dipole_block in [0, 2] {
+        let p = PrecomputeParams {
+            tile_size: 2,
+            groups: 4,
+            dipole_block,
+            smooth_radius: 3.0,
+            ..params(256, 8, 12, 40)
+        };
+        let whole = bake(&scene, &PrecomputeParams { band_tile_rows: 1000, ..p.clone() });
+        assert!(!whole.tiles().is_empty() && whole.header().groups == 4);
+        assert_eq!(whole.dipoles().clusters.is_empty(), dipole_block == 0);
+        let bvh = Bvh::build(&scene);
+        let set = TexelSet::build_visible(&scene, &bvh, 40, 40);
+        let spacing = (scene.total_area() / 256.0).sqrt() as f32;
+        let margin = set.smoothing(&scene, p.smooth_radius * spacing).row_reach() + 1;
+        assert!(margin > 2, "the test wants a margin wider than a band: {margin}");
+        for rows in [1, 3] {
+            let banded = bake(&scene, &PrecomputeParams { band_tile_rows: rows, ..p.clone() });
+            assert!(
+                banded.to_bytes() == whole.to_bytes(),
+                "bands of {rows} tile rows, dipole block {dipole_block}"
+            );
+        }
+    }
+}
+
 #[test]
 fn absurd_parameters_are_refused_naming_the_parameter() {
     let preview = PrecomputeParams::preview;
@@ -406,6 +439,7 @@ fn absurd_parameters_are_refused_naming_the_parameter() {
         (PrecomputeParams { near_radius: f32::NAN, ..preview() }, "near radius", "NaN"),
         (PrecomputeParams { near_radius: -1.0, ..preview() }, "near radius", "-1"),
         (PrecomputeParams { near_radius: 100.0, ..preview() }, "near radius", "100"),
+        (PrecomputeParams { band_tile_rows: 0, ..preview() }, "band tile rows", "0"),
     ] {
         let e = p.validate().unwrap_err();
         assert_eq!((e.name, e.value.as_str()), (name, value), "{e}");

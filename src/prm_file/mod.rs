@@ -637,12 +637,20 @@ impl PrmParts {
     /// The file bytes (magic, version, JSON header, sections, checksum), checked or not.
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = Vec::new();
-        out.extend_from_slice(&MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
+        // Writing to a Vec cannot fail.
+        let _ = self.write_to(&mut out);
+        out
+    }
+
+    /// Write the file's bytes to `out` as [`PrmParts::to_bytes`] gives them, a section at a
+    /// time (no copy of the whole file is made); returns the count written.
+    pub fn write_to(&self, out: &mut dyn std::io::Write) -> std::io::Result<u64> {
+        let mut w = Writer::new(out);
+        w.put(&MAGIC);
+        w.put(&VERSION.to_le_bytes());
         let header = serde_json::to_vec(&self.header).unwrap_or_default();
-        out.extend_from_slice(&(header.len() as u32).to_le_bytes());
-        out.extend_from_slice(&header);
-        let mut w = Writer(&mut out);
+        w.put(&(header.len() as u32).to_le_bytes());
+        w.put(&header);
         w.entries(&self.entries);
         w.cells(&self.cells);
         w.near(&self.near, &self.near_points);
@@ -654,9 +662,12 @@ impl PrmParts {
         w.data(&self.data);
         w.dipoles(&self.dipoles);
         w.far(&self.far);
-        let sum = fnv1a(FNV_START, &out);
-        out.extend_from_slice(&sum.to_le_bytes());
-        out
+        let sum = w.sum;
+        w.put(&sum.to_le_bytes());
+        match w.error {
+            Some(e) => Err(e),
+            None => Ok(w.len),
+        }
     }
 }
 
@@ -828,10 +839,15 @@ impl Prm {
         self.parts.to_bytes()
     }
 
-    /// Write atomically.
-    pub fn write(&self, path: &Path) -> Result<(), PrmError> {
-        crate::fsutil::write_bytes_atomic(path, &self.to_bytes())
-            .map_err(|source| PrmError::Io { path: path.into(), source })
+    /// Write atomically, a section at a time; returns the file's size.
+    pub fn write(&self, path: &Path) -> Result<u64, PrmError> {
+        let mut len = 0;
+        crate::fsutil::write_atomic(path, |w| {
+            len = self.parts.write_to(w)?;
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(|source| PrmError::Io { path: path.into(), source })?;
+        Ok(len)
     }
 
     /// Read and validate a file; with `scene`, also check it was baked for that scene.

@@ -25,14 +25,36 @@ pub(super) const TILE_BYTES: usize = 20;
 pub(super) const DIPOLE_BYTES: usize = 88;
 pub(super) const FAR_TEXEL_BYTES: usize = 60;
 
-/// Appends tagged, length-prefixed sections to a byte buffer.
-pub(super) struct Writer<'a>(pub(super) &'a mut Vec<u8>);
+/// Writes tagged, length-prefixed sections to a stream, hashing what it writes (the file's
+/// checksum) and counting it; the first write error is kept and every later write skipped.
+pub(super) struct Writer<'a> {
+    out: &'a mut dyn std::io::Write,
+    pub(super) sum: u64,
+    pub(super) len: u64,
+    pub(super) error: Option<std::io::Error>,
+}
 
-impl Writer<'_> {
+impl<'a> Writer<'a> {
+    pub(super) fn new(out: &'a mut dyn std::io::Write) -> Self {
+        Writer { out, sum: crate::fingerprint::FNV_START, len: 0, error: None }
+    }
+
+    /// Write raw bytes (hashed and counted).
+    pub(super) fn put(&mut self, bytes: &[u8]) {
+        if self.error.is_some() {
+            return;
+        }
+        self.sum = crate::fingerprint::fnv1a(self.sum, bytes);
+        self.len += bytes.len() as u64;
+        if let Err(e) = self.out.write_all(bytes) {
+            self.error = Some(e);
+        }
+    }
+
     fn section(&mut self, tag: &[u8; 4], payload: &[u8]) {
-        self.0.extend_from_slice(tag);
-        self.0.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        self.0.extend_from_slice(payload);
+        self.put(tag);
+        self.put(&(payload.len() as u64).to_le_bytes());
+        self.put(payload);
     }
 
     pub(super) fn entries(&mut self, entries: &[Entry]) {
@@ -203,21 +225,31 @@ impl Writer<'_> {
     }
 
     /// `FARF`: counts and reach, the visibility words, the texels, the entries' energies.
+    /// Written piece by piece: the visibility is the largest section after the panes' codes
+    /// (68 MB on the 4 x 4 halls), so no copy of it is made.
     pub(super) fn far(&mut self, f: &Far) {
-        let mut b = Vec::with_capacity(12 + f.visible.len() * 4 + f.texels.len() * FAR_TEXEL_BYTES);
-        b.extend_from_slice(&(f.texels.len() as u32).to_le_bytes());
-        b.extend_from_slice(&(f.visible.len() as u32).to_le_bytes());
-        b.extend_from_slice(&f.reach.to_le_bytes());
-        b.extend_from_slice(bytemuck::cast_slice(&f.visible));
-        for t in &f.texels {
-            b.extend_from_slice(&t.texel.to_le_bytes());
-            b.extend_from_slice(bytemuck::bytes_of(&t.position.to_array()));
-            b.extend_from_slice(bytemuck::bytes_of(&t.normal.to_array()));
-            b.extend_from_slice(bytemuck::cast_slice(&t.entries));
-            b.extend_from_slice(bytemuck::cast_slice(&t.weights));
+        let len = 12 + f.visible.len() * 4 + f.texels.len() * FAR_TEXEL_BYTES + f.energy.len() * 4;
+        let start = self.len;
+        self.put(b"FARF");
+        self.put(&(len as u64).to_le_bytes());
+        self.put(&(f.texels.len() as u32).to_le_bytes());
+        self.put(&(f.visible.len() as u32).to_le_bytes());
+        self.put(&f.reach.to_le_bytes());
+        self.put(bytemuck::cast_slice(&f.visible));
+        let mut b = Vec::with_capacity(1024 * FAR_TEXEL_BYTES);
+        for chunk in f.texels.chunks(1024) {
+            b.clear();
+            for t in chunk {
+                b.extend_from_slice(&t.texel.to_le_bytes());
+                b.extend_from_slice(bytemuck::bytes_of(&t.position.to_array()));
+                b.extend_from_slice(bytemuck::bytes_of(&t.normal.to_array()));
+                b.extend_from_slice(bytemuck::cast_slice(&t.entries));
+                b.extend_from_slice(bytemuck::cast_slice(&t.weights));
+            }
+            self.put(&b);
         }
-        b.extend_from_slice(bytemuck::cast_slice(&f.energy));
-        self.section(b"FARF", &b);
+        self.put(bytemuck::cast_slice(&f.energy));
+        debug_assert!(self.error.is_some() || self.len - start == 12 + len as u64, "FARF's length");
     }
 
     pub(super) fn data(&mut self, data: &[u8]) {

@@ -29,6 +29,8 @@ use crate::scene::Scene;
 
 /// A texel set's smoothing filter, built once and applied to any number of atlas images.
 pub struct Smoothing {
+    /// Atlas width in texels.
+    width: u32,
     /// Rows, then columns.
     passes: [Pass; 2],
 }
@@ -36,6 +38,8 @@ pub struct Smoothing {
 /// One one-dimensional pass: for each covered texel (in `TexelSet::texels` order) its atlas
 /// index and its taps (atlas index, weight), the weights summing to one.
 struct Pass {
+    /// The farthest a tap lies above or below its texel, in rows.
+    row_reach: u32,
     target: Vec<u32>,
     start: Vec<u32>,
     taps: Vec<(u32, f32)>,
@@ -45,18 +49,44 @@ impl Smoothing {
     /// Smooth the covered texels of a full-atlas image in place (empty texels are left as
     /// they are and never read).
     pub fn apply(&self, img: &mut [Vec3]) {
+        let height = (img.len() / self.width.max(1) as usize) as u32;
+        self.apply_rows(img, 0..height, height);
+    }
+
+    /// How many rows a smoothed texel's value reaches: it depends on texels at most this far
+    /// above or below it (the column pass's radius; the row pass stays in its row).
+    pub fn row_reach(&self) -> u32 {
+        self.passes.iter().map(|p| p.row_reach).sum()
+    }
+
+    /// Smooth a window of whole atlas rows in place: `img` holds rows `window` of an atlas
+    /// `height` rows high, row-major. A texel at least [`Smoothing::row_reach`] rows inside
+    /// the window (or nearer the atlas's edge than that) gets exactly what
+    /// [`Smoothing::apply`] gives it; the rest of the window is left unspecified. This is what
+    /// lets the precompute smooth panes a band at a time.
+    pub fn apply_rows(&self, img: &mut [Vec3], window: std::ops::Range<u32>, height: u32) {
+        let w = self.width as usize;
+        let offset = window.start as usize * w;
+        let mut valid = window;
         for pass in &self.passes {
-            let out: Vec<Vec3> = pass
-                .start
+            if valid.start > 0 {
+                valid.start += pass.row_reach;
+            }
+            if valid.end < height {
+                valid.end = valid.end.saturating_sub(pass.row_reach);
+            }
+            let first = pass.target.partition_point(|&t| (t as usize) < valid.start as usize * w);
+            let last = pass.target.partition_point(|&t| (t as usize) < valid.end as usize * w);
+            let out: Vec<Vec3> = pass.start[first..=last.max(first)]
                 .windows(2)
                 .map(|r| {
                     pass.taps[r[0] as usize..r[1] as usize]
                         .iter()
-                        .fold(Vec3::ZERO, |a, &(n, w)| a + img[n as usize] * w)
+                        .fold(Vec3::ZERO, |a, &(n, wgt)| a + img[n as usize - offset] * wgt)
                 })
                 .collect();
-            for (&t, v) in pass.target.iter().zip(out) {
-                img[t as usize] = v;
+            for (&t, v) in pass.target[first..last.max(first)].iter().zip(out) {
+                img[t as usize - offset] = v;
             }
         }
     }
@@ -89,7 +119,7 @@ impl TexelSet {
             })
             .collect();
         let pass = |along_rows: bool| self.smoothing_pass(scene, &radius, along_rows);
-        Smoothing { passes: [pass(true), pass(false)] }
+        Smoothing { width: self.width, passes: [pass(true), pass(false)] }
     }
 
     fn smoothing_pass(&self, scene: &Scene, radius: &[u32], along_rows: bool) -> Pass {
@@ -138,8 +168,17 @@ impl TexelSet {
         for taps in &per_texel {
             start.push(start.last().copied().unwrap_or(0) + taps.len() as u32);
         }
+        let w = self.width;
+        let row_reach = self
+            .texels
+            .iter()
+            .zip(&per_texel)
+            .flat_map(|(t, taps)| taps.iter().map(move |&(at, _)| (at / w).abs_diff(t.j)))
+            .max()
+            .unwrap_or(0);
         Pass {
-            target: self.texels.iter().map(|t| t.j * self.width + t.i).collect(),
+            row_reach,
+            target: self.texels.iter().map(|t| t.j * w + t.i).collect(),
             start,
             taps: per_texel.into_iter().flatten().collect(),
         }

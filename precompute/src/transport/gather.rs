@@ -12,7 +12,7 @@ use rand::Rng;
 use super::{bounce, kept_share, Scratch, TexelDipoles, TexelPanes, Transport};
 
 /// Per-cluster members and region areas for [`Estimator::Mis`].
-pub(super) struct MisTables {
+pub struct MisTables {
     members: Vec<Vec<u32>>,
     /// Region area of each cluster: |c| A / N.
     area: Vec<f32>,

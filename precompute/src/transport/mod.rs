@@ -49,7 +49,7 @@ use rand::Rng;
 
 use crate::cells::CellOwners;
 use crate::parallel::{par_texels, Cancelled, Control};
-use gather::MisTables;
+pub use gather::MisTables;
 
 /// How pane contents are estimated.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -162,6 +162,14 @@ impl<'f> Scratch<'f> {
     }
 }
 
+/// An estimator's tables, built once per run ([`Transport::prepare`]).
+pub enum Prepared {
+    /// The gather, with the MIS tables or without.
+    Gather(Option<MisTables>),
+    /// The scatter's virtual lights (position, normal, power, cluster) and squared clamp.
+    Scatter { vpls: Vec<(Vec3, Vec3, Vec3, u32)>, rc2: f32 },
+}
+
 /// Everything an estimator needs.
 pub struct Transport<'a> {
     pub scene: &'a Scene,
@@ -241,33 +249,48 @@ impl<'a> Transport<'a> {
         set: &prm::TexelSet,
         control: Control,
     ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
-        let (texels, width) = (&set.texels[..], set.width);
+        self.run_texels(&self.prepare(estimator), &set.texels, set.width, control)
+    }
+
+    /// What `estimator` builds once before any texel (the MIS tables, the virtual lights).
+    pub fn prepare(&self, estimator: Estimator) -> Prepared {
+        let total_area = self.scene.total_area();
         match estimator {
-            Estimator::Gather | Estimator::Mis => {
-                let total_area = self.scene.total_area();
-                let mis = (estimator == Estimator::Mis)
-                    .then(|| MisTables::new(self.entries, self.assignment, self.clusters, total_area));
-                self.per_texel(texels, control, |scratch, t| {
-                    self.gather_texel(scratch, t, width, mis.as_ref())
-                })
-            }
+            Estimator::Gather => Prepared::Gather(None),
+            Estimator::Mis => Prepared::Gather(Some(MisTables::new(
+                self.entries,
+                self.assignment,
+                self.clusters,
+                total_area,
+            ))),
             Estimator::Scatter { clamp } => {
                 let vpls = self.vpls();
                 self.stats.vpls.store(vpls.len(), Ordering::Relaxed);
-                let spacing = (self.scene.total_area() / self.entries.len().max(1) as f64).sqrt() as f32;
-                let rc2 = (clamp * spacing).powi(2);
-                self.per_texel(texels, control, |scratch, t| self.scatter_texel(scratch, t, &vpls, rc2))
+                let spacing = (total_area / self.entries.len().max(1) as f64).sqrt() as f32;
+                Prepared::Scatter { vpls, rc2: (clamp * spacing).powi(2) }
             }
         }
     }
 
-    fn per_texel(
+    /// The panes' contents at `texels` (any run of a texel set `width` texels wide, in its
+    /// order): each texel's result depends on that texel alone, so runs give the same values
+    /// as one run over the whole set, which is what lets the precompute walk a band at a time.
+    pub fn run_texels(
         &self,
+        prepared: &Prepared,
         texels: &[Texel],
+        width: u32,
         control: Control,
-        f: impl Fn(&mut Scratch, &Texel) -> (TexelPanes, TexelDipoles) + Sync + Send,
     ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
-        par_texels(texels, control, || Scratch::new(self.clusters, self.frames), f)
+        let init = || Scratch::new(self.clusters, self.frames);
+        match prepared {
+            Prepared::Gather(mis) => par_texels(texels, control, init, |scratch, t| {
+                self.gather_texel(scratch, t, width, mis.as_ref())
+            }),
+            Prepared::Scatter { vpls, rc2 } => {
+                par_texels(texels, control, init, |scratch, t| self.scatter_texel(scratch, t, vpls, *rc2))
+            }
+        }
     }
 
     /// Paper 004's Russian roulette after a vertex of albedo `a` at walk depth `depth`:
