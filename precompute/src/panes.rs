@@ -134,9 +134,10 @@ impl<'a> Encoder<'a> {
         texels.partition_point(|t| t.j < rows.start)..texels.partition_point(|t| t.j < rows.end)
     }
 
-    /// Encode the band's tiles of `acc`'s panes into it (an error if its scratch file fails). `panes` and `exact` hold what each
-    /// texel of the band's window gives each pane (texel-major from texel `first`; `exact`
-    /// may be empty): the walked part, smoothed, and the exact part, added after smoothing.
+    /// Encode the band's tiles of `acc`'s panes into it (an error if its scratch file fails).
+    /// `panes` and `exact` hold what each texel of the band's window gives each pane
+    /// (texel-major from texel `first`; `exact` may be empty): the walked part, smoothed, and
+    /// the exact part, added after smoothing.
     pub fn encode_band(
         &self,
         band: &Band,

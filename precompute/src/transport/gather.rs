@@ -11,7 +11,7 @@ use rand::Rng;
 
 use super::{bounce, kept_share, Scratch, TexelDipoles, TexelPanes, Transport};
 
-/// Per-cluster members and region areas for [`Estimator::Mis`].
+/// Per-cluster members and region areas for [`super::Estimator::Mis`].
 pub struct MisTables {
     members: Vec<Vec<u32>>,
     /// Region area of each cluster: |c| A / N.
