@@ -204,10 +204,7 @@ impl<'a> Encoder<'a> {
                     list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
                 let img = self.band_image(band, &axis, &[]);
                 let offset = band.window.start as usize * grid.w;
-                let mut energy = acc.energy[pk];
-                for t in &self.set.texels[own.clone()] {
-                    energy += luminance(img[t.j as usize * grid.w + t.i as usize - offset]) as f64;
-                }
+                let energy = self.carry_energy(band, own.clone(), &img, acc.energy[pk]);
                 let mut means = vec![Vec3::ZERO; bw * block_rows.len()];
                 for k in r0 * grid.w..band.rows.end as usize * grid.w {
                     if self.stored[k] {
@@ -252,12 +249,10 @@ impl<'a> Encoder<'a> {
     /// A pane's tiles in the band (those holding any non-zero texel), encoded, and its energy
     /// (signed luminance over the covered texels, the runtime's ranking energy) carried on
     /// from `energy` over the band's texels `own`.
-    fn encode_pane_band(&self, band: &Band, own: Range<usize>, img: &[Vec3], mut energy: f64) -> PaneBand {
+    fn encode_pane_band(&self, band: &Band, own: Range<usize>, img: &[Vec3], energy: f64) -> PaneBand {
         let grid = &self.grid;
         let offset = band.window.start as usize * grid.w;
-        for t in &self.set.texels[own] {
-            energy += luminance(img[t.j as usize * grid.w + t.i as usize - offset]) as f64;
-        }
+        let energy = self.carry_energy(band, own, img, energy);
         let mut tiles = Vec::new();
         for index in band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx {
             let mut e = 0.0f64;
@@ -277,6 +272,16 @@ impl<'a> Encoder<'a> {
             }
         }
         PaneBand { energy, tiles }
+    }
+
+    /// A pane's energy (signed luminance over the covered texels) carried on from `energy`
+    /// over the band's texels `own`, in texel order, so the sum is the whole atlas's to the bit.
+    fn carry_energy(&self, band: &Band, own: Range<usize>, img: &[Vec3], mut energy: f64) -> f64 {
+        let (w, offset) = (self.grid.w, band.window.start as usize * self.grid.w);
+        for t in &self.set.texels[own] {
+            energy += luminance(img[t.j as usize * w + t.i as usize - offset]) as f64;
+        }
+        energy
     }
 
     /// The stored-texel mask, packed, as the file keeps it.

@@ -557,10 +557,10 @@ pub fn halls(nx: u32, nz: u32, sides: u32, bands: u32) -> GlbScene {
             let o = origin(i, j);
             let (d0, d1) = (HALL * 0.5 - DOOR_WIDTH * 0.5, HALL * 0.5 + DOOR_WIDTH * 0.5);
             if i + 1 < nx {
-                corridor_x(&mut b, corridor, floor, o.x + HALL, o.x + pitch, o.z + d0, o.z + d1);
+                add_corridor(&mut b, corridor, floor, (o.x + HALL, o.x + pitch), (o.z + d0, o.z + d1), true);
             }
             if j + 1 < nz {
-                corridor_z(&mut b, corridor, floor, o.z + HALL, o.z + pitch, o.x + d0, o.x + d1);
+                add_corridor(&mut b, corridor, floor, (o.x + d0, o.x + d1), (o.z + HALL, o.z + pitch), false);
             }
         }
     }
@@ -603,24 +603,27 @@ fn hall_shell(b: &mut Builder, o: Vec3, floor: usize, ceiling: usize, wall: usiz
     }
 }
 
-/// A corridor along x from `x0` to `x1` between `z0` and `z1`, faces in.
-fn corridor_x(b: &mut Builder, m: usize, floor: usize, x0: f32, x1: f32, z0: f32, z1: f32) {
+/// A corridor over [x0, x1] x [z0, z1], faces in, walled on its long sides: at z0 and z1 when
+/// it runs along x, at x0 and x1 when along z.
+fn add_corridor(
+    b: &mut Builder,
+    m: usize,
+    floor: usize,
+    (x0, x1): (f32, f32),
+    (z0, z1): (f32, f32),
+    along_x: bool,
+) {
     let h = DOOR_HEIGHT;
     let v = Vec3::new;
     b.quad(floor, v(x0, 0.0, z0), v(x0, 0.0, z1), v(x1, 0.0, z1), v(x1, 0.0, z0));
     b.quad(m, v(x0, h, z0), v(x1, h, z0), v(x1, h, z1), v(x0, h, z1));
-    b.quad(m, v(x0, 0.0, z0), v(x1, 0.0, z0), v(x1, h, z0), v(x0, h, z0));
-    b.quad(m, v(x1, 0.0, z1), v(x0, 0.0, z1), v(x0, h, z1), v(x1, h, z1));
-}
-
-/// A corridor along z from `z0` to `z1` between `x0` and `x1`, faces in.
-fn corridor_z(b: &mut Builder, m: usize, floor: usize, z0: f32, z1: f32, x0: f32, x1: f32) {
-    let h = DOOR_HEIGHT;
-    let v = Vec3::new;
-    b.quad(floor, v(x0, 0.0, z0), v(x0, 0.0, z1), v(x1, 0.0, z1), v(x1, 0.0, z0));
-    b.quad(m, v(x0, h, z0), v(x1, h, z0), v(x1, h, z1), v(x0, h, z1));
-    b.quad(m, v(x0, 0.0, z1), v(x0, 0.0, z0), v(x0, h, z0), v(x0, h, z1));
-    b.quad(m, v(x1, 0.0, z0), v(x1, 0.0, z1), v(x1, h, z1), v(x1, h, z0));
+    if along_x {
+        b.quad(m, v(x0, 0.0, z0), v(x1, 0.0, z0), v(x1, h, z0), v(x0, h, z0));
+        b.quad(m, v(x1, 0.0, z1), v(x0, 0.0, z1), v(x0, h, z1), v(x1, h, z1));
+    } else {
+        b.quad(m, v(x0, 0.0, z1), v(x0, 0.0, z0), v(x0, h, z0), v(x0, h, z1));
+        b.quad(m, v(x1, 0.0, z0), v(x1, 0.0, z1), v(x1, h, z1), v(x1, h, z0));
+    }
 }
 
 /// The bundled large level: 4 x 4 halls, about 53,000 triangles, 24 lights.
