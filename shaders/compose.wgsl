@@ -354,5 +354,6 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     }
     // The near field and the dipole panes are signed.
     sum = max(sum, vec3f(0.0));
-    textureStore(lightmap, vec2i(id.xy), vec4f(sum, 1.0));
+    let rows = params.page_rows;
+    textureStore(lightmap, vec2i(i32(id.x), i32(id.y % rows)), i32(id.y / rows), vec4f(sum, 1.0));
 }

@@ -128,8 +128,10 @@ pub struct LoadReport {
     pub non_triangle_primitives: usize,
     /// Lightmap UVs were generated because the file had no `TEXCOORD_1` (on some primitive).
     pub uv1_generated: bool,
-    /// The atlas side generated lightmap UVs were packed for.
-    pub generated_atlas: Option<u32>,
+    /// The atlas generated lightmap UVs were packed into.
+    pub generated_atlas: Option<crate::density::Atlas>,
+    /// How they were laid out (with several pages, the texel size that loads them again).
+    pub generated_layout: Option<crate::density::UnwrapLayout>,
     /// Primitives that lacked `TEXCOORD_1`.
     pub primitives_without_uv1: usize,
     /// Triangles whose lightmap UVs leave [0, 1] (those parts get no texels).

@@ -11,6 +11,8 @@ use std::collections::HashMap;
 
 use glam::{DVec2, Vec2};
 
+#[cfg(feature = "unwrap")]
+use crate::density::{Atlas, UnwrapLayout, MAX_PAGES};
 use crate::scene::Scene;
 
 #[cfg(feature = "unwrap")]
@@ -25,12 +27,15 @@ pub struct UnwrapPrim<'a> {
 }
 
 #[cfg(feature = "unwrap")]
-/// Generate lightmap UVs for all primitives together, packed into one square atlas page laid
-/// out for `resolution`^2 texels with 2 texels of padding around each chart. The level is cut
-/// into spatial zones ([`crate::zones`]), each packed into its own rectangle of the page.
-pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Result<(), String> {
-    if resolution < 16 {
-        return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
+/// Generate lightmap UVs for all primitives together, with 2 texels of padding around each
+/// chart: one square page, or pages of a fixed size at a fixed density, stacked as
+/// [`crate::density::Atlas`] says (v runs over every page). The level is cut into spatial zones
+/// ([`crate::zones`]), each packed into its own rectangle of one page. Returns the atlas.
+pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> Result<Atlas, String> {
+    if let UnwrapLayout::OnePage(resolution) = layout {
+        if resolution < 16 {
+            return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
+        }
     }
     // Every triangle as (primitive, triangle), its corners, and its zone.
     let tris: Vec<(usize, usize)> = prims
@@ -42,7 +47,14 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
         .iter()
         .map(|&(p, t)| [0, 1, 2].map(|k| prims[p].positions[prims[p].indices[3 * t + k] as usize]))
         .collect();
-    let zone = crate::zones::zones(&corners, crate::zones::ZONE_AREA);
+    // A zone is packed whole into one page: at most a fifth of a page's area.
+    let zone_area = match layout {
+        UnwrapLayout::OnePage(_) => crate::zones::ZONE_AREA,
+        UnwrapLayout::Pages { texel_size, page_size } => {
+            crate::zones::ZONE_AREA.min(0.2 * (page_size as f64 * texel_size as f64).powi(2))
+        }
+    };
+    let zone = crate::zones::zones(&corners, zone_area);
     let zone_count = zone.iter().map(|&z| z as usize + 1).max().unwrap_or(0);
     // Each zone as one mesh: its vertices are (primitive, vertex) pairs.
     let mut meshes = vec![ZoneMesh::default(); zone_count];
@@ -69,7 +81,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
             ..uvunwrap::MeshInput::new(&m.positions, &m.indices)
         })
         .collect();
-    let (atlas, v_scale) = unwrap_meshes(&inputs, resolution)?;
+    let (atlas, v_scale, pages) = unwrap_meshes(&inputs, layout)?;
     // Rebuild each primitive, its triangles in their order, from the zones' output vertices.
     let mut rebuilt: Vec<Rebuilt> = prims.iter().map(|_| Rebuilt::default()).collect();
     for (k, &(p, _)) in tris.iter().enumerate() {
@@ -86,7 +98,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
                 let (_, src) = meshes[z as usize].source[v.xref as usize];
                 let uv = [0, 1].map(|a| rect.min[a] + v.uv[a] * (rect.max[a] - rect.min[a]));
                 r.source.push(src);
-                r.uv1.push(Vec2::new(uv[0], uv[1] * v_scale));
+                r.uv1.push(Vec2::new(uv[0], (rect.page as f32 + uv[1] * v_scale) / pages.pages as f32));
             }
             r.indices.push(index);
         }
@@ -98,7 +110,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], resolution: u32) -> Resul
         *p.uv1 = Some(r.uv1);
         *p.indices = r.indices;
     }
-    Ok(())
+    Ok(pages)
 }
 
 #[cfg(feature = "unwrap")]
@@ -122,27 +134,52 @@ struct Rebuilt {
 }
 
 #[cfg(feature = "unwrap")]
-/// Unwrap meshes into one square atlas page laid out for `resolution`^2 texels with 2 texels
-/// of padding. Returns the atlas and the factor to multiply its v by: uvunwrap crops the page
-/// to the rows it uses, and our atlas is square, so texels stay square.
+/// Unwrap meshes with 2 texels of padding, as `layout` says. Returns uvunwrap's atlas, the
+/// factor to multiply its page v by (uvunwrap crops a single automatic page to the rows it
+/// uses, and our pages are square, so texels stay square), and our atlas.
 pub fn unwrap_meshes(
     inputs: &[uvunwrap::MeshInput<'_>],
-    resolution: u32,
-) -> Result<(uvunwrap::Atlas, f32), String> {
-    let options = uvunwrap::Options {
-        density: uvunwrap::Density::Auto { page_size: resolution },
-        padding: 2,
-        ..Default::default()
+    layout: UnwrapLayout,
+) -> Result<(uvunwrap::Atlas, f32, Atlas), String> {
+    let density = match layout {
+        UnwrapLayout::OnePage(side) => uvunwrap::Density::Auto { page_size: side },
+        UnwrapLayout::Pages { texel_size, page_size } => {
+            uvunwrap::Density::Fixed { texels_per_unit: 1.0 / texel_size, page_size: Some(page_size) }
+        }
     };
-    let atlas = uvunwrap::generate(inputs, &options).map_err(|e| e.to_string())?;
-    if atlas.page_count != 1 {
-        return Err(format!(
-            "the charts need {} atlas pages at {resolution}^2; use a larger --atlas",
-            atlas.page_count
-        ));
+    let options = uvunwrap::Options { density, padding: 2, ..Default::default() };
+    let atlas = uvunwrap::generate(inputs, &options).map_err(|e| match (e, layout) {
+        (uvunwrap::Error::ChartTooLarge { width, height, .. }, UnwrapLayout::Pages { texel_size, page_size }) => {
+            format!(
+                "a flat part of the level needs {width}x{height} texels at {texel_size} m texels, more than one \
+                 {page_size}^2 page; give a larger --page-size or --texel-size"
+            )
+        }
+        (e, _) => e.to_string(),
+    })?;
+    match layout {
+        UnwrapLayout::OnePage(side) => {
+            if atlas.page_count != 1 {
+                return Err(format!(
+                    "the charts need {} atlas pages at {side}^2; use a larger --atlas",
+                    atlas.page_count
+                ));
+            }
+            let v_scale = atlas.height as f32 / atlas.width as f32;
+            Ok((atlas, v_scale, Atlas::single(side)))
+        }
+        UnwrapLayout::Pages { page_size, .. } => {
+            if atlas.page_count > MAX_PAGES {
+                return Err(format!(
+                    "the charts need {} pages of {page_size}^2, over the {MAX_PAGES} limit; give a larger \
+                     --page-size or --texel-size",
+                    atlas.page_count
+                ));
+            }
+            let pages = Atlas { side: page_size, pages: atlas.page_count.max(1) };
+            Ok((atlas, 1.0, pages))
+        }
     }
-    let v_scale = atlas.height as f32 / atlas.width as f32;
-    Ok((atlas, v_scale))
 }
 
 /// Number of triangles with a lightmap UV outside [0, 1].

@@ -48,3 +48,33 @@ fn lightmap_layers_round_trip() {
     assert!(back.rgb("stderr").is_none());
     assert!(back.require(&path, "stderr.R").unwrap_err().to_string().contains("indirect.R"));
 }
+
+#[test]
+fn an_atlas_of_pages_is_a_layer_set_per_page_and_reads_back_stacked() {
+    // Three 4 x 4 pages stacked down a 4 x 12 image, two layers.
+    let (w, side, pages) = (4, 4, 3);
+    let h = side * pages;
+    let rgb: Vec<Vec3> = (0..w * h).map(|k| Vec3::new(k as f32, -(k as f32), 0.5)).collect();
+    let mut ch = Channels::paged(w, h, pages);
+    ch.insert_rgb("", &rgb);
+    ch.insert_rgb("direct", &rgb.iter().map(|v| *v * 2.0).collect::<Vec<_>>());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("pages.exr");
+    ch.write(&path).unwrap();
+    // The file holds one layer per page, named page0.., each a page's side square, with the
+    // page's rows: what another tool sees.
+    let image = exr::prelude::read_all_flat_layers_from_file(&path).unwrap();
+    let names: Vec<String> =
+        image.layer_data.iter().map(|l| l.attributes.layer_name.as_ref().unwrap().to_string()).collect();
+    assert_eq!(names, ["page0", "page1", "page2"]);
+    for (p, layer) in image.layer_data.iter().enumerate() {
+        assert_eq!((layer.size.width(), layer.size.height()), (side, side));
+        let r = layer.channel_data.list.iter().find(|c| c.name.to_string() == "R").unwrap();
+        let first: f32 = r.sample_data.values_as_f32().next().unwrap();
+        assert_eq!(first, (p * side * w) as f32, "page {p} starts at its first row");
+    }
+    // Read back: the stacked image, exactly.
+    let read = Channels::read(&path).unwrap();
+    assert_eq!(read, ch);
+    assert_eq!(read.rgb("").unwrap(), rgb);
+}

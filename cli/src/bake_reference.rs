@@ -65,7 +65,7 @@ pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     scene.lights = a.rig.lights(&scene)?;
     let bvh = Bvh::build(&scene);
-    let set = TexelSet::build_visible(&scene, &bvh, atlas, atlas);
+    let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let t = Instant::now();
     let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
     let lights_s = t.elapsed().as_secs_f64();
@@ -90,7 +90,7 @@ pub fn run(a: Args) -> Result<()> {
     let baked = baked.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let eval_s = t.elapsed().as_secs_f64();
     let total: Vec<Vec3> = baked.direct.iter().zip(&baked.indirect).map(|(d, i)| *d + *i).collect();
-    let mut ch = Channels::new(set.width as usize, set.height as usize);
+    let mut ch = Channels::paged(set.width as usize, set.height as usize, atlas.pages as usize);
     ch.insert_rgb("", &set.to_image(if a.indirect_only { &baked.indirect } else { &total }, Vec3::ZERO));
     ch.insert_rgb("direct", &set.to_image(&baked.direct, Vec3::ZERO));
     ch.insert_rgb("indirect", &set.to_image(&baked.indirect, Vec3::ZERO));

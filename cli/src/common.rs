@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use prm::density::Atlas;
 use prm::{load_scene, LoadOptions, Scene};
 
 /// How to read the level.
@@ -32,41 +33,65 @@ pub fn check_atlas(atlas: u32) -> Result<()> {
 /// The lightmap's size: given in texels, or from a texel size in metres.
 #[derive(clap::Args, Clone, Debug)]
 pub struct AtlasArgs {
-    /// Atlas width and height in texels (default: what --texel-size gives the level's surface,
-    /// at least 256).
+    /// Atlas width and height in texels, one page (default: what --texel-size gives the
+    /// level's surface, at least 256).
     #[arg(long)]
     pub atlas: Option<u32>,
     /// World size of a lightmap texel in metres, when --atlas is not given.
     #[arg(long, default_value_t = prm::density::DEFAULT_TEXEL_SIZE)]
     pub texel_size: f32,
+    /// Side of a lightmap page in texels, for a level without lightmap UVs that needs more than
+    /// one page at --texel-size (a multiple of 16, 64 to 8192).
+    #[arg(long, default_value_t = prm::density::DEFAULT_PAGE_SIZE)]
+    pub page_size: u32,
 }
 
 impl AtlasArgs {
-    /// The level loaded for this lightmap size, and the atlas side.
-    pub fn load(&self, args: &SceneArgs, quiet: bool) -> Result<(Scene, u32)> {
+    /// The level loaded for this lightmap size, and its atlas.
+    pub fn load(&self, args: &SceneArgs, quiet: bool) -> Result<(Scene, Atlas)> {
         if let Some(atlas) = self.atlas {
             check_atlas(atlas)?;
-            return Ok((load(args, atlas, quiet)?, atlas));
+            return Ok((load(args, atlas, quiet)?, Atlas::single(atlas)));
         }
-        prm::density::check_texel_size(self.texel_size).map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
-        let scene = load_with(args, None, self.texel_size, quiet)?;
-        let atlas = prm::density::atlas_side(&scene, self.texel_size).map_err(anyhow::Error::msg)?;
+        let bad = |e: String| anyhow::anyhow!("bad parameter: {e}");
+        prm::density::check_texel_size(self.texel_size).map_err(bad)?;
+        prm::density::check_page_size(self.page_size).map_err(bad)?;
+        let scene = load_with(args, None, self.texel_size, self.page_size, quiet)?;
+        let atlas = prm::density::atlas(&scene, self.texel_size).map_err(anyhow::Error::msg)?;
         Ok((scene, atlas))
     }
 }
 
 /// Load the level, printing what the loader had to fix or generate.
 pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
-    load_with(args, Some(atlas), prm::density::DEFAULT_TEXEL_SIZE, quiet)
+    load_with(args, Some(atlas), prm::density::DEFAULT_TEXEL_SIZE, prm::density::DEFAULT_PAGE_SIZE, quiet)
 }
 
-/// [`load`] with generated UVs packed for `atlas`, or for what `texel_size` gives the level.
-fn load_with(args: &SceneArgs, atlas: Option<u32>, texel_size: f32, quiet: bool) -> Result<Scene> {
+/// Load the level as a map with this header was baked for it: generated UVs in the map's
+/// pages at its texel size, or packed for its one page.
+pub fn load_for(args: &SceneArgs, header: &prm::prm_file::Header, quiet: bool) -> Result<Scene> {
+    if header.pages > 1 {
+        load_with(args, None, header.page_texel_size, header.atlas_width, quiet)
+    } else {
+        load(args, header.atlas_width, quiet)
+    }
+}
+
+/// [`load`] with generated UVs packed for `atlas`, or for what `texel_size` gives the level in
+/// pages of `page_size`.
+fn load_with(
+    args: &SceneArgs,
+    atlas: Option<u32>,
+    texel_size: f32,
+    page_size: u32,
+    quiet: bool,
+) -> Result<Scene> {
     let opts = LoadOptions {
         require_uv1: args.require_uv1,
         allow_overlap: args.allow_overlap,
         unwrap_resolution: atlas.map(|a| a.clamp(16, prm::density::MAX_DENSITY_ATLAS)),
         texel_size,
+        page_size,
     };
     let scene = load_scene(&args.scene, &opts).with_context(|| "loading the level failed")?;
     if !quiet {
@@ -216,7 +241,7 @@ impl ComposeArgs {
 /// A `.prm` and the level it must have been baked for (loaded at the map's atlas size).
 pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Scene, prm::prm_file::Prm)> {
     let map = prm::prm_file::Prm::read(prm_path, None).with_context(|| "reading the radiance map failed")?;
-    let scene = load(args, map.header().atlas_width, false)?;
+    let scene = load_for(args, map.header(), false)?;
     map.check_scene(prm_path, &scene)?;
     Ok((scene, map))
 }

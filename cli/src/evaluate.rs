@@ -46,7 +46,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     let img = twin.frame(&lights).to_vec();
     let (w, h) = (set.width as usize, set.height as usize);
-    let mut ch = Channels::new(w, h);
+    let mut ch = Channels::paged(w, h, bytes_prm.header().atlas().pages as usize);
     ch.insert_rgb("", &img);
     ch.insert_rgb("indirect", &img);
     ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());

@@ -95,13 +95,13 @@ pub fn run(a: Args) -> Result<()> {
 
 fn lightmap(
     a: &Args,
-    atlas: u32,
+    atlas: prm::density::Atlas,
     tracer: &Tracer,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<serde_json::Value> {
-    let set = TexelSet::build_visible(tracer.scene, tracer.bvh, atlas, atlas);
+    let set = TexelSet::build_visible(tracer.scene, tracer.bvh, atlas.width(), atlas.height());
     if set.is_empty() {
-        bail!("the level has no lightmap texels at {atlas}^2");
+        bail!("the level has no lightmap texels in {atlas}");
     }
     let bar = progress_bar(set.len() as u64, "texels");
     if a.json {
@@ -112,7 +112,7 @@ fn lightmap(
     bar.finish_and_clear();
     let values = result.map_err(|_| anyhow!("stopped by Ctrl-C; {} not written", a.output.display()))?;
     let (w, h) = (set.width as usize, set.height as usize);
-    let mut ch = Channels::new(w, h);
+    let mut ch = Channels::paged(w, h, atlas.pages as usize);
     let layer = |f: &dyn Fn(&prm_precompute::ground_truth::Irradiance) -> Vec3| {
         let v: Vec<Vec3> = values.iter().map(f).collect();
         set.to_image(&v, Vec3::ZERO)
@@ -141,7 +141,8 @@ fn lightmap(
         mean += v.indirect / values.len() as f32;
     }
     Ok(json!({
-        "atlas": atlas,
+        "atlas": atlas.side,
+        "pages": atlas.pages,
         "texels": set.len(),
         "mean_indirect": mean.to_array(),
         "indirect_noise_normalised": prm_precompute::ground_truth::indirect_noise(&values),

@@ -21,11 +21,11 @@ pub struct Args {
     json: bool,
 }
 
-/// The lightmap side of the facts: the texel set at `atlas`², its UV charts and build time.
+/// The lightmap side of the facts: the texel set over `atlas`, its UV charts and build time.
 struct Lightmap {
     set: TexelSet,
-    atlas: u32,
-    /// The texel size asked for, and which option set the atlas side.
+    atlas: prm::density::Atlas,
+    /// The texel size asked for, and which option set the atlas.
     texel_size: f32,
     atlas_from: &'static str,
     charts: u32,
@@ -35,14 +35,14 @@ struct Lightmap {
 impl Lightmap {
     /// Atlas texels in all (covered or not).
     fn total(&self) -> f64 {
-        (self.atlas as f64) * (self.atlas as f64)
+        self.atlas.texels() as f64
     }
 }
 
 pub fn run(a: Args) -> Result<()> {
     let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     let start = Instant::now();
-    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), atlas, atlas);
+    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), atlas.width(), atlas.height());
     let build_seconds = start.elapsed().as_secs_f64();
     let charts = prm::uv::charts(&scene).iter().max().map_or(0, |m| m + 1);
     let atlas_from = if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" };
@@ -96,7 +96,8 @@ fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
             "zero_area_triangles": set.zero_uv_area_triangles,
         },
         "texels": {
-            "atlas": lm.atlas,
+            "atlas": lm.atlas.side,
+            "pages": lm.atlas.pages,
             "covered": set.len(),
             "coverage": set.len() as f64 / lm.total(),
             "dilated": set.dilation.len(),
@@ -178,7 +179,7 @@ fn print_lightmap(scene: &Scene, lm: &Lightmap, summary: &Value) {
         set.zero_uv_area_triangles
     );
     println!(
-        "  texels      {} of {}^2 covered ({:.1} %), {} dilated, {} gutter texels shared by charts, {} buried \
+        "  texels      {} of {} covered ({:.1} %), {} dilated, {} gutter texels shared by charts, {} buried \
             points moved and {} buried texels dropped, ~{:.4} units per texel, built in {:.3} s",
         set.len(),
         lm.atlas,
@@ -199,7 +200,7 @@ fn print_lightmap(scene: &Scene, lm: &Lightmap, summary: &Value) {
         );
     }
     println!(
-        "  density     atlas {}^2 from {} ({} m texels asked for)",
+        "  density     atlas {} from {} ({} m texels asked for)",
         lm.atlas, lm.atlas_from, lm.texel_size
     );
     for n in &r.notes {

@@ -200,7 +200,8 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     v["peak_memory_bytes"] = peak_rss().map_or(serde_json::Value::Null, |b| b.into());
     v["density"] = json!({
         "surface_area_m2": area,
-        "atlas": p.atlas,
+        "atlas": p.atlas.side,
+        "pages": p.atlas.pages,
         "texel_size_m": (area / (report.texels.max(1) as f64)).sqrt(),
         "entries_per_m2": report.entries as f64 / area.max(1e-12),
         "entries_per_cluster": report.entries as f64 / report.clusters.max(1) as f64,
@@ -231,7 +232,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         );
         let d = &v["density"];
         println!(
-            "  density: {:.0} m^2 of surface, atlas {}^2 (from {}), {:.3} m texels, {:.2} entries per m^2, \
+            "  density: {:.0} m^2 of surface, atlas {} (from {}), {:.3} m texels, {:.2} entries per m^2, \
                 {:.1} entries per cluster, {} groups",
             area,
             p.atlas,

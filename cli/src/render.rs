@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3};
+use prm::density::Atlas;
 use prm::exr_io::Channels;
 use prm::{Bvh, Camera, Scene};
 use prm_runtime::cpu::CpuTwin;
@@ -85,9 +86,7 @@ pub fn run(a: Args) -> Result<()> {
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
     let out = Output {
         dir: &a.output,
-        lightmap: a
-            .lightmap_out
-            .then_some((prm_file.header().atlas_width as usize, prm_file.header().atlas_height as usize)),
+        lightmap: a.lightmap_out.then_some(prm_file.header().atlas()),
         size: (iw as usize, ih as usize),
     };
     match gpu {
@@ -129,7 +128,7 @@ pub fn run(a: Args) -> Result<()> {
             let mut twin = CpuTwin::new(&prm_file, &bvh, params.top_k);
             twin.set_residual(params.residual);
             twin.set_budget(params.budget);
-            let atlas = (prm_file.header().atlas_width as usize, prm_file.header().atlas_height as usize);
+            let atlas = prm_file.header().atlas();
             let mut totals = (0.0, 0.0);
             for f in 0..a.frames {
                 let lights = rig.frame(f, a.frames);
@@ -217,7 +216,7 @@ pub fn default_camera(scene: &Scene, bvh: &Bvh) -> Camera {
 
 struct Output<'a> {
     dir: &'a Path,
-    lightmap: Option<(usize, usize)>,
+    lightmap: Option<Atlas>,
     size: (usize, usize),
 }
 
@@ -229,8 +228,9 @@ impl Output<'_> {
         let stem = self.dir.join(format!("frame_{f:04}"));
         ch.write(&stem.with_extension("exr")).with_context(|| format!("writing {}", stem.display()))?;
         write_png(&stem.with_extension("png"), img, iw, ih)?;
-        if let (Some((w, h)), Some(lm)) = (self.lightmap, lightmap) {
-            let mut ch = Channels::new(w, h);
+        if let (Some(atlas), Some(lm)) = (self.lightmap, lightmap) {
+            let (w, h) = (atlas.width() as usize, atlas.height() as usize);
+            let mut ch = Channels::paged(w, h, atlas.pages as usize);
             ch.insert_rgb("", lm);
             let p = self.dir.join(format!("lightmap_{f:04}.exr"));
             ch.write(&p).with_context(|| format!("writing {}", p.display()))?;
@@ -239,18 +239,21 @@ impl Output<'_> {
     }
 }
 
-/// Bilinear lookup of a full-atlas image at lightmap UV `uv` (texel centres at (i+0.5)/W).
-fn bilinear(img: &[Vec3], (w, h): (usize, usize), uv: Vec2) -> Vec3 {
-    let x = uv.x * w as f32 - 0.5;
-    let y = uv.y * h as f32 - 0.5;
+/// Bilinear lookup of a full-atlas image at lightmap UV `uv` (texel centres at (i+0.5)/W),
+/// clamped to the page `uv` lies in, as the GPU's texture array reads it.
+fn bilinear(img: &[Vec3], atlas: Atlas, uv: Vec2) -> Vec3 {
+    let (w, side) = (atlas.width() as f32, atlas.side as f32);
+    let page = (uv.y * atlas.pages as f32).floor().clamp(0.0, atlas.pages as f32 - 1.0);
+    let x = uv.x * w - 0.5;
+    let y = uv.y * atlas.height() as f32 - 0.5;
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
-    let at = |i: f32, j: f32| {
-        img[(j.clamp(0.0, h as f32 - 1.0) as usize) * w + i.clamp(0.0, w as f32 - 1.0) as usize]
-    };
-    let top = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
-    let bottom = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
-    top.lerp(bottom, fy)
+    let (top, bottom) = (page * side, page * side + side - 1.0);
+    let at =
+        |i: f32, j: f32| img[j.clamp(top, bottom) as usize * w as usize + i.clamp(0.0, w - 1.0) as usize];
+    let upper = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
+    let lower = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
+    upper.lerp(lower, fy)
 }
 
 fn shade(
@@ -259,7 +262,7 @@ fn shade(
     cam: &prm::Camera,
     lights: &[prm::Light],
     lightmap: &[Vec3],
-    atlas: (usize, usize),
+    atlas: Atlas,
     (iw, ih): (usize, usize),
 ) -> Vec<Vec3> {
     (0..iw * ih)

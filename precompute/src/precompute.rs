@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
+use prm::density::{Atlas, UnwrapLayout};
 use prm::fingerprint::fingerprint_hex;
 use prm::prm_file::{far_share, Cells, Dipoles, Entry, Far, Header, InvalidPrm, NearLink, Prm, PrmParts};
 use prm::{Bvh, Scene, Smoothing, TexelSet};
@@ -37,8 +38,9 @@ pub struct PrecomputeParams {
     pub paths: u32,
     /// Clusters C, one pane each (default 256; at most N).
     pub clusters: u32,
-    /// Atlas width and height in texels (default 256).
-    pub atlas: u32,
+    /// The lightmap atlas: its page side and pages (default one 256^2 page). Several pages
+    /// need a level whose UVs were generated in pages of that side.
+    pub atlas: Atlas,
     /// Seed of every random stream.
     pub seed: u64,
     /// How panes are estimated (default gather; see `transport`).
@@ -85,7 +87,7 @@ impl PrecomputeParams {
             entries: 4096,
             paths: 128,
             clusters: 256,
-            atlas: 256,
+            atlas: Atlas::single(256),
             seed: 0,
             estimator: Estimator::Gather,
             tile_size: 16,
@@ -110,7 +112,13 @@ impl PrecomputeParams {
         require((1..=1 << 16).contains(&self.paths), "paths", self.paths, "1 to 65536")?;
         require((1..=65536).contains(&self.clusters), "clusters", self.clusters, "1 to 65536")?;
         require(self.groups <= 4096, "groups", self.groups, "0 to 4096")?;
-        require((1..=8192).contains(&self.atlas), "atlas", self.atlas, "1 to 8192")?;
+        require((1..=8192).contains(&self.atlas.side), "atlas", self.atlas.side, "1 to 8192")?;
+        require(
+            (1..=prm::density::MAX_PAGES).contains(&self.atlas.pages),
+            "atlas pages",
+            self.atlas.pages,
+            "1 to 256",
+        )?;
         require((1..=1024).contains(&self.tile_size), "tile size", self.tile_size, "1 to 1024")?;
         require(
             (0.0..0.5).contains(&self.drop_threshold),
@@ -214,6 +222,7 @@ pub struct Report {
     pub clusters: u32,
     pub paths: u32,
     pub atlas: u32,
+    pub pages: u32,
     pub seed: u64,
     pub texels: usize,
     /// Entries dropped because they lie inside a solid and no point of their triangle tried
@@ -279,18 +288,27 @@ pub fn precompute(
     cancel: &AtomicBool,
 ) -> Result<(Prm, Report), PrecomputeError> {
     params.validate()?;
+    if params.atlas.pages > 1 && scene.report.generated_atlas != Some(params.atlas) {
+        return Err(PrecomputeError::Params(ParamError {
+            name: "atlas pages",
+            value: params.atlas.to_string(),
+            allowed: "several pages only for a level whose UVs were generated in those pages",
+        }));
+    }
     let all = Instant::now();
     let mut report = Report {
         estimator: params.estimator.to_string(),
         entries: params.entries,
         paths: params.paths,
-        atlas: params.atlas,
+        atlas: params.atlas.side,
+        pages: params.atlas.pages,
         seed: params.seed,
         threads: rayon::current_num_threads(),
         ..Default::default()
     };
-    let set =
-        timed(&mut report.seconds_texels, || TexelSet::build_visible(scene, bvh, params.atlas, params.atlas));
+    let set = timed(&mut report.seconds_texels, || {
+        TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
+    });
     report.texels = set.len();
     progress(Phase::Texels, 1, 1);
 
@@ -616,6 +634,15 @@ fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
         .collect()
 }
 
+/// The texel size the level's generated UVs were packed at in several pages (how it loads
+/// again with the same UVs), else 0.
+fn page_texel_size(scene: &Scene, atlas: Atlas) -> f32 {
+    match scene.report.generated_layout {
+        Some(UnwrapLayout::Pages { texel_size, .. }) if atlas.pages > 1 => texel_size,
+        _ => 0.0,
+    }
+}
+
 /// The file header: what the map was baked for, its counts, and the parameters and counters
 /// the inputs fix (timings would break byte-for-byte determinism, so none go in).
 fn header(
@@ -626,9 +653,11 @@ fn header(
     tiled: &Tiled,
 ) -> Header {
     Header {
-        fingerprint: fingerprint_hex(scene, params.atlas, params.atlas),
-        atlas_width: params.atlas,
-        atlas_height: params.atlas,
+        fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
+        atlas_width: params.atlas.width(),
+        atlas_height: params.atlas.height(),
+        pages: params.atlas.pages,
+        page_texel_size: page_texel_size(scene, params.atlas),
         tile_size: params.tile_size,
         entries: entries as u32,
         clusters: tiled.clusters.len() as u32,
@@ -639,7 +668,8 @@ fn header(
         drop_threshold: params.drop_threshold,
         provenance: serde_json::json!({
             "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
-            "clusters": params.clusters, "atlas": params.atlas, "seed": params.seed,
+            "clusters": params.clusters, "atlas": params.atlas.side, "pages": params.atlas.pages,
+            "seed": params.seed,
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
             "near_links": report.near_links, "echo_radius": params.echo_radius,

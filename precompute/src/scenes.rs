@@ -140,7 +140,8 @@ impl Builder {
                 }
             })
             .collect();
-        let (atlas, v_scale) = prm::uv::unwrap_meshes(&inputs, resolution)?;
+        let (atlas, v_scale, _) =
+            prm::uv::unwrap_meshes(&inputs, prm::density::UnwrapLayout::OnePage(resolution))?;
         let mut scene = GlbScene { materials: self.materials, ..Default::default() };
         for (&m, out) in used.iter().zip(&atlas.meshes) {
             let p = &self.parts[m];

@@ -26,7 +26,7 @@ fn bake(threshold: f64) -> Prm {
         paths: 8,
         clusters: 16,
         groups: 4,
-        atlas: 32,
+        atlas: prm::density::Atlas::single(32),
         tile_size: 4,
         drop_threshold: threshold,
         ..Default::default()

@@ -192,7 +192,7 @@ fn mutated_prm_files_load_or_are_refused() {
         entries: 128,
         paths: 4,
         clusters: 12,
-        atlas: 24,
+        atlas: prm::density::Atlas::single(24),
         tile_size: 8,
         ..Default::default()
     };

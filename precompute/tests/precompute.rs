@@ -36,7 +36,13 @@ fn open_box() -> Scene {
 }
 
 fn params(entries: u32, paths: u32, clusters: u32, atlas: u32) -> PrecomputeParams {
-    PrecomputeParams { entries, paths, clusters, atlas, ..PrecomputeParams::production() }
+    PrecomputeParams {
+        entries,
+        paths,
+        clusters,
+        atlas: prm::density::Atlas::single(atlas),
+        ..PrecomputeParams::production()
+    }
 }
 
 fn bake(scene: &Scene, p: &PrecomputeParams) -> Prm {
@@ -433,7 +439,7 @@ fn absurd_parameters_are_refused_naming_the_parameter() {
     for (p, name, value) in [
         (PrecomputeParams { entries: 0, ..preview() }, "entries", "0"),
         (PrecomputeParams { clusters: 0, ..preview() }, "clusters", "0"),
-        (PrecomputeParams { atlas: 100_000, ..preview() }, "atlas", "100000"),
+        (PrecomputeParams { atlas: prm::density::Atlas::single(100_000), ..preview() }, "atlas", "100000"),
         (PrecomputeParams { drop_threshold: 0.9, ..preview() }, "drop threshold", "0.9"),
         (PrecomputeParams { estimator: Estimator::Scatter { clamp: f32::NAN }, ..preview() }, "clamp", "NaN"),
         (PrecomputeParams { near_radius: f32::NAN, ..preview() }, "near radius", "NaN"),
@@ -577,8 +583,14 @@ fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
     // Grey weights: the group panes' energy stands in exactly (up to dropped tiles and half
     // floats) for the left-out clusters' energy, so top-K + groups has the full sum's total.
     let scene = common::quads(&common::unit_box_faces(), 0.6);
-    let p =
-        PrecomputeParams { entries: 512, paths: 8, clusters: 48, atlas: 32, groups: 6, ..Default::default() };
+    let p = PrecomputeParams {
+        entries: 512,
+        paths: 8,
+        clusters: 48,
+        atlas: prm::density::Atlas::single(32),
+        groups: 6,
+        ..Default::default()
+    };
     let prm = bake(&scene, &p);
     assert_eq!(prm.groups().len(), 6);
     assert_eq!(prm.group_of().len(), prm.clusters().len());

@@ -106,7 +106,12 @@ fn direct_light_over_a_plane_is_inverse_square() {
     floor.lights.push(point_light(at, 3.0));
     let bvh = Bvh::build(&floor);
     let set = TexelSet::build(&floor, 24, 24);
-    let p = BakeParams { photons: 2000, bounces: 1, atlas: 24, ..Default::default() };
+    let p = BakeParams {
+        photons: 2000,
+        bounces: 1,
+        atlas: prm::density::Atlas::single(24),
+        ..Default::default()
+    };
     let vl = virtual_lights(&floor, &bvh, &floor.lights, &p);
     let baked =
         evaluate(&floor, &bvh, &set, &floor.lights, &vl, &p, prm_precompute::parallel::Control::none())
@@ -127,7 +132,12 @@ fn agrees_with_the_ground_truth_in_a_lit_box_and_is_deterministic() {
     // At 16^2 the half-texel epsilon shift is 3 % of the box and biases corners (-4 %
     // measured); 32^2 is fine enough.
     let set = TexelSet::build(&scene, 32, 32);
-    let p = BakeParams { photons: 20_000, atlas: 32, visibility_samples: 4, ..Default::default() };
+    let p = BakeParams {
+        photons: 20_000,
+        atlas: prm::density::Atlas::single(32),
+        visibility_samples: 4,
+        ..Default::default()
+    };
     let run = |threads| {
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
             let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);

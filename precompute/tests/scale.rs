@@ -10,9 +10,14 @@ use prm_precompute::scenes::halls;
 /// A small variant of the bundled halls (2 x 2 halls, coarse pillars) loaded as the CLI loads
 /// a level without `TEXCOORD_1` and without `--atlas`: UVs generated at the density's size.
 fn small_halls(dir: &std::path::Path, texel_size: f32) -> Scene {
+    small_halls_in_pages(dir, texel_size, prm::density::DEFAULT_PAGE_SIZE)
+}
+
+/// [`small_halls`] with generated UVs in pages of `page_size`.
+fn small_halls_in_pages(dir: &std::path::Path, texel_size: f32, page_size: u32) -> Scene {
     let path = dir.join("halls.glb");
     std::fs::write(&path, halls(2, 2, 8, 2).to_glb()).unwrap();
-    let opts = LoadOptions { unwrap_resolution: None, texel_size, ..Default::default() };
+    let opts = LoadOptions { unwrap_resolution: None, texel_size, page_size, ..Default::default() };
     load_scene(&path, &opts).unwrap()
 }
 
@@ -26,9 +31,10 @@ fn generated_uvs_keep_each_hall_together_in_the_atlas() {
     let dir = tempfile::tempdir().unwrap();
     let scene = small_halls(dir.path(), 0.25);
     let atlas = scene.report.generated_atlas.expect("UVs were generated");
-    assert_eq!(Ok(atlas), prm::density::atlas_side(&scene, 0.25));
+    assert_eq!(Ok(atlas), prm::density::atlas(&scene, 0.25));
+    assert_eq!(atlas.pages, 1);
     assert!(prm::uv::find_overlaps(&scene).is_empty(), "generated UVs overlap");
-    let set = TexelSet::build(&scene, atlas, atlas);
+    let set = TexelSet::build(&scene, atlas.width(), atlas.height());
     // Per 16-texel atlas tile, the halls whose texels it holds.
     let tile = 16;
     let mut halls_in: HashMap<(u32, u32), Vec<(i32, i32)>> = HashMap::new();
@@ -53,10 +59,73 @@ fn density_gives_the_texel_size_asked_for() {
     for texel in [0.18f32, 0.3] {
         let scene = small_halls(dir.path(), texel);
         let atlas = scene.report.generated_atlas.unwrap();
-        let set = TexelSet::build(&scene, atlas, atlas);
+        let set = TexelSet::build(&scene, atlas.width(), atlas.height());
         // World size of a covered texel: within 15 % of what was asked (the packing's coverage
         // is an estimate, and the side a multiple of 16).
         let size = (scene.total_area() / set.len() as f64).sqrt();
-        assert!((size / texel as f64 - 1.0).abs() <= 0.15, "asked {texel} m, got {size:.3} m at {atlas}^2");
+        assert!((size / texel as f64 - 1.0).abs() <= 0.15, "asked {texel} m, got {size:.3} m in {atlas}");
     }
+}
+
+/// The page a lightmap v (over the stacked pages) falls in, and where in it (0 .. 1).
+fn page_of(v: f32, pages: u32) -> (u32, f32) {
+    let x = v * pages as f32;
+    let p = (x.floor() as u32).min(pages - 1);
+    (p, x - p as f32)
+}
+
+#[test]
+fn a_level_larger_than_a_page_gets_pages_of_whole_charts_at_the_texel_size_asked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    // 1,865 m^2 at 0.15 m texels needs about 410^2 texels: pages of 128^2.
+    let (texel, page) = (0.15f32, 128u32);
+    let scene = small_halls_in_pages(dir.path(), texel, page);
+    let atlas = scene.report.generated_atlas.unwrap();
+    assert_eq!(atlas.side, page);
+    assert!(atlas.pages >= 6, "{atlas}");
+    assert_eq!(
+        scene.report.generated_layout,
+        Some(prm::density::UnwrapLayout::Pages { texel_size: texel, page_size: page })
+    );
+    assert!(prm::uv::find_overlaps(&scene).is_empty(), "generated UVs overlap");
+    // Every triangle lies in one page, at least the 2-texel padding from its edges, so no
+    // bilinear lookup or filter of a chart reads another page.
+    let margin = 2.0 / page as f32 - 1e-5;
+    let mut used = vec![false; atlas.pages as usize];
+    for t in 0..scene.triangles.len() {
+        let corners = scene.uv1_corners(t);
+        let (p, _) = page_of((corners[0].y + corners[1].y + corners[2].y) / 3.0, atlas.pages);
+        used[p as usize] = true;
+        for c in corners {
+            let y = c.y * atlas.pages as f32 - p as f32;
+            assert!((margin..=1.0 - margin).contains(&y), "triangle {t} leaves page {p} (v {y})");
+            assert!(
+                (margin..=1.0 - margin).contains(&c.x),
+                "triangle {t} leaves its page across (u {})",
+                c.x
+            );
+        }
+    }
+    assert!(used.iter().all(|&u| u), "an empty page: {used:?}");
+    // Fixed density: the texel size asked for, within the share of partly covered texels at
+    // chart edges (which make covered texels more than area / size^2).
+    let set = TexelSet::build(&scene, atlas.width(), atlas.height());
+    let size = (scene.total_area() / set.len() as f64).sqrt();
+    assert!((0.8..=1.0).contains(&(size / texel as f64)), "asked {texel} m, got {size:.3} m in {atlas}");
+    // The same options load the same UVs (what a .prm's header relies on to load the level
+    // again): the same fingerprint.
+    let again = small_halls_in_pages(dir.path(), texel, page);
+    let fp = |s: &Scene| prm::fingerprint::fingerprint_hex(s, atlas.width(), atlas.height());
+    assert_eq!(fp(&scene), fp(&again));
+}
+
+#[test]
+fn a_zone_too_large_for_a_page_is_refused_naming_the_options() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("halls.glb");
+    std::fs::write(&path, halls(1, 1, 8, 2).to_glb()).unwrap();
+    // A hall's 10 x 10 m floor is one flat patch: 200 texels at 0.05 m, over a 64^2 page.
+    let opts = LoadOptions { unwrap_resolution: None, texel_size: 0.05, page_size: 64, ..Default::default() };
+    let err = load_scene(&path, &opts).unwrap_err().to_string();
+    assert!(err.contains("--page-size") && err.contains("64^2"), "{err}");
 }

@@ -24,8 +24,10 @@ pub enum Res {
     Texture2d,
     /// `texture_depth_2d_array`: the shadow maps.
     DepthArray,
-    /// `texture_storage_2d<format, write>`.
-    WriteTexture2d(wgpu::TextureFormat),
+    /// `texture_2d_array<f32>`, read with `textureLoad` (the lightmap's pages).
+    Texture2dArray,
+    /// `texture_storage_2d_array<format, write>` (the lightmap's pages).
+    WriteTexture2dArray(wgpu::TextureFormat),
     /// `sampler_comparison`.
     ComparisonSampler,
 }
@@ -70,10 +72,15 @@ impl Res {
                 view_dimension: wgpu::TextureViewDimension::D2Array,
                 multisampled: false,
             },
-            Res::WriteTexture2d(format) => wgpu::BindingType::StorageTexture {
+            Res::Texture2dArray => wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            Res::WriteTexture2dArray(format) => wgpu::BindingType::StorageTexture {
                 access: wgpu::StorageTextureAccess::WriteOnly,
                 format,
-                view_dimension: wgpu::TextureViewDimension::D2,
+                view_dimension: wgpu::TextureViewDimension::D2Array,
             },
             Res::ComparisonSampler => wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
         }
@@ -87,8 +94,9 @@ impl Res {
             Res::ReadWrite(t) => format!("var<storage, read_write> {name}: {t}"),
             Res::Texture2d => format!("var {name}: texture_2d<f32>"),
             Res::DepthArray => format!("var {name}: texture_depth_2d_array"),
-            Res::WriteTexture2d(format) => {
-                format!("var {name}: texture_storage_2d<{}, write>", wgsl_format(format))
+            Res::Texture2dArray => format!("var {name}: texture_2d_array<f32>"),
+            Res::WriteTexture2dArray(format) => {
+                format!("var {name}: texture_storage_2d_array<{}, write>", wgsl_format(format))
             }
             Res::ComparisonSampler => format!("var {name}: sampler_comparison"),
         }

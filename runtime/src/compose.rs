@@ -41,7 +41,7 @@ pub const BINDINGS: &[Binding] = &[
     b("slots", Res::Read("array<vec2u>"), COMPUTE),
     // f16 intensities, two per u32.
     b("data", Res::Read("array<u32>"), COMPUTE),
-    b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba32Float), COMPUTE),
+    b("lightmap", Res::WriteTexture2dArray(wgpu::TextureFormat::Rgba32Float), COMPUTE),
     b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
     // Per atlas tile, the records gathered; then, under a local budget, per record and corner
     // of its tile its pane's state and weight at that vertex (`shaders/compose.wgsl`: one
@@ -200,11 +200,11 @@ fn link_corners(prm: &Prm, ranges: &[[u32; 2]], records: &mut [TileRecord]) {
     }
 }
 
-/// The indirect lightmap the compose writes and shading reads.
-fn lightmap_texture(device: &wgpu::Device, w: u32, h: u32) -> wgpu::Texture {
+/// The indirect lightmap the compose writes and shading reads: a layer per page.
+fn lightmap_texture(device: &wgpu::Device, w: u32, page_rows: u32, pages: u32) -> wgpu::Texture {
     device.create_texture(&wgpu::TextureDescriptor {
         label: Some("indirect lightmap"),
-        size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        size: wgpu::Extent3d { width: w, height: page_rows, depth_or_array_layers: pages },
         mip_level_count: 1,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
@@ -216,9 +216,15 @@ fn lightmap_texture(device: &wgpu::Device, w: u32, h: u32) -> wgpu::Texture {
     })
 }
 
+/// A view of every layer of the lightmap, as an array (even with one layer).
+pub(crate) fn array_view() -> wgpu::TextureViewDescriptor<'static> {
+    wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() }
+}
+
 impl ComposePass {
     pub fn new(device: &wgpu::Device, prm: &Prm, selected: &wgpu::Buffer, near: &NearPass) -> ComposePass {
         let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
+        let pages = prm.header().atlas().pages;
         let ts = prm.header().tile_size;
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
@@ -240,6 +246,8 @@ impl ComposePass {
             cluster_count: prm.clusters().len() as u32,
             group_count: prm.groups().len() as u32,
             residual: 0,
+            page_rows: h / pages,
+            ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
         let params_buf = {
@@ -268,9 +276,9 @@ impl ComposePass {
             &vec![0u8; (atlas_tiles + records.len() * 4 * CORNER_WORDS as usize) * 4],
             wgpu::BufferUsages::COPY_SRC,
         );
-        let lightmap = lightmap_texture(device, w, h);
+        let lightmap = lightmap_texture(device, w, h / pages, pages);
         let bgl = SHADER.layout(device, 0);
-        let view = lightmap.create_view(&Default::default());
+        let view = lightmap.create_view(&array_view());
         let group = bind(
             device,
             "compose",

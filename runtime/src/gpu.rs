@@ -165,11 +165,11 @@ pub fn read_rgba32f(
     queue: &wgpu::Queue,
     texture: &wgpu::Texture,
 ) -> Result<Vec<glam::Vec3>, GpuError> {
-    let (w, h) = (texture.width(), texture.height());
+    let (w, h, layers) = (texture.width(), texture.height(), texture.depth_or_array_layers());
     let row = (w * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
     let staging = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("texture readback"),
-        size: (row * h) as u64,
+        size: (row * h) as u64 * layers as u64,
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
@@ -188,8 +188,9 @@ pub fn read_rgba32f(
     );
     queue.submit([enc.finish()]);
     let bytes = map_read(device, &staging)?;
-    let mut out = Vec::with_capacity((w * h) as usize);
-    for j in 0..h as usize {
+    // Layers follow each other, so the rows come out as the pages stack.
+    let mut out = Vec::with_capacity(w as usize * h as usize * layers as usize);
+    for j in 0..(h * layers) as usize {
         let r: &[[f32; 4]] =
             bytemuck::cast_slice(&bytes[j * row as usize..j * row as usize + w as usize * 16]);
         out.extend(r.iter().map(|v| glam::Vec3::new(v[0], v[1], v[2])));

@@ -277,6 +277,11 @@ gpu_struct! {
         pub group_count: u32,
         /// 1: under a local budget, groups stand in for the clusters each vertex leaves out.
         pub residual: u32,
+        /// Rows of a lightmap page: atlas row y is row `y % page_rows` of layer `y / page_rows`.
+        pub page_rows: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 
@@ -333,6 +338,11 @@ gpu_struct! {
         pub indirect_scale: f32,
         pub atlas_width: u32,
         pub atlas_height: u32,
+        /// Lightmap pages (layers of the lightmap texture), stacked down the atlas.
+        pub pages: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 

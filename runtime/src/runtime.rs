@@ -378,11 +378,18 @@ impl Runtime {
 /// Refuses a `.prm` whose GPU tables would not fit this device, before allocating any.
 fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let limits = device.limits();
-    let (w, h) = (prm.header().atlas_width, prm.header().atlas_height);
-    if w > limits.max_texture_dimension_2d || h > limits.max_texture_dimension_2d {
+    let atlas = prm.header().atlas();
+    let (w, rows) = (atlas.width(), prm.header().atlas_height / atlas.pages);
+    if w > limits.max_texture_dimension_2d || rows > limits.max_texture_dimension_2d {
         return Err(RuntimeError::Params(format!(
-            "the .prm's {w}x{h} atlas exceeds this device's largest texture ({})",
+            "the .prm's {w}x{rows} lightmap pages exceed this device's largest texture ({})",
             limits.max_texture_dimension_2d
+        )));
+    }
+    if atlas.pages > limits.max_texture_array_layers {
+        return Err(RuntimeError::Params(format!(
+            "the .prm's {} lightmap pages exceed this device's texture array layers ({})",
+            atlas.pages, limits.max_texture_array_layers
         )));
     }
     let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
@@ -396,7 +403,7 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     let records = (prm.tiles().len() + prm.dipoles().tiles.len()) as u64;
     let tables = [
         ("pane data", (prm.data().len() + prm.dipoles().data.len()) as u64),
-        ("texel slots", w as u64 * h as u64 * 8),
+        ("texel slots", atlas.texels() * 8),
         (
             "entry cells",
             prm.cells().triangles.len() as u64 * std::mem::size_of::<crate::layout::GpuCellTriangle>() as u64,

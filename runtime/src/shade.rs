@@ -26,7 +26,7 @@ const HDR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(ShadeParams::NAME), VERTEX_FRAGMENT),
     // The runtime's indirect lightmap (`Rgba32Float`, read with textureLoad).
-    b("lightmap", Res::Texture2d, FRAGMENT),
+    b("lightmap", Res::Texture2dArray, FRAGMENT),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -48,7 +48,8 @@ pub struct Renderer {
     target: wgpu::Texture,
     depth: wgpu::Texture,
     view_proj: Mat4,
-    atlas: (u32, u32),
+    /// Atlas width, height (all pages) and pages.
+    atlas: (u32, u32, u32),
 }
 
 impl Renderer {
@@ -86,7 +87,7 @@ impl Renderer {
             mapped_at_creation: false,
         });
         let layout = SHADER.layout(device, 1);
-        let lightmap_view = runtime.lightmap().create_view(&Default::default());
+        let lightmap_view = runtime.lightmap().create_view(&crate::compose::array_view());
         let group = bind(
             device,
             "shade",
@@ -111,7 +112,7 @@ impl Renderer {
             target,
             depth,
             view_proj: view_projection(scene, camera, width, height),
-            atlas: (size.width, size.height),
+            atlas: (size.width, size.height * size.depth_or_array_layers, size.depth_or_array_layers),
         })
     }
 
@@ -125,6 +126,8 @@ impl Renderer {
             indirect_scale: if indirect { 1.0 } else { 0.0 },
             atlas_width: self.atlas.0,
             atlas_height: self.atlas.1,
+            pages: self.atlas.2,
+            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
         let color = self.target.create_view(&Default::default());

@@ -22,7 +22,7 @@ fn bake(scene: &Scene) -> prm::prm_file::Prm {
         paths: 16,
         clusters: 48,
         groups: 8,
-        atlas: 48,
+        atlas: prm::density::Atlas::single(48),
         tile_size: 8,
         ..Default::default()
     };

@@ -19,7 +19,7 @@ fn bake_at(scene: &Scene, atlas: u32) -> prm::prm_file::Prm {
         entries: 256,
         paths: 16,
         clusters: 24,
-        atlas,
+        atlas: prm::density::Atlas::single(atlas),
         ..Default::default()
     };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
@@ -101,7 +101,7 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
             entries: 1024,
             paths: 64,
             clusters: 32,
-            atlas,
+            atlas: prm::density::Atlas::single(atlas),
             near_radius,
             echo_radius,
             // Without near links, no far field either: the panes alone.

@@ -87,7 +87,7 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
         entries: 256,
         paths: 32,
         clusters: 16,
-        atlas: ATLAS,
+        atlas: prm::density::Atlas::single(ATLAS),
         groups: 4,
         tile_size: 8,
         ..PrecomputeParams::production()
@@ -115,7 +115,7 @@ fn run_all(g: &Gpu, scene: &Scene, spp: u32, reference_bounces: u32) -> Outputs 
     let gpu_top = at(&rt.read_lightmap().unwrap());
     let bp = BakeParams {
         photons: 5000,
-        atlas: ATLAS,
+        atlas: prm::density::Atlas::single(ATLAS),
         bounces: reference_bounces,
         indirect_only: true,
         ..BakeParams::default()

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use super::primitive::Prim;
 use super::{LoadOptions, SceneError};
+use crate::density::UnwrapLayout;
 use crate::scene::{LoadReport, Scene};
 use crate::{density, uv};
 
@@ -29,23 +30,25 @@ pub(super) fn generate(
     report: &mut LoadReport,
 ) -> Result<(), SceneError> {
     let unwrap_error = |reason| SceneError::Unwrap { path: path.into(), reason };
-    let resolution = match opts.unwrap_resolution {
-        Some(r) => r,
+    let layout = match opts.unwrap_resolution {
+        Some(r) => UnwrapLayout::OnePage(r),
         None => {
             let area = prims.iter().map(Prim::area).sum();
-            density::atlas_for_area(area, density::UNWRAP_COVERAGE, opts.texel_size).map_err(unwrap_error)?
+            density::unwrap_layout(area, opts.texel_size, opts.page_size).map_err(unwrap_error)?
         }
     };
-    uv::unwrap_primitives(&mut prims_uv_view(prims), resolution).map_err(unwrap_error)?;
+    let atlas = uv::unwrap_primitives(&mut prims_uv_view(prims), layout).map_err(unwrap_error)?;
     report.uv1_generated = true;
-    report.generated_atlas = Some(resolution);
-    let why = match opts.unwrap_resolution {
-        Some(_) => String::new(),
-        None => format!(", the size {} m texels give the level", opts.texel_size),
+    report.generated_atlas = Some(atlas);
+    report.generated_layout = Some(layout);
+    let why = match layout {
+        UnwrapLayout::OnePage(_) if opts.unwrap_resolution.is_some() => String::new(),
+        UnwrapLayout::OnePage(_) => format!(", the size {} m texels give the level", opts.texel_size),
+        UnwrapLayout::Pages { texel_size, .. } => format!(" at {texel_size} m texels"),
     };
     report.notes.push(format!(
         "{} primitive(s) had no TEXCOORD_1: lightmap UVs were generated for the whole level (uvunwrap, \
-            packed for {resolution}^2{why}, with 2-texel padding)",
+            packed into {atlas}{why}, with 2-texel padding)",
         report.primitives_without_uv1
     ));
     Ok(())

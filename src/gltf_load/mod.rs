@@ -33,10 +33,13 @@ pub struct LoadOptions {
     /// Overlapping lightmap UVs are reported instead of being an error.
     pub allow_overlap: bool,
     /// Atlas resolution generated lightmap UVs are packed for (chart padding is 2 texels there);
-    /// `None`: the side [`crate::density::atlas_for_area`] gives the level at `texel_size`.
+    /// `None`: the layout [`crate::density::unwrap_layout`] gives the level at `texel_size`.
     pub unwrap_resolution: Option<u32>,
     /// World size in metres of a texel of generated UVs when `unwrap_resolution` is `None`.
     pub texel_size: f32,
+    /// Side of a page of generated UVs when `unwrap_resolution` is `None` and the level needs
+    /// more than one page at `texel_size` ([`crate::density::unwrap_layout`]).
+    pub page_size: u32,
 }
 
 impl Default for LoadOptions {
@@ -46,6 +49,7 @@ impl Default for LoadOptions {
             allow_overlap: false,
             unwrap_resolution: Some(256),
             texel_size: crate::density::DEFAULT_TEXEL_SIZE,
+            page_size: crate::density::DEFAULT_PAGE_SIZE,
         }
     }
 }

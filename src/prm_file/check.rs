@@ -46,18 +46,25 @@ pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
     Ok(())
 }
 
-/// A plausible atlas and tile size (checked before any section is read, too).
+/// A plausible atlas and tile size (checked before any section is read, too): at least one
+/// page, the pages stacked down a square page's width, and texel indices that fit a u32.
 pub(super) fn atlas(h: &Header) -> Result<(), String> {
+    let paged = h.pages > 1;
     if h.tile_size == 0
         || h.tile_size > MAX_TILE
         || h.atlas_width == 0
         || h.atlas_height == 0
         || h.atlas_width > MAX_ATLAS
-        || h.atlas_height > MAX_ATLAS
+        || h.pages == 0
+        || h.pages > crate::density::MAX_PAGES
+        || (!paged && h.atlas_height > MAX_ATLAS)
+        || (paged && h.atlas_height as u64 != h.atlas_width as u64 * h.pages as u64)
+        || h.atlas_width as u64 * h.atlas_height as u64 > u32::MAX as u64
+        || (paged && !(h.page_texel_size.is_finite() && h.page_texel_size > 0.0))
     {
         return Err(format!(
-            "implausible atlas {}x{} / tile size {}",
-            h.atlas_width, h.atlas_height, h.tile_size
+            "implausible atlas {}x{} in {} page(s) / tile size {}",
+            h.atlas_width, h.atlas_height, h.pages, h.tile_size
         ));
     }
     Ok(())

@@ -1,12 +1,12 @@
-//! The `.prm` file, format v8 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v9 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 7
+//! 8   u32    version = 9
 //! 12  u32    JSON header length H
-//! 16  H      JSON header: fingerprint, atlas, tile size, counts, parameters, statistics
+//! 16  H      JSON header: fingerprint, atlas, pages, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
@@ -82,6 +82,12 @@
 //! cluster balance counts with the links' (v7's far field added its light on top of panes that
 //! already held all of it: 6 % too much indirect light under a lamp 1 cm over a floor).
 //!
+//! **Pages** (v9): a level whose generated UVs need more than one lightmap page has them all in
+//! the one atlas, stacked: `atlas_width`^2 pages down an atlas `pages` x `atlas_width` tall
+//! (`crate::density::Atlas`). Texel, tile and mask indices run over the stack; the header says
+//! how many pages there are and the texel size the UVs were packed at, so the level loads again
+//! with the same UVs. The runtime's lightmap is a texture array of the pages.
+//!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
 //! weighted by the light of its clusters left out (the runtime's residual weights), so the light
@@ -113,7 +119,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 8;
+pub const VERSION: u32 = 9;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -479,6 +485,20 @@ pub struct Header {
     /// Groups (coarse panes) after the clusters; 0 = none.
     #[serde(default)]
     pub groups: u32,
+    /// Lightmap pages (v9): 1, or the pages of generated UVs stacked down the atlas, which is
+    /// then `pages` pages of `atlas_width`^2 (see [`crate::density::Atlas`]).
+    pub pages: u32,
+    /// With several pages, the texel size in metres the generated UVs were packed at (how the
+    /// level is loaded again to match the map); 0 with one page.
+    #[serde(default)]
+    pub page_texel_size: f32,
+}
+
+impl Header {
+    /// The atlas the map was baked for.
+    pub fn atlas(&self) -> crate::density::Atlas {
+        crate::density::Atlas { side: self.atlas_width, pages: self.pages.max(1) }
+    }
 }
 
 /// The pieces of a radiance map, unchecked: what a bake assembles and [`Prm::new`] validates.
@@ -581,8 +601,8 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (version 7 lacks the far \
-         field's energy, 6 and older the far field); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (version 8 lacks lightmap \
+         pages, 7 the far field's energy, 6 and older the far field); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -960,6 +980,7 @@ mod tests {
             header: Header {
                 atlas_width: 4,
                 atlas_height: 4,
+                pages: 1,
                 tile_size: 4,
                 entries: 2,
                 clusters: 1,
@@ -1059,6 +1080,10 @@ mod tests {
         bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
         assert!(err.contains("version 3") && err.contains("run prm precompute again"), "{err}");
+        // A v8 file has no pages: it is refused as old, not read as one page.
+        bytes[8..12].copy_from_slice(&8u32.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
+        assert!(err.contains("version 8 lacks lightmap pages"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back
@@ -1121,6 +1146,18 @@ mod tests {
             ("groups declared", |p| p.header.groups = 1),
             ("cluster groups declared", |p| p.group_of = vec![0]),
             ("implausible atlas", |p| p.header.tile_size = 0),
+            ("implausible atlas", |p| p.header.pages = 0),
+            // Two pages must stack two squares of the width, and say their texel size.
+            ("implausible atlas", |p| {
+                p.header.pages = 2;
+                p.header.page_texel_size = 0.1;
+            }),
+            ("implausible atlas", |p| {
+                p.header.pages = 2;
+                p.header.atlas_width = 2;
+                p.header.atlas_height = 4;
+                p.header.page_texel_size = f32::NAN;
+            }),
             ("non-finite", |p| p.entries[1].area = f32::NAN),
             ("not an entry", |p| p.clusters[0].members[1] = 2),
             ("cell offsets", |p| p.cells.first = vec![0, 1]),

@@ -66,7 +66,7 @@ pub fn reference(
     let p = BakeParams {
         photons,
         cluster_size: cluster,
-        atlas,
+        atlas: prm::density::Atlas::single(atlas),
         seed,
         indirect_only: true,
         ..BakeParams::default()

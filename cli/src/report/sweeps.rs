@@ -35,7 +35,7 @@ pub fn precompute_sweep(b: &Budget, level: &Level, gt: &[Vec3], seed: u64) -> Re
             entries,
             paths,
             clusters,
-            atlas: b.atlas,
+            atlas: prm::density::Atlas::single(b.atlas),
             seed,
             ..PrecomputeParams::production()
         };

@@ -46,7 +46,7 @@ pub struct BakeParams {
     pub min_plane: usize,
     /// Shadow rays per texel and virtual light.
     pub visibility_samples: u32,
-    pub atlas: u32,
+    pub atlas: prm::density::Atlas,
     pub seed: u64,
     /// Leave out the real lights' direct light.
     pub indirect_only: bool,
@@ -60,7 +60,7 @@ impl Default for BakeParams {
             cluster_size: 64,
             min_plane: 32,
             visibility_samples: 2,
-            atlas: 256,
+            atlas: prm::density::Atlas::single(256),
             seed: 0,
             indirect_only: false,
         }
@@ -78,7 +78,13 @@ impl BakeParams {
             self.visibility_samples,
             "1 to 256",
         )?;
-        require((1..=8192).contains(&self.atlas), "atlas", self.atlas, "1 to 8192")?;
+        require((1..=8192).contains(&self.atlas.side), "atlas", self.atlas.side, "1 to 8192")?;
+        require(
+            (1..=prm::density::MAX_PAGES).contains(&self.atlas.pages),
+            "atlas pages",
+            self.atlas.pages,
+            "1 to 256",
+        )?;
         Ok(())
     }
 }

@@ -97,14 +97,18 @@ fn same_kind(space: AddressSpace, inner: &TypeInner, ty: wgpu::BindingType) -> b
             dim_ok && class_ok
         }
         (
-            B::StorageTexture { access, format, view_dimension: wgpu::TextureViewDimension::D2 },
+            B::StorageTexture {
+                access,
+                format,
+                view_dimension: view @ (wgpu::TextureViewDimension::D2 | wgpu::TextureViewDimension::D2Array),
+            },
             AddressSpace::Handle,
             TypeInner::Image {
                 dim: ImageDimension::D2,
-                arrayed: false,
+                arrayed,
                 class: ImageClass::Storage { format: f, access: a },
             },
-        ) => {
+        ) if *arrayed == (view == wgpu::TextureViewDimension::D2Array) => {
             let access_ok = match access {
                 wgpu::StorageTextureAccess::WriteOnly => *a == StorageAccess::STORE,
                 wgpu::StorageTextureAccess::ReadOnly => *a == StorageAccess::LOAD,
@@ -324,7 +328,7 @@ fn a_wrong_binding_table_is_caught() {
     kind[4] = b("slots", Res::Texture2d, COMPUTE);
     // Another storage-texture format.
     let mut format = table.to_vec();
-    format[6] = b("lightmap", Res::WriteTexture2d(wgpu::TextureFormat::Rgba16Float), COMPUTE);
+    format[6] = b("lightmap", Res::WriteTexture2dArray(wgpu::TextureFormat::Rgba16Float), COMPUTE);
     for (what, wrong) in
         [("access", access), ("extra", extra), ("stages", stages), ("kind", kind), ("format", format)]
     {

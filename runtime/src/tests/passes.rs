@@ -193,7 +193,7 @@ fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
         entries,
         paths: 16,
         clusters,
-        atlas,
+        atlas: prm::density::Atlas::single(atlas),
         // The dipole panes are off by default; the GPU is held to the twin with them on.
         dipole_block: 2,
         ..Default::default()
