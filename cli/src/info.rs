@@ -1,13 +1,14 @@
 //! `prm info`: what a level contains and what its lightmap will look like.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
+use prm::prm_file::Prm;
 use prm::{Light, LightKind, Scene, TexelSet};
 use serde_json::{json, Value};
 
-use crate::common::{AtlasArgs, SceneArgs};
+use crate::common::{load_for, AtlasArgs, SceneArgs};
 use crate::precompute::Preset;
 
 #[derive(clap::Args)]
@@ -16,6 +17,13 @@ pub struct Args {
     scene: SceneArgs,
     #[command(flatten)]
     lightmap: AtlasArgs,
+    /// A .prm baked for this level: the lightmap facts are the map's atlas, and the GPU memory
+    /// the runtime needs for it is stated.
+    #[arg(long)]
+    prm: Option<PathBuf>,
+    /// Shadow-map size (texels a side) the GPU memory is stated at.
+    #[arg(long, default_value_t = 1024)]
+    shadow_size: u32,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -40,21 +48,79 @@ impl Lightmap {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
+    let map = match &a.prm {
+        Some(path) => Some(Prm::read(path, None).with_context(|| "reading the radiance map failed")?),
+        None => None,
+    };
+    let (scene, atlas) = match (&map, &a.prm) {
+        (Some(map), Some(path)) => {
+            let scene = load_for(&a.scene, map.header(), a.json)?;
+            map.check_scene(path, &scene)?;
+            (scene, map.header().atlas())
+        }
+        _ => a.lightmap.load(&a.scene, a.json)?,
+    };
     let start = Instant::now();
     let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), atlas.width(), atlas.height());
     let build_seconds = start.elapsed().as_secs_f64();
     let charts = prm::uv::charts(&scene).iter().max().map_or(0, |m| m + 1);
     let atlas_from = if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" };
     let lm = Lightmap { set, atlas, texel_size: a.lightmap.texel_size, atlas_from, charts, build_seconds };
-    let summary = summary(&a.scene.scene, &scene, &lm);
+    let mut summary = summary(&a.scene.scene, &scene, &lm);
+    if let Some(map) = &map {
+        let file_bytes = a.prm.as_ref().and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
+        summary["gpu_memory"] = gpu_memory(map, &scene, a.shadow_size, file_bytes);
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(());
     }
     print_level(&a.scene.scene, &scene, &summary);
     print_lightmap(&scene, &lm, &summary);
+    if map.is_some() {
+        print_gpu_memory(&summary["gpu_memory"]);
+    }
     Ok(())
+}
+
+/// The device memory the runtime needs for `map` (`prm_runtime::GpuMemory::estimate`), and the
+/// shadow maps of the level's own lights at `shadow_size`.
+fn gpu_memory(map: &Prm, scene: &Scene, shadow_size: u32, file_bytes: u64) -> Value {
+    let tables = prm_runtime::GpuMemory::estimate(map);
+    let shadows = prm_runtime::memory::shadow_bytes(&scene.lights, shadow_size);
+    let mut items = tables.items.clone();
+    items.sort_by_key(|(_, b)| std::cmp::Reverse(*b));
+    json!({
+        "tables_bytes": tables.total(),
+        "tables": items.iter().map(|(n, b)| json!({"name": n, "bytes": b})).collect::<Vec<_>>(),
+        "shadow_maps_bytes": shadows,
+        "shadow_size": shadow_size,
+        "total_bytes": tables.total() + shadows,
+        "file_bytes": file_bytes,
+    })
+}
+
+fn print_gpu_memory(m: &Value) {
+    let mb = |v: &Value| v.as_f64().unwrap_or(0.0) / 1e6;
+    let largest: Vec<String> = m["tables"]
+        .as_array()
+        .map(|t| {
+            t.iter()
+                .take(5)
+                .map(|i| format!("{} {:.1}", i["name"].as_str().unwrap_or(""), mb(&i["bytes"])))
+                .collect()
+        })
+        .unwrap_or_default();
+    println!(
+        "  gpu memory  {:.1} MB: the map's tables {:.1} MB (largest: {} MB), the level's lights' shadow maps \
+            {:.1} MB at {}^2 (the .prm file is {:.1} MB)",
+        mb(&m["total_bytes"]),
+        mb(&m["tables_bytes"]),
+        largest.join(", "),
+        mb(&m["shadow_maps_bytes"]),
+        m["shadow_size"],
+        mb(&m["file_bytes"])
+    );
 }
 
 /// A light as JSON, its kind in words and the unit of its intensity.

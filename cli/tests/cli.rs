@@ -928,6 +928,18 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     let pages = header.pages;
     assert!(pages >= 2 && header.atlas_width == 64 && header.atlas_height == 64 * pages, "{header:?}");
     assert_eq!(header.page_texel_size, 0.3);
+    // `prm info --prm` describes the map's atlas and states the GPU memory the runtime needs:
+    // the tables `GpuMemory::estimate` lists (held to the allocations in the runtime's tests)
+    // and the level's lights' shadow maps.
+    let (ok, stdout, err) = prm(&["info", s(&glb), "--prm", s(&map), "--json"]);
+    assert!(ok, "{err}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(info["texels"]["pages"], pages);
+    let m = &info["gpu_memory"];
+    let stated = prm_runtime::GpuMemory::estimate(&prm::prm_file::Prm::read(&map, None).unwrap()).total();
+    assert_eq!(m["tables_bytes"], stated);
+    assert_eq!(m["total_bytes"].as_u64().unwrap(), stated + m["shadow_maps_bytes"].as_u64().unwrap());
+    assert!(m["shadow_maps_bytes"].as_u64().unwrap() > 0, "{m}");
     // The map loads the level again with the same UVs (its header says how), for every
     // command; the CPU render's lightmap is `prm evaluate`'s, bit for bit.
     let eval = dir.path().join("eval.exr");

@@ -202,6 +202,7 @@ fn link_corners(prm: &Prm, ranges: &[[u32; 2]], records: &mut [TileRecord]) {
 
 /// The indirect lightmap the compose writes and shading reads: a layer per page.
 fn lightmap_texture(device: &wgpu::Device, w: u32, page_rows: u32, pages: u32) -> wgpu::Texture {
+    crate::memory::record(crate::memory::LIGHTMAP, w as u64 * page_rows as u64 * pages as u64 * 16);
     device.create_texture(&wgpu::TextureDescriptor {
         label: Some("indirect lightmap"),
         size: wgpu::Extent3d { width: w, height: page_rows, depth_or_array_layers: pages },

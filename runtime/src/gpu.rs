@@ -117,6 +117,7 @@ pub fn storage_buffer(
     use wgpu::util::DeviceExt;
     let mut bytes = data.to_vec();
     bytes.resize(bytes.len().max(256).next_multiple_of(4), 0);
+    crate::memory::record(label, bytes.len() as u64);
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),
         contents: &bytes,

@@ -89,6 +89,8 @@ pub struct Runtime {
     clusters: usize,
     groups: usize,
     entry_count: u32,
+    /// What `new` allocated for the map (`gpu_memory`).
+    memory: crate::memory::GpuMemory,
     stale: bool,
     composes: u64,
     /// Updates that ran the indirect passes (`IndirectParams::frame`).
@@ -121,42 +123,51 @@ impl Runtime {
             )));
         }
         check_limits(device, prm)?;
-        let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("indirect params"),
-            size: std::mem::size_of::<IndirectParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        // Every table the map needs, its allocations recorded (`gpu_memory`).
+        let (passes, memory) = crate::memory::recorded(|| {
+            let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("indirect params"),
+                size: std::mem::size_of::<IndirectParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
+            let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
+            let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
+            let near_data = NearData::new(device, prm);
+            // Built once: the concentration, weight and near passes all read it.
+            let tables = crate::cpu::NearTables::new(prm);
+            let concentrate = ConcentratePass::new(
+                device,
+                shadows.layout(),
+                prm,
+                &tables,
+                &params_buf,
+                &entries.cells,
+                &entries.output,
+                NearBuffers {
+                    texels: &near_data.texels,
+                    links: &near_data.links,
+                    texel_count: near_data.count,
+                },
+            );
+            let weights =
+                WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
+            let near = NearPass::new(
+                device,
+                prm,
+                &tables,
+                &params_buf,
+                &entries.output,
+                &weights.weights,
+                &weights.lin,
+                &near_data,
+                &concentrate.link_light,
+            );
+            let compose = ComposePass::new(device, prm, &weights.selected, &near);
+            (params_buf, shadows, entries, concentrate, weights, near, compose, areas.len() as u32, tables)
         });
-        let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
-        let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
-        let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
-        let near_data = NearData::new(device, prm);
-        // Built once: the concentration, weight and near passes all read it.
-        let tables = crate::cpu::NearTables::new(prm);
-        let concentrate = ConcentratePass::new(
-            device,
-            shadows.layout(),
-            prm,
-            &tables,
-            &params_buf,
-            &entries.cells,
-            &entries.output,
-            NearBuffers { texels: &near_data.texels, links: &near_data.links, texel_count: near_data.count },
-        );
-        let weights =
-            WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
-        let near = NearPass::new(
-            device,
-            prm,
-            &tables,
-            &params_buf,
-            &entries.output,
-            &weights.weights,
-            &weights.lin,
-            &near_data,
-            &concentrate.link_light,
-        );
-        let compose = ComposePass::new(device, prm, &weights.selected, &near);
+        let (params_buf, shadows, entries, concentrate, weights, near, compose, entry_count, tables) = passes;
         Ok(Runtime {
             device: device.clone(),
             queue: queue.clone(),
@@ -171,7 +182,8 @@ impl Runtime {
             energies: prm.clusters().iter().map(|c| c.energy).collect(),
             clusters: prm.clusters().len(),
             groups: prm.groups().len(),
-            entry_count: areas.len() as u32,
+            entry_count,
+            memory,
             stale: true,
             composes: 0,
             frame: 0,
@@ -369,6 +381,14 @@ impl Runtime {
         self.params
     }
 
+    /// The device memory the runtime holds: every table it allocated for the map, as
+    /// allocated, and the shadow maps of the lights it has now.
+    pub fn gpu_memory(&self) -> crate::memory::GpuMemory {
+        let mut m = self.memory.clone();
+        m.items.push(("shadow maps".into(), self.shadows.bytes()));
+        m
+    }
+
     /// Composes recorded so far (an update with unchanged lights adds none).
     pub fn composes(&self) -> u64 {
         self.composes
@@ -393,56 +413,13 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
         )));
     }
     let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
-    let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
-    for t in prm.tiles().iter().chain(&prm.dipoles().tiles) {
-        if let Some(n) = per_tile.get_mut(t.index as usize) {
-            *n += 1;
-        }
-    }
-    let stride = per_tile.iter().copied().max().unwrap_or(0).max(1);
-    let records = (prm.tiles().len() + prm.dipoles().tiles.len()) as u64;
-    let tables = [
-        ("pane data", (prm.data().len() + prm.dipoles().data.len()) as u64),
-        ("texel slots", atlas.texels() * 8),
-        (
-            "entry cells",
-            prm.cells().triangles.len() as u64 * std::mem::size_of::<crate::layout::GpuCellTriangle>() as u64,
-        ),
-        (
-            "near-field links",
-            prm.near().len() as u64 * std::mem::size_of::<crate::layout::GpuNearLink>() as u64,
-        ),
-        ("near-field link light", prm.near().len() as u64 * 16),
-        (
-            "near-field texels",
-            prm.near_points().len() as u64 * std::mem::size_of::<crate::layout::NearTexel>() as u64,
-        ),
-        ("far-field visibility", prm.far().visible.len() as u64 * 4),
-        (
-            "far-field texels",
-            prm.far().texels.len() as u64 * std::mem::size_of::<crate::layout::GpuFarTexel>() as u64,
-        ),
-        ("near- and far-field sums", (prm.near_points().len() + prm.far().texels.len()) as u64 * 16),
-        (
-            "hot-entry table",
-            prm.entries().len() as u64 * std::mem::size_of::<crate::layout::GpuHotEntry>() as u64,
-        ),
-        (
-            "active-record lists",
-            per_tile.len() as u64 * stride * std::mem::size_of::<crate::layout::ActiveRecord>() as u64,
-        ),
-        ("tile records", records * std::mem::size_of::<crate::layout::TileRecord>() as u64),
-        (
-            "local-budget corner words",
-            (per_tile.len() as u64 + records * 4 * crate::contract::CORNER_WORDS as u64) * 4,
-        ),
-    ];
+    let tables = crate::memory::GpuMemory::estimate(prm);
     let data = (prm.data().len() + prm.dipoles().data.len()) as u64;
     if data >= crate::contract::DIPOLE_RECORD as u64 {
         return Err(RuntimeError::Params(format!("the .prm's pane data ({data} bytes) exceed 2 GiB")));
     }
-    for (what, bytes) in tables {
-        if bytes > max_buf {
+    for (what, bytes) in tables.items.iter().filter(|(what, _)| what != crate::memory::LIGHTMAP) {
+        if *bytes > max_buf {
             return Err(RuntimeError::Params(format!(
                 "the .prm's {what} ({bytes} bytes) exceed this device's \
                 storage-buffer limit ({max_buf} bytes)"

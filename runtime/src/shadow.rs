@@ -217,6 +217,13 @@ impl ShadowMaps {
         Ok(true)
     }
 
+    /// Bytes of the shadow-map layers allocated now.
+    pub fn bytes(&self) -> u64 {
+        self.texture
+            .as_ref()
+            .map_or(0, |(_, layers)| *layers as u64 * crate::memory::shadow_bytes_per_layer(self.size))
+    }
+
     fn allocate(&mut self, layers: u32) {
         let texture = self.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("shadow maps"),

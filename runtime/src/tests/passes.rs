@@ -708,3 +708,31 @@ fn entry_weights_deliver_the_power_a_plane_receives_at_any_light_height() {
         );
     }
 }
+
+#[test]
+fn the_stated_gpu_memory_is_what_the_runtime_allocates() {
+    let g = gpu();
+    let scene = open_box();
+    // Near links, far field, dipole panes and groups: every table the estimate lists.
+    let prm = bake(&scene, 512, 40, 48);
+    assert!(!prm.near().is_empty() && !prm.far().texels.is_empty() && !prm.dipoles().tiles.is_empty());
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams::default()).unwrap();
+    rt.update(&scene.lights).unwrap();
+    let stated = crate::GpuMemory::estimate(&prm);
+    let held = rt.gpu_memory();
+    for (name, bytes) in &stated.items {
+        assert_eq!(held.get(name), *bytes, "{name}: stated {bytes} B, allocated {} B", held.get(name));
+    }
+    // One point light: six shadow-map layers.
+    assert_eq!(held.get("shadow maps"), 6 * crate::memory::shadow_bytes_per_layer(1024));
+    // What the estimate leaves out: buffers of a fixed size and a few words per entry of
+    // per-frame state (84 KB here, 1.28 MB stated). A table that grows with the atlas or the
+    // links and is missing from the estimate would break this.
+    let unlisted = held.total() - stated.total() - held.get("shadow maps");
+    let entries = prm.entries().len() as u64;
+    assert!(
+        unlisted <= 192 * entries + 32 * 1024,
+        "{unlisted} B allocated beyond the stated {} B",
+        stated.total()
+    );
+}

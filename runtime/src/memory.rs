@@ -1,0 +1,137 @@
+//! GPU memory: what a `.prm` costs on the device, stated before any device is touched
+//! ([`GpuMemory::estimate`], `prm info --prm`) and recorded as the runtime allocates it
+//! ([`crate::Runtime::gpu_memory`]), the two held to each other by a test.
+//!
+//! The estimate lists every table that grows with the atlas, the tiles or the links (pane
+//! data, tile records, the compose's per-tile lists, texel slots, the lightmap's pages, the
+//! near and far fields, the echo, the entries' cells), each at exactly the bytes allocated;
+//! buffers of a fixed size (uniforms, the far field's source list) and the per-frame state of
+//! the entries (under 200 bytes an entry) are left out. Shadow maps depend on the lights, not the map: [`shadow_bytes_per_layer`] gives their
+//! cost per layer (a point light takes 6, a spot or directional light 1).
+
+use std::cell::RefCell;
+
+use prm::prm_file::Prm;
+
+use crate::layout::{
+    ActiveRecord, FarEntry, GpuCellTriangle, GpuEchoLink, GpuFarTexel, GpuHotEntry, GpuNearLink, NearTexel,
+    TileRecord,
+};
+
+/// The name of the lightmap texture's item (not a storage buffer).
+pub const LIGHTMAP: &str = "indirect lightmap";
+
+/// Named byte counts of GPU allocations.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GpuMemory {
+    pub items: Vec<(String, u64)>,
+}
+
+impl GpuMemory {
+    /// All of it, in bytes.
+    pub fn total(&self) -> u64 {
+        self.items.iter().map(|(_, b)| b).sum()
+    }
+
+    /// The bytes of items named `name`.
+    pub fn get(&self, name: &str) -> u64 {
+        self.items.iter().filter(|(n, _)| n == name).map(|(_, b)| b).sum()
+    }
+
+    /// The device memory the runtime's tables for `prm` take (before shadow maps), from the
+    /// map alone: what `Runtime::new` allocates, less buffers of a fixed size.
+    pub fn estimate(prm: &Prm) -> GpuMemory {
+        let size = |n: usize, each: usize| storage(n as u64 * each as u64);
+        let atlas = prm.header().atlas();
+        let per_tile = tiles_per_atlas_tile(prm);
+        let stride = per_tile.iter().copied().max().unwrap_or(0).max(1) as usize;
+        let records = prm.tiles().len() + prm.dipoles().tiles.len();
+        let (n, c, g) = (prm.entries().len(), prm.clusters().len(), prm.groups().len());
+        let near = prm.near().len();
+        let points = prm.near_points().len();
+        let far_texels = prm.far().texels.len();
+        // The near sums hold the near points, then the far field's texels that are not one.
+        let linked = |texel: u32| prm.near_points().binary_search_by_key(&texel, |p| p.texel).is_ok();
+        let far_only = prm.far().texels.iter().filter(|t| !linked(t.texel)).count();
+        let items = [
+            (
+                "pane data",
+                storage((prm.data().len() + prm.dipoles().data.len()).next_multiple_of(4).max(4) as u64),
+            ),
+            ("tile records", size(records, std::mem::size_of::<TileRecord>())),
+            ("tile ranges", size(per_tile.len(), 8)),
+            ("active records", size(per_tile.len() * stride, std::mem::size_of::<ActiveRecord>())),
+            (
+                "active counts and corner weights",
+                size(per_tile.len() + records * 4 * crate::contract::CORNER_WORDS as usize, 4),
+            ),
+            ("texel slots", storage(atlas.texels() * 8)),
+            (LIGHTMAP, atlas.texels() * 16),
+            ("link weights", size(near, 4)),
+            ("link ids by entry", size(near, 4)),
+            ("entry cells", size(prm.cells().triangles.len(), std::mem::size_of::<GpuCellTriangle>())),
+            ("near links", size(near, std::mem::size_of::<GpuNearLink>())),
+            ("link light", size(near, 16)),
+            ("near texels", size(points, std::mem::size_of::<NearTexel>())),
+            ("far visibility", size(prm.far().visible.len(), 4)),
+            ("far texels", size(far_texels, std::mem::size_of::<GpuFarTexel>())),
+            ("hot entries", size(n, std::mem::size_of::<GpuHotEntry>())),
+            ("far entries", size(n, std::mem::size_of::<FarEntry>())),
+            ("near sums", size(points + far_only, 16)),
+            ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
+            ("echo runs", size(points, 8)),
+            ("echo sums", size(points, 16)),
+            ("cluster weights", size(4 * c.max(1), 16)),
+            ("selected weights", size((4 * c + g).max(1), 16)),
+        ];
+        GpuMemory { items: items.iter().map(|(n, b)| (n.to_string(), *b)).collect() }
+    }
+}
+
+/// Bytes of the shadow maps of `lights` at `size`^2 a layer.
+pub fn shadow_bytes(lights: &[prm::Light], size: u32) -> u64 {
+    lights.iter().map(|l| crate::lights::layers(l) as u64).sum::<u64>() * shadow_bytes_per_layer(size)
+}
+
+/// Bytes of one shadow-map layer of `size`^2 (32-bit depth).
+pub fn shadow_bytes_per_layer(size: u32) -> u64 {
+    size as u64 * size as u64 * 4
+}
+
+/// What [`crate::gpu::storage_buffer`] allocates for `bytes` of data (at least 256, a whole
+/// number of words).
+fn storage(bytes: u64) -> u64 {
+    bytes.max(256).next_multiple_of(4)
+}
+
+/// Stored tiles (panes' and dipole panes') over each atlas tile.
+pub(crate) fn tiles_per_atlas_tile(prm: &Prm) -> Vec<u64> {
+    let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
+    for t in prm.tiles().iter().chain(&prm.dipoles().tiles) {
+        if let Some(n) = per_tile.get_mut(t.index as usize) {
+            *n += 1;
+        }
+    }
+    per_tile
+}
+
+thread_local! {
+    static RECORDING: RefCell<Option<Vec<(String, u64)>>> = const { RefCell::new(None) };
+}
+
+/// Note an allocation of `bytes` named `label` in this thread's recording, if one is open.
+pub(crate) fn record(label: &str, bytes: u64) {
+    RECORDING.with(|r| {
+        if let Some(items) = r.borrow_mut().as_mut() {
+            items.push((label.to_string(), bytes));
+        }
+    });
+}
+
+/// Record the allocations `f` makes on this thread.
+pub(crate) fn recorded<T>(f: impl FnOnce() -> T) -> (T, GpuMemory) {
+    let outer = RECORDING.with(|r| r.borrow_mut().replace(Vec::new()));
+    let value = f();
+    let items = RECORDING.with(|r| std::mem::replace(&mut *r.borrow_mut(), outer)).unwrap_or_default();
+    (value, GpuMemory { items })
+}
