@@ -28,3 +28,10 @@ pub(crate) fn require(
         Err(ParamError { name, value: value.to_string(), allowed })
     }
 }
+
+/// A lightmap atlas a baker accepts: pages of 1 to 8192 texels a side, 1 to
+/// [`prm::density::MAX_PAGES`] of them.
+pub(crate) fn require_atlas(atlas: prm::density::Atlas) -> Result<(), ParamError> {
+    require((1..=8192).contains(&atlas.side), "atlas", atlas.side, "1 to 8192")?;
+    require((1..=prm::density::MAX_PAGES).contains(&atlas.pages), "atlas pages", atlas.pages, "1 to 256")
+}

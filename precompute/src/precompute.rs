@@ -25,7 +25,7 @@ use crate::far::far_field;
 use crate::near::{echo_links, near_links};
 use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
-use crate::params::{require, ParamError};
+use crate::params::{require, require_atlas, ParamError};
 use crate::transport::{Estimator, LinkedCells, TexelDipoles, TexelPanes, Transport};
 use rayon::prelude::*;
 
@@ -112,13 +112,7 @@ impl PrecomputeParams {
         require((1..=1 << 16).contains(&self.paths), "paths", self.paths, "1 to 65536")?;
         require((1..=65536).contains(&self.clusters), "clusters", self.clusters, "1 to 65536")?;
         require(self.groups <= 4096, "groups", self.groups, "0 to 4096")?;
-        require((1..=8192).contains(&self.atlas.side), "atlas", self.atlas.side, "1 to 8192")?;
-        require(
-            (1..=prm::density::MAX_PAGES).contains(&self.atlas.pages),
-            "atlas pages",
-            self.atlas.pages,
-            "1 to 256",
-        )?;
+        require_atlas(self.atlas)?;
         require((1..=1024).contains(&self.tile_size), "tile size", self.tile_size, "1 to 1024")?;
         require(
             (0.0..0.5).contains(&self.drop_threshold),

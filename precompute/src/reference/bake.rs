@@ -29,7 +29,7 @@ use super::planes::detect_planes;
 use super::polygon::light_polygon;
 use super::vpl::{trace_photons, PhotonBudget, Vpl};
 use crate::parallel::{par_texels, Cancelled, Control};
-use crate::params::{require, ParamError};
+use crate::params::{require, require_atlas, ParamError};
 use prm::sampling::stream;
 
 /// Reference-bake parameters.
@@ -78,13 +78,7 @@ impl BakeParams {
             self.visibility_samples,
             "1 to 256",
         )?;
-        require((1..=8192).contains(&self.atlas.side), "atlas", self.atlas.side, "1 to 8192")?;
-        require(
-            (1..=prm::density::MAX_PAGES).contains(&self.atlas.pages),
-            "atlas pages",
-            self.atlas.pages,
-            "1 to 256",
-        )?;
+        require_atlas(self.atlas)?;
         Ok(())
     }
 }
