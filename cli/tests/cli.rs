@@ -45,6 +45,20 @@ fn direct_image(scene: &prm::Scene, atlas: u32) -> Vec<Vec3> {
 }
 
 /// `a` equals `b` texel by texel to `rel` of the brightest texel of `b`.
+/// Write a generated hall to `dir/hall.glb` and bake it quickly (preview, 256 entries, 4 paths)
+/// with `lightmap` options: the level, the map and what precompute printed.
+fn bake_hall(dir: &Path, level: &prm::glb::GlbScene, lightmap: &[&str]) -> (PathBuf, PathBuf, String) {
+    let glb = dir.join("hall.glb");
+    std::fs::write(&glb, level.to_glb()).unwrap();
+    let map = dir.join("hall.prm");
+    let mut args = vec!["precompute", s(&glb), "--preset", "preview", "--entries", "256", "--paths", "4"];
+    args.extend_from_slice(lightmap);
+    args.extend_from_slice(&["-o", s(&map)]);
+    let (ok, stdout, err) = prm(&args);
+    assert!(ok, "{err}");
+    (glb, map, stdout)
+}
+
 fn assert_images_close(a: &[Vec3], b: &[Vec3], rel: f32, what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: sizes");
     let scale = b.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
@@ -612,24 +626,7 @@ fn a_level_without_a_camera_or_uvs_is_framed_and_rendered() {
     for node in &mut level.nodes {
         node.camera = None;
     }
-    let glb = dir.path().join("hall.glb");
-    std::fs::write(&glb, level.to_glb()).unwrap();
-    let map = dir.path().join("hall.prm");
-    let (ok, stdout, err) = prm(&[
-        "precompute",
-        s(&glb),
-        "--preset",
-        "preview",
-        "--atlas",
-        "64",
-        "--entries",
-        "256",
-        "--paths",
-        "4",
-        "-o",
-        s(&map),
-    ]);
-    assert!(ok, "{err}");
+    let (glb, map, stdout) = bake_hall(dir.path(), &level, &["--atlas", "64"]);
     // Counts not given follow the density: one cluster per 16 entries, the preview's 64 at
     // least.
     assert!(stdout.contains("256 entries") && stdout.contains("64 clusters"), "{stdout}");
@@ -903,26 +900,8 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     // One of the generated halls (no TEXCOORD_1) at 0.3 m texels needs about 100^2 texels: in
     // pages of 64^2, several pages.
     let dir = tempfile::tempdir().unwrap();
-    let glb = dir.path().join("hall.glb");
-    std::fs::write(&glb, prm_precompute::scenes::halls(1, 1, 8, 2).to_glb()).unwrap();
-    let map = dir.path().join("hall.prm");
-    let (ok, stdout, err) = prm(&[
-        "precompute",
-        s(&glb),
-        "--preset",
-        "preview",
-        "--texel-size",
-        "0.3",
-        "--page-size",
-        "64",
-        "--entries",
-        "256",
-        "--paths",
-        "4",
-        "-o",
-        s(&map),
-    ]);
-    assert!(ok, "{err}");
+    let level = prm_precompute::scenes::halls(1, 1, 8, 2);
+    let (glb, map, stdout) = bake_hall(dir.path(), &level, &["--texel-size", "0.3", "--page-size", "64"]);
     assert!(stdout.contains("pages of 64^2"), "{stdout}");
     let header = prm::prm_file::Prm::read(&map, None).unwrap().header().clone();
     let pages = header.pages;

@@ -128,10 +128,31 @@ pub(crate) fn record(label: &str, bytes: u64) {
     });
 }
 
-/// Record the allocations `f` makes on this thread.
-pub(crate) fn recorded<T>(f: impl FnOnce() -> T) -> (T, GpuMemory) {
-    let outer = RECORDING.with(|r| r.borrow_mut().replace(Vec::new()));
-    let value = f();
-    let items = RECORDING.with(|r| std::mem::replace(&mut *r.borrow_mut(), outer)).unwrap_or_default();
-    (value, GpuMemory { items })
+/// A recording of the allocations this thread makes until [`Recording::finish`]; a recording
+/// already open resumes after it (also when this one is dropped unfinished).
+pub(crate) struct Recording {
+    /// The recording to resume; `None` once finished.
+    outer: Option<Option<Vec<(String, u64)>>>,
+}
+
+impl Recording {
+    pub(crate) fn start() -> Recording {
+        Recording { outer: Some(RECORDING.with(|r| r.borrow_mut().replace(Vec::new()))) }
+    }
+
+    /// What was allocated since `start`.
+    pub(crate) fn finish(mut self) -> GpuMemory {
+        let outer = self.outer.take().flatten();
+        GpuMemory {
+            items: RECORDING.with(|r| std::mem::replace(&mut *r.borrow_mut(), outer)).unwrap_or_default(),
+        }
+    }
+}
+
+impl Drop for Recording {
+    fn drop(&mut self) {
+        if let Some(outer) = self.outer.take() {
+            RECORDING.with(|r| *r.borrow_mut() = outer);
+        }
+    }
 }

@@ -124,50 +124,45 @@ impl Runtime {
         }
         check_limits(device, prm)?;
         // Every table the map needs, its allocations recorded (`gpu_memory`).
-        let (passes, memory) = crate::memory::recorded(|| {
-            let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("indirect params"),
-                size: std::mem::size_of::<IndirectParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
-            let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
-            let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
-            let near_data = NearData::new(device, prm);
-            // Built once: the concentration, weight and near passes all read it.
-            let tables = crate::cpu::NearTables::new(prm);
-            let concentrate = ConcentratePass::new(
-                device,
-                shadows.layout(),
-                prm,
-                &tables,
-                &params_buf,
-                &entries.cells,
-                &entries.output,
-                NearBuffers {
-                    texels: &near_data.texels,
-                    links: &near_data.links,
-                    texel_count: near_data.count,
-                },
-            );
-            let weights =
-                WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
-            let near = NearPass::new(
-                device,
-                prm,
-                &tables,
-                &params_buf,
-                &entries.output,
-                &weights.weights,
-                &weights.lin,
-                &near_data,
-                &concentrate.link_light,
-            );
-            let compose = ComposePass::new(device, prm, &weights.selected, &near);
-            (params_buf, shadows, entries, concentrate, weights, near, compose, areas.len() as u32, tables)
+        let recording = crate::memory::Recording::start();
+        let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("indirect params"),
+            size: std::mem::size_of::<IndirectParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
         });
-        let (params_buf, shadows, entries, concentrate, weights, near, compose, entry_count, tables) = passes;
+        let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
+        let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
+        let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
+        let near_data = NearData::new(device, prm);
+        // Built once: the concentration, weight and near passes all read it.
+        let tables = crate::cpu::NearTables::new(prm);
+        let concentrate = ConcentratePass::new(
+            device,
+            shadows.layout(),
+            prm,
+            &tables,
+            &params_buf,
+            &entries.cells,
+            &entries.output,
+            NearBuffers { texels: &near_data.texels, links: &near_data.links, texel_count: near_data.count },
+        );
+        let weights =
+            WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
+        let near = NearPass::new(
+            device,
+            prm,
+            &tables,
+            &params_buf,
+            &entries.output,
+            &weights.weights,
+            &weights.lin,
+            &near_data,
+            &concentrate.link_light,
+        );
+        let compose = ComposePass::new(device, prm, &weights.selected, &near);
+        let memory = recording.finish();
+        let entry_count = areas.len() as u32;
         Ok(Runtime {
             device: device.clone(),
             queue: queue.clone(),
