@@ -221,6 +221,11 @@ pub struct ComposeArgs {
     /// Drop the left-out clusters' light instead of composing their groups' panes for it.
     #[arg(long)]
     pub no_residual: bool,
+    /// GPU memory for the map's tables and the shadow maps, in MB (1e6 bytes): beyond it,
+    /// atlas tiles out of the camera's view go first (farthest first), then the shadow maps
+    /// halve, then tiles in view; what went is printed (default: no limit).
+    #[arg(long)]
+    pub gpu_budget: Option<f64>,
 }
 
 impl ComposeArgs {

@@ -68,11 +68,22 @@ pub fn run(a: Args) -> Result<()> {
     if a.width == 0 || a.width > 8192 {
         bail!("--width {} is out of range (1 to 8192)", a.width);
     }
-    let params = a.compose.runtime(a.shadow_size)?;
+    let mut params = a.compose.runtime(a.shadow_size)?;
     let (scene, prm_file) = a.map.load()?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
+    let prm_file = match a.compose.gpu_budget {
+        Some(mb) => {
+            let aspect = iw as f32 / ih as f32;
+            let lights = rig.frame(0, a.frames);
+            let (map, shadow_size) =
+                crate::budget::fit_map(&scene, prm_file, &cam, aspect, &lights, a.shadow_size, mb)?;
+            params.shadow_size = shadow_size;
+            map
+        }
+        None => prm_file,
+    };
     let gpu = match a.backend {
         Backend::Cpu => None,
         Backend::Gpu => match Gpu::new() {

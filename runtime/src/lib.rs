@@ -53,6 +53,7 @@
 //! `layout` and `bindings` modules, and a test checks every shader against them with naga.
 
 mod bindings;
+pub mod budget;
 mod compose;
 mod concentrate;
 mod contract;

@@ -104,6 +104,7 @@
 //! (its CPU twin in `prm_runtime::cpu`).
 
 mod check;
+mod reduce;
 mod sections;
 
 use std::ops::Range;
@@ -114,6 +115,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::fingerprint::{fingerprint_hex, fnv1a, FNV_START};
 use crate::scene::Scene;
+pub use reduce::Reduced;
 use sections::{Reader, SectionError, Writer};
 
 /// File magic.
