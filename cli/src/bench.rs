@@ -167,11 +167,22 @@ struct ComposeAlone {
 }
 
 impl Bench {
-    fn new(a: &Args, params: RuntimeParams) -> Result<Bench> {
+    fn new(a: &Args, mut params: RuntimeParams) -> Result<Bench> {
         let (scene, prm_file) = a.map.load()?;
         let rig = load_rig(a.rig.as_deref(), &scene)?;
         let cam = camera(&scene, None)?;
         let (w, h) = cam.image_size(a.width);
+        let lights = rig.frame(0, a.frames);
+        let aspect = w as f32 / h as f32;
+        let prm_file = crate::budget::fit_params(
+            a.compose.gpu_budget,
+            &scene,
+            prm_file,
+            &cam,
+            aspect,
+            &lights,
+            &mut params,
+        )?;
         let g = Gpu::new()?;
         let rt = Runtime::new(&g.device, &g.queue, &scene, &prm_file, params)?;
         let renderer = Renderer::new(&g.device, &g.queue, &scene, &rt, &cam, w, h)?;

@@ -2,11 +2,12 @@
 //! (`prm_runtime::budget`), saying what was left out.
 
 use anyhow::{bail, Result};
-use glam::{Vec3, Vec4Swizzles};
+use glam::Vec4Swizzles;
 use prm::prm_file::Prm;
 use prm::texels::TexelSet;
 use prm::{Camera, Light, Scene};
 use prm_runtime::budget::{fit, Fit, TilePlace};
+use rayon::prelude::*;
 
 /// Largest budget accepted, MB: more than any GPU has.
 const MAX_BUDGET_MB: f64 = 1e7;
@@ -20,33 +21,64 @@ pub fn budget_bytes(mb: f64) -> Result<u64> {
 }
 
 /// Where each atlas tile of `prm`'s grid is from `camera` (whose image is `aspect` wide over
-/// high): its nearest covered texel's distance, and whether any covered texel lies in the view
-/// frustum. Tiles with no covered texel are infinitely far and out of view.
+/// high): its nearest covered texel's distance, and whether the camera sees any covered texel
+/// of it (in the view frustum, facing the camera and not hidden: a ray to the eye). Tiles with
+/// no covered texel are infinitely far and out of view.
 pub fn tile_places(scene: &Scene, prm: &Prm, camera: &Camera, aspect: f32) -> Vec<TilePlace> {
     let (w, h) = prm.atlas();
     let ts = prm.header().tile_size;
     let tx = prm.tiles_x() as usize;
     let mut places = vec![TilePlace { distance: f32::INFINITY, in_view: false }; tx * prm.tiles_y() as usize];
     let set = TexelSet::build(scene, w, h);
+    let bvh = prm::Bvh::build(scene);
     let to_camera = camera.to_world.inverse();
     let eye = camera.to_world.col(3).xyz();
     let tan = (camera.yfov * 0.5).tan();
-    let in_view = |p: Vec3| {
-        let c = to_camera.transform_point3(p);
+    let seen = |t: &prm::Texel| {
+        let c = to_camera.transform_point3(t.position);
         let depth = -c.z;
-        depth > 0.0 && c.x.abs() <= depth * tan * aspect && c.y.abs() <= depth * tan
+        depth > 0.0
+            && c.x.abs() <= depth * tan * aspect
+            && c.y.abs() <= depth * tan
+            && t.normal.dot(eye - t.position) > 0.0
+            && bvh.visible_point(t.position, t.normal, eye)
     };
-    for t in &set.texels {
+    let seen: Vec<bool> = set.texels.par_iter().map(seen).collect();
+    for (t, seen) in set.texels.iter().zip(seen) {
         let place = &mut places[(t.j / ts) as usize * tx + (t.i / ts) as usize];
         place.distance = place.distance.min(t.position.distance(eye));
-        place.in_view |= in_view(t.position);
+        place.in_view |= seen;
     }
     places
 }
 
-/// Fit `prm` for `lights` at `shadow_size` into `budget_mb` seen from `camera`, printing what
-/// was left out; gives the map to run and the shadow-map size.
-pub fn fit_map(
+/// What a budget did to a map: the figures `prm` prints and `prm info --json` gives.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Outcome {
+    pub budget_bytes: u64,
+    /// The whole map's tables and its shadow maps at the size asked for.
+    pub before_bytes: u64,
+    /// What the runtime now needs (at most the budget).
+    pub after_bytes: u64,
+    pub shadow_size_asked: u32,
+    pub shadow_size: u32,
+    /// Atlas tiles left out, of those that store texels.
+    pub atlas_tiles_left_out: usize,
+    pub atlas_tiles_stored: usize,
+    pub texels_left_out: usize,
+    /// The share of the panes' light in the tiles left out.
+    pub energy_share_left_out: f64,
+    /// Left-out tiles in the camera's view: a loss the viewer sees.
+    pub in_view: usize,
+    /// The nearest left-out tile's distance from the camera (m); none when nothing went.
+    pub nearest_m: Option<f32>,
+    /// The nearest left-out tile in view (m); none when none in view went.
+    pub nearest_in_view_m: Option<f32>,
+}
+
+/// Fit `prm` for `lights` at `shadow_size` into `budget_mb` seen from `camera` (an image
+/// `aspect` wide over high): the map to run (the whole one when it fits), and what was done.
+pub fn fit_for_camera(
     scene: &Scene,
     prm: Prm,
     camera: &Camera,
@@ -54,49 +86,85 @@ pub fn fit_map(
     lights: &[Light],
     shadow_size: u32,
     budget_mb: f64,
-) -> Result<(Prm, u32)> {
+) -> Result<(Prm, Outcome)> {
     let budget = budget_bytes(budget_mb)?;
     let places = tile_places(scene, &prm, camera, aspect);
-    let fitted = fit(&prm, &places, lights, shadow_size, budget)?;
-    println!("{}", describe(&fitted, &prm, budget, shadow_size));
-    Ok(match fitted.reduced {
-        Some(r) => (r.prm, fitted.shadow_size),
-        None => (prm, fitted.shadow_size),
-    })
+    let f: Fit = fit(&prm, &places, lights, shadow_size, budget)?;
+    let mut outcome = Outcome {
+        budget_bytes: budget,
+        before_bytes: f.before,
+        after_bytes: f.after,
+        shadow_size_asked: shadow_size,
+        shadow_size: f.shadow_size,
+        atlas_tiles_left_out: 0,
+        atlas_tiles_stored: prm.layout().texels.iter().filter(|t| !t.is_empty()).count(),
+        texels_left_out: 0,
+        energy_share_left_out: 0.0,
+        in_view: f.in_view,
+        nearest_m: None,
+        nearest_in_view_m: f.nearest_in_view.is_finite().then_some(f.nearest_in_view),
+    };
+    let map = match f.reduced {
+        Some(r) => {
+            outcome.atlas_tiles_left_out = r.atlas_tiles;
+            outcome.texels_left_out = r.texels;
+            outcome.energy_share_left_out = r.energy_share;
+            outcome.nearest_m = Some(f.nearest);
+            r.prm
+        }
+        None => prm,
+    };
+    Ok((map, outcome))
+}
+
+/// The map a command runs under `--gpu-budget` (`budget_mb`; the whole map without one), seen
+/// from `camera`: printing what was left out, and setting `params.shadow_size` to the size the
+/// budget gives.
+pub fn fit_params(
+    budget_mb: Option<f64>,
+    scene: &Scene,
+    prm: Prm,
+    camera: &Camera,
+    aspect: f32,
+    lights: &[Light],
+    params: &mut prm_runtime::RuntimeParams,
+) -> Result<Prm> {
+    let Some(mb) = budget_mb else { return Ok(prm) };
+    let (map, outcome) = fit_for_camera(scene, prm, camera, aspect, lights, params.shadow_size, mb)?;
+    println!("{}", describe(&outcome));
+    params.shadow_size = outcome.shadow_size;
+    Ok(map)
 }
 
 /// One paragraph on a fit: the budget, what the whole map needed, what was left out.
-pub fn describe(f: &Fit, whole: &Prm, budget: u64, asked_shadow: u32) -> String {
+pub fn describe(o: &Outcome) -> String {
     let mb = |b: u64| b as f64 / 1e6;
     let mut s = format!(
         "gpu budget  {:.1} MB: the whole map and its shadow maps need {:.1} MB",
-        mb(budget),
-        mb(f.before)
+        mb(o.budget_bytes),
+        mb(o.before_bytes)
     );
-    match &f.reduced {
-        None if f.shadow_size == asked_shadow => s += "; everything fits",
-        _ => {
-            if let Some(r) = &f.reduced {
-                let stored = whole.layout().texels.iter().filter(|t| !t.is_empty()).count();
-                s += &format!(
-                    "; left out {} of {} atlas tiles ({} texels, {:.1} % of the panes' light), {}, the \
-                     nearest {:.1} m from the camera",
-                    r.atlas_tiles,
-                    stored,
-                    r.texels,
-                    100.0 * r.energy_share,
-                    match f.in_view {
-                        0 => "none in the camera's view".to_string(),
-                        n => format!("{n} IN THE CAMERA'S VIEW (their indirect light is missing)"),
-                    },
-                    f.nearest
-                );
-            }
-            if f.shadow_size != asked_shadow {
-                s += &format!("; shadow maps at {}^2 instead of {asked_shadow}^2", f.shadow_size);
-            }
-            s += &format!("; now {:.1} MB", mb(f.after));
-        }
+    if o.atlas_tiles_left_out == 0 && o.shadow_size == o.shadow_size_asked {
+        return s + "; everything fits";
     }
-    s
+    if let Some(nearest) = o.nearest_m {
+        s += &format!(
+            "; left out {} of {} atlas tiles ({} texels, {:.1} % of the panes' light), {}, the nearest \
+             {nearest:.1} m from the camera",
+            o.atlas_tiles_left_out,
+            o.atlas_tiles_stored,
+            o.texels_left_out,
+            100.0 * o.energy_share_left_out,
+            match (o.in_view, o.nearest_in_view_m) {
+                (0, _) | (_, None) => "none in the camera's view".to_string(),
+                (n, Some(d)) => {
+                    format!("{n} IN THE CAMERA'S VIEW (their indirect light is missing; the nearest {d:.1} m away)")
+                }
+            },
+        );
+    }
+    if o.shadow_size != o.shadow_size_asked {
+        s += &format!("; shadow maps at {}^2 instead of {}^2", o.shadow_size, o.shadow_size_asked);
+    }
+    s + &format!("; now {:.1} MB", mb(o.after_bytes))
 }

@@ -24,6 +24,10 @@ pub struct Args {
     /// Shadow-map size (texels a side) the GPU memory is stated at.
     #[arg(long, default_value_t = 1024)]
     shadow_size: u32,
+    /// With --prm: what a GPU memory budget of this many MB (1e6 bytes) would leave out, seen
+    /// from the level's first camera (as `prm render --gpu-budget` does).
+    #[arg(long, requires = "prm")]
+    gpu_budget: Option<f64>,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -70,6 +74,21 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(map) = &map {
         let file_bytes = a.prm.as_ref().and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
         summary["gpu_memory"] = gpu_memory(map, &scene, a.shadow_size, file_bytes);
+        if let Some(mb) = a.gpu_budget {
+            let camera = crate::render::camera(&scene, None)?;
+            let aspect = camera.aspect.unwrap_or(1.0);
+            let (_, outcome) = crate::budget::fit_for_camera(
+                &scene,
+                map.clone(),
+                &camera,
+                aspect,
+                &scene.lights,
+                a.shadow_size,
+                mb,
+            )?;
+            summary["gpu_memory"]["budget"] = serde_json::to_value(&outcome)?;
+            summary["gpu_memory"]["budget"]["text"] = Value::String(crate::budget::describe(&outcome));
+        }
     }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
@@ -79,6 +98,9 @@ pub fn run(a: Args) -> Result<()> {
     print_lightmap(&scene, &lm, &summary);
     if map.is_some() {
         print_gpu_memory(&summary["gpu_memory"]);
+        if let Some(text) = summary["gpu_memory"]["budget"]["text"].as_str() {
+            println!("  {text}");
+        }
     }
     Ok(())
 }

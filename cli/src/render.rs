@@ -73,17 +73,16 @@ pub fn run(a: Args) -> Result<()> {
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
-    let prm_file = match a.compose.gpu_budget {
-        Some(mb) => {
-            let aspect = iw as f32 / ih as f32;
-            let lights = rig.frame(0, a.frames);
-            let (map, shadow_size) =
-                crate::budget::fit_map(&scene, prm_file, &cam, aspect, &lights, a.shadow_size, mb)?;
-            params.shadow_size = shadow_size;
-            map
-        }
-        None => prm_file,
-    };
+    let lights = rig.frame(0, a.frames);
+    let prm_file = crate::budget::fit_params(
+        a.compose.gpu_budget,
+        &scene,
+        prm_file,
+        &cam,
+        iw as f32 / ih as f32,
+        &lights,
+        &mut params,
+    )?;
     let gpu = match a.backend {
         Backend::Cpu => None,
         Backend::Gpu => match Gpu::new() {

@@ -69,7 +69,12 @@ pub fn run(a: Args) -> Result<()> {
             range: None,
         });
     }
-    let params = a.compose.runtime(1024)?;
+    let mut params = a.compose.runtime(1024)?;
+    // The view's camera stays where it starts (the mouse moves a light), so a budget fitted for
+    // it holds for the whole session.
+    let aspect = camera.aspect.unwrap_or(1.0);
+    let prm =
+        crate::budget::fit_params(a.compose.gpu_budget, &scene, prm, &camera, aspect, &lights, &mut params)?;
     let mut app =
         App { scene, prm, camera, params, lights, indirect: true, exposure: 1.0, view: None, error: None };
     let event_loop = EventLoop::new().context("opening a window needs a display (X11 or Wayland)")?;

@@ -30,7 +30,7 @@ pub const MIN_SHADOW_SIZE: u32 = 256;
 pub struct TilePlace {
     /// The nearest of its stored texels to the camera, in metres.
     pub distance: f32,
-    /// Some of its texels lie in the camera's view frustum.
+    /// The camera sees some of its texels (`prm` asks: in the frustum, facing it, unoccluded).
     pub in_view: bool,
 }
 
@@ -49,6 +49,8 @@ pub struct Fit {
     pub in_view: usize,
     /// The nearest left-out tile's distance from the camera, metres (infinite for none).
     pub nearest: f32,
+    /// The nearest left-out tile in view, metres (infinite for none).
+    pub nearest_in_view: f32,
 }
 
 /// Why a budget cannot be met.
@@ -94,6 +96,7 @@ pub fn fit(
             after: before,
             in_view: 0,
             nearest: f32::INFINITY,
+            nearest_in_view: f32::INFINITY,
         });
     }
     // Atlas tiles that store texels, out of view first, then the farthest first.
@@ -163,6 +166,11 @@ pub fn fit(
         before,
         in_view: dropped.iter().filter(|&&t| places[t as usize].in_view).count(),
         nearest: dropped.iter().map(|&t| places[t as usize].distance).fold(f32::INFINITY, f32::min),
+        nearest_in_view: dropped
+            .iter()
+            .filter(|&&t| places[t as usize].in_view)
+            .map(|&t| places[t as usize].distance)
+            .fold(f32::INFINITY, f32::min),
         reduced: (k > 0).then_some(reduced),
     })
 }
