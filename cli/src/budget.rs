@@ -44,10 +44,24 @@ pub fn tile_places(scene: &Scene, prm: &Prm, camera: &Camera, aspect: f32) -> Ve
             && bvh.visible_point(t.position, t.normal, eye)
     };
     let seen: Vec<bool> = set.texels.par_iter().map(seen).collect();
-    for (t, seen) in set.texels.iter().zip(seen) {
-        let place = &mut places[(t.j / ts) as usize * tx + (t.i / ts) as usize];
-        place.distance = place.distance.min(t.position.distance(eye));
+    let tile = |k: u32| ((k / w) / ts) as usize * tx + ((k % w) / ts) as usize;
+    let mut mark = |k: u32, distance: f32, seen: bool| {
+        let place = &mut places[tile(k)];
+        place.distance = place.distance.min(distance);
         place.in_view |= seen;
+    };
+    for (t, &s) in set.texels.iter().zip(&seen) {
+        mark(t.j * w + t.i, t.position.distance(eye), s);
+    }
+    // A dilated texel is read by bilinear lookups at its sources' chart edges: its tile is where
+    // they are, and seen when they are.
+    for d in &set.dilation {
+        for &src in &d.sources[..d.count as usize] {
+            let k = set.index[src as usize];
+            if let Some(t) = set.texels.get(k as usize) {
+                mark(d.target, t.position.distance(eye), seen[k as usize]);
+            }
+        }
     }
     places
 }
@@ -109,7 +123,7 @@ pub fn fit_for_camera(
             outcome.atlas_tiles_left_out = r.atlas_tiles;
             outcome.texels_left_out = r.texels;
             outcome.energy_share_left_out = r.energy_share;
-            outcome.nearest_m = Some(f.nearest);
+            outcome.nearest_m = f.nearest.is_finite().then_some(f.nearest);
             r.prm
         }
         None => prm,
@@ -138,7 +152,7 @@ pub fn fit_params(
 
 /// One paragraph on a fit: the budget, what the whole map needed, what was left out.
 pub fn describe(o: &Outcome) -> String {
-    let mb = |b: u64| b as f64 / 1e6;
+    let mb = prm_runtime::budget::mb;
     let mut s = format!(
         "gpu budget  {:.1} MB: the whole map and its shadow maps need {:.1} MB",
         mb(o.budget_bytes),

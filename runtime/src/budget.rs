@@ -7,11 +7,12 @@
 //! ([`TilePlace`]: the engine knows its views; `prm` measures it from the texels). In order:
 //!
 //! 1. atlas tiles outside the camera's view, the farthest first, only as many as needed;
-//! 2. if all of those are not enough, the shadow maps halve (down to [`MIN_SHADOW_SIZE`]), and
-//!    step 1 is redone at that size, so no more tiles go than needed;
+//! 2. if all of those are not enough, the shadow maps halve (down to [`MIN_SHADOW_SIZE`]; a
+//!    size asked below it stays), and step 1 is redone at each size, so no more tiles go than
+//!    needed;
 //! 3. then tiles in view, the farthest first: a loss the viewer sees, reported as such;
-//! 4. if the map's fixed tables (entries, the far field's visibility, the lightmap) and the
-//!    smallest shadow maps alone exceed the budget, an error says how much they need.
+//! 4. if the map's fixed tables (the entries and their cells, the lightmap, the texel slots)
+//!    and the smallest shadow maps alone exceed the budget, an error says how much they need.
 //!
 //! Lights do not rank the receivers: a tile near a light but out of view is not seen, and the
 //! light it would have bounced into the kept tiles still arrives through the entries. Each
@@ -58,18 +59,19 @@ pub struct Fit {
 pub enum BudgetError {
     #[error(
         "a GPU memory budget of {budget:.1} MB cannot hold this map: with every atlas tile left out its \
-         fixed tables still take {tables:.1} MB (entries, far-field visibility, the lightmap) and the \
-         lights' shadow maps {shadows:.1} MB at {MIN_SHADOW_SIZE}^2; give at least {need:.1} MB",
+         fixed tables still take {tables:.1} MB (the entries and their cells, the lightmap, the texel \
+         slots) and the lights' shadow maps {shadows:.1} MB at {size}^2; give at least {need:.1} MB",
         budget = mb(*budget), tables = mb(*tables), shadows = mb(*shadows), need = mb(tables + shadows)
     )]
-    TooSmall { budget: u64, tables: u64, shadows: u64 },
+    TooSmall { budget: u64, tables: u64, shadows: u64, size: u32 },
     #[error("{place} atlas tile places for a tile grid of {grid}")]
     Places { place: usize, grid: usize },
     #[error("leaving tiles out broke the map: {0}")]
     Invalid(#[from] prm::prm_file::InvalidPrm),
 }
 
-fn mb(b: u64) -> f64 {
+/// Bytes in MB (1e6), as budgets are given.
+pub fn mb(b: u64) -> f64 {
     b as f64 / 1e6
 }
 
@@ -141,10 +143,11 @@ pub fn fit(
         if let Some(f) = fewest(0, out_of_view, shadow_bytes(lights, size))? {
             break Some((f, size));
         }
-        if size / 2 < MIN_SHADOW_SIZE.min(shadow_size) {
+        // Halving helps only with lights, and not below the smallest size.
+        if size <= MIN_SHADOW_SIZE || shadow_bytes(lights, size) == 0 {
             break None;
         }
-        size /= 2;
+        size = (size / 2).max(MIN_SHADOW_SIZE);
     };
     let ((k, reduced, tables), size) = match found {
         Some(f) => f,
@@ -154,7 +157,7 @@ pub fn fit(
                 Some(f) => (f, size),
                 None => {
                     let (_, tables) = cut(order.len())?;
-                    return Err(BudgetError::TooSmall { budget, tables, shadows });
+                    return Err(BudgetError::TooSmall { budget, tables, shadows, size });
                 }
             }
         }

@@ -217,9 +217,19 @@ fn a_budget_leaves_out_the_fewest_farthest_tiles_out_of_view_first_then_shrinks_
     assert_eq!(f.shadow_size, MIN_SHADOW_SIZE);
     assert!(f.in_view > 0 && f.after <= floor - 1 + shadows(MIN_SHADOW_SIZE), "{}", brief(&f));
 
+    // A size that is not a power of two still reaches the smallest; with no lights there is
+    // nothing to halve.
+    let f = fit(&prm, &places, &lights, 1000, floor - 1 + shadows(MIN_SHADOW_SIZE)).unwrap();
+    assert_eq!(f.shadow_size, MIN_SHADOW_SIZE, "{}", brief(&f));
+    let f = fit(&prm, &places, &[], 1000, tables * 3 / 4).unwrap();
+    assert_eq!((f.shadow_size, f.in_view), (1000, 0), "{}", brief(&f));
+
     // Less than the fixed tables and the smallest shadow maps: refused, saying what it needs.
     let err = fit(&prm, &places, &lights, 1024, shadows(MIN_SHADOW_SIZE)).unwrap_err();
-    assert!(matches!(err, BudgetError::TooSmall { .. }));
+    let BudgetError::TooSmall { tables: fixed, shadows: s, size, .. } = &err else { unreachable!() };
+    assert_eq!((*s, *size), (shadows(MIN_SHADOW_SIZE), MIN_SHADOW_SIZE));
+    let all: Vec<bool> = stored.clone();
+    assert_eq!(*fixed, GpuMemory::estimate(&prm.without_atlas_tiles(&all).unwrap().prm).total());
     assert!(err.to_string().contains("give at least"), "{err}");
     // Places for another grid: refused.
     assert!(fit(&prm, &places[1..], &lights, 1024, 1).is_err());

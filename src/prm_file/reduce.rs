@@ -14,7 +14,9 @@
 //! kept texels then moved by 21 % RMS on two halls with one left out, against 0.9 % without.)
 //! What still moves kept texels is at the cut: a tile grid vertex next to a left-out tile picks
 //! its K panes without that tile's records, and the near field's balance and echo lose the
-//! links that were cut. The tests measure both.
+//! links that were cut. The tests measure both. One more: when every far-field texel goes, the
+//! far field goes whole, with its entries' energies, and the balance then counts the near field
+//! alone (the format has no far field without texels).
 
 use super::{intensity, Dipoles, Echo, EchoLink, Far, InvalidPrm, Prm, PrmParts, Tile};
 use crate::luminance;
