@@ -26,9 +26,8 @@ pub fn budget_bytes(mb: f64) -> Result<u64> {
 /// no covered texel are infinitely far and out of view.
 pub fn tile_places(scene: &Scene, prm: &Prm, camera: &Camera, aspect: f32) -> Vec<TilePlace> {
     let (w, h) = prm.atlas();
-    let ts = prm.header().tile_size;
-    let tx = prm.tiles_x() as usize;
-    let mut places = vec![TilePlace { distance: f32::INFINITY, in_view: false }; tx * prm.tiles_y() as usize];
+    let grid = (prm.tiles_x() * prm.tiles_y()) as usize;
+    let mut places = vec![TilePlace { distance: f32::INFINITY, in_view: false }; grid];
     let set = TexelSet::build(scene, w, h);
     let bvh = prm::Bvh::build(scene);
     let to_camera = camera.to_world.inverse();
@@ -44,9 +43,8 @@ pub fn tile_places(scene: &Scene, prm: &Prm, camera: &Camera, aspect: f32) -> Ve
             && bvh.visible_point(t.position, t.normal, eye)
     };
     let seen: Vec<bool> = set.texels.par_iter().map(seen).collect();
-    let tile = |k: u32| ((k / w) / ts) as usize * tx + ((k % w) / ts) as usize;
     let mut mark = |k: u32, distance: f32, seen: bool| {
-        let place = &mut places[tile(k)];
+        let place = &mut places[prm.atlas_tile_of(k)];
         place.distance = place.distance.min(distance);
         place.in_view |= seen;
     };

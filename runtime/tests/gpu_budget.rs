@@ -42,21 +42,25 @@ fn bake(scene: &Scene) -> Prm {
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
+/// `init` per atlas tile of `prm`'s grid, with `add` applied for each covered texel in it.
+fn per_tile<T: Clone>(scene: &Scene, prm: &Prm, init: T, add: impl Fn(&mut T, &prm::Texel)) -> Vec<T> {
+    let (w, h) = prm.atlas();
+    let mut out = vec![init; (prm.tiles_x() * prm.tiles_y()) as usize];
+    for t in &TexelSet::build(scene, w, h).texels {
+        add(&mut out[prm.atlas_tile_of(t.j * w + t.i)], t);
+    }
+    out
+}
+
 /// Per atlas tile: does it hold covered texels of the second hall (x > 13 m), and of the first.
 fn halls_of_tiles(scene: &Scene, prm: &Prm) -> Vec<(bool, bool)> {
-    let (w, h) = prm.atlas();
-    let ts = prm.header().tile_size;
-    let tx = prm.tiles_x() as usize;
-    let mut out = vec![(false, false); tx * prm.tiles_y() as usize];
-    for t in &TexelSet::build(scene, w, h).texels {
-        let o = &mut out[(t.j / ts) as usize * tx + (t.i / ts) as usize];
+    per_tile(scene, prm, (false, false), |o, t| {
         if t.position.x > 13.0 {
             o.0 = true;
         } else {
             o.1 = true;
         }
-    }
-    out
+    })
 }
 
 fn lightmap(prm: &Prm, scene: &Scene, lights: &[Light]) -> Vec<Vec3> {
@@ -86,9 +90,7 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
     let lights = scene.lights.clone();
     let whole = lightmap(&prm, &scene, &lights);
     let part = lightmap(small, &scene, &lights);
-    let (w, ts) = (prm.atlas().0 as usize, prm.header().tile_size as usize);
     let (tx, ty) = (prm.tiles_x() as i64, prm.tiles_y() as i64);
-    let tile_of = |k: usize| (k / w / ts) * tx as usize + (k % w) / ts;
     // A kept tile is at the cut when a tile around it (8 neighbours) was left out.
     let at_cut = |t: usize| {
         let (x, y) = ((t as i64) % tx, (t as i64) / tx);
@@ -105,7 +107,7 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
         if !prm.stored(k) {
             continue;
         }
-        let t = tile_of(k);
+        let t = prm.atlas_tile_of(k as u32);
         if drop[t] {
             left_out = left_out.max(part[k].max_element());
             continue;
@@ -135,16 +137,10 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
 
 /// Per atlas tile of `prm`: pretend the camera sees the first hall (x < 13 m) from `eye`.
 fn places(scene: &Scene, prm: &Prm, eye: Vec3) -> Vec<TilePlace> {
-    let (w, h) = prm.atlas();
-    let ts = prm.header().tile_size;
-    let tx = prm.tiles_x() as usize;
-    let mut out = vec![TilePlace { distance: f32::INFINITY, in_view: false }; tx * prm.tiles_y() as usize];
-    for t in &TexelSet::build(scene, w, h).texels {
-        let o = &mut out[(t.j / ts) as usize * tx + (t.i / ts) as usize];
+    per_tile(scene, prm, TilePlace { distance: f32::INFINITY, in_view: false }, |o, t| {
         o.distance = o.distance.min(t.position.distance(eye));
         o.in_view |= t.position.x < 13.0;
-    }
-    out
+    })
 }
 
 /// A fit's figures, without the map.

@@ -807,6 +807,13 @@ impl Prm {
         self.parts.header.atlas_height.div_ceil(self.parts.header.tile_size)
     }
 
+    /// The atlas tile (row-major over the tile grid) that holds atlas texel `texel`
+    /// (row-major).
+    pub fn atlas_tile_of(&self, texel: u32) -> usize {
+        let (w, ts) = (self.parts.header.atlas_width, self.parts.header.tile_size);
+        ((texel / w) / ts) as usize * self.tiles_x() as usize + ((texel % w) / ts) as usize
+    }
+
     /// Where every stored tile's texels live: build it once per map, then read panes with it.
     pub fn layout(&self) -> TileLayout {
         tile_layout(&self.parts.header, &self.parts.mask, &self.parts.tiles)

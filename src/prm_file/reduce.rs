@@ -40,35 +40,28 @@ impl Prm {
     /// grid; missing entries are kept). See the module docs for what goes and what stays.
     pub fn without_atlas_tiles(&self, drop: &[bool]) -> Result<Reduced, InvalidPrm> {
         let h = &self.parts.header;
-        let (w, ts) = (h.atlas_width as usize, h.tile_size as usize);
-        let tx = w.div_ceil(ts);
         let dropped = |index: u32| drop.get(index as usize).copied().unwrap_or(false);
-        let texel_dropped = |k: u32| {
-            let (i, j) = (k as usize % w, k as usize / w);
-            dropped(((j / ts) * tx + i / ts) as u32)
-        };
+        let texel_dropped = |k: u32| dropped(self.atlas_tile_of(k) as u32);
         let layout = self.layout();
         let p = &self.parts;
 
         // Panes: keep the tiles outside the cut, in order, and measure the share of each
         // pane's stored light that goes (for the report; the energies stay, see the docs).
-        let mass = |k: usize, tile: &Tile| -> f64 {
+        let codes = |k: usize, tile: &Tile| {
             let start = layout.offsets[k];
-            let n = layout.texels[tile.index as usize].len();
-            let codes: f64 = p.data[start..start + n].iter().map(|&c| intensity(c) as f64).sum();
-            codes * luminance(tile.scale) as f64
+            &p.data[start..start + layout.texels[tile.index as usize].len()]
         };
         let mut tiles = Vec::with_capacity(p.tiles.len());
         let mut data = Vec::with_capacity(p.data.len());
         let mut kept_mass = vec![0.0f64; self.pane_count()];
         let mut all_mass = vec![0.0f64; self.pane_count()];
         for (k, tile) in p.tiles.iter().enumerate() {
-            let m = mass(k, tile);
+            let m = codes(k, tile).iter().map(|&c| intensity(c) as f64).sum::<f64>()
+                * luminance(tile.scale) as f64;
             all_mass[tile.cluster as usize] += m;
             if !dropped(tile.index) {
                 kept_mass[tile.cluster as usize] += m;
-                let start = layout.offsets[k];
-                data.extend_from_slice(&p.data[start..start + layout.texels[tile.index as usize].len()]);
+                data.extend_from_slice(codes(k, tile));
                 tiles.push(*tile);
             }
         }
