@@ -70,7 +70,7 @@ pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
 /// Load the level as a map with this header was baked for it: generated UVs in the map's
 /// pages at its texel size, or packed for its one page.
 pub fn load_for(args: &SceneArgs, header: &prm::prm_file::Header, quiet: bool) -> Result<Scene> {
-    if header.pages > 1 {
+    if header.pages > 1 || header.page_texel_size > 0.0 {
         load_with(args, None, header.page_texel_size, header.atlas_width, quiet)
     } else {
         load(args, header.atlas_width, quiet)

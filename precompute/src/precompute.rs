@@ -628,11 +628,12 @@ fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
         .collect()
 }
 
-/// The texel size the level's generated UVs were packed at in several pages (how it loads
-/// again with the same UVs), else 0.
-fn page_texel_size(scene: &Scene, atlas: Atlas) -> f32 {
+/// The texel size the level's generated UVs were packed at in pages (how it loads again with
+/// the same UVs; a level whose charts packed worse than the density estimated may fill only
+/// one), else 0.
+fn page_texel_size(scene: &Scene) -> f32 {
     match scene.report.generated_layout {
-        Some(UnwrapLayout::Pages { texel_size, .. }) if atlas.pages > 1 => texel_size,
+        Some(UnwrapLayout::Pages { texel_size, .. }) => texel_size,
         _ => 0.0,
     }
 }
@@ -651,7 +652,7 @@ fn header(
         atlas_width: params.atlas.width(),
         atlas_height: params.atlas.height(),
         pages: params.atlas.pages,
-        page_texel_size: page_texel_size(scene, params.atlas),
+        page_texel_size: page_texel_size(scene),
         tile_size: params.tile_size,
         entries: entries as u32,
         clusters: tiled.clusters.len() as u32,

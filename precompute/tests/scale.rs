@@ -129,3 +129,36 @@ fn a_zone_too_large_for_a_page_is_refused_naming_the_options() {
     let err = load_scene(&path, &opts).unwrap_err().to_string();
     assert!(err.contains("--page-size") && err.contains("64^2"), "{err}");
 }
+
+#[test]
+fn charts_that_pack_worse_than_the_density_estimated_get_pages_not_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("halls.glb");
+    std::fs::write(&path, halls(2, 1, 6, 1).to_glb()).unwrap();
+    // Two halls at 1 m: the density estimates one 64^2 page (a typical packing's coverage),
+    // but their many small charts need three. They get pages at the texel size asked for (this
+    // was refused, telling the user to give an --atlas they never gave).
+    let (texel, page) = (1.0f32, 64u32);
+    let area: f64 = {
+        let opts = LoadOptions { unwrap_resolution: Some(256), ..Default::default() };
+        load_scene(&path, &opts).unwrap().total_area()
+    };
+    assert!(
+        matches!(prm::density::unwrap_layout(area, texel, page), Ok(prm::density::UnwrapLayout::OnePage(_))),
+        "the estimate must be one page for this test to mean anything"
+    );
+    let opts =
+        LoadOptions { unwrap_resolution: None, texel_size: texel, page_size: page, ..Default::default() };
+    let scene = load_scene(&path, &opts).unwrap();
+    let atlas = scene.report.generated_atlas.unwrap();
+    assert_eq!(atlas.side, page);
+    assert!(atlas.pages >= 2, "{atlas}");
+    assert_eq!(
+        scene.report.generated_layout,
+        Some(prm::density::UnwrapLayout::Pages { texel_size: texel, page_size: page })
+    );
+    assert!(prm::uv::find_overlaps(&scene).is_empty(), "generated UVs overlap");
+    let set = TexelSet::build(&scene, atlas.width(), atlas.height());
+    let size = (scene.total_area() / set.len() as f64).sqrt();
+    assert!((0.7..=1.0).contains(&(size / texel as f64)), "asked {texel} m, got {size:.3} m in {atlas}");
+}

@@ -30,14 +30,23 @@ pub(super) fn generate(
     report: &mut LoadReport,
 ) -> Result<(), SceneError> {
     let unwrap_error = |reason| SceneError::Unwrap { path: path.into(), reason };
-    let layout = match opts.unwrap_resolution {
+    let mut layout = match opts.unwrap_resolution {
         Some(r) => UnwrapLayout::OnePage(r),
         None => {
             let area = prims.iter().map(Prim::area).sum();
             density::unwrap_layout(area, opts.texel_size, opts.page_size).map_err(unwrap_error)?
         }
     };
-    let atlas = uv::unwrap_primitives(&mut prims_uv_view(prims), layout).map_err(unwrap_error)?;
+    let atlas = match uv::unwrap_primitives(&mut prims_uv_view(prims), layout) {
+        // One page was the density's estimate, from a typical packing's coverage; charts that
+        // pack worse (small pages, many small charts) get pages at the texel size asked for.
+        Err(_) if opts.unwrap_resolution.is_none() && matches!(layout, UnwrapLayout::OnePage(_)) => {
+            layout = UnwrapLayout::Pages { texel_size: opts.texel_size, page_size: opts.page_size };
+            uv::unwrap_primitives(&mut prims_uv_view(prims), layout)
+        }
+        r => r,
+    }
+    .map_err(unwrap_error)?;
     report.uv1_generated = true;
     report.generated_atlas = Some(atlas);
     report.generated_layout = Some(layout);

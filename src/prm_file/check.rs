@@ -60,7 +60,8 @@ pub(super) fn atlas(h: &Header) -> Result<(), String> {
         || (!paged && h.atlas_height > MAX_ATLAS)
         || (paged && h.atlas_height as u64 != h.atlas_width as u64 * h.pages as u64)
         || h.atlas_width as u64 * h.atlas_height as u64 > u32::MAX as u64
-        || (paged && !(h.page_texel_size.is_finite() && h.page_texel_size > 0.0))
+        || !(h.page_texel_size.is_finite() && h.page_texel_size >= 0.0)
+        || (paged && h.page_texel_size == 0.0)
     {
         return Err(format!(
             "implausible atlas {}x{} in {} page(s) / tile size {}",

@@ -490,8 +490,8 @@ pub struct Header {
     /// Lightmap pages (v9): 1, or the pages of generated UVs stacked down the atlas, which is
     /// then `pages` pages of `atlas_width`^2 (see [`crate::density::Atlas`]).
     pub pages: u32,
-    /// With several pages, the texel size in metres the generated UVs were packed at (how the
-    /// level is loaded again to match the map); 0 with one page.
+    /// With generated UVs packed in pages (always with several), the texel size in metres they
+    /// were packed at (how the level is loaded again to match the map); else 0.
     #[serde(default)]
     pub page_texel_size: f32,
 }
@@ -1161,6 +1161,7 @@ mod tests {
                 p.header.pages = 2;
                 p.header.page_texel_size = 0.1;
             }),
+            ("implausible atlas", |p| p.header.page_texel_size = -0.1),
             ("implausible atlas", |p| {
                 p.header.pages = 2;
                 p.header.atlas_width = 2;
