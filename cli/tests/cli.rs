@@ -896,6 +896,79 @@ fn report_writes_figures_and_plots() {
 }
 
 #[test]
+fn report_scale_section_measures_each_size_as_a_user_would() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    // No level: only the scale section. --smoke: one and two halls at 1 m texels in 64^2 pages.
+    let (ok, _, err) = prm(&["report", "--scale", "--smoke", "-o", s(&out)]);
+    assert!(ok, "{err}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.starts_with("# Accuracy and cost against the level's size"), "{md}");
+    assert!(!md.contains("## PRM: precompute budget"), "a level's part without a level:\n{md}");
+    let cost = table(&md, "| halls | triangles");
+    let accuracy = table(&md, "| halls | GT noise");
+    let per_hall = table(&md, "| halls | precompute");
+    assert_eq!([cost.len(), accuracy.len(), per_hall.len()], [2, 2, 2], "{md}");
+    assert_eq!([&cost[0][0], &cost[1][0]], ["1", "2"]);
+    // One hall fits one page; two halls' charts need several pages (the density estimated
+    // one: they get pages at the texel size asked for), and their map loads the level again
+    // with the same UVs for the ground truth and the runtime.
+    assert!(cost[0][3].ends_with("(1 x 64²)"), "{:?}", cost[0]);
+    assert!(!cost[1][3].contains("(1 x"), "{:?}", cost[1]);
+    let args = ["--seed", "0", "--texel-size", "1", "--page-size", "64", "--entries", "256", "--paths", "8"];
+    assert!(md.contains(&args[..].join(" ")), "the report states the precompute arguments:\n{md}");
+    for (row, name) in cost.iter().zip(["halls_1x1", "halls_2x1"]) {
+        // The map is kept; its size is the table's.
+        let kept = out.join("scale").join(format!("{name}.prm"));
+        let bytes = std::fs::read(&kept).unwrap();
+        assert_eq!(row[8], format!("{:.1} MB", bytes.len() as f64 / 1e6), "{row:?}");
+        // A user's `prm precompute` with the stated arguments makes the same bytes.
+        let glb = out.join("scale").join(format!("{name}.glb"));
+        let again = dir.path().join(format!("{name}.prm"));
+        let mut cmd = vec!["precompute", s(&glb), "-o", s(&again), "--clusters", "16"];
+        cmd.extend(args);
+        let (ok, _, err) = prm(&cmd);
+        assert!(ok, "{err}");
+        assert!(std::fs::read(&again).unwrap() == bytes, "{name}: the report's map is not a user's");
+        // The precompute holds the whole map before it writes it: its peak is above the size.
+        let peak: f64 = row[7].trim_end_matches(" MB").parse().unwrap();
+        assert!(peak * 1e6 >= bytes.len() as f64, "{row:?}");
+    }
+    // The ground truth's noise is `prm ground-truth`'s on the same level, texels and seed.
+    let glb = out.join("scale").join("halls_2x1.glb");
+    let gt = dir.path().join("gt.exr");
+    let (ok, gt_json, err) = prm(&[
+        "ground-truth",
+        s(&glb),
+        "--texel-size",
+        "1",
+        "--page-size",
+        "64",
+        "--spp",
+        "8",
+        "--seed",
+        "0",
+        "--json",
+        "-o",
+        s(&gt),
+    ]);
+    assert!(ok, "{err}");
+    let noise = serde_json::from_str::<serde_json::Value>(&gt_json).unwrap()["indirect_noise_normalised"]
+        .as_f64()
+        .unwrap();
+    assert_eq!(accuracy[1][1], format!("{:.2} %", noise * 100.0), "{:?}", accuracy[1]);
+    for r in &accuracy {
+        assert!(r[1..4].iter().all(|c| (0.0..100.0).contains(&percent(c))), "{r:?}");
+        assert!(percent(&r[4]) > -100.0, "{r:?}");
+    }
+    // Per hall over the first level's: the first row is the unit.
+    assert!(per_hall[0][1..5].iter().all(|c| c == "1.00"), "{:?}", per_hall[0]);
+    if md.contains("scale.png") {
+        assert!(std::fs::metadata(out.join("scale.png")).unwrap().len() > 10_000, "scale.png is empty");
+    }
+}
+
+#[test]
 fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backends() {
     // One of the generated halls (no TEXCOORD_1) at 0.3 m texels needs about 100^2 texels: in
     // pages of 64^2, several pages.

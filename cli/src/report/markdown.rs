@@ -6,20 +6,36 @@ use std::fmt::Write as _;
 use prm::Scene;
 
 use super::rig::{flicker, Frame};
+use super::scale::{ScaleBudget, ScaleRow};
 use super::sweeps::{Point, RuntimeSweep};
 use super::{Args, Budget, Figures};
 
-/// The whole report; `plots` says whether the PNGs were written (and are linked), `total` is
-/// the report's run time in seconds.
-pub fn markdown(a: &Args, b: &Budget, scene: &Scene, f: &Figures, plots: bool, total: f64) -> String {
+/// The whole report: the given level's parts and the scale section, each where it was
+/// measured; `plots` says whether the PNGs were written (and are linked), `total` is the
+/// report's run time in seconds.
+pub fn markdown(
+    a: &Args,
+    b: &Budget,
+    level: Option<(&Scene, &Figures)>,
+    scale: Option<&[ScaleRow]>,
+    device: &str,
+    plots: bool,
+    total: f64,
+) -> String {
     let mut s = String::new();
-    header(&mut s, a, b, scene, f, total);
-    remake(&mut s, a, b);
-    precompute_section(&mut s, &f.prm, plots);
-    runtime_section(&mut s, b, f.prod, &f.runtime, plots);
-    reference_section(&mut s, &f.reference);
-    rig_section(&mut s, a, b, &f.frames, plots);
-    placement_section(&mut s, b, f, plots);
+    header(&mut s, a, device, total);
+    if let Some((scene, f)) = level {
+        level_facts(&mut s, b, scene, f);
+        remake(&mut s, a, b);
+        precompute_section(&mut s, &f.prm, plots);
+        runtime_section(&mut s, b, f.prod, &f.runtime, plots);
+        reference_section(&mut s, &f.reference);
+        rig_section(&mut s, a, b, &f.frames, plots);
+        placement_section(&mut s, b, f, plots);
+    }
+    if let Some(rows) = scale {
+        scale_section(&mut s, a, rows, plots);
+    }
     s
 }
 
@@ -39,23 +55,34 @@ fn machine() -> String {
     format!("{cpu}, {} threads used", rayon::current_num_threads())
 }
 
-/// Title, command, machine, device, level, seeds and what the error is.
-fn header(s: &mut String, a: &Args, b: &Budget, scene: &Scene, f: &Figures, total: f64) {
-    let _ = writeln!(s, "# Accuracy and cost: {}\n", a.scene.scene.display());
+/// Title, command, machine, device and seeds.
+fn header(s: &mut String, a: &Args, device: &str, total: f64) {
+    match &a.scene {
+        Some(p) => {
+            let _ = writeln!(s, "# Accuracy and cost: {}\n", p.display());
+        }
+        None => {
+            let _ = writeln!(s, "# Accuracy and cost against the level's size\n");
+        }
+    }
     let _ = writeln!(s, "Made by `{}` in {:.0} s.\n", std::env::args().collect::<Vec<_>>().join(" "), total);
     let _ = writeln!(s, "- Machine: {}", machine());
-    let _ = writeln!(s, "- GPU device: {}", f.device);
+    let _ = writeln!(s, "- GPU device: {device}");
+    let _ = writeln!(
+        s,
+        "- Seeds: {} for every stage, every rig frame's ground truth included (common random numbers)",
+        a.seed
+    );
+}
+
+/// The level, its atlas and what the error is.
+fn level_facts(s: &mut String, b: &Budget, scene: &Scene, f: &Figures) {
     let _ = writeln!(
         s,
         "- Level: {} triangles, {} lights; atlas {}²",
         scene.triangles.len(),
         scene.lights.len(),
         b.atlas
-    );
-    let _ = writeln!(
-        s,
-        "- Seeds: {} for every stage, every rig frame's ground truth included (common random numbers)",
-        a.seed
     );
     let _ = writeln!(
         s,
@@ -250,5 +277,117 @@ fn placement_section(s: &mut String, b: &Budget, f: &Figures, plots: bool) {
             pct(clean(p.frame.errors[0])),
             pct(clean(p.frame.errors[2]))
         );
+    }
+}
+
+/// The halls at each size: what they cost, how right they are, and each figure per hall
+/// against the one-hall level's.
+fn scale_section(s: &mut String, a: &Args, rows: &[ScaleRow], plots: bool) {
+    let b = ScaleBudget::new(a.quick, a.smoke);
+    let _ =
+        writeln!(s, "\n## Scale: the halls at {} halls\n", join(rows.iter().map(|r| r.rooms().to_string())));
+    if plots {
+        let _ = writeln!(s, "![cost and error against the number of halls](scale.png)\n");
+    }
+    let extra = if b.precompute_args.is_empty() {
+        String::new()
+    } else {
+        format!(" {}", b.precompute_args.join(" "))
+    };
+    let _ = writeln!(
+        s,
+        "Each level is `prm_precompute::scenes::halls(NX, NZ, {}, {})` (the bundled `halls.glb` is 4 x 4), \
+        written to `scale/halls_NXxNZ.glb` without lightmap UVs, and precomputed in its own process as a user \
+        runs it: `prm precompute scale/halls_NXxNZ.glb --seed {}{extra} -o scale/halls_NXxNZ.prm` (the maps \
+        are kept). Peak memory is that process's high-water mark. GPU memory is what the runtime allocates for \
+        the map (`prm info --prm`). Errors against `prm ground-truth` at {} spp with its noise removed in \
+        quadrature; top-32 is the default runtime selection (picked locally, groups for the rest), on the \
+        device above. Frames: the level's camera at {} px wide, median of {}; the full frame recomposes every \
+        time. Targets (issue 13): top-32 within 10 %; `.prm` at most the number of halls times one hall's; \
+        precompute peak memory at most 2 GB and at most 2 x the `.prm`; time, memory and size per hall within \
+        20 % of one hall's; frame ratio at most 1.10.\n",
+        b.pillars.0, b.pillars.1, a.seed, b.gt_spp, b.frame_width, b.frame_reps
+    );
+    let mb = |x: u64| format!("{:.1} MB", x as f64 / 1e6);
+    let _ = writeln!(
+        s,
+        "| halls | triangles | lights | texels (pages) | entries | clusters | precompute | peak memory | .prm | GPU \
+        memory |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} ({} x {}²) | {} | {} | {:.1} s | {} | {} | {} |",
+            r.rooms(),
+            r.triangles,
+            r.lights,
+            r.texels,
+            r.pages,
+            r.page_size,
+            r.entries,
+            r.clusters,
+            r.precompute_s,
+            r.peak_bytes.map_or("unknown".into(), mb),
+            mb(r.file_bytes),
+            mb(r.gpu_bytes),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n| halls | GT noise | top-32 | all panes | top-32 bias | ground truth | direct frame | full frame | \
+        ratio |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
+    for r in rows {
+        let frame = match r.frame_ms {
+            Some((d, f)) => format!("{d:.2} ms | {f:.2} ms | {:.2}", f / d.max(1e-9)),
+            None => "no GPU | no GPU | -".to_string(),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:+.2} % | {:.1} s | {frame} |",
+            r.rooms(),
+            pct(r.gt_noise),
+            pct(r.clean(r.top.0)),
+            pct(r.clean(r.all.0)),
+            r.top.1 * 100.0,
+            r.gt_s
+        );
+    }
+    let Some(first) = rows.first() else { return };
+    let _ = writeln!(
+        s,
+        "\nPer hall, over the {}-hall level's (linear growth is 1.00):\n\n| halls | precompute | peak memory | .prm | \
+        GPU memory | peak memory / .prm |\n| --- | --- | --- | --- | --- | --- |",
+        first.rooms()
+    );
+    for r in rows {
+        let per = |x: f64, x0: f64| {
+            let v = (x / r.rooms() as f64) / (x0 / first.rooms() as f64);
+            if v.is_finite() {
+                format!("{v:.2}")
+            } else {
+                "-".into()
+            }
+        };
+        let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {:.2} |",
+            r.rooms(),
+            per(r.precompute_s, first.precompute_s),
+            per(peak(r), peak(first)),
+            per(r.file_bytes as f64, first.file_bytes as f64),
+            per(r.gpu_bytes as f64, first.gpu_bytes as f64),
+            peak(r) / r.file_bytes as f64
+        );
+    }
+}
+
+fn join(items: impl Iterator<Item = String>) -> String {
+    let v: Vec<String> = items.collect();
+    match v.len() {
+        0 => String::new(),
+        1 => v[0].clone(),
+        n => format!("{} and {}", v[..n - 1].join(", "), v[n - 1]),
     }
 }

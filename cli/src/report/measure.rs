@@ -28,6 +28,18 @@ impl Level {
         }
         Ok(Level { scene, bvh, set })
     }
+
+    /// The level with the texels of `map`'s atlas (one page or several), as `prm evaluate`
+    /// measures it.
+    pub fn for_map(scene: Scene, map: &Prm) -> Result<Level> {
+        let bvh = Bvh::build(&scene);
+        let h = map.header();
+        let set = TexelSet::build_visible(&scene, &bvh, h.atlas_width, h.atlas_height);
+        if set.is_empty() {
+            bail!("the level has no lightmap texels in its map's atlas");
+        }
+        Ok(Level { scene, bvh, set })
+    }
 }
 
 /// Ground-truth indirect irradiance per covered texel, and its noise in the metric's units.

@@ -23,6 +23,7 @@ mod measure;
 mod placement;
 mod plots;
 mod rig;
+mod scale;
 mod sweeps;
 
 use std::path::PathBuf;
@@ -35,12 +36,26 @@ use prm_runtime::Gpu;
 use crate::common::{load, SceneArgs};
 use measure::{ground_truth, Level};
 use rig::{default_rig, rig_frames, Frame};
+use scale::ScaleBudget;
 use sweeps::{precompute_sweep, reference_sweep, runtime_sweep, Point, RuntimeSweep};
 
 #[derive(clap::Args)]
 pub struct Args {
-    #[command(flatten)]
-    scene: SceneArgs,
+    /// The level: glTF 2.0, .gltf or .glb (optional with --scale, which then reports only the
+    /// scale section).
+    #[arg(required_unless_present = "scale")]
+    scene: Option<PathBuf>,
+    /// Fail when a primitive has no TEXCOORD_1 instead of generating lightmap UVs.
+    #[arg(long)]
+    require_uv1: bool,
+    /// Accept overlapping lightmap UVs (surfaces then share texels, and lighting).
+    #[arg(long)]
+    allow_overlap: bool,
+    /// Add the scale section: the bundled large level's halls at 1, 4 and 16 halls, each
+    /// precomputed with the default preset (its own process), with precompute time, peak
+    /// memory, file size, GPU memory, error and frame times against the level's size.
+    #[arg(long)]
+    scale: bool,
     /// Light rig for the moving-light part (default: the level's first light moving across
     /// the middle 40 % of the level's width).
     #[arg(long)]
@@ -130,8 +145,6 @@ impl Budget {
 
 /// Every figure of the report.
 struct Figures {
-    /// The GPU adapter the runtime figures come from, or why there is none.
-    device: String,
     gt_seconds: f64,
     gt_noise: f64,
     /// The production precompute budget (entries, paths, clusters).
@@ -151,37 +164,68 @@ pub fn run(a: Args) -> Result<()> {
     let b = Budget::new(a.quick, a.smoke);
     let start = Instant::now();
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
-    let scene = load(&a.scene, b.atlas, true)?;
-    let rig = match &a.rig {
-        Some(p) => Rig::load(p, &scene.lights)?,
-        None => default_rig(&scene)?,
-    };
-    let level = Level::new(scene, b.atlas)?;
     let gpu = Gpu::new().ok();
-    let torches = a.torches.clone().or_else(|| placement::torch_rig_beside(&a.scene.scene));
-    let torch_rig = match &torches {
-        Some(p) => Some(Rig::load(p, &level.scene.lights)?),
+    let level = match &a.scene {
+        Some(path) => Some(level_parts(&a, &b, path, gpu.as_ref())?),
         None => None,
     };
-    let mut figures = measure(&b, &level, &rig, gpu.as_ref(), a.seed)?;
-    if let (Some(path), Some(r)) = (&torches, &torch_rig) {
-        figures.placements = placement::placements(&b, &level, r, &figures.map, gpu.as_ref(), a.seed)?;
-        figures.torches = Some(path.clone());
-    }
-    let plots = plots::write_plots(&a.output, &figures, gpu.is_some())?;
-    let md = markdown::markdown(&a, &b, &level.scene, &figures, plots, start.elapsed().as_secs_f64());
+    let scale = match a.scale {
+        true => Some(scale::scale_rows(
+            &ScaleBudget::new(a.quick, a.smoke),
+            &a.output.join("scale"),
+            gpu.as_ref(),
+            a.seed,
+        )?),
+        false => None,
+    };
+    let plots = plots::write_plots(&a.output, level.as_ref().map(|l| &l.1), scale.as_deref(), gpu.is_some())?;
+    let md = markdown::markdown(
+        &a,
+        &b,
+        level.as_ref().map(|(l, f)| (&l.scene, f)),
+        scale.as_deref(),
+        &device(gpu.as_ref()),
+        plots,
+        start.elapsed().as_secs_f64(),
+    );
     prm::fsutil::write_bytes_atomic(&a.output.join("report.md"), md.as_bytes())
         .with_context(|| "writing report.md")?;
     println!("report -> {} ({:.0} s)", a.output.join("report.md").display(), start.elapsed().as_secs_f64());
     Ok(())
 }
 
+/// The GPU adapter the runtime figures come from, or why there is none.
+fn device(gpu: Option<&Gpu>) -> String {
+    gpu.map_or("none found: runtime figures from the CPU twin (ray-traced visibility)".to_string(), |g| {
+        g.describe()
+    })
+}
+
+/// Every part about the given level: the sweeps, the rig and the light placements.
+fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) -> Result<(Level, Figures)> {
+    let args =
+        SceneArgs { scene: path.to_path_buf(), require_uv1: a.require_uv1, allow_overlap: a.allow_overlap };
+    let scene = load(&args, b.atlas, true)?;
+    let rig = match &a.rig {
+        Some(p) => Rig::load(p, &scene.lights)?,
+        None => default_rig(&scene)?,
+    };
+    let level = Level::new(scene, b.atlas)?;
+    let torches = a.torches.clone().or_else(|| placement::torch_rig_beside(path));
+    let torch_rig = match &torches {
+        Some(p) => Some(Rig::load(p, &level.scene.lights)?),
+        None => None,
+    };
+    let mut figures = measure(b, &level, &rig, gpu, a.seed)?;
+    if let (Some(path), Some(r)) = (&torches, &torch_rig) {
+        figures.placements = placement::placements(b, &level, r, &figures.map, gpu, a.seed)?;
+        figures.torches = Some(path.clone());
+    }
+    Ok((level, figures))
+}
+
 /// The ground truth, the three sweeps and the rig, in that order.
 fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -> Result<Figures> {
-    let device = gpu
-        .map_or("none found: runtime figures from the CPU twin (ray-traced visibility)".to_string(), |g| {
-            g.describe()
-        });
     eprintln!("ground truth ({} spp)...", b.gt_spp);
     let t = Instant::now();
     let (gt, gt_noise) = ground_truth(level, &level.scene.lights, b.gt_spp, seed)?;
@@ -192,7 +236,6 @@ fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -
     let reference = reference_sweep(b, level, &gt, seed)?;
     let frames = rig_frames(b, level, rig, &map, gpu, seed)?;
     Ok(Figures {
-        device,
         gt_seconds,
         gt_noise,
         prod: b.prm[b.production],

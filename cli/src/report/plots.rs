@@ -10,23 +10,35 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::rig::{flicker, Frame};
+use super::scale::ScaleRow;
 use super::sweeps::{Point, RuntimeSweep};
 use super::Figures;
 
-/// Writes precompute.png, runtime.png and rig.png into `output`; false (and a note) when no font
-/// is found, so no plots are made.
-pub fn write_plots(output: &Path, f: &Figures, gpu: bool) -> Result<bool> {
+/// Writes precompute.png, runtime.png, rig.png and placement.png for the level's parts, and
+/// scale.png for the scale section, into `output`; false (and a note) when no font is found, so
+/// no plots are made.
+pub fn write_plots(
+    output: &Path,
+    f: Option<&Figures>,
+    scale: Option<&[ScaleRow]>,
+    gpu: bool,
+) -> Result<bool> {
     if !register_font() {
         eprintln!(
             "note: no TrueType font found (install fonts-dejavu-core); report.md written without plots"
         );
         return Ok(false);
     }
-    plot_precompute(&output.join("precompute.png"), &f.prm, &f.reference)?;
-    plot_runtime(&output.join("runtime.png"), &f.runtime, gpu)?;
-    plot_rig(&output.join("rig.png"), &f.frames)?;
-    if !f.placements.is_empty() {
-        plot_placement(&output.join("placement.png"), &f.placements)?;
+    if let Some(f) = f {
+        plot_precompute(&output.join("precompute.png"), &f.prm, &f.reference)?;
+        plot_runtime(&output.join("runtime.png"), &f.runtime, gpu)?;
+        plot_rig(&output.join("rig.png"), &f.frames)?;
+        if !f.placements.is_empty() {
+            plot_placement(&output.join("placement.png"), &f.placements)?;
+        }
+    }
+    if let Some(rows) = scale.filter(|r| !r.is_empty()) {
+        plot_scale(&output.join("scale.png"), rows)?;
     }
     Ok(true)
 }
@@ -353,6 +365,87 @@ fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Re
                     .map(|p| Circle::new((d(p), clean(p, m)), 4, c.filled())),
             )
             .map_err(plot_err)?;
+    }
+    legend(&mut chart)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// Left: precompute time, peak memory, `.prm` size and GPU memory per hall over the first
+/// level's (linear growth is a flat line at 1). Right: the errors, noise removed.
+fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
+    let root = BitMapBackend::new(path, (1100, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let (left, right) = root.split_horizontally(550);
+    let first = &rows[0];
+    let rooms = |r: &ScaleRow| r.rooms() as f64;
+    let x_hi = rows.iter().map(rooms).fold(1.0, f64::max) * 1.3;
+    let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
+    let series: [(&str, RGBColor, Box<dyn Fn(&ScaleRow) -> f64>); 4] = [
+        ("precompute time", PRM_COLOUR, Box::new(|r| r.precompute_s)),
+        ("peak memory", ALL_COLOUR, Box::new(peak)),
+        (".prm size", REF_COLOUR, Box::new(|r| r.file_bytes as f64)),
+        ("GPU memory", BLACK, Box::new(|r| r.gpu_bytes as f64)),
+    ];
+    let per = |r: &ScaleRow, f: &dyn Fn(&ScaleRow) -> f64| (f(r) / rooms(r)) / (f(first) / rooms(first));
+    let y_hi = series
+        .iter()
+        .flat_map(|(_, _, f)| rows.iter().map(move |r| per(r, f.as_ref())))
+        .filter(|v| v.is_finite())
+        .fold(1.5, f64::max)
+        * 1.15;
+    let mut chart = ChartBuilder::on(&left)
+        .caption("Cost per hall, over one level's", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((0.8..x_hi).log_scale(), 0.0..y_hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("halls (log)")
+        .y_desc("per hall / first level's per hall")
+        .draw()
+        .map_err(plot_err)?;
+    for (name, c, f) in &series {
+        let c = *c;
+        let points: Vec<(f64, f64)> =
+            rows.iter().map(|r| (rooms(r), per(r, f.as_ref()))).filter(|p| p.1.is_finite()).collect();
+        chart
+            .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(*name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, c.filled()))).map_err(plot_err)?;
+    }
+    legend(&mut chart)?;
+    let e_hi =
+        rows.iter().flat_map(|r| [r.clean(r.top.0), r.clean(r.all.0)]).fold(0.0, f64::max) * 115.0 + 0.5;
+    let mut chart = ChartBuilder::on(&right)
+        .caption("Error against the number of halls", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((0.8..x_hi).log_scale(), 0.0..e_hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("halls (log)")
+        .y_desc("error, ground-truth noise removed (%)")
+        .draw()
+        .map_err(plot_err)?;
+    let errors: [(&str, RGBColor, fn(&ScaleRow) -> f64); 2] = [
+        ("PRM top-32 + groups", PRM_COLOUR, |r| r.clean(r.top.0)),
+        ("PRM all panes", ALL_COLOUR, |r| r.clean(r.all.0)),
+    ];
+    for (name, c, f) in errors {
+        let points: Vec<(f64, f64)> = rows.iter().map(|r| (rooms(r), f(r) * 100.0)).collect();
+        chart
+            .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, c.filled()))).map_err(plot_err)?;
     }
     legend(&mut chart)?;
     root.present().map_err(plot_err)?;

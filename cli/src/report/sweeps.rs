@@ -155,17 +155,8 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
         map,
         RuntimeParams { top_k: 32, shadow_size: 1024, residual: true, ..Default::default() },
     )?;
-    let cam = camera(scene, None)?;
-    let (w, h) = cam.image_size(b.frame_width);
-    let renderer = Renderer::new(&g.device, &g.queue, scene, &rt, &cam, w, h)?;
-    let mut direct = Vec::new();
-    for _ in 0..b.frame_reps {
-        let t = Instant::now();
-        rt.update_direct(&scene.lights)?;
-        renderer.draw(&rt, false, None);
-        renderer.wait();
-        direct.push(t.elapsed().as_secs_f64() * 1e3);
-    }
+    let renderer = frame_renderer(g, level, &rt, b.frame_width)?;
+    let direct = direct_frames(level, &mut rt, &renderer, b.frame_reps)?;
     let (mut tile, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
     for &k in &b.top_k {
         for (budget, residual, out) in [
@@ -191,4 +182,49 @@ fn gpu_runtime_sweep(b: &Budget, level: &Level, map: &Prm, gt: &[Vec3], g: &Gpu)
         }
     }
     Ok(RuntimeSweep { tile, with, without, direct_ms: median(direct) })
+}
+
+/// A renderer of the level's first camera (or a framing one) at `width`.
+fn frame_renderer(g: &Gpu, level: &Level, rt: &Runtime, width: u32) -> Result<Renderer> {
+    let cam = camera(&level.scene, None)?;
+    let (w, h) = cam.image_size(width);
+    Ok(Renderer::new(&g.device, &g.queue, &level.scene, rt, &cam, w, h)?)
+}
+
+/// Wall-clock times (ms) of `reps` direct-only frames: shadow maps and direct light, no compose.
+fn direct_frames(level: &Level, rt: &mut Runtime, renderer: &Renderer, reps: usize) -> Result<Vec<f64>> {
+    let mut direct = Vec::new();
+    for _ in 0..reps {
+        let t = Instant::now();
+        rt.update_direct(&level.scene.lights)?;
+        renderer.draw(rt, false, None);
+        renderer.wait();
+        direct.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(direct)
+}
+
+/// Median wall-clock times (ms) of a direct-only frame and of a full frame that recomposes
+/// the top `k` (forced each time: the level's lights do not move), `reps` of each.
+pub fn frame_ms(
+    g: &Gpu,
+    level: &Level,
+    rt: &mut Runtime,
+    k: usize,
+    width: u32,
+    reps: usize,
+) -> Result<(f64, f64)> {
+    let renderer = frame_renderer(g, level, rt, width)?;
+    let direct = direct_frames(level, rt, &renderer, reps)?;
+    let mut full = Vec::new();
+    for _ in 0..reps {
+        // Setting K marks the lightmap stale, so the update recomposes.
+        rt.set_top_k(k)?;
+        let t = Instant::now();
+        rt.update(&level.scene.lights)?;
+        renderer.draw(rt, true, None);
+        renderer.wait();
+        full.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok((median(direct), median(full)))
 }
