@@ -379,7 +379,17 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
     let (left, right) = root.split_horizontally(550);
     let first = &rows[0];
     let rooms = |r: &ScaleRow| r.rooms() as f64;
-    let x_hi = rows.iter().map(rooms).fold(1.0, f64::max) * 1.3;
+    // One column per level size, labelled with its number of halls.
+    let at: Vec<f64> = (0..rows.len()).map(|k| k as f64).collect();
+    let x_range = -0.3..rows.len() as f64 - 0.7;
+    let halls: Vec<String> = rows.iter().map(|r| r.rooms().to_string()).collect();
+    let label = |x: &f64| {
+        let k = x.round();
+        match (k - x).abs() < 1e-6 && k >= 0.0 {
+            true => halls.get(k as usize).cloned().unwrap_or_default(),
+            false => String::new(),
+        }
+    };
     let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
     let series: [(&str, RGBColor, Box<dyn Fn(&ScaleRow) -> f64>); 4] = [
         ("precompute time", PRM_COLOUR, Box::new(|r| r.precompute_s)),
@@ -399,18 +409,20 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d((0.8..x_hi).log_scale(), 0.0..y_hi)
+        .build_cartesian_2d(x_range.clone(), 0.0..y_hi)
         .map_err(plot_err)?;
     chart
         .configure_mesh()
-        .x_desc("halls (log)")
+        .x_labels(rows.len())
+        .x_label_formatter(&label)
+        .x_desc("halls")
         .y_desc("per hall / first level's per hall")
         .draw()
         .map_err(plot_err)?;
     for (name, c, f) in &series {
         let c = *c;
         let points: Vec<(f64, f64)> =
-            rows.iter().map(|r| (rooms(r), per(r, f.as_ref()))).filter(|p| p.1.is_finite()).collect();
+            at.iter().zip(rows).map(|(&x, r)| (x, per(r, f.as_ref()))).filter(|p| p.1.is_finite()).collect();
         chart
             .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
             .map_err(plot_err)?
@@ -426,11 +438,13 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d((0.8..x_hi).log_scale(), 0.0..e_hi)
+        .build_cartesian_2d(x_range, 0.0..e_hi)
         .map_err(plot_err)?;
     chart
         .configure_mesh()
-        .x_desc("halls (log)")
+        .x_labels(rows.len())
+        .x_label_formatter(&label)
+        .x_desc("halls")
         .y_desc("error, ground-truth noise removed (%)")
         .draw()
         .map_err(plot_err)?;
@@ -439,7 +453,7 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         ("PRM all panes", ALL_COLOUR, |r| r.clean(r.all.0)),
     ];
     for (name, c, f) in errors {
-        let points: Vec<(f64, f64)> = rows.iter().map(|r| (rooms(r), f(r) * 100.0)).collect();
+        let points: Vec<(f64, f64)> = at.iter().zip(rows).map(|(&x, r)| (x, f(r) * 100.0)).collect();
         chart
             .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
             .map_err(plot_err)?
