@@ -75,22 +75,27 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     }
 }
 
-// prm::prm_file::Far::sees: bit a (2n - a - 1) / 2 + b - a - 1 for a < b, kept within u32.
-fn sees(i: u32, j: u32) -> f32 {
+// far_visible holds prm::prm_file::Far's blocks of 32 entries: B + 1 offsets (each block's first
+// pair, then the pair count P), P other blocks (ascending within a block), then 32 words per
+// pair (bit c of word r: entry 32 a + r sees entry 32 b + c).
+fn blocks() -> u32 {
+    return (params.entry_count + 31u) / 32u;
+}
+
+// Whether entry i (in block bi, whose run of pairs has reached `at`) sees entry j: `at` is the
+// first pair of the run naming a block >= j's, so over ascending j each run is walked once.
+fn sees_at(i: u32, j: u32, at: u32) -> f32 {
     if i == j {
         return 1.0;
     }
-    let a = min(i, j);
-    let b = max(i, j);
-    let m = 2u * params.entry_count - a - 1u;
-    var row = 0u;
-    if (a & 1u) == 0u {
-        row = (a / 2u) * m;
-    } else {
-        row = a * (m / 2u);
+    let b = blocks();
+    let pairs = far_visible[b];
+    let end = far_visible[i / 32u + 1u];
+    if at >= end || far_visible[b + 1u + at] != j / 32u {
+        return 0.0;
     }
-    let k = row + b - a - 1u;
-    return f32((far_visible[k / 32u] >> (k % 32u)) & 1u);
+    let w = far_visible[b + 1u + pairs + at * 32u + i % 32u];
+    return f32((w >> (j % 32u)) & 1u);
 }
 
 @compute @workgroup_size(WG_LINEAR)
@@ -105,14 +110,24 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
     // their own surface hides: prm_runtime::cpu's far-field vote).
     var at: array<vec3f, 4>;
     var facing: array<vec3f, 4>;
+    // Each neighbour's place in its block's run of pairs (the sources ascend).
+    var run: array<u32, 4>;
+    let b = blocks();
     for (var q = 0u; q < 4u; q++) {
         let m = far_entries[t.entries[q]];
         at[q] = m.centroid;
         facing[q] = m.normal;
+        run[q] = far_visible[t.entries[q] / 32u];
     }
     var sum = vec3f(0.0);
     for (var s = 0u; s < count; s++) {
         let j = source_index[s];
+        for (var q = 0u; q < 4u; q++) {
+            let end = far_visible[t.entries[q] / 32u + 1u];
+            while run[q] < end && far_visible[b + 1u + run[q]] < j / 32u {
+                run[q] += 1u;
+            }
+        }
         let e = far_entries[j];
         let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
         let d = e.centroid - t.position;
@@ -126,7 +141,7 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
         var total = 0.0;
         var every = 0.0;
         for (var q = 0u; q < 4u; q++) {
-            let vote = t.weights[q] * sees(t.entries[q], j);
+            let vote = t.weights[q] * sees_at(t.entries[q], j, run[q]);
             every += vote;
             if dot(facing[q], e.centroid - at[q]) > 0.0 {
                 seen += vote;

@@ -76,6 +76,11 @@ pub struct Args {
     /// the near links to the whole level; on by default).
     #[arg(long)]
     no_far_field: bool,
+    /// Entries farther apart than this, in entry spacings, exchange no far-field light (its
+    /// visibility then grows with the level, not its square; default 48, about 26 m at the
+    /// production density).
+    #[arg(long)]
+    far_radius: Option<f32>,
     /// Reach of the geometry-guided pane smoothing in entry spacings (0: none; default 1)
     #[arg(long)]
     smooth: Option<f32>,
@@ -108,6 +113,7 @@ pub fn run(a: Args) -> Result<()> {
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
     p.far_field &= !a.no_far_field;
+    p.far_radius = a.far_radius.unwrap_or(p.far_radius);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);
     if let Some(e) = a.estimator {

@@ -39,10 +39,11 @@ pub const NEIGHBOURS: usize = 4;
 /// An entry lends its visibility only to texels whose normal is within 60 degrees of its own.
 const MIN_NORMAL_DOT: f32 = 0.5;
 
-/// The far field for these entries: visibility bits between every pair that could exchange
-/// light, each covered texel's neighbours, and each entry's energy (`far_energy`). `reach` is
-/// in scene units; `cell` is each entry's cell centroid and area. Entries beyond
-/// [`Far::MAX_ENTRIES`] get no far field (empty).
+/// The far field for these entries: visibility bits between the pairs within `radius` of each
+/// other that could exchange light, each covered texel's neighbours, and each entry's energy
+/// (`far_energy`, counting only what lands within `radius`). `reach` and `radius` are in scene
+/// units; `cell` is each entry's cell centroid and area.
+#[allow(clippy::too_many_arguments)]
 pub fn far_field(
     scene: &Scene,
     bvh: &Bvh,
@@ -50,15 +51,17 @@ pub fn far_field(
     entries: &[Entry],
     cell: &[(Vec3, f32)],
     reach: f32,
+    radius: f32,
     seed: u64,
 ) -> Far {
     let n = entries.len();
-    if n == 0 || n > Far::MAX_ENTRIES || !(reach >= 0.0) {
+    if n == 0 || !(reach >= 0.0) || !(radius > 0.0) {
         return Far::default();
     }
     let texels = texel_neighbours(set, entries);
-    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, seed);
-    Far { reach, visible: pair_visibility(bvh, entries), texels, energy }
+    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed);
+    let (block_first, pair_block, visible) = pair_visibility(bvh, entries, radius);
+    Far { reach, radius, block_first, pair_block, visible, texels, energy }
 }
 
 /// Rays per entry of [`far_energy`]. The estimate only sets how much of a cluster's light the
@@ -84,6 +87,7 @@ fn far_energy(
     entries: &[Entry],
     cell: &[(Vec3, f32)],
     reach: f32,
+    radius: f32,
     seed: u64,
 ) -> Vec<f32> {
     // Texels per m² of each UV chart: the texels the far field lights (`lit`) that its
@@ -123,6 +127,9 @@ fn far_energy(
                     continue;
                 }
                 let y = scene.point(t, hit.bary());
+                if y.distance(e.position) > radius {
+                    continue;
+                }
                 sum += far_share(y.distance(centroid), reach, area.sqrt()) as f64 * density[t];
             }
             (luminance(e.albedo) as f64 * e.area as f64 * sum / ENERGY_RAYS as f64) as f32
@@ -130,40 +137,104 @@ fn far_energy(
         .collect()
 }
 
-/// One bit per pair i < j ([`Far::pair_bit`]): set when the two points see each other and at
-/// least one faces the other with the other not turned more than 60 degrees away (a texel near
-/// either may face the other even where its entry only grazes it).
-fn pair_visibility(bvh: &Bvh, entries: &[Entry]) -> Vec<u32> {
+/// The entries' visibility by blocks of [`Far::BLOCK`] ([`Far`]): `(block_first, pair_block,
+/// visible)`. Entries i and j get their bit when they are within `radius` of each other, see
+/// each other, and at least one faces the other with the other not turned more than 60 degrees
+/// away (a texel near either may face the other even where its entry only grazes it). A pair of
+/// blocks is kept when any of its bits is set. Each pair of entries is traced once (from the
+/// lower block, or the lower entry within a block) and its bit set both ways.
+fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+    const B: usize = Far::BLOCK;
     let n = entries.len();
-    // Each row's bits on their own, then laid end to end: the same words at any thread count.
-    let rows: Vec<Vec<u64>> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let (p, np) = (entries[i].position, entries[i].normal);
-            let mut bits = vec![0u64; (n - i - 1).div_ceil(64)];
-            for (k, e) in entries[i + 1..].iter().enumerate() {
-                let (q, nq) = (e.position, e.normal);
-                let d = (q - p).normalize_or_zero();
-                let (ci, cj) = (np.dot(d), -nq.dot(d));
-                let exchange = (ci > 0.0 && cj > -MIN_NORMAL_DOT) || (cj > 0.0 && ci > -MIN_NORMAL_DOT);
-                if exchange && bvh.visible(p, np, q, nq) {
-                    bits[k / 64] |= 1 << (k % 64);
-                }
-            }
-            bits
+    let blocks = Far::blocks(n);
+    let members = |a: usize| a * B..((a + 1) * B).min(n);
+    let bounds: Vec<(Vec3, Vec3)> = (0..blocks)
+        .map(|a| {
+            entries[members(a)].iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), e| {
+                (lo.min(e.position), hi.max(e.position))
+            })
         })
         .collect();
-    let mut words = vec![0u32; Far::words(n)];
-    for (i, row) in rows.iter().enumerate() {
-        let start = Far::pair_bit(n, i, i + 1).unwrap_or(0);
-        for k in 0..n - i - 1 {
-            if row[k / 64] >> (k % 64) & 1 == 1 {
-                let b = start + k;
-                words[b / 32] |= 1 << (b % 32);
+    // Gap between two boxes: no pair of their entries is closer.
+    let gap = |a: usize, b: usize| {
+        let ((la, ha), (lb, hb)) = (bounds[a], bounds[b]);
+        (la - hb).max(lb - ha).max(Vec3::ZERO).length()
+    };
+    // Per block a, the blocks b >= a it sees anything of, with a's rows' bits over b.
+    let upper: Vec<Vec<(u32, [u32; B])>> = (0..blocks)
+        .into_par_iter()
+        .map(|a| {
+            let mut kept = Vec::new();
+            for b in a..blocks {
+                if gap(a, b) > radius {
+                    continue;
+                }
+                let mut bits = [0u32; B];
+                for i in members(a) {
+                    let (p, np) = (entries[i].position, entries[i].normal);
+                    let from = if a == b { i + 1 } else { b * B };
+                    for j in from..((b + 1) * B).min(n) {
+                        let (q, nq) = (entries[j].position, entries[j].normal);
+                        let d = q - p;
+                        if d.length() > radius {
+                            continue;
+                        }
+                        let d = d.normalize_or_zero();
+                        let (ci, cj) = (np.dot(d), -nq.dot(d));
+                        let exchange =
+                            (ci > 0.0 && cj > -MIN_NORMAL_DOT) || (cj > 0.0 && ci > -MIN_NORMAL_DOT);
+                        if exchange && bvh.visible(p, np, q, nq) {
+                            bits[i - a * B] |= 1 << (j - b * B);
+                        }
+                    }
+                }
+                if a == b {
+                    // Within a block, the lower triangle mirrors the upper.
+                    for r in 0..B {
+                        for c in r + 1..B {
+                            if bits[r] >> c & 1 == 1 {
+                                bits[c] |= 1 << r;
+                            }
+                        }
+                    }
+                }
+                if bits.iter().any(|&w| w != 0) {
+                    kept.push((b as u32, bits));
+                }
+            }
+            kept
+        })
+        .collect();
+    // Every row: its own upper pairs, and the transposes of the lower blocks' pairs naming it.
+    let mut rows: Vec<Vec<(u32, [u32; B])>> = vec![Vec::new(); blocks];
+    for (a, pairs) in upper.iter().enumerate() {
+        for &(b, bits) in pairs {
+            rows[a].push((b, bits));
+            if b as usize != a {
+                let mut t = [0u32; B];
+                for (r, w) in bits.iter().enumerate() {
+                    for c in 0..B {
+                        if w >> c & 1 == 1 {
+                            t[c] |= 1 << r;
+                        }
+                    }
+                }
+                rows[b as usize].push((a as u32, t));
             }
         }
     }
-    words
+    let mut block_first = Vec::with_capacity(blocks + 1);
+    let (mut pair_block, mut visible) = (Vec::new(), Vec::new());
+    for mut row in rows {
+        block_first.push(pair_block.len() as u32);
+        row.sort_by_key(|&(b, _)| b);
+        for (b, bits) in row {
+            pair_block.push(b);
+            visible.extend_from_slice(&bits);
+        }
+    }
+    block_first.push(pair_block.len() as u32);
+    (block_first, pair_block, visible)
 }
 
 /// Per covered texel (atlas order), its [`NEIGHBOURS`] nearest entries facing within 60 degrees
@@ -263,15 +334,57 @@ mod tests {
             entry(Vec3::new(1.0, 3.0, 0.0), Vec3::NEG_X),
             entry(Vec3::new(3.0, 3.0, 0.0), Vec3::X),
         ];
-        let far = Far { reach: 0.0, visible: pair_visibility(&bvh, &entries), ..Far::default() };
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, 100.0);
+        let far = Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() };
         let n = entries.len();
         let open = [(2, 3), (0, 3), (1, 2)];
         for i in 0..n {
-            assert!(far.sees(n, i, i));
+            assert!(far.sees(i, i));
             for j in 0..n {
                 let want = i == j || open.contains(&(i.min(j), i.max(j)));
-                assert_eq!(far.sees(n, i, j), want, "pair {i} {j}");
+                assert_eq!(far.sees(i, j), want, "pair {i} {j}");
             }
         }
+        // Within a radius of 3, the open pairs 2.2 and 3.2 apart (entries 0-3 and 1-2) go.
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, 3.0);
+        let near = Far { radius: 3.0, block_first, pair_block, visible, ..Far::default() };
+        assert!(near.sees(2, 3) && near.sees(3, 2) && !near.sees(0, 3) && !near.sees(1, 2));
+    }
+
+    /// Entries in several blocks, some beyond the radius: every bit is the brute-force answer
+    /// (facing, within the radius, a ray), in both orders, and pairs of blocks with nothing to
+    /// see are not kept.
+    #[test]
+    fn block_bits_are_the_brute_force_pairs() {
+        let pos = vec![Vec3::new(0.0, -1.0, -1.0), Vec3::new(0.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let uv = vec![glam::Vec2::ZERO, glam::Vec2::X, glam::Vec2::ONE];
+        let scene = Scene::from_mesh(pos, uv, &[0, 1, 2]);
+        let bvh = Bvh::build(&scene);
+        // 100 entries on two facing lines 2 apart, spread 0 .. 40 along z: four blocks.
+        let entries: Vec<Entry> = (0..100)
+            .map(|k| {
+                let (x, n) = if k % 2 == 0 { (-1.0, Vec3::X) } else { (1.0, Vec3::NEG_X) };
+                entry(Vec3::new(x, 0.3 * (k % 7) as f32, 0.4 * k as f32), n)
+            })
+            .collect();
+        let radius = 6.0;
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, radius);
+        let far = Far { radius, block_first, pair_block, visible, ..Far::default() };
+        for i in 0..entries.len() {
+            for j in 0..entries.len() {
+                let (a, b) = (&entries[i], &entries[j]);
+                let d = (b.position - a.position).normalize_or_zero();
+                let facing = a.normal.dot(d) > 0.0 && -b.normal.dot(d) > 0.0;
+                let (lo, hi) = if i < j { (a, b) } else { (b, a) };
+                let want = i == j
+                    || (facing
+                        && a.position.distance(b.position) <= radius
+                        && bvh.visible(lo.position, lo.normal, hi.position, hi.normal));
+                assert_eq!(far.sees(i, j), want, "pair {i} {j}");
+            }
+        }
+        // Blocks 0 (z 0 .. 12.4) and 3 (z 38.4 .. 39.6) are 26 apart: not kept.
+        assert_eq!((far.pair(0, 3), far.pair(3, 0)), (None, None));
+        assert!(far.pair(0, 1).is_some() && far.pair(1, 0).is_some());
     }
 }

@@ -71,6 +71,11 @@ pub struct PrecomputeParams {
     /// The far field of the deviations (`crate::far`; default on): the near links' first
     /// bounce carried on to every texel for the entries that hold a share of it.
     pub far_field: bool,
+    /// Entries farther apart than this, in entry spacings, exchange no far-field light, so its
+    /// visibility grows with the level, not with its square (default 48: 26 m at the production
+    /// density, the bundled levels' rooms whole; 20 m from a deviation of 1 W its far field is
+    /// under a thousandth of a W/m²).
+    pub far_radius: f32,
     /// Tile rows walked and encoded at a time (`crate::panes`; default 2): memory and time
     /// only, the result is the same bytes at any value.
     pub band_tile_rows: u32,
@@ -102,6 +107,7 @@ impl PrecomputeParams {
             // wall torches 2-3 points worse) and +1 s of precompute (README).
             dipole_block: 0,
             far_field: true,
+            far_radius: 48.0,
             band_tile_rows: crate::panes::BAND_TILE_ROWS,
         }
     }
@@ -124,6 +130,12 @@ impl PrecomputeParams {
         require((0.0..=4.0).contains(&self.smooth_radius), "smooth radius", self.smooth_radius, "0 to 4")?;
         require((0.0..=8.0).contains(&self.near_radius), "near radius", self.near_radius, "0 to 8")?;
         require((0.0..=4.0).contains(&self.echo_radius), "echo radius", self.echo_radius, "0 to 4")?;
+        require(
+            self.far_radius > 0.0 && self.far_radius <= 1e6,
+            "far radius",
+            self.far_radius,
+            "above 0, at most 1e6 entry spacings",
+        )?;
         let block_ok =
             self.dipole_block == 0 || (self.dipole_block <= 64 && self.tile_size % self.dipole_block == 0);
         require(block_ok, "dipole block", self.dipole_block, "0, or a divisor of the tile size up to 64")?;
@@ -337,13 +349,16 @@ pub fn precompute(
         .collect();
     let far = timed(&mut report.seconds_far, || {
         if params.far_field {
-            far_field(scene, bvh, &set, &entries, &cell, params.near_radius * spacing, params.seed)
+            let reach = params.near_radius * spacing;
+            let radius = params.far_radius * spacing;
+            far_field(scene, bvh, &set, &entries, &cell, reach, radius, params.seed)
         } else {
             Far::default()
         }
     });
     report.far_texels = far.texels.len();
-    report.far_pairs = far.visible.iter().map(|w| w.count_ones() as usize).sum();
+    // Each pair's bit is stored both ways.
+    report.far_pairs = far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
     let (near, near_points) = timed(&mut report.seconds_near, || {
         if params.near_radius > 0.0 {
             near_links(bvh, &set, &entries, &cells, params.near_radius, &far)

@@ -27,7 +27,7 @@ pub const BINDINGS: &[Binding] = &[
     // Per entry, this update's `E_j - (w_c + lin_j) t_j` (the near pass's `deviation_main`).
     b("deviation", Res::Read("array<vec4f>"), COMPUTE),
     b("far_entries", Res::Read("array<FarEntry>"), COMPUTE),
-    // One bit per pair of entries (prm::prm_file::Far::pair_bit).
+    // The entries' visibility by blocks ([`far_words`]).
     b("far_visible", Res::Read("array<u32>"), COMPUTE),
     b("far_texels", Res::Read("array<GpuFarTexel>"), COMPUTE),
     // The sources' entries, then (at FAR_SOURCES) their number.
@@ -101,7 +101,8 @@ impl FarPass {
             .collect();
         let none = wgpu::BufferUsages::empty();
         let entries = gpu::storage_buffer(device, "far entries", bytemuck::cast_slice(&entries), none);
-        let visible = gpu::storage_buffer(device, "far visibility", bytemuck::cast_slice(&far.visible), none);
+        let visible =
+            gpu::storage_buffer(device, "far visibility", bytemuck::cast_slice(&far_words(far)), none);
         let texel_buf = gpu::storage_buffer(device, "far texels", bytemuck::cast_slice(&texels), none);
         let index = gpu::storage_buffer(device, "far sources", &vec![0u8; (FAR_SOURCES + 1) * 4], none);
         let flux = gpu::storage_buffer(device, "far source flux", &vec![0u8; FAR_SOURCES * 16], none);
@@ -142,4 +143,15 @@ impl FarPass {
         pass.set_pipeline(&self.texels);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
     }
+}
+
+/// The far field's visibility as the shader reads it, in one buffer (a stage has few storage
+/// bindings): the blocks' offsets, the pairs' other blocks, then the pairs' bits.
+pub fn far_words(far: &prm::prm_file::Far) -> Vec<u32> {
+    [&far.block_first[..], &far.pair_block, &far.visible].concat()
+}
+
+/// The length of [`far_words`].
+pub fn far_words_len(far: &prm::prm_file::Far) -> usize {
+    far.block_first.len() + far.pair_block.len() + far.visible.len()
 }

@@ -73,7 +73,7 @@ impl GpuMemory {
             ("near links", size(near, std::mem::size_of::<GpuNearLink>())),
             ("link light", size(near, 16)),
             ("near texels", size(points, std::mem::size_of::<NearTexel>())),
-            ("far visibility", size(prm.far().visible.len(), 4)),
+            ("far visibility", size(crate::far::far_words_len(prm.far()), 4)),
             ("far texels", size(far_texels, std::mem::size_of::<GpuFarTexel>())),
             ("hot entries", size(n, std::mem::size_of::<GpuHotEntry>())),
             ("far entries", size(n, std::mem::size_of::<FarEntry>())),

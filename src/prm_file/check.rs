@@ -309,26 +309,53 @@ fn dipoles(p: &PrmParts) -> Result<(), String> {
     Ok(())
 }
 
-/// The far field: empty, or visibility words for every pair of entries, a finite reach,
-/// texels in atlas order with finite points, unit normals, entries in range and weights >= 0
-/// summing to 1, and a finite energy >= 0 per entry.
+/// The far field: empty, or block offsets for the entries' blocks running up to the pairs,
+/// each block's pairs naming blocks in ascending order, a block's bits per pair, a finite reach
+/// and radius, texels in atlas order with finite points, unit normals, entries in range and
+/// weights >= 0 summing to 1, and a finite energy >= 0 per entry.
 fn far(p: &PrmParts) -> Result<(), String> {
     let (f, h, n) = (&p.far, &p.header, p.entries.len());
-    if f.visible.is_empty() && f.texels.is_empty() {
+    if f.texels.is_empty() && f.block_first.is_empty() && f.pair_block.is_empty() && f.visible.is_empty() {
         return match f.energy.len() {
             0 => Ok(()),
             e => Err(format!("{e} far-field energies without a far field")),
         };
     }
-    if n > Far::MAX_ENTRIES {
-        return Err(format!("a far field for {n} entries (at most {})", Far::MAX_ENTRIES));
+    if f.texels.is_empty() {
+        return Err("a far field without texels".into());
     }
-    if f.texels.is_empty() || f.visible.len() != Far::words(n) {
+    let blocks = Far::blocks(n);
+    let first = &f.block_first;
+    if first.len() != blocks + 1
+        || first[0] != 0
+        || first.windows(2).any(|w| w[0] > w[1])
+        || first[blocks] as usize != f.pair_block.len()
+    {
         return Err(format!(
-            "{} far-field visibility words for {n} entries and {} texels",
-            f.visible.len(),
-            f.texels.len()
+            "far-field block offsets ({}) do not run over {blocks} blocks' pairs",
+            first.len()
         ));
+    }
+    for a in 0..blocks {
+        let run = &f.pair_block[first[a] as usize..first[a + 1] as usize];
+        for (k, &b) in run.iter().enumerate() {
+            if b as usize >= blocks || (k > 0 && run[k - 1] >= b) {
+                return Err(format!(
+                    "far-field pair {} names block {b} (of {blocks}, ascending in each block)",
+                    first[a] as usize + k
+                ));
+            }
+        }
+    }
+    if f.visible.len() != f.pair_block.len() * Far::BLOCK || f.visible.len() > u32::MAX as usize {
+        return Err(format!(
+            "{} far-field visibility words for {} pairs of blocks",
+            f.visible.len(),
+            f.pair_block.len()
+        ));
+    }
+    if !(f.radius.is_finite() && f.radius >= 0.0) {
+        return Err(format!("far-field radius {} is not finite and >= 0", f.radius));
     }
     if !(f.reach.is_finite() && f.reach >= 0.0) {
         return Err(format!("far-field reach {} is not finite and >= 0", f.reach));

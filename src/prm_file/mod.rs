@@ -31,10 +31,12 @@
 //!           tile u32, 3 x (direction 3 x f32, 1/lambda f32, energy f32, tile count u32);
 //!           K x 20 B tiles as in TILE (pane 3 c + axis); K x ceil(tile size / b)² B: signed
 //!           codes (`dipole_value`), one per b x b block of the tile, row-major
-//!     FARF  u32 T texels, u32 V words, f32 reach; V x u32: the entries' mutual visibility, one
-//!           bit per pair i < j ([`Far::pair_bit`]); T x 60 B: texel u32, point (3 x f32), normal
+//!     FARF  u32 T texels, u32 F block offsets (0, or B + 1 for B blocks of 32 entries), u32 P
+//!           pairs of blocks, f32 reach, f32 radius; F x u32: each block's first pair, then P;
+//!           P x u32: each pair's other block (ascending within a block); P x 32 x u32: each
+//!           pair's visibility bits ([`Far`]); T x 60 B: texel u32, point (3 x f32), normal
 //!           (3 x f32), 4 entries u32, 4 weights f32; then (when T > 0) N x f32: each entry's
-//!           far-field energy per unit deviation (`Far::energy`). T = V = 0: no far field
+//!           far-field energy per unit deviation (`Far::energy`). T = F = P = 0: no far field
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -121,7 +123,7 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 9;
+pub const VERSION: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -370,13 +372,30 @@ pub struct FarTexel {
 }
 
 /// The far field (`prm_precompute::far`; module doc): the distance where it starts to take over
-/// from the near links, the entries' mutual visibility (one bit per pair, [`Far::pair_bit`]) and
-/// the texels it lights, sorted by texel. Empty when the map has none.
+/// from the near links, the entries' mutual visibility within `radius` and the texels it lights,
+/// sorted by texel. Empty when the map has none.
+///
+/// The visibility is kept by blocks of [`Far::BLOCK`] consecutive entries (v10): for each block,
+/// the blocks within `radius` of it that it sees anything of, ascending, each with a 32 x 32 bit
+/// matrix. Both orders of a pair of blocks are stored, so a block's row answers for all its
+/// entries and a run over ascending sources walks it once. Entries farther apart than `radius`
+/// exchange no far-field light; the visibility grows with the level, not with its square (v9
+/// kept a bit for every pair of entries: 41.5 MB on the 4 x 4 halls, and none past 65,536
+/// entries).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Far {
     /// The far field has no share of a cell's light closer than this (scene units) and all of
     /// it beyond `reach` plus the cell's size ([`far_share`]).
     pub reach: f32,
+    /// Entries farther apart than this (scene units) see nothing of each other's far field.
+    pub radius: f32,
+    /// Per block of entries, where its pairs start in `pair_block`; then the pair count (blocks
+    /// + 1 offsets, or none without a far field).
+    pub block_first: Vec<u32>,
+    /// Per pair of blocks, the other block, ascending within each block's run.
+    pub pair_block: Vec<u32>,
+    /// Per pair of blocks (a, b), [`Far::BLOCK`] words: bit c of word r is set when entry
+    /// `BLOCK a + r` sees entry `BLOCK b + c`.
     pub visible: Vec<u32>,
     pub texels: Vec<FarTexel>,
     /// Per entry (v8): the energy (luminance summed over texels, a pane's unit) the far field
@@ -387,28 +406,37 @@ pub struct Far {
 }
 
 impl Far {
-    /// Bit index of the pair (i, j), i != j, among `n` entries: the pairs i < j row by row.
-    /// Fits u32 for n up to 65,536 (`MAX_ENTRIES`).
-    pub fn pair_bit(n: usize, i: usize, j: usize) -> Option<usize> {
-        let (a, b) = (i.min(j), i.max(j));
-        (a != b && b < n).then(|| a * (2 * n - a - 1) / 2 + (b - a - 1))
+    /// Entries per block of the visibility (the bits of one u32).
+    pub const BLOCK: usize = 32;
+
+    /// Blocks of `n` entries.
+    pub fn blocks(n: usize) -> usize {
+        n.div_ceil(Far::BLOCK)
     }
 
-    /// u32 words holding the bits of `n` entries' pairs.
-    pub fn words(n: usize) -> usize {
-        (n * n.saturating_sub(1) / 2).div_ceil(32)
+    /// The pair of blocks (a, b): its index in `pair_block` (its bits start at `BLOCK` times
+    /// it), if the far field keeps it.
+    pub fn pair(&self, a: usize, b: usize) -> Option<usize> {
+        let (start, end) = (*self.block_first.get(a)? as usize, *self.block_first.get(a + 1)? as usize);
+        let run = self.pair_block.get(start..end)?;
+        run.binary_search(&(b as u32)).ok().map(|k| start + k)
     }
 
-    /// Whether entries i and j see each other (an entry sees itself).
-    pub fn sees(&self, n: usize, i: usize, j: usize) -> bool {
-        match Far::pair_bit(n, i, j) {
-            None => i == j,
-            Some(k) => self.visible.get(k / 32).is_some_and(|w| w >> (k % 32) & 1 == 1),
+    /// Whether entries i and j see each other within the radius (an entry sees itself).
+    pub fn sees(&self, i: usize, j: usize) -> bool {
+        if i == j {
+            return true;
         }
+        let bs = Far::BLOCK;
+        self.pair(i / bs, j / bs)
+            .and_then(|p| self.visible.get(p * bs + i % bs))
+            .is_some_and(|w| w >> (j % bs) & 1 == 1)
     }
 
-    /// Most entries a map with a far field may have (its pair bits are indexed by u32).
-    pub const MAX_ENTRIES: usize = 65_536;
+    /// Whether the map has no far field.
+    pub fn is_empty(&self) -> bool {
+        self.texels.is_empty() && self.block_first.is_empty()
+    }
 }
 
 /// The far field's share of a cell's light at distance `d` from its centroid: 0 up to
@@ -603,8 +631,9 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (version 8 lacks lightmap \
-         pages, 7 the far field's energy, 6 and older the far field); run prm precompute again"
+        "{path}: .prm version {found}, this build reads version {VERSION} (version 9 keeps the far \
+         field's visibility for every pair of entries, 8 lacks lightmap pages, 7 the far field's energy, \
+         6 and older the far field); run prm precompute again"
     )]
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
@@ -1031,7 +1060,10 @@ mod tests {
             data: (0..16).map(|k| k * 16).collect(),
             far: Far {
                 reach: 0.5,
-                visible: vec![1],
+                radius: 10.0,
+                block_first: vec![0, 1],
+                pair_block: vec![0],
+                visible: [vec![2, 1], vec![0; Far::BLOCK - 2]].concat(),
                 texels: vec![
                     FarTexel {
                         texel: 2,
@@ -1054,22 +1086,31 @@ mod tests {
         }
     }
 
-    /// Pair bits run row by row over i < j, each pair once, both orders alike.
+    /// A pair of blocks is found in its first block's run; a bit answers for one pair of
+    /// entries; an entry sees itself; a pair of blocks not kept sees nothing.
     #[test]
-    fn far_pair_bits_number_every_pair_once() {
-        for n in [1usize, 2, 5, 33] {
-            let mut seen = vec![false; n * n.saturating_sub(1) / 2];
-            for i in 0..n {
-                assert_eq!(Far::pair_bit(n, i, i), None);
-                for j in i + 1..n {
-                    let k = Far::pair_bit(n, i, j).unwrap();
-                    assert_eq!(Far::pair_bit(n, j, i), Some(k));
-                    assert!(!std::mem::replace(&mut seen[k], true), "pair {i} {j} twice");
-                }
-            }
-            assert!(seen.iter().all(|&s| s));
-            assert!(Far::words(n) * 32 >= seen.len() && Far::words(n) * 32 < seen.len() + 32);
-        }
+    fn far_visibility_is_looked_up_by_blocks() {
+        // 70 entries: blocks 0, 1, 2. Kept pairs: (0, 0), (0, 2), (2, 0), (1, 1).
+        let mut visible = vec![0u32; 4 * Far::BLOCK];
+        visible[Far::BLOCK + 3] = 1 << 5; // entry 3 sees entry 64 + 5
+        visible[3 * Far::BLOCK + 5] = 1 << 3; // and back (pair 3 is (2, 0))
+        visible[7] = 1 << 9; // entry 7 sees entry 9
+        let far = Far {
+            radius: 1.0,
+            block_first: vec![0, 2, 3, 4],
+            pair_block: vec![0, 2, 1, 0],
+            visible,
+            ..Far::default()
+        };
+        assert_eq!(
+            (far.pair(0, 2), far.pair(2, 0), far.pair(0, 1), far.pair(5, 0)),
+            (Some(1), Some(3), None, None)
+        );
+        assert!(far.sees(3, 69) && far.sees(69, 3) && !far.sees(3, 68) && !far.sees(4, 69));
+        assert!(far.sees(7, 9) && !far.sees(9, 7), "the bits are as stored");
+        assert!(far.sees(40, 40) && !far.sees(40, 41) && !far.sees(1, 33));
+        assert!(!far.is_empty() && Far::default().is_empty());
+        assert_eq!((Far::blocks(64), Far::blocks(65)), (2, 3));
         assert_eq!((far_share(0.4, 0.5, 0.2), far_share(0.7, 0.5, 0.2)), (0.0, 1.0));
         assert!((far_share(0.6, 0.5, 0.2) - 0.5).abs() < 1e-5);
     }
@@ -1092,7 +1133,11 @@ mod tests {
         // A v8 file has no pages: it is refused as old, not read as one page.
         bytes[8..12].copy_from_slice(&8u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 8 lacks lightmap pages"), "{err}");
+        assert!(err.contains("8 lacks lightmap pages"), "{err}");
+        // A v9 file's far field has a bit for every pair of entries: refused, not misread.
+        bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
+        assert!(err.contains("version 9 keeps the far field's visibility for every pair"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back
@@ -1193,8 +1238,12 @@ mod tests {
             ("echo link 0 is out of range", |p| p.echo.links[0].source = 0),
             ("echo link 1 is out of range", |p| p.echo.links[1].factor = f32::NAN),
             ("echo link 1 is out of order", |p| p.echo.links.swap(0, 1)),
-            ("2 far-field visibility words for 2 entries and 2 texels", |p| p.far.visible.push(0)),
-            ("1 far-field visibility words for 2 entries and 0 texels", |p| p.far.texels.clear()),
+            ("33 far-field visibility words for 1 pairs of blocks", |p| p.far.visible.push(0)),
+            ("a far field without texels", |p| p.far.texels.clear()),
+            ("far-field block offsets", |p| p.far.block_first.push(1)),
+            ("far-field block offsets", |p| p.far.block_first[1] = 2),
+            ("far-field pair 0 names block 1", |p| p.far.pair_block[0] = 1),
+            ("far-field radius", |p| p.far.radius = -1.0),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[0] = 0.5),
             ("far-field reach", |p| p.far.reach = f32::NAN),
             ("1 far-field energies without a far field", |p| {

@@ -224,17 +224,22 @@ impl<'a> Writer<'a> {
         self.section(b"DIPO", &b);
     }
 
-    /// `FARF`: counts and reach, the visibility words, the texels, the entries' energies.
-    /// Written piece by piece: the visibility is the largest section after the panes' codes
-    /// (68 MB on the 4 x 4 halls), so no copy of it is made.
+    /// `FARF`: counts, reach and radius, the blocks' pairs and visibility words, the texels, the
+    /// entries' energies. Written piece by piece: the visibility is one of the largest sections
+    /// after the panes' codes, so no copy of it is made.
     pub(super) fn far(&mut self, f: &Far) {
-        let len = 12 + f.visible.len() * 4 + f.texels.len() * FAR_TEXEL_BYTES + f.energy.len() * 4;
+        let words = f.block_first.len() + f.pair_block.len() + f.visible.len();
+        let len = 20 + words * 4 + f.texels.len() * FAR_TEXEL_BYTES + f.energy.len() * 4;
         let start = self.len;
         self.put(b"FARF");
         self.put(&(len as u64).to_le_bytes());
         self.put(&(f.texels.len() as u32).to_le_bytes());
-        self.put(&(f.visible.len() as u32).to_le_bytes());
+        self.put(&(f.block_first.len() as u32).to_le_bytes());
+        self.put(&(f.pair_block.len() as u32).to_le_bytes());
         self.put(&f.reach.to_le_bytes());
+        self.put(&f.radius.to_le_bytes());
+        self.put(bytemuck::cast_slice(&f.block_first));
+        self.put(bytemuck::cast_slice(&f.pair_block));
         self.put(bytemuck::cast_slice(&f.visible));
         let mut b = Vec::with_capacity(1024 * FAR_TEXEL_BYTES);
         for chunk in f.texels.chunks(1024) {
@@ -425,22 +430,26 @@ impl<'a> Reader<'a> {
     /// `FARF` (what its indices point at is checked with the other invariants).
     pub(super) fn far(&mut self) -> Result<Far, SectionError> {
         let b = self.next(b"FARF")?;
-        if b.len() < 12 {
+        if b.len() < 20 {
             return Err(Corrupt(format!("far-field section of {} bytes", b.len())));
         }
-        let (texels, words) = (u32_at(b, 0) as u64, u32_at(b, 4) as u64);
-        let fixed = 12 + words * 4 + texels * FAR_TEXEL_BYTES as u64;
+        let (texels, offsets, pairs) = (u32_at(b, 0) as u64, u32_at(b, 4) as u64, u32_at(b, 8) as u64);
+        let words = offsets + pairs * (1 + Far::BLOCK as u64);
+        let fixed = 20 + words * 4 + texels * FAR_TEXEL_BYTES as u64;
         if (b.len() as u64) < fixed || (b.len() as u64 - fixed) % 4 != 0 {
             return Err(Corrupt(format!(
-                "{texels} far-field texels and {words} visibility words declared, {} bytes",
+                "{texels} far-field texels, {offsets} block offsets and {pairs} pairs of blocks declared, {} bytes",
                 b.len()
             )));
         }
-        let reach = f32_at(b, 8);
-        let (v, rest) = b[12..].split_at(words as usize * 4);
+        let (reach, radius) = (f32_at(b, 12), f32_at(b, 16));
+        let words_of = |c: &[u8]| c.chunks_exact(4).map(|c| u32_at(c, 0)).collect::<Vec<u32>>();
+        let (first, rest) = b[20..].split_at(offsets as usize * 4);
+        let (others, rest) = rest.split_at(pairs as usize * 4);
+        let (v, rest) = rest.split_at(pairs as usize * Far::BLOCK * 4);
         let (t, e) = rest.split_at(texels as usize * FAR_TEXEL_BYTES);
         let energy = e.chunks_exact(4).map(|c| f32_at(c, 0)).collect();
-        let visible = v.chunks_exact(4).map(|c| u32_at(c, 0)).collect();
+        let (block_first, pair_block, visible) = (words_of(first), words_of(others), words_of(v));
         let at = |c: &[u8], i: usize| [u32_at(c, i), u32_at(c, i + 4), u32_at(c, i + 8), u32_at(c, i + 12)];
         let texels = t
             .chunks_exact(FAR_TEXEL_BYTES)
@@ -452,7 +461,7 @@ impl<'a> Reader<'a> {
                 weights: at(c, 44).map(f32::from_bits),
             })
             .collect();
-        Ok(Far { reach, visible, texels, energy })
+        Ok(Far { reach, radius, block_first, pair_block, visible, texels, energy })
     }
 
     /// `ECHO` for `points` near points (what the links point at is checked with the others).

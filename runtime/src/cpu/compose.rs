@@ -369,7 +369,7 @@ pub fn far_sources(
 /// neighbours' visibility of j weighted as stored. The `max` only matters with no near links
 /// (reach 0), where it bounds the spike a source next to the texel would make.
 pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec<Vec3> {
-    let (far, entries, n) = (prm.far(), prm.entries(), prm.entries().len());
+    let (far, entries) = (prm.far(), prm.entries());
     far.texels
         .iter()
         .map(|t| {
@@ -384,7 +384,7 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec
                 if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
                     continue;
                 }
-                let v = vote(far, n, t, j, |k| {
+                let v = vote(far, t, j, |k| {
                     let q = t.entries[k] as usize;
                     entries[q].normal.dot(centroid - tables.centroid[q]) > 0.0
                 });
@@ -402,14 +402,13 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec
 /// points of first-bounce error to such votes. With no neighbour facing it, all of them vote.
 fn vote(
     far: &prm::prm_file::Far,
-    n: usize,
     t: &prm::prm_file::FarTexel,
     j: usize,
     faces: impl Fn(usize) -> bool,
 ) -> f32 {
     let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
     for k in 0..4 {
-        let sees = if far.sees(n, t.entries[k] as usize, j) { t.weights[k] } else { 0.0 };
+        let sees = if far.sees(t.entries[k] as usize, j) { t.weights[k] } else { 0.0 };
         every += sees;
         if faces(k) {
             seen += sees;

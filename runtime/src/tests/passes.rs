@@ -413,6 +413,66 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     }
 }
 
+/// The far field alone, GPU and CPU twin, for `lights`: each lightmap less the one of the same
+/// map without its far field.
+fn far_field_alone(g: &Gpu, scene: &Scene, prm: &Prm, lights: &[Light]) -> (Vec<Vec3>, Vec<Vec3>) {
+    let bvh = Bvh::build(scene);
+    let c = prm.clusters().len();
+    let mut parts = prm.clone().into_parts();
+    parts.far = Default::default();
+    let silent = Prm::new(parts).unwrap();
+    let mut both = [prm, &silent].map(|p| {
+        let params = RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() };
+        let mut rt = Runtime::new(&g.device, &g.queue, scene, p, params).unwrap();
+        rt.update(lights).unwrap();
+        let gpu = rt.read_lightmap().unwrap();
+        (gpu, crate::cpu::CpuTwin::new(p, &bvh, c).frame(lights).to_vec())
+    });
+    let [(gpu, cpu), (gpu_without, cpu_without)] = std::mem::take(&mut both);
+    let minus = |a: &[Vec3], b: &[Vec3]| a.iter().zip(b).map(|(x, y)| *x - *y).collect::<Vec<_>>();
+    (minus(&gpu, &gpu_without), minus(&cpu, &cpu_without))
+}
+
+/// A far radius shorter than the box: the far field keeps the pairs of blocks near each other
+/// only, and the GPU walks each neighbour's run of pairs (skipping blocks it does not keep) to
+/// the same light as the twin's lookups.
+#[test]
+fn gpu_far_field_matches_the_twin_when_the_radius_leaves_pairs_out() {
+    let g = gpu();
+    let scene = open_box();
+    let bvh = Bvh::build(&scene);
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 512,
+        paths: 16,
+        clusters: 40,
+        atlas: prm::density::Atlas::single(48),
+        far_radius: 5.0,
+        ..Default::default()
+    };
+    let prm =
+        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
+            .unwrap()
+            .0;
+    let far = prm.far();
+    let blocks = prm::prm_file::Far::blocks(prm.entries().len());
+    assert!(
+        far.pair_block.len() * 2 < blocks * blocks,
+        "{} of {} pairs of blocks kept: the radius cuts nothing",
+        far.pair_block.len(),
+        blocks * blocks
+    );
+    let mut corner = scene.lights.clone();
+    corner[0].position = v(0.05, 0.05, 0.05);
+    let (gpu_far, cpu_far) = far_field_alone(&g, &scene, &prm, &corner);
+    assert!(cpu_far.iter().any(|v| v.max_element() > 0.0), "no far field to compare");
+    let m = prm::metric::compare(&gpu_far, &cpu_far, None);
+    assert!(
+        m.error < 0.05,
+        "corner lamp, far radius 5 spacings: GPU vs CPU far field: normalised RMSE {}",
+        m.error
+    );
+}
+
 #[test]
 fn thirty_moving_light_frames_on_chamber() {
     let g = gpu();
