@@ -173,8 +173,8 @@ fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<
                 for i in members(a) {
                     let (p, np) = (entries[i].position, entries[i].normal);
                     let from = if a == b { i + 1 } else { b * B };
-                    for j in from..((b + 1) * B).min(n) {
-                        let (q, nq) = (entries[j].position, entries[j].normal);
+                    for (j, e) in entries.iter().enumerate().take(((b + 1) * B).min(n)).skip(from) {
+                        let (q, nq) = (e.position, e.normal);
                         let d = q - p;
                         if d.length() > radius {
                             continue;
@@ -213,9 +213,9 @@ fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<
             if b as usize != a {
                 let mut t = [0u32; B];
                 for (r, w) in bits.iter().enumerate() {
-                    for c in 0..B {
+                    for (c, tc) in t.iter_mut().enumerate() {
                         if w >> c & 1 == 1 {
-                            t[c] |= 1 << r;
+                            *tc |= 1 << r;
                         }
                     }
                 }

@@ -371,6 +371,9 @@ fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Re
     Ok(())
 }
 
+/// A scale plot's series: its name, colour and figure of a level size.
+type ScaleSeries = (&'static str, RGBColor, fn(&ScaleRow) -> f64);
+
 /// Left: precompute time, peak memory, `.prm` size and GPU memory per hall over the first
 /// level's (linear growth is a flat line at 1). Right: the errors, noise removed.
 fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
@@ -391,16 +394,16 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         }
     };
     let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
-    let series: [(&str, RGBColor, Box<dyn Fn(&ScaleRow) -> f64>); 4] = [
-        ("precompute time", PRM_COLOUR, Box::new(|r| r.precompute_s)),
-        ("peak memory", ALL_COLOUR, Box::new(peak)),
-        (".prm size", REF_COLOUR, Box::new(|r| r.file_bytes as f64)),
-        ("GPU memory", BLACK, Box::new(|r| r.gpu_bytes as f64)),
+    let series: [ScaleSeries; 4] = [
+        ("precompute time", PRM_COLOUR, |r| r.precompute_s),
+        ("peak memory", ALL_COLOUR, peak),
+        (".prm size", REF_COLOUR, |r| r.file_bytes as f64),
+        ("GPU memory", BLACK, |r| r.gpu_bytes as f64),
     ];
-    let per = |r: &ScaleRow, f: &dyn Fn(&ScaleRow) -> f64| (f(r) / rooms(r)) / (f(first) / rooms(first));
+    let per = |r: &ScaleRow, f: fn(&ScaleRow) -> f64| (f(r) / rooms(r)) / (f(first) / rooms(first));
     let y_hi = series
         .iter()
-        .flat_map(|(_, _, f)| rows.iter().map(move |r| per(r, f.as_ref())))
+        .flat_map(|(_, _, f)| rows.iter().map(move |r| per(r, *f)))
         .filter(|v| v.is_finite())
         .fold(1.5, f64::max)
         * 1.15;
@@ -422,7 +425,7 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
     for (name, c, f) in &series {
         let c = *c;
         let points: Vec<(f64, f64)> =
-            at.iter().zip(rows).map(|(&x, r)| (x, per(r, f.as_ref()))).filter(|p| p.1.is_finite()).collect();
+            at.iter().zip(rows).map(|(&x, r)| (x, per(r, *f))).filter(|p| p.1.is_finite()).collect();
         chart
             .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
             .map_err(plot_err)?
@@ -448,7 +451,7 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         .y_desc("error, ground-truth noise removed (%)")
         .draw()
         .map_err(plot_err)?;
-    let errors: [(&str, RGBColor, fn(&ScaleRow) -> f64); 2] = [
+    let errors: [ScaleSeries; 2] = [
         ("PRM top-32 + groups", PRM_COLOUR, |r| r.clean(r.top.0)),
         ("PRM all panes", ALL_COLOUR, |r| r.clean(r.all.0)),
     ];
