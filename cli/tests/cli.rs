@@ -930,9 +930,11 @@ fn report_scale_section_measures_each_size_as_a_user_would() {
         let (ok, _, err) = prm(&cmd);
         assert!(ok, "{err}");
         assert!(std::fs::read(&again).unwrap() == bytes, "{name}: the report's map is not a user's");
-        // The precompute holds the whole map before it writes it: its peak is above the size.
-        let peak: f64 = row[7].trim_end_matches(" MB").parse().unwrap();
-        assert!(peak * 1e6 >= bytes.len() as f64, "{row:?}");
+        // The precompute holds the whole map before it writes it: its peak is above the size
+        // (where the system tells the peak: Linux's VmHWM).
+        if let Ok(peak) = row[7].trim_end_matches(" MB").parse::<f64>() {
+            assert!(peak * 1e6 >= bytes.len() as f64, "{row:?}");
+        }
     }
     // The ground truth's noise is `prm ground-truth`'s on the same level, texels and seed.
     let glb = out.join("scale").join("halls_2x1.glb");
@@ -962,7 +964,8 @@ fn report_scale_section_measures_each_size_as_a_user_would() {
         assert!(percent(&r[4]) > -100.0, "{r:?}");
     }
     // Per hall over the first level's: the first row is the unit.
-    assert!(per_hall[0][1..5].iter().all(|c| c == "1.00"), "{:?}", per_hall[0]);
+    assert!(per_hall[0][1..5].iter().all(|c| c == "1.00" || c == "-"), "{:?}", per_hall[0]);
+    assert_eq!(per_hall[0][1], "1.00", "{:?}", per_hall[0]);
     if md.contains("scale.png") {
         assert!(std::fs::metadata(out.join("scale.png")).unwrap().len() > 10_000, "scale.png is empty");
     }

@@ -16,8 +16,10 @@
 //! size_j`; the near links keep the rest, [`crate::near::near_links`]), and a visibility. Only the
 //! entries carrying a share of the deviation are sent (`prm_runtime::cpu::far_sources`).
 //!
-//! What is precomputed: the visibility. A bit per pair of entries (one ray each; pairs that face
-//! away from each other get none), and per texel its nearest entries that face its way, with
+//! What is precomputed: the visibility. A bit per pair of entries within the far radius (one ray
+//! each; pairs that face away from each other get none), kept by blocks of 32 entries
+//! ([`prm::prm_file::Far`]; the blocks are runs of the entries' order, which follows the
+//! triangles: compact where the level's triangles are), and per texel its nearest entries that face its way, with
 //! inverse-square-distance weights: a texel's visibility of entry j is the
 //! weighted vote of its nearest entries' bits. The geometry (distance, cosines) is evaluated at
 //! the texel's own point and normal, so a curved pillar gets its shading right even where its
@@ -55,10 +57,14 @@ pub fn far_field(
     seed: u64,
 ) -> Far {
     let n = entries.len();
-    if n == 0 || !(reach >= 0.0) || !(radius > 0.0) {
+    // Within the near reach the links carry everything: a radius no longer has nothing to send.
+    if n == 0 || !(reach >= 0.0) || !(radius > reach) {
         return Far::default();
     }
     let texels = texel_neighbours(set, entries);
+    if texels.is_empty() {
+        return Far::default();
+    }
     let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed);
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, radius);
     Far { reach, radius, block_first, pair_block, visible, texels, energy }

@@ -432,11 +432,6 @@ impl Far {
             .and_then(|p| self.visible.get(p * bs + i % bs))
             .is_some_and(|w| w >> (j % bs) & 1 == 1)
     }
-
-    /// Whether the map has no far field.
-    pub fn is_empty(&self) -> bool {
-        self.texels.is_empty() && self.block_first.is_empty()
-    }
 }
 
 /// The far field's share of a cell's light at distance `d` from its centroid: 0 up to
@@ -1109,7 +1104,6 @@ mod tests {
         assert!(far.sees(3, 69) && far.sees(69, 3) && !far.sees(3, 68) && !far.sees(4, 69));
         assert!(far.sees(7, 9) && !far.sees(9, 7), "the bits are as stored");
         assert!(far.sees(40, 40) && !far.sees(40, 41) && !far.sees(1, 33));
-        assert!(!far.is_empty() && Far::default().is_empty());
         assert_eq!((Far::blocks(64), Far::blocks(65)), (2, 3));
         assert_eq!((far_share(0.4, 0.5, 0.2), far_share(0.7, 0.5, 0.2)), (0.0, 1.0));
         assert!((far_share(0.6, 0.5, 0.2) - 0.5).abs() < 1e-5);
@@ -1242,6 +1236,12 @@ mod tests {
             ("a far field without texels", |p| p.far.texels.clear()),
             ("far-field block offsets", |p| p.far.block_first.push(1)),
             ("far-field block offsets", |p| p.far.block_first[1] = 2),
+            ("far-field block offsets", |p| p.far.block_first = vec![1, 1]),
+            ("far-field pair 1 names block 0", |p| {
+                p.far.block_first = vec![0, 2];
+                p.far.pair_block = vec![0, 0];
+                p.far.visible.extend([0; Far::BLOCK]);
+            }),
             ("far-field pair 0 names block 1", |p| p.far.pair_block[0] = 1),
             ("far-field radius", |p| p.far.radius = -1.0),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[0] = 0.5),

@@ -360,25 +360,17 @@ fn scale_section(s: &mut String, a: &Args, rows: &[ScaleRow], plots: bool) {
         GPU memory | peak memory / .prm |\n| --- | --- | --- | --- | --- | --- |",
         first.rooms()
     );
+    let ratio = |v: f64| if v.is_finite() { format!("{v:.2}") } else { "-".into() };
     for r in rows {
-        let per = |x: f64, x0: f64| {
-            let v = (x / r.rooms() as f64) / (x0 / first.rooms() as f64);
-            if v.is_finite() {
-                format!("{v:.2}")
-            } else {
-                "-".into()
-            }
-        };
-        let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {:.2} |",
+            "| {} | {} | {} | {} | {} | {} |",
             r.rooms(),
-            per(r.precompute_s, first.precompute_s),
-            per(peak(r), peak(first)),
-            per(r.file_bytes as f64, first.file_bytes as f64),
-            per(r.gpu_bytes as f64, first.gpu_bytes as f64),
-            peak(r) / r.file_bytes as f64
+            ratio(r.per_hall(first, |r| r.precompute_s)),
+            ratio(r.per_hall(first, ScaleRow::peak)),
+            ratio(r.per_hall(first, |r| r.file_bytes as f64)),
+            ratio(r.per_hall(first, |r| r.gpu_bytes as f64)),
+            ratio(r.peak() / r.file_bytes as f64)
         );
     }
 }

@@ -381,7 +381,6 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
     root.fill(&WHITE).map_err(plot_err)?;
     let (left, right) = root.split_horizontally(550);
     let first = &rows[0];
-    let rooms = |r: &ScaleRow| r.rooms() as f64;
     // One column per level size, labelled with its number of halls.
     let at: Vec<f64> = (0..rows.len()).map(|k| k as f64).collect();
     let x_range = -0.3..rows.len() as f64 - 0.7;
@@ -393,17 +392,15 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
             false => String::new(),
         }
     };
-    let peak = |r: &ScaleRow| r.peak_bytes.map_or(f64::NAN, |b| b as f64);
     let series: [ScaleSeries; 4] = [
         ("precompute time", PRM_COLOUR, |r| r.precompute_s),
-        ("peak memory", ALL_COLOUR, peak),
+        ("peak memory", ALL_COLOUR, ScaleRow::peak),
         (".prm size", REF_COLOUR, |r| r.file_bytes as f64),
         ("GPU memory", BLACK, |r| r.gpu_bytes as f64),
     ];
-    let per = |r: &ScaleRow, f: fn(&ScaleRow) -> f64| (f(r) / rooms(r)) / (f(first) / rooms(first));
     let y_hi = series
         .iter()
-        .flat_map(|(_, _, f)| rows.iter().map(move |r| per(r, *f)))
+        .flat_map(|(_, _, f)| rows.iter().map(move |r| r.per_hall(first, *f)))
         .filter(|v| v.is_finite())
         .fold(1.5, f64::max)
         * 1.15;
@@ -424,8 +421,12 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
         .map_err(plot_err)?;
     for (name, c, f) in &series {
         let c = *c;
-        let points: Vec<(f64, f64)> =
-            at.iter().zip(rows).map(|(&x, r)| (x, per(r, *f))).filter(|p| p.1.is_finite()).collect();
+        let points: Vec<(f64, f64)> = at
+            .iter()
+            .zip(rows)
+            .map(|(&x, r)| (x, r.per_hall(first, *f)))
+            .filter(|p| p.1.is_finite())
+            .collect();
         chart
             .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
             .map_err(plot_err)?

@@ -103,6 +103,16 @@ impl ScaleRow {
         self.grid.0 * self.grid.1
     }
 
+    /// The peak memory in bytes (NaN where the system does not tell it).
+    pub fn peak(&self) -> f64 {
+        self.peak_bytes.map_or(f64::NAN, |b| b as f64)
+    }
+
+    /// `figure` of this row per hall over the same of `first` per hall (linear growth: 1).
+    pub fn per_hall(&self, first: &ScaleRow, figure: fn(&ScaleRow) -> f64) -> f64 {
+        (figure(self) / self.rooms() as f64) / (figure(first) / first.rooms() as f64)
+    }
+
     /// An error with the ground truth's own noise removed in quadrature.
     pub fn clean(&self, error: f64) -> f64 {
         (error * error - self.gt_noise * self.gt_noise).max(0.0).sqrt()
