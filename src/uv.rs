@@ -31,10 +31,10 @@ pub struct UnwrapPrim<'a> {
 /// chart: one square page, or pages of a fixed size at a fixed density, stacked as
 /// [`crate::density::Atlas`] says (v runs over every page). The level is cut into spatial zones
 /// ([`crate::zones`]), each packed into its own rectangle of one page. Returns the atlas.
-pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> Result<Atlas, String> {
+pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> Result<Atlas, UnwrapError> {
     if let UnwrapLayout::OnePage(resolution) = layout {
         if resolution < 16 {
-            return Err(format!("unwrap resolution {resolution} is too small (at least 16)"));
+            return Err(format!("unwrap resolution {resolution} is too small (at least 16)").into());
         }
     }
     // Every triangle as (primitive, triangle), its corners, and its zone.
@@ -134,13 +134,56 @@ struct Rebuilt {
 }
 
 #[cfg(feature = "unwrap")]
+/// Why lightmap UVs could not be generated.
+#[derive(Debug, PartialEq)]
+pub enum UnwrapError {
+    /// The charts need more pages than the one square page of this side the layout gave them.
+    MorePages { pages: u32, side: u32 },
+    /// Anything else, said in words.
+    Failed(String),
+}
+
+#[cfg(feature = "unwrap")]
+impl std::fmt::Display for UnwrapError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            UnwrapError::MorePages { pages, side } => {
+                write!(f, "the charts need {pages} atlas pages at {side}^2; use a larger --atlas")
+            }
+            UnwrapError::Failed(why) => f.write_str(why),
+        }
+    }
+}
+
+#[cfg(feature = "unwrap")]
+impl From<String> for UnwrapError {
+    fn from(why: String) -> Self {
+        UnwrapError::Failed(why)
+    }
+}
+
+#[cfg(feature = "unwrap")]
+impl From<&str> for UnwrapError {
+    fn from(why: &str) -> Self {
+        UnwrapError::Failed(why.to_string())
+    }
+}
+
+#[cfg(feature = "unwrap")]
+impl From<UnwrapError> for String {
+    fn from(e: UnwrapError) -> Self {
+        e.to_string()
+    }
+}
+
+#[cfg(feature = "unwrap")]
 /// Unwrap meshes with 2 texels of padding, as `layout` says. Returns uvunwrap's atlas, the
 /// factor to multiply its page v by (uvunwrap crops a single automatic page to the rows it
 /// uses, and our pages are square, so texels stay square), and our atlas.
 pub fn unwrap_meshes(
     inputs: &[uvunwrap::MeshInput<'_>],
     layout: UnwrapLayout,
-) -> Result<(uvunwrap::Atlas, f32, Atlas), String> {
+) -> Result<(uvunwrap::Atlas, f32, Atlas), UnwrapError> {
     let density = match layout {
         UnwrapLayout::OnePage(side) => uvunwrap::Density::Auto { page_size: side },
         UnwrapLayout::Pages { texel_size, page_size } => {
@@ -160,10 +203,7 @@ pub fn unwrap_meshes(
     match layout {
         UnwrapLayout::OnePage(side) => {
             if atlas.page_count != 1 {
-                return Err(format!(
-                    "the charts need {} atlas pages at {side}^2; use a larger --atlas",
-                    atlas.page_count
-                ));
+                return Err(UnwrapError::MorePages { pages: atlas.page_count, side });
             }
             let v_scale = atlas.height as f32 / atlas.width as f32;
             Ok((atlas, v_scale, Atlas::single(side)))
@@ -174,7 +214,8 @@ pub fn unwrap_meshes(
                     "the charts need {} pages of {page_size}^2, over the {MAX_PAGES} limit; give a larger \
                      --page-size or --texel-size",
                     atlas.page_count
-                ));
+                )
+                .into());
             }
             let pages = Atlas { side: page_size, pages: atlas.page_count.max(1) };
             Ok((atlas, 1.0, pages))

@@ -40,13 +40,13 @@ pub(super) fn generate(
     let atlas = match uv::unwrap_primitives(&mut prims_uv_view(prims), layout) {
         // One page was the density's estimate, from a typical packing's coverage; charts that
         // pack worse (small pages, many small charts) get pages at the texel size asked for.
-        Err(_) if opts.unwrap_resolution.is_none() && matches!(layout, UnwrapLayout::OnePage(_)) => {
+        Err(uv::UnwrapError::MorePages { .. }) if opts.unwrap_resolution.is_none() => {
             layout = UnwrapLayout::Pages { texel_size: opts.texel_size, page_size: opts.page_size };
             uv::unwrap_primitives(&mut prims_uv_view(prims), layout)
         }
         r => r,
     }
-    .map_err(unwrap_error)?;
+    .map_err(|e| unwrap_error(e.to_string()))?;
     report.uv1_generated = true;
     report.generated_atlas = Some(atlas);
     report.generated_layout = Some(layout);

@@ -381,9 +381,41 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
     root.fill(&WHITE).map_err(plot_err)?;
     let (left, right) = root.split_horizontally(550);
     let first = &rows[0];
-    // One column per level size, labelled with its number of halls.
-    let at: Vec<f64> = (0..rows.len()).map(|k| k as f64).collect();
-    let x_range = -0.3..rows.len() as f64 - 0.7;
+    let cost: [ScaleSeries; 4] = [
+        ("precompute time", PRM_COLOUR, |r| r.precompute_s),
+        ("peak memory", ALL_COLOUR, ScaleRow::peak),
+        (".prm size", REF_COLOUR, |r| r.file_bytes as f64),
+        ("GPU memory", BLACK, |r| r.gpu_bytes as f64),
+    ];
+    let per_hall: Vec<(&str, RGBColor, Vec<f64>)> = cost
+        .iter()
+        .map(|&(name, c, f)| (name, c, rows.iter().map(|r| r.per_hall(first, f)).collect()))
+        .collect();
+    let caption = "Cost per hall, over one level's";
+    scale_panel(&left, rows, caption, "per hall / first level's per hall", 1.5, &per_hall)?;
+    let errors: [ScaleSeries; 2] = [
+        ("PRM top-32 + groups", PRM_COLOUR, |r| r.clean(r.top.0)),
+        ("PRM all panes", ALL_COLOUR, |r| r.clean(r.all.0)),
+    ];
+    let percent: Vec<(&str, RGBColor, Vec<f64>)> =
+        errors.iter().map(|&(name, c, f)| (name, c, rows.iter().map(|r| f(r) * 100.0).collect())).collect();
+    let caption = "Error against the number of halls";
+    scale_panel(&right, rows, caption, "error, ground-truth noise removed (%)", 0.5, &percent)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// One panel of the scale plot: a column per level size, labelled with its halls, and each
+/// series (its values per size; non-finite ones left out) as a line with a dot per size. The
+/// y axis runs from 0 to above the largest value and `y_min_top`.
+fn scale_panel(
+    area: &DrawingArea<BitMapBackend, Shift>,
+    rows: &[ScaleRow],
+    caption: &str,
+    y_desc: &str,
+    y_min_top: f64,
+    series: &[(&str, RGBColor, Vec<f64>)],
+) -> Result<()> {
     let halls: Vec<String> = rows.iter().map(|r| r.rooms().to_string()).collect();
     let label = |x: &f64| {
         let k = x.round();
@@ -392,72 +424,26 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
             false => String::new(),
         }
     };
-    let series: [ScaleSeries; 4] = [
-        ("precompute time", PRM_COLOUR, |r| r.precompute_s),
-        ("peak memory", ALL_COLOUR, ScaleRow::peak),
-        (".prm size", REF_COLOUR, |r| r.file_bytes as f64),
-        ("GPU memory", BLACK, |r| r.gpu_bytes as f64),
-    ];
-    let y_hi = series
-        .iter()
-        .flat_map(|(_, _, f)| rows.iter().map(move |r| r.per_hall(first, *f)))
-        .filter(|v| v.is_finite())
-        .fold(1.5, f64::max)
-        * 1.15;
-    let mut chart = ChartBuilder::on(&left)
-        .caption("Cost per hall, over one level's", ("sans-serif", 20))
+    let top =
+        series.iter().flat_map(|s| s.2.iter()).filter(|v| v.is_finite()).fold(y_min_top, |a, &v| a.max(v));
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d(x_range.clone(), 0.0..y_hi)
+        .build_cartesian_2d(-0.3..rows.len() as f64 - 0.7, 0.0..top * 1.15)
         .map_err(plot_err)?;
     chart
         .configure_mesh()
         .x_labels(rows.len())
         .x_label_formatter(&label)
         .x_desc("halls")
-        .y_desc("per hall / first level's per hall")
+        .y_desc(y_desc)
         .draw()
         .map_err(plot_err)?;
-    for (name, c, f) in &series {
-        let c = *c;
-        let points: Vec<(f64, f64)> = at
-            .iter()
-            .zip(rows)
-            .map(|(&x, r)| (x, r.per_hall(first, *f)))
-            .filter(|p| p.1.is_finite())
-            .collect();
-        chart
-            .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(*name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, c.filled()))).map_err(plot_err)?;
-    }
-    legend(&mut chart)?;
-    let e_hi =
-        rows.iter().flat_map(|r| [r.clean(r.top.0), r.clean(r.all.0)]).fold(0.0, f64::max) * 115.0 + 0.5;
-    let mut chart = ChartBuilder::on(&right)
-        .caption("Error against the number of halls", ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(x_range, 0.0..e_hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_labels(rows.len())
-        .x_label_formatter(&label)
-        .x_desc("halls")
-        .y_desc("error, ground-truth noise removed (%)")
-        .draw()
-        .map_err(plot_err)?;
-    let errors: [ScaleSeries; 2] = [
-        ("PRM top-32 + groups", PRM_COLOUR, |r| r.clean(r.top.0)),
-        ("PRM all panes", ALL_COLOUR, |r| r.clean(r.all.0)),
-    ];
-    for (name, c, f) in errors {
-        let points: Vec<(f64, f64)> = at.iter().zip(rows).map(|(&x, r)| (x, f(r) * 100.0)).collect();
+    for &(name, c, ref values) in series {
+        let points: Vec<(f64, f64)> =
+            values.iter().enumerate().map(|(k, &v)| (k as f64, v)).filter(|p| p.1.is_finite()).collect();
         chart
             .draw_series(LineSeries::new(points.clone(), c.stroke_width(2)))
             .map_err(plot_err)?
@@ -465,7 +451,5 @@ fn plot_scale(path: &Path, rows: &[ScaleRow]) -> Result<()> {
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
         chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, c.filled()))).map_err(plot_err)?;
     }
-    legend(&mut chart)?;
-    root.present().map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart)
 }
