@@ -108,7 +108,7 @@ pub fn near_links(
 /// pillar's foot lost the link to the lit strip in front of it (the chamber's torch by a pillar:
 /// 0.0-0.8 W/m² there against the ground truth's 2.5-3.1), and a cell half hidden was counted
 /// whole.
-fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec3, scale: f32) -> f32 {
+pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec3, scale: f32) -> f32 {
     let part = clip_above_plane(tri, x, n);
     if part.len() < 3 {
         return 0.0;
