@@ -102,8 +102,10 @@ pub fn near_links(
 
 /// The form factor from the texel `(x, n)` to the part of cell triangle `tri` it sees (`front`:
 /// its entry's normal, `scale`: the link factor per unit form factor): the triangle clipped to
-/// the texel's hemisphere, times the share of up to [`VISIBILITY_SAMPLES`] points spread over
-/// that part that `x` sees. One ray to the entry point decided a whole cell before:
+/// the texel's hemisphere, times the share of points spread over that part that `x` sees (its
+/// vertex mean, and where the triangle's share of the link factor is [`SPLIT_FACTOR`] or more,
+/// one point halfway to each corner: for a clipped part of three corners these are the
+/// centroids of its four equal sub-triangles). One ray to the entry point decided a whole cell before:
 /// a plinth top cut by its pillar has its entry behind the pillar, so the texels at the
 /// pillar's foot lost the link to the lit strip in front of it (the chamber's torch by a pillar:
 /// 0.0-0.8 W/m² there against the ground truth's 2.5-3.1), and a cell half hidden was counted
@@ -125,8 +127,8 @@ pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec
         return 0.0;
     }
     // The centre, and where the part matters (a link factor of SPLIT_FACTOR or more from it)
-    // one point halfway to each of its first corners.
-    let more = if f * scale >= SPLIT_FACTOR { VISIBILITY_SAMPLES - 1 } else { 0 };
+    // one point halfway to each of its corners (three or four: one plane cuts a triangle).
+    let more = if f * scale >= SPLIT_FACTOR { part.len() } else { 0 };
     let samples = std::iter::once(centre)
         .chain(part.iter().take(more).map(|&v| 0.5 * (centre + v)))
         .collect::<Vec<Vec3>>();
@@ -134,11 +136,9 @@ pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec
     f * seen as f32 / samples.len() as f32
 }
 
-/// Points per cell triangle [`seen_form_factor`] casts a shadow ray to where its share of the
-/// link factor is [`SPLIT_FACTOR`] or more (one elsewhere: most links are weak, and four rays
-/// each made the near phase 2.8x slower).
-pub const VISIBILITY_SAMPLES: usize = 4;
-/// See [`VISIBILITY_SAMPLES`].
+/// A cell triangle whose share of a link factor is this or more gets a shadow ray to each of
+/// several points of it in [`seen_form_factor`], one elsewhere: most links are weak, and four
+/// rays for every triangle made the near phase 2.8x slower.
 pub const SPLIT_FACTOR: f32 = 0.01;
 
 /// The cells that may reach a point: each cell `(centroid, area)` is listed in every grid box
@@ -329,14 +329,29 @@ mod tests {
         let got = seen(&half, &all);
         assert!((got - 0.5 * whole).abs() < 1e-4 * whole, "{got} against half of {whole}");
         assert!(seen(&half, &right) == 0.0, "the hidden half is hidden");
-        // Standing on the texel's plane, half below it: the part above is seen whole (one ray
-        // to the entry point, below the plane, said nothing was).
+        // Weak links (one ray a triangle) see the same halves.
+        let weak: f32 = all.iter().map(|t| seen_form_factor(&half, x, n, t, Vec3::NEG_Y, 1e-3)).sum();
+        assert!((weak - 0.5 * whole).abs() < 1e-4 * whole, "{weak} with one ray each");
+        // Standing on the texel's floor, half below it (a plinth top under its pillar): the part
+        // above is seen whole, since the rays go to points of the clipped part; a ray to the
+        // triangle's own centroid, under the floor, would say nothing was.
+        let floor = vec![
+            Vec3::new(-5.0, 0.0, -5.0),
+            Vec3::new(5.0, 0.0, -5.0),
+            Vec3::new(5.0, 0.0, 5.0),
+            Vec3::new(-5.0, 0.0, 5.0),
+        ];
+        let floor = Bvh::build(&Scene::from_mesh(floor, vec![glam::Vec2::ZERO; 4], &[0, 1, 2, 0, 2, 3]));
         let upright = [Vec3::new(-0.5, -1.0, 1.0), Vec3::new(0.5, -1.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let centroid = (upright[0] + upright[1] + upright[2]) / 3.0;
+        assert!(!floor.visible(x, n, centroid, Vec3::NEG_Z), "the centroid is under the floor");
         let above = point_to_polygon(x, n, &upright);
         assert!(above > 0.01);
-        let got = seen_form_factor(&open, x, n, &upright, Vec3::NEG_Z, 1.0);
-        assert!((got - above).abs() < 1e-6, "{got} against {above}");
-        assert_eq!(seen_form_factor(&open, x, n, &upright, Vec3::Z, 1.0), 0.0, "facing away");
+        for scale in [1.0, 1e-3] {
+            let got = seen_form_factor(&floor, x, n, &upright, Vec3::NEG_Z, scale);
+            assert!((got - above).abs() < 1e-6, "{got} against {above} at scale {scale}");
+        }
+        assert_eq!(seen_form_factor(&floor, x, n, &upright, Vec3::Z, 1.0), 0.0, "facing away");
     }
 
     #[test]

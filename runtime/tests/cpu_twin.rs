@@ -141,7 +141,9 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
 /// One cell lit alone and every cluster weight 0, so the panes say nothing and each deviation is
 /// the entry's own light: the near links and the far field must then add up, at every texel,
 /// to that cell's first bounce, `albedo E (A/N) / A_cell F(x -> cell) V` (Lambert's form factor
-/// of the cell's polygons, one shadow ray). The near links hold it close by, the far field
+/// of the cell's polygons; nothing in the open box hides part of a cell, so one shadow ray to
+/// the entry is its visibility, independently of the links' own per-triangle rays). The near
+/// links hold it close by, the far field
 /// beyond, both in the band between. Tolerances: the far field treats the cell as a point at
 /// its centroid and borrows its visibility from the texel's four nearest entries, good at 2.5
 /// entry spacings to about 1 % (measured: normalised RMSE 0.2-1.4 %, energy within 1.1 %; with
