@@ -105,12 +105,19 @@ pub fn near_links(
 /// the texel's hemisphere, times the share of points spread over that part that `x` sees (its
 /// vertex mean, and where the triangle's share of the link factor is [`SPLIT_FACTOR`] or more,
 /// one point halfway to each corner: for a clipped part of three corners these are the
-/// centroids of its four equal sub-triangles). One ray to the entry point decided a whole cell before:
-/// a plinth top cut by its pillar has its entry behind the pillar, so the texels at the
-/// pillar's foot lost the link to the lit strip in front of it (the chamber's torch by a pillar:
-/// 0.0-0.8 W/m² there against the ground truth's 2.5-3.1), and a cell half hidden was counted
-/// whole.
+/// centroids of its four equal sub-triangles). A triangle whose front faces away from `x`
+/// sends it nothing.
+///
+/// One ray to the entry point decided a whole cell before: a plinth top cut by its pillar has
+/// its entry behind the pillar, so the texels at the pillar's foot lost the link to the lit
+/// strip in front of it (the chamber's torch by a pillar: 0.0-0.8 W/m² there against the
+/// ground truth's 2.5-3.1), and a cell half hidden was counted whole.
 pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec3, scale: f32) -> f32 {
+    let Some(normal) = (tri[1] - tri[0]).cross(tri[2] - tri[0]).try_normalize() else { return 0.0 };
+    let normal = if normal.dot(front) < 0.0 { -normal } else { normal };
+    if normal.dot(x - tri[0]) <= 0.0 {
+        return 0.0;
+    }
     let part = clip_above_plane(tri, x, n);
     if part.len() < 3 {
         return 0.0;
@@ -119,21 +126,15 @@ pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec
     if !(f > 0.0) {
         return 0.0;
     }
-    let Some(normal) = (tri[1] - tri[0]).cross(tri[2] - tri[0]).try_normalize() else { return 0.0 };
-    // The cell's front is its entry's side; a cell facing away from x sends it nothing.
-    let normal = if normal.dot(front) < 0.0 { -normal } else { normal };
     let centre = part.iter().copied().sum::<Vec3>() / part.len() as f32;
-    if normal.dot(x - centre) <= 0.0 {
-        return 0.0;
-    }
-    // The centre, and where the part matters (a link factor of SPLIT_FACTOR or more from it)
-    // one point halfway to each of its corners (three or four: one plane cuts a triangle).
+    // The centre, and where the part matters one point halfway to each of its corners (three
+    // or four: one plane cuts a triangle).
     let more = if f * scale >= SPLIT_FACTOR { part.len() } else { 0 };
-    let samples = std::iter::once(centre)
+    let seen = std::iter::once(centre)
         .chain(part.iter().take(more).map(|&v| 0.5 * (centre + v)))
-        .collect::<Vec<Vec3>>();
-    let seen = samples.iter().filter(|&&y| bvh.visible(x, n, y, normal)).count();
-    f * seen as f32 / samples.len() as f32
+        .filter(|&y| bvh.visible(x, n, y, normal))
+        .count();
+    f * seen as f32 / (1 + more) as f32
 }
 
 /// A cell triangle whose share of a link factor is this or more gets a shadow ray to each of
