@@ -75,14 +75,21 @@ fn bvh_scale(diagonal: f32) -> f32 {
 impl Bvh {
     /// Build over all triangles of `scene`.
     pub fn build(scene: &Scene) -> Bvh {
-        let to_bvh = bvh_scale(scene.diagonal());
+        Bvh::build_with_extent(scene, scene.diagonal())
+    }
+
+    /// Build with the offsets and the internal scale of a level whose diagonal is `diagonal`
+    /// rather than the scene's own: an editor moving objects changes the scene's bounds, and
+    /// rays that do not meet what moved must give the same answer before and after.
+    pub fn build_with_extent(scene: &Scene, diagonal: f32) -> Bvh {
+        let to_bvh = bvh_scale(diagonal);
         let scene_tris: Vec<BvhTriangle> = (0..scene.triangles.len())
             .map(|t| {
                 let [a, b, c] = scene.corners(t).map(|p| glam::Vec3A::from_array((p * to_bvh).to_array()));
                 BvhTriangle { v0: a, v1: b, v2: c }
             })
             .collect();
-        let scene_eps = OFFSET_REL_SCENE * scene.diagonal().max(f32::MIN_POSITIVE);
+        let scene_eps = OFFSET_REL_SCENE * diagonal.max(f32::MIN_POSITIVE);
         if scene_tris.is_empty() {
             return Bvh { bvh: None, tris: Vec::new(), ids: Vec::new(), scene_eps, to_bvh };
         }

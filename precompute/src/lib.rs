@@ -8,6 +8,7 @@ pub mod dipole;
 pub mod entries;
 pub mod far;
 pub mod ground_truth;
+pub mod incremental;
 pub mod near;
 pub mod panes;
 pub mod parallel;

@@ -280,50 +280,64 @@ impl Evaluator<'_> {
         };
         let mut indirect = Vec3::ZERO;
         let s = self.p.visibility_samples;
-        // Visibility weighted the way the light reaches this texel: member VPLs are
-        // drawn in proportion to their own point-light kernel cos cos / r² (r² kept
-        // above the light's area per sample), so near parts of a large light count
-        // for what they give. A plain fraction of members undercounts a light whose
-        // far members hide behind pillars while its near ones shine: 4-6 % of the
-        // chamber's indirect light was lost that way.
-        let visibility = |samples: &[(Vec3, Vec3)], r2_min: f32, rng: &mut rand_pcg::Pcg64Mcg| {
-            let mut cdf = Vec::with_capacity(samples.len());
-            let mut total = 0.0f32;
-            for (q, nq) in samples {
-                let d = t.position - *q;
-                let r2 = d.length_squared();
-                let w = (nq.dot(d).max(0.0) * (-t.normal.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
-                total += w;
-                cdf.push(total);
-            }
-            let mut seen = 0;
-            for k in 0..s {
-                let u = (k as f32 + rng.random::<f32>()) / s as f32;
-                let i = if total > 0.0 {
-                    cdf.partition_point(|&c| c < u * total).min(samples.len() - 1)
-                } else {
-                    rng.random_range(0..samples.len())
-                };
-                let (q, nq) = samples[i];
-                self.rays.fetch_add(1, Ordering::Relaxed);
-                seen += self.bvh.visible(t.position, t.normal, q, nq) as u32;
-            }
-            seen as f32 / s as f32
-        };
         for pc in &self.vl.polygons {
             let e = pc.light.irradiance(t.position, t.normal, eps);
             if e != Vec3::ZERO {
-                indirect += e * visibility(&pc.samples, pc.light.area() / pc.samples.len() as f32, &mut rng);
+                let r2_min = pc.light.area() / pc.samples.len() as f32;
+                self.rays.fetch_add(s as usize, Ordering::Relaxed);
+                indirect +=
+                    e * soft_visibility(self.bvh, t.position, t.normal, &pc.samples, r2_min, s, &mut rng);
             }
         }
         for sc in &self.vl.spheres {
             let e = sc.light.irradiance(t.position, t.normal);
             if e != Vec3::ZERO {
-                indirect += e * visibility(&sc.samples, sc.light.radius * sc.light.radius, &mut rng);
+                let r2_min = sc.light.radius * sc.light.radius;
+                self.rays.fetch_add(s as usize, Ordering::Relaxed);
+                indirect +=
+                    e * soft_visibility(self.bvh, t.position, t.normal, &sc.samples, r2_min, s, &mut rng);
             }
         }
         (direct, indirect)
     }
+}
+
+/// The share of a virtual light that receiver (p, n) sees, from `s` shadow rays to its member
+/// VPLs `samples` (position, normal), drawn in proportion to their own point-light kernel
+/// cos cos / r² (r² kept above `r2_min`, the light's area per sample), so that near parts of a
+/// large light count for what they give. A plain fraction of members undercounts a light whose
+/// far members hide behind pillars while its near ones shine: 4-6 % of the chamber's indirect
+/// light was lost that way. Stratified over the kernel's distribution.
+pub(crate) fn soft_visibility(
+    bvh: &Bvh,
+    p: Vec3,
+    n: Vec3,
+    samples: &[(Vec3, Vec3)],
+    r2_min: f32,
+    s: u32,
+    rng: &mut rand_pcg::Pcg64Mcg,
+) -> f32 {
+    let mut cdf = Vec::with_capacity(samples.len());
+    let mut total = 0.0f32;
+    for (q, nq) in samples {
+        let d = p - *q;
+        let r2 = d.length_squared();
+        let w = (nq.dot(d).max(0.0) * (-n.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
+        total += w;
+        cdf.push(total);
+    }
+    let mut seen = 0;
+    for k in 0..s {
+        let u = (k as f32 + rng.random::<f32>()) / s as f32;
+        let i = if total > 0.0 {
+            cdf.partition_point(|&c| c < u * total).min(samples.len() - 1)
+        } else {
+            rng.random_range(0..samples.len())
+        };
+        let (q, nq) = samples[i];
+        seen += bvh.visible(p, n, q, nq) as u32;
+    }
+    seen as f32 / s as f32
 }
 
 /// The virtual lights as a Wavefront OBJ: polygons as faces, spheres as octahedra.

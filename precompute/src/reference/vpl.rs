@@ -44,8 +44,15 @@ pub struct PhotonBudget {
     pub beyond_last_bounce: Vec3,
 }
 
-/// Emit `photons` photons from `light`; their first direction and flux, and the origin.
-fn emit(light: &Light, scene: &Scene, photons: usize, k: usize, rng: &mut impl Rng) -> (Vec3, Vec3, Vec3) {
+/// Emit photon `k` of `photons` from `light`: its origin, first direction and flux. A
+/// directional light shoots from a disk covering the box `bounds`.
+pub(crate) fn emit(
+    light: &Light,
+    bounds: (Vec3, Vec3),
+    photons: usize,
+    k: usize,
+    rng: &mut impl Rng,
+) -> (Vec3, Vec3, Vec3) {
     let n = photons as f32;
     match light.kind {
         LightKind::Point => {
@@ -63,7 +70,7 @@ fn emit(light: &Light, scene: &Scene, photons: usize, k: usize, rng: &mut impl R
             (light.position, d, light.intensity_towards(d) * (omega / n))
         }
         LightKind::Directional => {
-            let (lo, hi) = scene.bounds();
+            let (lo, hi) = bounds;
             let centre = 0.5 * (lo + hi);
             let radius = 0.5 * (hi - lo).length() * 1.01 + 1e-6;
             let (t, b) = light.direction.any_orthonormal_pair();
@@ -103,7 +110,7 @@ pub fn trace_photons(
                 let mut rng = stream(seed, 10 + li as u64, k as u64);
                 let mut budget = PhotonBudget::default();
                 let mut out = Vec::new();
-                let (mut origin, mut dir, mut flux) = emit(light, scene, photons, k, &mut rng);
+                let (mut origin, mut dir, mut flux) = emit(light, scene.bounds(), photons, k, &mut rng);
                 budget.emitted = flux;
                 let mut from_surface: Option<Vec3> = None;
                 for bounce in 1..=bounces {

@@ -1,0 +1,331 @@
+//! The incremental baker (paper 001): edits followed by convergence give the lightmap of a
+//! fresh bake of the edited level; energy is accounted for at every step; no intermediate state
+//! is further from the final one than the state before the edit; bad edits change nothing.
+
+mod common;
+
+use std::sync::Arc;
+
+use common::{quads, unit_box_faces, v};
+use glam::{Mat4, Vec3};
+use prm::{Light, Scene, TexelSet};
+use prm_precompute::incremental::clusters::{cell_lights, Member};
+use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError};
+
+/// Quad `a, b, c, d` wound so that its front faces `out`.
+fn facing(q: [Vec3; 4], out: Vec3) -> [Vec3; 4] {
+    let n = (q[1] - q[0]).cross(q[2] - q[0]);
+    if n.dot(out) >= 0.0 {
+        q
+    } else {
+        [q[3], q[2], q[1], q[0]]
+    }
+}
+
+/// A closed unit room (node 0; the +x wall has its own material 1) with a block on the floor
+/// (node 1) and a point light.
+fn room() -> Scene {
+    let (lo, hi) = (v(0.3, 0.0, 0.35), v(0.55, 0.3, 0.6));
+    let c = 0.5 * (lo + hi);
+    let mut qs = unit_box_faces();
+    let block = [
+        facing([v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)], Vec3::Y),
+        facing([v(lo.x, 0., lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, 0., lo.z)], -Vec3::Z),
+        facing([v(lo.x, 0., hi.z), v(hi.x, 0., hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)], Vec3::Z),
+        facing([v(lo.x, 0., lo.z), v(lo.x, 0., hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z)], -Vec3::X),
+        facing([v(hi.x, 0., lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, 0., hi.z)], Vec3::X),
+    ];
+    for q in &block {
+        let n = (q[1] - q[0]).cross(q[2] - q[0]);
+        let mid = 0.25 * (q[0] + q[1] + q[2] + q[3]);
+        assert!(n.dot(mid - c) > 0.0, "block faces point out");
+    }
+    qs.extend(block);
+    let mut s = quads(&qs, 0.6);
+    for (t, tri) in s.triangles.iter_mut().enumerate() {
+        if t >= 12 {
+            tri.node = 1;
+        }
+        if t == 10 || t == 11 {
+            tri.material = 1;
+        }
+    }
+    let mut wall = s.materials[0].clone();
+    wall.name = "wall".into();
+    wall.albedo = Vec3::new(0.8, 0.3, 0.2);
+    s.materials.push(wall);
+    s.lights.push(Light::point("lamp", v(0.3, 0.8, 0.7), Vec3::splat(1.0)));
+    s
+}
+
+fn params() -> BakerParams {
+    BakerParams { paths: 3000, leaf_vpls: 128, max_depth: 6, visibility_samples: 2, ..Default::default() }
+}
+
+fn texels(s: &Scene) -> Arc<TexelSet> {
+    Arc::new(TexelSet::build(s, 64, 64))
+}
+
+fn total(b: &Baker) -> Vec<Vec3> {
+    let (d, i) = b.lightmap();
+    d.iter().zip(&i).map(|(a, b)| *a + *b).collect()
+}
+
+fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
+    let s: f64 = a.iter().zip(b).map(|(x, y)| (*x - *y).length_squared() as f64).sum();
+    (s / a.len() as f64).sqrt()
+}
+
+fn translate(x: f32, z: f32) -> Mat4 {
+    Mat4::from_translation(v(x, 0.0, z))
+}
+
+#[test]
+fn edits_then_convergence_give_a_fresh_bake_of_the_edited_level() {
+    let scene = room();
+    let tx = texels(&scene);
+    let extent = scene.diagonal();
+    let mut a = Baker::new(scene.clone(), tx.clone(), params()).unwrap();
+    assert!(a.converge() > 0);
+    let lamp = Light::point("lamp", v(0.7, 0.5, 0.2), Vec3::new(1.0, 0.9, 0.8));
+    let edits = [
+        Edit::Transform { node: 1, matrix: translate(0.15, -0.1) },
+        Edit::Albedo { material: 1, albedo: v(0.2, 0.7, 0.4) },
+        Edit::SetLight { id: 0, light: Light::point("lamp", v(0.25, 0.6, 0.3), Vec3::splat(1.0)) },
+        Edit::AddLight(lamp),
+        Edit::Transform { node: 1, matrix: Mat4::from_rotation_y(0.3) },
+    ];
+    for e in &edits {
+        let r = a.apply(e).unwrap();
+        assert!(r.pending > 0, "{e:?} queues updates");
+        // Interleave: a few updates, then the next edit.
+        for _ in 0..3 {
+            a.step();
+        }
+    }
+    a.converge();
+    assert!(a.converged());
+
+    let mut final_scene = a.level().current().scene.as_ref().clone();
+    final_scene.lights = a.level().current().lights.iter().map(|l| l.light.clone()).collect();
+    let mut b = Baker::with_frame(final_scene, tx, params(), a.frame(), extent).unwrap();
+    b.converge();
+    let (ta, tb) = (total(&a), total(&b));
+    let mean = tb.iter().map(|x| x.length() as f64).sum::<f64>() / tb.len() as f64;
+    let worst = ta.iter().zip(&tb).map(|(x, y)| (*x - *y).length() as f64).fold(0.0, f64::max);
+    assert!(mean > 0.1, "the room is lit ({mean})");
+    assert!(worst <= 1e-4 * mean, "incremental and fresh differ by {worst} W/m² at worst (mean {mean})");
+    let (ia, ib) = (a.lightmap().1, b.lightmap().1);
+    assert!(ib.iter().any(|x| x.x > 0.0), "indirect light is there");
+    assert!(rms(&ia, &ib) <= 1e-5 * mean);
+}
+
+#[test]
+fn energy_is_accounted_for_and_cells_disjoint_at_every_step() {
+    let scene = room();
+    let mut b = Baker::new(scene.clone(), texels(&scene), params()).unwrap();
+    b.converge();
+    b.apply(&Edit::Transform { node: 1, matrix: translate(-0.1, 0.2) }).unwrap();
+    b.apply(&Edit::Albedo { material: 0, albedo: Vec3::splat(0.4) }).unwrap();
+    let mut steps = 0;
+    loop {
+        let e = b.energy();
+        let want = e.vpls;
+        let have = e.baked + e.pending;
+        assert!(
+            (have - want).abs().max_element() <= 1e-4 * want.max_element(),
+            "step {steps}: baked {} + pending {} vs VPLs {}",
+            e.baked,
+            e.pending,
+            e.vpls
+        );
+        assert!(b.cells_disjoint(), "step {steps}: a cell inside another");
+        if b.step().is_none() {
+            break;
+        }
+        steps += 1;
+    }
+    assert!(steps > 0);
+    let e = b.energy();
+    assert_eq!(e.pending, Vec3::ZERO);
+}
+
+#[test]
+fn no_intermediate_state_is_further_from_the_final_one_than_before_the_edit() {
+    let scene = room();
+    let mut b = Baker::new(scene.clone(), texels(&scene), params()).unwrap();
+    b.converge();
+    b.apply(&Edit::Transform { node: 1, matrix: translate(0.2, 0.1) }).unwrap();
+    let mut states = vec![total(&b)];
+    let mut resolved = Vec::new();
+    while let Some(r) = b.step() {
+        states.push(total(&b));
+        resolved.push(r.resolved);
+    }
+    let last = states.last().unwrap().clone();
+    let before = rms(&states[0], &last);
+    assert!(before > 0.0, "the move changed the lightmap");
+    for (k, s) in states.iter().enumerate() {
+        let d = rms(s, &last);
+        assert!(d <= before * (1.0 + 1e-3), "state {k}: {d} from the final, {before} before the edit");
+    }
+    // Most urgent first: the first update resolves at least as much as any later one.
+    assert!(resolved.iter().all(|&r| r <= resolved[0] + 1e-6), "{resolved:?}");
+}
+
+#[test]
+fn a_closed_room_receives_the_power_of_its_vpls() {
+    // Every virtual light's power lands somewhere in a closed room: the indirect irradiance
+    // integrated over the receivers equals the VPLs' power (to the texel discretisation).
+    let mut scene = quads(&unit_box_faces(), 0.5);
+    scene.lights.push(Light::point("p", v(0.4, 0.6, 0.5), Vec3::splat(1.0)));
+    let tx = Arc::new(TexelSet::build(&scene, 128, 128));
+    let mut b = Baker::new(scene.clone(), tx.clone(), BakerParams { paths: 4000, ..params() }).unwrap();
+    b.converge();
+    let (direct, indirect) = b.lightmap();
+    // Power received: each triangle's area times the mean irradiance of its texels.
+    let received = |e: &[Vec3]| -> f64 {
+        let mut sum = vec![(0.0f64, 0usize); scene.triangles.len()];
+        for (t, x) in tx.texels.iter().zip(e) {
+            sum[t.triangle as usize].0 += x.x as f64;
+            sum[t.triangle as usize].1 += 1;
+        }
+        sum.iter()
+            .enumerate()
+            .filter(|(_, s)| s.1 > 0)
+            .map(|(t, s)| scene.area(t) as f64 * s.0 / s.1 as f64)
+            .sum()
+    };
+    // The direct light per texel is I cos / d² (a convex room hides nothing).
+    let light = v(0.4, 0.6, 0.5);
+    for (t, e) in tx.texels.iter().zip(&direct) {
+        let d = light - t.position;
+        let want = (t.normal.dot(d) / d.length()).max(0.0) / d.length_squared();
+        assert!((e.x - want).abs() <= 1e-4 * want.max(1.0), "direct {} vs {want} at {}", e.x, t.position);
+    }
+    // The quadrature over texels is calibrated by the direct light's known total, 4 pi I.
+    let quadrature = received(&direct) / (4.0 * std::f64::consts::PI);
+    assert!((quadrature - 1.0).abs() < 0.06, "texel quadrature off by {quadrature}");
+    let indirect_in = received(&indirect) / quadrature;
+    let vpl = b.energy().vpls.x as f64;
+    assert!(
+        (indirect_in - vpl).abs() <= 0.02 * vpl,
+        "indirect received {indirect_in} W vs VPL power {vpl} W"
+    );
+}
+
+#[test]
+fn bad_edits_are_refused_and_change_nothing() {
+    let scene = room();
+    let mut b = Baker::new(scene.clone(), texels(&scene), params()).unwrap();
+    b.converge();
+    let before = total(&b);
+    let version = b.level().current().id;
+    let bad = [
+        (Edit::Transform { node: 7, matrix: Mat4::IDENTITY }, EditError::UnknownNode(7)),
+        (
+            Edit::Transform { node: 1, matrix: Mat4::from_translation(v(f32::NAN, 0., 0.)) },
+            EditError::NonFinite("the transform"),
+        ),
+        (Edit::Transform { node: 1, matrix: Mat4::from_scale(v(1.0, 0.0, 1.0)) }, EditError::Singular(1)),
+        (Edit::Albedo { material: 9, albedo: Vec3::splat(0.5) }, EditError::UnknownMaterial(9, 2)),
+        (Edit::Albedo { material: 0, albedo: Vec3::splat(1.5) }, EditError::BadAlbedo(Vec3::splat(1.5))),
+        (Edit::RemoveLight { id: 4 }, EditError::UnknownLight(4)),
+        (
+            Edit::AddLight(Light::point("x", v(0.5, f32::INFINITY, 0.5), Vec3::ONE)),
+            EditError::NonFinite("the light"),
+        ),
+        (
+            Edit::AddLight(Light::point("x", v(0.5, 0.5, 0.5), -Vec3::ONE)),
+            EditError::NegativeIntensity(-Vec3::ONE),
+        ),
+    ];
+    for (e, want) in bad {
+        assert_eq!(b.apply(&e).unwrap_err(), want, "{e:?}");
+        assert_eq!(b.level().current().id, version);
+        assert!(b.converged());
+    }
+    assert_eq!(total(&b), before);
+}
+
+#[test]
+fn each_edit_kind_changes_the_lightmap_where_it_should() {
+    let scene = room();
+    let mut b = Baker::new(scene.clone(), texels(&scene), params()).unwrap();
+    b.converge();
+    let l0 = b.lightmap();
+    // Recolouring a light scales its paths: direct and indirect scale with it exactly.
+    b.apply(&Edit::SetLight { id: 0, light: Light::point("lamp", v(0.3, 0.8, 0.7), Vec3::splat(2.0)) })
+        .unwrap();
+    b.converge();
+    let l1 = b.lightmap();
+    for (x, y) in l0.0.iter().chain(&l0.1).zip(l1.0.iter().chain(&l1.1)) {
+        assert!((*y - 2.0 * *x).abs().max_element() <= 1e-4 * (1.0 + x.max_element()), "{x} -> {y}");
+    }
+    // Removing the only light leaves nothing (to round-off).
+    b.apply(&Edit::RemoveLight { id: 0 }).unwrap();
+    b.converge();
+    let (d, i) = b.lightmap();
+    let peak = l1.0.iter().map(|x| x.max_element()).fold(0.0, f32::max);
+    assert!(d.iter().chain(&i).all(|x| x.abs().max_element() <= 1e-5 * peak));
+    assert_eq!(b.energy().vpls, Vec3::ZERO);
+    // A wall's albedo changes the light it reflects, not what it receives directly.
+    let mut c = Baker::new(scene.clone(), texels(&scene), params()).unwrap();
+    c.converge();
+    let (d0, i0) = c.lightmap();
+    let r = c.apply(&Edit::Albedo { material: 1, albedo: Vec3::ZERO }).unwrap();
+    assert!(r.paths_changed > 0 && r.paths_changed < r.paths_total);
+    c.converge();
+    let (d1, i1) = c.lightmap();
+    assert_eq!(d0, d1, "direct light does not depend on albedo");
+    let sum = |x: &[Vec3]| x.iter().fold(Vec3::ZERO, |a, b| a + *b);
+    assert!(sum(&i1).x < sum(&i0).x, "a black wall reflects less");
+}
+
+fn member(i: u32, p: Vec3, n: Vec3) -> Member {
+    Member { code: 0, light: 0, path: i, vertex: 0, position: p, normal: n, power: Vec3::splat(0.01) }
+}
+
+#[test]
+fn a_cell_s_lights_follow_its_planes_and_keep_its_power() {
+    let cell = Aabb { lo: Vec3::ZERO, hi: Vec3::ONE };
+    // A floor and a wall meeting in the cell: two polygons, each on its plane, inside the cell.
+    let mut ms = Vec::new();
+    for i in 0..400u32 {
+        let (a, b) = ((i % 20) as f32 / 20.0 + 0.025, (i / 20) as f32 / 20.0 + 0.025);
+        ms.push(member(i, v(a, 0.0, b), Vec3::Y));
+        if i % 2 == 0 {
+            ms.push(member(1000 + i, v(0.0, a, b), Vec3::X));
+        }
+    }
+    let ls = cell_lights(&ms, &cell, 4, 10);
+    assert_eq!(ls.len(), 2, "one polygon per plane");
+    let power: Vec3 = ls.iter().fold(Vec3::ZERO, |a, l| a + l.polygon.power);
+    assert!((power.x - 0.01 * ms.len() as f32).abs() < 1e-4);
+    for l in &ls {
+        let n = l.polygon.normal;
+        assert!(n.dot(Vec3::Y).abs() > 0.999 || n.dot(Vec3::X).abs() > 0.999);
+        for x in &l.polygon.vertices {
+            assert!(
+                x.cmpge(Vec3::splat(-1e-5)).all() && x.cmple(Vec3::splat(1.0 + 1e-5)).all(),
+                "{x} in the cell"
+            );
+        }
+        // Counter-clockwise seen from its front.
+        let p = &l.polygon.vertices;
+        assert!((p[1] - p[0]).cross(p[2] - p[0]).dot(n) > 0.0);
+        // It covers its members: area close to the plane's part of the cell.
+        assert!(l.polygon.area() > 0.8, "area {}", l.polygon.area());
+    }
+    // Scattered normals: no plane of 10, so disks, at most K of them, power kept.
+    let scattered: Vec<Member> = (0..40u32)
+        .map(|i| {
+            let a = i as f32 * 2.4;
+            member(i, v(0.5 + 0.3 * a.cos(), 0.5, 0.5 + 0.3 * a.sin()), v(a.cos(), 0.3, a.sin()).normalize())
+        })
+        .collect();
+    let ls = cell_lights(&scattered, &cell, 4, 10);
+    assert!(!ls.is_empty() && ls.len() <= 4);
+    let power: f32 = ls.iter().map(|l| l.polygon.power.x).sum();
+    assert!((power - 0.4).abs() < 1e-5);
+}
