@@ -3,6 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+mod bake;
 mod bake_reference;
 mod bench;
 mod bench_rays;
@@ -49,6 +50,9 @@ enum Command {
     ExportPanes(export_panes::Args),
     /// Render frames under a (moving) light rig: direct light + the PRM's indirect lightmap.
     Render(render::Args),
+    /// The incremental many-light baker (paper 001): bake, then apply a script of edits and
+    /// report how fast each converges.
+    Bake(bake::Args),
     /// Bake the static reference lightmap with virtual polygon lights (paper 000).
     BakeReference(bake_reference::Args),
     /// Error against run time of every method, and flicker over a rig: report.md + plots.
@@ -74,6 +78,7 @@ fn main() -> Result<()> {
         Command::Precompute(a) => precompute::run(a),
         Command::ExportPanes(a) => export_panes::run(a),
         Command::Evaluate(a) => evaluate::run(a),
+        Command::Bake(a) => bake::run(a),
         Command::BakeReference(a) => bake_reference::run(a),
         Command::Render(a) => render::run(a),
         Command::Bench(a) => bench::run(a),

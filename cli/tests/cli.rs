@@ -1118,3 +1118,56 @@ fn a_gpu_budget_leaves_out_what_the_camera_does_not_see_on_both_backends() {
     let m = prm::metric::compare(&gpu_frame, &cpu_frame, None);
     assert!(m.error < 0.03 && m.bias.abs() < 0.01, "GPU vs CPU frame: error {} bias {}", m.error, m.bias);
 }
+
+#[test]
+fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let out = dir.join("b.exr");
+    let script = dir.join("edits.json");
+    std::fs::write(&script, r#"[{"move": {"node": "red", "by": [0.02, 0.0, 0.0]}}, {"albedo": {"material": 0, "rgb": [0.5, 0.5, 0.5]}}]"#)
+        .unwrap();
+    let (ok, stdout, stderr) = prm(&[
+        "bake",
+        &asset("cornell.glb"),
+        "--atlas",
+        "32",
+        "--paths",
+        "2000",
+        "--edits",
+        s(&script),
+        "-o",
+        s(&out),
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(j["edits"].as_array().unwrap().len(), 2);
+    assert!(j["edits"][0]["paths_changed"].as_u64().unwrap() > 0);
+    // The direct layer is the direct light of the edited level: the wall moved 2 cm.
+    let ch = Channels::read(&out).unwrap();
+    assert!(ch.rgb("indirect").unwrap().iter().any(|x| x.x > 0.0));
+    for (bad, says) in [
+        (r#"[{"move": {"node": "no_such_node", "by": [1, 0, 0]}}]"#, "no node named"),
+        (r#"[{"teleport": {}}]"#, "unknown edit"),
+        (r#"[{"albedo": {"material": 0, "rgb": [2, 0, 0]}}]"#, "outside [0, 1]"),
+        (r#"{"move": 1}"#, "a JSON list"),
+    ] {
+        let out = dir.join("bad.exr");
+        std::fs::write(&script, bad).unwrap();
+        let (ok, _, stderr) = prm(&[
+            "bake",
+            &asset("cornell.glb"),
+            "--atlas",
+            "16",
+            "--paths",
+            "100",
+            "--edits",
+            s(&script),
+            "-o",
+            s(&out),
+        ]);
+        assert!(!ok && stderr.contains(says), "{bad}: {stderr}");
+        assert!(!out.exists(), "{bad}: no output on error");
+    }
+}
