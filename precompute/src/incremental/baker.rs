@@ -450,8 +450,10 @@ impl Baker {
         let mut in_units: BTreeSet<CellKey> = BTreeSet::new();
         for r in roots {
             let remove: Vec<CellKey> = self.baked.keys().filter(|k| under(r, **k)).copied().collect();
+            // Units are disjoint, so each wanted cell moves into at most one (no copy).
+            let keys: Vec<CellKey> = want.keys().filter(|k| under(r, **k)).copied().collect();
             let add: Vec<(CellKey, Content)> =
-                want.iter().filter(|(k, _)| under(r, **k)).map(|(k, c)| (*k, c.clone())).collect();
+                keys.into_iter().filter_map(|k| want.remove(&k).map(|c| (k, c))).collect();
             in_units.extend(remove.iter().copied());
             // Invalid flux: the power of the VPLs on one side only, plus segments.
             let mut old_ids: HashMap<(u32, u32, u32), Vec3> = HashMap::new();
