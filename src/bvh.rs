@@ -82,9 +82,20 @@ impl Bvh {
     /// rather than the scene's own: an editor moving objects changes the scene's bounds, and
     /// rays that do not meet what moved must give the same answer before and after.
     pub fn build_with_extent(scene: &Scene, diagonal: f32) -> Bvh {
+        let all: Vec<u32> = (0..scene.triangles.len() as u32).collect();
+        Bvh::build_subset(scene, &all, diagonal)
+    }
+
+    /// Build over the triangles `subset` of `scene` (scene indices), with the offsets and scale
+    /// of a level whose diagonal is `diagonal`. Queries decompose exactly: with the same
+    /// `diagonal`, a segment is visible in the whole level iff it is visible in each part of
+    /// a partition of its triangles (same offsets, same per-triangle tests).
+    pub fn build_subset(scene: &Scene, subset: &[u32], diagonal: f32) -> Bvh {
         let to_bvh = bvh_scale(diagonal);
-        let scene_tris: Vec<BvhTriangle> = (0..scene.triangles.len())
-            .map(|t| {
+        let scene_tris: Vec<BvhTriangle> = subset
+            .iter()
+            .map(|&t| {
+                let t = t as usize;
                 let [a, b, c] = scene.corners(t).map(|p| glam::Vec3A::from_array((p * to_bvh).to_array()));
                 BvhTriangle { v0: a, v1: b, v2: c }
             })
@@ -96,8 +107,8 @@ impl Bvh {
         let bvh =
             build_cwbvh_from_tris(&scene_tris, BvhBuildParams::medium_build(), &mut Duration::default());
         // Store triangles in BVH leaf order so traversal reads them sequentially.
-        let ids: Vec<u32> = bvh.primitive_indices.clone();
-        let tris = ids.iter().map(|&i| scene_tris[i as usize]).collect();
+        let tris = bvh.primitive_indices.iter().map(|&i| scene_tris[i as usize]).collect();
+        let ids: Vec<u32> = bvh.primitive_indices.iter().map(|&i| subset[i as usize]).collect();
         // Traversal hands the callback an index into `primitive_indices`, which is now also
         // an index into `tris`.
         Bvh { bvh: Some(bvh), tris, ids, scene_eps, to_bvh }

@@ -41,6 +41,13 @@ pub struct Args {
     /// VPLs a cell of the octree cut holds at most.
     #[arg(long, default_value_t = 256)]
     leaf_vpls: usize,
+    /// Changed VPLs a correction holds at most (corrections are clustered coarser than cells).
+    #[arg(long, default_value_t = 4096)]
+    delta_leaf_vpls: usize,
+    /// Leave out consolidation: after an edit, stop once no invalid light is left (the
+    /// lightmap then holds corrections; a fresh bake's clusters differ, within noise).
+    #[arg(long)]
+    no_consolidate: bool,
     /// Shadow rays per texel and virtual light.
     #[arg(long, default_value_t = 2)]
     visibility_samples: u32,
@@ -72,6 +79,8 @@ pub fn run(a: Args) -> Result<()> {
     let params = BakerParams {
         paths: a.paths,
         leaf_vpls: a.leaf_vpls,
+        delta_leaf_vpls: a.delta_leaf_vpls,
+        consolidate: !a.no_consolidate,
         visibility_samples: a.visibility_samples,
         seed: a.seed,
         ..BakerParams::default()
@@ -100,11 +109,25 @@ pub fn run(a: Args) -> Result<()> {
         // Snapshots of the lightmap as it goes, for its distance to the converged one.
         let mut shots = vec![(validate_s, summed(&baker))];
         let mut busy = 0.0;
+        let mut valid: Option<(f64, Vec<Vec3>)> = None;
+        let mut kinds = [0usize; 4];
+        let mut kind_s = [0f64; 4];
+        let mut kind_texels = [0usize; 4];
+        let mut last_t = Instant::now();
         while let Some(s) = baker.step() {
             resolved += s.resolved;
             steps += 1;
+            kinds[s.kind as usize] += 1;
+            kind_s[s.kind as usize] += last_t.elapsed().as_secs_f64();
+            kind_texels[s.kind as usize] += s.texels;
             if t90.is_none() && resolved >= 0.9 * invalid {
                 t90 = Some(t.elapsed().as_secs_f64() - busy);
+            }
+            if valid.is_none() && baker.valid() {
+                let at = t.elapsed().as_secs_f64() - busy;
+                let c = Instant::now();
+                valid = Some((at, summed(&baker)));
+                busy += c.elapsed().as_secs_f64();
             }
             if steps % a.snapshot_every.max(1) == 0 {
                 let c = Instant::now();
@@ -112,6 +135,7 @@ pub fn run(a: Args) -> Result<()> {
                 shots.push((at, summed(&baker)));
                 busy += c.elapsed().as_secs_f64();
             }
+            last_t = Instant::now();
         }
         let converge_s = t.elapsed().as_secs_f64() - busy;
         let last = summed(&baker);
@@ -125,6 +149,7 @@ pub fn run(a: Args) -> Result<()> {
         let before = dist(&shots[0].1);
         let within = shots.iter().find(|(_, x)| dist(x) <= a.tolerance).map_or(converge_s, |(t, _)| *t);
         let worst = shots.iter().map(|(_, x)| dist(x)).fold(0.0, f64::max);
+        let (valid_s, valid_d) = valid.as_ref().map_or((0.0, 0.0), |(t, x)| (*t, dist(x)));
         let row = serde_json::json!({
             "edit": label,
             "paths_changed": r.paths_changed,
@@ -138,12 +163,20 @@ pub fn run(a: Args) -> Result<()> {
             "distance_worst": worst,
             "seconds_within_tolerance": within,
             "share_of_full_bake": converge_s / full.max(1e-9),
+            "vpls_changed": r.vpls_changed,
+            "seconds_valid": valid_s,
+            "distance_when_valid": valid_d,
+            "updates_by_kind": {"rebuild": kinds[0], "delta": kinds[1], "refresh": kinds[2], "consolidate": kinds[3]},
+            "seconds_by_kind": {"rebuild": kind_s[0], "delta": kind_s[1], "refresh": kind_s[2], "consolidate": kind_s[3]},
+            "texels_by_kind": {"rebuild": kind_texels[0], "delta": kind_texels[1], "refresh": kind_texels[2], "consolidate": kind_texels[3]},
         });
         if !a.json {
             println!(
                 "edit {}: {label}: {} of {} paths changed ({validate_s:.3} s), {steps} updates; 90 % of the \
                  invalid flux in {:.3} s; within {:.1} % of the converged lightmap in {within:.2} s = {:.0} % of \
-                 the full bake (it was {:.1} % off before; never further: {:.1} %); all updates {converge_s:.2} s",
+                 the full bake (it was {:.1} % off before; never further: {:.1} %); no invalid light left after \
+                 {valid_s:.2} s ({:.1} % off; {} rebuilds, {} corrections, {} refreshes); all updates, \
+                 {} consolidations included, {converge_s:.2} s",
                 k + 1,
                 r.paths_changed,
                 r.paths_total,
@@ -151,7 +184,12 @@ pub fn run(a: Args) -> Result<()> {
                 100.0 * a.tolerance,
                 100.0 * within / full.max(1e-9),
                 100.0 * before,
-                100.0 * worst
+                100.0 * worst,
+                100.0 * valid_d,
+                kinds[0],
+                kinds[1],
+                kinds[2],
+                kinds[3]
             );
         }
         rows.push(row);

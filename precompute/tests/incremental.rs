@@ -10,7 +10,7 @@ use common::{quads, unit_box_faces, v};
 use glam::{Mat4, Vec3};
 use prm::{Light, Scene, TexelSet};
 use prm_precompute::incremental::clusters::{cell_lights, Member};
-use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError};
+use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError, UpdateKind};
 
 /// Quad `a, b, c, d` wound so that its front faces `out`.
 fn facing(q: [Vec3; 4], out: Vec3) -> [Vec3; 4] {
@@ -118,6 +118,83 @@ fn edits_then_convergence_give_a_fresh_bake_of_the_edited_level() {
     let (ia, ib) = (a.lightmap().1, b.lightmap().1);
     assert!(ib.iter().any(|x| x.x > 0.0), "indirect light is there");
     assert!(rms(&ia, &ib) <= 1e-5 * mean);
+}
+
+fn mean_length(a: &[Vec3]) -> f64 {
+    a.iter().map(|x| x.length() as f64).sum::<f64>() / a.len() as f64
+}
+
+#[test]
+fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
+    // Small corrections, so that an edit makes several; two edits before any update, so that
+    // refreshes span versions.
+    let scene = room();
+    let p = BakerParams { delta_leaf_vpls: 48, ..params() };
+    let mut b = Baker::new(scene.clone(), texels(&scene), p).unwrap();
+    b.converge();
+    b.apply(&Edit::Transform { node: 1, matrix: translate(0.12, 0.05) }).unwrap();
+    b.apply(&Edit::Transform { node: 1, matrix: translate(-0.05, 0.1) }).unwrap();
+    let mut kinds = Vec::new();
+    let mut k = 0;
+    loop {
+        if k % 4 == 0 || b.converged() {
+            let (d, i) = b.lightmap();
+            let (rd, ri) = b.recomputed();
+            let scale = mean_length(&rd) + mean_length(&ri);
+            let worst = d.iter().zip(&rd).chain(i.iter().zip(&ri)).map(|(x, y)| (*x - *y).length() as f64);
+            let worst = worst.fold(0.0, f64::max);
+            // Sums of f64 accumulators, read as f32: a few ulp of the largest texel.
+            assert!(
+                worst <= 1e-5 * scale,
+                "step {k}: lightmap and its entries differ by {worst} (mean {scale})"
+            );
+        }
+        match b.step() {
+            Some(r) => kinds.push(r.kind),
+            None => break,
+        }
+        k += 1;
+    }
+    for want in [UpdateKind::Rebuild, UpdateKind::Delta, UpdateKind::Refresh, UpdateKind::Consolidate] {
+        assert!(kinds.contains(&want), "no {want:?} among {} updates", kinds.len());
+    }
+    // Consolidation comes last, after every update that carries invalid light.
+    let first = kinds.iter().position(|x| *x == UpdateKind::Consolidate).unwrap();
+    assert!(kinds[first..].iter().all(|x| *x == UpdateKind::Consolidate));
+}
+
+#[test]
+fn without_consolidation_the_lightmap_is_a_fresh_bake_within_its_noise() {
+    let scene = room();
+    let tx = texels(&scene);
+    let extent = scene.diagonal();
+    let p = BakerParams { consolidate: false, delta_leaf_vpls: 96, ..params() };
+    let mut a = Baker::new(scene.clone(), tx.clone(), p.clone()).unwrap();
+    a.converge();
+    a.apply(&Edit::Transform { node: 1, matrix: translate(0.15, -0.1) }).unwrap();
+    let steps = a.converge();
+    assert!(steps > 0 && a.valid());
+    let final_scene = a.level().current().scene.as_ref().clone();
+    let fresh = |seed: u64| {
+        let mut b = Baker::with_frame(
+            final_scene.clone(),
+            tx.clone(),
+            BakerParams { seed, ..p.clone() },
+            a.frame(),
+            extent,
+        )
+        .unwrap();
+        b.converge();
+        b.lightmap().1
+    };
+    let (f0, f1) = (fresh(0), fresh(1));
+    let ia = a.lightmap().1;
+    let noise = rms(&f0, &f1);
+    let off = rms(&ia, &f0);
+    assert!(noise > 0.0);
+    // Two fresh bakes differ by twice the variance of one; the edited bake against a fresh one
+    // of the same seed shares its paths, so it must come within that.
+    assert!(off <= noise, "edited bake {off} from a fresh one; two fresh bakes {noise} apart");
 }
 
 #[test]

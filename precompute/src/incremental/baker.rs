@@ -10,20 +10,31 @@
 //!
 //! After an edit:
 //! - every path is traced again and compared (validation); changed paths are replaced;
-//! - cells whose VPLs changed are **rebuilt**: the smallest subtree holding every old and new
-//!   cell of a change, so a split or merge of the cut is one update;
-//! - cells whose VPLs did not change but whose light may now be shadowed differently are
-//!   **refreshed**, only at the texels whose shadow rays can meet what moved: texels on moved
-//!   objects, and texels whose segment to the cell's bounding sphere passes a box where moved
-//!   geometry was or is. Elsewhere the old and new values are the same numbers, so leaving them
-//!   is exact. Paper 001 finds such cells only through their scattered particles and misses
-//!   the ones whose few particles did not touch the edit (its slow "footprint" cases); here
-//!   every baked cell is checked.
+//! - the VPLs that differ between what is baked and the current paths are found exactly (by
+//!   path vertex, position, normal and power). In a region (the smallest subtree holding the
+//!   changed cells) where they carry more than `rebuild_share` of the power, the region is
+//!   **rebuilt**: its cells taken out and baked again. Elsewhere they go in as **corrections**:
+//!   the changed VPLs of all such regions cut into coarse cells of their own, each a set of
+//!   virtual lights adding the new VPLs and taking the old ones away. A few VPLs changed in
+//!   each of many cells (light that bounced off a moved object spreads everywhere) then cost a
+//!   few corrections, not a rebuild of every cell;
+//! - baked entries whose VPLs did not change but whose light may now be shadowed differently
+//!   are **refreshed**, only at the texels whose shadow rays can meet what moved (texels on
+//!   moved objects, and texels whose cone to the entry's bounding sphere passes a box where
+//!   moved geometry was or is), and there only along the shadow rays that cross such a box
+//!   and that the moved triangles block in one version and not the other. Elsewhere the old
+//!   and new values are the same numbers, so leaving them is exact. Paper 001 finds such
+//!   cells only through their scattered particles and misses the ones whose few particles did
+//!   not touch the edit (its slow "footprint" cases); here every baked entry is checked;
+//! - last, when no invalid light is left, regions holding corrections are **consolidated**:
+//!   exchanged for the cells a fresh bake would have (the same light in other clusters, so
+//!   it changes the lightmap by clustering noise only; `consolidate: false` leaves it out).
 //!
 //! Updates go in order of invalid flux: for a rebuild, the flux of the VPLs that differ
-//! between the baked and the new cell (both counted, as paper 001's absolute term) plus the
-//! flux of validated path segments that leave the cell and now land elsewhere; for a refresh,
-//! those segments plus the cell's flux times how much of its view the moved boxes take.
+//! between the baked and the new cells (both counted, as paper 001's absolute term) plus the
+//! flux of validated path segments that leave the region and now land elsewhere; for a
+//! correction, the flux of its VPLs; for a refresh, those segments (paper 001's estimate) and
+//! about one path's flux where none was seen.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::hash::{Hash, Hasher};
@@ -31,7 +42,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, Vec3};
-use prm::{Light, Scene, TexelSet};
+use prm::{Bvh, Light, Scene, TexelSet};
 use rayon::prelude::*;
 
 use super::clusters::{
@@ -40,7 +51,7 @@ use super::clusters::{
 use super::level::{Aabb, Changes, Edit, EditError, Level, LightSlot, Version};
 use super::paths::{light_flux, luminance, path_count, trace_all, validate, Change, LightPaths, PathParams};
 use crate::params::{require, ParamError};
-use crate::reference::bake::soft_visibility;
+use crate::reference::bake::{soft_visibility, visibility_draws};
 use prm::sampling::stream;
 
 /// Incremental-baker parameters.
@@ -59,6 +70,15 @@ pub struct BakerParams {
     pub min_polygon: usize,
     /// Shadow rays per texel and virtual light.
     pub visibility_samples: u32,
+    /// A region whose changed VPLs carry more than this share of its power is rebuilt whole;
+    /// below it, the changes go in as corrections (deltas) and the region is consolidated last.
+    pub rebuild_share: f32,
+    /// Changed VPLs a correction holds at most: corrections carry little light, so they are
+    /// clustered coarser than the cells (fewer virtual lights to evaluate).
+    pub delta_leaf_vpls: usize,
+    /// Once no invalid light waits, exchange corrections and old cells for the cells a fresh
+    /// bake would have (same light, other clusters; as much work again as the corrections).
+    pub consolidate: bool,
     pub seed: u64,
 }
 
@@ -72,6 +92,9 @@ impl Default for BakerParams {
             lights_per_cell: 4,
             min_polygon: 10,
             visibility_samples: 2,
+            rebuild_share: 0.25,
+            delta_leaf_vpls: 4096,
+            consolidate: true,
             seed: 0,
         }
     }
@@ -96,6 +119,13 @@ impl BakerParams {
             self.visibility_samples,
             "1 to 256",
         )?;
+        require(
+            (1..=1_000_000).contains(&self.delta_leaf_vpls),
+            "correction VPLs",
+            self.delta_leaf_vpls,
+            "1 to 1e6",
+        )?;
+        require((0.0..=1.0).contains(&self.rebuild_share), "rebuild share", self.rebuild_share, "0 to 1")?;
         Ok(())
     }
 }
@@ -116,12 +146,19 @@ pub enum CellKey {
     Direct(u32),
     /// Indirect light of an octree cell of the cut.
     Cell(u64),
+    /// A correction inside an octree cell (its code, and a serial number).
+    Delta(u64, u32),
 }
 
 #[derive(Clone, Debug)]
 enum Source {
     Direct(Light),
     Lights(Arc<Vec<VirtualLight>>),
+    /// A correction: light added by `plus`, taken away by `minus`.
+    Delta {
+        plus: Arc<Vec<VirtualLight>>,
+        minus: Arc<Vec<VirtualLight>>,
+    },
 }
 
 /// What a cell should hold now.
@@ -137,34 +174,78 @@ struct Baked {
     version: Arc<Version>,
     source: Source,
     hash: u64,
+    /// Net power (W per channel): a delta's added less its removed power.
     flux: Vec3,
-    /// Members' (id, power) for the differing-flux priority.
-    ids: Arc<HashMap<(u32, u32, u32), Vec3>>,
+    /// Luminance of the power it moves, both signs counted (refresh priority).
+    weight: f32,
+    /// The VPLs it holds (a delta: those it adds) and, for a delta, those it takes away.
+    plus: Arc<Vec<Member>>,
+    minus: Arc<Vec<Member>>,
     bound: (Vec3, f32),
 }
 
 #[derive(Clone, Debug)]
 enum Work {
-    Rebuild { remove: Vec<CellKey>, add: Vec<(CellKey, Content)> },
+    /// Take out every baked entry under the unit's root and bake the wanted cells there.
+    Rebuild { add: Vec<(CellKey, Content)> },
+    /// Bake a correction for the VPLs of one octree cell that changed.
+    Delta { code: u64, plus: Vec<Member>, minus: Vec<Member> },
+    /// Evaluate a baked entry again with the current version where visibility may differ.
     Refresh(CellKey),
 }
 
+/// Update tiers: invalid light first, then consolidation (which only exchanges a region's
+/// corrections and old cells for the cells a fresh bake would have: same light, other clusters).
+const TIER_INVALID: u8 = 1;
+const TIER_CONSOLIDATE: u8 = 0;
+
 #[derive(Clone, Debug)]
 struct Unit {
+    tier: u8,
     priority: f32,
     root: CellKey,
     work: Work,
+}
+
+/// A VPL's identity: its path vertex and exact geometry and power.
+type VplKey = (u32, u32, u32, [u32; 9]);
+
+fn vpl_key(m: &Member) -> VplKey {
+    let b = |v: Vec3| v.to_array().map(f32::to_bits);
+    let (p, n, w) = (b(m.position), b(m.normal), b(m.power));
+    (m.light, m.path, m.vertex, [p[0], p[1], p[2], n[0], n[1], n[2], w[0], w[1], w[2]])
+}
+
+fn region(k: CellKey) -> Option<u64> {
+    match k {
+        CellKey::Cell(c) | CellKey::Delta(c, _) => Some(c),
+        CellKey::Direct(_) => None,
+    }
 }
 
 /// What [`Baker::step`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepReport {
     pub cell: CellKey,
-    pub rebuilt: bool,
-    /// Invalid flux it resolved (the unit's priority), W (luminance).
+    pub kind: UpdateKind,
+    /// Invalid flux it resolved (the unit's priority; 0 for a consolidation), W (luminance).
     pub resolved: f32,
     /// Texels it evaluated.
     pub texels: usize,
+}
+
+/// What an update did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpdateKind {
+    /// A region whose VPLs changed much: its cells taken out and baked again.
+    Rebuild,
+    /// A correction: the changed VPLs of a cell added and taken away as virtual lights.
+    Delta,
+    /// A baked entry evaluated again where moved geometry may shadow it differently.
+    Refresh,
+    /// A region's corrections and old cells exchanged for a fresh bake's cells (no invalid
+    /// light left; the clusters become those of a fresh bake).
+    Consolidate,
 }
 
 /// What [`Baker::apply`] found.
@@ -174,6 +255,8 @@ pub struct EditReport {
     /// Paths replaced (traced again from where they changed, or all of a changed light's).
     pub paths_changed: usize,
     pub paths_total: usize,
+    /// VPLs that differ between what is baked and the current paths (both sides counted).
+    pub vpls_changed: usize,
     /// Updates now waiting, and their invalid flux (luminance, W).
     pub pending: usize,
     pub invalid_flux: f32,
@@ -206,6 +289,12 @@ pub struct Baker {
     segments: BTreeMap<CellKey, f32>,
     direct: Vec<DVec3>,
     indirect: Vec<DVec3>,
+    /// Next delta serial number.
+    serial: u32,
+    /// VPLs that differed at the last plan.
+    vpls_changed: usize,
+    /// Moved triangles between two versions (by version ids), for refreshes.
+    movers: HashMap<(u64, u64), Arc<Movers>>,
 }
 
 impl Baker {
@@ -250,6 +339,9 @@ impl Baker {
             segments: BTreeMap::new(),
             direct: vec![DVec3::ZERO; n],
             indirect: vec![DVec3::ZERO; n],
+            serial: 0,
+            vpls_changed: 0,
+            movers: HashMap::new(),
         };
         let v = b.level.current().clone();
         for slot in v.lights.iter() {
@@ -341,8 +433,9 @@ impl Baker {
             changes,
             paths_changed: changed,
             paths_total: self.lights.values().map(|l| l.paths.len()).sum(),
+            vpls_changed: self.vpls_changed,
             pending: self.work.len(),
-            invalid_flux: self.work.iter().map(|u| u.priority).sum(),
+            invalid_flux: self.invalid_flux(),
             seconds: start.elapsed().as_secs_f64(),
         })
     }
@@ -356,7 +449,7 @@ impl Baker {
             // The baked cell containing it, if any (cells are disjoint).
             let hit = self.baked.keys().find(|k| match k {
                 CellKey::Cell(c) => contains(*c, key(MAX_DEPTH, code)),
-                CellKey::Direct(_) => false,
+                _ => false,
             });
             if let Some(k) = hit {
                 *self.segments.entry(*k).or_default() += luminance(*flux);
@@ -391,6 +484,7 @@ impl Baker {
 
     /// Compare what is baked with what the current paths and lights call for; queue updates.
     fn plan(&mut self) {
+        self.movers.clear();
         let v = self.level.current().clone();
         let members = self.members();
         let mut want: BTreeMap<CellKey, Content> = BTreeMap::new();
@@ -399,10 +493,7 @@ impl Baker {
             let mut h = std::collections::hash_map::DefaultHasher::new();
             let mut flux = Vec3::ZERO;
             for m in &ms {
-                (m.light, m.path, m.vertex).hash(&mut h);
-                for x in [m.position, m.normal, m.power] {
-                    x.to_array().map(f32::to_bits).hash(&mut h);
-                }
+                vpl_key(m).hash(&mut h);
                 flux += m.power;
             }
             want.insert(CellKey::Cell(k), Content { members: ms, light: None, hash: h.finish(), flux });
@@ -420,77 +511,168 @@ impl Baker {
                 },
             );
         }
-        // Changed keys, grouped under the shallowest baked or wanted cell containing them.
+        // The VPLs that differ: what the baked cells and corrections hold against the paths.
+        // A count > 0 is baked but gone (to take away); < 0 is new (to add).
+        let mut net: HashMap<VplKey, (i32, Member)> = HashMap::new();
+        for b in self.baked.values() {
+            for m in b.plus.iter() {
+                net.entry(vpl_key(m)).or_insert((0, *m)).0 += 1;
+            }
+            for m in b.minus.iter() {
+                net.entry(vpl_key(m)).or_insert((0, *m)).0 -= 1;
+            }
+        }
+        for m in &members {
+            net.entry(vpl_key(m)).or_insert((0, *m)).0 -= 1;
+        }
+        let mut diffs: Vec<(i32, Member)> = net.into_values().filter(|(c, _)| *c != 0).collect();
+        diffs.sort_unstable_by_key(|(c, m)| (m.code, vpl_key(m), *c));
+        self.vpls_changed = diffs.iter().map(|(c, _)| c.unsigned_abs() as usize).sum();
+
+        // Changed keys, grouped under the shallowest baked or wanted region containing them.
         let changed: Vec<CellKey> = want
             .iter()
             .filter(|(k, c)| self.baked.get(k).map(|b| b.hash) != Some(c.hash))
             .map(|(k, _)| *k)
             .chain(self.baked.keys().filter(|k| !want.contains_key(k)).copied())
             .collect();
-        let all: Vec<CellKey> = self.baked.keys().chain(want.keys()).copied().collect();
+        let codes: Vec<u64> = self.baked.keys().chain(want.keys()).filter_map(|k| region(*k)).collect();
         let root_of = |k: CellKey| -> CellKey {
-            match k {
-                CellKey::Direct(_) => k,
-                CellKey::Cell(c) => all
+            match region(k) {
+                None => k,
+                Some(c) => codes
                     .iter()
-                    .filter_map(|a| match a {
-                        CellKey::Cell(x) if contains(*x, c) => Some(*x),
-                        _ => None,
-                    })
-                    .min_by_key(|x| x >> 32)
-                    .map_or(k, CellKey::Cell),
+                    .filter(|x| contains(**x, c))
+                    .min_by_key(|x| **x >> 32)
+                    .map_or(k, |x| CellKey::Cell(*x)),
             }
-        };
-        let under = |r: CellKey, k: CellKey| match (r, k) {
-            (CellKey::Cell(a), CellKey::Cell(b)) => contains(a, b),
-            _ => r == k,
         };
         let roots: BTreeSet<CellKey> = changed.iter().map(|&k| root_of(k)).collect();
+        // Each differing VPL goes to the root holding it (roots are disjoint).
+        let depths: BTreeSet<u32> =
+            roots.iter().filter_map(|r| region(*r)).map(|c| (c >> 32) as u32).collect();
+        let mut by_root: HashMap<u64, Vec<(i32, Member)>> = HashMap::new();
+        for (c, m) in diffs {
+            let hit = depths
+                .iter()
+                .map(|&d| key(d, m.code >> (3 * (MAX_DEPTH - d))))
+                .find(|r| roots.contains(&CellKey::Cell(*r)));
+            debug_assert!(hit.is_some(), "a changed VPL outside every changed region");
+            if let Some(r) = hit {
+                by_root.entry(r).or_default().push((c, m));
+            }
+        }
+        let bounds = self.bounds();
+        let direct_flux =
+            |id: u32, l: &Light| luminance(light_flux(&LightSlot { id, light: l.clone() }, bounds));
         let mut units = Vec::new();
         let mut in_units: BTreeSet<CellKey> = BTreeSet::new();
+        // Differing VPLs of the regions that take corrections, and those regions.
+        let mut pool: Vec<(i32, Member)> = Vec::new();
+        let mut corrected: Vec<CellKey> = Vec::new();
         for r in roots {
-            let remove: Vec<CellKey> = self.baked.keys().filter(|k| under(r, **k)).copied().collect();
-            // Units are disjoint, so each wanted cell moves into at most one (no copy).
-            let keys: Vec<CellKey> = want.keys().filter(|k| under(r, **k)).copied().collect();
-            let add: Vec<(CellKey, Content)> =
-                keys.into_iter().filter_map(|k| want.remove(&k).map(|c| (k, c))).collect();
-            in_units.extend(remove.iter().copied());
-            // Invalid flux: the power of the VPLs on one side only, plus segments.
-            let mut old_ids: HashMap<(u32, u32, u32), Vec3> = HashMap::new();
-            for k in &remove {
-                for (id, p) in self.baked[k].ids.iter() {
-                    old_ids.insert(*id, *p);
-                }
-            }
-            let mut differing = 0.0f32;
-            for (_, c) in &add {
-                for m in &c.members {
-                    match old_ids.remove(&(m.light, m.path, m.vertex)) {
-                        Some(p) if p == m.power => {}
-                        Some(p) => differing += luminance(p) + luminance(m.power),
-                        None => differing += luminance(m.power),
+            let baked_here: Vec<CellKey> = self.baked.keys().filter(|k| under(r, **k)).copied().collect();
+            let seg: f32 = baked_here.iter().filter_map(|k| self.segments.get(k)).sum();
+            let CellKey::Cell(code) = r else {
+                // A light's direct light: all of its flux is invalid, old and new.
+                let add: Vec<(CellKey, Content)> = want.get(&r).map(|c| (r, c.clone())).into_iter().collect();
+                let mut differing: f32 =
+                    add.iter().filter_map(|(_, c)| c.light.as_ref()).map(|l| direct_flux(0, l)).sum();
+                for k in &baked_here {
+                    if let Source::Direct(l) = &self.baked[k].source {
+                        differing += direct_flux(0, l);
                     }
                 }
-            }
-            differing += old_ids.values().map(|p| luminance(*p)).sum::<f32>();
-            let direct = |k: &CellKey, light: Option<&Light>| match (k, light) {
-                (CellKey::Direct(id), Some(l)) => {
-                    luminance(light_flux(&LightSlot { id: *id, light: l.clone() }, self.bounds()))
-                }
-                _ => 0.0,
+                in_units.extend(baked_here.iter().copied());
+                units.push(Unit {
+                    tier: TIER_INVALID,
+                    priority: differing + seg,
+                    root: r,
+                    work: Work::Rebuild { add },
+                });
+                continue;
             };
-            differing += add.iter().map(|(k, c)| direct(k, c.light.as_ref())).sum::<f32>();
-            differing += remove
+            let diffs = by_root.remove(&code).unwrap_or_default();
+            let differing: f32 =
+                diffs.iter().map(|(c, m)| c.unsigned_abs() as f32 * luminance(m.power)).sum();
+            let held: f32 = baked_here
                 .iter()
-                .map(|k| match &self.baked[k].source {
-                    Source::Direct(l) => direct(k, Some(l)),
-                    Source::Lights(_) => 0.0,
-                })
-                .sum::<f32>();
-            let seg: f32 = remove.iter().filter_map(|k| self.segments.get(k)).sum();
-            units.push(Unit { priority: differing + seg, root: r, work: Work::Rebuild { remove, add } });
+                .filter(|k| matches!(k, CellKey::Cell(_)))
+                .map(|k| luminance(self.baked[k].flux))
+                .sum::<f32>()
+                + want.iter().filter(|(k, _)| under(r, **k)).map(|(_, c)| luminance(c.flux)).sum::<f32>();
+            if differing > self.params.rebuild_share * held {
+                let add = wanted_under(&want, r);
+                in_units.extend(baked_here.iter().copied());
+                units.push(Unit {
+                    tier: TIER_INVALID,
+                    priority: differing + seg,
+                    root: r,
+                    work: Work::Rebuild { add },
+                });
+            } else {
+                pool.extend(diffs);
+                corrected.push(r);
+            }
         }
-        // Refreshes: baked cells outside the rebuilds that an edit since their bake may shadow.
+        // Corrections: the changed VPLs of all those regions, cut into cells of their own (a
+        // few VPLs changed in many cells make a few corrections, not one per cell).
+        pool.sort_unstable_by_key(|(c, m)| (m.code, vpl_key(m), *c));
+        let mut dm = Vec::with_capacity(pool.len());
+        let mut sign = Vec::with_capacity(pool.len());
+        for (c, m) in &pool {
+            for _ in 0..c.unsigned_abs() {
+                dm.push(*m);
+                sign.push(*c < 0);
+            }
+        }
+        let mut delta_codes = Vec::new();
+        for (cell, range) in cut(&dm, self.params.delta_leaf_vpls, self.params.max_depth) {
+            let (mut plus, mut minus) = (Vec::new(), Vec::new());
+            for i in range {
+                if sign[i] {
+                    plus.push(dm[i])
+                } else {
+                    minus.push(dm[i])
+                }
+            }
+            let priority = plus.iter().chain(&minus).map(|m| luminance(m.power)).sum();
+            delta_codes.push(cell);
+            units.push(Unit {
+                tier: TIER_INVALID,
+                priority,
+                root: CellKey::Cell(cell),
+                work: Work::Delta { code: cell, plus, minus },
+            });
+        }
+        // Consolidation, last: regions holding corrections (made now or earlier) or whose cut
+        // changed, grouped so that each holds its corrections whole.
+        if self.params.consolidate {
+            // The shallowest of these holding a region is its group: groups are disjoint, and
+            // a correction and the regions whose VPLs it holds (nested cells) share one. A group
+            // may hold a region rebuilt above: it is consolidated again (after it).
+            let all: Vec<u64> = codes.iter().copied().chain(delta_codes.iter().copied()).collect();
+            let group_of = |c: u64| -> u64 {
+                all.iter().copied().filter(|x| contains(*x, c)).min_by_key(|x| *x >> 32).unwrap_or(c)
+            };
+            let groups: BTreeSet<u64> = corrected
+                .iter()
+                .filter_map(|r| region(*r))
+                .chain(delta_codes.iter().copied())
+                .map(group_of)
+                .collect();
+            for g in groups {
+                let r = CellKey::Cell(g);
+                let add = wanted_under(&want, r);
+                units.push(Unit {
+                    tier: TIER_CONSOLIDATE,
+                    priority: 0.0,
+                    root: r,
+                    work: Work::Rebuild { add },
+                });
+            }
+        }
+        // Refreshes: baked entries outside the rebuilds that an edit since their bake may shadow.
         for (k, b) in &self.baked {
             if in_units.contains(k) || b.version.id == v.id {
                 continue;
@@ -510,18 +692,30 @@ impl Baker {
                     half * half / (half * half + d * d)
                 })
                 .fold(0.0f32, f32::max);
-            let flux = match &b.source {
-                Source::Direct(l) => {
-                    luminance(light_flux(&LightSlot { id: 0, light: l.clone() }, self.bounds()))
-                }
-                Source::Lights(_) => luminance(b.flux),
+            // A direct light's shadow moved: its flux, as much as the moved boxes take of its
+            // view. Virtual lights: the flux of their paths' next segments that now land
+            // elsewhere (paper 001's estimate, unbiased), and where none did, at most about one
+            // path's worth (the edit's shadow may still fall between the paths).
+            let priority = match &b.source {
+                Source::Direct(l) => direct_flux(0, l) * view,
+                _ => self.segments.get(k).copied().unwrap_or(0.0) + self.frame.quantum * view,
             };
-            let seg = self.segments.get(k).copied().unwrap_or(0.0);
-            units.push(Unit { priority: flux * view + seg, root: *k, work: Work::Refresh(*k) });
+            units.push(Unit { tier: TIER_INVALID, priority, root: *k, work: Work::Refresh(*k) });
         }
-        units.sort_by(|a, b| a.priority.total_cmp(&b.priority).then(b.root.cmp(&a.root)));
+        let rank = |w: &Work| match w {
+            Work::Rebuild { .. } => 0,
+            Work::Delta { .. } => 1,
+            Work::Refresh(_) => 2,
+        };
+        units.sort_by(|a, b| {
+            (a.tier, a.priority)
+                .partial_cmp(&(b.tier, b.priority))
+                .unwrap_or(std::cmp::Ordering::Equal)
+                .then(b.root.cmp(&a.root))
+                .then(rank(&b.work).cmp(&rank(&a.work)))
+        });
         self.work = units;
-        // Cells no edit can have changed may forget their old version.
+        // Entries no edit can have changed may forget their old version.
         let moved_since = |id: u64| self.log.iter().any(|(e, _)| *e > id);
         let cur = v.clone();
         let keys: Vec<CellKey> = self
@@ -544,13 +738,20 @@ impl Baker {
         self.work.len()
     }
 
-    /// Invalid flux still waiting (luminance, W).
+    /// Invalid flux still waiting (luminance, W); consolidations carry none.
     pub fn invalid_flux(&self) -> f32 {
-        self.work.iter().map(|u| u.priority).sum()
+        self.work.iter().filter(|u| u.tier == TIER_INVALID).map(|u| u.priority).sum()
     }
 
     pub fn converged(&self) -> bool {
         self.work.is_empty()
+    }
+
+    /// Whether invalid light waits (consolidations aside): when false, the lightmap is a
+    /// complete many-light solution of the current level, its clusters perhaps not yet those
+    /// of a fresh bake.
+    pub fn valid(&self) -> bool {
+        self.work.iter().all(|u| u.tier != TIER_INVALID)
     }
 
     /// Run the most urgent update; `None` when there is none.
@@ -559,12 +760,15 @@ impl Baker {
         let v = self.level.current().clone();
         let texels = self.level.texels().clone();
         let (s, seed) = (self.params.visibility_samples, self.params.seed);
+        let root = self.frame.root;
+        let (k_lights, p_min) = (self.params.lights_per_cell, self.params.min_polygon);
+        let resolved = if unit.tier == TIER_INVALID { unit.priority } else { 0.0 };
         match unit.work {
-            Work::Rebuild { remove, add } => {
+            Work::Rebuild { add } => {
+                let remove: Vec<CellKey> =
+                    self.baked.keys().filter(|k| under(unit.root, **k)).copied().collect();
                 let old: Vec<(CellKey, Baked)> =
                     remove.iter().filter_map(|k| self.baked.remove(k).map(|b| (*k, b))).collect();
-                let root = self.frame.root;
-                let (k_lights, p_min) = (self.params.lights_per_cell, self.params.min_polygon);
                 let new: Vec<(CellKey, Baked)> = add
                     .into_par_iter()
                     .map(|(k, c)| {
@@ -578,78 +782,85 @@ impl Baker {
                                 let b = bound(&ls);
                                 (Source::Lights(Arc::new(ls)), b)
                             }
-                            (CellKey::Direct(_), None) => {
-                                unreachable!("a direct cell is made with its light")
-                            }
+                            _ => unreachable!("wanted cells are direct lights or octree cells"),
                         };
-                        let ids = c.members.iter().map(|m| ((m.light, m.path, m.vertex), m.power)).collect();
-                        (
-                            k,
-                            Baked {
-                                version: v.clone(),
-                                source,
-                                hash: c.hash,
-                                flux: c.flux,
-                                ids: Arc::new(ids),
-                                bound: bnd,
-                            },
-                        )
+                        let weight = luminance(c.flux);
+                        let baked = Baked {
+                            version: v.clone(),
+                            source,
+                            hash: c.hash,
+                            flux: c.flux,
+                            weight,
+                            plus: Arc::new(c.members),
+                            minus: Arc::new(Vec::new()),
+                            bound: bnd,
+                        };
+                        (k, baked)
                     })
                     .collect();
-                let frames_old: Vec<&Baked> = old.iter().map(|(_, b)| b).collect();
-                let frames_new: Vec<&Baked> = new.iter().map(|(_, b)| b).collect();
-                let keys_old: Vec<CellKey> = old.iter().map(|(k, _)| *k).collect();
-                let keys_new: Vec<CellKey> = new.iter().map(|(k, _)| *k).collect();
-                self.direct.par_iter_mut().zip(self.indirect.par_iter_mut()).enumerate().for_each(
-                    |(i, (d, ind))| {
-                        for (k, b) in keys_old.iter().zip(&frames_old) {
-                            let (ed, ei) = evaluate(b, *k, i, s, seed);
-                            *d -= ed;
-                            *ind -= ei;
-                        }
-                        for (k, b) in keys_new.iter().zip(&frames_new) {
-                            let (ed, ei) = evaluate(b, *k, i, s, seed);
-                            *d += ed;
-                            *ind += ei;
-                        }
-                    },
-                );
-                for k in &keys_old {
+                self.accumulate(&old, &new);
+                for k in &remove {
                     self.segments.remove(k);
                 }
                 self.baked.extend(new);
-                Some(StepReport {
-                    cell: unit.root,
-                    rebuilt: true,
-                    resolved: unit.priority,
-                    texels: texels.texels.len(),
-                })
+                let kind =
+                    if unit.tier == TIER_INVALID { UpdateKind::Rebuild } else { UpdateKind::Consolidate };
+                Some(StepReport { cell: unit.root, kind, resolved, texels: texels.texels.len() })
+            }
+            Work::Delta { code, plus, minus } => {
+                let bx = cell_box(&root, code);
+                let (pl, ml) = rayon::join(
+                    || cell_lights(&plus, &bx, k_lights, p_min),
+                    || cell_lights(&minus, &bx, k_lights, p_min),
+                );
+                let both: Vec<VirtualLight> = pl.iter().chain(&ml).cloned().collect();
+                let sum = |ms: &[Member]| ms.iter().fold(Vec3::ZERO, |a, m| a + m.power);
+                let (fp, fm) = (sum(&plus), sum(&minus));
+                let k = CellKey::Delta(code, self.serial);
+                self.serial += 1;
+                let baked = Baked {
+                    version: v.clone(),
+                    source: Source::Delta { plus: Arc::new(pl), minus: Arc::new(ml) },
+                    hash: 0,
+                    flux: fp - fm,
+                    weight: luminance(fp) + luminance(fm),
+                    plus: Arc::new(plus),
+                    minus: Arc::new(minus),
+                    bound: bound(&both),
+                };
+                let new = [(k, baked)];
+                self.accumulate(&[], &new);
+                let [(k, baked)] = new;
+                self.baked.insert(k, baked);
+                Some(StepReport { cell: k, kind: UpdateKind::Delta, resolved, texels: texels.texels.len() })
             }
             Work::Refresh(k) => {
+                let old = self.baked.get(&k)?.version.clone();
+                let movers = self.movers(&old, &v);
                 let b = self.baked.get_mut(&k)?;
-                let old = b.version.clone();
                 let since: Vec<&Changes> =
                     self.log.iter().filter(|(id, _)| *id > old.id).map(|(_, c)| c).collect();
                 let moved: BTreeSet<u32> = since.iter().flat_map(|c| c.moved_nodes.iter().copied()).collect();
                 let (c, r) = b.bound;
-                let regions: Vec<Aabb> =
-                    since.iter().flat_map(|ch| ch.regions.iter().map(|x| x.grown(r))).collect();
+                let regions: Vec<Aabb> = since.iter().flat_map(|ch| ch.regions.iter().copied()).collect();
                 let directional = match &b.source {
                     Source::Direct(l) if !l.is_positional() => Some(-l.direction),
                     _ => None,
                 };
+                // Shadow rays leave a texel a little off its surface: a margin covers it.
+                let margin = 1e-3 * (root.hi - root.lo).length();
                 let shadowed = |p: Vec3| -> bool {
-                    let (dir, len) = match directional {
-                        Some(d) => (d, f32::INFINITY),
-                        None => ((c - p).normalize_or_zero(), (c - p).length()),
-                    };
-                    regions.iter().any(|bx| bx.meets_segment(p, dir, len))
+                    match directional {
+                        Some(d) => {
+                            regions.iter().any(|bx| bx.grown(margin).meets_segment(p, d, f32::INFINITY))
+                        }
+                        None => regions.iter().any(|bx| bx.meets_cone(p, c, r, margin)),
+                    }
                 };
                 let picked: Vec<usize> = (0..texels.texels.len())
                     .into_par_iter()
                     .filter(|&i| {
                         moved.contains(&v.scene.triangles[texels.texels[i].triangle as usize].node)
-                            || shadowed(old.frames[i].0)
                             || shadowed(v.frames[i].0)
                     })
                     .collect();
@@ -658,14 +869,23 @@ impl Baker {
                     source: b.source.clone(),
                     hash: b.hash,
                     flux: b.flux,
-                    ids: b.ids.clone(),
+                    weight: b.weight,
+                    plus: b.plus.clone(),
+                    minus: b.minus.clone(),
                     bound: b.bound,
                 };
                 b.version = v.clone();
                 let b = &*b;
+                let boxes: Vec<Aabb> = regions.iter().map(|x| x.grown(margin)).collect();
                 let deltas: Vec<(DVec3, DVec3)> = picked
                     .par_iter()
                     .map(|&i| {
+                        let on_moved =
+                            moved.contains(&v.scene.triangles[texels.texels[i].triangle as usize].node);
+                        if !on_moved && !matches!(b.source, Source::Direct(_)) {
+                            // The texel stayed: only the shadow rays that cross what moved differ.
+                            return (DVec3::ZERO, shadow_change(&was, b, k, i, s, seed, &boxes, &movers));
+                        }
                         let (od, oi) = evaluate(&was, k, i, s, seed);
                         let (nd, ni) = evaluate(b, k, i, s, seed);
                         (nd - od, ni - oi)
@@ -676,9 +896,52 @@ impl Baker {
                     self.indirect[i] += di;
                 }
                 self.segments.remove(&k);
-                Some(StepReport { cell: k, rebuilt: false, resolved: unit.priority, texels: picked.len() })
+                Some(StepReport { cell: k, kind: UpdateKind::Refresh, resolved, texels: picked.len() })
             }
         }
+    }
+
+    /// The triangles of nodes moved between versions `was` and `now`, with BVHs over each
+    /// version's positions (kept until the next plan).
+    fn movers(&mut self, was: &Arc<Version>, now: &Arc<Version>) -> Arc<Movers> {
+        let log = &self.log;
+        let extent = self.level.extent();
+        self.movers
+            .entry((was.id, now.id))
+            .or_insert_with(|| {
+                let moved: BTreeSet<u32> = log
+                    .iter()
+                    .filter(|(id, _)| *id > was.id && *id <= now.id)
+                    .flat_map(|(_, c)| c.moved_nodes.iter().copied())
+                    .collect();
+                let tris: Vec<u32> = (0..now.scene.triangles.len() as u32)
+                    .filter(|&t| moved.contains(&now.scene.triangles[t as usize].node))
+                    .collect();
+                let (w, n) = rayon::join(
+                    || Bvh::build_subset(&was.scene, &tris, extent),
+                    || Bvh::build_subset(&now.scene, &tris, extent),
+                );
+                Arc::new(Movers { was: w, now: n })
+            })
+            .clone()
+    }
+
+    /// Take `old` entries' light out (each with its own version) and put `new` in, at every
+    /// texel, in one pass.
+    fn accumulate(&mut self, old: &[(CellKey, Baked)], new: &[(CellKey, Baked)]) {
+        let (s, seed) = (self.params.visibility_samples, self.params.seed);
+        self.direct.par_iter_mut().zip(self.indirect.par_iter_mut()).enumerate().for_each(|(i, (d, ind))| {
+            for (k, b) in old {
+                let (ed, ei) = evaluate(b, *k, i, s, seed);
+                *d -= ed;
+                *ind -= ei;
+            }
+            for (k, b) in new {
+                let (ed, ei) = evaluate(b, *k, i, s, seed);
+                *d += ed;
+                *ind += ei;
+            }
+        });
     }
 
     /// Run updates for about `budget` of wall time (at least one, if any waits).
@@ -716,14 +979,24 @@ impl Baker {
         let baked = self
             .baked
             .values()
-            .filter(|b| matches!(b.source, Source::Lights(_)))
+            .filter(|b| !matches!(b.source, Source::Direct(_)))
             .fold(Vec3::ZERO, |a, b| a + b.flux);
         let mut pending = Vec3::ZERO;
-        for u in &self.work {
-            if let Work::Rebuild { remove, add } = &u.work {
-                pending += add.iter().fold(Vec3::ZERO, |a, (_, c)| a + c.flux);
-                pending -=
-                    remove.iter().filter_map(|k| self.baked.get(k)).fold(Vec3::ZERO, |a, b| a + b.flux);
+        for u in self.work.iter().filter(|u| u.tier == TIER_INVALID) {
+            match &u.work {
+                Work::Rebuild { add } => {
+                    pending += add.iter().fold(Vec3::ZERO, |a, (_, c)| a + c.flux);
+                    pending -= self
+                        .baked
+                        .iter()
+                        .filter(|(k, b)| under(u.root, **k) && !matches!(b.source, Source::Direct(_)))
+                        .fold(Vec3::ZERO, |a, (_, b)| a + b.flux);
+                }
+                Work::Delta { plus, minus, .. } => {
+                    pending += plus.iter().fold(Vec3::ZERO, |a, m| a + m.power);
+                    pending -= minus.iter().fold(Vec3::ZERO, |a, m| a + m.power);
+                }
+                Work::Refresh(_) => {}
             }
         }
         let vpls = self
@@ -734,6 +1007,24 @@ impl Baker {
         Energy { baked, pending, vpls }
     }
 
+    /// The lightmap as the sum of the baked entries, each evaluated afresh with its own
+    /// version (a check: equals [`Baker::lightmap`] up to rounding, whatever the updates did).
+    pub fn recomputed(&self) -> (Vec<Vec3>, Vec<Vec3>) {
+        let (s, seed) = (self.params.visibility_samples, self.params.seed);
+        (0..self.direct.len())
+            .into_par_iter()
+            .map(|i| {
+                let (mut d, mut ind) = (DVec3::ZERO, DVec3::ZERO);
+                for (k, b) in &self.baked {
+                    let (ed, ei) = evaluate(b, *k, i, s, seed);
+                    d += ed;
+                    ind += ei;
+                }
+                (d.as_vec3(), ind.as_vec3())
+            })
+            .unzip()
+    }
+
     /// Whether the baked cells are disjoint (no cell inside another): no VPL counted twice.
     pub fn cells_disjoint(&self) -> bool {
         let cells: Vec<u64> = self
@@ -741,7 +1032,7 @@ impl Baker {
             .keys()
             .filter_map(|k| match k {
                 CellKey::Cell(c) => Some(*c),
-                CellKey::Direct(_) => None,
+                _ => None,
             })
             .collect();
         cells.iter().all(|a| cells.iter().all(|b| a == b || !contains(*a, *b)))
@@ -754,6 +1045,7 @@ impl Baker {
             .values()
             .map(|b| match &b.source {
                 Source::Lights(l) => l.len(),
+                Source::Delta { plus, minus } => plus.len() + minus.len(),
                 Source::Direct(_) => 1,
             })
             .sum();
@@ -765,32 +1057,121 @@ fn same_geometry(a: &Light, b: &Light) -> bool {
     a.kind == b.kind && a.position == b.position && a.direction == b.direction && a.range == b.range
 }
 
-/// A baked cell's (direct, indirect) irradiance at texel `i`, with its own version.
+/// The wanted cells under region root `r`.
+fn wanted_under(want: &BTreeMap<CellKey, Content>, r: CellKey) -> Vec<(CellKey, Content)> {
+    want.iter().filter(|(k, _)| under(r, **k)).map(|(k, c)| (*k, c.clone())).collect()
+}
+
+/// Whether region root `r` holds baked or wanted entry `k`.
+fn under(r: CellKey, k: CellKey) -> bool {
+    match (r, region(k)) {
+        (CellKey::Cell(a), Some(b)) => contains(a, b),
+        _ => r == k,
+    }
+}
+
+/// Seed of an entry's visibility streams at texel `i`: taking an entry out draws the same
+/// shadow rays as putting it in.
+fn salt(k: CellKey, i: usize) -> u64 {
+    match k {
+        CellKey::Cell(c) => c,
+        CellKey::Delta(c, serial) => c ^ (serial as u64 + 1) << 40,
+        CellKey::Direct(id) => id as u64,
+    }
+    .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ i as u64
+}
+
+/// The triangles that moved between two versions, in each (ray tests over them alone).
+struct Movers {
+    was: Bvh,
+    now: Bvh,
+}
+
+/// Stream bases of a cell's virtual lights and of a correction's subtracted ones.
+const STREAM_PLUS: u64 = 50;
+const STREAM_MINUS: u64 = 66;
+
+/// How a virtual-light entry's indirect light at a texel that did not move changes from its
+/// version in `was` to the one in `now`: the same shadow rays are drawn (same streams), and
+/// only those that cross a box where geometry moved are traced, in both versions. A ray that
+/// crosses none meets the same triangles in both, so this equals the difference of two full
+/// evaluations exactly, for the cost of the rays the edit can have changed.
+#[allow(clippy::too_many_arguments)]
+fn shadow_change(
+    was: &Baked,
+    now: &Baked,
+    k: CellKey,
+    i: usize,
+    s: u32,
+    seed: u64,
+    boxes: &[Aabb],
+    movers: &Movers,
+) -> DVec3 {
+    let (p, n, eps) = now.version.frames[i];
+    let salt = salt(k, i);
+    let change = |ls: &[VirtualLight], base: u64| -> DVec3 {
+        let mut sum = DVec3::ZERO;
+        for (li, l) in ls.iter().enumerate() {
+            // The draws do not depend on the irradiance (each light has its own stream), so
+            // the costly form factor waits until a ray is known to differ.
+            let mut rng = stream(seed, base + li as u64, salt);
+            let r2_min = l.polygon.area() / l.samples.len().max(1) as f32;
+            let mut seen = 0i32;
+            visibility_draws(p, n, &l.samples, r2_min, s, &mut rng, |j| {
+                let (q, nq) = l.samples[j];
+                let (d, len) = ((q - p).normalize_or_zero(), (q - p).length());
+                if !boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
+                    return;
+                }
+                // Visibility is the product of the moved triangles' and the rest's (same
+                // offsets): only a ray the moved triangles block in one version and not in
+                // the other can differ, and then by the rest's visibility.
+                let (blocked_was, blocked_now) =
+                    (!movers.was.visible(p, n, q, nq), !movers.now.visible(p, n, q, nq));
+                if blocked_was && !blocked_now {
+                    seen += now.version.bvh.visible(p, n, q, nq) as i32;
+                } else if blocked_now && !blocked_was {
+                    seen -= was.version.bvh.visible(p, n, q, nq) as i32;
+                }
+            });
+            if seen != 0 {
+                let e = l.polygon.irradiance(p, n, eps);
+                sum += (e * (seen as f32 / s as f32)).as_dvec3();
+            }
+        }
+        sum
+    };
+    match &now.source {
+        Source::Direct(_) => DVec3::ZERO,
+        Source::Lights(ls) => change(ls, STREAM_PLUS),
+        Source::Delta { plus, minus } => change(plus, STREAM_PLUS) - change(minus, STREAM_MINUS),
+    }
+}
+
+/// A baked entry's (direct, indirect) irradiance at texel `i`, with its own version.
 fn evaluate(b: &Baked, k: CellKey, i: usize, s: u32, seed: u64) -> (DVec3, DVec3) {
     let (p, n, eps) = b.version.frames[i];
+    let salt = salt(k, i);
+    let sum = |ls: &[VirtualLight], base: u64| -> DVec3 {
+        let mut sum = DVec3::ZERO;
+        for (li, l) in ls.iter().enumerate() {
+            let e = l.polygon.irradiance(p, n, eps);
+            if e == Vec3::ZERO {
+                continue;
+            }
+            let mut rng = stream(seed, base + li as u64, salt);
+            let r2_min = l.polygon.area() / l.samples.len().max(1) as f32;
+            sum += (e * soft_visibility(&b.version.bvh, p, n, &l.samples, r2_min, s, &mut rng)).as_dvec3();
+        }
+        sum
+    };
     match &b.source {
         Source::Direct(l) => (
             prm::bvh::direct_irradiance(&b.version.bvh, std::slice::from_ref(l), p, n).as_dvec3(),
             DVec3::ZERO,
         ),
-        Source::Lights(ls) => {
-            let mut sum = DVec3::ZERO;
-            let cell = match k {
-                CellKey::Cell(c) => c,
-                CellKey::Direct(id) => id as u64,
-            };
-            for (li, l) in ls.iter().enumerate() {
-                let e = l.polygon.irradiance(p, n, eps);
-                if e == Vec3::ZERO {
-                    continue;
-                }
-                let mut rng =
-                    stream(seed, 50 + li as u64, cell.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ i as u64);
-                let r2_min = l.polygon.area() / l.samples.len().max(1) as f32;
-                sum +=
-                    (e * soft_visibility(&b.version.bvh, p, n, &l.samples, r2_min, s, &mut rng)).as_dvec3();
-            }
-            (DVec3::ZERO, sum)
-        }
+        Source::Lights(ls) => (DVec3::ZERO, sum(ls, STREAM_PLUS)),
+        Source::Delta { plus, minus } => (DVec3::ZERO, sum(plus, STREAM_PLUS) - sum(minus, STREAM_MINUS)),
     }
 }

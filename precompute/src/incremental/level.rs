@@ -63,6 +63,34 @@ impl Aabb {
         }
         true
     }
+
+    /// Whether some segment from `apex` to a point of the ball (`centre`, `radius`) may meet
+    /// the box grown by `margin` (conservative). The segments fill a cone whose radius grows
+    /// from 0 at the apex to `radius` at the centre; it is tested in pieces along its axis,
+    /// each against the box grown by the cone's largest radius over the piece, so a texel
+    /// near the box is not taken to be shadowed by it from every side as with one growth.
+    pub fn meets_cone(&self, apex: Vec3, centre: Vec3, radius: f32, margin: f32) -> bool {
+        let axis = centre - apex;
+        let len = axis.length();
+        if !(len > radius) {
+            // The apex is inside the ball: every direction.
+            return !self.grown(radius + margin).is_empty()
+                && (apex - apex.clamp(self.lo, self.hi)).length() <= len + radius + margin;
+        }
+        let d = axis / len;
+        // The cone's sides leave the axis at the ball's tangent: radius at distance t is
+        // at most t * radius / sqrt(len² - radius²) along the axis, and the ball's far half is
+        // within `radius` of the centre.
+        let slope = radius / (len * len - radius * radius).sqrt();
+        let mut t0 = 0.0f32;
+        for t1 in [len / 16.0, len / 8.0, len / 4.0, len / 2.0, len] {
+            if self.grown(t1 * slope + margin).meets_segment(apex + d * t0, d, t1 - t0) {
+                return true;
+            }
+            t0 = t1;
+        }
+        self.grown(radius + margin).meets_segment(centre, d, radius)
+    }
 }
 
 /// One change an editor makes.
@@ -161,6 +189,11 @@ impl Level {
     pub fn new(scene: Scene, texels: Arc<TexelSet>) -> Level {
         let extent = scene.diagonal();
         Level::with_extent(scene, texels, extent)
+    }
+
+    /// The diagonal the ray offsets are made for.
+    pub fn extent(&self) -> f32 {
+        self.extent
     }
 
     /// As [`Level::new`] with the ray offsets of a level of diagonal `extent` (to compare a

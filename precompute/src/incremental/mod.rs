@@ -12,5 +12,5 @@ pub mod clusters;
 pub mod level;
 pub mod paths;
 
-pub use baker::{Baker, BakerParams, CellKey, EditReport, Energy, Frame, StepReport};
+pub use baker::{Baker, BakerParams, CellKey, EditReport, Energy, Frame, StepReport, UpdateKind};
 pub use level::{Aabb, Changes, Edit, EditError, Level, LightSlot, Version};

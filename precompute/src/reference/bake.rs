@@ -317,16 +317,44 @@ pub(crate) fn soft_visibility(
     s: u32,
     rng: &mut rand_pcg::Pcg64Mcg,
 ) -> f32 {
-    let mut cdf = Vec::with_capacity(samples.len());
+    let mut seen = 0;
+    visibility_draws(p, n, samples, r2_min, s, rng, |i| {
+        let (q, nq) = samples[i];
+        seen += bvh.visible(p, n, q, nq) as u32;
+    });
+    seen as f32 / s as f32
+}
+
+/// The members [`soft_visibility`] sends its `s` shadow rays to, drawn in proportion to their
+/// point-light kernel at (p, n), stratified: `visit` gets each drawn index in turn. The same
+/// random stream gives the same draws, so a caller can tell which rays a value rests on.
+pub(crate) fn visibility_draws(
+    p: Vec3,
+    n: Vec3,
+    samples: &[(Vec3, Vec3)],
+    r2_min: f32,
+    s: u32,
+    rng: &mut rand_pcg::Pcg64Mcg,
+    mut visit: impl FnMut(usize),
+) {
+    // Members are few (at most MAX_SAMPLES here, fewer in the incremental baker): the CDF
+    // lives on the stack.
+    let mut stack = [0.0f32; MAX_SAMPLES];
+    let mut heap = Vec::new();
+    let cdf: &mut [f32] = if samples.len() <= MAX_SAMPLES {
+        &mut stack[..samples.len()]
+    } else {
+        heap.resize(samples.len(), 0.0);
+        &mut heap
+    };
     let mut total = 0.0f32;
-    for (q, nq) in samples {
+    for ((q, nq), c) in samples.iter().zip(cdf.iter_mut()) {
         let d = p - *q;
         let r2 = d.length_squared();
         let w = (nq.dot(d).max(0.0) * (-n.dot(d)).max(0.0)) / (r2 * r2.max(r2_min)).max(1e-30);
         total += w;
-        cdf.push(total);
+        *c = total;
     }
-    let mut seen = 0;
     for k in 0..s {
         let u = (k as f32 + rng.random::<f32>()) / s as f32;
         let i = if total > 0.0 {
@@ -334,10 +362,8 @@ pub(crate) fn soft_visibility(
         } else {
             rng.random_range(0..samples.len())
         };
-        let (q, nq) = samples[i];
-        seen += bvh.visible(p, n, q, nq) as u32;
+        visit(i);
     }
-    seen as f32 / s as f32
 }
 
 /// The virtual lights as a Wavefront OBJ: polygons as faces, spheres as octahedra.
