@@ -65,6 +65,17 @@ pub struct Args {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     json: bool,
+    /// After the bake (and the script), watch the level file: when an editor writes it again,
+    /// load it, diff it node by node against the last load, apply the edits and update until
+    /// converged, writing the output each time. Stops with Ctrl-C (or after --watch-limit).
+    #[arg(long)]
+    watch: bool,
+    /// Stop watching after this many reloads (scripts and tests).
+    #[arg(long, requires = "watch")]
+    watch_limit: Option<usize>,
+    /// Seconds between looks at the level file's modification time.
+    #[arg(long, default_value_t = 0.25, requires = "watch")]
+    watch_interval: f64,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -194,14 +205,10 @@ pub fn run(a: Args) -> Result<()> {
         }
         rows.push(row);
     }
-    let (direct, indirect) = baker.lightmap();
-    let total: Vec<Vec3> = direct.iter().zip(&indirect).map(|(d, i)| *d + *i).collect();
-    let mut ch = Channels::new(set.width as usize, set.height as usize);
-    ch.insert_rgb("", &set.to_image(&total, Vec3::ZERO));
-    ch.insert_rgb("direct", &set.to_image(&direct, Vec3::ZERO));
-    ch.insert_rgb("indirect", &set.to_image(&indirect, Vec3::ZERO));
-    ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
-    ch.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
+    write_lightmap(&baker, &set, &a.output)?;
+    if a.watch {
+        watch(&a, &mut baker, &set)?;
+    }
     if a.json {
         let summary = serde_json::json!({
             "scene": a.scene.scene.display().to_string(),
@@ -215,6 +222,133 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     }
     Ok(())
+}
+
+fn write_lightmap(baker: &Baker, set: &TexelSet, output: &Path) -> Result<()> {
+    let (direct, indirect) = baker.lightmap();
+    let total: Vec<Vec3> = direct.iter().zip(&indirect).map(|(d, i)| *d + *i).collect();
+    let mut ch = Channels::new(set.width as usize, set.height as usize);
+    ch.insert_rgb("", &set.to_image(&total, Vec3::ZERO));
+    ch.insert_rgb("direct", &set.to_image(&direct, Vec3::ZERO));
+    ch.insert_rgb("indirect", &set.to_image(&indirect, Vec3::ZERO));
+    ch.insert("mask", set.mask().iter().map(|&m| m as u8 as f32).collect());
+    ch.write(output).with_context(|| format!("writing {}", output.display()))
+}
+
+/// `--watch`: follow the level file as an editor writes it. Updates run in slices of the poll
+/// interval, so a new save is taken up while the last one is still converging (its remaining
+/// updates are planned again with the new edits); the output is written whenever the lightmap
+/// has converged.
+fn watch(a: &Args, baker: &mut Baker, set: &TexelSet) -> Result<()> {
+    use prm_precompute::incremental::diff::{diff, match_lights};
+    let path = &a.scene.scene;
+    let stamp = || std::fs::metadata(path).and_then(|m| m.modified()).ok();
+    let (mut last, mut seen) = (baker.level().current().scene.as_ref().clone(), stamp());
+    // Baker light ids, one per light of `last`, in order.
+    let mut ids: Vec<u32> = baker.level().current().lights.iter().map(|l| l.id).collect();
+    let interval = std::time::Duration::from_secs_f64(a.watch_interval.clamp(0.01, 60.0));
+    let (mut reloads, mut since, mut written) = (0, Instant::now(), true);
+    eprintln!("watching {} (Ctrl-C stops)", path.display());
+    loop {
+        if baker.converged() {
+            if !written {
+                write_lightmap(baker, set, &a.output)?;
+                println!(
+                    "reload {reloads}: converged {:.2} s after the save; wrote {}",
+                    since.elapsed().as_secs_f64(),
+                    a.output.display()
+                );
+                written = true;
+            }
+            if a.watch_limit.is_some_and(|n| reloads >= n) {
+                return Ok(());
+            }
+            std::thread::sleep(interval);
+        } else {
+            baker.run_for(interval);
+        }
+        let now = stamp();
+        if now == seen {
+            continue;
+        }
+        // An editor may still be writing: take the file once its time stamp holds still.
+        std::thread::sleep(interval);
+        if stamp() != now {
+            continue;
+        }
+        seen = now;
+        reloads += 1;
+        since = Instant::now();
+        let fresh = match a.lightmap.load(&a.scene, true) {
+            Ok((s, _)) => s,
+            Err(e) => {
+                eprintln!("reload {reloads}: the level does not load; kept the last state: {e:#}");
+                continue;
+            }
+        };
+        let edits = match diff(&last, &fresh, &ids) {
+            Ok(e) => e,
+            Err(e) => {
+                eprintln!("reload {reloads}: cannot follow this change; kept the last state: {e}");
+                continue;
+            }
+        };
+        let (matched, _) = match_lights(&last.lights, &fresh.lights);
+        let mut new_ids: Vec<Option<u32>> = matched.iter().map(|m| m.map(|i| ids[i])).collect();
+        let mut refused = None;
+        for e in &edits {
+            match baker.apply(e) {
+                Ok(r) => {
+                    if let Edit::AddLight(_) = e {
+                        if let (Some(slot), Some(id)) =
+                            (new_ids.iter_mut().find(|x| x.is_none()), r.changes.lights.first())
+                        {
+                            *slot = Some(*id);
+                        }
+                    }
+                }
+                Err(err) => {
+                    refused = Some(err);
+                    break;
+                }
+            }
+        }
+        written = false;
+        if let Some(err) = refused {
+            // The edits before it are in; compare the next save with what the level now is.
+            eprintln!("reload {reloads}: an edit was refused ({err}); the level follows the ones before it");
+            let v = baker.level().current().clone();
+            last = v.scene.as_ref().clone();
+            last.lights = v.lights.iter().map(|l| l.light.clone()).collect();
+            ids = v.lights.iter().map(|l| l.id).collect();
+            continue;
+        }
+        println!("reload {reloads}: {} edits ({})", edits.len(), summary(&edits));
+        ids = new_ids.into_iter().map(|x| x.unwrap_or(u32::MAX)).collect();
+        last = fresh;
+    }
+}
+
+/// "2 moves, 1 albedo" for a list of edits.
+fn summary(edits: &[Edit]) -> String {
+    let mut n = [0usize; 5];
+    for e in edits {
+        n[match e {
+            Edit::Transform { .. } => 0,
+            Edit::Albedo { .. } => 1,
+            Edit::AddLight(_) => 2,
+            Edit::RemoveLight { .. } => 3,
+            Edit::SetLight { .. } => 4,
+        }] += 1;
+    }
+    let names = ["node transforms", "albedos", "lights added", "lights removed", "lights changed"];
+    let parts: Vec<String> =
+        n.iter().zip(names).filter(|(k, _)| **k > 0).map(|(k, s)| format!("{k} {s}")).collect();
+    if parts.is_empty() {
+        "nothing changed".into()
+    } else {
+        parts.join(", ")
+    }
 }
 
 fn summed(b: &Baker) -> Vec<Vec3> {

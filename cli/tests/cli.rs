@@ -1171,3 +1171,58 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
         assert!(!out.exists(), "{bad}: no output on error");
     }
 }
+
+fn level_at(path: &Path, atlas: u32) -> prm::Scene {
+    let opts =
+        prm::gltf_load::LoadOptions { unwrap_resolution: Some(atlas.clamp(16, 8192)), ..Default::default() };
+    prm::gltf_load::load_scene(path, &opts).unwrap()
+}
+
+/// The glb at `path` with node `name` translated by `by` (the JSON chunk rewritten).
+fn moved_glb(path: &Path, name: &str, by: [f32; 3]) -> Vec<u8> {
+    let b = std::fs::read(path).unwrap();
+    let json_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let mut doc: serde_json::Value = serde_json::from_slice(&b[20..20 + json_len]).unwrap();
+    let bin_at = 20 + json_len;
+    let bin_len = u32::from_le_bytes(b[bin_at..bin_at + 4].try_into().unwrap()) as usize;
+    let bin = &b[bin_at + 8..bin_at + 8 + bin_len];
+    let node = doc["nodes"].as_array_mut().unwrap().iter_mut().find(|n| n["name"] == name).unwrap();
+    node["translation"] = serde_json::json!(by);
+    prm::glb::glb_bytes(&doc, bin)
+}
+
+#[test]
+fn bake_watch_follows_a_level_saved_again() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let level = dir.join("level.glb");
+    std::fs::copy(asset("cornell.glb"), &level).unwrap();
+    let out = dir.join("w.exr");
+    let child = Command::new(env!("CARGO_BIN_EXE_prm"))
+        .args(["bake", s(&level), "--atlas", "32", "--paths", "2000", "--watch", "--watch-limit", "1"])
+        .args(["--watch-interval", "0.05", "-o", s(&out)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait for the first bake's output, then save the level with the red wall moved 3 cm.
+    let start = std::time::Instant::now();
+    while !out.exists() && start.elapsed().as_secs() < 120 {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let before = Channels::read(&out).unwrap().rgb("direct").unwrap();
+    let moved = moved_glb(&level, "red", [0.03, 0.0, 0.0]);
+    std::thread::sleep(std::time::Duration::from_millis(1100)); // a distinct modification time
+    std::fs::write(dir.join("tmp.glb"), moved).unwrap();
+    std::fs::rename(dir.join("tmp.glb"), &level).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let (stdout, stderr) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{stderr}");
+    assert!(stdout.contains("reload 1: 1 edits (1 node transforms)"), "{stdout}\n{stderr}");
+    assert!(stdout.contains("converged"), "{stdout}");
+    // The output now shows the edited level: its direct light is a fresh bake's of it.
+    let after = Channels::read(&out).unwrap().rgb("direct").unwrap();
+    let want = direct_image(&level_at(&level, 32), 32);
+    assert_ne!(before, after, "the lightmap followed the edit");
+    assert_images_close(&after, &want, 1e-3, "direct light after the watched edit");
+}

@@ -406,3 +406,71 @@ fn a_cell_s_lights_follow_its_planes_and_keep_its_power() {
     let power: f32 = ls.iter().map(|l| l.polygon.power.x).sum();
     assert!((power - 0.4).abs() < 1e-5);
 }
+
+#[test]
+fn a_level_saved_again_diffs_into_edits_that_reproduce_it() {
+    use prm_precompute::incremental::diff::{diff, DiffError};
+    use prm_precompute::incremental::Level;
+    let old = room();
+    let mut new = old.clone();
+    // The block turned and moved (positions and normals), the wall recoloured, the lamp moved
+    // and a second lamp added.
+    let m = Mat4::from_translation(v(0.1, 0.0, -0.05)) * Mat4::from_rotation_y(0.4);
+    let block: Vec<u32> = {
+        let mut b: Vec<u32> = old.triangles.iter().filter(|t| t.node == 1).flat_map(|t| t.v).collect();
+        b.sort_unstable();
+        b.dedup();
+        b
+    };
+    for &i in &block {
+        new.positions[i as usize] = m.transform_point3(old.positions[i as usize]);
+        new.normals[i as usize] = m.transform_vector3(old.normals[i as usize]).normalize();
+    }
+    new.materials[1].albedo = v(0.1, 0.6, 0.3);
+    new.lights[0].position = v(0.6, 0.7, 0.3);
+    new.lights.push(Light::point("second", v(0.2, 0.5, 0.2), Vec3::splat(0.5)));
+    let edits = diff(&old, &new, &[0]).unwrap();
+    assert_eq!(edits.len(), 4, "{edits:?}");
+    let mut level = Level::new(old.clone(), texels(&old));
+    for e in &edits {
+        level.apply(e).unwrap();
+    }
+    let cur = level.current();
+    let worst =
+        cur.scene.positions.iter().zip(&new.positions).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+    assert!(worst < 1e-5, "positions {worst} off");
+    assert_eq!(cur.scene.materials[1].albedo, new.materials[1].albedo);
+    let lights: Vec<Light> = cur.lights.iter().map(|l| l.light.clone()).collect();
+    assert_eq!(lights, new.lights);
+    // Nothing changed: no edits.
+    assert!(diff(&new, &new, &[0, 1]).unwrap().is_empty());
+
+    // A flat node (one quad) fixes no transform off its plane by its vertices alone: its
+    // normals do.
+    let flat = quads(&[[v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)]], 0.5);
+    let mut tilted = flat.clone();
+    let m = Mat4::from_translation(v(0.0, 0.3, 0.1))
+        * Mat4::from_rotation_x(0.5)
+        * Mat4::from_scale(Vec3::splat(1.5));
+    for i in 0..flat.positions.len() {
+        tilted.positions[i] = m.transform_point3(flat.positions[i]);
+        tilted.normals[i] = m.transform_vector3(flat.normals[i]).normalize();
+    }
+    let Edit::Transform { matrix, .. } = diff(&flat, &tilted, &[]).unwrap()[0] else { panic!("a transform") };
+    let probe = v(0.3, 0.7, 0.2);
+    assert!((matrix.transform_point3(probe) - m.transform_point3(probe)).length() < 1e-4, "{matrix} vs {m}");
+
+    // What the incremental baker cannot follow is refused with the reason.
+    let mut bent = old.clone();
+    bent.positions[block[0] as usize] += v(0.0, 0.05, 0.0);
+    assert!(matches!(diff(&old, &bent, &[0]), Err(DiffError::NotAffine { node: 1, .. })));
+    let mut grown = old.clone();
+    grown.triangles.pop();
+    assert!(matches!(diff(&old, &grown, &[0]), Err(DiffError::Topology(_))));
+    let mut relaid = old.clone();
+    relaid.uv1[3].x += 0.01;
+    assert_eq!(diff(&old, &relaid, &[0]), Err(DiffError::Layout(3)));
+    let mut textured = old.clone();
+    textured.materials[0].double_sided = !textured.materials[0].double_sided;
+    assert_eq!(diff(&old, &textured, &[0]), Err(DiffError::Material(0)));
+}

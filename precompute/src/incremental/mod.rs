@@ -9,6 +9,7 @@
 
 pub mod baker;
 pub mod clusters;
+pub mod diff;
 pub mod level;
 pub mod paths;
 
