@@ -838,31 +838,21 @@ impl Baker {
                 let old = self.baked.get(&k)?.version.clone();
                 let movers = self.movers(&old, &v);
                 let b = self.baked.get_mut(&k)?;
-                let since: Vec<&Changes> =
-                    self.log.iter().filter(|(id, _)| *id > old.id).map(|(_, c)| c).collect();
-                let moved: BTreeSet<u32> = since.iter().flat_map(|c| c.moved_nodes.iter().copied()).collect();
                 let (c, r) = b.bound;
-                let regions: Vec<Aabb> = since.iter().flat_map(|ch| ch.regions.iter().copied()).collect();
                 let directional = match &b.source {
                     Source::Direct(l) if !l.is_positional() => Some(-l.direction),
                     _ => None,
                 };
-                // Shadow rays leave a texel a little off its surface: a margin covers it.
-                let margin = 1e-3 * (root.hi - root.lo).length();
+                let boxes = &movers.boxes;
                 let shadowed = |p: Vec3| -> bool {
                     match directional {
-                        Some(d) => {
-                            regions.iter().any(|bx| bx.grown(margin).meets_segment(p, d, f32::INFINITY))
-                        }
-                        None => regions.iter().any(|bx| bx.meets_cone(p, c, r, margin)),
+                        Some(d) => boxes.iter().any(|bx| bx.meets_segment(p, d, f32::INFINITY)),
+                        None => boxes.iter().any(|bx| bx.meets_cone(p, c, r, 0.0)),
                     }
                 };
                 let picked: Vec<usize> = (0..texels.texels.len())
                     .into_par_iter()
-                    .filter(|&i| {
-                        moved.contains(&v.scene.triangles[texels.texels[i].triangle as usize].node)
-                            || shadowed(v.frames[i].0)
-                    })
+                    .filter(|&i| movers.on_moved[i] || shadowed(v.frames[i].0))
                     .collect();
                 let was = Baked {
                     version: old,
@@ -876,15 +866,12 @@ impl Baker {
                 };
                 b.version = v.clone();
                 let b = &*b;
-                let boxes: Vec<Aabb> = regions.iter().map(|x| x.grown(margin)).collect();
                 let deltas: Vec<(DVec3, DVec3)> = picked
                     .par_iter()
                     .map(|&i| {
-                        let on_moved =
-                            moved.contains(&v.scene.triangles[texels.texels[i].triangle as usize].node);
-                        if !on_moved && !matches!(b.source, Source::Direct(_)) {
+                        if !movers.on_moved[i] && !matches!(b.source, Source::Direct(_)) {
                             // The texel stayed: only the shadow rays that cross what moved differ.
-                            return (DVec3::ZERO, shadow_change(&was, b, k, i, s, seed, &boxes, &movers));
+                            return (DVec3::ZERO, shadow_change(&was, b, k, i, s, seed, &movers));
                         }
                         let (od, oi) = evaluate(&was, k, i, s, seed);
                         let (nd, ni) = evaluate(b, k, i, s, seed);
@@ -901,27 +888,29 @@ impl Baker {
         }
     }
 
-    /// The triangles of nodes moved between versions `was` and `now`, with BVHs over each
-    /// version's positions (kept until the next plan).
+    /// What moved between versions `was` and `now`, worked out once for all the refreshes
+    /// between them (kept until the next plan).
     fn movers(&mut self, was: &Arc<Version>, now: &Arc<Version>) -> Arc<Movers> {
         let log = &self.log;
         let extent = self.level.extent();
+        let texels = self.level.texels();
+        // Shadow rays leave a texel a little off its surface: a margin covers it.
+        let margin = 1e-3 * (self.frame.root.hi - self.frame.root.lo).length();
         self.movers
             .entry((was.id, now.id))
             .or_insert_with(|| {
-                let moved: BTreeSet<u32> = log
-                    .iter()
-                    .filter(|(id, _)| *id > was.id && *id <= now.id)
-                    .flat_map(|(_, c)| c.moved_nodes.iter().copied())
-                    .collect();
-                let tris: Vec<u32> = (0..now.scene.triangles.len() as u32)
-                    .filter(|&t| moved.contains(&now.scene.triangles[t as usize].node))
-                    .collect();
+                let since = log.iter().filter(|(id, _)| *id > was.id && *id <= now.id).map(|(_, c)| c);
+                let nodes: BTreeSet<u32> =
+                    since.clone().flat_map(|c| c.moved_nodes.iter().copied()).collect();
+                let boxes = since.flat_map(|c| c.regions.iter().map(|x| x.grown(margin))).collect();
+                let on_node = |t: u32| nodes.contains(&now.scene.triangles[t as usize].node);
+                let tris: Vec<u32> = (0..now.scene.triangles.len() as u32).filter(|&t| on_node(t)).collect();
+                let on_moved = texels.texels.par_iter().map(|t| on_node(t.triangle)).collect();
                 let (w, n) = rayon::join(
                     || Bvh::build_subset(&was.scene, &tris, extent),
                     || Bvh::build_subset(&now.scene, &tris, extent),
                 );
-                Arc::new(Movers { was: w, now: n })
+                Arc::new(Movers { was: w, now: n, boxes, on_moved })
             })
             .clone()
     }
@@ -1082,10 +1071,13 @@ fn salt(k: CellKey, i: usize) -> u64 {
         ^ i as u64
 }
 
-/// The triangles that moved between two versions, in each (ray tests over them alone).
+/// What moved between two versions: the moved triangles in each (ray tests over them alone),
+/// the boxes where they were or are (grown by a ray-offset margin), and which texels lie on them.
 struct Movers {
     was: Bvh,
     now: Bvh,
+    boxes: Vec<Aabb>,
+    on_moved: Vec<bool>,
 }
 
 /// Stream bases of a cell's virtual lights and of a correction's subtracted ones.
@@ -1105,7 +1097,6 @@ fn shadow_change(
     i: usize,
     s: u32,
     seed: u64,
-    boxes: &[Aabb],
     movers: &Movers,
 ) -> DVec3 {
     let (p, n, eps) = now.version.frames[i];
@@ -1121,7 +1112,7 @@ fn shadow_change(
             visibility_draws(p, n, &l.samples, r2_min, s, &mut rng, |j| {
                 let (q, nq) = l.samples[j];
                 let (d, len) = ((q - p).normalize_or_zero(), (q - p).length());
-                if !boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
+                if !movers.boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
                     return;
                 }
                 // Visibility is the product of the moved triangles' and the rest's (same
