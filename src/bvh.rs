@@ -225,12 +225,21 @@ impl Bvh {
     }
 }
 
-/// Irradiance at surface point `p` (unit normal `n`) from punctual `lights`, each with a shadow
-/// ray (W/m²). The precompute's evaluation, the runtime's CPU twin and the reference baker
-/// share it; the ground truth keeps its own on purpose (DESIGN.md §7).
+/// Irradiance at surface point `p` (unit normal `n`) from `lights`, with shadow rays (W/m²).
+/// The precompute's evaluation, the runtime's CPU twin and the bakers share it; the ground
+/// truth keeps its own on purpose (DESIGN.md §7).
+///
+/// A point light gets one shadow ray. A sphere or polygon light gets its unshadowed
+/// irradiance ([`crate::Light::irradiance`]) times the share of [`AREA_SHADOW_RAYS`] rays to
+/// points of its aperture that arrive (stratified, rotated by a hash of `p` so neighbouring
+/// texels do not band alike): exact without occluders, soft shadows otherwise.
 pub fn direct_irradiance(bvh: &Bvh, lights: &[crate::Light], p: Vec3, n: Vec3) -> Vec3 {
     let mut sum = Vec3::ZERO;
     for l in lights {
+        if l.is_area() {
+            sum += area_irradiance(bvh, l, p, n);
+            continue;
+        }
         let inc = l.incident(p);
         let cos = n.dot(inc.to_light);
         if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
@@ -246,6 +255,41 @@ pub fn direct_irradiance(bvh: &Bvh, lights: &[crate::Light], p: Vec3, n: Vec3) -
         }
     }
     sum
+}
+
+/// Shadow rays per area light and receiver point in [`direct_irradiance`] (a 4 x 4 grid).
+pub const AREA_SHADOW_RAYS: u32 = 16;
+
+fn area_irradiance(bvh: &Bvh, l: &crate::Light, p: Vec3, n: Vec3) -> Vec3 {
+    let e = l.irradiance(p, n);
+    if e == Vec3::ZERO {
+        return e;
+    }
+    // Cranley-Patterson rotation from the receiver's bits: deterministic, decorrelated.
+    let h = |x: u32| {
+        let mut v = x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
+        v ^= p.z.to_bits().wrapping_mul(0x85EB_CA6B);
+        v ^= v >> 16;
+        v = v.wrapping_mul(0x7FEB_352D);
+        v ^= v >> 15;
+        (v >> 8) as f32 / (1u32 << 24) as f32
+    };
+    let (r0, r1) = (h(1), h(2));
+    let side = (AREA_SHADOW_RAYS as f32).sqrt() as u32;
+    let mut seen = 0u32;
+    for a in 0..side {
+        for b in 0..side {
+            let u = [((a as f32 + r0) / side as f32).fract(), ((b as f32 + r1) / side as f32).fract()];
+            let q = l.aperture_point(p, u);
+            let visible = match l.aperture {
+                // A polygon may lie on a surface (an emissive face): offset both ends.
+                crate::light::Aperture::Polygon { .. } => bvh.visible(p, n, q, l.direction),
+                _ => bvh.visible_point(p, n, q),
+            };
+            seen += visible as u32;
+        }
+    }
+    e * (seen as f32 / (side * side) as f32)
 }
 
 /// Power (W) `lights` deliver to the triangles `tris` (an entry's cell,

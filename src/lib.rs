@@ -2,7 +2,8 @@
 //!
 //! - [`scene`]: a glTF level flattened into one world-space triangle soup with Lambertian
 //!   materials, punctual lights and cameras ([`gltf_load`] reads it, [`glb`] writes one).
-//! - [`light`]: the radiometric light model (DESIGN.md §3) used by every stage.
+//! - [`light`]: the radiometric light model (DESIGN.md §3) used by every stage; [`photometry`]
+//!   reads IES / EULUMDAT emission profiles for it.
 //! - [`density`]: the atlas size a texel size in metres gives a level.
 //! - [`zones`]: generated UVs packed zone by zone, so nearby geometry stays together.
 //! - [`uv`]: lightmap-UV checks (range, overlap) and generation when a level has none.
@@ -32,11 +33,13 @@ pub mod density;
 #[cfg(feature = "exr")]
 pub mod exr_io;
 pub mod fingerprint;
+pub mod form_factor;
 pub mod fsutil;
 pub mod glb;
 #[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod light;
+pub mod photometry;
 pub mod metric;
 pub mod prm_file;
 pub mod rig;

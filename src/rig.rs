@@ -153,14 +153,7 @@ impl Rig {
             let slot = level.iter().position(|l| l.name == rl.name);
             let mut light = match (slot, &rl.kind) {
                 (Some(i), _) => level[i].clone(),
-                (None, Some(_)) => Light {
-                    name: rl.name.clone(),
-                    kind: LightKind::Point,
-                    position: Vec3::ZERO,
-                    direction: -Vec3::Y,
-                    intensity: Vec3::ONE,
-                    range: None,
-                },
+                (None, Some(_)) => Light::point(&rl.name, Vec3::ZERO, Vec3::ONE),
                 (None, None) => {
                     let names: Vec<&str> = level.iter().map(|l| l.name.as_str()).collect();
                     return Err(bad(format!(
@@ -334,6 +327,8 @@ mod tests {
             direction: -Vec3::Y,
             intensity: Vec3::new(10.0, 5.0, 2.5),
             range: None,
+            aperture: Default::default(),
+            profile: None,
         }]
     }
 

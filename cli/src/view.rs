@@ -67,6 +67,8 @@ pub fn run(a: Args) -> Result<()> {
             direction: -Vec3::Y,
             intensity: Vec3::splat((hi - lo).length_squared()),
             range: None,
+            aperture: Default::default(),
+            profile: None,
         });
     }
     let mut params = a.compose.runtime(1024)?;

@@ -30,6 +30,13 @@
 //! unbiased and bounded wherever either density is large. Directional lights and emitters are
 //! gathered only.
 //!
+//! **Area lights** (sphere and polygon apertures, [`prm::light::Aperture`]) get next-event
+//! estimation with a point y drawn uniformly by area over the whole aperture (its own
+//! warps, not the bakers'): `E = L(y) cos_x cos_y A / d² V(x, y)`, L = I / (pi r²) on a
+//! sphere, I_n / A on a polygon, zero from a sphere's far side. No light paths start on them.
+//! Emissive surfaces of the level are not lights here: paths find them (Le above), which is
+//! how the bakers' polygon lights made from them are checked independently.
+//!
 //! Back faces of
 //! one-sided surfaces absorb. Roulette starts after [`GtParams::rr_depth`] bounces with
 //! `q = max(rho)` (clamped to [0.05, 1]), so it is unbiased; `max_bounces` is an explicit,
@@ -40,6 +47,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use glam::{DVec3, Vec3};
 use std::f32::consts::PI;
 
+use prm::light::Aperture;
 use prm::{Bvh, Light, LightKind, Scene, Texel};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -187,9 +195,71 @@ impl<'a> Tracer<'a> {
         Tracer { scene, bvh, params, stats: GtStats::default() }
     }
 
-    /// Irradiance from the punctual lights at `p` (normal `n`), with shadow rays.
+    /// Irradiance from the punctual lights at `p` (normal `n`), with shadow rays (area lights
+    /// are sampled per path: [`Tracer::area`]).
     pub fn punctual(&self, p: Vec3, n: Vec3) -> Vec3 {
-        self.scene.lights.iter().map(|l| self.punctual_one(l, p, n)).sum()
+        self.scene.lights.iter().filter(|l| !l.is_area()).map(|l| self.punctual_one(l, p, n)).sum()
+    }
+
+    /// One sample of the irradiance from every area light at `p` (normal `n`).
+    pub fn area(&self, p: Vec3, n: Vec3, rng: &mut Pcg64Mcg) -> Vec3 {
+        let mut e = Vec3::ZERO;
+        for l in self.scene.lights.iter().filter(|l| l.is_area()) {
+            e += self.area_one(l, p, n, rng);
+        }
+        e
+    }
+
+    fn area_one(&self, light: &Light, p: Vec3, n: Vec3, rng: &mut Pcg64Mcg) -> Vec3 {
+        let (y, ny, radiance, area) = match &light.aperture {
+            Aperture::Sphere { radius } => {
+                // Uniform on the sphere: z uniform in [-1, 1] (Archimedes).
+                let z = 2.0 * rng.random::<f32>() - 1.0;
+                let phi = 2.0 * PI * rng.random::<f32>();
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let ny = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let area = 4.0 * PI * radius * radius;
+                (light.position + ny * *radius, ny, light.intensity / (PI * radius * radius), area)
+            }
+            Aperture::Polygon { corners } => {
+                let tri = |k: usize| 0.5 * (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]).length();
+                let area: f32 = (1..corners.len() - 1).map(tri).sum();
+                let mut x = rng.random::<f32>() * area;
+                let mut k = 1;
+                while k + 2 < corners.len() && x >= tri(k) {
+                    x -= tri(k);
+                    k += 1;
+                }
+                // Uniform in the triangle by folding the unit square.
+                let (mut a, mut b) = (rng.random::<f32>(), rng.random::<f32>());
+                if a + b > 1.0 {
+                    (a, b) = (1.0 - a, 1.0 - b);
+                }
+                let y = corners[0] + (corners[k] - corners[0]) * a + (corners[k + 1] - corners[0]) * b;
+                (y, light.direction, light.intensity / area, area)
+            }
+            Aperture::Point => return Vec3::ZERO,
+        };
+        let v = y - p;
+        let d2 = v.length_squared();
+        if !(d2 > 0.0) {
+            return Vec3::ZERO;
+        }
+        let d = d2.sqrt();
+        let (cos_x, cos_y) = (n.dot(v) / d, -ny.dot(v) / d);
+        if cos_x <= 0.0 || cos_y <= 0.0 {
+            return Vec3::ZERO;
+        }
+        self.stats.rays.fetch_add(1, Ordering::Relaxed);
+        let visible = match light.aperture {
+            Aperture::Polygon { .. } => self.bvh.visible(p, n, y, ny),
+            _ => self.bvh.visible_point(p, n, y),
+        };
+        if !visible {
+            return Vec3::ZERO;
+        }
+        let window = light.range.map_or(1.0, |r| prm::light::range_window(d, r));
+        radiance * (cos_x * cos_y * area / d2 * window)
     }
 
     /// Irradiance from one punctual light at `p` (normal `n`), with a shadow ray.
@@ -214,18 +284,18 @@ impl<'a> Tracer<'a> {
 
     /// Whether the first bounce of `light` also gets light paths.
     fn traces_from(&self, light: &Light) -> bool {
-        self.params.light_paths && light.is_positional()
+        self.params.light_paths && light.is_positional() && !light.is_area()
     }
 
     /// Next-event estimation at y (normal `ny`), reached by a cosine direction from x0 (normal
     /// `n0`): each punctual light's irradiance, weighted by the balance heuristic against the
     /// light paths connected to x0.
-    fn punctual_gathered(&self, x0: Vec3, n0: Vec3, y: Vec3, ny: Vec3) -> Vec3 {
+    fn punctual_gathered(&self, x0: Vec3, n0: Vec3, y: Vec3, ny: Vec3, rng: &mut Pcg64Mcg) -> Vec3 {
         let v = y - x0;
         let r2 = v.length_squared();
         let p_gather = n0.dot(v).max(0.0) * ny.dot(-v).max(0.0) / (PI * r2 * r2);
-        let mut e = Vec3::ZERO;
-        for light in &self.scene.lights {
+        let mut e = self.area(y, ny, rng);
+        for light in self.scene.lights.iter().filter(|l| !l.is_area()) {
             let ed = self.punctual_one(light, y, ny);
             if ed == Vec3::ZERO {
                 continue;
@@ -286,7 +356,7 @@ impl<'a> Tracer<'a> {
 
     /// One sample of (direct, indirect) irradiance at surface point `p` with normal `n`.
     pub fn sample(&self, p: Vec3, n: Vec3, e_punctual: Vec3, rng: &mut Pcg64Mcg) -> (Vec3, Vec3) {
-        let mut direct = e_punctual;
+        let mut direct = e_punctual + self.area(p, n, rng);
         let mut indirect = Vec3::ZERO;
         let mut beta = Vec3::ONE;
         let (mut x, mut nx) = (p, n);
@@ -316,7 +386,7 @@ impl<'a> Tracer<'a> {
             if beta == Vec3::ZERO {
                 break;
             }
-            indirect += beta * self.punctual_gathered(x, nx, xh, nh);
+            indirect += beta * self.punctual_gathered(x, nx, xh, nh, rng);
             if bounce >= self.params.max_bounces {
                 self.stats.truncated.fetch_add(1, Ordering::Relaxed);
                 break;

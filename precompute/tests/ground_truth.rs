@@ -30,6 +30,8 @@ fn point_light_over_a_plane_is_inverse_square_times_cosine() {
         direction: -Vec3::Y,
         intensity,
         range: None,
+        aperture: Default::default(),
+        profile: None,
     });
     let bvh = Bvh::build(&scene);
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 8, ..Default::default() });

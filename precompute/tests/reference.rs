@@ -76,6 +76,8 @@ fn energy_is_accounted_for_exactly() {
         direction: -Vec3::Y,
         intensity: Vec3::splat(2.0),
         range: None,
+        aperture: Default::default(),
+        profile: None,
     }];
     let (vpls, _) = prm_precompute::reference::vpl::trace_photons(&sun, &bvh, &sun.lights, 20_000, 1, 0);
     let got = vpls.iter().fold(0.0, |s, v| s + v.incident.x);
@@ -88,6 +90,8 @@ fn energy_is_accounted_for_exactly() {
         direction: -Vec3::Y,
         intensity: Vec3::splat(3.0),
         range: None,
+        aperture: Default::default(),
+        profile: None,
     }];
     let (vpls, budgets) =
         prm_precompute::reference::vpl::trace_photons(&spot, &bvh, &spot.lights, 20_000, 1, 0);

@@ -48,6 +48,13 @@ pub fn validate(lights: &[Light]) -> Result<(), LightError> {
     }
     for (index, l) in lights.iter().enumerate() {
         let bad = |what: String| Err(LightError::Invalid { index, name: l.name.clone(), what });
+        if !l.is_punctual() {
+            return bad(
+                "a sphere or polygon aperture or a photometric profile is for the bakers; the runtime's \
+                shadow-mapped lights are punctual"
+                    .into(),
+            );
+        }
         if l.is_positional() && !l.position.is_finite() {
             return bad(format!("position {} is not finite", l.position));
         }

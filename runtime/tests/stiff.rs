@@ -259,6 +259,8 @@ fn grazing_light() {
         direction: dir,
         intensity: Vec3::splat(3.0),
         range: None,
+        aperture: Default::default(),
+        profile: None,
     }];
     let o = run_all(&g, &scene, 256, 12);
     o.within("grazing", ORDINARY);

@@ -1043,7 +1043,12 @@ impl Baker {
 }
 
 fn same_geometry(a: &Light, b: &Light) -> bool {
-    a.kind == b.kind && a.position == b.position && a.direction == b.direction && a.range == b.range
+    a.kind == b.kind
+        && a.position == b.position
+        && a.direction == b.direction
+        && a.range == b.range
+        && a.aperture == b.aperture
+        && a.profile == b.profile
 }
 
 /// The wanted cells under region root `r`.

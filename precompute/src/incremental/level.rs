@@ -136,6 +136,8 @@ pub enum EditError {
     BadAlbedo(Vec3),
     #[error("light intensity {0} is negative")]
     NegativeIntensity(Vec3),
+    #[error("light '{0}': {1}")]
+    BadLight(String, String),
 }
 
 /// What an edit changed, for invalidation.
@@ -318,7 +320,7 @@ fn check_light(l: &Light) -> Result<(), EditError> {
     if matches!(l.kind, LightKind::Spot { .. } | LightKind::Directional) && !(l.direction.length() > 0.0) {
         return Err(EditError::NonFinite("the light's direction"));
     }
-    Ok(())
+    l.check().map_err(|what| EditError::BadLight(l.name.clone(), what))
 }
 
 fn make_version(id: u64, scene: Scene, lights: Vec<LightSlot>, texels: &TexelSet, extent: f32) -> Version {

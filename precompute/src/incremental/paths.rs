@@ -60,10 +60,11 @@ pub fn light_flux(light: &LightSlot, bounds: (Vec3, Vec3)) -> Vec3 {
     let mut rng = stream(0, 0, 0);
     // A spot's photon flux depends on its direction (the falloff); its axis is the most.
     match light.light.kind {
-        prm::LightKind::Spot { outer, .. } => {
+        prm::LightKind::Spot { outer, .. } if light.light.is_punctual() => {
             light.light.intensity * (std::f32::consts::TAU * (1.0 - outer.cos()))
         }
-        _ => emit(&light.light, bounds, 1, 0, &mut rng).2,
+        prm::LightKind::Directional => emit(&light.light, bounds, 1, 0, &mut rng).flux,
+        _ => light.light.flux(),
     }
 }
 
@@ -88,9 +89,10 @@ pub fn trace(
     let tag = 1000 + light.id as u64;
     let key = |bounce: u64| (index as u64) << 8 | bounce;
     let mut rng = stream(p.seed, tag, key(0));
-    let (mut origin, mut dir, mut flux) = emit(&light.light, bounds, count, index, &mut rng);
+    let e = emit(&light.light, bounds, count, index, &mut rng);
+    let (mut origin, mut dir, mut flux) = (e.origin, e.dir, e.flux);
     let mut vertices = Vec::new();
-    let mut from_surface: Option<Vec3> = None;
+    let mut from_surface: Option<Vec3> = e.surface;
     for bounce in 1..=p.max_bounces.min(255) {
         let hit = match from_surface {
             None => v.bvh.closest_hit(origin, dir, f32::INFINITY),

@@ -28,51 +28,7 @@ use glam::Vec3;
 /// Radius-to-distance ratio below which a polygon light is evaluated as a point light.
 pub const POINT_FALLBACK: f32 = 1e-3;
 
-/// The form factor from a differential receiver (p, n) to the polygon `poly`, whose vertices lie
-/// in a plane and are wound counter-clockwise seen from its emitting front. Parts of the polygon
-/// below the receiver's plane are clipped away. In [0, 1].
-pub fn point_to_polygon(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
-    let clipped = clip_above_plane(poly, p, n);
-    if clipped.len() < 3 {
-        return 0.0;
-    }
-    let mut sum = 0.0f64;
-    for k in 0..clipped.len() {
-        let a = (clipped[k] - p).as_dvec3();
-        let b = (clipped[(k + 1) % clipped.len()] - p).as_dvec3();
-        let g = a.cross(b);
-        let gl = g.length();
-        if gl <= 0.0 {
-            continue;
-        }
-        let angle = g.length().atan2(a.dot(b));
-        sum += angle * n.as_dvec3().dot(g / gl);
-    }
-    (sum.abs() / (2.0 * std::f64::consts::PI)).min(1.0) as f32
-}
-
-/// The part of polygon `poly` on the positive side of the plane through `p` with normal `n`
-/// (Sutherland-Hodgman against one plane).
-///
-/// Heights within 1e-5 of the polygon's size are taken as zero: a light lying in the receiver's
-/// own plane would otherwise leave a round-off sliver whose contour integral is anything
-/// between 0 and 1, and light its own surface.
-pub fn clip_above_plane(poly: &[Vec3], p: Vec3, n: Vec3) -> Vec<Vec3> {
-    let scale = poly.iter().map(|v| (*v - p).length()).fold(0.0f32, f32::max);
-    let tol = 1e-5 * scale;
-    let mut out = Vec::with_capacity(poly.len() + 1);
-    for k in 0..poly.len() {
-        let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
-        let (da, db) = ((a - p).dot(n) - tol, (b - p).dot(n) - tol);
-        if da > 0.0 {
-            out.push(a);
-        }
-        if (da > 0.0) != (db > 0.0) && da != db {
-            out.push(a + (b - a) * (da / (da - db)));
-        }
-    }
-    out
-}
+pub use prm::form_factor::{clip_above_plane, point_to_polygon};
 
 /// A planar polygon light.
 #[derive(Clone, Debug, PartialEq)]

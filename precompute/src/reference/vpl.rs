@@ -3,7 +3,11 @@
 //! Photons leave each light carrying flux: a point light sends `4 pi I / n` per photon in
 //! uniform directions; a spot light `I falloff(w) Omega / n` in uniform directions inside its
 //! outer cone (solid angle Omega); a directional light `E pi R^2 / n` from a disk of the level's
-//! bounding radius R. Where a photon meets a front face, it leaves a VPL of its bounce with the
+//! bounding radius R; a sphere light `4 pi I / n` from a uniform point of its surface in a
+//! cosine direction about the normal there (a Lambertian sphere: isotropic intensity I); a
+//! polygon light `pi I_n / n` from a uniform point of it in a cosine direction; a profiled
+//! point light `I rel(w) / (n pdf(w))` in directions drawn from its profile's table, nearly
+//! equal each. Where a photon meets a front face, it leaves a VPL of its bounce with the
 //! flux it brings (`incident`) and the flux it re-emits (`power = incident x albedo`, Lambertian);
 //! it then continues in a cosine direction with that reflected flux, for `bounces` bounces.
 //! Photons that leave the level, or meet the back of a one-sided surface, are counted, so energy
@@ -11,6 +15,7 @@
 
 use glam::Vec3;
 use prm::light::range_window;
+use prm::light::Aperture;
 use prm::{Bvh, Light, LightKind, Scene};
 use rand::Rng;
 use rayon::prelude::*;
@@ -44,22 +49,45 @@ pub struct PhotonBudget {
     pub beyond_last_bounce: Vec3,
 }
 
-/// Emit photon `k` of `photons` from `light`: its origin, first direction and flux. A
-/// directional light shoots from a disk covering the box `bounds`.
-pub(crate) fn emit(
-    light: &Light,
-    bounds: (Vec3, Vec3),
-    photons: usize,
-    k: usize,
-    rng: &mut impl Rng,
-) -> (Vec3, Vec3, Vec3) {
+/// Where a photon starts, which way and with what flux; `surface` is the normal at its origin
+/// when that lies on an aperture's surface (a sphere or polygon light), so the first ray
+/// leaves it as from a surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Emission {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub flux: Vec3,
+    pub surface: Option<Vec3>,
+}
+
+/// Emit photon `k` of `photons` from `light`. A directional light shoots from a disk covering
+/// the box `bounds`.
+pub(crate) fn emit(light: &Light, bounds: (Vec3, Vec3), photons: usize, k: usize, rng: &mut impl Rng) -> Emission {
     let n = photons as f32;
-    match light.kind {
-        LightKind::Point => {
-            let d = uniform_sphere(rng.random(), rng.random());
-            (light.position, d, light.intensity * (4.0 * std::f32::consts::PI / n))
+    let at = |origin: Vec3, dir: Vec3, flux: Vec3| Emission { origin, dir, flux, surface: None };
+    match (&light.aperture, light.kind) {
+        (Aperture::Sphere { radius }, _) => {
+            let normal = uniform_sphere(rng.random(), rng.random());
+            let dir = cosine_direction(normal, rng.random(), rng.random());
+            let origin = light.position + normal * *radius;
+            Emission { origin, dir, flux: light.flux() / n, surface: Some(normal) }
         }
-        LightKind::Spot { outer, .. } => {
+        (Aperture::Polygon { corners }, _) => {
+            let origin = prm::light::polygon_point(corners, [rng.random(), rng.random()]);
+            let dir = cosine_direction(light.direction, rng.random(), rng.random());
+            Emission { origin, dir, flux: light.flux() / n, surface: Some(light.direction) }
+        }
+        (Aperture::Point, _) if light.profile.is_some() => {
+            let pr = light.profile.as_ref().expect("checked");
+            let (d, pdf) = pr.table.sample(light.direction, pr.c0, [rng.random(), rng.random(), rng.random()]);
+            let flux = if pdf > 0.0 { light.intensity_towards(d) / (pdf * n) } else { Vec3::ZERO };
+            at(light.position, d, flux)
+        }
+        (Aperture::Point, LightKind::Point) => {
+            let d = uniform_sphere(rng.random(), rng.random());
+            at(light.position, d, light.intensity * (4.0 * std::f32::consts::PI / n))
+        }
+        (Aperture::Point, LightKind::Spot { outer, .. }) => {
             let cos_outer = outer.cos();
             let z = 1.0 - rng.random::<f32>() * (1.0 - cos_outer);
             let phi = std::f32::consts::TAU * rng.random::<f32>();
@@ -67,9 +95,9 @@ pub(crate) fn emit(
             let (t, b) = light.direction.any_orthonormal_pair();
             let d = (t * (r * phi.cos()) + b * (r * phi.sin()) + light.direction * z).normalize();
             let omega = std::f32::consts::TAU * (1.0 - cos_outer);
-            (light.position, d, light.intensity_towards(d) * (omega / n))
+            at(light.position, d, light.intensity_towards(d) * (omega / n))
         }
-        LightKind::Directional => {
+        (Aperture::Point, LightKind::Directional) => {
             let (lo, hi) = bounds;
             let centre = 0.5 * (lo + hi);
             let radius = 0.5 * (hi - lo).length() * 1.01 + 1e-6;
@@ -79,7 +107,7 @@ pub(crate) fn emit(
             let phi = std::f32::consts::TAU * rng.random::<f32>();
             let origin =
                 centre - light.direction * (2.0 * radius) + t * (r * phi.cos()) + b * (r * phi.sin());
-            (origin, light.direction, light.intensity * (std::f32::consts::PI * radius * radius / n))
+            at(origin, light.direction, light.intensity * (std::f32::consts::PI * radius * radius / n))
         }
     }
 }
@@ -110,9 +138,10 @@ pub fn trace_photons(
                 let mut rng = stream(seed, 10 + li as u64, k as u64);
                 let mut budget = PhotonBudget::default();
                 let mut out = Vec::new();
-                let (mut origin, mut dir, mut flux) = emit(light, scene.bounds(), photons, k, &mut rng);
+                let e = emit(light, scene.bounds(), photons, k, &mut rng);
+                let (mut origin, mut dir, mut flux) = (e.origin, e.dir, e.flux);
                 budget.emitted = flux;
-                let mut from_surface: Option<Vec3> = None;
+                let mut from_surface: Option<Vec3> = e.surface;
                 for bounce in 1..=bounces {
                     let hit = match from_surface {
                         None => bvh.closest_hit(origin, dir, f32::INFINITY),

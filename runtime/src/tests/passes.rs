@@ -104,6 +104,8 @@ fn point_spot_and_directional_light_over_a_plane_with_an_occluder() {
         direction: v(0.0, -1.0, 0.0),
         intensity: Vec3::splat(40.0),
         range: None,
+        aperture: Default::default(),
+        profile: None,
     };
     let sun = Light {
         name: "d".into(),
@@ -112,6 +114,8 @@ fn point_spot_and_directional_light_over_a_plane_with_an_occluder() {
         direction: v(0.3, -1.0, 0.2).normalize(),
         intensity: Vec3::splat(3.0),
         range: None,
+        aperture: Default::default(),
+        profile: None,
     };
     for light in [point(v(0.2, 2.0, 0.1), 10.0), spot, sun] {
         let gpu_e = gpu_irradiance(&g, &scene, std::slice::from_ref(&light), &grid, 1024);
@@ -561,6 +565,8 @@ fn ranged_point_and_spot_lights_follow_the_gltf_window() {
         direction: v(0.1, -1.0, 0.0).normalize(),
         intensity: Vec3::new(20.0, 10.0, 5.0),
         range: Some(2.5),
+        aperture: Default::default(),
+        profile: None,
     };
     for light in [pt, spot] {
         let range = light.range.unwrap();
