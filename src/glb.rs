@@ -39,6 +39,8 @@ pub struct GlbLight {
     pub inner: f32,
     pub outer: f32,
     pub range: Option<f32>,
+    /// The light's glTF `extras` (the `prm_*` keys of [`crate::gltf_load`]'s lights).
+    pub extras: Option<Value>,
 }
 
 /// A node: transform (TRS or matrix) and what hangs on it.
@@ -273,6 +275,9 @@ fn light_json(l: &GlbLight) -> Value {
     }
     if let Some(r) = l.range {
         v["range"] = json!(r);
+    }
+    if let Some(e) = &l.extras {
+        v["extras"] = e.clone();
     }
     v
 }

@@ -72,6 +72,7 @@ fn reads_hierarchy_lights_cameras_and_generates_normals() {
             inner: 0.0,
             outer: 0.0,
             range: None,
+            extras: None,
         },
         Vec3::new(0.5, 2.0, 0.5),
         -Vec3::Y,
@@ -85,6 +86,7 @@ fn reads_hierarchy_lights_cameras_and_generates_normals() {
             inner: 0.2,
             outer: 0.5,
             range: Some(9.0),
+            extras: None,
         },
         Vec3::new(0.0, 3.0, 0.0),
         Vec3::new(1.0, -1.0, 0.0),
@@ -98,6 +100,7 @@ fn reads_hierarchy_lights_cameras_and_generates_normals() {
             inner: 0.0,
             outer: 0.0,
             range: None,
+            extras: None,
         },
         Vec3::ZERO,
         Vec3::new(0.0, -1.0, 1.0),
@@ -235,6 +238,7 @@ fn negative_light_intensity_is_an_error() {
             inner: 0.0,
             outer: 0.0,
             range: None,
+            extras: None,
         },
         Vec3::Y,
         -Vec3::Y,
@@ -245,6 +249,65 @@ fn negative_light_intensity_is_an_error() {
         matches!(err, SceneError::BadLight { light: 0, .. }) && err.to_string().contains("intensity -2"),
         "{err}"
     );
+}
+
+fn extra_light(name: &str, extras: serde_json::Value) -> GlbLight {
+    GlbLight {
+        name: name.into(),
+        kind: "point",
+        color: [1.0, 0.5, 0.5],
+        intensity: 2.0,
+        inner: 0.0,
+        outer: 0.0,
+        range: None,
+        extras: Some(extras),
+    }
+}
+
+/// An axially symmetric IES downlight, I = cos gamma.
+const COSINE_IES: &str = "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 1 2 0 0 0\n1 1 10\n0 60 90\n0\n100 50 0\n";
+
+/// A light's `prm_radius`, `prm_size` and `prm_profile` extras give it a sphere, a rectangle
+/// (facing the node's -Z, radiance = colour x intensity) and a photometric profile read from a
+/// file beside the level; a profile that does not parse, or is not there, is an error naming
+/// the light and the file.
+#[test]
+fn light_extras_give_apertures_and_profiles() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("down.ies"), COSINE_IES).unwrap();
+    let mut s = one_quad();
+    s.add_light(extra_light("bulb", serde_json::json!({"prm_radius": 0.1})), Vec3::Y, -Vec3::Y);
+    s.add_light(extra_light("panel", serde_json::json!({"prm_size": [0.4, 0.2]})), Vec3::new(0.5, 2.0, 0.5), -Vec3::Y);
+    s.add_light(extra_light("ies", serde_json::json!({"prm_profile": "down.ies"})), Vec3::Y, -Vec3::Y);
+    let path = write(dir.path(), "extras.glb", &s.to_glb());
+    let scene = load(&path).unwrap();
+    let prm::light::Aperture::Sphere { radius } = scene.lights[0].aperture else { panic!("a sphere") };
+    assert!((radius - 0.1).abs() < 1e-6, "{radius}");
+    let panel = &scene.lights[1];
+    let prm::light::Aperture::Polygon { corners } = &panel.aperture else { panic!("{:?}", panel.aperture) };
+    assert_eq!(corners.len(), 4);
+    assert!((panel.direction - -Vec3::Y).length() < 1e-5, "faces down: {}", panel.direction);
+    assert!((panel.position - Vec3::new(0.5, 2.0, 0.5)).length() < 1e-5);
+    // I_n = L x area, L = colour x intensity.
+    assert!((panel.intensity - Vec3::new(2.0, 1.0, 1.0) * 0.08).length() < 1e-6, "{}", panel.intensity);
+    let ies = &scene.lights[2];
+    assert!(ies.profile.is_some() && ies.check().is_ok());
+    let half = ies.intensity_towards(Vec3::new(0.0, -0.5, 3f32.sqrt() / 2.0)).x;
+    assert!((half - 1.0).abs() < 1e-5, "60 degrees off the axis: half the peak of 2, got {half}");
+
+    std::fs::write(dir.path().join("bad.ies"), "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 2 2 0 0 0\n").unwrap();
+    for (file, want) in [("bad.ies", "bad.ies"), ("gone.ldt", "gone.ldt")] {
+        let mut s = one_quad();
+        s.add_light(extra_light("lamp", serde_json::json!({"prm_profile": file})), Vec3::Y, -Vec3::Y);
+        let path = write(dir.path(), "badlight.glb", &s.to_glb());
+        let err = load(&path).unwrap_err();
+        assert!(matches!(err, SceneError::BadLight { light: 0, .. }), "{err}");
+        assert!(err.to_string().contains(want) && err.to_string().contains("'lamp'"), "{err}");
+    }
+    let mut s = one_quad();
+    s.add_light(extra_light("thin", serde_json::json!({"prm_size": [0.4, 0.0]})), Vec3::Y, -Vec3::Y);
+    let err = load(&write(dir.path(), "thin.glb", &s.to_glb())).unwrap_err();
+    assert!(err.to_string().contains("no area"), "{err}");
 }
 
 #[test]

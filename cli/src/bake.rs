@@ -79,7 +79,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
+    let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
+    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
+    let glow = scene.emissive_lights();
+    scene.lights.extend(glow);
     if atlas.pages > 1 {
         bail!("prm bake takes a one-page atlas (give --atlas)");
     }
@@ -280,7 +283,11 @@ fn watch(a: &Args, baker: &mut Baker, set: &TexelSet) -> Result<()> {
         reloads += 1;
         since = Instant::now();
         let fresh = match a.lightmap.load(&a.scene, true) {
-            Ok((s, _)) => s,
+            Ok((mut s, _)) => {
+                let glow = s.emissive_lights();
+                s.lights.extend(glow);
+                s
+            }
             Err(e) => {
                 eprintln!("reload {reloads}: the level does not load; kept the last state: {e:#}");
                 continue;

@@ -64,6 +64,9 @@ pub fn run(a: Args) -> Result<()> {
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let start = Instant::now();
     scene.lights = a.rig.lights(&scene)?;
+    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
+    let glow = scene.emissive_lights();
+    scene.lights.extend(glow);
     let bvh = Bvh::build(&scene);
     let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let t = Instant::now();

@@ -159,7 +159,7 @@ impl Builder {
 }
 
 fn point_light(name: &str, color: [f32; 3], intensity: f32) -> GlbLight {
-    GlbLight { name: name.into(), kind: "point", color, intensity, inner: 0.0, outer: 0.0, range: None }
+    GlbLight { name: name.into(), kind: "point", color, intensity, inner: 0.0, outer: 0.0, range: None, extras: None }
 }
 
 fn camera(scene: &mut GlbScene, name: &str, eye: Vec3, target: Vec3, yfov: f32) {
@@ -324,6 +324,7 @@ pub fn chamber() -> Result<GlbScene, String> {
             inner: 0.45,
             outer: 0.6,
             range: None,
+            extras: None,
         },
         Vec3::new(0.0, 6.8, 3.0),
         Vec3::new(0.0, -6.4, 5.0),
