@@ -267,7 +267,8 @@ fn area_irradiance(bvh: &Bvh, l: &crate::Light, p: Vec3, n: Vec3) -> Vec3 {
     }
     // Cranley-Patterson rotation from the receiver's bits: deterministic, decorrelated.
     let h = |x: u32| {
-        let mut v = x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
+        let mut v =
+            x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
         v ^= p.z.to_bits().wrapping_mul(0x85EB_CA6B);
         v ^= v >> 16;
         v = v.wrapping_mul(0x7FEB_352D);

@@ -53,4 +53,3 @@ pub fn clip_above_plane(poly: &[Vec3], p: Vec3, n: Vec3) -> Vec<Vec3> {
     }
     out
 }
-

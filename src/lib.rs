@@ -39,8 +39,8 @@ pub mod glb;
 #[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod light;
-pub mod photometry;
 pub mod metric;
+pub mod photometry;
 pub mod prm_file;
 pub mod rig;
 #[cfg(feature = "sampling")]

@@ -564,7 +564,8 @@ mod tests {
         assert!((l.flux().x - std::f32::consts::PI * radiance * 4.0 * s * s).abs() < 1e-4);
         for (x, z) in [(0.0f32, 0.0f32), (0.3, -0.2), (0.5, 0.5), (0.9, 0.1), (2.0, -1.5), (6.0, 4.0)] {
             let p = v3(x, 0.0, z);
-            let f = rect_form_factor((-s - x) as f64, (s - x) as f64, (-s - z) as f64, (s - z) as f64, h as f64);
+            let f =
+                rect_form_factor((-s - x) as f64, (s - x) as f64, (-s - z) as f64, (s - z) as f64, h as f64);
             let want = radiance as f64 * std::f64::consts::PI * f;
             let got = l.irradiance(p, Vec3::Y).x as f64;
             assert!((got - want).abs() <= 2e-4 * want + 1e-9, "({x}, {z}): {got} vs {want}");
@@ -597,12 +598,12 @@ mod tests {
     /// counter-clockwise seen from above a downlight (IES type C): -Z for C0 = +X, axis -Y.
     #[test]
     fn a_profile_is_read_in_the_light_s_frame() {
-        let table = Photometry::new("IES", &[0.0, 90.0, 180.0], &[0.0, 90.0, 180.0, 270.0], &[
-            vec![1.0, 1.0, 1.0],
-            vec![0.0, 0.5, 0.0],
-            vec![0.0, 0.0, 0.0],
-            vec![0.0, 0.0, 0.0],
-        ])
+        let table = Photometry::new(
+            "IES",
+            &[0.0, 90.0, 180.0],
+            &[0.0, 90.0, 180.0, 270.0],
+            &[vec![1.0, 1.0, 1.0], vec![0.0, 0.5, 0.0], vec![0.0, 0.0, 0.0], vec![0.0, 0.0, 0.0]],
+        )
         .unwrap();
         let l = Light::point("ies", Vec3::ZERO, Vec3::splat(4.0)).with_profile(Arc::new(table), Vec3::X);
         assert_eq!(l.check(), Ok(()));
@@ -618,7 +619,10 @@ mod tests {
         let spot = Light { kind: LightKind::Spot { inner: 0.1, outer: 0.2 }, ..l.clone() };
         assert!(spot.check().unwrap_err().contains("point light only"));
         let bent = [v3(0.0, 0.0, 0.0), v3(1.0, 0.0, 0.0), v3(1.0, 0.3, 1.0), v3(0.0, 0.0, 1.0)];
-        assert!(Light::polygon("b", &bent, Vec3::ONE).check().unwrap_err().contains("off the polygon's plane"));
+        assert!(Light::polygon("b", &bent, Vec3::ONE)
+            .check()
+            .unwrap_err()
+            .contains("off the polygon's plane"));
         let dart = [v3(0.0, 0.0, 0.0), v3(0.0, 0.0, 1.0), v3(0.2, 0.0, 0.2), v3(1.0, 0.0, 0.0)];
         assert!(Light::polygon("d", &dart, Vec3::ONE).check().unwrap_err().contains("not convex"));
         assert!(Light::sphere("s", Vec3::ZERO, 0.0, Vec3::ONE).check().unwrap_err().contains("radius"));
@@ -632,7 +636,8 @@ mod tests {
     #[test]
     fn polygon_points_are_uniform_by_area() {
         // An L-free convex pentagon with a long thin part, so uneven fan triangles.
-        let c = [v3(0.0, 0.0, 0.0), v3(4.0, 0.0, 0.0), v3(4.0, 0.0, 1.0), v3(1.0, 0.0, 2.0), v3(0.0, 0.0, 2.0)];
+        let c =
+            [v3(0.0, 0.0, 0.0), v3(4.0, 0.0, 0.0), v3(4.0, 0.0, 1.0), v3(1.0, 0.0, 2.0), v3(0.0, 0.0, 2.0)];
         let n = 200;
         let mut mean = Vec3::ZERO;
         for a in 0..n {

@@ -102,11 +102,9 @@ impl Photometry {
             (_, 0.0, 180.0) => Symmetry::HalfC0,
             (_, 90.0, 270.0) => Symmetry::HalfC90,
             (_, 0.0, _) if last > 180.0 => Symmetry::Full,
-            _ => {
-                return Err(bad(format!(
-                    "horizontal angles {first}-{last} degrees: expected one plane, 0-90, 0-180, 90-270 or 0-360"
-                )))
-            }
+            _ => return Err(bad(format!(
+                "horizontal angles {first}-{last} degrees: expected one plane, 0-90, 0-180, 90-270 or 0-360"
+            ))),
         };
         if planes.len() != c_deg.len() || planes.iter().any(|p| p.len() != gamma_deg.len()) {
             return Err(bad(format!(
@@ -194,7 +192,7 @@ impl Photometry {
             }
             Symmetry::HalfC90 => {
                 // Mirror about the C90-C270 plane: C -> 180 - C.
-                if c < 0.5 * PI || c > 1.5 * PI {
+                if !(0.5 * PI..=1.5 * PI).contains(&c) {
                     (PI - c).rem_euclid(TAU)
                 } else {
                     c
@@ -276,7 +274,10 @@ impl Photometry {
                 })
             }
         };
-        parsed.map_err(|e| PhotometryError { format: e.format, what: format!("{}: {}", path.display(), e.what) })
+        parsed.map_err(|e| PhotometryError {
+            format: e.format,
+            what: format!("{}: {}", path.display(), e.what),
+        })
     }
 }
 
@@ -312,7 +313,10 @@ fn numbers<'a>(
 ) -> Result<Vec<f32>, PhotometryError> {
     let mut out = Vec::new();
     for tok in text.flat_map(|l| l.split(|c: char| c.is_whitespace() || c == ',')).filter(|t| !t.is_empty()) {
-        out.push(tok.parse::<f32>().map_err(|_| PhotometryError { format, what: format!("'{tok}' is not a number") })?);
+        out.push(
+            tok.parse::<f32>()
+                .map_err(|_| PhotometryError { format, what: format!("'{tok}' is not a number") })?,
+        );
     }
     Ok(out)
 }
@@ -332,7 +336,7 @@ pub fn parse_ies(text: &str) -> Result<Photometry, PhotometryError> {
         // tilt in the luminaire is fixed for a game light).
         next("the tilt geometry")?;
         let n = next("the tilt angle count")?;
-        if !(n >= 0.0 && n <= 1e4) {
+        if !(0.0..=1e4).contains(&n) {
             return Err(bad(format!("tilt angle count {n}")));
         }
         for _ in 0..2 * n as usize {
@@ -347,14 +351,22 @@ pub fn parse_ies(text: &str) -> Result<Photometry, PhotometryError> {
     let nv = next("the vertical angle count")?;
     let nh = next("the horizontal angle count")?;
     let kind = next("the photometric type")?;
-    for what in ["the units", "the width", "the length", "the height", "the ballast factor", "the file type", "the watts"] {
+    for what in [
+        "the units",
+        "the width",
+        "the length",
+        "the height",
+        "the ballast factor",
+        "the file type",
+        "the watts",
+    ] {
         next(what)?;
     }
     if kind != 1.0 {
         return Err(bad(format!("photometric type {kind}: only type C (1) is supported")));
     }
     let count = |n: f32, what: &str| {
-        if n >= 1.0 && n <= 1e4 && n.fract() == 0.0 {
+        if (1.0..=1e4).contains(&n) && n.fract() == 0.0 {
             Ok(n as usize)
         } else {
             Err(bad(format!("{what} count {n}")))
@@ -364,13 +376,14 @@ pub fn parse_ies(text: &str) -> Result<Photometry, PhotometryError> {
     if !(multiplier.is_finite() && multiplier > 0.0) {
         return Err(bad(format!("candela multiplier {multiplier} must be positive")));
     }
-    let take = |it: &mut dyn Iterator<Item = f32>, n: usize, what: &str| -> Result<Vec<f32>, PhotometryError> {
-        let v: Vec<f32> = it.take(n).collect();
-        if v.len() < n {
-            return Err(bad(format!("the file ends in {what} ({} of {n})", v.len())));
-        }
-        Ok(v)
-    };
+    let take =
+        |it: &mut dyn Iterator<Item = f32>, n: usize, what: &str| -> Result<Vec<f32>, PhotometryError> {
+            let v: Vec<f32> = it.take(n).collect();
+            if v.len() < n {
+                return Err(bad(format!("the file ends in {what} ({} of {n})", v.len())));
+            }
+            Ok(v)
+        };
     let gamma = take(&mut nums, nv, "the vertical angles")?;
     let c = take(&mut nums, nh, "the horizontal angles")?;
     let mut planes = Vec::with_capacity(nh);
@@ -395,20 +408,27 @@ pub fn parse_ldt(text: &str) -> Result<Photometry, PhotometryError> {
     let lines: Vec<&str> = text.lines().collect();
     let field = |k: usize, what: &str| -> Result<f32, PhotometryError> {
         let line = lines.get(k - 1).ok_or_else(|| bad(format!("the file ends before line {k} ({what})")))?;
-        line.trim().replace(',', ".").parse().map_err(|_| bad(format!("line {k} ({what}): '{}' is not a number", line.trim())))
+        line.trim()
+            .replace(',', ".")
+            .parse()
+            .map_err(|_| bad(format!("line {k} ({what}): '{}' is not a number", line.trim())))
     };
     let sym = field(3, "symmetry")?;
     let mc = field(4, "number of C planes")?;
     let ng = field(6, "number of gamma angles")?;
     let sets = field(26, "number of lamp sets")?;
     let count = |n: f32, what: &str, max: f32| {
-        if n >= 1.0 && n <= max && n.fract() == 0.0 {
+        if (1.0..=max).contains(&n) && n.fract() == 0.0 {
             Ok(n as usize)
         } else {
             Err(bad(format!("{what} {n}")))
         }
     };
-    let (mc, ng, sets) = (count(mc, "number of C planes", 721.0)?, count(ng, "number of gamma angles", 361.0)?, count(sets, "number of lamp sets", 100.0)?);
+    let (mc, ng, sets) = (
+        count(mc, "number of C planes", 721.0)?,
+        count(ng, "number of gamma angles", 361.0)?,
+        count(sets, "number of lamp sets", 100.0)?,
+    );
     // After the 26 header lines: 6 lines per lamp set, then 10 direct ratios.
     let start = 26 + 6 * sets + 10;
     if lines.len() < start {
@@ -446,7 +466,8 @@ mod tests {
     /// `c` planes.
     fn cosine_ies(c: &[f32]) -> String {
         let gammas: Vec<f32> = (0..=18).map(|k| k as f32 * 5.0).collect();
-        let row: Vec<String> = gammas.iter().map(|g| format!("{:.6}", 1000.0 * g.to_radians().cos().max(0.0))).collect();
+        let row: Vec<String> =
+            gammas.iter().map(|g| format!("{:.6}", 1000.0 * g.to_radians().cos().max(0.0))).collect();
         let mut s = String::from("IESNA:LM-63-2002\n[TEST] cosine\nTILT=NONE\n");
         s += &format!("1 1000 1 {} {} 1 2 0 0 0\n1 1 100\n", gammas.len(), c.len());
         s += &gammas.iter().map(|g| g.to_string()).collect::<Vec<_>>().join(" ");
@@ -465,7 +486,13 @@ mod tests {
     /// cell average hold that to 0.5 %. Every symmetry gives the same table.
     #[test]
     fn a_cosine_downlight_integrates_to_pi_under_every_symmetry() {
-        for c in [&[0.0][..], &[0.0, 45.0, 90.0], &[0.0, 90.0, 180.0], &[90.0, 180.0, 270.0], &[0.0, 90.0, 180.0, 270.0, 360.0]] {
+        for c in [
+            &[0.0][..],
+            &[0.0, 45.0, 90.0],
+            &[0.0, 90.0, 180.0],
+            &[90.0, 180.0, 270.0],
+            &[0.0, 90.0, 180.0, 270.0, 360.0],
+        ] {
             let p = parse_ies(&cosine_ies(c)).unwrap();
             assert!((p.solid_integral - PI).abs() < 5e-3 * PI, "{c:?}: {}", p.solid_integral);
             for (g, cc) in [(0.3f32, 0.0f32), (1.0, 2.0), (1.2, 4.0), (0.7, 5.9)] {
@@ -505,7 +532,15 @@ mod tests {
     fn eulumdat_reads_like_ies() {
         let gammas: Vec<f32> = (0..=18).map(|k| k as f32 * 5.0).collect();
         let ldt = |sym: u32, mc: usize| {
-            let mut l = vec!["Maker".to_string(), "1".into(), sym.to_string(), mc.to_string(), (360 / mc).to_string(), gammas.len().to_string(), "5".into()];
+            let mut l = vec![
+                "Maker".to_string(),
+                "1".into(),
+                sym.to_string(),
+                mc.to_string(),
+                (360 / mc).to_string(),
+                gammas.len().to_string(),
+                "5".into(),
+            ];
             l.extend((8..=25).map(|_| "0".to_string()));
             l.push("1".into()); // lamp sets
             l.extend(["1", "LED", "1000", "3000", "80", "10"].map(String::from));

@@ -265,7 +265,8 @@ fn extra_light(name: &str, extras: serde_json::Value) -> GlbLight {
 }
 
 /// An axially symmetric IES downlight, I = cos gamma.
-const COSINE_IES: &str = "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 1 2 0 0 0\n1 1 10\n0 60 90\n0\n100 50 0\n";
+const COSINE_IES: &str =
+    "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 1 2 0 0 0\n1 1 10\n0 60 90\n0\n100 50 0\n";
 
 /// A light's `prm_radius`, `prm_size` and `prm_profile` extras give it a sphere, a rectangle
 /// (facing the node's -Z, radiance = colour x intensity) and a photometric profile read from a
@@ -277,7 +278,11 @@ fn light_extras_give_apertures_and_profiles() {
     std::fs::write(dir.path().join("down.ies"), COSINE_IES).unwrap();
     let mut s = one_quad();
     s.add_light(extra_light("bulb", serde_json::json!({"prm_radius": 0.1})), Vec3::Y, -Vec3::Y);
-    s.add_light(extra_light("panel", serde_json::json!({"prm_size": [0.4, 0.2]})), Vec3::new(0.5, 2.0, 0.5), -Vec3::Y);
+    s.add_light(
+        extra_light("panel", serde_json::json!({"prm_size": [0.4, 0.2]})),
+        Vec3::new(0.5, 2.0, 0.5),
+        -Vec3::Y,
+    );
     s.add_light(extra_light("ies", serde_json::json!({"prm_profile": "down.ies"})), Vec3::Y, -Vec3::Y);
     let path = write(dir.path(), "extras.glb", &s.to_glb());
     let scene = load(&path).unwrap();
@@ -295,7 +300,8 @@ fn light_extras_give_apertures_and_profiles() {
     let half = ies.intensity_towards(Vec3::new(0.0, -0.5, 3f32.sqrt() / 2.0)).x;
     assert!((half - 1.0).abs() < 1e-5, "60 degrees off the axis: half the peak of 2, got {half}");
 
-    std::fs::write(dir.path().join("bad.ies"), "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 2 2 0 0 0\n").unwrap();
+    std::fs::write(dir.path().join("bad.ies"), "IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 3 1 2 2 0 0 0\n")
+        .unwrap();
     for (file, want) in [("bad.ies", "bad.ies"), ("gone.ldt", "gone.ldt")] {
         let mut s = one_quad();
         s.add_light(extra_light("lamp", serde_json::json!({"prm_profile": file})), Vec3::Y, -Vec3::Y);

@@ -222,7 +222,8 @@ impl<'a> Tracer<'a> {
                 (light.position + ny * *radius, ny, light.intensity / (PI * radius * radius), area)
             }
             Aperture::Polygon { corners } => {
-                let tri = |k: usize| 0.5 * (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]).length();
+                let tri =
+                    |k: usize| 0.5 * (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]).length();
                 let area: f32 = (1..corners.len() - 1).map(tri).sum();
                 let mut x = rng.random::<f32>() * area;
                 let mut k = 1;

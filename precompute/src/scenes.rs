@@ -159,7 +159,16 @@ impl Builder {
 }
 
 fn point_light(name: &str, color: [f32; 3], intensity: f32) -> GlbLight {
-    GlbLight { name: name.into(), kind: "point", color, intensity, inner: 0.0, outer: 0.0, range: None, extras: None }
+    GlbLight {
+        name: name.into(),
+        kind: "point",
+        color,
+        intensity,
+        inner: 0.0,
+        outer: 0.0,
+        range: None,
+        extras: None,
+    }
 }
 
 fn camera(scene: &mut GlbScene, name: &str, eye: Vec3, target: Vec3, yfov: f32) {

@@ -55,7 +55,8 @@ fn panel_over_floor() -> Scene {
 fn a_square_light_over_a_plane_is_the_analytic_answer() {
     let scene = panel_over_floor();
     let set = Arc::new(TexelSet::build(&scene, 32, 32));
-    let mut b = Baker::new(scene.clone(), set.clone(), BakerParams { paths: 2000, ..Default::default() }).unwrap();
+    let mut b =
+        Baker::new(scene.clone(), set.clone(), BakerParams { paths: 2000, ..Default::default() }).unwrap();
     b.converge();
     let (direct, indirect) = b.lightmap();
     let peak = analytic(0.0, 0.0);
@@ -118,7 +119,8 @@ fn a_sphere_light_over_a_plane_is_inverse_square() {
     let c = v(0.3, 0.6, -0.2);
     scene.lights = vec![Light::sphere("bulb", c, 0.15, Vec3::splat(2.0))];
     let set = Arc::new(TexelSet::build(&scene, 32, 32));
-    let mut b = Baker::new(scene.clone(), set.clone(), BakerParams { paths: 2000, ..Default::default() }).unwrap();
+    let mut b =
+        Baker::new(scene.clone(), set.clone(), BakerParams { paths: 2000, ..Default::default() }).unwrap();
     b.converge();
     let (direct, _) = b.lightmap();
     for (t, d) in set.texels.iter().zip(&direct) {
@@ -185,7 +187,12 @@ fn an_ies_profile_agrees_with_the_ground_truth() {
     assert!(c.bias.abs() <= 0.02, "indirect bias {}", c.bias);
     // The +X wall against the -X wall, in both.
     let side = |e: &[Vec3], x: f32| -> f64 {
-        set.texels.iter().zip(e).filter(|(t, _)| (t.position.x - x).abs() < 1e-3).map(|(_, e)| e.x as f64).sum()
+        set.texels
+            .iter()
+            .zip(e)
+            .filter(|(t, _)| (t.position.x - x).abs() < 1e-3)
+            .map(|(_, e)| e.x as f64)
+            .sum()
     };
     let (ours, theirs) = (side(&direct, 1.0) / side(&direct, 0.0), side(&gt_d, 1.0) / side(&gt_d, 0.0));
     eprintln!(
@@ -235,11 +242,22 @@ fn an_emissive_surface_lights_the_bake_as_the_ground_truth_sees_it() {
     let (direct, indirect) = b.lightmap();
     // The panel's own texels are lit by nothing (it faces the floor); leave them out of both.
     let keep: Vec<bool> = set.texels.iter().map(|t| t.position.y < 0.985).collect();
-    let pick = |e: &[Vec3]| -> Vec<Vec3> { e.iter().zip(&keep).filter(|(_, k)| **k).map(|(e, _)| *e).collect() };
+    let pick =
+        |e: &[Vec3]| -> Vec<Vec3> { e.iter().zip(&keep).filter(|(_, k)| **k).map(|(e, _)| *e).collect() };
     let gts: Vec<_> = gt.iter().zip(&keep).filter(|(_, k)| **k).map(|(g, _)| *g).collect();
     for (name, ours, theirs, err) in [
-        ("direct", pick(&direct), gts.iter().map(|g| g.direct).collect::<Vec<_>>(), gts.iter().map(|g| g.direct_stderr).collect::<Vec<_>>()),
-        ("indirect", pick(&indirect), gts.iter().map(|g| g.indirect).collect(), gts.iter().map(|g| g.indirect_stderr).collect()),
+        (
+            "direct",
+            pick(&direct),
+            gts.iter().map(|g| g.direct).collect::<Vec<_>>(),
+            gts.iter().map(|g| g.direct_stderr).collect::<Vec<_>>(),
+        ),
+        (
+            "indirect",
+            pick(&indirect),
+            gts.iter().map(|g| g.indirect).collect(),
+            gts.iter().map(|g| g.indirect_stderr).collect(),
+        ),
     ] {
         let c = prm::metric::compare(&ours, &theirs, None);
         let noise = (err.iter().map(|e| e.x.powi(2) as f64).sum::<f64>()

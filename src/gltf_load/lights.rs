@@ -102,7 +102,8 @@ fn with_extras(path: &Path, mut l: Light, extras: &serde_json::Value, world: Mat
             .ok_or_else(|| format!("prm_size {size} is not [width, height]"))?;
         let (w, h) = (0.5 * wh[0] as f32, 0.5 * wh[1] as f32);
         // Counter-clockwise seen from the front, which faces the node's -Z.
-        let local = [Vec3::new(-w, -h, 0.0), Vec3::new(-w, h, 0.0), Vec3::new(w, h, 0.0), Vec3::new(w, -h, 0.0)];
+        let local =
+            [Vec3::new(-w, -h, 0.0), Vec3::new(-w, h, 0.0), Vec3::new(w, h, 0.0), Vec3::new(w, -h, 0.0)];
         let corners: Vec<Vec3> = local.iter().map(|c| world.transform_point3(*c)).collect();
         let radiance = l.intensity;
         l = Light { name: l.name.clone(), range: l.range, ..Light::polygon(&l.name, &corners, radiance) };

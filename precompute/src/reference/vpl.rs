@@ -62,7 +62,13 @@ pub(crate) struct Emission {
 
 /// Emit photon `k` of `photons` from `light`. A directional light shoots from a disk covering
 /// the box `bounds`.
-pub(crate) fn emit(light: &Light, bounds: (Vec3, Vec3), photons: usize, k: usize, rng: &mut impl Rng) -> Emission {
+pub(crate) fn emit(
+    light: &Light,
+    bounds: (Vec3, Vec3),
+    photons: usize,
+    k: usize,
+    rng: &mut impl Rng,
+) -> Emission {
     let n = photons as f32;
     let at = |origin: Vec3, dir: Vec3, flux: Vec3| Emission { origin, dir, flux, surface: None };
     match (&light.aperture, light.kind) {
@@ -79,7 +85,8 @@ pub(crate) fn emit(light: &Light, bounds: (Vec3, Vec3), photons: usize, k: usize
         }
         (Aperture::Point, _) if light.profile.is_some() => {
             let pr = light.profile.as_ref().expect("checked");
-            let (d, pdf) = pr.table.sample(light.direction, pr.c0, [rng.random(), rng.random(), rng.random()]);
+            let (d, pdf) =
+                pr.table.sample(light.direction, pr.c0, [rng.random(), rng.random(), rng.random()]);
             let flux = if pdf > 0.0 { light.intensity_towards(d) / (pdf * n) } else { Vec3::ZERO };
             at(light.position, d, flux)
         }
