@@ -138,6 +138,18 @@ impl Light {
         self.aperture == Aperture::Point && self.profile.is_none()
     }
 
+    /// The radius of a ball around `position` that holds the aperture (0 for a point): what
+    /// a shadow from it can be cast from.
+    pub fn aperture_radius(&self) -> f32 {
+        match &self.aperture {
+            Aperture::Point => 0.0,
+            Aperture::Sphere { radius } => *radius,
+            Aperture::Polygon { corners } => {
+                corners.iter().map(|c| (*c - self.position).length()).fold(0.0, f32::max)
+            }
+        }
+    }
+
     /// True for a sphere or polygon aperture.
     pub fn is_area(&self) -> bool {
         self.aperture != Aperture::Point

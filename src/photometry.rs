@@ -102,9 +102,11 @@ impl Photometry {
             (_, 0.0, 180.0) => Symmetry::HalfC0,
             (_, 90.0, 270.0) => Symmetry::HalfC90,
             (_, 0.0, _) if last > 180.0 => Symmetry::Full,
-            _ => return Err(bad(format!(
+            _ => {
+                return Err(bad(format!(
                 "horizontal angles {first}-{last} degrees: expected one plane, 0-90, 0-180, 90-270 or 0-360"
-            ))),
+            )))
+            }
         };
         if planes.len() != c_deg.len() || planes.iter().any(|p| p.len() != gamma_deg.len()) {
             return Err(bad(format!(

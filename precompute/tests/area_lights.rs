@@ -268,3 +268,38 @@ fn an_emissive_surface_lights_the_bake_as_the_ground_truth_sees_it() {
         assert!(c.bias.abs() <= 0.03, "{name} bias {}", c.bias);
     }
 }
+
+/// A blocker moved under the edge of a square light shadows part of its aperture from texels
+/// whose ray to the light's centre misses it: the refresh after the move must find them (its
+/// shadow cone spans the whole aperture), so the lightmap stays its baked entries evaluated
+/// afresh (1e-5 of the mean) and its direct light drops where the blocker now is.
+#[test]
+fn a_blocker_moved_under_an_area_light_is_refreshed_over_its_whole_aperture() {
+    let mut faces = vec![[v(-2., 0., -2.), v(-2., 0., 2.), v(2., 0., 2.), v(2., 0., -2.)]];
+    let (lo, hi, y) = (1.5f32, 1.9f32, 0.25f32);
+    faces.push([v(lo, y, lo), v(lo, y, hi), v(hi, y, hi), v(hi, y, lo)]);
+    let mut scene = quads(&faces, 0.5);
+    for t in scene.triangles.iter_mut().skip(2) {
+        t.node = 1;
+    }
+    let corners = [v(-S, H, -S), v(S, H, -S), v(S, H, S), v(-S, H, S)];
+    scene.lights.push(Light::polygon("panel", &corners, Vec3::splat(L)));
+    let set = Arc::new(TexelSet::build(&scene, 32, 32));
+    let mut b = Baker::new(scene, set.clone(), BakerParams { paths: 2000, ..Default::default() }).unwrap();
+    b.converge();
+    let before = b.lightmap().0;
+    let to = glam::Mat4::from_translation(v(-1.15, 0.0, -1.15));
+    b.apply(&prm_precompute::incremental::Edit::Transform { node: 1, matrix: to }).unwrap();
+    b.converge();
+    let (direct, indirect) = b.lightmap();
+    let (fresh_d, fresh_i) = b.recomputed();
+    let mean = direct.iter().map(|d| d.x as f64).sum::<f64>() / direct.len() as f64;
+    for k in 0..direct.len() {
+        let off =
+            (direct[k] - fresh_d[k]).abs().max_element() + (indirect[k] - fresh_i[k]).abs().max_element();
+        assert!(off as f64 <= 1e-5 * mean, "texel {k} at {}: off by {off}", set.texels[k].position);
+    }
+    let darker = before.iter().zip(&direct).filter(|(a, b)| b.x < a.x * 0.99).count();
+    // 7 texels of this coarse floor (12 cm) fall in the new shadow.
+    assert!(darker >= 5, "the blocker's new shadow darkens {darker} texels");
+}

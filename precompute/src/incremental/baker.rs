@@ -774,7 +774,8 @@ impl Baker {
                     .map(|(k, c)| {
                         let (source, bnd) = match (&k, c.light) {
                             (CellKey::Direct(_), Some(l)) => {
-                                let b = (l.position, 0.0);
+                                // An area light casts shadows from all of its aperture.
+                                let b = (l.position, l.aperture_radius());
                                 (Source::Direct(l), b)
                             }
                             (CellKey::Cell(code), _) => {
