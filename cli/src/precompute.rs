@@ -5,9 +5,13 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
+use prm::prm_file::Prm;
 use prm::Bvh;
-use prm_precompute::precompute::{precompute, Density, Phase, PrecomputeError, PrecomputeParams};
+use prm_precompute::precompute::{
+    precompute_with, Baked, Density, Phase, PrecomputeError, PrecomputeParams, Reuse,
+};
 use prm_precompute::transport::Estimator;
+use prm_precompute::update::UpdateCache;
 use serde_json::json;
 
 use crate::common::{cancel_flag, progress_bar, AtlasArgs, SceneArgs};
@@ -95,6 +99,18 @@ pub struct Args {
     /// `prm ground-truth --max-bounces 1` does; default: none but Russian roulette).
     #[arg(long)]
     max_bounces: Option<u32>,
+    /// Also write the update cache OUTPUT.cache that a later `--update` needs (where each
+    /// atlas tile's walks went, and every pane tile before the drop rule; about the size of
+    /// the .prm). Gather estimator without dipoles only.
+    #[arg(long)]
+    cache: bool,
+    /// Update OLD.prm after an edit of the level: walk again only the texels whose panes the
+    /// edit can change (OLD.prm.cache, from `--cache` or an earlier update, says which), keep
+    /// OLD's clusters, and write OUTPUT and OUTPUT.cache. Give the same options as OLD's bake.
+    /// Where that is impossible (triangles added, another entry count, other options) it
+    /// says why and runs a full precompute.
+    #[arg(long, value_name = "OLD.prm")]
+    update: Option<PathBuf>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -183,11 +199,31 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         }
         b.set_position(done as u64);
     };
-    let result = precompute(&scene, &bvh, p, &on_progress, cancel);
+    let old = match &a.update {
+        Some(path) => Some(read_old(path, &a.output)?),
+        None => None,
+    };
+    let keep_cache = a.cache || a.update.is_some();
+    let reuse = match &old {
+        Some((prm, cache)) => Reuse::Update { cache, old: prm },
+        None => Reuse::Nothing,
+    };
+    let mut result = precompute_with(&scene, &bvh, p, reuse, keep_cache, &on_progress, cancel);
+    let mut refused = None;
+    if let Err(PrecomputeError::Refused(r)) = &result {
+        if a.update.is_some() {
+            // The update cannot reuse OLD: say why and bake it whole.
+            if !a.json {
+                eprintln!("cannot update: {r}; running a full precompute");
+            }
+            refused = Some(r.to_string());
+            result = precompute_with(&scene, &bvh, p, Reuse::Nothing, true, &on_progress, cancel);
+        }
+    }
     if let Ok(b) = bar.lock() {
         b.finish_and_clear();
     }
-    let (prm, report) = result.map_err(|e| match e {
+    let Baked { prm, report, cache } = result.map_err(|e| match e {
         PrecomputeError::Cancelled(_) => anyhow!("stopped by Ctrl-C; {} not written", a.output.display()),
         e => anyhow!("{e}; {} not written", a.output.display()),
     })?;
@@ -196,6 +232,10 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         bail!("stopped by Ctrl-C; {} not written", a.output.display());
     }
     let file_bytes = prm.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
+    let cache_path = cache_path(&a.output);
+    if let Some(cache) = &cache {
+        cache.write(&cache_path).with_context(|| format!("writing {}", cache_path.display()))?;
+    }
     let write_s = t.elapsed().as_secs_f64();
     let mut v = serde_json::to_value(&report)?;
     v["scene"] = a.scene.scene.display().to_string().into();
@@ -214,6 +254,17 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         "groups": p.groups,
         "atlas_from": if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" },
     });
+    if let Some(path) = &a.update {
+        v["update"] = json!({
+            "old": path.display().to_string(),
+            "refused": refused,
+            "tiles": prm.header().atlas().width().div_ceil(p.tile_size) as u64
+                * prm.header().atlas().height().div_ceil(p.tile_size) as u64,
+            "tiles_hit": report.update_tiles_hit,
+            "tiles_encoded": report.update_tiles_encoded,
+            "texels_walked": report.update_texels_walked,
+        });
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
@@ -248,6 +299,24 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             d["entries_per_cluster"].as_f64().unwrap_or(0.0),
             p.groups
         );
+        if a.update.is_some() && refused.is_none() {
+            let u = &v["update"];
+            println!(
+                "  update of {}: the edit reached {} of {} atlas tiles; {} encoded again, {} of {} texels \
+                    walked again ({:.1} %), the rest from {}",
+                a.update.as_ref().map_or(String::new(), |p| p.display().to_string()),
+                report.update_tiles_hit,
+                u["tiles"],
+                report.update_tiles_encoded,
+                report.update_texels_walked,
+                report.texels,
+                100.0 * report.update_texels_walked as f64 / report.texels.max(1) as f64,
+                cache_path_of(a.update.as_deref()).display()
+            );
+        }
+        if cache.is_some() {
+            println!("  update cache: {}", cache_path.display());
+        }
         if report.walks_truncated > 0 || report.unowned_vertices > 0 {
             println!(
                 "  note: {} walks cut at the bounce cap, {} path vertices with no owning entry (their \
@@ -257,6 +326,34 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The update cache beside a `.prm`: its name with `.cache` added.
+pub fn cache_path(prm: &std::path::Path) -> PathBuf {
+    let mut name = prm.as_os_str().to_owned();
+    name.push(".cache");
+    PathBuf::from(name)
+}
+
+fn cache_path_of(prm: Option<&std::path::Path>) -> PathBuf {
+    prm.map(cache_path).unwrap_or_default()
+}
+
+/// OLD.prm and its update cache, or an error that says which is missing or damaged.
+fn read_old(path: &std::path::Path, output: &std::path::Path) -> Result<(Prm, UpdateCache)> {
+    let prm = Prm::read(path, None).map_err(|e| anyhow!("{e}; {} not written", output.display()))?;
+    let cache_file = cache_path(path);
+    if !cache_file.exists() {
+        bail!(
+            "{} has no update cache ({} is missing): bake it with --cache first; {} not written",
+            path.display(),
+            cache_file.display(),
+            output.display()
+        );
+    }
+    let cache =
+        UpdateCache::read(&cache_file).map_err(|e| anyhow!("{e}; {} not written", output.display()))?;
+    Ok((prm, cache))
 }
 
 /// Peak resident memory of this process, from /proc (Linux); `None` elsewhere.

@@ -153,6 +153,18 @@ pub fn cluster_entries(
     Clustering { assignment, members }
 }
 
+impl Clustering {
+    /// The clustering that puts item i in cluster `assignment[i]`, of `count` clusters (all
+    /// below it; a cluster may be empty).
+    pub fn from_assignment(assignment: &[u32], count: u32) -> Clustering {
+        let mut members = vec![Vec::new(); count as usize];
+        for (i, &c) in assignment.iter().enumerate() {
+            members[c as usize].push(i as u32);
+        }
+        Clustering { assignment: assignment.to_vec(), members }
+    }
+}
+
 /// Mean member position of each cluster.
 pub fn centroids(entries: &[Entry], clustering: &Clustering) -> Vec<Vec3> {
     clustering

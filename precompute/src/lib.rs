@@ -17,3 +17,4 @@ pub mod precompute;
 pub mod reference;
 pub mod scenes;
 pub mod transport;
+pub mod update;

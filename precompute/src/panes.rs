@@ -29,6 +29,7 @@ use prm::{luminance, Smoothing, TexelSet};
 use rayon::prelude::*;
 
 use crate::transport::{TexelDipoles, TexelPanes};
+use crate::update::CachedTile;
 
 /// Tile rows a band encodes at once, by default. With the margin (at most 17 rows each side)
 /// a band of 2 holds the walks of up to 66 texel rows; taller bands hold more walks, shorter
@@ -138,6 +139,10 @@ impl<'a> Encoder<'a> {
     /// `panes` and `exact` hold what each texel of the band's window gives each pane
     /// (texel-major from texel `first`; `exact` may be empty): the walked part, smoothed, and
     /// the exact part, added after smoothing.
+    ///
+    /// With `reuse` (`prm precompute --update`, `crate::update`), only the tiles it marks
+    /// dirty are encoded; every other tile is the cached one (`reuse.1[c]`: pane c's cached
+    /// tiles, in atlas order), and the pane's energy is carried over both alike.
     pub fn encode_band(
         &self,
         band: &Band,
@@ -145,24 +150,34 @@ impl<'a> Encoder<'a> {
         panes: &[TexelPanes],
         exact: &[TexelPanes],
         acc: &mut Accumulated,
+        reuse: Option<(&[bool], &[Vec<CachedTile>])>,
     ) -> std::io::Result<()> {
         let n = acc.len();
         let (start, list) = transpose(panes, first, n, |k, i| panes[k][i].1);
         let (exact_start, exact_list) = transpose(exact, first, n, |k, i| exact[k][i].1);
-        let own = self.texel_range(band.rows.clone());
         let out: Vec<Option<PaneBand>> = (0..n)
             .into_par_iter()
             .map(|c| {
                 let walked = &list[start[c]..start[c + 1]];
                 let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
-                if walked.is_empty() && exact.is_empty() {
-                    return None;
-                }
-                let img = self.band_image(band, walked, exact);
-                Some(self.encode_pane_band(band, own.clone(), &img, acc.energy[c]))
+                let img =
+                    (!walked.is_empty() || !exact.is_empty()).then(|| self.band_image(band, walked, exact));
+                let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
+                let pane = self.encode_pane_band(band, img.as_deref(), acc.energy[c], reuse);
+                (!pane.tiles.is_empty()).then_some(pane)
             })
             .collect();
         acc.add(out)
+    }
+
+    /// Codes a stored pane tile holds, per atlas tile.
+    pub fn tile_codes(&self) -> Vec<usize> {
+        tile_codes(&self.grid, &self.stored)
+    }
+
+    /// Tiles across and down the atlas.
+    pub fn tiles(&self) -> (usize, usize) {
+        (self.grid.tx, self.grid.ty)
     }
 
     /// The band's tiles of every dipole pane in `acc` (3 per cluster: `3 c + axis`; axes with
@@ -246,16 +261,39 @@ impl<'a> Encoder<'a> {
         img
     }
 
-    /// A pane's tiles in the band (those holding any non-zero texel), encoded, and its energy
-    /// (signed luminance over the covered texels, the runtime's ranking energy) carried on
-    /// from `energy` over the band's texels `own`.
-    fn encode_pane_band(&self, band: &Band, own: Range<usize>, img: &[Vec3], energy: f64) -> PaneBand {
+    /// A pane's tiles in the band (those holding any non-zero texel; none without an image),
+    /// encoded, and its energy (signed luminance over the covered texels, the runtime's
+    /// ranking energy) carried on from `energy`, tile after tile in atlas order, so the sum is
+    /// the same to the bit whichever tiles came from a cache. With `reuse`, tiles not marked
+    /// dirty are the cached ones.
+    fn encode_pane_band(
+        &self,
+        band: &Band,
+        img: Option<&[Vec3]>,
+        energy: f64,
+        reuse: Option<(&[bool], &[CachedTile])>,
+    ) -> PaneBand {
         let grid = &self.grid;
         let offset = band.window.start as usize * grid.w;
-        let energy = self.carry_energy(band, own, img, energy);
         let mut tiles = Vec::new();
         for index in band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx {
-            let mut e = 0.0f64;
+            if let Some((dirty, cached)) = reuse {
+                if !dirty[index] {
+                    if let Ok(k) = cached.binary_search_by_key(&(index as u32), |t| t.index) {
+                        let t = &cached[k];
+                        tiles.push(EncodedTile {
+                            index: t.index,
+                            scale: t.scale,
+                            energy: t.energy,
+                            carried: t.carried,
+                            data: t.codes.clone(),
+                        });
+                    }
+                    continue;
+                }
+            }
+            let Some(img) = img else { continue };
+            let (mut e, mut carried) = (0.0f64, 0.0f64);
             let mut any = false;
             for k in grid.texels(index) {
                 let v = img[k - offset];
@@ -263,14 +301,18 @@ impl<'a> Encoder<'a> {
                     any = true;
                     e += luminance(v).abs() as f64;
                 }
+                if self.set.index[k] != TexelSet::EMPTY {
+                    carried += luminance(v) as f64;
+                }
             }
             if any {
                 let vals: Vec<Vec3> =
                     grid.texels(index).filter(|&k| self.stored[k]).map(|k| img[k - offset]).collect();
                 let (scale, data) = encode_tile(&vals);
-                tiles.push(EncodedTile { index: index as u32, scale, energy: e, data });
+                tiles.push(EncodedTile { index: index as u32, scale, energy: e, carried, data });
             }
         }
+        let energy = tiles.iter().fold(energy, |a, t| a + t.carried);
         PaneBand { energy, tiles }
     }
 
@@ -329,11 +371,14 @@ fn transpose<T: Copy + Default>(
     (start, list)
 }
 
-/// A tile encoded before the drop rule: its atlas index, RGB scale, energy and codes.
+/// A tile encoded before the drop rule: its atlas index, RGB scale, energy (|luminance|
+/// over its texels, what the rule ranks), carried energy (signed luminance over its covered
+/// texels, what the pane's energy sums) and codes.
 struct EncodedTile {
     index: u32,
     scale: Vec3,
     energy: f64,
+    carried: f64,
     data: Vec<u8>,
 }
 
@@ -352,8 +397,9 @@ struct PaneBand {
 pub struct Accumulated {
     /// Each pane's energy so far.
     energy: Vec<f64>,
-    /// Each pane's tiles so far, in atlas tile order: (atlas tile, RGB scale, energy).
-    tiles: Vec<Vec<(u32, Vec3, f64)>>,
+    /// Each pane's tiles so far, in atlas tile order: (atlas tile, RGB scale, energy,
+    /// carried energy).
+    tiles: Vec<Vec<(u32, Vec3, f64, f64)>>,
     /// Each pane's runs of codes in the scratch file, one per band holding any of its tiles:
     /// (offset, tiles).
     runs: Vec<Vec<(u64, u32)>>,
@@ -392,12 +438,37 @@ impl Accumulated {
             }
             self.runs[c].push((self.written, pane.tiles.len() as u32));
             for t in pane.tiles {
-                self.tiles[c].push((t.index, t.scale, t.energy));
+                self.tiles[c].push((t.index, t.scale, t.energy, t.carried));
                 self.spill.write_all(&t.data)?;
                 self.written += t.data.len() as u64;
             }
         }
         Ok(())
+    }
+
+    /// Every pane's tiles with their codes (`codes(index)`: codes a tile at atlas tile
+    /// `index` has), read back from the scratch file: what `crate::update` caches.
+    pub fn export(&mut self, codes: &impl Fn(u32) -> usize) -> std::io::Result<Vec<Vec<CachedTile>>> {
+        use std::io::{Read, Seek, SeekFrom, Write};
+        self.spill.flush()?;
+        let file = self.spill.get_mut();
+        let mut out = Vec::with_capacity(self.tiles.len());
+        for (pane, runs) in self.tiles.iter().zip(&self.runs) {
+            let mut tiles = Vec::with_capacity(pane.len());
+            let mut t = 0;
+            for &(offset, count) in runs {
+                file.seek(SeekFrom::Start(offset))?;
+                for &(index, scale, energy, carried) in &pane[t..t + count as usize] {
+                    let mut codes_of = vec![0u8; codes(index)];
+                    file.read_exact(&mut codes_of)?;
+                    tiles.push(CachedTile { index, scale, energy, carried, codes: codes_of });
+                }
+                t += count as usize;
+            }
+            out.push(tiles);
+        }
+        file.seek(SeekFrom::End(0))?;
+        Ok(out)
     }
 
     /// The drop rule on each pane: its keep flags, and the tiles and codes kept in all
@@ -456,7 +527,7 @@ impl Accumulated {
                 file.seek(SeekFrom::Start(offset))?;
                 file.read_exact(&mut buf)?;
                 let mut at = 0;
-                for (k, &(index, scale, _)) in run.iter().enumerate() {
+                for (k, &(index, scale, _, _)) in run.iter().enumerate() {
                     let n = codes(index);
                     if keep[c][t + k] {
                         tiles.push(Tile { cluster: first_pane + c as u32, index, scale });
@@ -621,7 +692,7 @@ fn encode_dipole_band(
             let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
             let peak = vals.iter().map(|v| luminance(*v).abs()).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
             let data = vals.iter().map(|v| dipole_code(luminance(*v) / peak)).collect();
-            Some(EncodedTile { index: index as u32, scale: chroma * peak, energy, data })
+            Some(EncodedTile { index: index as u32, scale: chroma * peak, energy, carried: 0.0, data })
         })
         .collect()
 }

@@ -27,6 +27,9 @@ use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
 use crate::transport::{Estimator, LinkedCells, TexelDipoles, TexelPanes, Transport};
+use crate::update::{
+    edited_voxels, refusal, tile_digests, triangle_digests, Plan, Refused, TileRecord, UpdateCache, VoxelGrid,
+};
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
@@ -110,6 +113,32 @@ impl PrecomputeParams {
             far_radius: 48.0,
             band_tile_rows: crate::panes::BAND_TILE_ROWS,
         }
+    }
+
+    /// The parameters that decide the result, as one line (everything but the band height):
+    /// what an update cache records and compares (`crate::update`).
+    pub fn canonical(&self) -> String {
+        format!(
+            "entries {} paths {} clusters {} atlas {} seed {} estimator {} tile {} drop {:e} bounces {} \
+             kmeans {} smooth {} groups {} near {} echo {} dipole {} far {} far-radius {}",
+            self.entries,
+            self.paths,
+            self.clusters,
+            self.atlas,
+            self.seed,
+            self.estimator,
+            self.tile_size,
+            self.drop_threshold,
+            self.max_bounces,
+            self.kmeans_iterations,
+            self.smooth_radius,
+            self.groups,
+            self.near_radius,
+            self.echo_radius,
+            self.dipole_block,
+            self.far_field,
+            self.far_radius
+        )
     }
 
     /// Reject absurd values with an error naming the parameter.
@@ -267,6 +296,11 @@ pub struct Report {
     pub dipole_tiles: usize,
     pub dipole_bytes: usize,
     pub threads: usize,
+    /// An update's atlas tiles the edit reached (their walks or other inputs changed), the
+    /// tiles encoded again (those within reach of one), and the texels walked again.
+    pub update_tiles_hit: usize,
+    pub update_tiles_encoded: usize,
+    pub update_texels_walked: usize,
 }
 
 /// Why a precompute gave no map.
@@ -282,6 +316,46 @@ pub enum PrecomputeError {
     /// The bake assembled a map the format refuses: a bug, reported rather than written.
     #[error("the precompute produced an inconsistent map (a bug): {0}")]
     Invalid(#[from] InvalidPrm),
+    /// An update (or a bake that keeps an update cache) cannot be done this way: run a full
+    /// precompute (`crate::update` module doc).
+    #[error("cannot update: {0}")]
+    Refused(#[from] Refused),
+}
+
+/// What a precompute takes from an earlier bake's update cache (`crate::update`).
+#[derive(Clone, Copy)]
+pub enum Reuse<'a> {
+    /// Nothing: a fresh bake.
+    Nothing,
+    /// The cache's clusters and groups, every texel walked: the full precompute an update
+    /// writes the same bytes as.
+    Clusters(&'a UpdateCache),
+    /// An update of `old` (the `.prm` the cache belongs to): the cache's clusters, and its
+    /// tiles wherever the edit cannot have changed them.
+    Update { cache: &'a UpdateCache, old: &'a Prm },
+}
+
+impl<'a> Reuse<'a> {
+    fn cache(&self) -> Option<&'a UpdateCache> {
+        match *self {
+            Reuse::Nothing => None,
+            Reuse::Clusters(c) | Reuse::Update { cache: c, .. } => Some(c),
+        }
+    }
+}
+
+/// A precompute's map, its report and, when asked for, its update cache.
+pub struct Baked {
+    pub prm: Prm,
+    pub report: Report,
+    pub cache: Option<UpdateCache>,
+}
+
+/// The checksum a `.prm` file of `prm` ends with (what an update cache is tied to).
+pub fn prm_checksum(prm: &Prm) -> u64 {
+    let bytes = prm.to_bytes();
+    let tail: [u8; 8] = bytes[bytes.len().saturating_sub(8)..].try_into().unwrap_or_default();
+    u64::from_le_bytes(tail)
 }
 
 /// Run the precompute. `progress(phase, done, total)` is called as work completes; `cancel`
@@ -293,6 +367,22 @@ pub fn precompute(
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
     cancel: &AtomicBool,
 ) -> Result<(Prm, Report), PrecomputeError> {
+    let baked = precompute_with(scene, bvh, params, Reuse::Nothing, false, progress, cancel)?;
+    Ok((baked.prm, baked.report))
+}
+
+/// [`precompute`] taking what `reuse` gives from an earlier bake, and with `keep_cache` also
+/// returning the update cache a later `--update` needs (`crate::update`). An update that
+/// cannot reuse the earlier bake is refused ([`PrecomputeError::Refused`]) before any walk.
+pub fn precompute_with(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+    reuse: Reuse,
+    keep_cache: bool,
+    progress: &(dyn Fn(Phase, usize, usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<Baked, PrecomputeError> {
     params.validate()?;
     if params.atlas.pages > 1 && scene.report.generated_atlas != Some(params.atlas) {
         return Err(PrecomputeError::Params(ParamError {
@@ -322,14 +412,48 @@ pub fn precompute(
     let (entries, cells, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
     (report.seconds_entries, report.entries_enclosed) = (seconds, enclosed);
     let (cells, owners, cell_report) = cells;
+    // What an update compares and a cache keeps (`crate::update`).
+    let tiles = (params.atlas.width().div_ceil(params.tile_size)
+        * params.atlas.height().div_ceil(params.tile_size)) as usize;
+    let tracing = keep_cache || matches!(reuse, Reuse::Update { .. });
+    let triangles = (tracing || reuse.cache().is_some()).then(|| triangle_digests(scene));
+    if let (Some(cache), Some(triangles)) = (reuse.cache(), &triangles) {
+        if let Some(r) = refusal(cache, params, triangles, tiles) {
+            return Err(r.into());
+        }
+        if entries.len() != cache.assignment.len() {
+            return Err(Refused(format!(
+                "{} entries now, {} then (the edit changed the surface's area or what lies inside solids)",
+                entries.len(),
+                cache.assignment.len()
+            ))
+            .into());
+        }
+    }
+    if tracing && (params.estimator != Estimator::Gather || params.dipole_block > 0) {
+        return Err(Refused(format!(
+            "an update cache is kept for the gather estimator without dipoles only (not {}{})",
+            params.estimator,
+            if params.dipole_block > 0 { " with dipoles" } else { "" }
+        ))
+        .into());
+    }
+    if let Reuse::Update { cache, old } = reuse {
+        if prm_checksum(old) != cache.prm_checksum {
+            return Err(Refused("the cache belongs to another .prm (checksums differ)".into()).into());
+        }
+    }
     report.cell_triangles = cells.triangles.len();
     report.area_without_entry = cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE);
     progress(Phase::Entries, 1, 1);
     stop_if(cancel)?;
 
-    let clustering = timed(&mut report.seconds_clustering, || {
-        let k = params.clusters as usize;
-        cluster_entries(&entries, k, scene.total_area(), params.kmeans_iterations as usize, params.seed)
+    let clustering = timed(&mut report.seconds_clustering, || match reuse.cache() {
+        Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
+        None => {
+            let k = params.clusters as usize;
+            cluster_entries(&entries, k, scene.total_area(), params.kmeans_iterations as usize, params.seed)
+        }
     });
     let cents = centroids(&entries, &clustering);
     let (frames, dipoles) = if params.dipole_block > 0 {
@@ -390,8 +514,47 @@ pub fn precompute(
     let t = Instant::now();
     let smoothing =
         (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
-    let grouping = group_clusters(scene, &entries, &clustering.members, &cents, params);
+    let grouping = match reuse.cache() {
+        Some(c) => (c.groups > 0).then(|| Clustering::from_assignment(&c.group_of, c.groups)),
+        None => group_clusters(scene, &entries, &clustering.members, &cents, params),
+    };
     report.seconds_panes += t.elapsed().as_secs_f64();
+    // The update's plan: which tiles the edit reaches, which texels to walk again.
+    let digests =
+        tracing.then(|| tile_digests(&set, params.tile_size, smoothing.as_ref(), linked.as_ref(), &exact));
+    let plan = match (reuse, &triangles, &digests) {
+        (Reuse::Update { cache, old }, Some(triangles), Some(digests)) => {
+            let edited =
+                edited_voxels(cache, triangles, scene, (old.entries(), old.cells()), (&entries, &cells));
+            let plan = Plan::new(cache, &set, params.tile_size, smoothing.as_ref(), digests, &edited);
+            let layout = Encoder::new(&set, None, params.tile_size, 1).tile_codes();
+            // Tiles taken from the cache must hold as many codes as this atlas stores there
+            // (a tile whose stored texels changed has another digest, so it is not taken).
+            let fits = cache.panes.iter().flatten().all(|t| {
+                let k = t.index as usize;
+                plan.dirty.get(k) != Some(&false) || layout.get(k) == Some(&t.codes.len())
+            });
+            if !fits
+                || cache.panes.len()
+                    != clustering.members.len() + grouping.as_ref().map_or(0, |g| g.members.len())
+            {
+                return Err(Refused("the cache's pane tiles do not fit this atlas".into()).into());
+            }
+            report.update_tiles_hit = plan.hit.iter().filter(|&&h| h).count();
+            report.update_tiles_encoded = plan.dirty.iter().filter(|&&d| d).count();
+            report.update_texels_walked = plan.walk.iter().filter(|&&w| w).count();
+            Some((plan, cache))
+        }
+        _ => None,
+    };
+    let grid = match reuse.cache() {
+        Some(c) => c.grid.clone(),
+        None => {
+            let (lo, hi) = scene.bounds();
+            VoxelGrid::around(lo, hi)
+        }
+    };
+    let trace = Tracing { grid: tracing.then_some(&grid), plan: plan.as_ref().map(|(p, c)| (p, *c)) };
     let transport = Transport {
         scene,
         bvh,
@@ -406,7 +569,7 @@ pub fn precompute(
         seed: params.seed,
         stats: Default::default(),
     };
-    let acc = walk_and_encode(
+    let mut acc = walk_and_encode(
         &transport,
         params,
         &set,
@@ -414,6 +577,7 @@ pub fn precompute(
         &exact,
         grouping.as_ref(),
         &dipoles,
+        &trace,
         cancel,
         progress,
         &mut report,
@@ -421,6 +585,27 @@ pub fn precompute(
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
     report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
+    // An update walked some texels only: the counters are the tiles' (the same totals a full
+    // bake's walks give, tile by tile).
+    let mut records = acc.records.take();
+    if let (Some((plan, cache)), Some(records)) = (&plan, records.as_mut()) {
+        for (k, r) in records.iter_mut().enumerate() {
+            if !plan.dirty[k] {
+                *r = cache.tiles[k].clone();
+            }
+        }
+        report.walks_truncated = records.iter().map(|r| r.truncated as usize).sum();
+        report.unowned_vertices = records.iter().map(|r| r.unowned as usize).sum();
+    }
+    let pane_cache = if tracing {
+        let layout = Encoder::new(&set, None, params.tile_size, 1).tile_codes();
+        let codes = |index: u32| layout[index as usize];
+        let mut panes = acc.fine.export(&codes)?;
+        panes.extend(acc.groups.export(&codes)?);
+        Some(panes)
+    } else {
+        None
+    };
     report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
     // The links' shares and exact first bounce are the walks' only; freed before the
     // panes' codes come back from the scratch file.
@@ -445,6 +630,8 @@ pub fn precompute(
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(scene, params, &report, entries.len(), &tiled);
+    let grouping_kept = if tracing { grouping.clone() } else { None };
+    let assignment_kept = if tracing { clustering.assignment.clone() } else { Vec::new() };
     let group_of = grouping.map_or_else(Vec::new, |g| g.assignment);
     let Tiled { clusters, groups, mask, tiles, data, .. } = tiled;
     let prm = Prm::new(PrmParts {
@@ -463,7 +650,31 @@ pub fn precompute(
         dipoles,
         far,
     })?;
-    Ok((prm, report))
+    let cache = match (pane_cache, records, triangles, digests) {
+        (Some(panes), Some(mut records), Some(triangles), Some(digests)) => {
+            for (r, d) in records.iter_mut().zip(digests) {
+                r.inputs = d;
+            }
+            let (group_of, groups) = match &grouping_kept {
+                Some(g) => (g.assignment.clone(), g.members.len() as u32),
+                None => (Vec::new(), 0),
+            };
+            Some(UpdateCache {
+                prm_checksum: prm_checksum(&prm),
+                params: params.canonical(),
+                grid,
+                triangles,
+                assignment: assignment_kept,
+                clusters: report.clusters,
+                group_of,
+                groups,
+                tiles: records,
+                panes,
+            })
+        }
+        _ => None,
+    };
+    Ok(Baked { prm, report, cache })
 }
 
 /// Per link, the share of its cell's first bounce the gather's walks keep: the far field's
@@ -557,16 +768,26 @@ fn lit_entries(
     (entries, cells, enclosed)
 }
 
-/// The panes being encoded: the clusters', the groups' and the dipoles' (if any).
+/// The panes being encoded: the clusters', the groups' and the dipoles' (if any), and with a
+/// voxel grid each atlas tile's walk record (`crate::update`).
 struct Encoded {
     fine: Accumulated,
     groups: Accumulated,
     dipoles: Option<Accumulated>,
+    records: Option<Vec<TileRecord>>,
+}
+
+/// What the walks record, and skip, for an update (`crate::update`): the voxel grid their
+/// footprints are kept on (None: none kept) and an update's plan with the cache it reuses.
+struct Tracing<'a> {
+    grid: Option<&'a VoxelGrid>,
+    plan: Option<(&'a Plan, &'a UpdateCache)>,
 }
 
 /// Walk the texels (module `transport`) a band of tile rows at a time and encode every pane's
 /// tiles in each band as it is done (`crate::panes`), holding only the walks the next bands
-/// still need.
+/// still need. With a plan, only its texels are walked and its dirty tiles encoded, the rest
+/// taken from the cache.
 #[allow(clippy::too_many_arguments)]
 fn walk_and_encode(
     transport: &Transport,
@@ -576,17 +797,26 @@ fn walk_and_encode(
     exact: &[TexelPanes],
     grouping: Option<&Clustering>,
     dipoles: &[prm::prm_file::Dipole],
+    tracing: &Tracing,
     cancel: &AtomicBool,
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
     report: &mut Report,
 ) -> Result<Encoded, PrecomputeError> {
     let encoder = Encoder::new(set, smoothing, params.tile_size, params.band_tile_rows);
     let prepared = transport.prepare(params.estimator);
+    let (tx, ty) = encoder.tiles();
     let mut out = Encoded {
         fine: Accumulated::new(transport.clusters)?,
         groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
         dipoles: if dipoles.is_empty() { None } else { Some(Accumulated::new(3 * dipoles.len())?) },
+        records: tracing
+            .grid
+            .map(|g| vec![TileRecord { footprint: vec![0; g.words()], ..Default::default() }; tx * ty]),
     };
+    let reuse = tracing.plan.map(|(plan, cache)| {
+        let split = transport.clusters.min(cache.panes.len());
+        (&plan.dirty[..], &cache.panes[..split], &cache.panes[split..])
+    });
     // The walks of texels first..first + panes.len().
     let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
         (0, Vec::new(), Vec::new());
@@ -602,20 +832,46 @@ fn walk_and_encode(
             let t = Instant::now();
             let on_texels = |done| progress(Phase::Transport, have + done, n);
             let control = Control { progress: &on_texels, cancel };
-            let walked = transport.run_texels(&prepared, &set.texels[have..range.end], set.width, control)?;
-            for (p, d) in walked {
-                panes.push(p);
-                dips.push(d);
+            match (tracing.grid, out.records.as_mut()) {
+                (Some(grid), Some(records)) => {
+                    // Only the plan's texels (all without one), each recorded in its tile.
+                    let todo: Vec<usize> =
+                        (have..range.end).filter(|&k| tracing.plan.is_none_or(|(p, _)| p.walk[k])).collect();
+                    let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
+                    let walked = transport.run_traced(&texels, set.width, grid, control)?;
+                    panes.resize(range.end - first, Vec::new());
+                    dips.resize(range.end - first, Vec::new());
+                    for (&k, (p, trace)) in todo.iter().zip(walked) {
+                        let t = &set.texels[k];
+                        let r = &mut records[crate::update::tile_of(t.i, t.j, params.tile_size, tx)];
+                        for v in trace.voxels {
+                            r.footprint[v as usize / 64] |= 1 << (v % 64);
+                        }
+                        r.truncated += trace.truncated;
+                        r.unowned += trace.unowned;
+                        panes[k - first] = p;
+                    }
+                }
+                _ => {
+                    let walked =
+                        transport.run_texels(&prepared, &set.texels[have..range.end], set.width, control)?;
+                    for (p, d) in walked {
+                        panes.push(p);
+                        dips.push(d);
+                    }
+                }
             }
             report.seconds_transport += t.elapsed().as_secs_f64();
         }
         stop_if(cancel)?;
         let t = Instant::now();
         let exact = exact.get(range.clone()).unwrap_or(&[]);
-        encoder.encode_band(&band, first, &panes, exact, &mut out.fine)?;
+        let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
+        encoder.encode_band(&band, first, &panes, exact, &mut out.fine, fine_reuse)?;
         if let Some(g) = grouping {
             let (group_panes, group_exact) = (by_group(&panes, g), by_group(exact, g));
-            encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups)?;
+            let group_reuse = reuse.map(|(dirty, _, groups)| (dirty, groups));
+            encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
         }
         if let Some(acc) = out.dipoles.as_mut() {
             encoder.encode_dipole_band(&band, first, &panes, &dips, dipoles, params.dipole_block, acc)?;

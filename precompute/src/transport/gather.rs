@@ -56,7 +56,11 @@ impl Transport<'_> {
                     (rng.random(), rng.random())
                 };
                 let d = cosine_direction(n, u1, u2);
-                let Some(v) = bounce(self.scene, self.bvh, x, n, d, &self.stats) else { break };
+                let hit = bounce(self.scene, self.bvh, x, n, d, &self.stats);
+                // A back-facing hit ends the walk too; its segment is recorded to the level's
+                // edge (more than it went, which only widens the footprint).
+                scratch.segment(x, d, hit.as_ref().map(|v| v.position));
+                let Some(v) = hit else { break };
                 let (y, ny, a) = (v.position, v.normal, v.albedo);
                 beta *= a;
                 if beta == Vec3::ZERO {
@@ -85,10 +89,18 @@ impl Transport<'_> {
                     Some(c) => scratch.add(c, beta * credit, y),
                     None => {
                         self.stats.unowned.fetch_add(1, Ordering::Relaxed);
+                        if let Some(t) = scratch.trace.as_mut() {
+                            t.unowned += 1;
+                        }
                     }
                 }
                 depth += 1;
-                let Some(q) = self.roulette(depth, a, &mut rng) else { break };
+                let Some(q) = self.roulette(depth, a, &mut rng) else {
+                    if let Some(t) = scratch.trace.as_mut() {
+                        t.truncated += (depth >= self.max_bounces) as u64;
+                    }
+                    break;
+                };
                 beta /= q;
                 x = y;
                 n = ny;
@@ -129,7 +141,7 @@ impl Transport<'_> {
     /// irradiance `weights`), with the same random streams as [`Transport::run`]: the twin the
     /// superposition test holds the pane sum to.
     pub fn gather_field(&self, set: &prm::TexelSet, weights: &[Vec3]) -> Vec<Vec3> {
-        let mut scratch = Scratch::new(self.clusters, &[]);
+        let mut scratch = Scratch::new(self.clusters, &[], None);
         set.texels
             .iter()
             .map(|t| {

@@ -49,6 +49,7 @@ use rand::Rng;
 
 use crate::cells::CellOwners;
 use crate::parallel::{par_texels, Cancelled, Control};
+use crate::update::{Recorder, VoxelGrid};
 pub use gather::MisTables;
 
 /// How pane contents are estimated.
@@ -113,16 +114,56 @@ struct Scratch<'f> {
     touched: Vec<u32>,
     /// The clusters' dipole frames (empty: no dipoles).
     frames: &'f [Frame],
+    /// Where the texel's walks go, when recorded ([`Transport::run_traced`]).
+    trace: Option<Tracing<'f>>,
+}
+
+/// A texel's walks as recorded for `prm precompute --update` (`crate::update`).
+struct Tracing<'f> {
+    grid: &'f VoxelGrid,
+    voxels: Recorder,
+    truncated: u64,
+    unowned: u64,
+}
+
+/// What [`Transport::run_traced`] says of one texel's walks besides its contributions: the
+/// voxels their segments passed through (each once), the walks cut at the bounce cap and the
+/// vertices no entry owned.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trace {
+    pub voxels: Vec<u32>,
+    pub truncated: u64,
+    pub unowned: u64,
 }
 
 impl<'f> Scratch<'f> {
-    fn new(clusters: usize, frames: &'f [Frame]) -> Self {
+    fn new(clusters: usize, frames: &'f [Frame], grid: Option<&'f VoxelGrid>) -> Self {
         let dipoles = if frames.is_empty() { 0 } else { clusters };
         Scratch {
             dense: vec![Vec3::ZERO; clusters],
             dipole: vec![[Vec3::ZERO; 3]; dipoles],
             touched: Vec::new(),
             frames,
+            trace: grid.map(|grid| Tracing { grid, voxels: Recorder::new(grid), truncated: 0, unowned: 0 }),
+        }
+    }
+
+    /// Record a walk segment from `x` along `d` to `end` (None: it left the level).
+    fn segment(&mut self, x: Vec3, d: Vec3, end: Option<Vec3>) {
+        if let Some(Tracing { grid, voxels, .. }) = self.trace.as_mut() {
+            let end = end.unwrap_or_else(|| grid.exit(x, d));
+            grid.segment(x, end, |v| voxels.mark(v));
+        }
+    }
+
+    fn take_trace(&mut self) -> Trace {
+        match self.trace.as_mut() {
+            Some(t) => Trace {
+                voxels: t.voxels.take(),
+                truncated: std::mem::take(&mut t.truncated),
+                unowned: std::mem::take(&mut t.unowned),
+            },
+            None => Trace::default(),
         }
     }
     /// Adds `v` to cluster `c`, the light having entered the cluster at `at`.
@@ -209,7 +250,7 @@ pub struct LinkedCells<'a> {
 
 impl LinkedCells<'_> {
     /// The links of atlas texel `texel` and their shares kept.
-    fn of(&self, texel: u32) -> (&[prm::prm_file::NearLink], &[f32]) {
+    pub fn of(&self, texel: u32) -> (&[prm::prm_file::NearLink], &[f32]) {
         let from = self.links.partition_point(|l| l.texel < texel);
         let to = from + self.links[from..].partition_point(|l| l.texel == texel);
         (&self.links[from..to], &self.keep[from..to])
@@ -282,7 +323,7 @@ impl<'a> Transport<'a> {
         width: u32,
         control: Control,
     ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
-        let init = || Scratch::new(self.clusters, self.frames);
+        let init = || Scratch::new(self.clusters, self.frames, None);
         match prepared {
             Prepared::Gather(mis) => par_texels(texels, control, init, |scratch, t| {
                 self.gather_texel(scratch, t, width, mis.as_ref())
@@ -291,6 +332,22 @@ impl<'a> Transport<'a> {
                 par_texels(texels, control, init, |scratch, t| self.scatter_texel(scratch, t, vpls, *rc2))
             }
         }
+    }
+
+    /// The gather's contributions at `texels` (as [`Transport::run_texels`]) with where each
+    /// texel's walks went, on `grid` ([`Trace`]).
+    pub fn run_traced(
+        &self,
+        texels: &[Texel],
+        width: u32,
+        grid: &VoxelGrid,
+        control: Control,
+    ) -> Result<Vec<(TexelPanes, Trace)>, Cancelled> {
+        let init = || Scratch::new(self.clusters, self.frames, Some(grid));
+        par_texels(texels, control, init, |scratch, t| {
+            let (panes, _) = self.gather_texel(scratch, t, width, None);
+            (panes, scratch.take_trace())
+        })
     }
 
     /// Paper 004's Russian roulette after a vertex of albedo `a` at walk depth `depth`:

@@ -1,0 +1,290 @@
+//! The update cache (`X.prm.cache`): what `prm precompute --update` needs from the bake of
+//! `X.prm` and the file does not hold.
+//!
+//! Little-endian, in this order:
+//!
+//! ```text
+//! magic "PRMUPDT\n", version u32
+//! prm checksum u64            the .prm's own checksum (its last 8 bytes): the pair belongs together
+//! params: u32 length, UTF-8   the parameters it was baked with (PrecomputeParams::canonical)
+//! grid: origin 3 f32, side f32, dims 3 u32
+//! triangles u32, then per triangle: corners 9 f32, digest u64
+//! entries u32, then the cluster of each u32
+//! clusters u32, groups u32, then the group of each cluster u32 (none without groups)
+//! tiles u32, then per atlas tile: inputs digest u64, walks cut u64, unowned vertices u64,
+//!     footprint (grid words x u64)
+//! panes u32 (clusters + groups), then per pane: tiles u32, then per tile:
+//!     atlas tile u32, scale 3 f32, energy f64, carried f64, codes u32, codes bytes
+//! checksum u64                FNV-1a 64 of everything before it
+//! ```
+//!
+//! The panes' tiles are every tile the bake encoded, before the drop rule (the file keeps only
+//! those it did not drop), with both energies the rule and the pane's total are made from.
+
+use std::io::Write;
+use std::path::Path;
+
+use glam::Vec3;
+use prm::fingerprint::{fnv1a, FNV_START};
+
+use super::footprint::VoxelGrid;
+
+const MAGIC: [u8; 8] = *b"PRMUPDT\n";
+const VERSION: u32 = 1;
+
+/// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
+/// walks' counters, and the voxels its own texels' walks passed through.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TileRecord {
+    pub inputs: u64,
+    pub truncated: u64,
+    pub unowned: u64,
+    pub footprint: Vec<u64>,
+}
+
+/// One encoded pane tile before the drop rule.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CachedTile {
+    pub index: u32,
+    pub scale: Vec3,
+    /// Sum of |luminance| over its texels (what the drop rule ranks).
+    pub energy: f64,
+    /// Sum of signed luminance over its covered texels (what the pane's energy adds up).
+    pub carried: f64,
+    pub codes: Vec<u8>,
+}
+
+/// The cache (module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct UpdateCache {
+    pub prm_checksum: u64,
+    pub params: String,
+    pub grid: VoxelGrid,
+    /// Corners and digest of every triangle of the level as baked.
+    pub triangles: Vec<([Vec3; 3], u64)>,
+    /// Cluster of each entry.
+    pub assignment: Vec<u32>,
+    pub clusters: u32,
+    /// Group of each cluster (empty without groups) and the group count.
+    pub group_of: Vec<u32>,
+    pub groups: u32,
+    pub tiles: Vec<TileRecord>,
+    /// Clusters' panes, then groups'.
+    pub panes: Vec<Vec<CachedTile>>,
+}
+
+/// A cache that cannot be used: unreadable, damaged or of another version.
+#[derive(Debug, thiserror::Error)]
+pub enum CacheError {
+    #[error("cannot read the update cache {path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("the update cache {path} is damaged: {what}")]
+    Corrupt { path: String, what: String },
+}
+
+impl UpdateCache {
+    /// The cache's bytes (module doc).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.extend_from_slice(&MAGIC);
+        put_u32(&mut b, VERSION);
+        put_u64(&mut b, self.prm_checksum);
+        put_u32(&mut b, self.params.len() as u32);
+        b.extend_from_slice(self.params.as_bytes());
+        put_vec3(&mut b, self.grid.origin);
+        put_f32(&mut b, self.grid.side);
+        self.grid.dims.iter().for_each(|&d| put_u32(&mut b, d));
+        put_u32(&mut b, self.triangles.len() as u32);
+        for (corners, digest) in &self.triangles {
+            corners.iter().for_each(|&c| put_vec3(&mut b, c));
+            put_u64(&mut b, *digest);
+        }
+        put_u32(&mut b, self.assignment.len() as u32);
+        self.assignment.iter().for_each(|&c| put_u32(&mut b, c));
+        put_u32(&mut b, self.clusters);
+        put_u32(&mut b, self.groups);
+        self.group_of.iter().for_each(|&g| put_u32(&mut b, g));
+        put_u32(&mut b, self.tiles.len() as u32);
+        for t in &self.tiles {
+            put_u64(&mut b, t.inputs);
+            put_u64(&mut b, t.truncated);
+            put_u64(&mut b, t.unowned);
+            t.footprint.iter().for_each(|&w| put_u64(&mut b, w));
+        }
+        put_u32(&mut b, self.panes.len() as u32);
+        for pane in &self.panes {
+            put_u32(&mut b, pane.len() as u32);
+            for t in pane {
+                put_u32(&mut b, t.index);
+                put_vec3(&mut b, t.scale);
+                b.extend_from_slice(&t.energy.to_le_bytes());
+                b.extend_from_slice(&t.carried.to_le_bytes());
+                put_u32(&mut b, t.codes.len() as u32);
+                b.extend_from_slice(&t.codes);
+            }
+        }
+        let sum = fnv1a(FNV_START, &b);
+        put_u64(&mut b, sum);
+        b
+    }
+
+    /// Write it atomically (never half a file).
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        prm::fsutil::write_atomic(path, |w| w.write_all(&self.to_bytes()))
+    }
+
+    pub fn read(path: &Path) -> Result<UpdateCache, CacheError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| CacheError::Io { path: name.clone(), source })?;
+        Self::from_bytes(&bytes).map_err(|what| CacheError::Corrupt { path: name, what })
+    }
+
+    /// Parse and check the bytes; the error says what is wrong.
+    pub fn from_bytes(bytes: &[u8]) -> Result<UpdateCache, String> {
+        if bytes.len() < 20 || bytes[..8] != MAGIC {
+            return Err("not an update cache (no PRMUPDT magic)".into());
+        }
+        let (body, tail) = bytes.split_at(bytes.len() - 8);
+        let sum = u64::from_le_bytes(tail.try_into().map_err(|_| "short file".to_string())?);
+        if fnv1a(FNV_START, body) != sum {
+            return Err("checksum mismatch (the file was changed or cut short)".into());
+        }
+        let mut r = Reader { b: body, at: 8 };
+        let version = r.u32()?;
+        if version != VERSION {
+            return Err(format!("version {version}, this build reads version {VERSION}"));
+        }
+        let prm_checksum = r.u64()?;
+        let n = r.count(1)?;
+        let params =
+            String::from_utf8(r.take(n)?.to_vec()).map_err(|_| "parameters not UTF-8".to_string())?;
+        let origin = r.vec3()?;
+        let side = r.f32()?;
+        let dims = [r.u32()?, r.u32()?, r.u32()?];
+        let voxels = dims.iter().map(|&d| d as u64).product::<u64>();
+        if !(side > 0.0 && side.is_finite() && origin.is_finite()) || voxels == 0 || voxels > 1 << 24 {
+            return Err(format!("bad voxel grid (side {side}, dims {dims:?})"));
+        }
+        let grid = VoxelGrid { origin, side, dims };
+        let n = r.count(44)?;
+        let triangles = (0..n)
+            .map(|_| Ok(([r.vec3()?, r.vec3()?, r.vec3()?], r.u64()?)))
+            .collect::<Result<Vec<_>, String>>()?;
+        let n = r.count(4)?;
+        let assignment = (0..n).map(|_| r.u32()).collect::<Result<Vec<_>, _>>()?;
+        let clusters = r.u32()?;
+        let groups = r.u32()?;
+        if assignment.iter().any(|&c| c >= clusters) {
+            return Err(format!("an entry's cluster is not below the {clusters} clusters"));
+        }
+        let group_of = if groups > 0 {
+            let g = (0..clusters).map(|_| r.u32()).collect::<Result<Vec<_>, _>>()?;
+            if g.iter().any(|&x| x >= groups) {
+                return Err(format!("a cluster's group is not below the {groups} groups"));
+            }
+            g
+        } else {
+            Vec::new()
+        };
+        let words = grid.words();
+        let n = r.count(24 + 8 * words)?;
+        let tiles = (0..n)
+            .map(|_| {
+                Ok(TileRecord {
+                    inputs: r.u64()?,
+                    truncated: r.u64()?,
+                    unowned: r.u64()?,
+                    footprint: (0..words).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?,
+                })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let n = r.count(4)?;
+        if n != clusters as usize + groups as usize {
+            return Err(format!("{n} panes for {clusters} clusters and {groups} groups"));
+        }
+        let mut panes = Vec::with_capacity(n);
+        for _ in 0..n {
+            let m = r.count(36)?;
+            let mut pane = Vec::with_capacity(m);
+            for _ in 0..m {
+                let index = r.u32()?;
+                if index as usize >= tiles.len() {
+                    return Err(format!("a pane tile at atlas tile {index} of {}", tiles.len()));
+                }
+                let (scale, energy, carried) = (r.vec3()?, r.f64()?, r.f64()?);
+                let k = r.count(1)?;
+                pane.push(CachedTile { index, scale, energy, carried, codes: r.take(k)?.to_vec() });
+            }
+            if pane.windows(2).any(|w| w[0].index >= w[1].index) {
+                return Err("a pane's tiles are not in atlas order".into());
+            }
+            panes.push(pane);
+        }
+        if r.at != r.b.len() {
+            return Err(format!("{} bytes after the last pane", r.b.len() - r.at));
+        }
+        Ok(UpdateCache {
+            prm_checksum,
+            params,
+            grid,
+            triangles,
+            assignment,
+            clusters,
+            group_of,
+            groups,
+            tiles,
+            panes,
+        })
+    }
+}
+
+fn put_u32(b: &mut Vec<u8>, v: u32) {
+    b.extend_from_slice(&v.to_le_bytes());
+}
+fn put_u64(b: &mut Vec<u8>, v: u64) {
+    b.extend_from_slice(&v.to_le_bytes());
+}
+fn put_f32(b: &mut Vec<u8>, v: f32) {
+    b.extend_from_slice(&v.to_le_bytes());
+}
+fn put_vec3(b: &mut Vec<u8>, v: Vec3) {
+    v.to_array().iter().for_each(|&x| put_f32(b, x));
+}
+
+struct Reader<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.b.len());
+        let end = end.ok_or_else(|| format!("cut short at byte {}", self.at))?;
+        let s = &self.b[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+    fn u32(&mut self) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().unwrap_or_default()))
+    }
+    fn u64(&mut self) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.take(8)?.try_into().unwrap_or_default()))
+    }
+    fn f32(&mut self) -> Result<f32, String> {
+        Ok(f32::from_le_bytes(self.take(4)?.try_into().unwrap_or_default()))
+    }
+    fn f64(&mut self) -> Result<f64, String> {
+        Ok(f64::from_le_bytes(self.take(8)?.try_into().unwrap_or_default()))
+    }
+    fn vec3(&mut self) -> Result<Vec3, String> {
+        Ok(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
+    }
+    /// A count of items at least `min_bytes` each, refused if the rest cannot hold them.
+    fn count(&mut self, min_bytes: usize) -> Result<usize, String> {
+        let n = self.u32()? as usize;
+        if n.saturating_mul(min_bytes) > self.b.len() - self.at {
+            return Err(format!("a count of {n} at byte {} exceeds the file", self.at - 4));
+        }
+        Ok(n)
+    }
+}

@@ -1,0 +1,352 @@
+//! `prm precompute --update OLD.prm LEVEL.glb -o NEW.prm` (issue 14, item 3): after an edit,
+//! walk again only the texels whose panes the edit can change, and write the file a full
+//! precompute with OLD's clusters would write, byte for byte.
+//!
+//! **What is kept.** The walks are the precompute's cost (3.6 s of the chamber's 5.8 s); the
+//! rest (texels, entries, near and far fields, smoothing) is recomputed, which is also what
+//! makes every tile's other inputs comparable. The clustering is OLD's: k-means over all
+//! entries moves every cluster a little when one object moves, and a pane of a cluster whose
+//! members changed cannot be reused. So an update writes what a full precompute *given OLD's
+//! clusters* writes ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to
+//! (to the byte, or within float noise: below); against a fresh precompute (which re-clusters) it is within the distance
+//! between two fresh precomputes of different seeds. A material edit leaves the entries where
+//! they were, so the clusters agree and so does everything: the update is then byte for byte
+//! the fresh precompute.
+//!
+//! **What is walked again.** A texel's walks give the same contributions after the edit when
+//! every segment of them stayed clear of everything the edit changed: the triangles whose
+//! corners, normals, UVs or material changed (where they were and where they are), and the
+//! cells and sites of entries that moved (the gather credits a hit to the nearest entry on the
+//! triangle hit). The bake of OLD recorded, per atlas tile, the voxels its texels' walks passed
+//! through ([`footprint`]), and a digest of the tile's other inputs (its texels, their exact
+//! first bounce and near-link shares, their smoothing taps, the dilation into the tile). A
+//! tile is *hit* when its footprint meets the edit's voxels (grown by one, which makes the
+//! coarse footprint conservative) or its digest changed; a tile is *re-encoded* when it is hit
+//! or one of its texels reads a hit tile's texel through the smoothing's taps or the
+//! dilation's sources; and the texels walked again are those the re-encoded tiles' values are
+//! made of (their taps' taps). Every other tile's codes and energies come from OLD's cache.
+//!
+//! **Float noise.** Moving an object rounds its corners where they now are, so its
+//! triangles' areas move in their last bits. The entries' strata are laid out over areas
+//! rounded to 16 mantissa bits (`crate::entries::sample_entries`), so unless a moved
+//! triangle's area crosses a rounding step no other entry moves at all, and the update is its
+//! twin to the byte (the test's case). As a second guard the digests and the entry comparison
+//! hold floats to 16 mantissa bits (1.5e-5): where a crossing does move entries by an ulp,
+//! tiles whose inputs moved by less are still reused, and the update then differs from its
+//! twin by that noise (the tests hold maps to 1e-4), not by the byte.
+//!
+//! **When an update is refused** (the caller then runs a full precompute): other parameters;
+//! triangles added or removed; a different number of entries (the edit changed the surface's
+//! area, or what lies inside solids); the MIS or scatter estimators (their walks depend on
+//! every cluster's entries); dipole panes.
+
+pub mod cache;
+pub mod footprint;
+
+use glam::Vec3;
+use prm::fingerprint::{fnv1a, FNV_START};
+use prm::prm_file::{Cells, Entry};
+use prm::{Scene, Smoothing, TexelSet};
+
+pub use cache::{CacheError, CachedTile, TileRecord, UpdateCache};
+pub use footprint::{Recorder, VoxelGrid};
+
+use crate::transport::{LinkedCells, TexelPanes};
+
+/// Why an update cannot reuse OLD's bake (module doc): the caller runs a full precompute.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct Refused(pub String);
+
+/// Per triangle: its corners and a digest of everything the walks read of it: corners, shading
+/// normals, lightmap and albedo UVs, the material's albedo, sidedness and texture.
+pub fn triangle_digests(scene: &Scene) -> Vec<([Vec3; 3], u64)> {
+    let textures: Vec<u64> = scene
+        .textures
+        .iter()
+        .map(|t| {
+            let h = fnv1a(FNV_START, &[t.width.to_le_bytes(), t.height.to_le_bytes()].concat());
+            t.texels.iter().fold(h, |h, v| mix(h, &v.to_array()))
+        })
+        .collect();
+    (0..scene.triangles.len())
+        .map(|t| {
+            let tri = &scene.triangles[t];
+            let corners = scene.corners(t);
+            let mut h = FNV_START;
+            for (k, &v) in tri.v.iter().enumerate() {
+                let v = v as usize;
+                h = mix(h, &corners[k].to_array());
+                h = mix(h, &scene.normals[v].to_array());
+                h = mix(h, &scene.uv1[v].to_array());
+                h = mix(h, &scene.uv_albedo[v].to_array());
+            }
+            let m = scene.material(t);
+            h = mix(h, &m.albedo.to_array());
+            h = fnv1a(h, &[m.double_sided as u8]);
+            let tex = m.albedo_texture.and_then(|i| textures.get(i as usize)).copied().unwrap_or(0);
+            (corners, fnv1a(h, &tex.to_le_bytes()))
+        })
+        .collect()
+}
+
+/// FNV-1a over floats' bytes.
+fn mix(h: u64, xs: &[f32]) -> u64 {
+    xs.iter().fold(h, |h, x| fnv1a(h, &x.to_le_bytes()))
+}
+
+/// A float to 16 of its 23 mantissa bits (1.5e-5 relative), rounded: what a tile's digest
+/// compares (module doc, float noise).
+fn coarse(x: f32) -> u32 {
+    (x.to_bits().wrapping_add(0x40)) & !0x7f
+}
+
+/// FNV-1a over floats at [`coarse`] precision.
+fn mix_coarse(h: u64, xs: &[f32]) -> u64 {
+    xs.iter().fold(h, |h, &x| fnv1a(h, &coarse(x).to_le_bytes()))
+}
+
+/// Two points equal to within [`coarse`]'s precision of the larger.
+fn near(a: Vec3, b: Vec3) -> bool {
+    (a - b).abs().max_element() <= 3e-5 * a.abs().max(b.abs()).max_element().max(1e-3)
+}
+
+/// Two entries the same but for float noise (module doc: what an update takes as unchanged).
+fn same_entry(a: &Entry, b: &Entry) -> bool {
+    a.triangle == b.triangle
+        && near(a.position, b.position)
+        && near(a.normal, b.normal)
+        && near(a.albedo, b.albedo)
+        && (a.area - b.area).abs() <= 3e-5 * a.area.abs().max(b.area.abs())
+}
+
+/// Two cells the same but for float noise.
+fn same_cell(a: &[[Vec3; 3]], b: &[[Vec3; 3]]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (0..3).all(|k| near(x[k], y[k])))
+}
+
+/// Atlas tile of a texel.
+pub fn tile_of(i: u32, j: u32, tile_size: u32, tiles_x: usize) -> usize {
+    (j / tile_size) as usize * tiles_x + (i / tile_size) as usize
+}
+
+/// Per atlas tile, a digest of what its own covered texels' values are made of besides their
+/// walks (module doc): the texels, their exact first bounce and near-link shares, their
+/// smoothing taps and the dilation records whose target lies in the tile.
+pub fn tile_digests(
+    set: &TexelSet,
+    tile_size: u32,
+    smoothing: Option<&Smoothing>,
+    linked: Option<&LinkedCells>,
+    exact: &[TexelPanes],
+) -> Vec<u64> {
+    let tx = set.width.div_ceil(tile_size) as usize;
+    let ty = set.height.div_ceil(tile_size) as usize;
+    let mut h = vec![FNV_START; tx * ty];
+    for (k, t) in set.texels.iter().enumerate() {
+        let d = &mut h[tile_of(t.i, t.j, tile_size, tx)];
+        let atlas = t.j * set.width + t.i;
+        let mut x = fnv1a(*d, &[t.i.to_le_bytes(), t.j.to_le_bytes(), t.triangle.to_le_bytes()].concat());
+        for v in [t.position, t.normal, t.bary] {
+            x = mix_coarse(x, &v.to_array());
+        }
+        for &(c, v) in exact.get(k).map_or(&[][..], |e| &e[..]) {
+            x = fnv1a(x, &c.to_le_bytes());
+            x = mix_coarse(x, &v.to_array());
+        }
+        if let Some(l) = linked {
+            let (links, keep) = l.of(atlas);
+            for (link, &s) in links.iter().zip(keep) {
+                x = fnv1a(x, &link.entry.to_le_bytes());
+                x = mix_coarse(x, &[link.factor, s]);
+            }
+        }
+        if let Some(s) = smoothing {
+            for &(n, w) in s.taps(0, k).iter().chain(s.taps(1, k)) {
+                x = fnv1a(x, &n.to_le_bytes());
+                x = mix_coarse(x, &[w]);
+            }
+        }
+        *d = x;
+    }
+    for dl in &set.dilation {
+        let (i, j) = (dl.target % set.width, dl.target / set.width);
+        let d = &mut h[tile_of(i, j, tile_size, tx)];
+        *d = fnv1a(*d, &dl.target.to_le_bytes());
+        for &s in &dl.sources[..dl.count as usize] {
+            *d = fnv1a(*d, &s.to_le_bytes());
+        }
+    }
+    h
+}
+
+/// The voxels an edit changed, grown by one (module doc): triangles whose digest differs,
+/// where they were and where they are, and the cells and triangles of entries that differ.
+pub fn edited_voxels(
+    cache: &UpdateCache,
+    now: &[([Vec3; 3], u64)],
+    scene: &Scene,
+    old: (&[Entry], &Cells),
+    new: (&[Entry], &Cells),
+) -> Vec<u64> {
+    let grid = &cache.grid;
+    let mut bits = vec![0u64; grid.words()];
+    let mut mark = |pts: &[Vec3]| {
+        let lo = pts.iter().fold(Vec3::INFINITY, |a, &p| a.min(p));
+        let hi = pts.iter().fold(Vec3::NEG_INFINITY, |a, &p| a.max(p));
+        if lo.is_finite() && hi.is_finite() {
+            grid.mark_box(lo, hi, &mut bits);
+        }
+    };
+    for ((was, a), (is, b)) in cache.triangles.iter().zip(now) {
+        if a != b {
+            mark(was);
+            mark(is);
+        }
+    }
+    for j in 0..old.0.len().min(new.0.len()) {
+        if same_entry(&old.0[j], &new.0[j]) && same_cell(old.1.of(j), new.1.of(j)) {
+            continue;
+        }
+        for cell in [old.1.of(j), new.1.of(j)] {
+            cell.iter().for_each(|t| mark(t));
+        }
+        // The entry's site on its triangle (old and new): the owner of every point of that
+        // triangle may change.
+        let (a, b) = (&old.0[j], &new.0[j]);
+        if let Some((corners, _)) = cache.triangles.get(a.triangle as usize) {
+            mark(corners);
+        }
+        if (b.triangle as usize) < scene.triangles.len() {
+            mark(&scene.corners(b.triangle as usize));
+        }
+        mark(&[a.position]);
+        mark(&[b.position]);
+    }
+    grid.grow(&bits)
+}
+
+/// What an update does again (module doc).
+pub struct Plan {
+    /// Per atlas tile: its walks or other inputs changed.
+    pub hit: Vec<bool>,
+    /// Per atlas tile: encoded again (a hit tile within reach), else taken from the cache.
+    pub dirty: Vec<bool>,
+    /// Per covered texel (`TexelSet::texels` order): walked again.
+    pub walk: Vec<bool>,
+}
+
+impl Plan {
+    /// The plan for a level whose tiles have digests `digests`, against `cache`, given the
+    /// edit's grown voxels `edited`, following the smoothing's taps and the dilation's
+    /// sources (module doc): a texel's stored value is its column taps' row-smoothed values,
+    /// each of those its row taps' walked values.
+    pub fn new(
+        cache: &UpdateCache,
+        set: &TexelSet,
+        tile_size: u32,
+        smoothing: Option<&Smoothing>,
+        digests: &[u64],
+        edited: &[u64],
+    ) -> Plan {
+        let tx = set.width.div_ceil(tile_size) as usize;
+        let ty = set.height.div_ceil(tile_size) as usize;
+        let hit: Vec<bool> = (0..tx * ty)
+            .map(|k| {
+                let rec = &cache.tiles[k];
+                rec.inputs != digests[k] || rec.footprint.iter().zip(edited).any(|(a, b)| a & b != 0)
+            })
+            .collect();
+        let tile = |k: usize| tile_of(set.texels[k].i, set.texels[k].j, tile_size, tx);
+        let texel = |atlas: u32| set.index.get(atlas as usize).copied().filter(|&k| k != TexelSet::EMPTY);
+        // Texels whose walks or own inputs may have changed, then those whose smoothed values
+        // read them (rows, then columns).
+        let walks: Vec<bool> = (0..set.len()).map(|k| hit[tile(k)]).collect();
+        let spread = |from: &[bool], pass: usize| -> Vec<bool> {
+            match smoothing {
+                None => from.to_vec(),
+                Some(s) => (0..set.len())
+                    .map(|k| {
+                        from[k]
+                            || s.taps(pass, k)
+                                .iter()
+                                .any(|&(n, _)| texel(n).is_some_and(|m| from[m as usize]))
+                    })
+                    .collect(),
+            }
+        };
+        let changed = spread(&spread(&walks, 0), 1);
+        let mut dirty = vec![false; tx * ty];
+        for k in (0..set.len()).filter(|&k| changed[k]) {
+            dirty[tile(k)] = true;
+        }
+        for d in &set.dilation {
+            if d.sources[..d.count as usize].iter().any(|&s| texel(s).is_some_and(|m| changed[m as usize])) {
+                dirty[tile_of(d.target % set.width, d.target / set.width, tile_size, tx)] = true;
+            }
+        }
+        for (k, &h) in hit.iter().enumerate() {
+            dirty[k] |= h;
+        }
+        // What the dirty tiles' values are made of: their texels and dilation sources, their
+        // column taps, and those texels' row taps.
+        let mut need: Vec<bool> = (0..set.len()).map(|k| dirty[tile(k)]).collect();
+        for d in &set.dilation {
+            if dirty[tile_of(d.target % set.width, d.target / set.width, tile_size, tx)] {
+                for &s in &d.sources[..d.count as usize] {
+                    if let Some(m) = texel(s) {
+                        need[m as usize] = true;
+                    }
+                }
+            }
+        }
+        let gather = |from: &[bool], pass: usize| -> Vec<bool> {
+            let mut out = from.to_vec();
+            if let Some(s) = smoothing {
+                for k in (0..set.len()).filter(|&k| from[k]) {
+                    for &(n, _) in s.taps(pass, k) {
+                        if let Some(m) = texel(n) {
+                            out[m as usize] = true;
+                        }
+                    }
+                }
+            }
+            out
+        };
+        let walk = gather(&gather(&need, 1), 0);
+        Plan { hit, dirty, walk }
+    }
+}
+
+/// Where the parameters, the level or the cache keep an update from reusing OLD's bake.
+pub fn refusal(
+    cache: &UpdateCache,
+    params: &crate::precompute::PrecomputeParams,
+    triangles: &[([Vec3; 3], u64)],
+    tiles: usize,
+) -> Option<Refused> {
+    let canonical = params.canonical();
+    if cache.params != canonical {
+        return Some(Refused(format!(
+            "the parameters differ from the old bake's ({} now, {} then)",
+            canonical, cache.params
+        )));
+    }
+    if params.estimator != crate::transport::Estimator::Gather {
+        return Some(Refused(format!("the {} estimator's walks depend on every cluster", params.estimator)));
+    }
+    if params.dipole_block > 0 {
+        return Some(Refused("dipole panes are not kept in the cache".into()));
+    }
+    if triangles.len() != cache.triangles.len() {
+        return Some(Refused(format!(
+            "the level has {} triangles, the old bake had {}",
+            triangles.len(),
+            cache.triangles.len()
+        )));
+    }
+    if tiles != cache.tiles.len() {
+        return Some(Refused(format!("{tiles} atlas tiles now, {} then", cache.tiles.len())));
+    }
+    None
+}

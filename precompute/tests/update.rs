@@ -1,0 +1,245 @@
+//! `prm precompute --update` (issue 14, item 3): an update writes, byte for byte, the file a
+//! full precompute with the old bake's clusters writes (its twin); it walks only what the
+//! edit can reach; a material edit gives exactly a fresh precompute; a moved object gives a
+//! map within the distance between two fresh precomputes of different seeds; what it cannot
+//! reuse it refuses, and a damaged cache is refused with the reason.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+
+use common::{unit_box_faces, v};
+use glam::{Vec2, Vec3};
+use prm::prm_file::Prm;
+use prm::{Bvh, Scene};
+use prm_precompute::precompute::{precompute_with, Baked, PrecomputeError, PrecomputeParams, Reuse};
+use prm_precompute::transport::Estimator;
+use prm_precompute::update::UpdateCache;
+use prm_runtime::cpu;
+
+/// Quads on a 5 x 5 grid of UV charts, each a material index (0 grey 0.6, 1 grey 0.6 too,
+/// recoloured by a test). At the tests' 160² atlas a chart's cell is two 16-texel tiles wide,
+/// so no tile holds two charts.
+fn scene(qs: &[([Vec3; 4], u32)]) -> Scene {
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, (q, _)) in qs.iter().enumerate() {
+        let cell = Vec2::new((k % 5) as f32, (k / 5) as f32);
+        let base = pos.len() as u32;
+        for (c, p) in q.iter().enumerate() {
+            pos.push(*p);
+            let corner = [Vec2::ZERO, Vec2::Y, Vec2::ONE, Vec2::X][c];
+            uv.push((cell + Vec2::splat(0.08) + corner * 0.84) / 5.0);
+        }
+        idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    let mut s = Scene::from_mesh(pos, uv, &idx);
+    s.materials[0].albedo = Vec3::splat(0.6);
+    s.materials.push(s.materials[0].clone());
+    for (t, tri) in s.triangles.iter_mut().enumerate() {
+        tri.material = qs[t / 2].1;
+    }
+    s
+}
+
+/// Two sealed rooms side by side (unit boxes, the second 2 m along x), a block on the first
+/// room's floor at `block` (its lower corner), the second room's floor of material 1.
+fn two_sealed_rooms(block: Vec3) -> Scene {
+    let mut qs: Vec<([Vec3; 4], u32)> = unit_box_faces().into_iter().map(|q| (q, 0)).collect();
+    for (k, q) in unit_box_faces().into_iter().enumerate() {
+        qs.push((q.map(|p| p + v(2.0, 0.0, 0.0)), (k == 0) as u32));
+    }
+    let (lo, hi) = (block, block + v(0.25, 0.3, 0.25));
+    // The block's top and four sides, outward.
+    qs.extend(
+        [
+            [v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(hi.x, hi.y, hi.z), v(hi.x, hi.y, lo.z)],
+            [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, lo.y, lo.z)],
+            [v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
+            [v(lo.x, lo.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z), v(lo.x, lo.y, lo.z)],
+            [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
+        ]
+        .map(|q| (q, 0)),
+    );
+    scene(&qs)
+}
+
+fn params() -> PrecomputeParams {
+    PrecomputeParams {
+        entries: 1024,
+        paths: 16,
+        clusters: 64,
+        groups: 4,
+        atlas: prm::density::Atlas::single(160),
+        ..PrecomputeParams::production()
+    }
+}
+
+fn run(scene: &Scene, p: &PrecomputeParams, reuse: Reuse, keep: bool) -> Result<Baked, PrecomputeError> {
+    let bvh = Bvh::build(scene);
+    precompute_with(scene, &bvh, p, reuse, keep, &|_, _, _| {}, &AtomicBool::new(false))
+}
+
+fn baked(scene: &Scene, p: &PrecomputeParams, reuse: Reuse, keep: bool) -> (Prm, UpdateCache, Vec<u8>) {
+    let b = run(scene, p, reuse, keep).unwrap();
+    let bytes = b.prm.to_bytes();
+    (b.prm, b.cache.expect("a cache was asked for"), bytes)
+}
+
+/// Relative RMS distance between two maps' indirect light for one cluster weight pattern
+/// (every cluster at 1 W/m²), over the covered texels.
+fn distance(a: &Prm, b: &Prm, mask: &[bool]) -> f64 {
+    let img = |p: &Prm| cpu::compose(p, &vec![Vec3::ONE; p.clusters().len()], &[]);
+    let (x, y) = (img(a), img(b));
+    let (mut d, mut s) = (0.0f64, 0.0f64);
+    for k in (0..x.len()).filter(|&k| mask[k]) {
+        d += (x[k] - y[k]).length_squared() as f64;
+        s += y[k].length_squared() as f64;
+    }
+    (d / s.max(1e-30)).sqrt()
+}
+
+#[test]
+fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
+    let p = params();
+    let before = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let (old, cache, old_bytes) = baked(&before, &p, Reuse::Nothing, true);
+    // Keeping the cache does not change the map.
+    let plain = run(&before, &p, Reuse::Nothing, false).unwrap();
+    assert!(plain.cache.is_none());
+    assert_eq!(plain.prm.to_bytes(), old_bytes, "the cache's tracing changed the map");
+
+    // The block moves 20 cm in the first room: the second room's walks never meet it.
+    let after = two_sealed_rooms(v(0.5, 0.0, 0.4));
+    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let (twin, twin_cache, twin_bytes) = baked(&after, &p, Reuse::Clusters(&cache), true);
+    // To the byte here (the block's triangles' rounded areas did not cross a rounding step,
+    // `prm_precompute::entries::sample_entries`); in general to float noise (module doc of
+    // `update`), which the distance holds.
+    let covered = prm::TexelSet::build(&after, 160, 160).mask();
+    let d = distance(&up.prm, &twin, &covered);
+    assert!(d < 1e-4, "the update is {d:.2e} from a full walk with the old clusters");
+    assert_eq!(up.prm.to_bytes(), twin_bytes, "the update differs from a full walk with the old clusters");
+    let r = &up.report;
+    let tiles = cache.tiles.len();
+    assert!(r.update_tiles_hit > 0, "the edit reached no tile");
+    assert!(
+        r.update_tiles_encoded < tiles && r.update_texels_walked < r.texels,
+        "the second room was walked again: {} of {tiles} tiles, {} of {} texels",
+        r.update_tiles_encoded,
+        r.update_texels_walked,
+        r.texels
+    );
+    assert!(r.update_texels_walked > 0);
+    // And it is a different map from the old one (the block moved).
+    assert_ne!(twin_bytes, old_bytes);
+    assert!(distance(&twin, &old, &covered) > 1e-3, "the block's move changed nothing");
+    drop(twin_cache);
+
+    // A chain: moving the block back reaches the same tiles (a walk meets the edit's voxels
+    // before the edit as after it: it is the same walk until it first does), so the update of
+    // the update is the original again.
+    let up_cache = up.cache.expect("an update keeps a cache");
+    let back = run(&before, &p, Reuse::Update { cache: &up_cache, old: &up.prm }, true).unwrap();
+    let d = distance(&back.prm, &old, &covered);
+    assert!(d < 1e-4, "moving the block back is {d:.2e} from the original");
+    assert_eq!(back.prm.to_bytes(), old_bytes, "moving the block back is not the original");
+}
+
+#[test]
+fn an_update_with_no_edit_writes_the_same_file_and_cache() {
+    let p = params();
+    let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let (old, cache, bytes) = baked(&level, &p, Reuse::Nothing, true);
+    let up = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    assert_eq!(up.report.update_tiles_hit, 0);
+    assert_eq!(up.report.update_texels_walked, 0);
+    assert_eq!(up.prm.to_bytes(), bytes);
+    assert_eq!(up.cache.as_ref(), Some(&cache));
+}
+
+#[test]
+fn a_material_edit_updates_to_exactly_a_fresh_precompute() {
+    let p = params();
+    let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let (old, cache, _) = baked(&level, &p, Reuse::Nothing, true);
+    let mut recoloured = level.clone();
+    recoloured.materials[1].albedo = Vec3::new(0.8, 0.2, 0.1);
+    let up = run(&recoloured, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let (_, fresh_cache, fresh) = baked(&recoloured, &p, Reuse::Nothing, true);
+    assert_eq!(up.prm.to_bytes(), fresh, "a recolour's update is not the fresh precompute");
+    assert_eq!(up.cache.as_ref(), Some(&fresh_cache));
+    // Only the second room's walks met the recoloured floor.
+    assert!(up.report.update_texels_walked < up.report.texels);
+}
+
+#[test]
+fn a_moved_block_updates_to_within_seed_noise_of_a_fresh_precompute() {
+    let p = params();
+    let before = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let after = two_sealed_rooms(v(0.55, 0.0, 0.5));
+    let (old, cache, _) = baked(&before, &p, Reuse::Nothing, true);
+    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, false).unwrap();
+    let fresh = run(&after, &p, Reuse::Nothing, false).unwrap().prm;
+    let other = run(&after, &PrecomputeParams { seed: 7, ..params() }, Reuse::Nothing, false).unwrap().prm;
+    let set = prm::TexelSet::build(&after, 160, 160);
+    let mask = set.mask();
+    let (d_update, d_seeds) = (distance(&up.prm, &fresh, &mask), distance(&other, &fresh, &mask));
+    // The old clusters are not the fresh ones (k-means moved with the block): the update may
+    // be as far from the fresh map as another seed is, with 25 % to spare for the noise of
+    // one pair of seeds.
+    assert!(d_update <= 1.25 * d_seeds, "update {d_update:.4} vs two seeds {d_seeds:.4}");
+    assert!(d_seeds > 0.0);
+}
+
+#[test]
+fn updates_it_cannot_do_are_refused_with_the_reason() {
+    let p = params();
+    let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let (old, cache, _) = baked(&level, &p, Reuse::Nothing, true);
+    let refused = |scene: &Scene, p: &PrecomputeParams| match run(
+        scene,
+        p,
+        Reuse::Update { cache: &cache, old: &old },
+        true,
+    ) {
+        Err(PrecomputeError::Refused(r)) => r.0,
+        Err(e) => panic!("not a refusal: {e}"),
+        Ok(_) => panic!("updated"),
+    };
+    let more_paths = PrecomputeParams { paths: 32, ..params() };
+    assert!(refused(&level, &more_paths).contains("parameters differ"));
+    // A triangle more.
+    let mut grown = level.clone();
+    let extra = grown.triangles[0];
+    grown.triangles.push(extra);
+    assert!(refused(&grown, &p).contains("triangles"));
+    // A cache of another map.
+    let other = run(&level, &PrecomputeParams { seed: 3, ..params() }, Reuse::Nothing, false).unwrap().prm;
+    let r = run(&level, &p, Reuse::Update { cache: &cache, old: &other }, true);
+    assert!(matches!(r, Err(PrecomputeError::Refused(ref r)) if r.0.contains("another .prm")));
+    // A cache is kept for the gather estimator only.
+    let mis = PrecomputeParams { estimator: Estimator::Mis, ..params() };
+    assert!(matches!(run(&level, &mis, Reuse::Nothing, true), Err(PrecomputeError::Refused(_))));
+}
+
+#[test]
+fn a_damaged_cache_is_refused_with_what_is_wrong() {
+    let p = PrecomputeParams { atlas: prm::density::Atlas::single(64), ..params() };
+    let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let (_, cache, _) = baked(&level, &p, Reuse::Nothing, true);
+    let bytes = cache.to_bytes();
+    assert_eq!(UpdateCache::from_bytes(&bytes).as_ref(), Ok(&cache));
+    let err = |b: &[u8]| UpdateCache::from_bytes(b).expect_err("a damaged cache parsed");
+    assert!(err(&bytes[..bytes.len() / 2]).contains("checksum"));
+    assert!(err(b"not a cache at all").contains("magic"));
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 3] ^= 0x40;
+    assert!(err(&flipped).contains("checksum"));
+    // Every cut with the checksum fixed up is refused by a section check, never a panic.
+    for cut in (12..bytes.len() - 8).step_by(bytes.len() / 97 + 1) {
+        let mut b = bytes[..cut].to_vec();
+        let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &b);
+        b.extend_from_slice(&sum.to_le_bytes());
+        assert!(UpdateCache::from_bytes(&b).is_err(), "a cache cut at {cut} parsed");
+    }
+}
