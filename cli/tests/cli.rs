@@ -1226,3 +1226,50 @@ fn bake_watch_follows_a_level_saved_again() {
     assert_ne!(before, after, "the lightmap followed the edit");
     assert_images_close(&after, &want, 1e-3, "direct light after the watched edit");
 }
+
+#[test]
+fn precompute_update_reuses_the_cache_and_refuses_what_it_cannot_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let level = dir.join("level.glb");
+    std::fs::copy(asset("cornell.glb"), &level).unwrap();
+    let opts = ["--preset", "preview", "--atlas", "32", "--paths", "4"];
+    let (old, new) = (dir.join("old.prm"), dir.join("new.prm"));
+    let (ok, _, err) = prm(&[&["precompute", s(&level), "-o", s(&old), "--cache"][..], &opts].concat());
+    assert!(ok, "{err}");
+    let cache = dir.join("old.prm.cache");
+    assert!(cache.exists());
+    // The level unchanged: the same file, nothing walked again.
+    let (ok, out, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new)][..], &opts].concat());
+    assert!(ok, "{err}");
+    assert!(out.contains("the edit reached 0 of 4 atlas tiles") && out.contains("0 of"), "{out}");
+    assert_eq!(std::fs::read(&old).unwrap(), std::fs::read(&new).unwrap());
+    assert_eq!(std::fs::read(&cache).unwrap(), std::fs::read(dir.join("new.prm.cache")).unwrap());
+    // The red wall moved: the update writes a map for the moved level (another fingerprint).
+    std::fs::write(&level, moved_glb(&level, "red", [0.03, 0.0, 0.0])).unwrap();
+    let (ok, out, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new), "--json"][..], &opts].concat());
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(v["update"]["refused"].is_null(), "{out}");
+    assert!(v["update"]["tiles_hit"].as_u64().unwrap() > 0, "{out}");
+    prm::prm_file::Prm::read(&new, Some(&level_at(&level, 32))).unwrap();
+    // Other options than the old bake's: said, and a full precompute instead.
+    let mut other = opts.to_vec();
+    other[5] = "8";
+    let (ok, _, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new)][..], &other].concat());
+    assert!(ok && err.contains("cannot update: the parameters differ"), "{err}");
+    // No cache, or a damaged one: an error naming it, and nothing written.
+    let gone = dir.join("gone.prm");
+    std::fs::remove_file(&cache).unwrap();
+    let (ok, _, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&gone)][..], &opts].concat());
+    assert!(!ok && err.contains("has no update cache") && err.contains("--cache"), "{err}");
+    std::fs::write(&cache, b"PRMUPDT\n not really").unwrap();
+    let (ok, _, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&gone)][..], &opts].concat());
+    assert!(!ok && err.contains("damaged"), "{err}");
+    assert!(!gone.exists());
+}

@@ -130,6 +130,10 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
         r.texels
     );
     assert!(r.update_texels_walked > 0);
+    eprintln!(
+        "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked",
+        r.update_tiles_hit, r.update_tiles_encoded, r.update_texels_walked, r.texels
+    );
     // And it is a different map from the old one (the block moved).
     assert_ne!(twin_bytes, old_bytes);
     assert!(distance(&twin, &old, &covered) > 1e-3, "the block's move changed nothing");
