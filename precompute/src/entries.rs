@@ -21,9 +21,8 @@ pub fn sample_entries(scene: &Scene, n: usize, seed: u64) -> Vec<Entry> {
     // ulp, and with them near links and far shares everywhere: `prm precompute --update`
     // (`crate::update`) could then reuse nothing. Rounded, the strata of unchanged triangles
     // stay exactly where they were (unless a moved triangle's area crosses a rounding step).
-    let areas: Vec<f64> = (0..scene.triangles.len())
-        .map(|t| f32::from_bits(scene.area(t).to_bits().wrapping_add(0x40) & !0x7f) as f64)
-        .collect();
+    let areas: Vec<f64> =
+        (0..scene.triangles.len()).map(|t| crate::update::round16(scene.area(t)) as f64).collect();
     let total: f64 = areas.iter().sum();
     if n == 0 || !(total > 0.0) {
         return Vec::new();

@@ -98,7 +98,14 @@ fn mix(h: u64, xs: &[f32]) -> u64 {
 /// A float to 16 of its 23 mantissa bits (1.5e-5 relative), rounded: what a tile's digest
 /// compares (module doc, float noise).
 fn coarse(x: f32) -> u32 {
-    (x.to_bits().wrapping_add(0x40)) & !0x7f
+    round16(x).to_bits()
+}
+
+/// `x` rounded to 16 of its 23 mantissa bits (1.5e-5 relative): the precision at which an
+/// update takes values as unchanged, and at which entry strata are laid out
+/// (`crate::entries::sample_entries`), so float noise from a moved object does not spread.
+pub fn round16(x: f32) -> f32 {
+    f32::from_bits(x.to_bits().wrapping_add(0x40) & !0x7f)
 }
 
 /// FNV-1a over floats at [`coarse`] precision.
