@@ -10,6 +10,7 @@
 //! `{"light": {"id": 0, "position": [x, y, z], "intensity": [r, g, b]}}` (either field),
 //! `{"add_light": {"position": [x, y, z], "intensity": [r, g, b]}}` (a point light),
 //! `{"remove_light": {"id": 0}}`.
+//! An entry may also name itself for the printout: `{"label": "crate 1 m east", "move": ...}`.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -59,9 +60,6 @@ pub struct Args {
     /// noise: compare two seeds' bakes to choose it).
     #[arg(long, default_value_t = 0.01)]
     tolerance: f64,
-    /// Updates between the snapshots that measure the distance (not timed).
-    #[arg(long, default_value_t = 20)]
-    snapshot_every: usize,
     /// Print a JSON summary on stdout.
     #[arg(long)]
     json: bool,
@@ -119,39 +117,18 @@ pub fn run(a: Args) -> Result<()> {
         let r = baker.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;
         let validate_s = t.elapsed().as_secs_f64();
         let invalid = r.invalid_flux;
-        let (mut resolved, mut t90, mut steps) = (0.0f32, None, 0usize);
         // Snapshots of the lightmap as it goes, for its distance to the converged one.
         let mut shots = vec![(validate_s, summed(&baker))];
-        let mut busy = 0.0;
         let mut valid: Option<(f64, Vec<Vec3>)> = None;
-        let mut kinds = [0usize; 4];
-        let mut kind_s = [0f64; 4];
-        let mut kind_texels = [0usize; 4];
-        let mut last_t = Instant::now();
-        while let Some(s) = baker.step() {
-            resolved += s.resolved;
-            steps += 1;
-            kinds[s.kind as usize] += 1;
-            kind_s[s.kind as usize] += last_t.elapsed().as_secs_f64();
-            kind_texels[s.kind as usize] += s.texels;
-            if t90.is_none() && resolved >= 0.9 * invalid {
-                t90 = Some(t.elapsed().as_secs_f64() - busy);
+        let f = follow(&mut baker, t, invalid, |at, b, first_valid| {
+            let x = summed(b);
+            if first_valid {
+                valid = Some((at, x.clone()));
             }
-            if valid.is_none() && baker.valid() {
-                let at = t.elapsed().as_secs_f64() - busy;
-                let c = Instant::now();
-                valid = Some((at, summed(&baker)));
-                busy += c.elapsed().as_secs_f64();
-            }
-            if steps % a.snapshot_every.max(1) == 0 {
-                let c = Instant::now();
-                let at = t.elapsed().as_secs_f64() - busy;
-                shots.push((at, summed(&baker)));
-                busy += c.elapsed().as_secs_f64();
-            }
-            last_t = Instant::now();
-        }
-        let converge_s = t.elapsed().as_secs_f64() - busy;
+            shots.push((at, x));
+        });
+        let (steps, converge_s) = (f.steps, f.seconds_converged);
+        let (kinds, kind_texels) = (f.kinds, f.kind_texels);
         let last = summed(&baker);
         let mean = last.iter().map(|x| x.length() as f64).sum::<f64>() / last.len().max(1) as f64;
         let dist = |x: &[Vec3]| {
@@ -171,7 +148,7 @@ pub fn run(a: Args) -> Result<()> {
             "invalid_flux": invalid,
             "updates": steps,
             "seconds_validation": validate_s,
-            "seconds_to_90_percent": t90.unwrap_or(converge_s),
+            "seconds_to_90_percent": f.seconds_90,
             "seconds_to_converge": converge_s,
             "distance_before": before,
             "distance_worst": worst,
@@ -181,7 +158,7 @@ pub fn run(a: Args) -> Result<()> {
             "seconds_valid": valid_s,
             "distance_when_valid": valid_d,
             "updates_by_kind": {"rebuild": kinds[0], "delta": kinds[1], "refresh": kinds[2], "consolidate": kinds[3]},
-            "seconds_by_kind": {"rebuild": kind_s[0], "delta": kind_s[1], "refresh": kind_s[2], "consolidate": kind_s[3]},
+            "seconds_by_kind": {"rebuild": f.kind_seconds[0], "delta": f.kind_seconds[1], "refresh": f.kind_seconds[2], "consolidate": f.kind_seconds[3]},
             "texels_by_kind": {"rebuild": kind_texels[0], "delta": kind_texels[1], "refresh": kind_texels[2], "consolidate": kind_texels[3]},
         });
         if !a.json {
@@ -194,7 +171,7 @@ pub fn run(a: Args) -> Result<()> {
                 k + 1,
                 r.paths_changed,
                 r.paths_total,
-                t90.unwrap_or(converge_s),
+                f.seconds_90,
                 100.0 * a.tolerance,
                 100.0 * within / full.max(1e-9),
                 100.0 * before,
@@ -225,6 +202,75 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     }
     Ok(())
+}
+
+/// How the updates after one edit went (times in seconds since the edit, the observer's own
+/// time left out).
+pub struct Followed {
+    pub steps: usize,
+    /// Until 90 % of the invalid flux the edit left was resolved.
+    pub seconds_90: f64,
+    /// Until no invalid light was left (consolidations aside).
+    pub seconds_valid: Option<f64>,
+    /// Until no update was left.
+    pub seconds_converged: f64,
+    /// Updates, their time and the texels they evaluated, by [`UpdateKind`] (as `usize`).
+    pub kinds: [usize; 4],
+    pub kind_seconds: [f64; 4],
+    pub kind_texels: [usize; 4],
+}
+
+/// Run `baker`'s updates after an edit applied at `since` that left `invalid` flux, until none
+/// is left. `look(seconds, baker, first_valid)` sees the lightmap at times spaced about 10 %
+/// apart (and 20 ms at least), and once more, with `first_valid`, when no invalid light is left
+/// for the first time; the time it takes is not counted.
+pub fn follow(
+    baker: &mut Baker,
+    since: Instant,
+    invalid: f32,
+    mut look: impl FnMut(f64, &Baker, bool),
+) -> Followed {
+    let mut f = Followed {
+        steps: 0,
+        seconds_90: f64::NAN,
+        seconds_valid: None,
+        seconds_converged: 0.0,
+        kinds: [0; 4],
+        kind_seconds: [0.0; 4],
+        kind_texels: [0; 4],
+    };
+    let (mut resolved, mut busy) = (0.0f32, 0.0f64);
+    let now = |busy: f64| since.elapsed().as_secs_f64() - busy;
+    let mut next_look = now(busy) * 1.1 + 0.02;
+    let mut last = Instant::now();
+    while let Some(s) = baker.step() {
+        let k = s.kind as usize;
+        resolved += s.resolved;
+        f.steps += 1;
+        f.kinds[k] += 1;
+        f.kind_seconds[k] += last.elapsed().as_secs_f64();
+        f.kind_texels[k] += s.texels;
+        let at = now(busy);
+        if f.seconds_90.is_nan() && resolved >= 0.9 * invalid {
+            f.seconds_90 = at;
+        }
+        let first_valid = f.seconds_valid.is_none() && baker.valid();
+        if first_valid || at >= next_look {
+            let c = Instant::now();
+            if first_valid {
+                f.seconds_valid = Some(at);
+            }
+            look(at, baker, first_valid);
+            busy += c.elapsed().as_secs_f64();
+            next_look = at * 1.1 + 0.02;
+        }
+        last = Instant::now();
+    }
+    f.seconds_converged = now(busy);
+    if f.seconds_90.is_nan() {
+        f.seconds_90 = f.seconds_converged;
+    }
+    f
 }
 
 fn write_lightmap(baker: &Baker, set: &TexelSet, output: &Path) -> Result<()> {
@@ -364,7 +410,7 @@ fn summed(b: &Baker) -> Vec<Vec3> {
 }
 
 /// Read an edit script; nodes and materials may be named (glTF names) or numbered.
-fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(String, Edit)>> {
+pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(String, Edit)>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let v: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
     let list =
@@ -409,13 +455,17 @@ fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(String,
     };
     let mut out = Vec::new();
     for (k, e) in list.iter().enumerate() {
-        let obj = e
-            .as_object()
-            .filter(|o| o.len() == 1)
-            .ok_or_else(|| anyhow!("edit {}: one key per edit", k + 1))?;
-        let (kind, body) = obj.iter().next().expect("one entry");
+        let obj = e.as_object().ok_or_else(|| anyhow!("edit {}: an edit is a JSON object", k + 1))?;
+        let named =
+            obj.get("label").map(|l| l.as_str().ok_or_else(|| anyhow!("edit {}: label is text", k + 1)));
+        let named = named.transpose()?;
+        let mut kinds = obj.iter().filter(|(key, _)| *key != "label");
+        let (kind, body) = match (kinds.next(), kinds.next()) {
+            (Some(one), None) => one,
+            _ => bail!("edit {}: one edit per entry (and an optional label)", k + 1),
+        };
         let at = |f: &str| body.get(f);
-        let label = format!("{kind} {body}");
+        let label = named.map_or_else(|| format!("{kind} {body}"), str::to_string);
         let edit = match kind.as_str() {
             "move" => Edit::Transform {
                 node: node(at("node").ok_or_else(|| anyhow!("edit {}: move needs a node", k + 1))?)?,

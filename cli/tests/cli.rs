@@ -822,6 +822,27 @@ fn report_writes_figures_and_plots() {
         assert!(r[2..].iter().all(|c| error_ok(c)), "{r:?}");
     }
     assert!(out.join("placement.png").is_file());
+    // Editing: cornell_edits.json beside the level moves the red wall, recolours the green one
+    // and moves the lamp, one after the other. After each, the incremental baker converges to a
+    // full re-bake of the edited level with the same frame (the same lightmap to 1e-4 of the
+    // mean, precompute/tests/incremental.rs): the same error to the printed decimals.
+    let edits = table(&md, "| edit | VPLs");
+    assert_eq!(edits.len(), 3, "{md}");
+    let after = |c: &str| percent(c.rsplit(": ").next().unwrap());
+    for r in &edits {
+        assert!(error_ok(&r[2]) && percent(&r[3]).is_finite() && percent(&r[3]) >= 0.0, "{r:?}");
+        assert!((after(&r[6]) - after(&r[8])).abs() <= 0.011, "converged vs re-bake: {r:?}");
+        assert!(error_ok(r[5].rsplit(": ").next().unwrap()), "{r:?}");
+    }
+    // The PRM's updates: the moved wall reaches some tiles; a light edit none, since the map
+    // does not depend on the lights.
+    let upd = table(&md, "| edit | tiles hit");
+    assert_eq!(upd.len(), 3, "{md}");
+    assert!(!upd[0][1].starts_with("0 of"), "{:?}", upd[0]);
+    assert!(upd[2][1].starts_with("0 of") && upd[2][2].starts_with("0 of"), "{:?}", upd[2]);
+    for r in &upd {
+        assert!(error_ok(&r[6]) && error_ok(&r[7]), "{r:?}");
+    }
     // With every pane composed no cluster is left out, so groups add nothing.
     assert_eq!(run[1][0], "all");
     assert_eq!(run[1][2..4], run[1][4..6], "all panes with and without groups");
@@ -887,7 +908,7 @@ fn report_writes_figures_and_plots() {
     assert!(near(&run[1][2], error, tol) && near(&run[1][3], bias, tol), "{:?} vs {error} {bias}", run[1]);
     // Plots need a font; CI installs one (fonts-dejavu-core).
     if md.contains("precompute.png") {
-        for png in ["precompute.png", "runtime.png", "rig.png"] {
+        for png in ["precompute.png", "runtime.png", "rig.png", "editing.png"] {
             assert!(std::fs::metadata(out.join(png)).unwrap().len() > 10_000, "{png} is empty");
         }
     } else {

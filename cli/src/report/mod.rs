@@ -12,12 +12,16 @@
 //! - a moving-light rig: per frame, the error of PRM top-32, PRM all panes and the reference,
 //!   and their flicker: the RMS change of the error image from one frame to the next, over the
 //!   mean ground truth. Every frame's ground truth uses the same seed (common random numbers),
-//!   so its noise changes little between frames and the flicker is mostly the method's own.
+//!   so its noise changes little between frames and the flicker is mostly the method's own;
+//! - light placements from a torch rig, and an edit script (see `editing`): the incremental
+//!   baker's error against the time since each edit, beside a full re-bake, and the PRM's
+//!   `--update` against a full precompute.
 //!
 //! Output: `report.md` (machine, device, seeds, the command, every figure) and PNG plots made
 //! with `plotters` (labels need a TrueType font: DejaVu, Liberation or Noto, as Debian's
 //! `fonts-dejavu-core` installs).
 
+mod editing;
 mod markdown;
 mod measure;
 mod placement;
@@ -64,6 +68,10 @@ pub struct Args {
     /// level; without one the part is left out).
     #[arg(long)]
     torches: Option<PathBuf>,
+    /// Edit script for the editing part, in `prm bake --edits`' format (default:
+    /// `<level>_edits.json` beside the level; without one the part is left out).
+    #[arg(long)]
+    edits: Option<PathBuf>,
     /// A smaller budget: under 15 minutes per bundled scene on 2 cores.
     #[arg(long)]
     quick: bool,
@@ -158,6 +166,8 @@ struct Figures {
     /// The torch rig used for the light placement section, and its placements.
     torches: Option<PathBuf>,
     placements: Vec<placement::Placement>,
+    /// The editing part, when there is an edit script.
+    editing: Option<editing::Editing>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -221,6 +231,10 @@ fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) 
         figures.placements = placement::placements(b, &level, r, &figures.map, gpu, a.seed)?;
         figures.torches = Some(path.clone());
     }
+    if let Some(script) = a.edits.clone().or_else(|| editing::edits_beside(path)) {
+        let budget = editing::EditBudget::new(a.quick, a.smoke);
+        figures.editing = Some(editing::editing(budget, &level, path, &script, figures.prod, a.seed)?);
+    }
     Ok((level, figures))
 }
 
@@ -246,5 +260,6 @@ fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -
         map,
         torches: None,
         placements: Vec::new(),
+        editing: None,
     })
 }

@@ -1,5 +1,5 @@
 //! The report's PNG plots, made with `plotters`: error against precompute time, against frame
-//! time, and per frame of the rig with its flicker. Labels need a TrueType font (DejaVu,
+//! time, per frame of the rig with its flicker, and per edit against the time since it. Labels need a TrueType font (DejaVu,
 //! Liberation or Noto, as Debian's `fonts-dejavu-core` installs).
 
 use std::ops::Range;
@@ -35,6 +35,9 @@ pub fn write_plots(
         plot_rig(&output.join("rig.png"), &f.frames)?;
         if !f.placements.is_empty() {
             plot_placement(&output.join("placement.png"), &f.placements)?;
+        }
+        if let Some(e) = f.editing.as_ref().filter(|e| !e.rows.is_empty()) {
+            plot_editing(&output.join("editing.png"), e)?;
         }
     }
     if let Some(rows) = scale.filter(|r| !r.is_empty()) {
@@ -452,4 +455,73 @@ fn scale_panel(
         chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, c.filled()))).map_err(plot_err)?;
     }
     legend(&mut chart)
+}
+
+/// One panel per edit: the incremental baker's error against the time since the edit (log),
+/// beside a full re-bake (the old lightmap until it is done, then its own), over the ground
+/// truth's noise.
+fn plot_editing(path: &Path, e: &super::editing::Editing) -> Result<()> {
+    let n = e.rows.len().max(1);
+    let root = BitMapBackend::new(path, (460 * n as u32, 460)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    for (area, row) in root.split_evenly((1, n)).iter().zip(&e.rows) {
+        let t0 = 0.01;
+        let t1 = row.rebake_seconds.max(row.seconds_converged).max(t0 * 10.0) * 1.5;
+        let top =
+            row.curve.iter().map(|p| p.1).chain([row.error_before, row.rebake_error]).fold(0.0, f64::max);
+        let top = (top * 100.0 * 1.15).max(1.0);
+        let caption: String = row.label.chars().take(48).collect();
+        let mut chart = ChartBuilder::on(area)
+            .caption(caption, ("sans-serif", 15))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d((t0..t1).log_scale(), 0.0..top)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_desc("seconds since the edit (log)")
+            .y_desc("error against the ground truth (%)")
+            .draw()
+            .map_err(plot_err)?;
+        // The lightmap shown at a time is the last one measured: a staircase.
+        let mut inc: Vec<(f64, f64)> = Vec::new();
+        for &(t, err) in &row.curve {
+            if let Some(&(_, last)) = inc.last() {
+                inc.push((t.max(t0), last));
+            }
+            inc.push((t.max(t0), err * 100.0));
+        }
+        chart
+            .draw_series(LineSeries::new(inc, PRM_COLOUR.stroke_width(2)))
+            .map_err(plot_err)?
+            .label("incremental baker")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PRM_COLOUR.stroke_width(2)));
+        let tb = row.rebake_seconds.max(t0);
+        let rebake = vec![
+            (t0, row.error_before * 100.0),
+            (tb, row.error_before * 100.0),
+            (tb, row.rebake_error * 100.0),
+            (t1, row.rebake_error * 100.0),
+        ];
+        chart
+            .draw_series(LineSeries::new(rebake, REF_COLOUR.stroke_width(2)))
+            .map_err(plot_err)?
+            .label("full re-bake")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], REF_COLOUR.stroke_width(2)));
+        let noise = row.gt_noise * 100.0;
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(t0, noise), (t1, noise)],
+                6,
+                4,
+                PLAIN_COLOUR.stroke_width(1),
+            ))
+            .map_err(plot_err)?
+            .label("ground truth's noise")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], PLAIN_COLOUR.stroke_width(1)));
+        legend(&mut chart)?;
+    }
+    root.present().map_err(plot_err)?;
+    Ok(())
 }

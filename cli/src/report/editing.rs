@@ -1,0 +1,248 @@
+//! The report's editing part (issue 14): a script of edits (`<level>_edits.json` beside the
+//! level, in `prm bake --edits`' format) applied one after the other. Per edit:
+//! - the incremental baker's error against the edited level's ground truth, against the time
+//!   since the edit, as its updates go (the lightmap an engine would show at that moment);
+//! - a full re-bake of the edited level with the same parameters (and the same energy per path
+//!   and octree box, so it is the state the incremental baker converges to): until it is done
+//!   the old lightmap is all there is, then its own error;
+//! - the PRM: `--update` of the last map (its cache) against a full precompute of the edited
+//!   level, both timed, both measured against the same ground truth (all panes, exact weights).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use prm::prm_file::Prm;
+use prm::{Bvh, Light, Scene};
+use prm_precompute::incremental::{Baker, BakerParams, Level as EditLevel};
+use prm_precompute::precompute::{precompute_with, Baked, PrecomputeParams, Reuse};
+use prm_runtime::cpu::CpuTwin;
+
+use super::measure::{compare, compare_texels, ground_truth, Level};
+use crate::bake::{follow, parse_script};
+
+/// What the editing part spends.
+pub struct EditBudget {
+    /// Light paths of the incremental baker (and of each full re-bake).
+    pub paths: usize,
+    /// Ground truth of each edited level.
+    pub gt_spp: u32,
+}
+
+impl EditBudget {
+    pub fn new(quick: bool, smoke: bool) -> EditBudget {
+        match (smoke, quick) {
+            (true, _) => EditBudget { paths: 1_500, gt_spp: 16 },
+            (false, true) => EditBudget { paths: 20_000, gt_spp: 256 },
+            (false, false) => EditBudget { paths: 40_000, gt_spp: 1024 },
+        }
+    }
+}
+
+/// One edit's figures. Errors are DESIGN.md §3's, against the edited level's ground truth.
+pub struct EditRow {
+    pub label: String,
+    pub vpls_changed: usize,
+    pub gt_noise: f64,
+    /// The lightmap before the edit, against the edited level.
+    pub error_before: f64,
+    /// (seconds since the edit, error) while the incremental baker updates.
+    pub curve: Vec<(f64, f64)>,
+    pub seconds_90: f64,
+    /// When no invalid light was left, and the error then.
+    pub seconds_valid: f64,
+    pub error_valid: f64,
+    /// When no update was left (consolidation included), and the error then.
+    pub seconds_converged: f64,
+    pub error_converged: f64,
+    /// The largest error seen while updating.
+    pub error_worst: f64,
+    pub rebake_seconds: f64,
+    pub rebake_error: f64,
+    pub update: UpdateRow,
+}
+
+/// `prm precompute --update` against a full precompute of the edited level.
+pub struct UpdateRow {
+    pub seconds_update: f64,
+    pub seconds_full: f64,
+    pub tiles_hit: usize,
+    pub tiles: usize,
+    pub texels_walked: usize,
+    pub error_update: f64,
+    pub error_full: f64,
+}
+
+pub struct Editing {
+    pub script: PathBuf,
+    pub budget: EditBudget,
+    /// The incremental baker's first bake of the level.
+    pub bake_seconds: f64,
+    /// The production precompute with `--cache`.
+    pub precompute_seconds: f64,
+    pub texels: usize,
+    pub rows: Vec<EditRow>,
+}
+
+/// `<level>_edits.json` beside `scene`, if there is one.
+pub fn edits_beside(scene: &Path) -> Option<PathBuf> {
+    let stem = scene.file_stem()?.to_str()?;
+    let p = scene.with_file_name(format!("{stem}_edits.json"));
+    p.exists().then_some(p)
+}
+
+/// Run the script on `level`: the incremental baker, full re-bakes and the PRM's updates.
+pub fn editing(
+    budget: EditBudget,
+    level: &Level,
+    level_path: &Path,
+    script_path: &Path,
+    prm: (u32, u32, u32),
+    seed: u64,
+) -> Result<Editing> {
+    let script = parse_script(script_path, level_path, &level.scene)?;
+    let texels = Arc::new(level.set.clone());
+    // The baker lights emissive surfaces with polygon lights; the ground truth meets them
+    // itself, so they are left out of its light list.
+    let mut scene = level.scene.clone();
+    let own = scene.lights.len() as u32;
+    let glow = scene.emissive_lights();
+    let glow_ids = own..own + glow.len() as u32;
+    scene.lights.extend(glow);
+    let params = BakerParams { paths: budget.paths, seed, ..BakerParams::default() };
+    eprintln!("editing: incremental bake ({} paths)...", budget.paths);
+    let t = Instant::now();
+    let mut baker = Baker::new(scene.clone(), texels.clone(), params.clone())
+        .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
+    baker.converge();
+    let bake_seconds = t.elapsed().as_secs_f64();
+    // The same edits on a level of its own, to know each edited level before the baker meets it.
+    let mut shadow = EditLevel::new(scene, texels.clone());
+
+    let (entries, paths, clusters) = prm;
+    let pp = PrecomputeParams {
+        entries,
+        paths,
+        clusters,
+        atlas: prm::density::Atlas::single(level.set.width),
+        seed,
+        ..PrecomputeParams::production()
+    };
+    eprintln!("editing: precompute with --cache...");
+    let t = Instant::now();
+    let first = run_precompute(&level.scene, &level.bvh, &pp, Reuse::Nothing, true)?;
+    let precompute_seconds = t.elapsed().as_secs_f64();
+    let (mut map, mut cache) = (first.prm, first.cache.context("the precompute kept no cache")?);
+
+    let mut rows = Vec::new();
+    for (k, (label, edit)) in script.iter().enumerate() {
+        eprintln!("editing: edit {} ({label})...", k + 1);
+        shadow.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;
+        let v = shadow.current().clone();
+        let gt_lights: Vec<Light> =
+            v.lights.iter().filter(|s| !glow_ids.contains(&s.id)).map(|s| s.light.clone()).collect();
+        let mut edited_scene = v.scene.as_ref().clone();
+        edited_scene.lights = gt_lights.clone();
+        let edited = Level { bvh: Bvh::build(&edited_scene), scene: edited_scene, set: level.set.clone() };
+        let (gt, gt_noise) = ground_truth(&edited, &gt_lights, budget.gt_spp, seed)?;
+        let error = |b: &Baker| compare_texels(&b.lightmap().1, &gt).0;
+        let error_before = error(&baker);
+
+        let t = Instant::now();
+        let r = baker.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;
+        let mut curve = vec![(0.0, error_before)];
+        curve.push((t.elapsed().as_secs_f64(), error(&baker)));
+        let mut error_valid = f64::NAN;
+        let f = follow(&mut baker, t, r.invalid_flux, |at, b, first_valid| {
+            let e = error(b);
+            if first_valid {
+                error_valid = e;
+            }
+            curve.push((at, e));
+        });
+        let error_converged = error(&baker);
+        curve.push((f.seconds_converged, error_converged));
+        let error_worst = curve.iter().map(|p| p.1).fold(0.0, f64::max);
+
+        let mut fresh_scene = v.scene.as_ref().clone();
+        fresh_scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
+        let t = Instant::now();
+        // The same energy per path, octree box and ray offsets as the baker: the bake an
+        // editor would start again, which the incremental one converges to.
+        let extent = baker.level().extent();
+        let mut fresh = Baker::with_frame(fresh_scene, texels.clone(), params.clone(), baker.frame(), extent)
+            .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
+        fresh.converge();
+        let rebake_seconds = t.elapsed().as_secs_f64();
+        let rebake_error = error(&fresh);
+        drop(fresh);
+
+        let t = Instant::now();
+        let updated = run_precompute(
+            &edited.scene,
+            &edited.bvh,
+            &pp,
+            Reuse::Update { cache: &cache, old: &map },
+            true,
+        )?;
+        let seconds_update = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let full = run_precompute(&edited.scene, &edited.bvh, &pp, Reuse::Nothing, false)?;
+        let seconds_full = t.elapsed().as_secs_f64();
+        let map_error = |m: &Prm| {
+            let img = CpuTwin::new(m, &edited.bvh, usize::MAX).frame(&gt_lights).to_vec();
+            compare(&edited.set, &img, &gt).0
+        };
+        let ts = pp.tile_size.max(1);
+        let update = UpdateRow {
+            seconds_update,
+            seconds_full,
+            tiles_hit: updated.report.update_tiles_hit,
+            tiles: (pp.atlas.width().div_ceil(ts) * pp.atlas.height().div_ceil(ts)) as usize,
+            texels_walked: updated.report.update_texels_walked,
+            error_update: map_error(&updated.prm),
+            error_full: map_error(&full.prm),
+        };
+        cache = updated.cache.context("the update kept no cache")?;
+        map = updated.prm;
+
+        rows.push(EditRow {
+            label: label.clone(),
+            vpls_changed: r.vpls_changed,
+            gt_noise,
+            error_before,
+            curve,
+            seconds_90: f.seconds_90,
+            seconds_valid: f.seconds_valid.unwrap_or(f.seconds_converged),
+            error_valid: if error_valid.is_nan() { error_converged } else { error_valid },
+            seconds_converged: f.seconds_converged,
+            error_converged,
+            error_worst,
+            rebake_seconds,
+            rebake_error,
+            update,
+        });
+    }
+    Ok(Editing {
+        script: script_path.to_path_buf(),
+        budget,
+        bake_seconds,
+        precompute_seconds,
+        texels: level.set.len(),
+        rows,
+    })
+}
+
+fn run_precompute(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+    reuse: Reuse,
+    keep_cache: bool,
+) -> Result<Baked> {
+    let cancel = AtomicBool::new(false);
+    precompute_with(scene, bvh, params, reuse, keep_cache, &|_, _, _| {}, &cancel)
+        .map_err(|e| anyhow!("precompute: {e}"))
+}
