@@ -42,6 +42,11 @@ pub struct Args {
     /// VPLs a cell of the octree cut holds at most.
     #[arg(long, default_value_t = 256)]
     leaf_vpls: usize,
+    /// Balance the octree cut by paper 001's metric B for this many cells (instead of
+    /// --leaf-vpls): more cells where more light lands close by, fewer elsewhere; after an
+    /// edit, balancing updates are interleaved with the others by eq. (2).
+    #[arg(long)]
+    cells: Option<usize>,
     /// Changed VPLs a correction holds at most (corrections are clustered coarser than cells).
     #[arg(long, default_value_t = 4096)]
     delta_leaf_vpls: usize,
@@ -91,6 +96,7 @@ pub fn run(a: Args) -> Result<()> {
     let params = BakerParams {
         paths: a.paths,
         leaf_vpls: a.leaf_vpls,
+        cells: a.cells,
         delta_leaf_vpls: a.delta_leaf_vpls,
         consolidate: !a.no_consolidate,
         visibility_samples: a.visibility_samples,
@@ -157,9 +163,9 @@ pub fn run(a: Args) -> Result<()> {
             "vpls_changed": r.vpls_changed,
             "seconds_valid": valid_s,
             "distance_when_valid": valid_d,
-            "updates_by_kind": {"rebuild": kinds[0], "delta": kinds[1], "refresh": kinds[2], "consolidate": kinds[3]},
-            "seconds_by_kind": {"rebuild": f.kind_seconds[0], "delta": f.kind_seconds[1], "refresh": f.kind_seconds[2], "consolidate": f.kind_seconds[3]},
-            "texels_by_kind": {"rebuild": kind_texels[0], "delta": kind_texels[1], "refresh": kind_texels[2], "consolidate": kind_texels[3]},
+            "updates_by_kind": {"rebuild": kinds[0], "delta": kinds[1], "refresh": kinds[2], "consolidate": kinds[3], "balance": kinds[4]},
+            "seconds_by_kind": {"rebuild": f.kind_seconds[0], "delta": f.kind_seconds[1], "refresh": f.kind_seconds[2], "consolidate": f.kind_seconds[3], "balance": f.kind_seconds[4]},
+            "texels_by_kind": {"rebuild": kind_texels[0], "delta": kind_texels[1], "refresh": kind_texels[2], "consolidate": kind_texels[3], "balance": kind_texels[4]},
         });
         if !a.json {
             println!(
@@ -215,9 +221,9 @@ pub struct Followed {
     /// Until no update was left.
     pub seconds_converged: f64,
     /// Updates, their time and the texels they evaluated, by [`UpdateKind`] (as `usize`).
-    pub kinds: [usize; 4],
-    pub kind_seconds: [f64; 4],
-    pub kind_texels: [usize; 4],
+    pub kinds: [usize; 5],
+    pub kind_seconds: [f64; 5],
+    pub kind_texels: [usize; 5],
 }
 
 /// Run `baker`'s updates after an edit applied at `since` that left `invalid` flux, until none
@@ -235,9 +241,9 @@ pub fn follow(
         seconds_90: f64::NAN,
         seconds_valid: None,
         seconds_converged: 0.0,
-        kinds: [0; 4],
-        kind_seconds: [0.0; 4],
-        kind_texels: [0; 4],
+        kinds: [0; 5],
+        kind_seconds: [0.0; 5],
+        kind_texels: [0; 5],
     };
     let (mut resolved, mut busy) = (0.0f32, 0.0f64);
     let now = |busy: f64| since.elapsed().as_secs_f64() - busy;

@@ -9,8 +9,12 @@ use std::sync::Arc;
 use common::{quads, unit_box_faces, v};
 use glam::{Mat4, Vec3};
 use prm::{Light, Scene, TexelSet};
-use prm_precompute::incremental::clusters::{cell_lights, Member};
-use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError, UpdateKind};
+use prm_precompute::incremental::baker::validation_ratio;
+use prm_precompute::incremental::clusters::{
+    balance_metric, balanced_cut, cell_lights, key, morton, Member, MAX_DEPTH,
+};
+use prm_precompute::incremental::paths::{luminance, trace_all, PathParams};
+use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError, Level, UpdateKind};
 
 /// Quad `a, b, c, d` wound so that its front faces `out`.
 fn facing(q: [Vec3; 4], out: Vec3) -> [Vec3; 4] {
@@ -360,7 +364,17 @@ fn each_edit_kind_changes_the_lightmap_where_it_should() {
 }
 
 fn member(i: u32, p: Vec3, n: Vec3) -> Member {
-    Member { code: 0, light: 0, path: i, vertex: 0, position: p, normal: n, power: Vec3::splat(0.01) }
+    Member {
+        code: 0,
+        light: 0,
+        path: i,
+        vertex: 0,
+        position: p,
+        normal: n,
+        power: Vec3::splat(0.01),
+        onward: 0.0,
+        reach: 0.0,
+    }
 }
 
 #[test]
@@ -473,4 +487,212 @@ fn a_level_saved_again_diffs_into_edits_that_reproduce_it() {
     let mut textured = old.clone();
     textured.materials[0].double_sided = !textured.materials[0].double_sided;
     assert_eq!(diff(&old, &textured, &[0]), Err(DiffError::Material(0)));
+}
+
+#[test]
+fn eq_2_is_a_power_law_that_halves_at_t() {
+    // Paper 001 calls eq. (2) quadratic; ratio = max(0.5, x^(log 0.5 / log t)) is a power law,
+    // exponent log10(2) = 0.301 for t = 0.1: exclusive validation at x = 1, 50:50 from x = t
+    // down.
+    let t = 0.1;
+    assert!((validation_ratio(1.0, t) - 1.0).abs() < 1e-6);
+    assert!((validation_ratio(0.1, t) - 0.5).abs() < 1e-5);
+    assert_eq!(validation_ratio(0.01, t), 0.5);
+    assert!((validation_ratio(0.5, t) - 0.5f32.powf(std::f32::consts::LOG10_2)).abs() < 1e-5);
+    assert_eq!(validation_ratio(0.25, 0.5), 0.5, "t = 0.5: the exponent is 1, clamped at 0.5");
+    assert!((validation_ratio(0.8, 0.5) - 0.8).abs() < 1e-6);
+    assert_eq!(validation_ratio(7.0, t), 1.0, "shares above 1 count as 1");
+}
+
+fn cluster_member(i: u32, p: Vec3, onward: f32, reach: f32) -> Member {
+    Member { onward, reach, ..member(i, p, Vec3::Y) }
+}
+
+#[test]
+fn the_balance_metric_is_visual_contribution_times_visibility_error() {
+    // Two VPLs 2 m apart (r = 1), one passing 0.75 on at 2 m and one 0.25 at 6 m (weighted
+    // d_avg = 3): Φ_Ω = 1, E_v = 1 / (3 + 1)² = 1/16.
+    let ms = [cluster_member(0, v(0., 0., 0.), 0.75, 2.0), cluster_member(1, v(2., 0., 0.), 0.25, 6.0)];
+    assert!((balance_metric(&ms) - 1.0 / 16.0).abs() < 1e-7, "{}", balance_metric(&ms));
+    // Nothing carried on, or one VPL (r = 0): nothing to refine.
+    let dead = [cluster_member(0, v(0., 0., 0.), 0.0, 0.0), cluster_member(1, v(1., 0., 0.), 0.0, 0.0)];
+    assert_eq!(balance_metric(&dead), 0.0);
+    assert_eq!(balance_metric(&ms[..1]), 0.0);
+}
+
+/// VPLs in a unit box with pseudo-random onward flux and reach, sorted by code.
+fn scattered_members(n: u32) -> (Vec<Member>, Aabb) {
+    let root = Aabb { lo: Vec3::ZERO, hi: Vec3::ONE };
+    let mut rng = prm::sampling::stream(7, 0, 0);
+    use rand::Rng;
+    let mut ms: Vec<Member> = (0..n)
+        .map(|i| {
+            let p = v(rng.random(), rng.random::<f32>().powi(3), rng.random());
+            let mut m = cluster_member(i, p, rng.random::<f32>(), 0.05 + 2.0 * rng.random::<f32>());
+            m.code = morton(&root, p, MAX_DEPTH);
+            m
+        })
+        .collect();
+    ms.sort_by_key(|m| (m.code, m.path));
+    (ms, root)
+}
+
+#[test]
+fn the_balanced_cut_is_greedy_refinement_by_the_metric() {
+    let (ms, _) = scattered_members(3000);
+    let depth_cap = 6;
+    for cells in [1usize, 2, 9, 40, 200, 100_000] {
+        let got = balanced_cut(&ms, cells, depth_cap);
+        // A partition of the members, each cell holding only members under its key.
+        let mut next = 0;
+        for (k, r) in &got {
+            assert_eq!(r.start, next, "cells tile the members in order");
+            next = r.end;
+            let (d, prefix) = ((*k >> 32) as u32, *k as u32);
+            assert!(ms[r.clone()].iter().all(|m| m.code >> (3 * (MAX_DEPTH - d)) == prefix));
+        }
+        assert_eq!(next, ms.len());
+        // The twin: refine, one at a time, the selected cell of largest B (at the depth cap B
+        // is 0), ties to the lower key, until `cells` are selected or B is 0 everywhere.
+        let mut sel: Vec<(u64, std::ops::Range<usize>)> = vec![(key(0, 0), 0..ms.len())];
+        let b = |k: u64, r: &std::ops::Range<usize>| {
+            if (k >> 32) as u32 >= depth_cap {
+                0.0
+            } else {
+                balance_metric(&ms[r.clone()])
+            }
+        };
+        while sel.len() < cells {
+            let (i, best) = sel
+                .iter()
+                .enumerate()
+                .map(|(i, (k, r))| (i, (b(*k, r), *k)))
+                .max_by(|x, y| x.1 .0.total_cmp(&y.1 .0).then(y.1 .1.cmp(&x.1 .1)))
+                .unwrap();
+            if !(best.0 > 0.0) {
+                break;
+            }
+            let (k, r) = sel.remove(i);
+            let (d, prefix) = ((k >> 32) as u32, k as u32);
+            let shift = 3 * (MAX_DEPTH - d - 1);
+            for child in 0..8u32 {
+                let rr: Vec<usize> = r.clone().filter(|&j| (ms[j].code >> shift) & 7 == child).collect();
+                if let (Some(&a), Some(&z)) = (rr.first(), rr.last()) {
+                    sel.push((key(d + 1, prefix << 3 | child), a..z + 1));
+                }
+            }
+        }
+        sel.sort_by_key(|(_, r)| r.start);
+        assert_eq!(got, sel, "{cells} cells");
+        if cells <= 200 {
+            assert!((cells..cells + 7).contains(&got.len()), "{cells} asked, {} cut", got.len());
+        }
+    }
+}
+
+#[test]
+fn light_landing_close_by_gets_finer_cells() {
+    // Two equal clusters of VPLs: the light of the one at x < 0.5 lands 5 cm away, the other's
+    // 5 m away. Their visibility errors differ by (5 + r)² / (0.05 + r)², so the budget goes
+    // to the near one.
+    let root = Aabb { lo: Vec3::ZERO, hi: Vec3::ONE };
+    let mut ms: Vec<Member> = (0..4096u32)
+        .map(|i| {
+            let p = v((i % 64) as f32 / 64.0 + 0.004, 0.5, (i / 64) as f32 / 64.0 + 0.004);
+            let reach = if p.x < 0.5 { 0.05 } else { 5.0 };
+            Member { code: morton(&root, p, MAX_DEPTH), ..cluster_member(i, p, 1.0, reach) }
+        })
+        .collect();
+    ms.sort_by_key(|m| (m.code, m.path));
+    let cut = balanced_cut(&ms, 64, 8);
+    let near = cut.iter().filter(|(_, r)| ms[r.start].position.x < 0.5).count();
+    let far = cut.len() - near;
+    assert!(near >= 4 * far, "{near} cells where light lands close, {far} where it lands far");
+}
+
+#[test]
+fn the_visual_contribution_of_a_closed_room_is_its_albedo_times_the_flux() {
+    // Eq. (4): Φ_Ω = Φ/N_s Σ f(x_i) over the particles' hits, the flux times the albedo where it
+    // lands; in a closed grey room of albedo 0.6 every particle hits, so Φ_Ω = 0.6 Φ. Our paths
+    // carry equal energy under Russian roulette by albedo, and a VPL's onward flux (its next
+    // vertex's power) estimates it without bias. (Eq. (3)'s 1/(2π) in front would make it
+    // 0.6 Φ / 2π: a constant factor, harmless for balancing, but not the flux.)
+    let scene = quads(&unit_box_faces(), 0.6);
+    let mut lit = scene.clone();
+    lit.lights.push(Light::point("lamp", v(0.5, 0.7, 0.4), Vec3::splat(1.0)));
+    let level = Level::new(lit.clone(), texels(&lit));
+    let cur = level.current();
+    let bounds = (v(-0.01, -0.01, -0.01), v(1.01, 1.01, 1.01));
+    let lp = trace_all(cur, &cur.lights[0], 40_000, bounds, PathParams { max_bounces: 64, seed: 3 });
+    let (mut onward, mut power) = (0.0f64, 0.0f64);
+    for p in &lp.paths {
+        assert!(!p.vertices.is_empty(), "a closed room: every path hits");
+        for (i, x) in p.vertices.iter().enumerate() {
+            power += luminance(x.power) as f64;
+            onward += p.vertices.get(i + 1).map_or(0.0, |y| luminance(y.power) as f64);
+        }
+    }
+    let ratio = onward / power;
+    // About 100,000 onward steps of equal energy: binomial noise near 0.3 %.
+    assert!((ratio - 0.6).abs() < 0.012, "Φ_Ω / Φ = {ratio}");
+}
+
+#[test]
+fn a_balanced_cut_follows_edits_with_interleaved_balancing_updates() {
+    // Two sealed rooms, a lamp in each. The cut's budget is shared: when the first room's
+    // floor goes dark, its VPLs carry less light on (Φ_Ω), its cells weigh less (B) and cede
+    // cells to the second room, whose VPLs did not change: balancing updates (Merge there,
+    // Refine here), interleaved by eq. (2) with the first room's partial rebuilds (only paths
+    // that met the floor changed).
+    let mut qs = unit_box_faces();
+    qs.extend(unit_box_faces().iter().map(|q| q.map(|p| p + v(2.0, 0.0, 0.0))));
+    let mut scene = quads(&qs, 0.6);
+    let mut floor = scene.materials[0].clone();
+    floor.name = "floor a".into();
+    scene.materials.push(floor);
+    scene.triangles[0].material = 1;
+    scene.triangles[1].material = 1;
+    scene.lights.push(Light::point("a", v(0.5, 0.7, 0.4), Vec3::splat(1.0)));
+    scene.lights.push(Light::point("b", v(2.5, 0.7, 0.4), Vec3::splat(1.0)));
+    let tx = texels(&scene);
+    let extent = scene.diagonal();
+    let p = BakerParams { cells: Some(48), ..params() };
+    let mut a = Baker::new(scene.clone(), tx.clone(), p.clone()).unwrap();
+    a.converge();
+    a.apply(&Edit::Albedo { material: 1, albedo: Vec3::splat(0.02) }).unwrap();
+    let mut kinds = Vec::new();
+    let mut k = 0;
+    loop {
+        if k % 3 == 0 {
+            let (d, i) = a.lightmap();
+            let (rd, ri) = a.recomputed();
+            let scale = mean_length(&rd) + mean_length(&ri);
+            let worst = d.iter().zip(&rd).chain(i.iter().zip(&ri)).map(|(x, y)| (*x - *y).length() as f64);
+            let worst = worst.fold(0.0, f64::max);
+            assert!(worst <= 1e-5 * scale, "step {k}: lightmap and its entries differ by {worst}");
+            assert!(a.cells_disjoint(), "step {k}");
+        }
+        match a.step() {
+            Some(r) => kinds.push(r.kind),
+            None => break,
+        }
+        k += 1;
+    }
+    let balance: Vec<usize> =
+        kinds.iter().enumerate().filter(|(_, x)| **x == UpdateKind::Balance).map(|(i, _)| i).collect();
+    let validation =
+        |x: &UpdateKind| matches!(x, UpdateKind::Rebuild | UpdateKind::Delta | UpdateKind::Refresh);
+    let last_validation = kinds.iter().rposition(validation).unwrap();
+    assert!(!balance.is_empty(), "a dark floor re-balances the cut: {kinds:?}");
+    assert!(balance[0] < last_validation, "balancing interleaved with validation (eq. 2): {kinds:?}");
+    // Converged, it is a fresh bake of the edited level: same balanced cut, same lightmap.
+    let mut final_scene = a.level().current().scene.as_ref().clone();
+    final_scene.lights = a.level().current().lights.iter().map(|l| l.light.clone()).collect();
+    let mut b = Baker::with_frame(final_scene, tx, p, a.frame(), extent).unwrap();
+    b.converge();
+    assert_eq!(a.counts(), b.counts(), "cells and virtual lights");
+    let (ta, tb) = (total(&a), total(&b));
+    let mean = mean_length(&tb);
+    let worst = ta.iter().zip(&tb).map(|(x, y)| (*x - *y).length() as f64).fold(0.0, f64::max);
+    assert!(worst <= 1e-4 * mean, "incremental and fresh differ by {worst} at worst (mean {mean})");
 }

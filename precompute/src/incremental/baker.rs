@@ -30,6 +30,12 @@
 //!   exchanged for the cells a fresh bake would have (the same light in other clusters, so
 //!   it changes the lightmap by clustering noise only; `consolidate: false` leaves it out).
 //!
+//! With a balanced cut (`cells: Some(N)`, paper 001 §4.3 and §5) an edit may also change the
+//! cut where no VPL changed (the budget N is shared: light that now lands closer or carries
+//! more draws cells from elsewhere). Such a region is a **balancing** update (Refine / Merge:
+//! its cells exchanged for the new cut's, the same light in other clusters), interleaved with
+//! the validation updates at eq. (2)'s ratio for the next one's invalid share.
+//!
 //! Updates go in order of invalid flux: for a rebuild, the flux of the VPLs that differ
 //! between the baked and the new cells (both counted, as paper 001's absolute term) plus the
 //! flux of validated path segments that leave the region and now land elsewhere; for a
@@ -46,7 +52,7 @@ use prm::{Bvh, Light, Scene, TexelSet};
 use rayon::prelude::*;
 
 use super::clusters::{
-    bound, cell_box, cell_lights, contains, cut, key, morton, Member, VirtualLight, MAX_DEPTH,
+    balanced_cut, bound, cell_box, cell_lights, contains, cut, key, morton, Member, VirtualLight, MAX_DEPTH,
 };
 use super::level::{Aabb, Changes, Edit, EditError, Level, LightSlot, Version};
 use super::paths::{light_flux, luminance, path_count, trace_all, validate, Change, LightPaths, PathParams};
@@ -61,8 +67,15 @@ pub struct BakerParams {
     /// of the flux, at equal energy per path).
     pub paths: usize,
     pub max_bounces: u32,
-    /// VPLs a cell of the cut holds at most.
+    /// VPLs a cell of the cut holds at most (when `cells` is `None`).
     pub leaf_vpls: usize,
+    /// `Some(N)`: the cut is balanced by paper 001's metric B for N cells
+    /// ([`super::clusters::balanced_cut`]) instead of bounded by `leaf_vpls`.
+    pub cells: Option<usize>,
+    /// Paper 001's eq. (2) parameter t: the invalid share of the next validation update at
+    /// which validation and balancing updates alternate 50:50 (above it, validation goes first
+    /// more often; at a share of 1, only validation).
+    pub interleave_t: f32,
     pub max_depth: u32,
     /// Virtual lights per cell (paper 001: K = 4).
     pub lights_per_cell: usize,
@@ -88,6 +101,8 @@ impl Default for BakerParams {
             paths: 40_000,
             max_bounces: 8,
             leaf_vpls: 256,
+            cells: None,
+            interleave_t: 0.1,
             max_depth: 8,
             lights_per_cell: 4,
             min_polygon: 10,
@@ -126,6 +141,15 @@ impl BakerParams {
             "1 to 1e6",
         )?;
         require((0.0..=1.0).contains(&self.rebuild_share), "rebuild share", self.rebuild_share, "0 to 1")?;
+        if let Some(n) = self.cells {
+            require((1..=10_000_000).contains(&n), "cells", n, "1 to 1e7")?;
+        }
+        require(
+            self.interleave_t > 0.0 && self.interleave_t < 1.0,
+            "interleaving t",
+            self.interleave_t,
+            "between 0 and 1",
+        )?;
         Ok(())
     }
 }
@@ -194,15 +218,28 @@ enum Work {
     Refresh(CellKey),
 }
 
-/// Update tiers: invalid light first, then consolidation (which only exchanges a region's
-/// corrections and old cells for the cells a fresh bake would have: same light, other clusters).
-const TIER_INVALID: u8 = 1;
+/// Update tiers: invalid light first, interleaved with balancing by eq. (2) (a region whose VPLs
+/// are all valid but whose balanced cut changed: its cells exchanged for the new cut's), then
+/// consolidation (which only exchanges a region's corrections and old cells for the cells a
+/// fresh bake would have: same light, other clusters).
+const TIER_INVALID: u8 = 2;
+const TIER_BALANCE: u8 = 1;
 const TIER_CONSOLIDATE: u8 = 0;
+
+/// Paper 001's eq. (2): the share of validation updates when the next one's invalid flux is
+/// `share` of its cell's flux. The paper calls it quadratic; it is the power
+/// log(0.5)/log(t) (0.301 for t = 0.1), which gives 0.5 at `share` = t and 1 at 1.
+pub fn validation_ratio(share: f32, t: f32) -> f32 {
+    let e = 0.5f32.ln() / t.ln();
+    share.clamp(0.0, 1.0).powf(e).max(0.5)
+}
 
 #[derive(Clone, Debug)]
 struct Unit {
     tier: u8,
     priority: f32,
+    /// Invalid flux over the flux of the cells it updates (at most 1), for eq. (2).
+    share: f32,
     root: CellKey,
     work: Work,
 }
@@ -246,6 +283,9 @@ pub enum UpdateKind {
     /// A region's corrections and old cells exchanged for a fresh bake's cells (no invalid
     /// light left; the clusters become those of a fresh bake).
     Consolidate,
+    /// Refine / Merge: a region whose VPLs did not change but whose balanced cut did, its
+    /// cells exchanged for the new cut's (same light, other clusters).
+    Balance,
 }
 
 /// What [`Baker::apply`] found.
@@ -295,6 +335,8 @@ pub struct Baker {
     vpls_changed: usize,
     /// Moved triangles between two versions (by version ids), for refreshes.
     movers: HashMap<(u64, u64), Arc<Movers>>,
+    /// Eq. (2)'s interleaving: validation updates owed (each adds its ratio, one is spent).
+    credit: f32,
 }
 
 impl Baker {
@@ -342,6 +384,7 @@ impl Baker {
             serial: 0,
             vpls_changed: 0,
             movers: HashMap::new(),
+            credit: 0.0,
         };
         let v = b.level.current().clone();
         for slot in v.lights.iter() {
@@ -466,14 +509,19 @@ impl Baker {
             .flat_map(|lp| {
                 let light = lp.light.id;
                 lp.paths.iter().enumerate().flat_map(move |(pi, p)| {
-                    p.vertices.iter().enumerate().map(move |(vi, x)| Member {
-                        code: morton(&root, x.position, MAX_DEPTH),
-                        light,
-                        path: pi as u32,
-                        vertex: vi as u32,
-                        position: x.position,
-                        normal: x.normal,
-                        power: x.power,
+                    p.vertices.iter().enumerate().map(move |(vi, x)| {
+                        let next = p.vertices.get(vi + 1);
+                        Member {
+                            code: morton(&root, x.position, MAX_DEPTH),
+                            light,
+                            path: pi as u32,
+                            vertex: vi as u32,
+                            position: x.position,
+                            normal: x.normal,
+                            power: x.power,
+                            onward: next.map_or(0.0, |y| luminance(y.power)),
+                            reach: next.map_or(0.0, |y| (y.position - x.position).length()),
+                        }
                     })
                 })
             })
@@ -488,7 +536,11 @@ impl Baker {
         let v = self.level.current().clone();
         let members = self.members();
         let mut want: BTreeMap<CellKey, Content> = BTreeMap::new();
-        for (k, r) in cut(&members, self.params.leaf_vpls, self.params.max_depth) {
+        let cells = match self.params.cells {
+            Some(n) => balanced_cut(&members, n, self.params.max_depth),
+            None => cut(&members, self.params.leaf_vpls, self.params.max_depth),
+        };
+        for (k, r) in cells {
             let ms = members[r].to_vec();
             let mut h = std::collections::hash_map::DefaultHasher::new();
             let mut flux = Vec3::ZERO;
@@ -587,6 +639,7 @@ impl Baker {
                 units.push(Unit {
                     tier: TIER_INVALID,
                     priority: differing + seg,
+                    share: 1.0,
                     root: r,
                     work: Work::Rebuild { add },
                 });
@@ -601,12 +654,28 @@ impl Baker {
                 .map(|k| luminance(self.baked[k].flux))
                 .sum::<f32>()
                 + want.iter().filter(|(k, _)| under(r, **k)).map(|(_, c)| luminance(c.flux)).sum::<f32>();
-            if differing > self.params.rebuild_share * held {
+            // Only the balanced cut changed here: no VPL differs and no correction is baked. If
+            // geometry moved since the cells were baked, the exchange also brings their
+            // shadows up to date, which is invalid light: it then goes as a validation update.
+            let balance_only =
+                diffs.is_empty() && seg == 0.0 && baked_here.iter().all(|k| matches!(k, CellKey::Cell(_)));
+            if balance_only {
+                let add = wanted_under(&want, r);
+                in_units.extend(baked_here.iter().copied());
+                let stale: f32 =
+                    baked_here.iter().filter_map(|k| self.refresh_priority(*k, &self.baked[k], v.id)).sum();
+                let (tier, priority, share) = match stale > 0.0 {
+                    true => (TIER_INVALID, stale, (stale / held.max(f32::MIN_POSITIVE)).min(1.0)),
+                    false => (TIER_BALANCE, held, 0.0),
+                };
+                units.push(Unit { tier, priority, share, root: r, work: Work::Rebuild { add } });
+            } else if differing > self.params.rebuild_share * held {
                 let add = wanted_under(&want, r);
                 in_units.extend(baked_here.iter().copied());
                 units.push(Unit {
                     tier: TIER_INVALID,
                     priority: differing + seg,
+                    share: ((differing + seg) / held.max(f32::MIN_POSITIVE)).min(1.0),
                     root: r,
                     work: Work::Rebuild { add },
                 });
@@ -641,6 +710,7 @@ impl Baker {
             units.push(Unit {
                 tier: TIER_INVALID,
                 priority,
+                share: 1.0,
                 root: CellKey::Cell(cell),
                 work: Work::Delta { code: cell, plus, minus },
             });
@@ -667,6 +737,7 @@ impl Baker {
                 units.push(Unit {
                     tier: TIER_CONSOLIDATE,
                     priority: 0.0,
+                    share: 0.0,
                     root: r,
                     work: Work::Rebuild { add },
                 });
@@ -674,33 +745,13 @@ impl Baker {
         }
         // Refreshes: baked entries outside the rebuilds that an edit since their bake may shadow.
         for (k, b) in &self.baked {
-            if in_units.contains(k) || b.version.id == v.id {
+            if in_units.contains(k) {
                 continue;
             }
-            let since: Vec<&Changes> =
-                self.log.iter().filter(|(id, _)| *id > b.version.id).map(|(_, c)| c).collect();
-            if since.is_empty() {
-                continue;
+            if let Some(priority) = self.refresh_priority(*k, b, v.id) {
+                let share = (priority / b.weight.max(f32::MIN_POSITIVE)).min(1.0);
+                units.push(Unit { tier: TIER_INVALID, priority, share, root: *k, work: Work::Refresh(*k) });
             }
-            let (c, r) = b.bound;
-            let view = since
-                .iter()
-                .flat_map(|ch| ch.regions.iter())
-                .map(|bx| {
-                    let half = 0.5 * (bx.hi - bx.lo).length() + r;
-                    let d = (c - c.clamp(bx.lo, bx.hi)).length();
-                    half * half / (half * half + d * d)
-                })
-                .fold(0.0f32, f32::max);
-            // A direct light's shadow moved: its flux, as much as the moved boxes take of its
-            // view. Virtual lights: the flux of their paths' next segments that now land
-            // elsewhere (paper 001's estimate, unbiased), and where none did, at most about one
-            // path's worth (the edit's shadow may still fall between the paths).
-            let priority = match &b.source {
-                Source::Direct(l) => direct_flux(0, l) * view,
-                _ => self.segments.get(k).copied().unwrap_or(0.0) + self.frame.quantum * view,
-            };
-            units.push(Unit { tier: TIER_INVALID, priority, root: *k, work: Work::Refresh(*k) });
         }
         let rank = |w: &Work| match w {
             Work::Rebuild { .. } => 0,
@@ -733,6 +784,39 @@ impl Baker {
         self.log.retain(|(id, _)| *id > oldest);
     }
 
+    /// The invalid flux a baked entry may carry because geometry moved since it was baked
+    /// (with the current version `now`); `None` when nothing moved since.
+    fn refresh_priority(&self, k: CellKey, b: &Baked, now: u64) -> Option<f32> {
+        if b.version.id == now {
+            return None;
+        }
+        let since: Vec<&Changes> =
+            self.log.iter().filter(|(id, _)| *id > b.version.id).map(|(_, c)| c).collect();
+        if since.is_empty() {
+            return None;
+        }
+        let (c, r) = b.bound;
+        let view = since
+            .iter()
+            .flat_map(|ch| ch.regions.iter())
+            .map(|bx| {
+                let half = 0.5 * (bx.hi - bx.lo).length() + r;
+                let d = (c - c.clamp(bx.lo, bx.hi)).length();
+                half * half / (half * half + d * d)
+            })
+            .fold(0.0f32, f32::max);
+        // A direct light's shadow moved: its flux, as much as the moved boxes take of its
+        // view. Virtual lights: the flux of their paths' next segments that now land
+        // elsewhere (paper 001's estimate, unbiased), and where none did, at most about one
+        // path's worth (the edit's shadow may still fall between the paths).
+        Some(match &b.source {
+            Source::Direct(l) => {
+                luminance(light_flux(&LightSlot { id: 0, light: l.clone() }, self.bounds())) * view
+            }
+            _ => self.segments.get(&k).copied().unwrap_or(0.0) + self.frame.quantum * view,
+        })
+    }
+
     /// Updates waiting.
     pub fn pending(&self) -> usize {
         self.work.len()
@@ -754,9 +838,28 @@ impl Baker {
         self.work.iter().all(|u| u.tier != TIER_INVALID)
     }
 
+    /// The next update: the most urgent validation update, or, by eq. (2)'s ratio for its
+    /// invalid share, the largest balancing update; consolidation last.
+    fn next_unit(&mut self) -> Option<Unit> {
+        let top = self.work.last()?;
+        if top.tier == TIER_INVALID {
+            // Units are sorted by tier: the balancing ones end where the validation ones start.
+            let at = self.work.partition_point(|u| u.tier < TIER_INVALID);
+            if at > 0 && self.work[at - 1].tier == TIER_BALANCE {
+                self.credit += validation_ratio(top.share, self.params.interleave_t);
+                if self.credit >= 1.0 {
+                    self.credit -= 1.0;
+                } else {
+                    return Some(self.work.remove(at - 1));
+                }
+            }
+        }
+        self.work.pop()
+    }
+
     /// Run the most urgent update; `None` when there is none.
     pub fn step(&mut self) -> Option<StepReport> {
-        let unit = self.work.pop()?;
+        let unit = self.next_unit()?;
         let v = self.level.current().clone();
         let texels = self.level.texels().clone();
         let (s, seed) = (self.params.visibility_samples, self.params.seed);
@@ -804,8 +907,11 @@ impl Baker {
                     self.segments.remove(k);
                 }
                 self.baked.extend(new);
-                let kind =
-                    if unit.tier == TIER_INVALID { UpdateKind::Rebuild } else { UpdateKind::Consolidate };
+                let kind = match unit.tier {
+                    TIER_INVALID => UpdateKind::Rebuild,
+                    TIER_BALANCE => UpdateKind::Balance,
+                    _ => UpdateKind::Consolidate,
+                };
                 Some(StepReport { cell: unit.root, kind, resolved, texels: texels.texels.len() })
             }
             Work::Delta { code, plus, minus } => {

@@ -2,12 +2,17 @@
 //! `leaf_vpls` of them, and up to K virtual lights per cell from similarity clustering: planes
 //! first (polygon lights), the rest by orientation (disk lights).
 //!
-//! The cut is a function of the VPL set alone (refine while a cell holds more than
-//! `leaf_vpls`, down to `max_depth`), and a cell's lights a function of its members in a fixed
-//! order, so a level reached by edits and the same level baked afresh have the same clusters.
-//! Paper 001 balances its cut by a metric B under a budget of N nodes (Algorithm 1), which
-//! depends on the order of past updates; that balancing is not built here (a count bound
-//! instead).
+//! The cut is a function of the VPL set alone, and a cell's lights a function of its members in
+//! a fixed order, so a level reached by edits and the same level baked afresh have the same
+//! clusters. Two cuts:
+//! - [`cut`]: refine while a cell holds more than `leaf_vpls` VPLs, down to `max_depth`;
+//! - [`balanced_cut`]: paper 001's balancing (§4.3, §5) for a budget of N cells: starting from
+//!   the root, refine the cell of largest metric B until N cells are selected. That is
+//!   Algorithm 1 run from its first state (the root selected). The paper runs it again from
+//!   the last state after each edit; where B does not grow from a cell to its parent, that
+//!   fixed point depends on the order of past updates. Here the target after an edit is the
+//!   greedy cut of the new VPLs, reached by Refine / Merge region updates
+//!   ([`super::baker`]), so an edited level and a fresh bake have the same cut.
 
 use glam::{Vec2, Vec3};
 
@@ -34,6 +39,11 @@ pub struct Member {
     pub position: Vec3,
     pub normal: Vec3,
     pub power: Vec3,
+    /// Luminance of the power the path carries on to its next vertex (0 where it ended):
+    /// summed over a cell, paper 001's visual contribution Φ_Ω (eq. 4).
+    pub onward: f32,
+    /// Distance to that next vertex (0 where the path ended): where the cell's light lands.
+    pub reach: f32,
 }
 
 /// Finest-level Morton code of `p` in `root` (points outside are clamped to its border cells).
@@ -106,6 +116,98 @@ fn split(
         split(m, depth + 1, start..end, prefix << 3 | child, leaf, max_depth, out);
         start = end;
     }
+}
+
+/// Paper 001's balancing metric B of a VPL cluster (§5): visual contribution Φ_Ω times the
+/// visibility error E_v = r² / (d_avg + r)², π and the directionality D (I_max / Φ = 1/π for
+/// a Lambertian cluster, the same for every cell) dropped as constant factors, and the
+/// clustering term 1.
+///
+/// Φ_Ω is eq. (4): the flux the cluster's particles deposit, times the albedo where they land,
+/// over the particles scattered. With Russian roulette by albedo (our paths), a vertex's next
+/// vertex carries in expectation exactly that, so Φ_Ω is the sum of `onward`. (Eq. (3)'s
+/// leading 1/(2π) does not belong there: with the importance-sampled I the sum is already the
+/// flux, as eq. (4) says; a constant factor, so it does not change the balance.) r is the
+/// half-diagonal of the members' box, d_avg the mean `reach`, weighted by `onward`.
+pub fn balance_metric(members: &[Member]) -> f32 {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    let (mut phi, mut dsum) = (0.0f64, 0.0f64);
+    for m in members {
+        lo = lo.min(m.position);
+        hi = hi.max(m.position);
+        if m.onward > 0.0 && m.reach.is_finite() {
+            phi += m.onward as f64;
+            dsum += (m.onward * m.reach) as f64;
+        }
+    }
+    if !(phi > 0.0) || members.len() < 2 {
+        return 0.0;
+    }
+    let r = 0.5 * (hi - lo).length() as f64;
+    let d = dsum / phi;
+    let ev = r * r / ((d + r) * (d + r)).max(f64::MIN_POSITIVE);
+    (phi * ev) as f32
+}
+
+/// The balanced cut for `members` sorted by code: from the root, the cell of largest
+/// [`balance_metric`] is refined into its non-empty children until `cells` cells are selected
+/// (or none can be refined: at `max_depth`, one member, B = 0). Ties go to the lower key.
+pub fn balanced_cut(members: &[Member], cells: usize, max_depth: u32) -> Vec<(u64, std::ops::Range<usize>)> {
+    use std::collections::BinaryHeap;
+    #[derive(PartialEq)]
+    struct Node {
+        b: f32,
+        depth: u32,
+        prefix: u32,
+        range: std::ops::Range<usize>,
+    }
+    impl Eq for Node {}
+    impl Ord for Node {
+        fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+            self.b.total_cmp(&o.b).then(key(o.depth, o.prefix).cmp(&key(self.depth, self.prefix)))
+        }
+    }
+    impl PartialOrd for Node {
+        fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+            Some(self.cmp(o))
+        }
+    }
+    let max_depth = max_depth.min(MAX_DEPTH);
+    let mut out = Vec::new();
+    if members.is_empty() {
+        return out;
+    }
+    let node = |depth: u32, prefix: u32, range: std::ops::Range<usize>| Node {
+        b: if depth < max_depth { balance_metric(&members[range.clone()]) } else { 0.0 },
+        depth,
+        prefix,
+        range,
+    };
+    let mut heap = BinaryHeap::from([node(0, 0, 0..members.len())]);
+    let mut count = 1usize;
+    while count < cells.max(1) {
+        let Some(top) = heap.pop() else { break };
+        if !(top.b > 0.0) {
+            heap.push(top);
+            break;
+        }
+        let shift = 3 * (MAX_DEPTH - top.depth - 1);
+        let mut start = top.range.start;
+        let mut children = 0;
+        for child in 0..8u32 {
+            let end =
+                start + members[start..top.range.end].partition_point(|x| (x.code >> shift) & 7 <= child);
+            if end > start {
+                heap.push(node(top.depth + 1, top.prefix << 3 | child, start..end));
+                children += 1;
+            }
+            start = end;
+        }
+        count += children - 1;
+    }
+    out.extend(heap.into_iter().map(|n| (key(n.depth, n.prefix), n.range)));
+    out.sort_unstable_by_key(|(_, r)| r.start);
+    out
 }
 
 /// A virtual light: a Lambertian polygon (a disk is a regular octagon of its area) and the
