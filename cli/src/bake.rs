@@ -421,9 +421,7 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
     let v: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
     let list =
         v.as_array().ok_or_else(|| anyhow!("{}: the script is a JSON list of edits", path.display()))?;
-    let names: Vec<Option<String>> = gltf::Gltf::open(level)
-        .map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect())
-        .unwrap_or_default();
+    let names = crate::common::node_names(level);
     let node = |x: &Value| -> Result<u32> {
         match x {
             Value::Number(n) => {

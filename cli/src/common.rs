@@ -250,3 +250,9 @@ pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Sc
     map.check_scene(prm_path, &scene)?;
     Ok((scene, map))
 }
+
+/// The glTF node names of the level file, by node index (empty if it does not parse: the
+/// loader has already said why).
+pub fn node_names(level: &std::path::Path) -> Vec<Option<String>> {
+    gltf::Gltf::open(level).map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect()).unwrap_or_default()
+}

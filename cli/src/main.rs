@@ -21,6 +21,8 @@ mod report;
 mod texels;
 #[cfg(feature = "view")]
 mod view;
+#[cfg(feature = "view")]
+mod view_edit;
 
 /// Precomputed radiance maps: indirect light for static levels under moving lights.
 #[derive(Parser)]
@@ -59,7 +61,8 @@ enum Command {
     Report(report::Args),
     /// Frame time with and without indirect light, compose time and bytes, on the GPU.
     Bench(bench::Args),
-    /// A window where the mouse moves a light (built with `--features view`).
+    /// A window where the mouse moves a light, or (--edit) drags objects and lights while the
+    /// incremental baker converges (built with `--features view`).
     #[cfg(feature = "view")]
     View(view::Args),
     /// The indirect lightmap a .prm gives for the level's lights (CPU, exact weights, all panes).

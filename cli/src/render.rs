@@ -266,7 +266,7 @@ fn bilinear(img: &[Vec3], atlas: Atlas, uv: Vec2) -> Vec3 {
     upper.lerp(lower, fy)
 }
 
-fn shade(
+pub(crate) fn shade(
     scene: &Scene,
     bvh: &Bvh,
     cam: &prm::Camera,

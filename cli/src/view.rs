@@ -2,6 +2,9 @@
 //! first light following the mouse across the level's floor plan at its own height (a level
 //! without lights gets a point light). Keys: Escape quits, I toggles indirect light, Up/Down
 //! change the exposure. The title bar shows the frame time and whether the frame recomposed.
+//!
+//! `prm view --edit` is the level editor's view instead (`view_edit`): the incremental baker's
+//! lightmap, converging while objects and lights are dragged.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -17,16 +20,28 @@ use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
-use crate::common::{ComposeArgs, MapArgs};
+use crate::common::{load_with_prm, AtlasArgs, ComposeArgs, SceneArgs};
 use crate::render::camera;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    map: MapArgs,
+    pub scene: SceneArgs,
+    /// The level's .prm (the runtime's view; not with --edit).
+    #[arg(long, required_unless_present = "edit", conflicts_with = "edit")]
+    pub prm: Option<std::path::PathBuf>,
+    /// The editor's view: the incremental baker's lightmap (paper 001) while Tab picks an object
+    /// or light and the mouse drags it (PageUp / PageDown raise and lower it).
+    #[arg(long)]
+    pub edit: bool,
+    /// Light paths of the editor's baker (--edit).
+    #[arg(long, default_value_t = 20_000)]
+    pub paths: usize,
+    #[command(flatten)]
+    pub lightmap: AtlasArgs,
     /// glTF camera to view from (default: the first).
     #[arg(long)]
-    camera: Option<String>,
+    pub camera: Option<String>,
     #[command(flatten)]
     compose: ComposeArgs,
 }
@@ -54,7 +69,11 @@ struct App {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (scene, prm) = a.map.load()?;
+    if a.edit {
+        return crate::view_edit::run(a);
+    }
+    let prm_path = a.prm.as_deref().context("--prm is needed without --edit")?;
+    let (scene, prm) = load_with_prm(&a.scene, prm_path)?;
     let camera = camera(&scene, a.camera.as_deref())?;
     let mut lights = scene.lights.clone();
     if lights.is_empty() {

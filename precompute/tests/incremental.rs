@@ -696,3 +696,35 @@ fn a_balanced_cut_follows_edits_with_interleaved_balancing_updates() {
     let worst = ta.iter().zip(&tb).map(|(x, y)| (*x - *y).length() as f64).fold(0.0, f64::max);
     assert!(worst <= 1e-4 * mean, "incremental and fresh differ by {worst} at worst (mean {mean})");
 }
+
+#[test]
+fn the_editor_picks_drags_and_moves_objects_and_lights() {
+    use prm_precompute::incremental::editor::{move_edit, on_plane, picks, Pick};
+    let scene = room();
+    let mut level = Level::new(scene.clone(), texels(&scene));
+    let names = vec![Some("room".to_string()), Some("block".to_string())];
+    let ps = picks(level.current(), &names);
+    assert_eq!(ps.len(), 3, "two nodes and a light: {ps:?}");
+    assert_eq!((ps[0].name(), ps[1].name(), ps[2].name()), ("room", "block", "light 'lamp'"));
+    assert!((ps[1].at() - v(0.425, 0.15, 0.475)).length() < 1e-6, "the block's box centre");
+    assert!((ps[2].at() - v(0.3, 0.8, 0.7)).length() < 1e-6);
+    // A mouse ray from above, 45 degrees down, meets the block's plane (y = 0.15) where it should.
+    let hit = on_plane(v(0.0, 1.15, 0.5), v(1.0, -1.0, 0.0).normalize(), 0.15).unwrap();
+    assert!((hit - v(1.0, 0.15, 0.5)).length() < 1e-5, "{hit}");
+    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(1.0, 0.0, 0.0), 0.15), None, "along the plane");
+    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(0.0, 1.0, 0.0), 0.15), None, "the plane is behind");
+    // Moving a pick moves it by exactly that.
+    let by = v(0.1, 0.0, -0.05);
+    for k in [1usize, 2] {
+        let before = picks(level.current(), &names)[k].clone();
+        let e = move_edit(level.current(), &before, by).unwrap();
+        level.apply(&e).unwrap();
+        let after = picks(level.current(), &names)[k].clone();
+        assert!((after.at() - before.at() - by).length() < 1e-5, "{before:?} -> {after:?}");
+    }
+    // Bad moves are refused.
+    let block = picks(level.current(), &names)[1].clone();
+    assert!(move_edit(level.current(), &block, v(f32::NAN, 0.0, 0.0)).is_err());
+    let ghost = Pick::Light { id: 9, name: "ghost".into(), position: Vec3::ZERO };
+    assert_eq!(move_edit(level.current(), &ghost, by), Err(EditError::UnknownLight(9)));
+}

@@ -5,11 +5,13 @@
 //! - [`level`]: immutable level versions and the edits between them;
 //! - [`paths`]: light paths kept with their VPLs, validated by tracing again;
 //! - [`clusters`]: the VPL octree's cut and each cell's polygon and disk lights;
-//! - [`baker`]: baked cells, invalidation, prioritised atomic updates.
+//! - [`baker`]: baked cells, invalidation, prioritised atomic updates;
+//! - [`editor`]: picks, drag planes and move edits for an interactive editor.
 
 pub mod baker;
 pub mod clusters;
 pub mod diff;
+pub mod editor;
 pub mod level;
 pub mod paths;
 
