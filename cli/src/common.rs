@@ -254,5 +254,7 @@ pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Sc
 /// The glTF node names of the level file, by node index (empty if it does not parse: the
 /// loader has already said why).
 pub fn node_names(level: &std::path::Path) -> Vec<Option<String>> {
-    gltf::Gltf::open(level).map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect()).unwrap_or_default()
+    gltf::Gltf::open(level)
+        .map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect())
+        .unwrap_or_default()
 }

@@ -3,7 +3,7 @@
 //! baked) on the level as it is now, ray cast on the CPU, while updates run between frames.
 //!
 //! Tab picks the next object (a glTF node) or light; dragging with the left button moves it
-//! over the horizontal plane through it, PageUp / PageDown raise and lower it by 2 % of the
+//! over the plane through it that faces the camera (the floor plane when the camera looks down), PageUp / PageDown raise and lower it by 2 % of the
 //! level's size; Up / Down change the exposure; Escape quits. A drag becomes an edit every
 //! 0.2 s and when the button is released, so the lightmap follows the object as it goes. The
 //! title shows the pick, the updates waiting and the invalid flux left.
@@ -15,7 +15,7 @@ use anyhow::{anyhow, Context, Result};
 use glam::Vec3;
 use prm::density::Atlas;
 use prm::{Camera, TexelSet};
-use prm_precompute::incremental::editor::{move_edit, on_plane, picks, Pick};
+use prm_precompute::incremental::editor::{drag_plane, move_edit, on_plane, picks, Pick};
 use prm_precompute::incremental::{Baker, BakerParams};
 use prm_runtime::{Gpu, Tonemap};
 use winit::application::ApplicationHandler;
@@ -35,7 +35,8 @@ const UPDATE_SLICE: Duration = Duration::from_millis(60);
 const FRAME_SCALE: u32 = 2;
 
 struct Drag {
-    height: f32,
+    point: Vec3,
+    normal: Vec3,
     grab: Vec3,
     offset: Vec3,
     applied: Vec3,
@@ -178,7 +179,8 @@ impl App {
         let total: Vec<Vec3> = direct.iter().zip(&indirect).map(|(a, b)| *a + *b).collect();
         let img = self.set.to_image(&total, Vec3::ZERO);
         let cur = self.baker.level().current().clone();
-        let frame = shade(&cur.scene, &cur.bvh, &self.camera, &[], &img, self.atlas, (iw as usize, ih as usize));
+        let frame =
+            shade(&cur.scene, &cur.bvh, &self.camera, &[], &img, self.atlas, (iw as usize, ih as usize));
         let mut rgba = vec![0f32; (w * h * 4) as usize];
         for y in 0..h {
             for x in 0..w {
@@ -206,7 +208,11 @@ impl App {
         let state = if self.baker.converged() {
             "converged".to_string()
         } else {
-            format!("{} updates waiting, invalid flux {:.3} W", self.baker.pending(), self.baker.invalid_flux())
+            format!(
+                "{} updates waiting, invalid flux {:.3} W",
+                self.baker.pending(),
+                self.baker.invalid_flux()
+            )
         };
         v.window.set_title(&format!(
             "prm view --edit: {pick} (Tab: next, drag: move, PgUp/PgDn: up/down) | {state} | updates {updates_ms:.0} ms, \
@@ -259,7 +265,7 @@ impl ApplicationHandler for App {
                 self.cursor = (position.x as f32, position.y as f32);
                 let ray = self.cursor_ray();
                 if let (Some(d), Some((o, dir))) = (&mut self.drag, ray) {
-                    if let Some(p) = on_plane(o, dir, d.height) {
+                    if let Some(p) = on_plane(o, dir, d.point, d.normal) {
                         d.offset = p - d.grab;
                     }
                 }
@@ -267,10 +273,11 @@ impl ApplicationHandler for App {
             WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => match state {
                 ElementState::Pressed => {
                     let at = self.picks.get(self.selected).map(Pick::at);
-                    if let (Some(at), Some((o, dir))) = (at, self.cursor_ray()) {
-                        if let Some(grab) = on_plane(o, dir, at.y) {
-                            self.drag =
-                                Some(Drag { height: at.y, grab, offset: Vec3::ZERO, applied: Vec3::ZERO, released: false });
+                    let normal = drag_plane(-self.camera.to_world.col(2).truncate());
+                    if let (Some(point), Some((o, dir))) = (at, self.cursor_ray()) {
+                        if let Some(grab) = on_plane(o, dir, point, normal) {
+                            let (offset, applied, released) = (Vec3::ZERO, Vec3::ZERO, false);
+                            self.drag = Some(Drag { point, normal, grab, offset, applied, released });
                         }
                     }
                 }
@@ -287,7 +294,9 @@ impl ApplicationHandler for App {
                         self.selected = (self.selected + 1) % self.picks.len();
                     }
                     Key::Named(NamedKey::PageUp) if self.drag.is_none() => self.edit_by(Vec3::Y * self.step),
-                    Key::Named(NamedKey::PageDown) if self.drag.is_none() => self.edit_by(-Vec3::Y * self.step),
+                    Key::Named(NamedKey::PageDown) if self.drag.is_none() => {
+                        self.edit_by(-Vec3::Y * self.step)
+                    }
                     Key::Named(NamedKey::ArrowUp) => self.exposure *= 1.25,
                     Key::Named(NamedKey::ArrowDown) => self.exposure /= 1.25,
                     _ => {}

@@ -699,7 +699,7 @@ fn a_balanced_cut_follows_edits_with_interleaved_balancing_updates() {
 
 #[test]
 fn the_editor_picks_drags_and_moves_objects_and_lights() {
-    use prm_precompute::incremental::editor::{move_edit, on_plane, picks, Pick};
+    use prm_precompute::incremental::editor::{drag_plane, move_edit, on_plane, picks, Pick};
     let scene = room();
     let mut level = Level::new(scene.clone(), texels(&scene));
     let names = vec![Some("room".to_string()), Some("block".to_string())];
@@ -708,11 +708,18 @@ fn the_editor_picks_drags_and_moves_objects_and_lights() {
     assert_eq!((ps[0].name(), ps[1].name(), ps[2].name()), ("room", "block", "light 'lamp'"));
     assert!((ps[1].at() - v(0.425, 0.15, 0.475)).length() < 1e-6, "the block's box centre");
     assert!((ps[2].at() - v(0.3, 0.8, 0.7)).length() < 1e-6);
-    // A mouse ray from above, 45 degrees down, meets the block's plane (y = 0.15) where it should.
-    let hit = on_plane(v(0.0, 1.15, 0.5), v(1.0, -1.0, 0.0).normalize(), 0.15).unwrap();
+    // A camera looking down 45 degrees drags on the floor plane; one looking level, on the
+    // upright plane facing it.
+    let down = v(1.0, -1.0, 0.0).normalize();
+    assert_eq!(drag_plane(down), Vec3::Y);
+    assert!((drag_plane(v(0.0, -0.2, 1.0)) - Vec3::Z).length() < 1e-6);
+    // A mouse ray from above, 45 degrees down, meets the block's floor plane (y = 0.15) where
+    // it should.
+    let block_at = ps[1].at();
+    let hit = on_plane(v(0.0, 1.15, 0.5), down, block_at, Vec3::Y).unwrap();
     assert!((hit - v(1.0, 0.15, 0.5)).length() < 1e-5, "{hit}");
-    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(1.0, 0.0, 0.0), 0.15), None, "along the plane");
-    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(0.0, 1.0, 0.0), 0.15), None, "the plane is behind");
+    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(1.0, 0.0, 0.0), block_at, Vec3::Y), None, "along the plane");
+    assert_eq!(on_plane(v(0.0, 1.0, 0.0), v(0.0, 1.0, 0.0), block_at, Vec3::Y), None, "the plane is behind");
     // Moving a pick moves it by exactly that.
     let by = v(0.1, 0.0, -0.05);
     for k in [1usize, 2] {

@@ -1,6 +1,6 @@
 //! What an interactive editor needs besides the baker (`prm view --edit`): the things a user
-//! can pick in a level version (the glTF nodes that place triangles, and the lights), where a
-//! mouse ray meets the plane an object is dragged on, and the edit that moves a pick.
+//! can pick in a level version (the glTF nodes that place triangles, and the lights), the plane
+//! an object is dragged on and where a mouse ray meets it, and the edit that moves a pick.
 
 use glam::{Mat4, Vec3};
 
@@ -46,11 +46,7 @@ pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
         .into_iter()
         .map(|(node, (lo, hi))| Pick::Node {
             node,
-            name: node_names
-                .get(node as usize)
-                .cloned()
-                .flatten()
-                .unwrap_or_else(|| format!("node {node}")),
+            name: node_names.get(node as usize).cloned().flatten().unwrap_or_else(|| format!("node {node}")),
             centre: 0.5 * (lo + hi),
         })
         .collect();
@@ -62,13 +58,28 @@ pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
     out
 }
 
-/// Where the ray from `origin` along `dir` meets the horizontal plane y = `height`, if it
-/// does (ahead of the origin, not along the plane).
-pub fn on_plane(origin: Vec3, dir: Vec3, height: f32) -> Option<Vec3> {
-    if !(dir.y.abs() > 1e-6) || !origin.is_finite() || !dir.is_finite() {
+/// The normal of the plane a pick is dragged on, for a camera looking along `forward`: the
+/// floor plane (normal +Y) when the camera looks down or up steeply (more than 30 degrees), else
+/// the upright plane facing the camera (a horizontal view meets the floor plane at a grazing
+/// angle, where a small mouse move is a large move).
+pub fn drag_plane(forward: Vec3) -> Vec3 {
+    let f = forward.normalize_or_zero();
+    let flat = Vec3::new(f.x, 0.0, f.z);
+    if f.y.abs() >= 0.5 || flat.length_squared() < 1e-12 {
+        Vec3::Y
+    } else {
+        flat.normalize()
+    }
+}
+
+/// Where the ray from `origin` along `dir` meets the plane through `point` with normal
+/// `normal`, if it does (ahead of the origin, not along the plane).
+pub fn on_plane(origin: Vec3, dir: Vec3, point: Vec3, normal: Vec3) -> Option<Vec3> {
+    let den = dir.dot(normal);
+    if !(den.abs() > 1e-6) || !origin.is_finite() || !dir.is_finite() || !point.is_finite() {
         return None;
     }
-    let t = (height - origin.y) / dir.y;
+    let t = (point - origin).dot(normal) / den;
     (t > 0.0 && t.is_finite()).then(|| origin + t * dir)
 }
 
