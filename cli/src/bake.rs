@@ -220,7 +220,7 @@ pub struct Followed {
     pub seconds_valid: Option<f64>,
     /// Until no update was left.
     pub seconds_converged: f64,
-    /// Updates, their time and the texels they evaluated, by [`UpdateKind`] (as `usize`).
+    /// Updates, their time and the texels they evaluated, by [`prm_precompute::incremental::UpdateKind`] (as `usize`).
     pub kinds: [usize; 5],
     pub kind_seconds: [f64; 5],
     pub kind_texels: [usize; 5],
