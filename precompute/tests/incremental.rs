@@ -735,3 +735,41 @@ fn the_editor_picks_drags_and_moves_objects_and_lights() {
     let ghost = Pick::Light { id: 9, name: "ghost".into(), position: Vec3::ZERO };
     assert_eq!(move_edit(level.current(), &ghost, by), Err(EditError::UnknownLight(9)));
 }
+
+#[test]
+fn an_emissive_panel_s_light_moves_with_it() {
+    // A closed room lit only by an emissive ceiling panel (node 1): its polygon lights
+    // (`Scene::emissive_lights`) are the baker's lights. Moving the panel moves them, and the
+    // lightmap converges to a fresh bake of the moved level with its own emissive lights.
+    let mut qs = unit_box_faces();
+    qs.push(facing([v(0.3, 0.95, 0.3), v(0.5, 0.95, 0.3), v(0.5, 0.95, 0.5), v(0.3, 0.95, 0.5)], -Vec3::Y));
+    let mut scene = quads(&qs, 0.6);
+    let mut glow = scene.materials[0].clone();
+    glow.name = "glow".into();
+    glow.emissive = Vec3::new(4.0, 3.5, 3.0);
+    scene.materials.push(glow);
+    for t in 12..14 {
+        scene.triangles[t].node = 1;
+        scene.triangles[t].material = 1;
+    }
+    scene.lights = scene.emissive_lights();
+    assert_eq!(scene.lights.len(), 2, "one polygon light per triangle");
+    let tx = texels(&scene);
+    let extent = scene.diagonal();
+    let mut a = Baker::new(scene.clone(), tx.clone(), params()).unwrap();
+    a.converge();
+    let r = a.apply(&Edit::Transform { node: 1, matrix: translate(0.3, 0.2) }).unwrap();
+    assert_eq!(r.changes.lights, vec![0, 1], "both of the panel's lights moved");
+    a.converge();
+    let mut moved = a.level().current().scene.as_ref().clone();
+    moved.lights = moved.emissive_lights();
+    let now: Vec<Light> = a.level().current().lights.iter().map(|l| l.light.clone()).collect();
+    assert_eq!(now, moved.lights, "the lights are the moved panel's, exactly");
+    let mut b = Baker::with_frame(moved, tx, params(), a.frame(), extent).unwrap();
+    b.converge();
+    let (ta, tb) = (total(&a), total(&b));
+    let mean = mean_length(&tb);
+    let worst = ta.iter().zip(&tb).map(|(x, y)| (*x - *y).length() as f64).fold(0.0, f64::max);
+    assert!(mean > 0.1, "the room is lit ({mean})");
+    assert!(worst <= 1e-4 * mean, "incremental and fresh differ by {worst} at worst (mean {mean})");
+}

@@ -8,6 +8,7 @@
 use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec3};
+use prm::light::Aperture;
 use prm::{Bvh, Light, LightKind, Scene, TexelSet};
 
 /// A light with an identity that survives edits (its paths' random streams are keyed by it).
@@ -176,6 +177,26 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
         .collect()
 }
 
+/// The corners of a triangle or triangle-shaped polygon light as a key, either winding.
+fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
+    let mut k = [[0u32; 3]; 3];
+    for (i, p) in c.iter().take(3).enumerate() {
+        k[i] = p.to_array().map(f32::to_bits);
+    }
+    k.sort_unstable();
+    k
+}
+
+/// The emissive triangles of `node` in `scene`, by corner key: a polygon light with exactly
+/// such a triangle's corners (either winding) is its emission, as [`Scene::emissive_lights`]
+/// makes them.
+fn emitters(scene: &Scene, node: u32) -> std::collections::HashMap<[[u32; 3]; 3], usize> {
+    (0..scene.triangles.len())
+        .filter(|&t| scene.triangles[t].node == node && scene.material(t).emissive != Vec3::ZERO)
+        .map(|t| (corner_key(&scene.corners(t)), t))
+        .collect()
+}
+
 /// The level and its current version.
 pub struct Level {
     texels: Arc<TexelSet>,
@@ -256,6 +277,24 @@ impl Level {
                 }
                 changes.moved_nodes.push(*node);
                 changes.regions = vec![before, after];
+                // An emissive surface's polygon lights (`Scene::emissive_lights`) move with it.
+                let glowing = emitters(&cur.scene, *node);
+                for slot in lights.iter_mut() {
+                    let Aperture::Polygon { corners } = &slot.light.aperture else { continue };
+                    let t = match corners.len() == 3 && slot.light.profile.is_none() {
+                        true => glowing.get(&corner_key(corners)).copied(),
+                        false => None,
+                    };
+                    if let Some(t) = t {
+                        let moved: Vec<Vec3> = corners.iter().map(|c| matrix.transform_point3(*c)).collect();
+                        let emission = s.material(t).emissive;
+                        slot.light = Light {
+                            range: slot.light.range,
+                            ..Light::polygon(&slot.light.name, &moved, emission)
+                        };
+                        changes.lights.push(slot.id);
+                    }
+                }
                 scene = Some(s);
             }
             Edit::Albedo { material, albedo } => {
