@@ -39,6 +39,9 @@ pub struct Args {
     /// Light paths over all lights.
     #[arg(long, default_value_t = 40_000)]
     paths: usize,
+    /// Bounces a light path makes at most (Russian roulette ends most before).
+    #[arg(long, default_value_t = BakerParams::default().max_bounces)]
+    max_bounces: u32,
     /// VPLs a cell of the octree cut holds at most.
     #[arg(long, default_value_t = 256)]
     leaf_vpls: usize,
@@ -96,6 +99,7 @@ pub fn run(a: Args) -> Result<()> {
     let params = BakerParams {
         paths: a.paths,
         leaf_vpls: a.leaf_vpls,
+        max_bounces: a.max_bounces,
         cells: a.cells,
         delta_leaf_vpls: a.delta_leaf_vpls,
         consolidate: !a.no_consolidate,

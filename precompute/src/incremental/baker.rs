@@ -66,6 +66,10 @@ pub struct BakerParams {
     /// Light paths over all of the level's lights when it is opened (each light gets its share
     /// of the flux, at equal energy per path).
     pub paths: usize,
+    /// Bounces a path makes at most. Russian roulette by albedo ends paths without bias; the
+    /// cap only bounds the worst case, and a low one is a bias: at 8 the chamber (albedo about
+    /// 0.7) lost 4.7 % of its indirect light against the ground truth, at 64 it keeps it
+    /// (-1.6 %, the clusters' own).
     pub max_bounces: u32,
     /// VPLs a cell of the cut holds at most (when `cells` is `None`).
     pub leaf_vpls: usize,
@@ -99,7 +103,7 @@ impl Default for BakerParams {
     fn default() -> Self {
         BakerParams {
             paths: 40_000,
-            max_bounces: 8,
+            max_bounces: 64,
             leaf_vpls: 256,
             cells: None,
             interleave_t: 0.1,
