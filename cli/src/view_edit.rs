@@ -3,10 +3,11 @@
 //! baked) on the level as it is now, ray cast on the CPU, while updates run between frames.
 //!
 //! Tab picks the next object (a glTF node) or light; dragging with the left button moves it
-//! over the plane through it that faces the camera (the floor plane when the camera looks down), PageUp / PageDown raise and lower it by 2 % of the
-//! level's size; Up / Down change the exposure; Escape quits. A drag becomes an edit every
-//! 0.2 s and when the button is released, so the lightmap follows the object as it goes. The
-//! title shows the pick, the updates waiting and the invalid flux left.
+//! over the plane through it that faces the camera (the floor plane when the camera looks
+//! down), PageUp / PageDown raise and lower it by 2 % of the level's size; Up / Down change the
+//! exposure; Escape quits. A drag becomes an edit every 0.2 s and when the button is released,
+//! so the lightmap follows the object as it goes. The title shows the pick, the updates waiting
+//! and the invalid flux left.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -136,22 +137,26 @@ impl App {
         Some(self.camera.ray(self.cursor.0, self.cursor.1, v.config.width, v.config.height))
     }
 
-    /// Apply what the drag has moved since its last edit (or `by` directly), as one edit.
-    fn edit_by(&mut self, by: Vec3) {
-        let Some(pick) = self.picks.get(self.selected).cloned() else { return };
+    /// Move the pick by `by` as one edit; false if it was refused.
+    fn edit_by(&mut self, by: Vec3) -> bool {
+        let Some(pick) = self.picks.get(self.selected).cloned() else { return true };
         if by.length_squared() == 0.0 {
-            return;
+            return true;
         }
         let v = self.baker.level().current().clone();
         let applied = move_edit(&v, &pick, by).and_then(|e| self.baker.apply(&e));
+        self.last_edit = Instant::now();
         match applied {
             Ok(r) => {
                 self.note = format!("{} paths changed", r.paths_changed);
                 self.picks = picks(self.baker.level().current(), &self.names);
+                true
             }
-            Err(e) => self.note = format!("refused: {e}"),
+            Err(e) => {
+                self.note = format!("refused: {e}");
+                false
+            }
         }
-        self.last_edit = Instant::now();
     }
 
     fn redraw(&mut self) -> Result<()> {
@@ -161,7 +166,12 @@ impl App {
             let done = d.released;
             if due {
                 d.applied = d.offset;
-                self.edit_by(by);
+                if !self.edit_by(by) {
+                    // Refused: the next edit starts from where the object is.
+                    if let Some(d) = &mut self.drag {
+                        d.grab += by;
+                    }
+                }
                 if done {
                     self.drag = None;
                 }
@@ -293,9 +303,11 @@ impl ApplicationHandler for App {
                     Key::Named(NamedKey::Tab) if self.drag.is_none() && !self.picks.is_empty() => {
                         self.selected = (self.selected + 1) % self.picks.len();
                     }
-                    Key::Named(NamedKey::PageUp) if self.drag.is_none() => self.edit_by(Vec3::Y * self.step),
+                    Key::Named(NamedKey::PageUp) if self.drag.is_none() => {
+                        self.edit_by(Vec3::Y * self.step);
+                    }
                     Key::Named(NamedKey::PageDown) if self.drag.is_none() => {
-                        self.edit_by(-Vec3::Y * self.step)
+                        self.edit_by(-Vec3::Y * self.step);
                     }
                     Key::Named(NamedKey::ArrowUp) => self.exposure *= 1.25,
                     Key::Named(NamedKey::ArrowDown) => self.exposure /= 1.25,

@@ -656,7 +656,10 @@ fn a_balanced_cut_follows_edits_with_interleaved_balancing_updates() {
     scene.lights.push(Light::point("b", v(2.5, 0.7, 0.4), Vec3::splat(1.0)));
     let tx = texels(&scene);
     let extent = scene.diagonal();
-    let p = BakerParams { cells: Some(48), ..params() };
+    // t = 0.9: eq. (2) gives its floor of 0.5 to every validation update whose invalid share is
+    // at most 0.9 (the partial rebuilds here), so balancing alternates with them from the
+    // second update (the first is validation).
+    let p = BakerParams { cells: Some(48), interleave_t: 0.9, ..params() };
     let mut a = Baker::new(scene.clone(), tx.clone(), p.clone()).unwrap();
     a.converge();
     a.apply(&Edit::Albedo { material: 1, albedo: Vec3::splat(0.02) }).unwrap();
@@ -765,11 +768,51 @@ fn an_emissive_panel_s_light_moves_with_it() {
     moved.lights = moved.emissive_lights();
     let now: Vec<Light> = a.level().current().lights.iter().map(|l| l.light.clone()).collect();
     assert_eq!(now, moved.lights, "the lights are the moved panel's, exactly");
-    let mut b = Baker::with_frame(moved, tx, params(), a.frame(), extent).unwrap();
+    let mut b = Baker::with_frame(moved.clone(), tx.clone(), params(), a.frame(), extent).unwrap();
     b.converge();
     let (ta, tb) = (total(&a), total(&b));
     let mean = mean_length(&tb);
     let worst = ta.iter().zip(&tb).map(|(x, y)| (*x - *y).length() as f64).fold(0.0, f64::max);
     assert!(mean > 0.1, "the room is lit ({mean})");
     assert!(worst <= 1e-4 * mean, "incremental and fresh differ by {worst} at worst (mean {mean})");
+
+    // The editor does not offer the panel's lights (they go with the panel), and a light
+    // recoloured by hand keeps its colour when the panel moves on.
+    use prm_precompute::incremental::editor::picks;
+    let ps = picks(a.level().current(), &[]);
+    assert_eq!(ps.len(), 2, "the room and the panel, no light: {ps:?}");
+    let mut level = Level::new(scene.clone(), tx);
+    let mut brighter = scene.lights[0].clone();
+    brighter.intensity *= 2.0;
+    level.apply(&Edit::SetLight { id: 0, light: brighter }).unwrap();
+    level.apply(&Edit::Transform { node: 1, matrix: translate(0.3, 0.2) }).unwrap();
+    let now = &level.current().lights;
+    assert_eq!(now[1].light, moved.lights[1], "the other triangle's light, exactly");
+    let ratio = now[0].light.intensity / moved.lights[0].intensity;
+    assert!((ratio - Vec3::splat(2.0)).abs().max_element() < 1e-5, "{ratio}");
+    assert_eq!(now[0].light.aperture, moved.lights[0].aperture, "at the panel's new place");
+}
+
+#[test]
+fn the_editor_moves_a_polygon_light_whole() {
+    use prm::light::Aperture;
+    use prm_precompute::incremental::editor::{move_edit, picks};
+    let mut scene = room();
+    let panel = [v(0.4, 0.9, 0.4), v(0.6, 0.9, 0.4), v(0.6, 0.9, 0.6), v(0.4, 0.9, 0.6)];
+    scene.lights = vec![Light::polygon("panel", &facing(panel, -Vec3::Y), Vec3::splat(2.0))];
+    let mut level = Level::new(scene.clone(), texels(&scene));
+    let light = picks(level.current(), &[]).pop().unwrap();
+    let by = v(0.1, -0.2, 0.05);
+    level.apply(&move_edit(level.current(), &light, by).unwrap()).unwrap();
+    let moved = &level.current().lights[0].light;
+    let (Aperture::Polygon { corners: a }, Aperture::Polygon { corners: b }) =
+        (&scene.lights[0].aperture, &moved.aperture)
+    else {
+        panic!("a polygon light")
+    };
+    for (p, q) in a.iter().zip(b.iter()) {
+        assert!((*q - *p - by).length() < 1e-6, "corner {p} -> {q}");
+    }
+    assert!((moved.position - scene.lights[0].position - by).length() < 1e-6);
+    assert_eq!(moved.intensity, scene.lights[0].intensity);
 }

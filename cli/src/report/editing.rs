@@ -152,8 +152,9 @@ pub fn editing(
 
         let t = Instant::now();
         let r = baker.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;
-        let mut curve = vec![(0.0, error_before)];
-        curve.push((t.elapsed().as_secs_f64(), error(&baker)));
+        // Applying an edit plans its updates; the lightmap is the one before it until the first.
+        let curve_start = t.elapsed().as_secs_f64();
+        let mut curve = vec![(0.0, error_before), (curve_start, error_before)];
         let mut error_valid = f64::NAN;
         let f = follow(&mut baker, t, r.invalid_flux, |at, b, first_valid| {
             let e = error(b);

@@ -753,7 +753,12 @@ impl Baker {
                 continue;
             }
             if let Some(priority) = self.refresh_priority(*k, b, v.id) {
-                let share = (priority / b.weight.max(f32::MIN_POSITIVE)).min(1.0);
+                // A direct light's entry holds its flux; a cell's, its VPLs'.
+                let whole = match &b.source {
+                    Source::Direct(l) => direct_flux(0, l),
+                    _ => b.weight,
+                };
+                let share = (priority / whole.max(f32::MIN_POSITIVE)).min(1.0);
                 units.push(Unit { tier: TIER_INVALID, priority, share, root: *k, work: Work::Refresh(*k) });
             }
         }
@@ -770,6 +775,9 @@ impl Baker {
                 .then(rank(&b.work).cmp(&rank(&a.work)))
         });
         self.work = units;
+        // Eq. (2)'s interleaving starts half way, so that the first update after an edit is
+        // the most urgent validation one (the ratio is at least 0.5).
+        self.credit = 0.5;
         // Entries no edit can have changed may forget their old version.
         let moved_since = |id: u64| self.log.iter().any(|(e, _)| *e > id);
         let cur = v.clone();

@@ -137,7 +137,7 @@ pub fn balance_metric(members: &[Member]) -> f32 {
         hi = hi.max(m.position);
         if m.onward > 0.0 && m.reach.is_finite() {
             phi += m.onward as f64;
-            dsum += (m.onward * m.reach) as f64;
+            dsum += m.onward as f64 * m.reach as f64;
         }
     }
     if !(phi > 0.0) || members.len() < 2 {
@@ -150,8 +150,9 @@ pub fn balance_metric(members: &[Member]) -> f32 {
 }
 
 /// The balanced cut for `members` sorted by code: from the root, the cell of largest
-/// [`balance_metric`] is refined into its non-empty children until `cells` cells are selected
-/// (or none can be refined: at `max_depth`, one member, B = 0). Ties go to the lower key.
+/// [`balance_metric`] is refined into its non-empty children until at least `cells` cells are
+/// selected (a refinement adds up to 7, so at most `cells` + 6), or none can be refined (at
+/// `max_depth`, one member, B = 0 or not a number). Ties go to the lower key.
 pub fn balanced_cut(members: &[Member], cells: usize, max_depth: u32) -> Vec<(u64, std::ops::Range<usize>)> {
     use std::collections::BinaryHeap;
     #[derive(PartialEq)]

@@ -4,7 +4,9 @@
 
 use glam::{Mat4, Vec3};
 
-use super::level::{Edit, EditError, Version};
+use prm::light::Aperture;
+
+use super::level::{corner_key, Edit, EditError, Version};
 
 /// A thing the user can pick and move.
 #[derive(Clone, Debug, PartialEq)]
@@ -32,7 +34,8 @@ impl Pick {
 }
 
 /// Every node that places triangles (in node order, named from `node_names` where the file
-/// names it) and every light of `v`.
+/// names it) and every light of `v` but the emission of its surfaces (a surface's polygon
+/// lights move with its node).
 pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
     let mut boxes: std::collections::BTreeMap<u32, (Vec3, Vec3)> = Default::default();
     for (t, tri) in v.scene.triangles.iter().enumerate() {
@@ -50,7 +53,15 @@ pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
             centre: 0.5 * (lo + hi),
         })
         .collect();
-    out.extend(v.lights.iter().map(|l| Pick::Light {
+    let glowing: std::collections::HashSet<_> = (0..v.scene.triangles.len())
+        .filter(|&t| v.scene.material(t).emissive != Vec3::ZERO)
+        .map(|t| corner_key(&v.scene.corners(t)))
+        .collect();
+    let emission = |l: &prm::Light| match &l.aperture {
+        Aperture::Polygon { corners } => corners.len() == 3 && glowing.contains(&corner_key(corners)),
+        _ => false,
+    };
+    out.extend(v.lights.iter().filter(|l| !emission(&l.light)).map(|l| Pick::Light {
         id: l.id,
         name: format!("light '{}'", l.light.name),
         position: l.light.position,
@@ -94,6 +105,10 @@ pub fn move_edit(v: &Version, pick: &Pick, by: Vec3) -> Result<Edit, EditError> 
             let slot = v.lights.iter().find(|l| l.id == *id).ok_or(EditError::UnknownLight(*id))?;
             let mut light = slot.light.clone();
             light.position += by;
+            if let Aperture::Polygon { corners } = &light.aperture {
+                let moved: Vec<Vec3> = corners.iter().map(|c| *c + by).collect();
+                light.aperture = Aperture::Polygon { corners: moved.into() };
+            }
             Ok(Edit::SetLight { id: *id, light })
         }
     }

@@ -178,7 +178,7 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
 }
 
 /// The corners of a triangle or triangle-shaped polygon light as a key, either winding.
-fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
+pub(super) fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
     let mut k = [[0u32; 3]; 3];
     for (i, p) in c.iter().take(3).enumerate() {
         k[i] = p.to_array().map(f32::to_bits);
@@ -288,10 +288,16 @@ impl Level {
                     if let Some(t) = t {
                         let moved: Vec<Vec3> = corners.iter().map(|c| matrix.transform_point3(*c)).collect();
                         let emission = s.material(t).emissive;
-                        slot.light = Light {
-                            range: slot.light.range,
-                            ..Light::polygon(&slot.light.name, &moved, emission)
-                        };
+                        let name = &slot.light.name;
+                        let was = Light::polygon(name, corners, emission).intensity;
+                        let mut light =
+                            Light { range: slot.light.range, ..Light::polygon(name, &moved, emission) };
+                        if slot.light.intensity != was {
+                            // Recoloured since (a light edit): keep its radiance, on the new area.
+                            light.intensity =
+                                slot.light.intensity * (light.intensity / was.max(Vec3::splat(1e-30)));
+                        }
+                        slot.light = light;
                         changes.lights.push(slot.id);
                     }
                 }
