@@ -106,21 +106,34 @@ pub fn run(a: Args) -> Result<()> {
     }
 }
 
+/// A window 960 pixels wide at `camera`'s aspect, and a GPU that presents to it.
+pub(crate) struct Presenter {
+    pub window: Arc<Window>,
+    pub surface: wgpu::Surface<'static>,
+    pub config: wgpu::SurfaceConfiguration,
+    pub gpu: Gpu,
+}
+
+pub(crate) fn open_window(el: &ActiveEventLoop, title: &str, camera: &prm::Camera) -> Result<Presenter> {
+    let aspect = camera.aspect.unwrap_or(1.0);
+    let attrs = Window::default_attributes()
+        .with_title(title)
+        .with_inner_size(winit::dpi::LogicalSize::new(960.0, 960.0 / aspect as f64));
+    let window = Arc::new(el.create_window(attrs)?);
+    let instance = Gpu::instance();
+    let surface = instance.create_surface(window.clone())?;
+    let gpu = Gpu::with_surface(&instance, Some(&surface))?;
+    let size = window.inner_size();
+    let config = surface
+        .get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1))
+        .context("the adapter cannot present to this window")?;
+    surface.configure(&gpu.device, &config);
+    Ok(Presenter { window, surface, config, gpu })
+}
+
 impl App {
     fn open(&mut self, el: &ActiveEventLoop) -> Result<View> {
-        let aspect = self.camera.aspect.unwrap_or(1.0);
-        let attrs = Window::default_attributes()
-            .with_title("prm view")
-            .with_inner_size(winit::dpi::LogicalSize::new(960.0, 960.0 / aspect as f64));
-        let window = Arc::new(el.create_window(attrs)?);
-        let instance = Gpu::instance();
-        let surface = instance.create_surface(window.clone())?;
-        let gpu = Gpu::with_surface(&instance, Some(&surface))?;
-        let size = window.inner_size();
-        let config = surface
-            .get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1))
-            .context("the adapter cannot present to this window")?;
-        surface.configure(&gpu.device, &config);
+        let Presenter { window, surface, config, gpu } = open_window(el, "prm view", &self.camera)?;
         let runtime = Runtime::new(&gpu.device, &gpu.queue, &self.scene, &self.prm, self.params)?;
         let renderer = Renderer::new(
             &gpu.device,

@@ -26,7 +26,7 @@ use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
 use crate::render::{camera, shade};
-use crate::view::Args;
+use crate::view::{open_window, Args, Presenter};
 
 /// Seconds between the edits a drag makes while the button is held.
 const DRAG_EDIT_EVERY: f64 = 0.2;
@@ -113,19 +113,7 @@ pub fn run(a: Args) -> Result<()> {
 
 impl App {
     fn open(&mut self, el: &ActiveEventLoop) -> Result<Window3d> {
-        let aspect = self.camera.aspect.unwrap_or(1.0);
-        let attrs = Window::default_attributes()
-            .with_title("prm view --edit")
-            .with_inner_size(winit::dpi::LogicalSize::new(960.0, 960.0 / aspect as f64));
-        let window = Arc::new(el.create_window(attrs)?);
-        let instance = Gpu::instance();
-        let surface = instance.create_surface(window.clone())?;
-        let gpu = Gpu::with_surface(&instance, Some(&surface))?;
-        let size = window.inner_size();
-        let config = surface
-            .get_default_config(&gpu.adapter, size.width.max(1), size.height.max(1))
-            .context("the adapter cannot present to this window")?;
-        surface.configure(&gpu.device, &config);
+        let Presenter { window, surface, config, gpu } = open_window(el, "prm view --edit", &self.camera)?;
         let hdr = hdr_texture(&gpu.device, config.width, config.height);
         let tonemap = Tonemap::new(&gpu.device, config.format);
         Ok(Window3d { window, surface, config, gpu, hdr, tonemap })
