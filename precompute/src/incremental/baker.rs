@@ -618,9 +618,6 @@ impl Baker {
                 by_root.entry(r).or_default().push((c, m));
             }
         }
-        let bounds = self.bounds();
-        let direct_flux =
-            |id: u32, l: &Light| luminance(light_flux(&LightSlot { id, light: l.clone() }, bounds));
         let mut units = Vec::new();
         let mut in_units: BTreeSet<CellKey> = BTreeSet::new();
         // Differing VPLs of the regions that take corrections, and those regions.
@@ -633,10 +630,10 @@ impl Baker {
                 // A light's direct light: all of its flux is invalid, old and new.
                 let add: Vec<(CellKey, Content)> = want.get(&r).map(|c| (r, c.clone())).into_iter().collect();
                 let mut differing: f32 =
-                    add.iter().filter_map(|(_, c)| c.light.as_ref()).map(|l| direct_flux(0, l)).sum();
+                    add.iter().filter_map(|(_, c)| c.light.as_ref()).map(|l| self.flux_of(l)).sum();
                 for k in &baked_here {
                     if let Source::Direct(l) = &self.baked[k].source {
-                        differing += direct_flux(0, l);
+                        differing += self.flux_of(l);
                     }
                 }
                 in_units.extend(baked_here.iter().copied());
@@ -755,7 +752,7 @@ impl Baker {
             if let Some(priority) = self.refresh_priority(*k, b, v.id) {
                 // A direct light's entry holds its flux; a cell's, its VPLs'.
                 let whole = match &b.source {
-                    Source::Direct(l) => direct_flux(0, l),
+                    Source::Direct(l) => self.flux_of(l),
                     _ => b.weight,
                 };
                 let share = (priority / whole.max(f32::MIN_POSITIVE)).min(1.0);
@@ -796,6 +793,11 @@ impl Baker {
         self.log.retain(|(id, _)| *id > oldest);
     }
 
+    /// A light's emitted flux (luminance, W) in this bake's bounds.
+    fn flux_of(&self, l: &Light) -> f32 {
+        luminance(light_flux(&LightSlot { id: 0, light: l.clone() }, self.bounds()))
+    }
+
     /// The invalid flux a baked entry may carry because geometry moved since it was baked
     /// (with the current version `now`); `None` when nothing moved since.
     fn refresh_priority(&self, k: CellKey, b: &Baked, now: u64) -> Option<f32> {
@@ -822,9 +824,7 @@ impl Baker {
         // elsewhere (paper 001's estimate, unbiased), and where none did, at most about one
         // path's worth (the edit's shadow may still fall between the paths).
         Some(match &b.source {
-            Source::Direct(l) => {
-                luminance(light_flux(&LightSlot { id: 0, light: l.clone() }, self.bounds())) * view
-            }
+            Source::Direct(l) => self.flux_of(l) * view,
             _ => self.segments.get(&k).copied().unwrap_or(0.0) + self.frame.quantum * view,
         })
     }

@@ -6,7 +6,7 @@ use glam::{Mat4, Vec3};
 
 use prm::light::Aperture;
 
-use super::level::{corner_key, Edit, EditError, Version};
+use super::level::{emission_key, emitters, Edit, EditError, Version};
 
 /// A thing the user can pick and move.
 #[derive(Clone, Debug, PartialEq)]
@@ -53,14 +53,8 @@ pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
             centre: 0.5 * (lo + hi),
         })
         .collect();
-    let glowing: std::collections::HashSet<_> = (0..v.scene.triangles.len())
-        .filter(|&t| v.scene.material(t).emissive != Vec3::ZERO)
-        .map(|t| corner_key(&v.scene.corners(t)))
-        .collect();
-    let emission = |l: &prm::Light| match &l.aperture {
-        Aperture::Polygon { corners } => corners.len() == 3 && glowing.contains(&corner_key(corners)),
-        _ => false,
-    };
+    let glowing = emitters(&v.scene, None);
+    let emission = |l: &prm::Light| emission_key(l).is_some_and(|k| glowing.contains_key(&k));
     out.extend(v.lights.iter().filter(|l| !emission(&l.light)).map(|l| Pick::Light {
         id: l.id,
         name: format!("light '{}'", l.light.name),

@@ -178,7 +178,7 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
 }
 
 /// The corners of a triangle or triangle-shaped polygon light as a key, either winding.
-pub(super) fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
+fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
     let mut k = [[0u32; 3]; 3];
     for (i, p) in c.iter().take(3).enumerate() {
         k[i] = p.to_array().map(f32::to_bits);
@@ -187,14 +187,27 @@ pub(super) fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
     k
 }
 
-/// The emissive triangles of `node` in `scene`, by corner key: a polygon light with exactly
-/// such a triangle's corners (either winding) is its emission, as [`Scene::emissive_lights`]
-/// makes them.
-fn emitters(scene: &Scene, node: u32) -> std::collections::HashMap<[[u32; 3]; 3], usize> {
+/// The emissive triangles of `scene` (of `node` only, if given), by corner key: a polygon light
+/// with exactly such a triangle's corners (either winding) is its emission, as
+/// [`Scene::emissive_lights`] makes them ([`emission_key`]).
+pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<[[u32; 3]; 3], usize> {
     (0..scene.triangles.len())
-        .filter(|&t| scene.triangles[t].node == node && scene.material(t).emissive != Vec3::ZERO)
+        .filter(|&t| {
+            node.is_none_or(|n| scene.triangles[t].node == n) && scene.material(t).emissive != Vec3::ZERO
+        })
         .map(|t| (corner_key(&scene.corners(t)), t))
         .collect()
+}
+
+/// The corner key of a light that may be a triangle's emission: a triangle-shaped polygon
+/// without a profile.
+pub(super) fn emission_key(light: &Light) -> Option<[[u32; 3]; 3]> {
+    match &light.aperture {
+        Aperture::Polygon { corners } if corners.len() == 3 && light.profile.is_none() => {
+            Some(corner_key(corners))
+        }
+        _ => None,
+    }
 }
 
 /// The level and its current version.
@@ -278,14 +291,10 @@ impl Level {
                 changes.moved_nodes.push(*node);
                 changes.regions = vec![before, after];
                 // An emissive surface's polygon lights (`Scene::emissive_lights`) move with it.
-                let glowing = emitters(&cur.scene, *node);
+                let glowing = emitters(&cur.scene, Some(*node));
                 for slot in lights.iter_mut() {
-                    let Aperture::Polygon { corners } = &slot.light.aperture else { continue };
-                    let t = match corners.len() == 3 && slot.light.profile.is_none() {
-                        true => glowing.get(&corner_key(corners)).copied(),
-                        false => None,
-                    };
-                    if let Some(t) = t {
+                    let Some(&t) = emission_key(&slot.light).and_then(|k| glowing.get(&k)) else { continue };
+                    if let Aperture::Polygon { corners } = &slot.light.aperture {
                         let moved: Vec<Vec3> = corners.iter().map(|c| matrix.transform_point3(*c)).collect();
                         let emission = s.material(t).emissive;
                         let name = &slot.light.name;
