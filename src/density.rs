@@ -35,7 +35,7 @@ pub const MAX_PAGES: u32 = 256;
 /// across pages, and uvunwrap keeps charts 2 texels from every page edge, so no filter or
 /// bilinear lookup of a chart reads another page. Authored UVs are one page. The runtime's
 /// lightmap is a texture array of the pages.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Atlas {
     /// Width and height of a page, in texels.
     pub side: u32,

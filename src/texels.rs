@@ -45,7 +45,7 @@ pub const COVERAGE_EPS: f64 = 1e-7;
 pub const EDGE_PULL: f64 = 0.01;
 
 /// One covered texel: an exit point.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Texel {
     /// Column.
     pub i: u32,
@@ -62,7 +62,7 @@ pub struct Texel {
 }
 
 /// An empty texel next to covered ones, filled from them so bilinear lookups stay on the surface.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Dilation {
     /// Flat atlas index (`j * width + i`) of the empty texel.
     pub target: u32,
@@ -72,7 +72,7 @@ pub struct Dilation {
 }
 
 /// The covered texels of an atlas, with the dilation ring around them.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct TexelSet {
     pub width: u32,
     pub height: u32,

@@ -70,10 +70,15 @@ pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
 /// Load the level as a map with this header was baked for it: generated UVs in the map's
 /// pages at its texel size, or packed for its one page.
 pub fn load_for(args: &SceneArgs, header: &prm::prm_file::Header, quiet: bool) -> Result<Scene> {
-    if header.pages > 1 || header.page_texel_size > 0.0 {
-        load_with(args, None, header.page_texel_size, header.atlas_width, quiet)
+    load_for_atlas(args, header.atlas(), header.page_texel_size, quiet)
+}
+
+/// [`load_for`] from the atlas and page texel size alone (a sharded precompute's plan).
+pub fn load_for_atlas(args: &SceneArgs, atlas: Atlas, page_texel_size: f32, quiet: bool) -> Result<Scene> {
+    if atlas.pages > 1 || page_texel_size > 0.0 {
+        load_with(args, None, page_texel_size, atlas.side, quiet)
     } else {
-        load(args, header.atlas_width, quiet)
+        load(args, atlas.side, quiet)
     }
 }
 

@@ -18,6 +18,7 @@ mod info;
 mod precompute;
 mod render;
 mod report;
+mod shard;
 mod texels;
 #[cfg(feature = "view")]
 mod view;
@@ -46,8 +47,12 @@ enum Command {
     GroundTruth(ground_truth::Args),
     /// The error of one lightmap or image against a reference (DESIGN.md §3 metric).
     Compare(compare::Args),
-    /// Bake a level's precomputed radiance map (.prm).
+    /// Bake a level's precomputed radiance map (.prm), or (--prepare, --shard) a plan or a part
+    /// of one baked in parts.
     Precompute(precompute::Args),
+    /// Assemble a precompute baked in parts (--prepare, --shard) into the .prm one machine
+    /// writes.
+    Merge(shard::MergeArgs),
     /// Write a .prm's pane atlases as EXR pages.
     ExportPanes(export_panes::Args),
     /// Render frames under a (moving) light rig: direct light + the PRM's indirect lightmap.
@@ -79,6 +84,7 @@ fn main() -> Result<()> {
         Command::GroundTruth(a) => ground_truth::run(a),
         Command::Compare(a) => compare::run(a),
         Command::Precompute(a) => precompute::run(a),
+        Command::Merge(a) => shard::merge(a),
         Command::ExportPanes(a) => export_panes::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::Bake(a) => bake::run(a),

@@ -35,10 +35,10 @@ pub enum EstimatorArg {
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
+    pub scene: SceneArgs,
     /// Output .prm file.
     #[arg(short, long)]
-    output: PathBuf,
+    pub output: PathBuf,
     /// Parameter preset; the options below override it.
     #[arg(long, value_enum, default_value = "production")]
     preset: Preset,
@@ -111,15 +111,52 @@ pub struct Args {
     /// says why and runs a full precompute.
     #[arg(long, value_name = "OLD.prm")]
     update: Option<PathBuf>,
+    /// Write the plan of a precompute in parts to OUTPUT instead of a map: everything before
+    /// the walks, made once for all shards (`--shard`) and the merge (`prm merge`).
+    #[arg(long, conflicts_with_all = ["shard", "cache", "update"])]
+    prepare: bool,
+    /// Walk shard I of N (0 <= I < N) of the plan given with --plan and write its part to
+    /// OUTPUT; `prm merge` makes the map from the plan and all N parts, the same bytes as one
+    /// machine's precompute. The parameters are the plan's.
+    #[arg(long, value_name = "I/N", requires = "plan", conflicts_with_all = ["cache", "update"])]
+    shard: Option<String>,
+    /// The plan (from --prepare) a --shard walks a part of.
+    #[arg(long, value_name = "PLAN", requires = "shard")]
+    pub plan: Option<PathBuf>,
     /// Worker threads (default: all cores).
     #[arg(long)]
-    threads: Option<usize>,
+    pub threads: Option<usize>,
     /// Print a JSON summary on stdout.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if let Some(shard) = &a.shard {
+        let given = [
+            ("--entries", a.entries.is_some()),
+            ("--paths", a.paths.is_some()),
+            ("--clusters", a.clusters.is_some()),
+            ("--atlas", a.lightmap.atlas.is_some()),
+            ("--seed", a.seed.is_some()),
+            ("--estimator", a.estimator.is_some()),
+            ("--tile-size", a.tile_size.is_some()),
+            ("--near-radius", a.near_radius.is_some()),
+            ("--echo-radius", a.echo_radius.is_some()),
+            ("--dipole-block", a.dipole_block.is_some()),
+            ("--no-far-field", a.no_far_field),
+            ("--far-radius", a.far_radius.is_some()),
+            ("--smooth", a.smooth.is_some()),
+            ("--groups", a.groups.is_some()),
+            ("--drop-threshold", a.drop_threshold.is_some()),
+            ("--max-bounces", a.max_bounces.is_some()),
+        ];
+        if let Some((name, _)) = given.iter().find(|g| g.1) {
+            bail!("{name} with --shard: a shard's parameters are its plan's; give them to --prepare");
+        }
+        let (index, count) = parse_shard(shard)?;
+        return with_threads(a.threads, || crate::shard::run_shard(&a, index, count));
+    }
     let mut p = a.preset.params();
     p.paths = a.paths.unwrap_or(p.paths);
     p.seed = a.seed.unwrap_or(p.seed);
@@ -141,13 +178,34 @@ pub fn run(a: Args) -> Result<()> {
     }
     // Everything but the level-dependent counts, checked before the level is read.
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
-    let threads = a.threads.unwrap_or(0);
+    with_threads(a.threads, || bake(&a, p))
+}
+
+/// `f` on a pool of `threads` worker threads (None: all cores).
+pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+    let threads = threads.unwrap_or(0);
     if threads > 1024 {
         bail!("--threads {threads} is out of range (1 to 1024)");
     }
     let pool =
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
-    pool.install(|| bake(&a, p))
+    pool.install(f)
+}
+
+/// `I/N` of `--shard`: shard I of N, 0 <= I < N.
+fn parse_shard(s: &str) -> Result<(u32, u32)> {
+    let bad = || {
+        anyhow!(
+            "--shard {s}: give I/N, shard I of N with 0 <= I < N <= {}",
+            prm_precompute::shard::MAX_SHARDS
+        )
+    };
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let (i, n): (u32, u32) = (i.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?);
+    if n == 0 || n > prm_precompute::shard::MAX_SHARDS || i >= n {
+        return Err(bad());
+    }
+    Ok((i, n))
 }
 
 impl Preset {
@@ -178,27 +236,11 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let p = &p;
     let bvh = Bvh::build(&scene);
     let cancel = cancel_flag();
-    let bar = Mutex::new(progress_bar(1, "texels"));
-    let hidden = a.json;
-    let on_progress = |phase: Phase, done: usize, total: usize| {
-        let Ok(b) = bar.lock() else { return };
-        if hidden {
-            b.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-        }
-        let name = match phase {
-            Phase::Texels => "texels",
-            Phase::Entries => "entries",
-            Phase::Clustering => "clustering",
-            Phase::Transport => "transport",
-            Phase::Panes => "panes",
-        };
-        if b.message() != name {
-            b.set_message(name);
-            b.set_length(total as u64);
-            b.reset_eta();
-        }
-        b.set_position(done as u64);
-    };
+    let bar = PhaseBar::new(a.json);
+    let on_progress = |phase: Phase, done: usize, total: usize| bar.update(phase, done, total);
+    if a.prepare {
+        return crate::shard::prepare(a, (&scene, &bvh), p, start, &on_progress, &bar);
+    }
     let old = match &a.update {
         Some(path) => Some(read_old(path, &a.output)?),
         None => None,
@@ -220,9 +262,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             result = precompute_with(&scene, &bvh, p, Reuse::Nothing, true, &on_progress, cancel);
         }
     }
-    if let Ok(b) = bar.lock() {
-        b.finish_and_clear();
-    }
+    bar.finish();
     let Baked { prm, report, cache } = result.map_err(|e| match e {
         PrecomputeError::Cancelled(_) => anyhow!("stopped by Ctrl-C; {} not written", a.output.display()),
         e => anyhow!("{e}; {} not written", a.output.display()),
@@ -328,6 +368,49 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     Ok(())
 }
 
+/// The progress bar of a precompute's phases (hidden with `--json`).
+pub struct PhaseBar {
+    bar: Mutex<indicatif::ProgressBar>,
+    hidden: bool,
+}
+
+impl PhaseBar {
+    pub fn new(hidden: bool) -> PhaseBar {
+        let bar = progress_bar(1, "texels");
+        if hidden {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        PhaseBar { bar: Mutex::new(bar), hidden }
+    }
+
+    /// `done` of `total` in `phase`.
+    pub fn update(&self, phase: Phase, done: usize, total: usize) {
+        let Ok(b) = self.bar.lock() else { return };
+        if self.hidden {
+            b.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        let name = match phase {
+            Phase::Texels => "texels",
+            Phase::Entries => "entries",
+            Phase::Clustering => "clustering",
+            Phase::Transport => "transport",
+            Phase::Panes => "panes",
+        };
+        if b.message() != name {
+            b.set_message(name);
+            b.set_length(total as u64);
+            b.reset_eta();
+        }
+        b.set_position(done as u64);
+    }
+
+    pub fn finish(&self) {
+        if let Ok(b) = self.bar.lock() {
+            b.finish_and_clear();
+        }
+    }
+}
+
 /// The update cache beside a `.prm`: its name with `.cache` added.
 pub fn cache_path(prm: &std::path::Path) -> PathBuf {
     let mut name = prm.as_os_str().to_owned();
@@ -357,7 +440,7 @@ fn read_old(path: &std::path::Path, output: &std::path::Path) -> Result<(Prm, Up
 }
 
 /// Peak resident memory of this process, from /proc (Linux); `None` elsewhere.
-fn peak_rss() -> Option<u64> {
+pub fn peak_rss() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

@@ -38,7 +38,7 @@ pub struct CellReport {
 }
 
 /// Which kept entry's cell holds each point of each triangle ([`entry_cells`]'s rules).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct CellOwners {
     /// Per triangle, `first[t]..first[t + 1]` into `sites`.
     first: Vec<u32>,
@@ -54,7 +54,7 @@ pub struct CellOwners {
 }
 
 /// A triangle's sites on a grid in its own plane, cells one entry spacing wide.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct SiteGrid {
     origin: Vec3,
     /// Unit in-plane axes.

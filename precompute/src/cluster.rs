@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use prm::sampling::stream;
 
 /// The clusters of a set of entries.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Clustering {
     /// Cluster of each entry.
     pub assignment: Vec<u32>,

@@ -16,5 +16,6 @@ pub mod params;
 pub mod precompute;
 pub mod reference;
 pub mod scenes;
+pub mod shard;
 pub mod transport;
 pub mod update;

@@ -8,13 +8,17 @@
 //! ever held -> the drop rule and the file's parts. Every random stream is seeded from (seed,
 //! purpose, index), so the result is the same bytes at any thread count and any band height.
 
+use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
 use prm::density::{Atlas, UnwrapLayout};
 use prm::fingerprint::fingerprint_hex;
-use prm::prm_file::{far_share, Cells, Dipoles, Entry, Far, Header, InvalidPrm, NearLink, Prm, PrmParts};
+use prm::prm_file::{
+    far_share, Cells, Dipole, Dipoles, Echo, Entry, Far, Header, InvalidPrm, NearLink, NearPoint, Prm,
+    PrmParts,
+};
 use prm::{Bvh, Scene, Smoothing, TexelSet};
 use serde::Serialize;
 
@@ -26,14 +30,15 @@ use crate::near::{echo_links, near_links};
 use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
-use crate::transport::{Estimator, LinkedCells, TexelDipoles, TexelPanes, Transport};
+use crate::transport::{Estimator, Frame, LinkedCells, TexelDipoles, TexelPanes, Transport};
 use crate::update::{
-    edited_voxels, refusal, tile_digests, triangle_digests, Plan, Refused, TileRecord, UpdateCache, VoxelGrid,
+    edited_voxels, refusal, tile_digests, triangle_digests, CachedTile, Plan, Refused, TileRecord,
+    UpdateCache, VoxelGrid,
 };
 use rayon::prelude::*;
 
 /// Precompute parameters. Every field has a unit and a default; presets set them together.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PrecomputeParams {
     /// Entry points N (default 4096).
     pub entries: u32,
@@ -383,35 +388,9 @@ pub fn precompute_with(
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
     cancel: &AtomicBool,
 ) -> Result<Baked, PrecomputeError> {
-    params.validate()?;
-    if params.atlas.pages > 1 && scene.report.generated_atlas != Some(params.atlas) {
-        return Err(PrecomputeError::Params(ParamError {
-            name: "atlas pages",
-            value: params.atlas.to_string(),
-            allowed: "several pages only for a level whose UVs were generated in those pages",
-        }));
-    }
+    check_params(scene, params)?;
     let all = Instant::now();
-    let mut report = Report {
-        estimator: params.estimator.to_string(),
-        entries: params.entries,
-        paths: params.paths,
-        atlas: params.atlas.side,
-        pages: params.atlas.pages,
-        seed: params.seed,
-        threads: rayon::current_num_threads(),
-        ..Default::default()
-    };
-    let set = timed(&mut report.seconds_texels, || {
-        TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
-    });
-    report.texels = set.len();
-    progress(Phase::Texels, 1, 1);
-
-    let mut seconds = 0.0;
-    let (entries, cells, enclosed) = timed(&mut seconds, || lit_entries(scene, bvh, params));
-    (report.seconds_entries, report.entries_enclosed) = (seconds, enclosed);
-    let (cells, owners, cell_report) = cells;
+    let mut report = Report::new(params);
     // What an update compares and a cache keeps (`crate::update`).
     let tiles = (params.atlas.width().div_ceil(params.tile_size)
         * params.atlas.height().div_ceil(params.tile_size)) as usize;
@@ -420,14 +399,6 @@ pub fn precompute_with(
     if let (Some(cache), Some(triangles)) = (reuse.cache(), &triangles) {
         if let Some(r) = refusal(cache, params, triangles, tiles) {
             return Err(r.into());
-        }
-        if entries.len() != cache.assignment.len() {
-            return Err(Refused(format!(
-                "{} entries now, {} then (the edit changed the surface's area or what lies inside solids)",
-                entries.len(),
-                cache.assignment.len()
-            ))
-            .into());
         }
     }
     if tracing && (params.estimator != Estimator::Gather || params.dipole_block > 0) {
@@ -443,101 +414,41 @@ pub fn precompute_with(
             return Err(Refused("the cache belongs to another .prm (checksums differ)".into()).into());
         }
     }
-    report.cell_triangles = cells.triangles.len();
-    report.area_without_entry = cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE);
-    progress(Phase::Entries, 1, 1);
-    stop_if(cancel)?;
-
-    let clustering = timed(&mut report.seconds_clustering, || match reuse.cache() {
-        Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
-        None => {
-            let k = params.clusters as usize;
-            cluster_entries(&entries, k, scene.total_area(), params.kmeans_iterations as usize, params.seed)
-        }
-    });
-    let cents = centroids(&entries, &clustering);
-    let (frames, dipoles) = if params.dipole_block > 0 {
-        crate::dipole::frames(&entries, &cells, &clustering.members)
-    } else {
-        (Vec::new(), Vec::new())
+    let same_entries = |entries: &[Entry]| match reuse.cache() {
+        Some(cache) if entries.len() != cache.assignment.len() => Err(Refused(format!(
+            "{} entries now, {} then (the edit changed the surface's area or what lies inside solids)",
+            entries.len(),
+            cache.assignment.len()
+        ))
+        .into()),
+        _ => Ok(()),
     };
-    report.clusters = clustering.members.len() as u32;
-    progress(Phase::Clustering, 1, 1);
-    stop_if(cancel)?;
-
-    // The entry spacing sqrt(A / N), the unit of the near, far and smoothing reaches.
-    let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
-    // Each cell's centroid and area, once (a cell's are sums over its pieces).
-    let cell: Vec<(Vec3, f32)> = (0..entries.len())
-        .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
-        .collect();
-    let far = timed(&mut report.seconds_far, || {
-        if params.far_field {
-            let reach = params.near_radius * spacing;
-            let radius = params.far_radius * spacing;
-            far_field(scene, bvh, &set, &entries, &cell, reach, radius, params.seed)
-        } else {
-            Far::default()
-        }
-    });
-    report.far_texels = far.texels.len();
-    // Each pair's bit is stored both ways.
-    report.far_pairs = far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
-    let (near, near_points) = timed(&mut report.seconds_near, || {
-        if params.near_radius > 0.0 {
-            near_links(bvh, &set, &entries, &cells, params.near_radius, &far)
-        } else {
-            (Vec::new(), Vec::new())
-        }
-    });
-    report.near_links = near.len();
-    // The links' first bounce, exact: the gather leaves it out of its first hits and the panes
-    // get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does this (the
-    // MIS and scatter estimators, and dipole panes, walk it as before).
-    let linked = (params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty())
-        .then(|| {
-            let linked = linked_cells(&set, &cell, &near, &far);
-            let exact = exact_first_bounce(&set, &entries, &cell, &linked, &clustering);
-            (linked, exact)
-        });
-    let (linked, exact) = match linked {
-        Some((l, e)) => (Some(l), e),
-        None => (None, Vec::new()),
-    };
-    // The echo links need the near links' points only; made now, so nothing of the walks is
-    // held while they are.
-    let echo = timed(&mut report.seconds_near, || {
-        echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
-    });
-    report.echo_links = echo.links.len();
-
-    let t = Instant::now();
-    let smoothing =
-        (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
-    let grouping = match reuse.cache() {
-        Some(c) => (c.groups > 0).then(|| Clustering::from_assignment(&c.group_of, c.groups)),
-        None => group_clusters(scene, &entries, &clustering.members, &cents, params),
-    };
-    report.seconds_panes += t.elapsed().as_secs_f64();
+    let mut pre =
+        Preamble::build(scene, bvh, params, reuse.cache(), same_entries, &mut report, progress, cancel)?;
+    let linked = pre.linked();
+    let set = &pre.set;
     // The update's plan: which tiles the edit reaches, which texels to walk again.
-    let digests =
-        tracing.then(|| tile_digests(&set, params.tile_size, smoothing.as_ref(), linked.as_ref(), &exact));
+    let digests = tracing
+        .then(|| tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &pre.exact));
     let plan = match (reuse, &triangles, &digests) {
         (Reuse::Update { cache, old }, Some(triangles), Some(digests)) => {
-            let edited =
-                edited_voxels(cache, triangles, scene, (old.entries(), old.cells()), (&entries, &cells));
-            let plan = Plan::new(cache, &set, params.tile_size, smoothing.as_ref(), digests, &edited);
-            let layout = Encoder::new(&set, None, params.tile_size, 1).tile_codes();
+            let edited = edited_voxels(
+                cache,
+                triangles,
+                scene,
+                (old.entries(), old.cells()),
+                (&pre.entries, &pre.cells),
+            );
+            let plan = Plan::new(cache, set, params.tile_size, pre.smoothing.as_ref(), digests, &edited);
+            let layout = Encoder::new(set, None, params.tile_size, 1).tile_codes();
             // Tiles taken from the cache must hold as many codes as this atlas stores there
             // (a tile whose stored texels changed has another digest, so it is not taken).
             let fits = cache.panes.iter().flatten().all(|t| {
                 let k = t.index as usize;
                 plan.dirty.get(k) != Some(&false) || layout.get(k) == Some(&t.codes.len())
             });
-            if !fits
-                || cache.panes.len()
-                    != clustering.members.len() + grouping.as_ref().map_or(0, |g| g.members.len())
-            {
+            let panes = pre.clustering.members.len() + pre.grouping.as_ref().map_or(0, |g| g.members.len());
+            if !fits || cache.panes.len() != panes {
                 return Err(Refused("the cache's pane tiles do not fit this atlas".into()).into());
             }
             report.update_tiles_hit = plan.hit.iter().filter(|&&h| h).count();
@@ -554,40 +465,42 @@ pub fn precompute_with(
             VoxelGrid::around(lo, hi)
         }
     };
-    let trace = Tracing { grid: tracing.then_some(&grid), plan: plan.as_ref().map(|(p, c)| (p, *c)) };
-    let transport = Transport {
-        scene,
-        bvh,
-        entries: &entries,
-        owners: &owners,
-        linked: linked.as_ref(),
-        assignment: &clustering.assignment,
-        clusters: clustering.members.len(),
-        frames: &frames,
-        paths: params.paths,
-        max_bounces: params.max_bounces,
-        seed: params.seed,
-        stats: Default::default(),
+    let transport = pre.transport(scene, bvh, linked.as_ref(), params);
+    let prepared = transport.prepare(params.estimator);
+    let (tx, ty) = Encoder::new(set, None, params.tile_size, 1).tiles();
+    let mut records =
+        tracing.then(|| vec![TileRecord { footprint: vec![0; grid.words()], ..Default::default() }; tx * ty]);
+    // With a voxel grid each walked texel is recorded in its tile; with a plan only its
+    // texels are walked (the others give nothing and are taken from the cache).
+    let mut walk = |range: Range<usize>, control: Control| -> Result<Walked, PrecomputeError> {
+        let Some(records) = records.as_mut() else {
+            return Ok(transport.run_texels(&prepared, &set.texels[range], set.width, control)?);
+        };
+        let todo: Vec<usize> =
+            range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _)| p.walk[k])).collect();
+        let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
+        let walked = transport.run_traced(&texels, set.width, &grid, control)?;
+        let mut out: Walked = vec![(Vec::new(), Vec::new()); range.len()];
+        for (&k, (p, trace)) in todo.iter().zip(walked) {
+            let t = &set.texels[k];
+            let r = &mut records[crate::update::tile_of(t.i, t.j, params.tile_size, tx)];
+            for v in trace.voxels {
+                r.footprint[v as usize / 64] |= 1 << (v % 64);
+            }
+            r.truncated += trace.truncated;
+            r.unowned += trace.unowned;
+            out[k - range.start].0 = p;
+        }
+        Ok(out)
     };
-    let mut acc = walk_and_encode(
-        &transport,
-        params,
-        &set,
-        smoothing.as_ref(),
-        &exact,
-        grouping.as_ref(),
-        &dipoles,
-        &trace,
-        cancel,
-        progress,
-        &mut report,
-    )?;
+    let cached = plan.as_ref().map(|(plan, cache)| (&plan.dirty[..], &cache.panes[..]));
+    let mut acc = walk_and_encode(&pre, params, &mut walk, cached, progress, cancel, &mut report)?;
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
     report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
+    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
     // An update walked some texels only: the counters are the tiles' (the same totals a full
     // bake's walks give, tile by tile).
-    let mut records = acc.records.take();
     if let (Some((plan, cache)), Some(records)) = (&plan, records.as_mut()) {
         for (k, r) in records.iter_mut().enumerate() {
             if !plan.dirty[k] {
@@ -598,7 +511,7 @@ pub fn precompute_with(
         report.unowned_vertices = records.iter().map(|r| r.unowned as usize).sum();
     }
     let pane_cache = if tracing {
-        let layout = Encoder::new(&set, None, params.tile_size, 1).tile_codes();
+        let layout = Encoder::new(set, None, params.tile_size, 1).tile_codes();
         let codes = |index: u32| layout[index as usize];
         let mut panes = acc.fine.export(&codes)?;
         panes.extend(acc.groups.export(&codes)?);
@@ -606,35 +519,313 @@ pub fn precompute_with(
     } else {
         None
     };
-    report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
     // The links' shares and exact first bounce are the walks' only; freed before the
     // panes' codes come back from the scratch file.
-    drop((linked, exact));
+    (pre.keep, pre.exact) = (None, Vec::new());
+    let kept = tracing.then(|| (pre.clustering.assignment.clone(), pre.grouping.clone()));
+    let prm = finish(pre, acc, params, &mut report, all)?;
+    let cache = match (pane_cache, records, triangles, digests, kept) {
+        (Some(panes), Some(mut records), Some(triangles), Some(digests), Some((assignment, grouping))) => {
+            for (r, d) in records.iter_mut().zip(digests) {
+                r.inputs = d;
+            }
+            let (group_of, groups) = match &grouping {
+                Some(g) => (g.assignment.clone(), g.members.len() as u32),
+                None => (Vec::new(), 0),
+            };
+            Some(UpdateCache {
+                prm_checksum: prm_checksum(&prm),
+                params: params.canonical(),
+                grid,
+                triangles,
+                assignment,
+                clusters: report.clusters,
+                group_of,
+                groups,
+                tiles: records,
+                panes,
+            })
+        }
+        _ => None,
+    };
+    Ok(Baked { prm, report, cache })
+}
 
+/// Parameters valid, and several atlas pages only for a level generated in them.
+pub(crate) fn check_params(scene: &Scene, params: &PrecomputeParams) -> Result<(), PrecomputeError> {
+    params.validate()?;
+    if params.atlas.pages > 1 && scene.report.generated_atlas != Some(params.atlas) {
+        return Err(PrecomputeError::Params(ParamError {
+            name: "atlas pages",
+            value: params.atlas.to_string(),
+            allowed: "several pages only for a level whose UVs were generated in those pages",
+        }));
+    }
+    Ok(())
+}
+
+impl Report {
+    /// A report with the parameters filled in and nothing measured yet.
+    pub(crate) fn new(params: &PrecomputeParams) -> Report {
+        Report {
+            estimator: params.estimator.to_string(),
+            entries: params.entries,
+            paths: params.paths,
+            atlas: params.atlas.side,
+            pages: params.atlas.pages,
+            seed: params.seed,
+            threads: rayon::current_num_threads(),
+            ..Default::default()
+        }
+    }
+}
+
+/// The walks' results for a run of texels, one per texel in order (empty for a texel not
+/// walked).
+pub(crate) type Walked = Vec<(TexelPanes, TexelDipoles)>;
+
+/// Where the walks come from: `walk(texels, control)` gives those of a run of covered texels
+/// (the transport's, or a sharded precompute's parts).
+pub(crate) type WalkSource<'a> = dyn FnMut(Range<usize>, Control) -> Result<Walked, PrecomputeError> + 'a;
+
+/// Everything the walks and the panes' encoding take from the level before any walk: the
+/// texel set, the entries and their cells, the clusters and groups, the near, echo and far
+/// fields, the links' exact first bounce and the smoothing, with the counts the file's
+/// header records. It depends on the level and the parameters only (not on the thread
+/// count), so a sharded precompute (`crate::shard`) makes it once and every shard and the
+/// merge read it.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct Preamble {
+    pub(crate) set: TexelSet,
+    pub(crate) entries: Vec<Entry>,
+    pub(crate) cells: Cells,
+    pub(crate) owners: CellOwners,
+    pub(crate) clustering: Clustering,
+    pub(crate) centroids: Vec<Vec3>,
+    pub(crate) grouping: Option<Clustering>,
+    pub(crate) far: Far,
+    pub(crate) near: Vec<NearLink>,
+    pub(crate) near_points: Vec<NearPoint>,
+    /// Per near link, the share of its cell's first bounce the walks keep (None: the walks
+    /// keep all of it: `transport::LinkedCells`).
+    pub(crate) keep: Option<Vec<f32>>,
+    /// Per covered texel, the links' exact first bounce per cluster (empty without links).
+    pub(crate) exact: Vec<TexelPanes>,
+    pub(crate) echo: Echo,
+    pub(crate) smoothing: Option<Smoothing>,
+    /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
+    /// refuses them, so they are not stored).
+    #[serde(skip)]
+    pub(crate) frames: Vec<Frame>,
+    #[serde(skip)]
+    pub(crate) dipoles: Vec<Dipole>,
+    /// The header's level fingerprint and page texel size.
+    pub(crate) fingerprint: String,
+    pub(crate) page_texel_size: f32,
+    /// Entries left out inside solids, and the share of the surface no cell covers.
+    pub(crate) enclosed: usize,
+    pub(crate) area_without_entry: f64,
+}
+
+impl Preamble {
+    /// Every phase before the walks (module doc), timed into `report`. `check` sees the
+    /// entries before they are clustered (an update refuses there); `cache` gives the
+    /// clusters and groups instead of k-means.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn build(
+        scene: &Scene,
+        bvh: &Bvh,
+        params: &PrecomputeParams,
+        cache: Option<&UpdateCache>,
+        check: impl FnOnce(&[Entry]) -> Result<(), PrecomputeError>,
+        report: &mut Report,
+        progress: &(dyn Fn(Phase, usize, usize) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<Preamble, PrecomputeError> {
+        let set = timed(&mut report.seconds_texels, || {
+            TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
+        });
+        progress(Phase::Texels, 1, 1);
+        let (entries, (cells, owners, cell_report), enclosed) =
+            timed(&mut report.seconds_entries, || lit_entries(scene, bvh, params));
+        check(&entries)?;
+        progress(Phase::Entries, 1, 1);
+        stop_if(cancel)?;
+
+        let clustering = timed(&mut report.seconds_clustering, || match cache {
+            Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
+            None => {
+                let k = params.clusters as usize;
+                cluster_entries(
+                    &entries,
+                    k,
+                    scene.total_area(),
+                    params.kmeans_iterations as usize,
+                    params.seed,
+                )
+            }
+        });
+        let cents = centroids(&entries, &clustering);
+        let (frames, dipoles) = if params.dipole_block > 0 {
+            crate::dipole::frames(&entries, &cells, &clustering.members)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        progress(Phase::Clustering, 1, 1);
+        stop_if(cancel)?;
+
+        // The entry spacing sqrt(A / N), the unit of the near, far and smoothing reaches.
+        let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
+        // Each cell's centroid and area, once (a cell's are sums over its pieces).
+        let cell: Vec<(Vec3, f32)> = (0..entries.len())
+            .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
+            .collect();
+        let far = timed(&mut report.seconds_far, || {
+            if params.far_field {
+                let reach = params.near_radius * spacing;
+                let radius = params.far_radius * spacing;
+                far_field(scene, bvh, &set, &entries, &cell, reach, radius, params.seed)
+            } else {
+                Far::default()
+            }
+        });
+        let (near, near_points) = timed(&mut report.seconds_near, || {
+            if params.near_radius > 0.0 {
+                near_links(bvh, &set, &entries, &cells, params.near_radius, &far)
+            } else {
+                (Vec::new(), Vec::new())
+            }
+        });
+        // The links' first bounce, exact: the gather leaves it out of its first hits and the
+        // panes get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does
+        // this (the MIS and scatter estimators, and dipole panes, walk it as before).
+        let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
+        let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
+        let exact = match &keep {
+            Some(keep) => {
+                let linked = LinkedCells { links: &near, keep };
+                exact_first_bounce(&set, &entries, &cell, &linked, &clustering)
+            }
+            None => Vec::new(),
+        };
+        // The echo links need the near links' points only; made now, so nothing of the walks
+        // is held while they are.
+        let echo = timed(&mut report.seconds_near, || {
+            echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+        });
+
+        let t = Instant::now();
+        let smoothing =
+            (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
+        let grouping = match cache {
+            Some(c) => (c.groups > 0).then(|| Clustering::from_assignment(&c.group_of, c.groups)),
+            None => group_clusters(scene, &entries, &clustering.members, &cents, params),
+        };
+        report.seconds_panes += t.elapsed().as_secs_f64();
+        let pre = Preamble {
+            set,
+            entries,
+            cells,
+            owners,
+            clustering,
+            centroids: cents,
+            grouping,
+            far,
+            near,
+            near_points,
+            keep,
+            exact,
+            echo,
+            smoothing,
+            frames,
+            dipoles,
+            fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
+            page_texel_size: page_texel_size(scene),
+            enclosed,
+            area_without_entry: cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE),
+        };
+        pre.count(report);
+        Ok(pre)
+    }
+
+    /// The counts the report (and the file's header) take from the preamble.
+    pub(crate) fn count(&self, report: &mut Report) {
+        report.texels = self.set.len();
+        report.entries_enclosed = self.enclosed;
+        report.cell_triangles = self.cells.triangles.len();
+        report.area_without_entry = self.area_without_entry;
+        report.clusters = self.clustering.members.len() as u32;
+        report.far_texels = self.far.texels.len();
+        // Each pair's bit is stored both ways.
+        report.far_pairs = self.far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
+        report.near_links = self.near.len();
+        report.echo_links = self.echo.links.len();
+    }
+
+    /// The near links with the share of their first bounce the walks keep (None: the walks
+    /// keep all of it).
+    pub(crate) fn linked(&self) -> Option<LinkedCells<'_>> {
+        self.keep.as_ref().map(|keep| LinkedCells { links: &self.near, keep })
+    }
+
+    /// The walks' estimator over this preamble.
+    pub(crate) fn transport<'a>(
+        &'a self,
+        scene: &'a Scene,
+        bvh: &'a Bvh,
+        linked: Option<&'a LinkedCells<'a>>,
+        params: &PrecomputeParams,
+    ) -> Transport<'a> {
+        Transport {
+            scene,
+            bvh,
+            entries: &self.entries,
+            owners: &self.owners,
+            linked,
+            assignment: &self.clustering.assignment,
+            clusters: self.clustering.members.len(),
+            frames: &self.frames,
+            paths: params.paths,
+            max_bounces: params.max_bounces,
+            seed: params.seed,
+            stats: Default::default(),
+        }
+    }
+}
+
+/// The file from the preamble and the encoded panes: the drop rule, the header and the
+/// sections (the last step of a precompute and of a sharded one's merge). `all` is when the
+/// precompute started.
+pub(crate) fn finish(
+    pre: Preamble,
+    acc: Encoded,
+    params: &PrecomputeParams,
+    report: &mut Report,
+    all: Instant,
+) -> Result<Prm, PrecomputeError> {
     let t = Instant::now();
-    let encoder = Encoder::new(&set, smoothing.as_ref(), params.tile_size, params.band_tile_rows);
-    let (members, threshold) = (&clustering.members, params.drop_threshold);
-    let tiled = assemble(&encoder, acc.fine, acc.groups, members, &cents, threshold)?;
+    let encoder = Encoder::new(&pre.set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
+    let (members, threshold) = (&pre.clustering.members, params.drop_threshold);
+    let tiled = assemble(&encoder, acc.fine, acc.groups, members, &pre.centroids, threshold)?;
     let dipoles = match acc.dipoles {
-        Some(d) => assemble_dipoles(&encoder, d, dipoles, params.dipole_block, threshold)?,
+        Some(d) => assemble_dipoles(&encoder, d, pre.dipoles.clone(), params.dipole_block, threshold)?,
         None => Dipoles::default(),
     };
+    drop(encoder);
     report.dipole_tiles = dipoles.tiles.len();
     report.dipole_bytes = dipoles.data.len();
     report.seconds_panes += t.elapsed().as_secs_f64();
-    progress(Phase::Panes, 1, 1);
     report.tiles_kept = tiled.tiles.len() as u32;
     report.tiles_dropped = tiled.tiles_dropped;
     report.dropped_energy = tiled.dropped_energy;
     report.pane_bytes = tiled.data.len();
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
     report.seconds_total = all.elapsed().as_secs_f64();
-    let header = header(scene, params, &report, entries.len(), &tiled);
-    let grouping_kept = if tracing { grouping.clone() } else { None };
-    let assignment_kept = if tracing { clustering.assignment.clone() } else { Vec::new() };
+    let header = header(&pre, params, report, &tiled);
+    let Preamble { entries, cells, near, near_points, echo, far, grouping, .. } = pre;
     let group_of = grouping.map_or_else(Vec::new, |g| g.assignment);
     let Tiled { clusters, groups, mask, tiles, data, .. } = tiled;
-    let prm = Prm::new(PrmParts {
+    Ok(Prm::new(PrmParts {
         header,
         entries,
         cells,
@@ -649,44 +840,13 @@ pub fn precompute_with(
         data,
         dipoles,
         far,
-    })?;
-    let cache = match (pane_cache, records, triangles, digests) {
-        (Some(panes), Some(mut records), Some(triangles), Some(digests)) => {
-            for (r, d) in records.iter_mut().zip(digests) {
-                r.inputs = d;
-            }
-            let (group_of, groups) = match &grouping_kept {
-                Some(g) => (g.assignment.clone(), g.members.len() as u32),
-                None => (Vec::new(), 0),
-            };
-            Some(UpdateCache {
-                prm_checksum: prm_checksum(&prm),
-                params: params.canonical(),
-                grid,
-                triangles,
-                assignment: assignment_kept,
-                clusters: report.clusters,
-                group_of,
-                groups,
-                tiles: records,
-                panes,
-            })
-        }
-        _ => None,
-    };
-    Ok(Baked { prm, report, cache })
+    })?)
 }
 
 /// Per link, the share of its cell's first bounce the gather's walks keep: the far field's
 /// share where it lights the texel (what the link's fade leaves to it), else none.
-fn linked_cells<'a>(
-    set: &TexelSet,
-    cell: &[(Vec3, f32)],
-    near: &'a [NearLink],
-    far: &Far,
-) -> LinkedCells<'a> {
-    let keep = near
-        .par_iter()
+fn linked_shares(set: &TexelSet, cell: &[(Vec3, f32)], near: &[NearLink], far: &Far) -> Vec<f32> {
+    near.par_iter()
         .map(|l| {
             let (centroid, area) = cell[l.entry as usize];
             let fades = far.texels.binary_search_by_key(&l.texel, |f| f.texel).is_ok();
@@ -697,8 +857,7 @@ fn linked_cells<'a>(
                 0.0
             }
         })
-        .collect();
-    LinkedCells { links: near, keep }
+        .collect()
 }
 
 /// Per covered texel, what the links left out of the walks add to each cluster's pane: per
@@ -768,54 +927,38 @@ fn lit_entries(
     (entries, cells, enclosed)
 }
 
-/// The panes being encoded: the clusters', the groups' and the dipoles' (if any), and with a
-/// voxel grid each atlas tile's walk record (`crate::update`).
-struct Encoded {
-    fine: Accumulated,
-    groups: Accumulated,
-    dipoles: Option<Accumulated>,
-    records: Option<Vec<TileRecord>>,
+/// The panes being encoded: the clusters', the groups' and the dipoles' (if any).
+pub(crate) struct Encoded {
+    pub(crate) fine: Accumulated,
+    pub(crate) groups: Accumulated,
+    pub(crate) dipoles: Option<Accumulated>,
 }
 
-/// What the walks record, and skip, for an update (`crate::update`): the voxel grid their
-/// footprints are kept on (None: none kept) and an update's plan with the cache it reuses.
-struct Tracing<'a> {
-    grid: Option<&'a VoxelGrid>,
-    plan: Option<(&'a Plan, &'a UpdateCache)>,
-}
-
-/// Walk the texels (module `transport`) a band of tile rows at a time and encode every pane's
-/// tiles in each band as it is done (`crate::panes`), holding only the walks the next bands
-/// still need. With a plan, only its texels are walked and its dirty tiles encoded, the rest
-/// taken from the cache.
-#[allow(clippy::too_many_arguments)]
-fn walk_and_encode(
-    transport: &Transport,
+/// Walk the texels a band of tile rows at a time (`walk(texels, control)`: the walks of a run
+/// of covered texels, from `transport` or from a sharded precompute's parts) and encode every
+/// pane's tiles in each band as it is done (`crate::panes`), holding only the walks the next
+/// bands still need. With `cached` (an update's dirty tiles and the cache's pane tiles), only
+/// the dirty tiles are encoded, the rest taken from the cache.
+pub(crate) fn walk_and_encode(
+    pre: &Preamble,
     params: &PrecomputeParams,
-    set: &TexelSet,
-    smoothing: Option<&Smoothing>,
-    exact: &[TexelPanes],
-    grouping: Option<&Clustering>,
-    dipoles: &[prm::prm_file::Dipole],
-    tracing: &Tracing,
-    cancel: &AtomicBool,
+    walk: &mut WalkSource,
+    cached: Option<(&[bool], &[Vec<CachedTile>])>,
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
+    cancel: &AtomicBool,
     report: &mut Report,
 ) -> Result<Encoded, PrecomputeError> {
-    let encoder = Encoder::new(set, smoothing, params.tile_size, params.band_tile_rows);
-    let prepared = transport.prepare(params.estimator);
-    let (tx, ty) = encoder.tiles();
+    let (set, grouping) = (&pre.set, pre.grouping.as_ref());
+    let encoder = Encoder::new(set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
+    let clusters = pre.clustering.members.len();
     let mut out = Encoded {
-        fine: Accumulated::new(transport.clusters)?,
+        fine: Accumulated::new(clusters)?,
         groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
-        dipoles: if dipoles.is_empty() { None } else { Some(Accumulated::new(3 * dipoles.len())?) },
-        records: tracing
-            .grid
-            .map(|g| vec![TileRecord { footprint: vec![0; g.words()], ..Default::default() }; tx * ty]),
+        dipoles: if pre.dipoles.is_empty() { None } else { Some(Accumulated::new(3 * pre.dipoles.len())?) },
     };
-    let reuse = tracing.plan.map(|(plan, cache)| {
-        let split = transport.clusters.min(cache.panes.len());
-        (&plan.dirty[..], &cache.panes[..split], &cache.panes[split..])
+    let reuse = cached.map(|(dirty, panes)| {
+        let split = clusters.min(panes.len());
+        (dirty, &panes[..split], &panes[split..])
     });
     // The walks of texels first..first + panes.len().
     let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
@@ -832,40 +975,15 @@ fn walk_and_encode(
             let t = Instant::now();
             let on_texels = |done| progress(Phase::Transport, have + done, n);
             let control = Control { progress: &on_texels, cancel };
-            match (tracing.grid, out.records.as_mut()) {
-                (Some(grid), Some(records)) => {
-                    // Only the plan's texels (all without one), each recorded in its tile.
-                    let todo: Vec<usize> =
-                        (have..range.end).filter(|&k| tracing.plan.is_none_or(|(p, _)| p.walk[k])).collect();
-                    let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
-                    let walked = transport.run_traced(&texels, set.width, grid, control)?;
-                    panes.resize(range.end - first, Vec::new());
-                    dips.resize(range.end - first, Vec::new());
-                    for (&k, (p, trace)) in todo.iter().zip(walked) {
-                        let t = &set.texels[k];
-                        let r = &mut records[crate::update::tile_of(t.i, t.j, params.tile_size, tx)];
-                        for v in trace.voxels {
-                            r.footprint[v as usize / 64] |= 1 << (v % 64);
-                        }
-                        r.truncated += trace.truncated;
-                        r.unowned += trace.unowned;
-                        panes[k - first] = p;
-                    }
-                }
-                _ => {
-                    let walked =
-                        transport.run_texels(&prepared, &set.texels[have..range.end], set.width, control)?;
-                    for (p, d) in walked {
-                        panes.push(p);
-                        dips.push(d);
-                    }
-                }
+            for (p, d) in walk(have..range.end, control)? {
+                panes.push(p);
+                dips.push(d);
             }
             report.seconds_transport += t.elapsed().as_secs_f64();
         }
         stop_if(cancel)?;
         let t = Instant::now();
-        let exact = exact.get(range.clone()).unwrap_or(&[]);
+        let exact = pre.exact.get(range.clone()).unwrap_or(&[]);
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
         encoder.encode_band(&band, first, &panes, exact, &mut out.fine, fine_reuse)?;
         if let Some(g) = grouping {
@@ -874,13 +992,21 @@ fn walk_and_encode(
             encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
         }
         if let Some(acc) = out.dipoles.as_mut() {
-            encoder.encode_dipole_band(&band, first, &panes, &dips, dipoles, params.dipole_block, acc)?;
+            encoder.encode_dipole_band(
+                &band,
+                first,
+                &panes,
+                &dips,
+                &pre.dipoles,
+                params.dipole_block,
+                acc,
+            )?;
         }
         report.seconds_panes += t.elapsed().as_secs_f64();
     }
+    progress(Phase::Panes, 1, 1);
     Ok(out)
 }
-
 /// Each texel's contributions summed by group.
 fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
     panes
@@ -911,21 +1037,15 @@ fn page_texel_size(scene: &Scene) -> f32 {
 
 /// The file header: what the map was baked for, its counts, and the parameters and counters
 /// the inputs fix (timings would break byte-for-byte determinism, so none go in).
-fn header(
-    scene: &Scene,
-    params: &PrecomputeParams,
-    report: &Report,
-    entries: usize,
-    tiled: &Tiled,
-) -> Header {
+fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Tiled) -> Header {
     Header {
-        fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
+        fingerprint: pre.fingerprint.clone(),
         atlas_width: params.atlas.width(),
         atlas_height: params.atlas.height(),
         pages: params.atlas.pages,
-        page_texel_size: page_texel_size(scene),
+        page_texel_size: pre.page_texel_size,
         tile_size: params.tile_size,
-        entries: entries as u32,
+        entries: pre.entries.len() as u32,
         clusters: tiled.clusters.len() as u32,
         groups: tiled.groups.len() as u32,
         tiles: tiled.tiles.len() as u32,

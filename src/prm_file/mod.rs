@@ -126,7 +126,7 @@ pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 pub const VERSION: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Entry {
     pub position: Vec3,
     /// Unit front-face normal.
@@ -142,7 +142,7 @@ pub struct Entry {
 /// The surface each entry point stands for (its *cell*), as triangles counter-clockwise seen
 /// from the front: entry j owns `triangles[first[j]..first[j + 1]]`. Together the cells tile
 /// the surfaces light can reach (module doc).
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Cells {
     /// N + 1 offsets into `triangles`, from 0 to its length, non-decreasing.
     pub first: Vec<u32>,
@@ -187,7 +187,7 @@ impl Cells {
 /// A near-field link: texel `texel` (row-major atlas index) receives `albedo x factor` W/m² of
 /// first bounce per W/m² of weight on entry `entry` (module doc). Stored as a half float: a
 /// bake rounds the factor to one before it makes the map, so a map and its file agree.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct NearLink {
     pub texel: u32,
     pub entry: u32,
@@ -197,7 +197,7 @@ pub struct NearLink {
 /// The sample point and unit normal of a texel with near-field links (one per run of links,
 /// in the same order). Stored as 16-bit positions across the box of all of them and an
 /// octahedral 16-bit normal; [`round_near_points`] rounds them as the file stores them.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct NearPoint {
     pub texel: u32,
     pub position: Vec3,
@@ -208,7 +208,7 @@ pub struct NearPoint {
 /// `receiver` gets `factor` (the form factor from its point to the source texel's square) times
 /// the source's albedo times the source's near-field irradiance. Both are indices into
 /// [`Prm::near_points`]. Stored as a half float, rounded by the bake as for [`NearLink`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EchoLink {
     pub receiver: u32,
     pub source: u32,
@@ -217,7 +217,7 @@ pub struct EchoLink {
 
 /// The echo of the near field: each near point's albedo (8-bit linear, [`round_albedo`]) and
 /// the links, sorted by receiver then source. Empty when the map has none.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Echo {
     pub albedo: Vec<Vec3>,
     pub links: Vec<EchoLink>,
@@ -361,7 +361,7 @@ pub fn round_near_points(points: &mut [NearPoint]) {
 
 /// A texel the far field lights (`Far`): its sample point and unit normal, and the entries
 /// (up to four; weight 0 for an unused one) whose visibility it borrows, weights summing to 1.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FarTexel {
     /// Row-major atlas index.
     pub texel: u32,
@@ -382,7 +382,7 @@ pub struct FarTexel {
 /// exchange no far-field light; the visibility grows with the level, not with its square (v9
 /// kept a bit for every pair of entries: 41.5 MB on the 4 x 4 halls, and none past 65,536
 /// entries).
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Far {
     /// The far field has no share of a cell's light closer than this (scene units) and all of
     /// it beyond `reach` plus the cell's size ([`far_share`]).

@@ -43,7 +43,7 @@ pub fn is_buried(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3) -> bool {
 }
 
 /// What [`TexelSet::unbury`] did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Burial {
     /// Texels whose sample point moved to the visible part of their square.
     pub moved: usize,

@@ -28,6 +28,7 @@ use super::TexelSet;
 use crate::scene::Scene;
 
 /// A texel set's smoothing filter, built once and applied to any number of atlas images.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Smoothing {
     /// Atlas width in texels.
     width: u32,
@@ -37,6 +38,7 @@ pub struct Smoothing {
 
 /// One one-dimensional pass: for each covered texel (in `TexelSet::texels` order) its atlas
 /// index and its taps (atlas index, weight), the weights summing to one.
+#[derive(serde::Serialize, serde::Deserialize)]
 struct Pass {
     /// The farthest a tap lies above or below its texel, in rows.
     row_reach: u32,

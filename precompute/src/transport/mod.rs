@@ -53,7 +53,7 @@ use crate::update::{Recorder, VoxelGrid};
 pub use gather::MisTables;
 
 /// How pane contents are estimated.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Estimator {
     /// Texel-side walks credited to the cluster whose region each vertex hits.
     Gather,
@@ -245,7 +245,7 @@ pub struct LinkedCells<'a> {
     /// Sorted by atlas texel, then entry ([`prm::prm_file::NearLink`]).
     pub links: &'a [prm::prm_file::NearLink],
     /// Per link: the share of its cell's first bounce the walks keep.
-    pub keep: Vec<f32>,
+    pub keep: &'a [f32],
 }
 
 impl LinkedCells<'_> {
