@@ -95,6 +95,8 @@ def main():
                    help="the prm binary on the workers (default: $PRM_BIN, or prm on PATH)")
     p.add_argument("--node-ip-address", default=None,
                    help="this machine's address in the cluster (a local test cluster: 127.0.0.1)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="worker threads of each prm process (default: all cores of its machine)")
     p.add_argument("--retries", type=int, default=3, help="times a shard is run again after a failure")
     p.add_argument("--kill-worker-once", type=int, default=None, metavar="I", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -105,6 +107,7 @@ def main():
         p.error(f"{a.level}: no such file")
     prm = os.path.abspath(a.prm) if os.path.sep in a.prm else a.prm
     load_flags = [f for f in passthrough if f in LOAD_FLAGS]
+    threads = ["--threads", str(a.threads)] if a.threads else []
 
     start = time.time()
     ray.init(address=a.address, _node_ip_address=a.node_ip_address, logging_level="ERROR",
@@ -113,7 +116,7 @@ def main():
         level = ray.put(f.read())
     name = os.path.basename(a.level)
     plan_bytes = ray.get(make_plan.options(max_retries=a.retries, retry_exceptions=True)
-                         .remote(prm, name, level, passthrough))
+                         .remote(prm, name, level, passthrough + threads))
     planned = time.time()
     plan = ray.put(plan_bytes)
     marker = None
@@ -125,7 +128,7 @@ def main():
         for i in range(a.shards):
             kill = marker if i == a.kill_worker_once else None
             ref = walk_shard.options(max_retries=a.retries, retry_exceptions=True).remote(
-                prm, name, level, plan, i, a.shards, load_flags, kill)
+                prm, name, level, plan, i, a.shards, load_flags + threads, kill)
             tasks[ref] = i
         parts, summaries, pending = {}, {}, list(tasks)
         while pending:
@@ -145,7 +148,7 @@ def main():
         with open(os.path.join(tmp, "level.plan"), "wb") as f:
             f.write(plan_bytes)
         out = os.path.abspath(a.output)
-        merged = json.loads(run_prm(prm, ["merge", "--plan", "level.plan", *paths, "-o", out, "--json"], tmp))
+        merged = json.loads(run_prm(prm, ["merge", "--plan", "level.plan", *paths, "-o", out, "--json", *threads], tmp))
         summary = {
             "output": a.output,
             "shards": a.shards,

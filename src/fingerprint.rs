@@ -22,15 +22,27 @@ pub fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
 /// Fingerprint of what a radiance map depends on: triangle corners, lightmap UVs, albedos,
 /// sidedness and the atlas size.
 pub fn scene_fingerprint(scene: &Scene, width: u32, height: u32) -> u64 {
-    let mut h = fnv1a(FNV_START, &width.to_le_bytes());
-    h = fnv1a(h, &height.to_le_bytes());
+    let h = fnv1a(FNV_START, &width.to_le_bytes());
+    hash_triangles(scene, fnv1a(h, &height.to_le_bytes()), true)
+}
+
+/// What rays through the level meet: [`scene_fingerprint`] without the lightmap UVs and the
+/// atlas size (a precompute's shard checks the level it traces against its plan's with it).
+pub fn geometry_fingerprint(scene: &Scene) -> u64 {
+    hash_triangles(scene, FNV_START, false)
+}
+
+/// The triangles' corners, their lightmap UVs (`uv1`), albedos and sidedness hashed on from `h`.
+fn hash_triangles(scene: &Scene, mut h: u64, uv1: bool) -> u64 {
     h = fnv1a(h, &(scene.triangles.len() as u64).to_le_bytes());
     for t in 0..scene.triangles.len() {
         for p in scene.corners(t) {
             h = fnv1a(h, bytemuck::bytes_of(&p.to_array()));
         }
-        for uv in scene.uv1_corners(t) {
-            h = fnv1a(h, bytemuck::bytes_of(&uv.to_array()));
+        if uv1 {
+            for uv in scene.uv1_corners(t) {
+                h = fnv1a(h, bytemuck::bytes_of(&uv.to_array()));
+            }
         }
         let m = scene.material(t);
         h = fnv1a(h, bytemuck::bytes_of(&m.albedo.to_array()));

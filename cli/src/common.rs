@@ -70,16 +70,27 @@ pub fn load(args: &SceneArgs, atlas: u32, quiet: bool) -> Result<Scene> {
 /// Load the level as a map with this header was baked for it: generated UVs in the map's
 /// pages at its texel size, or packed for its one page.
 pub fn load_for(args: &SceneArgs, header: &prm::prm_file::Header, quiet: bool) -> Result<Scene> {
-    load_for_atlas(args, header.atlas(), header.page_texel_size, quiet)
+    if header.pages > 1 || header.page_texel_size > 0.0 {
+        load_with(args, None, header.page_texel_size, header.atlas_width, quiet)
+    } else {
+        load(args, header.atlas_width, quiet)
+    }
 }
 
-/// [`load_for`] from the atlas and page texel size alone (a sharded precompute's plan).
-pub fn load_for_atlas(args: &SceneArgs, atlas: Atlas, page_texel_size: f32, quiet: bool) -> Result<Scene> {
-    if atlas.pages > 1 || page_texel_size > 0.0 {
-        load_with(args, None, page_texel_size, atlas.side, quiet)
-    } else {
-        load(args, atlas.side, quiet)
+/// The level for a process that only traces rays through it (a precompute's shard): its
+/// lightmap UVs neither generated nor checked ([`LoadOptions::skip_lightmap_uvs`]).
+pub fn load_for_rays(args: &SceneArgs, quiet: bool) -> Result<Scene> {
+    let opts = LoadOptions {
+        require_uv1: args.require_uv1,
+        allow_overlap: args.allow_overlap,
+        skip_lightmap_uvs: true,
+        ..Default::default()
+    };
+    let scene = load_scene(&args.scene, &opts).with_context(|| "loading the level failed")?;
+    if !quiet && scene.report.degenerate_dropped > 0 {
+        eprintln!("note: {} zero-area triangle(s) dropped", scene.report.degenerate_dropped);
     }
+    Ok(scene)
 }
 
 /// [`load`] with generated UVs packed for `atlas`, or for what `texel_size` gives the level in
@@ -97,6 +108,7 @@ fn load_with(
         unwrap_resolution: atlas.map(|a| a.clamp(16, prm::density::MAX_DENSITY_ATLAS)),
         texel_size,
         page_size,
+        skip_lightmap_uvs: false,
     };
     let scene = load_scene(&args.scene, &opts).with_context(|| "loading the level failed")?;
     if !quiet {

@@ -10,7 +10,7 @@ use prm_precompute::precompute::{Phase, PrecomputeParams};
 use prm_precompute::shard::{self, Plan, ShardError};
 use serde_json::json;
 
-use crate::common::{cancel_flag, load_for_atlas};
+use crate::common::{cancel_flag, load_for_rays};
 use crate::precompute::{peak_rss, with_threads, Args as PrecomputeArgs, PhaseBar};
 
 /// The error a sharded step ends with: what failed, and that OUTPUT was not written.
@@ -73,8 +73,8 @@ pub fn prepare(
 pub fn run_shard(a: &PrecomputeArgs, index: u32, count: u32) -> Result<()> {
     let start = Instant::now();
     let plan_path = a.plan.as_ref().ok_or_else(|| anyhow!("--shard needs --plan PLAN (from --prepare)"))?;
-    let plan = Plan::read(plan_path).map_err(|e| failed(e, &a.output))?;
-    let scene = load_for_atlas(&a.scene, plan.params.atlas, plan.page_texel_size(), a.json)?;
+    let plan = Plan::read_walks(plan_path).map_err(|e| failed(e, &a.output))?;
+    let scene = load_for_rays(&a.scene, a.json)?;
     let bvh = Bvh::build(&scene);
     let bar = PhaseBar::new(a.json);
     let on_progress = |phase: Phase, done: usize, total: usize| bar.update(phase, done, total);

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prm::density::{Atlas, UnwrapLayout};
-use prm::fingerprint::fingerprint_hex;
+use prm::fingerprint::{fingerprint_hex, geometry_fingerprint};
 use prm::prm_file::{
     far_share, Cells, Dipole, Dipoles, Echo, Entry, Far, Header, InvalidPrm, NearLink, NearPoint, Prm,
     PrmParts,
@@ -619,8 +619,10 @@ pub struct Preamble {
     pub(crate) frames: Vec<Frame>,
     #[serde(skip)]
     pub(crate) dipoles: Vec<Dipole>,
-    /// The header's level fingerprint and page texel size.
+    /// The header's level fingerprint and page texel size, and what the walks' rays meet
+    /// (`prm::fingerprint::geometry_fingerprint`: a shard checks its level with it).
     pub(crate) fingerprint: String,
+    pub(crate) geometry: u64,
     pub(crate) page_texel_size: f32,
     /// Entries left out inside solids, and the share of the surface no cell covers.
     pub(crate) enclosed: usize,
@@ -740,6 +742,7 @@ impl Preamble {
             frames,
             dipoles,
             fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
+            geometry: geometry_fingerprint(scene),
             page_texel_size: page_texel_size(scene),
             enclosed,
             area_without_entry: cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE),

@@ -20,9 +20,15 @@
 //!
 //! Refused: dipole panes (their frames are not in the plan), an update cache.
 //!
-//! The plan file, little-endian: magic `PRMPLAN\n`, version u32, the parameters and the
-//! preamble in postcard's format (its wire format is stable since 1.0), FNV-1a 64 of
-//! everything before it. A part: magic `PRMPART\n`, version u32, the plan's checksum u64,
+//! The plan file, little-endian: magic `PRMPLAN\n`, version u32, then two sections in
+//! postcard's format (its wire format is stable since 1.0). The first is what the walks need
+//! (parameters, the level's geometry hash, texel set, entries, cell owners, clusters, near
+//! links and their kept shares): its length u64, its bytes, their FNV-1a 64; a shard reads
+//! only it ([`Plan::read_walks`]: on the 4 x 4 halls a third of the plan). The second is the
+//! rest the encoding and the file need (the header's fingerprint, counts, cells, centroids,
+//! groups, far field, near points, exact first bounce, echo, smoothing). Last, FNV-1a 64 of
+//! everything before it: the plan's checksum, which every part records. A part: magic
+//! `PRMPART\n`, version u32, the plan's checksum u64,
 //! shard index u32, shard count u32, first texel u32, end texel u32; then chunks, each texel
 //! count u32 (0 ends them), byte length u64 and the chunk's walks (postcard, per texel its
 //! (cluster, RGB) pairs); then walks cut at the bounce cap u64, path vertices with no owning
@@ -35,11 +41,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use prm::fingerprint::{fingerprint_hex, fnv1a, FNV_START};
+use prm::fingerprint::{fnv1a, geometry_fingerprint, FNV_START};
 use prm::fsutil::{temp_path, write_bytes_atomic};
-use prm::prm_file::Prm;
-use prm::{Bvh, Scene};
+use prm::prm_file::{Cells, Echo, Entry, Far, NearLink, NearPoint, Prm};
+use prm::{Bvh, Scene, Smoothing, TexelSet};
 
+use crate::cells::CellOwners;
+use crate::cluster::Clustering;
 use crate::parallel::{stop_if, Control};
 use crate::precompute::{
     check_params, finish, walk_and_encode, Phase, Preamble, PrecomputeError, PrecomputeParams, Report, Walked,
@@ -77,24 +85,57 @@ fn file_error(path: &Path, problem: impl std::fmt::Display) -> ShardError {
 }
 
 /// A precompute's plan: its parameters and preamble, and the checksum its file ends with
-/// (what every part records).
+/// (what every part records). Read for a shard ([`Plan::read_walks`]) it holds only what the
+/// walks need, and the merge refuses it.
 pub struct Plan {
     pub params: PrecomputeParams,
     pub preamble: Preamble,
     pub checksum: u64,
+    walks_only: bool,
 }
 
-#[derive(serde::Serialize)]
-struct PlanRef<'a> {
-    params: &'a PrecomputeParams,
-    preamble: &'a Preamble,
-}
-
-#[derive(serde::Deserialize)]
-struct PlanBody {
-    params: PrecomputeParams,
-    preamble: Preamble,
-}
+/// The plan's first section: what the walks need (a shard reads only it).
+type Walks =
+    (PrecomputeParams, u64, TexelSet, Vec<Entry>, CellOwners, Clustering, Vec<NearLink>, Option<Vec<f32>>);
+type WalksRef<'a> = (
+    &'a PrecomputeParams,
+    u64,
+    &'a TexelSet,
+    &'a [Entry],
+    &'a CellOwners,
+    &'a Clustering,
+    &'a [NearLink],
+    &'a Option<Vec<f32>>,
+);
+/// Its second: what the encoding and the file need besides.
+type Rest = (
+    String,
+    f32,
+    usize,
+    f64,
+    Cells,
+    Vec<glam::Vec3>,
+    Option<Clustering>,
+    Far,
+    Vec<NearPoint>,
+    Vec<TexelPanes>,
+    Echo,
+    Option<Smoothing>,
+);
+type RestRef<'a> = (
+    &'a str,
+    f32,
+    usize,
+    f64,
+    &'a Cells,
+    &'a [glam::Vec3],
+    &'a Option<Clustering>,
+    &'a Far,
+    &'a [NearPoint],
+    &'a [TexelPanes],
+    &'a Echo,
+    &'a Option<Smoothing>,
+);
 
 /// Make the plan (step 1): the preamble of a precompute of `scene` with `params`, timed into
 /// the report.
@@ -117,7 +158,7 @@ pub fn plan(
     let mut report = Report::new(params);
     let preamble = Preamble::build(scene, bvh, params, None, |_| Ok(()), &mut report, progress, cancel)?;
     report.seconds_total = all.elapsed().as_secs_f64();
-    let mut plan = Plan { params: params.clone(), preamble, checksum: 0 };
+    let mut plan = Plan { params: params.clone(), preamble, checksum: 0, walks_only: false };
     plan.checksum = checksum_of(&plan.to_bytes()?);
     Ok((plan, report))
 }
@@ -133,20 +174,38 @@ impl Plan {
         self.preamble.set.len()
     }
 
-    /// The texel size in metres the level's generated UVs were packed at in pages (0:
-    /// authored UVs, or one page): how a shard loads the level again with the same UVs.
-    pub fn page_texel_size(&self) -> f32 {
-        self.preamble.page_texel_size
-    }
-
     /// The plan file's bytes (module doc).
     pub fn to_bytes(&self) -> Result<Vec<u8>, ShardError> {
-        let body = postcard::to_stdvec(&PlanRef { params: &self.params, preamble: &self.preamble })
-            .map_err(|e| ShardError::Refused(format!("the plan cannot be encoded: {e}")))?;
-        let mut out = Vec::with_capacity(body.len() + 20);
+        if self.walks_only {
+            return Err(ShardError::Refused("a plan read for a shard cannot be written".into()));
+        }
+        let (p, pre) = (&self.params, &self.preamble);
+        let walks: WalksRef =
+            (p, pre.geometry, &pre.set, &pre.entries, &pre.owners, &pre.clustering, &pre.near, &pre.keep);
+        let rest: RestRef = (
+            &pre.fingerprint,
+            pre.page_texel_size,
+            pre.enclosed,
+            pre.area_without_entry,
+            &pre.cells,
+            &pre.centroids,
+            &pre.grouping,
+            &pre.far,
+            &pre.near_points,
+            &pre.exact,
+            &pre.echo,
+            &pre.smoothing,
+        );
+        let encode = |e: postcard::Error| ShardError::Refused(format!("the plan cannot be encoded: {e}"));
+        let walks = postcard::to_stdvec(&walks).map_err(encode)?;
+        let rest = postcard::to_stdvec(&rest).map_err(encode)?;
+        let mut out = Vec::with_capacity(walks.len() + rest.len() + 36);
         out.extend_from_slice(&PLAN_MAGIC);
         out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&body);
+        out.extend_from_slice(&(walks.len() as u64).to_le_bytes());
+        out.extend_from_slice(&walks);
+        out.extend_from_slice(&fnv1a(FNV_START, &walks).to_le_bytes());
+        out.extend_from_slice(&rest);
         let sum = fnv1a(FNV_START, &out);
         out.extend_from_slice(&sum.to_le_bytes());
         Ok(out)
@@ -159,34 +218,115 @@ impl Plan {
         Ok(bytes.len())
     }
 
-    /// Read a plan file, refusing one that is not a plan, of another version, or damaged.
+    /// Read a whole plan file, refusing one that is not a plan, of another version, or damaged.
     pub fn read(path: &Path) -> Result<Plan, ShardError> {
         let bytes = std::fs::read(path).map_err(|e| file_error(path, format!("cannot be read: {e}")))?;
         Plan::from_bytes(&bytes).map_err(|problem| file_error(path, problem))
     }
 
+    /// Read only what a shard's walks need: the first section, checked by its own checksum,
+    /// and the file's checksum (the rest is neither read nor decoded).
+    pub fn read_walks(path: &Path) -> Result<Plan, ShardError> {
+        let io = |e: std::io::Error| file_error(path, format!("cannot be read: {e}"));
+        let mut file = File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut head = [0u8; 20];
+        if len < 36 || file.read_exact(&mut head).is_err() {
+            return Err(file_error(path, "not a precompute plan (from `prm precompute --prepare`)"));
+        }
+        let walks_len = check_plan_head(&head, len).map_err(|p| file_error(path, p))?;
+        let mut walks = vec![0u8; walks_len as usize + 8];
+        file.read_exact(&mut walks).map_err(io)?;
+        file.seek(SeekFrom::End(-8)).map_err(io)?;
+        let mut sum = [0u8; 8];
+        file.read_exact(&mut sum).map_err(io)?;
+        let (walks, walks_sum) = walks.split_at(walks_len as usize);
+        if fnv1a(FNV_START, walks).to_le_bytes() != walks_sum {
+            return Err(file_error(path, "damaged (its checksum does not match: truncated or altered)"));
+        }
+        let mut plan = Plan::from_walks(walks, u64::from_le_bytes(sum)).map_err(|p| file_error(path, p))?;
+        plan.walks_only = true;
+        Ok(plan)
+    }
+
+    fn from_walks(bytes: &[u8], checksum: u64) -> Result<Plan, String> {
+        let (params, geometry, set, entries, owners, clustering, near, keep): Walks =
+            postcard::from_bytes(bytes).map_err(|e| format!("damaged (cannot be decoded: {e})"))?;
+        params.validate().map_err(|e| format!("damaged (bad parameter: {e})"))?;
+        if set.texels.len() > u32::MAX as usize
+            || clustering.assignment.len() != entries.len()
+            || keep.as_ref().is_some_and(|k| k.len() != near.len())
+        {
+            return Err("damaged (its sections do not agree)".into());
+        }
+        let preamble = Preamble {
+            set,
+            entries,
+            cells: Cells::default(),
+            owners,
+            clustering,
+            centroids: Vec::new(),
+            grouping: None,
+            far: Far::default(),
+            near,
+            near_points: Vec::new(),
+            keep,
+            exact: Vec::new(),
+            echo: Echo::default(),
+            smoothing: None,
+            frames: Vec::new(),
+            dipoles: Vec::new(),
+            fingerprint: String::new(),
+            geometry,
+            page_texel_size: 0.0,
+            enclosed: 0,
+            area_without_entry: 0.0,
+        };
+        Ok(Plan { params, preamble, checksum, walks_only: false })
+    }
+
     fn from_bytes(bytes: &[u8]) -> Result<Plan, String> {
-        if bytes.len() < 20 || bytes[..8] != PLAN_MAGIC {
+        if bytes.len() < 36 || bytes[..8] != PLAN_MAGIC {
             return Err("not a precompute plan (from `prm precompute --prepare`)".into());
         }
-        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
-        if version != VERSION {
-            return Err(format!("plan version {version}, this build reads {VERSION}: make it again"));
-        }
-        let (head, tail) = bytes.split_at(bytes.len() - 8);
-        let checksum = checksum_of(bytes);
-        if fnv1a(FNV_START, head) != checksum {
+        let head: [u8; 20] = bytes[..20].try_into().unwrap_or_default();
+        let walks_len = check_plan_head(&head, bytes.len() as u64)? as usize;
+        let (body, sum) = bytes.split_at(bytes.len() - 8);
+        let checksum = u64::from_le_bytes(sum.try_into().unwrap_or_default());
+        if fnv1a(FNV_START, body) != checksum {
             return Err("damaged (its checksum does not match: truncated or altered)".into());
         }
-        let body: PlanBody =
-            postcard::from_bytes(&head[12..]).map_err(|e| format!("damaged (cannot be decoded: {e})"))?;
-        debug_assert_eq!(tail.len(), 8);
-        body.params.validate().map_err(|e| format!("damaged (bad parameter: {e})"))?;
-        if body.preamble.set.texels.len() > u32::MAX as usize {
-            return Err("damaged (texel count)".into());
+        let mut plan = Plan::from_walks(&body[20..20 + walks_len], checksum)?;
+        let rest: Rest = postcard::from_bytes(&body[28 + walks_len..])
+            .map_err(|e| format!("damaged (cannot be decoded: {e})"))?;
+        let pre = &mut plan.preamble;
+        (pre.fingerprint, pre.page_texel_size, pre.enclosed, pre.area_without_entry) =
+            (rest.0, rest.1, rest.2, rest.3);
+        (pre.cells, pre.centroids, pre.grouping, pre.far) = (rest.4, rest.5, rest.6, rest.7);
+        (pre.near_points, pre.exact, pre.echo, pre.smoothing) = (rest.8, rest.9, rest.10, rest.11);
+        let clusters = pre.clustering.members.len();
+        if pre.centroids.len() != clusters || (!pre.exact.is_empty() && pre.exact.len() != pre.set.len()) {
+            return Err("damaged (its sections do not agree)".into());
         }
-        Ok(Plan { params: body.params, preamble: body.preamble, checksum })
+        Ok(plan)
     }
+}
+
+/// A plan file's first 20 bytes (magic, version, first section's length) checked against
+/// its length; the first section's length.
+fn check_plan_head(head: &[u8; 20], len: u64) -> Result<u64, String> {
+    if head[..8] != PLAN_MAGIC {
+        return Err("not a precompute plan (from `prm precompute --prepare`)".into());
+    }
+    let version = u32::from_le_bytes(head[8..12].try_into().unwrap_or_default());
+    if version != VERSION {
+        return Err(format!("plan version {version}, this build reads {VERSION}: make it again"));
+    }
+    let walks = u64::from_le_bytes(head[12..20].try_into().unwrap_or_default());
+    if walks > len.saturating_sub(36) {
+        return Err("damaged (truncated, or its first section's length)".into());
+    }
+    Ok(walks)
 }
 
 /// The covered texels shard `index` of `count` walks: the index-th of `count` equal runs.
@@ -224,7 +364,8 @@ impl<W: Write> Write for Hashing<W> {
 }
 
 /// Run shard `index` of `count` (step 2) of `plan` on `scene` (the level the plan was made
-/// of: refused otherwise), writing its part to `out` atomically.
+/// of: refused otherwise; its lightmap UVs are not used, so it may be loaded without them,
+/// `prm::LoadOptions::skip_lightmap_uvs`), writing its part to `out` atomically.
 #[allow(clippy::too_many_arguments)]
 pub fn run_shard(
     scene: &Scene,
@@ -242,12 +383,12 @@ pub fn run_shard(
         )));
     }
     let (params, pre) = (&plan.params, &plan.preamble);
-    let fingerprint = fingerprint_hex(scene, params.atlas.width(), params.atlas.height());
-    if fingerprint != pre.fingerprint {
+    let geometry = geometry_fingerprint(scene);
+    if geometry != pre.geometry {
         return Err(ShardError::Refused(format!(
-            "the level is not the one the plan was made of (fingerprint {fingerprint}, the plan's {}): \
-             load the same level with the same lightmap options as --prepare",
-            pre.fingerprint
+            "the level is not the one the plan was made of (its geometry and materials hash to {geometry:016x}, \
+             the plan's level to {:016x})",
+            pre.geometry
         )));
     }
     let range = shard_texels(pre.set.len(), index, count);
@@ -381,7 +522,7 @@ fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
 }
 
 /// The parts' walks in texel order, read a chunk at a time.
-struct Walks {
+struct PartWalks {
     parts: Vec<Part>,
     /// The part being read (an index into `parts`) and its reader.
     current: usize,
@@ -392,7 +533,7 @@ struct Walks {
     ahead: std::collections::VecDeque<TexelPanes>,
 }
 
-impl Walks {
+impl PartWalks {
     /// The walks of texels `range` (ascending from one call to the next).
     fn take(&mut self, range: Range<usize>) -> Result<Vec<TexelPanes>, ShardError> {
         while self.next < range.end {
@@ -516,6 +657,9 @@ pub fn merge(
     cancel: &AtomicBool,
 ) -> Result<(Prm, Report), ShardError> {
     let all = Instant::now();
+    if plan.walks_only {
+        return Err(ShardError::Refused("the merge needs the whole plan (Plan::read)".into()));
+    }
     let parts = check_parts(&plan, parts)?;
     let Plan { params, preamble: pre, .. } = plan;
     let mut report = Report::new(&params);
@@ -526,7 +670,7 @@ pub fn merge(
         }
         a
     });
-    let mut walks = Walks { parts, current: 0, reader: None, next: 0, ahead: Default::default() };
+    let mut walks = PartWalks { parts, current: 0, reader: None, next: 0, ahead: Default::default() };
     let mut failed = None;
     let mut walk = |range: Range<usize>, _: Control| -> Result<Walked, PrecomputeError> {
         match walks.take(range) {

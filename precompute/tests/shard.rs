@@ -67,6 +67,9 @@ fn shards_merge_to_the_bytes_of_one_machine() {
     let dir = tempfile::tempdir().unwrap();
     let (made, plan_path) = make_plan(&scene, &bvh, &p, dir.path(), "level");
     let texels = made.texels();
+    // The shards read the plan's first section only.
+    let made = Plan::read_walks(&plan_path).unwrap();
+    assert_eq!(made.texels(), texels);
     for n in [1u32, 3, 8] {
         // Given to the merge in the reverse of their order.
         let parts = run_parts(&scene, &bvh, &made, n, dir.path(), 2);
@@ -144,6 +147,9 @@ fn bad_parts_and_plans_are_refused_by_name() {
     std::fs::write(&cut, &bytes[..bytes.len() - 100]).unwrap();
     let m = message(merged(&[parts[0].clone(), cut, parts[2].clone()]));
     assert!(m.contains("cut") && m.contains("damaged"), "{m}");
+    // A plan read for a shard cannot be merged from.
+    let m = message(merge(Plan::read_walks(&plan_path).unwrap(), &parts, &quiet, &never()));
+    assert!(m.contains("whole plan"), "{m}");
     // Not a part at all (the plan given as a part).
     let m = message(merged(&[parts[0].clone(), plan_path.clone(), parts[2].clone()]));
     assert!(m.contains("not a shard's part"), "{m}");
@@ -160,6 +166,14 @@ fn bad_parts_and_plans_are_refused_by_name() {
     assert!(m.contains("bad.plan") && m.contains("damaged"), "{m}");
     let m = message(Plan::read(&parts[0]));
     assert!(m.contains("not a precompute plan"), "{m}");
+    // A byte flipped in the first section: the shards' reading of it refuses it too.
+    let mut p = std::fs::read(&plan_path).unwrap();
+    p[40] ^= 1;
+    std::fs::write(&bad_plan, &p).unwrap();
+    let m = message(Plan::read_walks(&bad_plan));
+    assert!(m.contains("bad.plan") && m.contains("damaged"), "{m}");
+    let m = message(Plan::read_walks(&dir.path().join("nowhere.plan")));
+    assert!(m.contains("nowhere.plan") && m.contains("cannot be read"), "{m}");
 
     // A shard of another level, a shard index past the count, dipole panes.
     let mut moved = cornell();

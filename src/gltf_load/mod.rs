@@ -40,6 +40,11 @@ pub struct LoadOptions {
     /// Side of a page of generated UVs when `unwrap_resolution` is `None` and the level needs
     /// more than one page at `texel_size` ([`crate::density::unwrap_layout`]).
     pub page_size: u32,
+    /// Leave lightmap UVs alone: a primitive without `TEXCOORD_1` gets none generated (zeros)
+    /// and the lightmap UVs are not checked. For a process that only traces rays through the
+    /// level (a precompute's shard: its texels come from the plan), where generating them
+    /// would cost seconds on a large level for nothing.
+    pub skip_lightmap_uvs: bool,
 }
 
 impl Default for LoadOptions {
@@ -50,6 +55,7 @@ impl Default for LoadOptions {
             unwrap_resolution: Some(256),
             texel_size: crate::density::DEFAULT_TEXEL_SIZE,
             page_size: crate::density::DEFAULT_PAGE_SIZE,
+            skip_lightmap_uvs: false,
         }
     }
 }
@@ -96,14 +102,20 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
     if prims.iter().all(|p| p.indices.is_empty()) {
         return Err(SceneError::NoGeometry { path: path.into() });
     }
-    if report.primitives_without_uv1 > 0 {
+    if opts.skip_lightmap_uvs {
+        for p in prims.iter_mut().filter(|p| p.uv1.is_none()) {
+            p.uv1 = Some(vec![glam::Vec2::ZERO; p.positions.len()]);
+        }
+    } else if report.primitives_without_uv1 > 0 {
         lightmap::generate(path, &mut prims, opts, &mut report)?;
     }
     primitive::join_primitives(path, prims, &mut scene, &mut report)?;
     if scene.triangles.is_empty() {
         return Err(SceneError::NoGeometry { path: path.into() });
     }
-    lightmap::check(path, &scene, opts, &mut report)?;
+    if !opts.skip_lightmap_uvs {
+        lightmap::check(path, &scene, opts, &mut report)?;
+    }
     scene.report = report;
     Ok(scene)
 }
