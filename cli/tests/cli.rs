@@ -1294,3 +1294,53 @@ fn precompute_update_reuses_the_cache_and_refuses_what_it_cannot_do() {
     assert!(!ok && err.contains("damaged"), "{err}");
     assert!(!gone.exists());
 }
+
+#[test]
+fn a_precompute_in_parts_merges_to_one_machines_bytes() {
+    // One of the generated halls (no TEXCOORD_1) in several lightmap pages: the plan generates
+    // its UVs, the shards load it without them, and the merge writes the bytes one
+    // `prm precompute` does.
+    let dir = tempfile::tempdir().unwrap();
+    let level = prm_precompute::scenes::halls(1, 1, 8, 2);
+    let lightmap = ["--texel-size", "0.3", "--page-size", "64"];
+    let (glb, map, _) = bake_hall(dir.path(), &level, &lightmap);
+    let plan = dir.path().join("hall.plan");
+    let mut args = vec!["precompute", s(&glb), "--preset", "preview", "--entries", "256", "--paths", "4"];
+    args.extend_from_slice(&lightmap);
+    args.extend_from_slice(&["--prepare", "-o", s(&plan)]);
+    let (ok, stdout, err) = prm(&args);
+    assert!(ok && stdout.contains("the plan of a precompute in parts"), "{err}");
+    let parts: Vec<PathBuf> = (0..3).map(|i| dir.path().join(format!("part{i}"))).collect();
+    for (i, part) in parts.iter().enumerate() {
+        let shard = format!("{i}/3");
+        let (ok, _, err) =
+            prm(&["precompute", s(&glb), "--shard", &shard, "--plan", s(&plan), "-o", s(part)]);
+        assert!(ok, "{err}");
+    }
+    let merged = dir.path().join("merged.prm");
+    let (ok, _, err) =
+        prm(&["merge", "--plan", s(&plan), s(&parts[2]), s(&parts[0]), s(&parts[1]), "-o", s(&merged)]);
+    assert!(ok, "{err}");
+    assert!(std::fs::read(&merged).unwrap() == std::fs::read(&map).unwrap(), "merged file differs");
+
+    // Bad shard arguments, and a part missing: clear errors, nothing written.
+    let out = dir.path().join("never");
+    for (shard, extra, says) in [
+        ("3/3", None, "--shard 3/3"),
+        ("1/0", None, "--shard 1/0"),
+        ("one/3", None, "--shard one/3"),
+        ("1/3", Some("--seed"), "--seed with --shard"),
+    ] {
+        let mut args = vec!["precompute", s(&glb), "--shard", shard, "--plan", s(&plan), "-o", s(&out)];
+        if let Some(flag) = extra {
+            args.extend_from_slice(&[flag, "4"]);
+        }
+        let (ok, _, err) = prm(&args);
+        assert!(!ok && err.contains(says), "{shard}: {err}");
+    }
+    let (ok, _, err) = prm(&["precompute", s(&glb), "--shard", "1/3", "-o", s(&out)]);
+    assert!(!ok && err.contains("--plan"), "{err}");
+    let (ok, _, err) = prm(&["merge", "--plan", s(&plan), s(&parts[0]), s(&parts[1]), "-o", s(&out)]);
+    assert!(!ok && err.contains("shard 2 of 3 missing") && err.contains("not written"), "{err}");
+    assert!(!out.exists());
+}
