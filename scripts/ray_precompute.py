@@ -13,8 +13,14 @@ level and the plan go to the workers through Ray's object store and each part co
 same way, so the workers need the `prm` binary (--prm, or PRM_BIN, or `prm` on their PATH) but
 no shared file system.
 
-Test hook: --kill-worker-once I makes shard I's first attempt kill its own worker process
-(SIGKILL) while `prm` walks, as a machine lost mid-shard would; Ray runs it again.
+Each task reserves --threads CPUs (default 1) and runs `prm` with that many threads, so Ray
+packs one shard per CPU; the plan gets --plan-threads. A task is run again (--retries) when its
+worker dies or `prm` is killed by a signal; a `prm` that fails with an error (a bad option, a
+damaged file) is not, and the driver stops with its message.
+
+Test hook (one machine only: its marker is a file on the driver's disk): --kill-worker-once I
+makes shard I's first attempt kill its own worker process (SIGKILL) while `prm` walks, as a
+machine lost mid-shard would; Ray runs it again.
 """
 
 import argparse
@@ -33,15 +39,25 @@ import ray
 LOAD_FLAGS = ("--require-uv1", "--allow-overlap")
 
 
+class PrmCrashed(RuntimeError):
+    """`prm` was killed by a signal (out of memory, a node going away): worth running again."""
+
+
+class PrmFailed(RuntimeError):
+    """`prm` refused or failed with an error: running it again would fail again."""
+
+
 def run_prm(prm, args, cwd):
     """Run `prm ARGS` in `cwd`; its output, or an error with its stderr."""
     done = subprocess.run([prm, *args], cwd=cwd, capture_output=True, text=True)
+    if done.returncode < 0:
+        raise PrmCrashed(f"prm {' '.join(args)} was killed by signal {-done.returncode}")
     if done.returncode != 0:
-        raise RuntimeError(f"prm {' '.join(args)} failed ({done.returncode}): {done.stderr.strip()}")
+        raise PrmFailed(f"prm {' '.join(args)} failed ({done.returncode}): {done.stderr.strip()}")
     return done.stdout
 
 
-@ray.remote(num_cpus=1)
+@ray.remote
 def make_plan(prm, level_name, level, options):
     """The plan (`prm precompute --prepare`) of the level, as bytes."""
     with tempfile.TemporaryDirectory(prefix="prm-plan-") as d:
@@ -52,7 +68,7 @@ def make_plan(prm, level_name, level, options):
             return f.read()
 
 
-@ray.remote(num_cpus=1)
+@ray.remote
 def walk_shard(prm, level_name, level, plan, index, count, load_flags, kill_marker):
     """Part `index` of `count` (`prm precompute --shard`), as bytes, and its JSON summary."""
     with tempfile.TemporaryDirectory(prefix=f"prm-shard-{index}-") as d:
@@ -95,8 +111,10 @@ def main():
                    help="the prm binary on the workers (default: $PRM_BIN, or prm on PATH)")
     p.add_argument("--node-ip-address", default=None,
                    help="this machine's address in the cluster (a local test cluster: 127.0.0.1)")
-    p.add_argument("--threads", type=int, default=None,
-                   help="worker threads of each prm process (default: all cores of its machine)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="CPUs each shard reserves and prm threads it runs (default 1)")
+    p.add_argument("--plan-threads", type=int, default=None,
+                   help="CPUs the plan reserves and its prm threads (default: --threads)")
     p.add_argument("--retries", type=int, default=3, help="times a shard is run again after a failure")
     p.add_argument("--kill-worker-once", type=int, default=None, metavar="I", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -107,7 +125,9 @@ def main():
         p.error(f"{a.level}: no such file")
     prm = os.path.abspath(a.prm) if os.path.sep in a.prm else a.prm
     load_flags = [f for f in passthrough if f in LOAD_FLAGS]
-    threads = ["--threads", str(a.threads)] if a.threads else []
+    if a.threads < 1 or (a.plan_threads is not None and a.plan_threads < 1):
+        p.error("--threads and --plan-threads: at least 1")
+    plan_threads = a.plan_threads or a.threads
 
     start = time.time()
     ray.init(address=a.address, _node_ip_address=a.node_ip_address, logging_level="ERROR",
@@ -115,10 +135,15 @@ def main():
     with open(a.level, "rb") as f:
         level = ray.put(f.read())
     name = os.path.basename(a.level)
-    plan_bytes = ray.get(make_plan.options(max_retries=a.retries, retry_exceptions=True)
-                         .remote(prm, name, level, passthrough + threads))
+    retry = dict(max_retries=a.retries, retry_exceptions=[PrmCrashed])
+    plan = make_plan.options(num_cpus=plan_threads, **retry).remote(
+        prm, name, level, passthrough + ["--threads", str(plan_threads)])
+    try:
+        plan_bytes = ray.get(plan)
+    except ray.exceptions.RayTaskError as e:
+        ray.shutdown()
+        sys.exit(f"the plan failed: {e.cause}")
     planned = time.time()
-    plan = ray.put(plan_bytes)
     marker = None
     tmp = tempfile.mkdtemp(prefix="prm-merge-")
     try:
@@ -127,28 +152,30 @@ def main():
         tasks = {}
         for i in range(a.shards):
             kill = marker if i == a.kill_worker_once else None
-            ref = walk_shard.options(max_retries=a.retries, retry_exceptions=True).remote(
-                prm, name, level, plan, i, a.shards, load_flags + threads, kill)
+            ref = walk_shard.options(num_cpus=a.threads, **retry).remote(
+                prm, name, level, plan, i, a.shards, load_flags + ["--threads", str(a.threads)], kill)
             tasks[ref] = i
-        parts, summaries, pending = {}, {}, list(tasks)
+        # Each part goes to disk as it comes, and its reference is dropped.
+        paths = [os.path.join(tmp, f"part-{i}") for i in range(a.shards)]
+        summaries, pending = {}, list(tasks)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
             for ref in ready:
-                i = tasks[ref]
-                parts[i], summaries[i] = ray.get(ref)
+                i = tasks.pop(ref)
+                try:
+                    part, summaries[i] = ray.get(ref)
+                except ray.exceptions.RayError as e:
+                    sys.exit(f"shard {i}/{a.shards} failed: {getattr(e, 'cause', None) or e}")
+                with open(paths[i], "wb") as f:
+                    f.write(part)
+                del part, ref
                 if not a.json:
-                    print(f"shard {i}/{a.shards} done ({len(parts)}/{a.shards})", file=sys.stderr, flush=True)
+                    print(f"shard {i}/{a.shards} done ({len(summaries)}/{a.shards})", file=sys.stderr, flush=True)
         walked = time.time()
-        paths = []
-        for i in range(a.shards):
-            path = os.path.join(tmp, f"part-{i}")
-            with open(path, "wb") as f:
-                f.write(parts[i])
-            paths.append(path)
         with open(os.path.join(tmp, "level.plan"), "wb") as f:
             f.write(plan_bytes)
         out = os.path.abspath(a.output)
-        merged = json.loads(run_prm(prm, ["merge", "--plan", "level.plan", *paths, "-o", out, "--json", *threads], tmp))
+        merged = json.loads(run_prm(prm, ["merge", "--plan", "level.plan", *paths, "-o", out, "--json"], tmp))
         summary = {
             "output": a.output,
             "shards": a.shards,

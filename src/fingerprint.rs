@@ -26,8 +26,9 @@ pub fn scene_fingerprint(scene: &Scene, width: u32, height: u32) -> u64 {
     hash_triangles(scene, fnv1a(h, &height.to_le_bytes()), true)
 }
 
-/// What rays through the level meet: [`scene_fingerprint`] without the lightmap UVs and the
-/// atlas size (a precompute's shard checks the level it traces against its plan's with it).
+/// [`scene_fingerprint`] without the lightmap UVs and the atlas size: the triangles' corners,
+/// albedo factors, sidedness and whether an albedo texture is bound (not its texels, nor the
+/// albedo UVs). A precompute's shard checks the level it traces against its plan's with it.
 pub fn geometry_fingerprint(scene: &Scene) -> u64 {
     hash_triangles(scene, FNV_START, false)
 }

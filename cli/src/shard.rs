@@ -34,7 +34,7 @@ pub fn prepare(
 ) -> Result<()> {
     let made = shard::plan(scene, bvh, p, progress, cancel_flag());
     bar.finish();
-    let (plan, report) = made.map_err(|e| failed(e, &a.output))?;
+    let (mut plan, report) = made.map_err(|e| failed(e, &a.output))?;
     let bytes = plan.write(&a.output).map_err(|e| failed(e, &a.output))?;
     let v = json!({
         "plan": a.output.display().to_string(),

@@ -467,7 +467,10 @@ pub fn precompute_with(
     };
     let transport = pre.transport(scene, bvh, linked.as_ref(), params);
     let prepared = transport.prepare(params.estimator);
-    let (tx, ty) = Encoder::new(set, None, params.tile_size, 1).tiles();
+    let (tx, ty) = (
+        params.atlas.width().div_ceil(params.tile_size) as usize,
+        params.atlas.height().div_ceil(params.tile_size) as usize,
+    );
     let mut records =
         tracing.then(|| vec![TileRecord { footprint: vec![0; grid.words()], ..Default::default() }; tx * ty]);
     // With a voxel grid each walked texel is recorded in its tile; with a plan only its
@@ -495,6 +498,9 @@ pub fn precompute_with(
     };
     let cached = plan.as_ref().map(|(plan, cache)| (&plan.dirty[..], &cache.panes[..]));
     let mut acc = walk_and_encode(&pre, params, &mut walk, cached, progress, cancel, &mut report)?;
+    // The estimator's tables (virtual lights, MIS) are the walks' only (`walk`, which borrows
+    // them, is not used again).
+    drop(prepared);
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
     report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
@@ -524,6 +530,7 @@ pub fn precompute_with(
     (pre.keep, pre.exact) = (None, Vec::new());
     let kept = tracing.then(|| (pre.clustering.assignment.clone(), pre.grouping.clone()));
     let prm = finish(pre, acc, params, &mut report, all)?;
+    progress(Phase::Panes, 1, 1);
     let cache = match (pane_cache, records, triangles, digests, kept) {
         (Some(panes), Some(mut records), Some(triangles), Some(digests), Some((assignment, grouping))) => {
             for (r, d) in records.iter_mut().zip(digests) {
@@ -800,12 +807,14 @@ impl Preamble {
 /// sections (the last step of a precompute and of a sharded one's merge). `all` is when the
 /// precompute started.
 pub(crate) fn finish(
-    pre: Preamble,
+    mut pre: Preamble,
     acc: Encoded,
     params: &PrecomputeParams,
     report: &mut Report,
     all: Instant,
 ) -> Result<Prm, PrecomputeError> {
+    // The links' shares and exact first bounce are the walks' only.
+    (pre.keep, pre.exact) = (None, Vec::new());
     let t = Instant::now();
     let encoder = Encoder::new(&pre.set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let (members, threshold) = (&pre.clustering.members, params.drop_threshold);
@@ -938,7 +947,7 @@ pub(crate) struct Encoded {
 }
 
 /// Walk the texels a band of tile rows at a time (`walk(texels, control)`: the walks of a run
-/// of covered texels, from `transport` or from a sharded precompute's parts) and encode every
+/// of covered texels, the transport's or a sharded precompute's parts') and encode every
 /// pane's tiles in each band as it is done (`crate::panes`), holding only the walks the next
 /// bands still need. With `cached` (an update's dirty tiles and the cache's pane tiles), only
 /// the dirty tiles are encoded, the rest taken from the cache.
@@ -1007,7 +1016,6 @@ pub(crate) fn walk_and_encode(
         }
         report.seconds_panes += t.elapsed().as_secs_f64();
     }
-    progress(Phase::Panes, 1, 1);
     Ok(out)
 }
 /// Each texel's contributions summed by group.

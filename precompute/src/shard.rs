@@ -85,8 +85,9 @@ fn file_error(path: &Path, problem: impl std::fmt::Display) -> ShardError {
 }
 
 /// A precompute's plan: its parameters and preamble, and the checksum its file ends with
-/// (what every part records). Read for a shard ([`Plan::read_walks`]) it holds only what the
-/// walks need, and the merge refuses it.
+/// (what every part records; 0 until it is written). The checksum (FNV-1a) guards against
+/// accidents, not against a file edited on purpose, as the `.prm`'s does. Read for a shard
+/// ([`Plan::read_walks`]) it holds only what the walks need, and the merge refuses it.
 pub struct Plan {
     pub params: PrecomputeParams,
     pub preamble: Preamble,
@@ -138,7 +139,7 @@ type RestRef<'a> = (
 );
 
 /// Make the plan (step 1): the preamble of a precompute of `scene` with `params`, timed into
-/// the report.
+/// the report. Write it ([`Plan::write`]) before running shards of it.
 pub fn plan(
     scene: &Scene,
     bvh: &Bvh,
@@ -158,8 +159,8 @@ pub fn plan(
     let mut report = Report::new(params);
     let preamble = Preamble::build(scene, bvh, params, None, |_| Ok(()), &mut report, progress, cancel)?;
     report.seconds_total = all.elapsed().as_secs_f64();
-    let mut plan = Plan { params: params.clone(), preamble, checksum: 0, walks_only: false };
-    plan.checksum = checksum_of(&plan.to_bytes()?);
+    // Its checksum is known once it is encoded ([`Plan::write`]).
+    let plan = Plan { params: params.clone(), preamble, checksum: 0, walks_only: false };
     Ok((plan, report))
 }
 
@@ -211,10 +212,12 @@ impl Plan {
         Ok(out)
     }
 
-    /// Write the plan file atomically; its size in bytes.
-    pub fn write(&self, path: &Path) -> Result<usize, ShardError> {
+    /// Write the plan file atomically, and set the checksum its parts will record; its size
+    /// in bytes.
+    pub fn write(&mut self, path: &Path) -> Result<usize, ShardError> {
         let bytes = self.to_bytes()?;
         write_bytes_atomic(path, &bytes).map_err(|e| file_error(path, format!("cannot be written: {e}")))?;
+        self.checksum = checksum_of(&bytes);
         Ok(bytes.len())
     }
 
@@ -386,7 +389,7 @@ pub fn run_shard(
     let geometry = geometry_fingerprint(scene);
     if geometry != pre.geometry {
         return Err(ShardError::Refused(format!(
-            "the level is not the one the plan was made of (its geometry and materials hash to {geometry:016x}, \
+            "the level is not the one the plan was made of (its triangles and albedos hash to {geometry:016x}, \
              the plan's level to {:016x})",
             pre.geometry
         )));
@@ -395,6 +398,16 @@ pub fn run_shard(
     let linked = pre.linked();
     let transport = pre.transport(scene, bvh, linked.as_ref(), params);
     let prepared = transport.prepare(params.estimator);
+    // What preparing counted (the scatter's virtual lights: their walks and rays) is counted
+    // once, by shard 0: every shard prepares the same.
+    let stats = &transport.stats;
+    let prepared_counts = [&stats.truncated, &stats.unowned, &stats.rays, &stats.vpls].map(|c| {
+        if index == 0 {
+            0
+        } else {
+            c.load(Ordering::Relaxed) as u64
+        }
+    });
     let t = Instant::now();
     let tmp = temp_path(out);
     let written = (|| -> Result<u64, ShardError> {
@@ -427,9 +440,10 @@ pub fn run_shard(
             at = end;
         }
         w.write_all(&0u32.to_le_bytes()).map_err(io)?;
-        let stats = &transport.stats;
-        for c in [&stats.truncated, &stats.unowned, &stats.rays, &stats.vpls] {
-            w.write_all(&(c.load(Ordering::Relaxed) as u64).to_le_bytes()).map_err(io)?;
+        for (c, before) in
+            [&stats.truncated, &stats.unowned, &stats.rays, &stats.vpls].iter().zip(prepared_counts)
+        {
+            w.write_all(&(c.load(Ordering::Relaxed) as u64 - before).to_le_bytes()).map_err(io)?;
         }
         let sum = w.hash;
         w.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
@@ -450,7 +464,7 @@ pub fn run_shard(
         count,
         texels: range,
         bytes,
-        rays: transport.stats.rays.load(Ordering::Relaxed) as u64,
+        rays: stats.rays.load(Ordering::Relaxed) as u64 - prepared_counts[2],
         seconds_transport: t.elapsed().as_secs_f64(),
     })
 }
@@ -463,18 +477,21 @@ struct Part {
     texels: Range<usize>,
     /// Walks cut, unowned vertices, rays, virtual lights.
     counters: [u64; 4],
+    /// The file's length.
+    bytes: u64,
 }
 
 /// Read a part's header and check its checksum over the whole file.
 fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
     let bad = |problem: &str| file_error(path, problem);
-    let mut file = File::open(path).map_err(|e| file_error(path, format!("cannot be read: {e}")))?;
-    let len = file.metadata().map_err(|e| file_error(path, format!("cannot be read: {e}")))?.len();
+    let io = |e: std::io::Error| file_error(path, format!("cannot be read: {e}"));
+    let mut file = File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
     if len < (PART_HEADER + 4 + 32 + 8) as u64 {
         return Err(bad("not a shard's part (too short)"));
     }
     let mut head = [0u8; PART_HEADER];
-    file.read_exact(&mut head).map_err(|e| file_error(path, format!("cannot be read: {e}")))?;
+    file.read_exact(&mut head).map_err(io)?;
     if head[..8] != PART_MAGIC {
         return Err(bad("not a shard's part (from `prm precompute --shard`)"));
     }
@@ -494,16 +511,17 @@ fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
     let mut tail = [0u8; 40];
     while left > 0 {
         let n = (left as usize).min(buf.len());
-        rest.read_exact(&mut buf[..n]).map_err(|e| file_error(path, format!("cannot be read: {e}")))?;
+        rest.read_exact(&mut buf[..n]).map_err(io)?;
         hash = fnv1a(hash, &buf[..n]);
-        // Keep the last 40 bytes before the checksum: the end marker's tail and the counters.
+        // Keep the last 40 bytes before the checksum: 4 of the last chunk, the end marker and
+        // the counters.
         let keep = n.min(40);
         tail.copy_within(keep.., 0);
         tail[40 - keep..].copy_from_slice(&buf[n - keep..n]);
         left -= n as u64;
     }
     let mut sum = [0u8; 8];
-    rest.read_exact(&mut sum).map_err(|e| file_error(path, format!("cannot be read: {e}")))?;
+    rest.read_exact(&mut sum).map_err(io)?;
     if u64::from_le_bytes(sum) != hash {
         return Err(bad("damaged (its checksum does not match: truncated or altered)"));
     }
@@ -517,6 +535,7 @@ fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
         count: u32_at(24),
         texels: u32_at(28) as usize..u32_at(32) as usize,
         counters: [counter(0), counter(1), counter(2), counter(3)],
+        bytes: len,
     };
     Ok((part, plan))
 }
@@ -572,7 +591,7 @@ impl PartWalks {
         let mut long = [0u8; 8];
         reader.read_exact(&mut long).map_err(io)?;
         let len = u64::from_le_bytes(long);
-        if len > 1 << 40 {
+        if len > part.bytes {
             return Err(file_error(&path, "damaged (a chunk's length)"));
         }
         let mut bytes = vec![0u8; len as usize];
@@ -672,9 +691,12 @@ pub fn merge(
     });
     let mut walks = PartWalks { parts, current: 0, reader: None, next: 0, ahead: Default::default() };
     let mut failed = None;
-    let mut walk = |range: Range<usize>, _: Control| -> Result<Walked, PrecomputeError> {
+    let mut walk = |range: Range<usize>, control: Control| -> Result<Walked, PrecomputeError> {
         match walks.take(range) {
-            Ok(w) => Ok(w.into_iter().map(|p| (p, Vec::new())).collect()),
+            Ok(w) => {
+                (control.progress)(w.len());
+                Ok(w.into_iter().map(|p| (p, Vec::new())).collect())
+            }
             Err(e) => {
                 failed = Some(e);
                 Err(crate::parallel::Cancelled.into())
@@ -688,7 +710,8 @@ pub fn merge(
     let acc = acc?;
     let [truncated, unowned, rays, vpls] = counters;
     (report.walks_truncated, report.unowned_vertices) = (truncated as usize, unowned as usize);
-    (report.rays, report.virtual_lights) = (rays as usize, (vpls as usize) / walks.parts.len().max(1));
+    (report.rays, report.virtual_lights) = (rays as usize, vpls as usize);
     let prm = finish(pre, acc, &params, &mut report, all)?;
+    progress(Phase::Panes, 1, 1);
     Ok((prm, report))
 }

@@ -29,7 +29,7 @@ ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 PRM = os.path.abspath(os.environ.get("PRM_BIN", os.path.join(ROOT, "target", "debug", "prm")))
 LEVEL = os.path.join(ROOT, "assets", "cornell.glb")
 # Small enough for CI, with every part of the precompute (near, echo and far fields, groups).
-OPTIONS = ["--preset", "preview", "--atlas", "96", "--paths", "8", "--seed", "5"]
+OPTIONS = ["--preset", "preview", "--atlas", "128", "--paths", "64", "--seed", "5"]
 SHARDS = 4
 LOOPBACK = "127.0.0.1"
 
