@@ -477,11 +477,12 @@ struct Part {
     texels: Range<usize>,
     /// Walks cut, unowned vertices, rays, virtual lights.
     counters: [u64; 4],
-    /// The file's length.
+    /// The checksum it ends with, and the file's length.
+    checksum: u64,
     bytes: u64,
 }
 
-/// Read a part's header and check its checksum over the whole file.
+/// Read a part's header and end (its checksum is checked as it is read: `PartWalks`).
 fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
     let bad = |problem: &str| file_error(path, problem);
     let io = |e: std::io::Error| file_error(path, format!("cannot be read: {e}"));
@@ -503,38 +504,22 @@ fn check_part(path: &Path) -> Result<(Part, u64), ShardError> {
         )));
     }
     let plan = u64::from_le_bytes(head[12..20].try_into().unwrap_or_default());
-    // The checksum, over everything before its last 8 bytes.
-    let mut hash = fnv1a(FNV_START, &head);
-    let mut rest = BufReader::with_capacity(1 << 20, file);
-    let mut left = len - PART_HEADER as u64 - 8;
-    let mut buf = vec![0u8; 1 << 20];
-    let mut tail = [0u8; 40];
-    while left > 0 {
-        let n = (left as usize).min(buf.len());
-        rest.read_exact(&mut buf[..n]).map_err(io)?;
-        hash = fnv1a(hash, &buf[..n]);
-        // Keep the last 40 bytes before the checksum: 4 of the last chunk, the end marker and
-        // the counters.
-        let keep = n.min(40);
-        tail.copy_within(keep.., 0);
-        tail[40 - keep..].copy_from_slice(&buf[n - keep..n]);
-        left -= n as u64;
+    // The end: the end marker, the counters and the checksum. The checksum itself is checked
+    // as the merge reads the part (`PartWalks`): once, not twice.
+    let mut tail = [0u8; 44];
+    file.seek(SeekFrom::Start(len - 44)).map_err(io)?;
+    file.read_exact(&mut tail).map_err(io)?;
+    if tail[..4] != [0; 4] {
+        return Err(bad("damaged (truncated, or its walks do not end where its counters start)"));
     }
-    let mut sum = [0u8; 8];
-    rest.read_exact(&mut sum).map_err(io)?;
-    if u64::from_le_bytes(sum) != hash {
-        return Err(bad("damaged (its checksum does not match: truncated or altered)"));
-    }
-    if tail[4..8] != [0; 4] {
-        return Err(bad("damaged (its walks do not end where its counters start)"));
-    }
-    let counter = |k: usize| u64::from_le_bytes(tail[8 + 8 * k..16 + 8 * k].try_into().unwrap_or_default());
+    let word = |k: usize| u64::from_le_bytes(tail[4 + 8 * k..12 + 8 * k].try_into().unwrap_or_default());
     let part = Part {
         path: path.to_path_buf(),
         index: u32_at(20),
         count: u32_at(24),
         texels: u32_at(28) as usize..u32_at(32) as usize,
-        counters: [counter(0), counter(1), counter(2), counter(3)],
+        counters: [word(0), word(1), word(2), word(3)],
+        checksum: word(4),
         bytes: len,
     };
     Ok((part, plan))
@@ -550,6 +535,8 @@ struct PartWalks {
     next: usize,
     /// Walks read and not yet taken, from texel `next - ahead.len()`.
     ahead: std::collections::VecDeque<TexelPanes>,
+    /// FNV-1a 64 of the current part's bytes read so far.
+    hash: u64,
 }
 
 impl PartWalks {
@@ -564,6 +551,16 @@ impl PartWalks {
         Ok(self.ahead.drain(..range.len().min(self.ahead.len())).collect())
     }
 
+    /// Read what is left of every part, checking their checksums (the last part's end has
+    /// not been read when the last texel has).
+    fn finish(&mut self) -> Result<(), ShardError> {
+        while self.current < self.parts.len() {
+            self.read_chunk()?;
+            self.ahead.clear();
+        }
+        Ok(())
+    }
+
     fn read_chunk(&mut self) -> Result<(), ShardError> {
         let Some(part) = self.parts.get(self.current) else {
             return Err(ShardError::Parts("the parts hold fewer texels than the plan".into()));
@@ -573,15 +570,23 @@ impl PartWalks {
         let reader = match self.reader.as_mut() {
             Some(r) => r,
             None => {
-                let mut file = File::open(&path).map_err(io)?;
-                file.seek(SeekFrom::Start(PART_HEADER as u64)).map_err(io)?;
-                self.reader.insert(BufReader::with_capacity(1 << 20, file))
+                let mut reader = BufReader::with_capacity(1 << 20, File::open(&path).map_err(io)?);
+                let mut head = [0u8; PART_HEADER];
+                reader.read_exact(&mut head).map_err(io)?;
+                self.hash = fnv1a(FNV_START, &head);
+                self.reader.insert(reader)
             }
         };
         let mut word = [0u8; 4];
         reader.read_exact(&mut word).map_err(io)?;
+        self.hash = fnv1a(self.hash, &word);
         let texels = u32::from_le_bytes(word) as usize;
         if texels == 0 {
+            let mut counters = [0u8; 32];
+            reader.read_exact(&mut counters).map_err(io)?;
+            if fnv1a(self.hash, &counters) != part.checksum {
+                return Err(file_error(&path, "damaged (its checksum does not match: truncated or altered)"));
+            }
             if self.next != part.texels.end {
                 return Err(file_error(&path, "damaged (fewer texels than its header says)"));
             }
@@ -590,12 +595,14 @@ impl PartWalks {
         }
         let mut long = [0u8; 8];
         reader.read_exact(&mut long).map_err(io)?;
+        self.hash = fnv1a(self.hash, &long);
         let len = u64::from_le_bytes(long);
         if len > part.bytes {
             return Err(file_error(&path, "damaged (a chunk's length)"));
         }
         let mut bytes = vec![0u8; len as usize];
         reader.read_exact(&mut bytes).map_err(io)?;
+        self.hash = fnv1a(self.hash, &bytes);
         let walks: Vec<TexelPanes> = postcard::from_bytes(&bytes)
             .map_err(|e| file_error(&path, format!("damaged (a chunk cannot be decoded: {e})")))?;
         if walks.len() != texels || self.next + texels > part.texels.end {
@@ -689,7 +696,8 @@ pub fn merge(
         }
         a
     });
-    let mut walks = PartWalks { parts, current: 0, reader: None, next: 0, ahead: Default::default() };
+    let mut walks =
+        PartWalks { parts, current: 0, reader: None, next: 0, ahead: Default::default(), hash: FNV_START };
     let mut failed = None;
     let mut walk = |range: Range<usize>, control: Control| -> Result<Walked, PrecomputeError> {
         match walks.take(range) {
@@ -708,6 +716,7 @@ pub fn merge(
         return Err(e);
     }
     let acc = acc?;
+    walks.finish()?;
     let [truncated, unowned, rays, vpls] = counters;
     (report.walks_truncated, report.unowned_vertices) = (truncated as usize, unowned as usize);
     (report.rays, report.virtual_lights) = (rays as usize, vpls as usize);

@@ -144,6 +144,14 @@ fn bad_parts_and_plans_are_refused_by_name() {
     std::fs::write(&flipped, &b).unwrap();
     let m = message(merged(&[parts[0].clone(), flipped, parts[2].clone()]));
     assert!(m.contains("flipped") && m.contains("damaged"), "{m}");
+    // In the last shard's counters: found when the merge reads that part's end.
+    let last = std::fs::read(&parts[0]).unwrap();
+    let mut b = last.clone();
+    b[last.len() - 20] ^= 0x01;
+    let counted = dir.path().join("counted");
+    std::fs::write(&counted, &b).unwrap();
+    let m = message(merged(&[counted, parts[1].clone(), parts[2].clone()]));
+    assert!(m.contains("counted") && m.contains("damaged"), "{m}");
     let cut = dir.path().join("cut");
     std::fs::write(&cut, &bytes[..bytes.len() - 100]).unwrap();
     let m = message(merged(&[parts[0].clone(), cut, parts[2].clone()]));
