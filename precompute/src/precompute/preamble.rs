@@ -1,0 +1,361 @@
+//! The preamble of a precompute: every phase before the walks (texels, entries and their
+//! cells, clusters and groups, the far field, the near and echo links, the links' exact first
+//! bounce, the smoothing), kept as one value so a one-machine precompute, a sharded one's
+//! plan and its merge share it (`crate::shard`).
+
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use glam::Vec3;
+use prm::density::UnwrapLayout;
+use prm::fingerprint::{fingerprint_hex, geometry_fingerprint};
+use prm::prm_file::{far_share, Cells, Dipole, Echo, Entry, Far, NearLink, NearPoint};
+use prm::{Bvh, Scene, Smoothing, TexelSet};
+use rayon::prelude::*;
+
+use super::{Phase, PrecomputeError, PrecomputeParams, Report};
+use crate::cells::{entry_cells, CellOwners, CellReport};
+use crate::cluster::{centroids, cluster_entries, Clustering};
+use crate::entries::{is_enclosed, relocate, sample_entries};
+use crate::far::far_field;
+use crate::near::{echo_links, near_links};
+use crate::parallel::stop_if;
+use crate::transport::{Estimator, Frame, LinkedCells, TexelPanes, Transport};
+use crate::update::UpdateCache;
+
+/// Everything the walks and the panes' encoding take from the level before any walk: the
+/// texel set, the entries and their cells, the clusters and groups, the near, echo and far
+/// fields, the links' exact first bounce and the smoothing, with the counts the file's
+/// header records. It depends on the level and the parameters only (not on the thread
+/// count), so a sharded precompute (`crate::shard`) makes it once and every shard and the
+/// merge read it.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct Preamble {
+    pub(crate) set: TexelSet,
+    pub(crate) entries: Vec<Entry>,
+    pub(crate) cells: Cells,
+    pub(crate) owners: CellOwners,
+    pub(crate) clustering: Clustering,
+    pub(crate) centroids: Vec<Vec3>,
+    pub(crate) grouping: Option<Clustering>,
+    pub(crate) far: Far,
+    pub(crate) near: Vec<NearLink>,
+    pub(crate) near_points: Vec<NearPoint>,
+    /// Per near link, the share of its cell's first bounce the walks keep (None: the walks
+    /// keep all of it: `transport::LinkedCells`).
+    pub(crate) keep: Option<Vec<f32>>,
+    /// Per covered texel, the links' exact first bounce per cluster (empty without links).
+    pub(crate) exact: Vec<TexelPanes>,
+    pub(crate) echo: Echo,
+    pub(crate) smoothing: Option<Smoothing>,
+    /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
+    /// refuses them, so they are not stored).
+    #[serde(skip)]
+    pub(crate) frames: Vec<Frame>,
+    #[serde(skip)]
+    pub(crate) dipoles: Vec<Dipole>,
+    /// The header's level fingerprint and page texel size, and what the walks' rays meet
+    /// (`prm::fingerprint::geometry_fingerprint`: a shard checks its level with it).
+    pub(crate) fingerprint: String,
+    pub(crate) geometry: u64,
+    pub(crate) page_texel_size: f32,
+    /// Entries left out inside solids, and the share of the surface no cell covers.
+    pub(crate) enclosed: usize,
+    pub(crate) area_without_entry: f64,
+}
+
+impl Preamble {
+    /// Every phase before the walks (module doc), timed into `report`. `check` sees the
+    /// entries before they are clustered (an update refuses there); `cache` gives the
+    /// clusters and groups instead of k-means.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn build(
+        scene: &Scene,
+        bvh: &Bvh,
+        params: &PrecomputeParams,
+        cache: Option<&UpdateCache>,
+        check: impl FnOnce(&[Entry]) -> Result<(), PrecomputeError>,
+        report: &mut Report,
+        progress: &(dyn Fn(Phase, usize, usize) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<Preamble, PrecomputeError> {
+        let set = timed(&mut report.seconds_texels, || {
+            TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
+        });
+        progress(Phase::Texels, 1, 1);
+        let (entries, (cells, owners, cell_report), enclosed) =
+            timed(&mut report.seconds_entries, || lit_entries(scene, bvh, params));
+        check(&entries)?;
+        progress(Phase::Entries, 1, 1);
+        stop_if(cancel)?;
+
+        let clustering = timed(&mut report.seconds_clustering, || match cache {
+            Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
+            None => {
+                let k = params.clusters as usize;
+                cluster_entries(
+                    &entries,
+                    k,
+                    scene.total_area(),
+                    params.kmeans_iterations as usize,
+                    params.seed,
+                )
+            }
+        });
+        let cents = centroids(&entries, &clustering);
+        let (frames, dipoles) = if params.dipole_block > 0 {
+            crate::dipole::frames(&entries, &cells, &clustering.members)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        progress(Phase::Clustering, 1, 1);
+        stop_if(cancel)?;
+
+        // The entry spacing sqrt(A / N), the unit of the near, far and smoothing reaches.
+        let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
+        // Each cell's centroid and area, once (a cell's are sums over its pieces).
+        let cell: Vec<(Vec3, f32)> = (0..entries.len())
+            .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
+            .collect();
+        let far = timed(&mut report.seconds_far, || {
+            if params.far_field {
+                let reach = params.near_radius * spacing;
+                let radius = params.far_radius * spacing;
+                far_field(scene, bvh, &set, &entries, &cell, reach, radius, params.seed)
+            } else {
+                Far::default()
+            }
+        });
+        let (near, near_points) = timed(&mut report.seconds_near, || {
+            if params.near_radius > 0.0 {
+                near_links(bvh, &set, &entries, &cells, params.near_radius, &far)
+            } else {
+                (Vec::new(), Vec::new())
+            }
+        });
+        // The links' first bounce, exact: the gather leaves it out of its first hits and the
+        // panes get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does
+        // this (the MIS and scatter estimators, and dipole panes, walk it as before).
+        let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
+        let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
+        let exact = match &keep {
+            Some(keep) => {
+                let linked = LinkedCells { links: &near, keep };
+                exact_first_bounce(&set, &entries, &cell, &linked, &clustering)
+            }
+            None => Vec::new(),
+        };
+        // The echo links need the near links' points only; made now, so nothing of the walks
+        // is held while they are.
+        let echo = timed(&mut report.seconds_near, || {
+            echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+        });
+
+        let t = Instant::now();
+        let smoothing =
+            (params.smooth_radius > 0.0).then(|| set.smoothing(scene, params.smooth_radius * spacing));
+        let grouping = match cache {
+            Some(c) => (c.groups > 0).then(|| Clustering::from_assignment(&c.group_of, c.groups)),
+            None => group_clusters(scene, &entries, &clustering.members, &cents, params),
+        };
+        report.seconds_panes += t.elapsed().as_secs_f64();
+        let pre = Preamble {
+            set,
+            entries,
+            cells,
+            owners,
+            clustering,
+            centroids: cents,
+            grouping,
+            far,
+            near,
+            near_points,
+            keep,
+            exact,
+            echo,
+            smoothing,
+            frames,
+            dipoles,
+            fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
+            geometry: geometry_fingerprint(scene),
+            page_texel_size: page_texel_size(scene),
+            enclosed,
+            area_without_entry: cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE),
+        };
+        pre.count(report);
+        Ok(pre)
+    }
+
+    /// The counts the report (and the file's header) take from the preamble.
+    pub(crate) fn count(&self, report: &mut Report) {
+        report.texels = self.set.len();
+        report.entries_enclosed = self.enclosed;
+        report.cell_triangles = self.cells.triangles.len();
+        report.area_without_entry = self.area_without_entry;
+        report.clusters = self.clustering.members.len() as u32;
+        report.far_texels = self.far.texels.len();
+        // Each pair's bit is stored both ways.
+        report.far_pairs = self.far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
+        report.near_links = self.near.len();
+        report.echo_links = self.echo.links.len();
+    }
+
+    /// The near links with the share of their first bounce the walks keep (None: the walks
+    /// keep all of it).
+    pub(crate) fn linked(&self) -> Option<LinkedCells<'_>> {
+        self.keep.as_ref().map(|keep| LinkedCells { links: &self.near, keep })
+    }
+
+    /// The walks' estimator over this preamble.
+    pub(crate) fn transport<'a>(
+        &'a self,
+        scene: &'a Scene,
+        bvh: &'a Bvh,
+        linked: Option<&'a LinkedCells<'a>>,
+        params: &PrecomputeParams,
+    ) -> Transport<'a> {
+        Transport {
+            scene,
+            bvh,
+            entries: &self.entries,
+            owners: &self.owners,
+            linked,
+            assignment: &self.clustering.assignment,
+            clusters: self.clustering.members.len(),
+            frames: &self.frames,
+            paths: params.paths,
+            max_bounces: params.max_bounces,
+            seed: params.seed,
+            stats: Default::default(),
+        }
+    }
+}
+
+/// Per link, the share of its cell's first bounce the gather's walks keep: the far field's
+/// share where it lights the texel (what the link's fade leaves to it), else none.
+fn linked_shares(set: &TexelSet, cell: &[(Vec3, f32)], near: &[NearLink], far: &Far) -> Vec<f32> {
+    near.par_iter()
+        .map(|l| {
+            let (centroid, area) = cell[l.entry as usize];
+            let fades = far.texels.binary_search_by_key(&l.texel, |f| f.texel).is_ok();
+            let d = centroid.distance(set.texels[set.index[l.texel as usize] as usize].position);
+            if fades {
+                far_share(d, far.reach, area.sqrt())
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// Per covered texel, what the links left out of the walks add to each cluster's pane: per
+/// unit of cluster irradiance, cell j takes `t_j` of it (its area over A/N), which its link
+/// turns into `albedo_j factor t_j` at the texel; exactly what the runtime's near field takes
+/// back from `w_c` (`prm_runtime::cpu::add_near_field`).
+fn exact_first_bounce(
+    set: &TexelSet,
+    entries: &[Entry],
+    cell: &[(Vec3, f32)],
+    linked: &LinkedCells,
+    clustering: &Clustering,
+) -> Vec<TexelPanes> {
+    let mut out: Vec<TexelPanes> = vec![Vec::new(); set.len()];
+    for l in linked.links {
+        let (j, area) = (l.entry as usize, cell[l.entry as usize].1);
+        let e = &entries[j];
+        let t = if e.area > 0.0 { area / e.area } else { 0.0 };
+        let (k, c) = (set.index[l.texel as usize] as usize, clustering.assignment[j]);
+        let v = e.albedo * (l.factor * t);
+        match out[k].iter_mut().find(|(x, _)| *x == c) {
+            Some(slot) => slot.1 += v,
+            None => out[k].push((c, v)),
+        }
+    }
+    for tp in &mut out {
+        tp.sort_by_key(|&(c, _)| c);
+    }
+    out
+}
+
+/// `f()`, with its run time in seconds added to `seconds`.
+fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
+    let t = Instant::now();
+    let out = f();
+    *seconds += t.elapsed().as_secs_f64();
+    out
+}
+
+/// The entry points with their cells. An entry inside a solid moves to a point of its
+/// triangle outside it, or is left out (how many are is the last value): it would never see
+/// light, and in a cluster's mean it would only dim it.
+fn lit_entries(
+    scene: &Scene,
+    bvh: &Bvh,
+    params: &PrecomputeParams,
+) -> (Vec<Entry>, (Cells, CellOwners, CellReport), usize) {
+    let first = sample_entries(scene, params.entries as usize, params.seed);
+    let sampled: Vec<Option<Entry>> = first
+        .par_iter()
+        .enumerate()
+        .map(|(j, e)| {
+            let (seed, j) = (params.seed, j as u64);
+            if is_enclosed(scene, bvh, e, seed, j) {
+                relocate(scene, bvh, e, seed, j)
+            } else {
+                Some(*e)
+            }
+        })
+        .collect();
+    let keep: Vec<bool> = sampled.iter().map(Option::is_some).collect();
+    // A left-out entry keeps its first point: it takes no cell.
+    let placed: Vec<Entry> = sampled.iter().zip(&first).map(|(e, f)| e.unwrap_or(*f)).collect();
+    let entries: Vec<Entry> = sampled.iter().flatten().copied().collect();
+    let cells = entry_cells(scene, &placed, &keep);
+    let enclosed = sampled.len() - entries.len();
+    (entries, cells, enclosed)
+}
+
+/// The texel size the level's generated UVs were packed at in pages (how it loads again with
+/// the same UVs; a level whose charts packed worse than the density estimated may fill only
+/// one), else 0.
+fn page_texel_size(scene: &Scene) -> f32 {
+    match scene.report.generated_layout {
+        Some(UnwrapLayout::Pages { texel_size, .. }) => texel_size,
+        _ => 0.0,
+    }
+}
+
+/// Groups the clusters (k-means on centroid and mean normal, area-weighted like the entries):
+/// each group's pane is the sum of its clusters' contributions, smoothed, dilated and tiled
+/// like theirs (`walk_and_encode`). None without groups.
+fn group_clusters(
+    scene: &Scene,
+    entries: &[Entry],
+    members: &[Vec<u32>],
+    cents: &[Vec3],
+    params: &PrecomputeParams,
+) -> Option<Clustering> {
+    let c = members.len();
+    if params.groups == 0 || c < 2 {
+        return None;
+    }
+    let pseudo: Vec<Entry> = members
+        .iter()
+        .zip(cents)
+        .map(|(m, &position)| {
+            let area: f32 = m.iter().map(|&e| entries[e as usize].area).sum();
+            let normal = m
+                .iter()
+                .fold(Vec3::ZERO, |a, &e| a + entries[e as usize].normal * entries[e as usize].area)
+                .normalize_or_zero();
+            Entry { position, normal, albedo: Vec3::ZERO, area, triangle: 0 }
+        })
+        .collect();
+    Some(cluster_entries(
+        &pseudo,
+        (params.groups as usize).min(c),
+        scene.total_area(),
+        params.kmeans_iterations as usize,
+        params.seed ^ 0x6772_6f75_7073,
+    ))
+}
