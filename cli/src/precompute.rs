@@ -40,7 +40,7 @@ pub struct Args {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Parameter preset; the options below override it.
-    #[arg(long, value_enum, default_value = "production")]
+    #[arg(long, value_enum, default_value = "production", conflicts_with = "shard")]
     preset: Preset,
     /// Entry points N (default: the preset's entries per m^2 of surface, at least its count).
     #[arg(long)]
@@ -60,7 +60,7 @@ pub struct Args {
     #[arg(long, value_enum)]
     estimator: Option<EstimatorArg>,
     /// Scatter only: 1/r² is clamped below (clamp x entry spacing)².
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, conflicts_with = "shard")]
     clamp: f32,
     /// Pane tile side in texels.
     #[arg(long)]
@@ -117,7 +117,8 @@ pub struct Args {
     prepare: bool,
     /// Walk shard I of N (0 <= I < N) of the plan given with --plan and write its part to
     /// OUTPUT; `prm merge` makes the map from the plan and all N parts, the same bytes as one
-    /// machine's precompute. The parameters are the plan's.
+    /// machine's precompute. The parameters are the plan's (a parameter given here is an
+    /// error; --texel-size and --page-size are not used).
     #[arg(long, value_name = "I/N", requires = "plan", conflicts_with_all = ["cache", "update"])]
     shard: Option<String>,
     /// The plan (from --prepare) a --shard walks a part of.

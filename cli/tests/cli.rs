@@ -1340,6 +1340,19 @@ fn a_precompute_in_parts_merges_to_one_machines_bytes() {
     }
     let (ok, _, err) = prm(&["precompute", s(&glb), "--shard", "1/3", "-o", s(&out)]);
     assert!(!ok && err.contains("--plan"), "{err}");
+    let (ok, _, err) = prm(&[
+        "precompute",
+        s(&glb),
+        "--shard",
+        "1/3",
+        "--plan",
+        s(&plan),
+        "--preset",
+        "preview",
+        "-o",
+        s(&out),
+    ]);
+    assert!(!ok && err.contains("--preset") && err.contains("--shard"), "{err}");
     let (ok, _, err) = prm(&["merge", "--plan", s(&plan), s(&parts[0]), s(&parts[1]), "-o", s(&out)]);
     assert!(!ok && err.contains("shard 2 of 3 missing") && err.contains("not written"), "{err}");
     assert!(!out.exists());
