@@ -418,7 +418,7 @@ pub fn precompute_with(
         .into()),
         _ => Ok(()),
     };
-    let mut pre =
+    let pre =
         Preamble::build(scene, bvh, params, reuse.cache(), same_entries, &mut report, progress, cancel)?;
     let linked = pre.linked();
     let set = &pre.set;
@@ -520,9 +520,6 @@ pub fn precompute_with(
     } else {
         None
     };
-    // The links' shares and exact first bounce are the walks' only; freed before the
-    // panes' codes come back from the scratch file.
-    (pre.keep, pre.exact) = (None, Vec::new());
     let kept = tracing.then(|| (pre.clustering.assignment.clone(), pre.grouping.clone()));
     let prm = finish(pre, acc, params, &mut report, all)?;
     progress(Phase::Panes, 1, 1);

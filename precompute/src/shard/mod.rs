@@ -34,15 +34,14 @@
 //! (cluster, RGB) pairs); then walks cut at the bounce cap u64, path vertices with no owning
 //! entry u64, rays u64, virtual lights u64; FNV-1a 64 of everything before it.
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use prm::fingerprint::{geometry_fingerprint, FNV_START};
-use prm::fsutil::temp_path;
+use prm::fingerprint::geometry_fingerprint;
+use prm::fsutil::write_atomic;
 use prm::prm_file::Prm;
 use prm::{Bvh, Scene};
 
@@ -83,6 +82,9 @@ pub enum ShardError {
     /// This step cannot be done with these inputs.
     #[error("{0}")]
     Refused(String),
+    /// Writing a part failed (named by the caller: [`run_shard`] turns it into `File`).
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
 }
 
 fn file_error(path: &Path, problem: impl std::fmt::Display) -> ShardError {
@@ -175,18 +177,15 @@ pub fn run_shard(
         }
     });
     let t = Instant::now();
-    let tmp = temp_path(out);
-    let written = (|| -> Result<u64, ShardError> {
-        let file = File::create(&tmp).map_err(|e| file_error(out, format!("cannot be written: {e}")))?;
-        let mut w = Hashing { inner: BufWriter::new(file), hash: FNV_START };
-        let io = |e: std::io::Error| file_error(out, format!("cannot be written: {e}"));
-        w.write_all(&PART_MAGIC).map_err(io)?;
-        w.write_all(&VERSION.to_le_bytes()).map_err(io)?;
-        w.write_all(&plan.checksum.to_le_bytes()).map_err(io)?;
+    let mut bytes = 0;
+    write_atomic(out, |file| -> Result<(), ShardError> {
+        let mut w = Hashing::new(file);
+        w.write_all(&PART_MAGIC)?;
+        w.write_all(&VERSION.to_le_bytes())?;
+        w.write_all(&plan.checksum.to_le_bytes())?;
         for v in [index, count, range.start as u32, range.end as u32] {
-            w.write_all(&v.to_le_bytes()).map_err(io)?;
+            w.write_all(&v.to_le_bytes())?;
         }
-        let mut bytes = PART_HEADER as u64;
         let mut at = range.start;
         while at < range.end {
             stop_if(cancel).map_err(PrecomputeError::from)?;
@@ -199,32 +198,26 @@ pub fn run_shard(
             let panes: Vec<TexelPanes> = walked.into_iter().map(|(p, _)| p).collect();
             let chunk = postcard::to_stdvec(&panes)
                 .map_err(|e| ShardError::Refused(format!("a chunk of walks cannot be encoded: {e}")))?;
-            w.write_all(&((end - at) as u32).to_le_bytes()).map_err(io)?;
-            w.write_all(&(chunk.len() as u64).to_le_bytes()).map_err(io)?;
-            w.write_all(&chunk).map_err(io)?;
-            bytes += 12 + chunk.len() as u64;
+            w.write_all(&((end - at) as u32).to_le_bytes())?;
+            w.write_all(&(chunk.len() as u64).to_le_bytes())?;
+            w.write_all(&chunk)?;
             at = end;
         }
-        w.write_all(&0u32.to_le_bytes()).map_err(io)?;
+        w.write_all(&0u32.to_le_bytes())?;
         for (c, before) in
             [&stats.truncated, &stats.unowned, &stats.rays, &stats.vpls].iter().zip(prepared_counts)
         {
-            w.write_all(&(c.load(Ordering::Relaxed) as u64 - before).to_le_bytes()).map_err(io)?;
+            w.write_all(&(c.load(Ordering::Relaxed) as u64 - before).to_le_bytes())?;
         }
         let sum = w.hash;
-        w.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
-        let file = w.inner.into_inner().map_err(|e| io(e.into_error()))?;
-        file.sync_all().map_err(io)?;
-        std::fs::rename(&tmp, out).map_err(io)?;
-        Ok(bytes + 4 + 32 + 8)
-    })();
-    let bytes = match written {
-        Ok(b) => b,
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            return Err(e);
-        }
-    };
+        w.write_all(&sum.to_le_bytes())?;
+        bytes = w.bytes;
+        Ok(())
+    })
+    .map_err(|e| match e {
+        ShardError::Io(e) => file_error(out, format!("cannot be written: {e}")),
+        e => e,
+    })?;
     Ok(ShardReport {
         index,
         count,

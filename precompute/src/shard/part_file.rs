@@ -11,16 +11,24 @@ use prm::fingerprint::{fnv1a, FNV_START};
 use super::{file_error, shard_texels, Plan, ShardError, PART_HEADER, PART_MAGIC, VERSION};
 use crate::transport::TexelPanes;
 
-/// A writer that keeps the FNV-1a 64 of what went through it.
+/// A writer that keeps the FNV-1a 64 and the count of the bytes that went through it.
 pub(super) struct Hashing<W: Write> {
     pub(super) inner: W,
     pub(super) hash: u64,
+    pub(super) bytes: u64,
+}
+
+impl<W: Write> Hashing<W> {
+    pub(super) fn new(inner: W) -> Self {
+        Hashing { inner, hash: FNV_START, bytes: 0 }
+    }
 }
 
 impl<W: Write> Write for Hashing<W> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let n = self.inner.write(buf)?;
         self.hash = fnv1a(self.hash, &buf[..n]);
+        self.bytes += n as u64;
         Ok(n)
     }
     fn flush(&mut self) -> std::io::Result<()> {
