@@ -57,6 +57,8 @@ pub struct GlbNode {
     /// (yfov radians, aspect) of a perspective camera on this node.
     pub camera: Option<(f32, f32)>,
     pub children: Vec<usize>,
+    /// The node's glTF `extras` (`{"prm": {"movable": true}}` marks a movable object).
+    pub extras: Option<Value>,
 }
 
 /// A level to write.
@@ -311,6 +313,9 @@ fn node_json(n: &GlbNode, cameras: &mut Vec<Value>) -> Value {
     }
     if !n.children.is_empty() {
         v["children"] = json!(n.children);
+    }
+    if let Some(e) = &n.extras {
+        v["extras"] = e.clone();
     }
     v
 }

@@ -12,6 +12,7 @@
 //! - [`exr_io`]: named-channel EXR files in the DESIGN.md §8 layouts, written atomically.
 //! - [`prm_file`]: the `.prm` format; [`fingerprint`]: what a map was baked for.
 //! - [`sampling`]: seeded streams and sample warps for the bakers.
+//! - [`visibility`]: precomputed visibility for levels with moving objects (paper 003).
 //!
 //! No wgpu here: the runtime crate adds the GPU side.
 //!
@@ -49,6 +50,7 @@ pub mod scene;
 #[cfg(feature = "texels")]
 pub mod texels;
 pub mod uv;
+pub mod visibility;
 #[cfg(feature = "unwrap")]
 pub mod zones;
 

@@ -24,6 +24,14 @@
 //!   held before the first and after the last. A keyframe gives only what changes.
 //! - glTF lights the rig does not name keep their glTF values; `"enabled": false` switches one
 //!   off.
+//! - `objects` move the level's movable nodes (glTF node extras `{"prm": {"movable": true}}`):
+//!   `{ "name": NODE, "keyframes": [ { "time": s, "translation": [x, y, z], "rotation":
+//!   [x, y, z, w] } ] }`. The motion is in the node's own frame, on top of its transform in the
+//!   file (a rotation turns the object about the node's origin: put a door's node on its
+//!   hinge); translation is linear and rotation slerped between keyframes, held outside them.
+//!   An unknown node, a node not marked movable, a rotation that is not a unit quaternion or a
+//!   motion that is not rigid in world space is an error naming the object
+//!   ([`Rig::object_motion`] checks it against the level).
 //! - Frame i of F samples time `duration x i / (F - 1)` (`duration` defaults to the last
 //!   keyframe time, or 0).
 //!
@@ -33,7 +41,7 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
+use glam::{Mat4, Quat, Vec3};
 use serde::Deserialize;
 
 use crate::light::{Light, LightKind};
@@ -51,6 +59,8 @@ pub enum RigError {
     Light { path: PathBuf, light: String, what: String },
     #[error("{path}: {count} lights; the limit is {MAX_LIGHTS}")]
     TooMany { path: PathBuf, count: usize },
+    #[error("{path}: object '{object}': {what}")]
+    Object { path: PathBuf, object: String, what: String },
     #[error("{path}: duration {value} must be finite and >= 0")]
     Duration { path: PathBuf, value: f64 },
 }
@@ -62,6 +72,25 @@ struct RigFile {
     duration: Option<f64>,
     #[serde(default)]
     lights: Vec<RigLight>,
+    #[serde(default)]
+    objects: Vec<RigObject>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigObject {
+    name: String,
+    keyframes: Vec<ObjectKeyframe>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObjectKeyframe {
+    time: f64,
+    #[serde(default)]
+    translation: Option<[f64; 3]>,
+    #[serde(default)]
+    rotation: Option<[f64; 4]>,
 }
 
 #[derive(Debug, Default, Clone, Deserialize)]
@@ -118,10 +147,22 @@ pub struct AnimatedLight {
     pub keys: Vec<(f64, Vec3, Vec3, Vec3)>,
 }
 
-/// The lights of a level over time.
+/// One movable object of a rig with its keyframes, in the node's own frame (module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AnimatedObject {
+    /// The glTF node's name ([`crate::scene::Movable::name`]).
+    pub name: String,
+    /// (time, translation, unit rotation), time strictly increasing.
+    pub keys: Vec<(f64, Vec3, Quat)>,
+}
+
+/// The lights (and movable objects) of a level over time.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rig {
     pub lights: Vec<AnimatedLight>,
+    /// Movable objects the rig moves, by node name; checked against a level by
+    /// [`Rig::object_motion`].
+    pub objects: Vec<AnimatedObject>,
     pub duration: f64,
 }
 
@@ -130,6 +171,7 @@ impl Rig {
     pub fn from_lights(lights: &[Light]) -> Rig {
         Rig {
             lights: lights.iter().map(|l| AnimatedLight { base: l.clone(), keys: Vec::new() }).collect(),
+            objects: Vec::new(),
             duration: 0.0,
         }
     }
@@ -223,6 +265,10 @@ impl Rig {
                 None => out.push(anim),
             }
         }
+        let objects = file.objects.iter().map(|o| parse_object(path, o)).collect::<Result<Vec<_>, _>>()?;
+        for o in &objects {
+            last_key = last_key.max(o.keys.last().map_or(0.0, |k| k.0));
+        }
         let lights: Vec<AnimatedLight> = out.into_iter().flatten().collect();
         if lights.len() > MAX_LIGHTS {
             return Err(RigError::TooMany { path: path.into(), count: lights.len() });
@@ -231,7 +277,45 @@ impl Rig {
         if !(duration.is_finite() && duration >= 0.0) {
             return Err(RigError::Duration { path: path.into(), value: duration });
         }
-        Ok(Rig { lights, duration })
+        Ok(Rig { lights, objects, duration })
+    }
+
+    /// The rig's object motion bound to a level's movables: an unknown node, a node not marked
+    /// movable, one named twice, or a motion that is not rigid in world space (a node with a
+    /// non-uniform scale turned by a rotation) is an error naming it.
+    pub fn object_motion(&self, path: &Path, scene: &crate::Scene) -> Result<Motion, RigError> {
+        let mut per_movable: Vec<Vec<(f64, Vec3, Quat)>> = vec![Vec::new(); scene.movables.len()];
+        for o in &self.objects {
+            let bad = |what: String| RigError::Object { path: path.into(), object: o.name.clone(), what };
+            let Some(k) = scene.movables.iter().position(|m| m.name == o.name) else {
+                let movables: Vec<&str> = scene.movables.iter().map(|m| m.name.as_str()).collect();
+                let listed = if movables.is_empty() { "none".into() } else { movables.join(", ") };
+                return Err(bad(if scene.node_names.contains(&o.name) {
+                    format!(
+                        "the node is not marked movable (extras {{\"prm\": {{\"movable\": true}}}}); \
+                        movable nodes: {listed}"
+                    )
+                } else {
+                    format!("no such node in the level (movable nodes: {listed})")
+                }));
+            };
+            if !per_movable[k].is_empty() {
+                return Err(bad("named twice".into()));
+            }
+            let rest = scene.movables[k].rest;
+            for (i, key) in o.keys.iter().enumerate() {
+                let delta = world_delta(rest, key.1, key.2);
+                if !is_rigid(delta) {
+                    return Err(bad(format!(
+                        "keyframe {i}: the motion is not rigid in world space (the node's own \
+                        transform has a non-uniform scale or shear)"
+                    )));
+                }
+            }
+            per_movable[k] = o.keys.clone();
+        }
+        let rests = scene.movables.iter().map(|m| m.rest).collect();
+        Ok(Motion { keys: per_movable, rests })
     }
 
     /// The lights at time `t` (seconds).
@@ -241,8 +325,113 @@ impl Rig {
 
     /// The lights of frame `i` of `frames`.
     pub fn frame(&self, i: usize, frames: usize) -> Vec<Light> {
-        let t = if frames > 1 { self.duration * i as f64 / (frames - 1) as f64 } else { 0.0 };
-        self.at_time(t)
+        self.at_time(self.frame_time(i, frames))
+    }
+
+    /// The time of frame `i` of `frames`, seconds.
+    pub fn frame_time(&self, i: usize, frames: usize) -> f64 {
+        if frames > 1 {
+            self.duration * i as f64 / (frames - 1) as f64
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Parse one object's keyframes: times strictly increasing, translation finite, rotation a unit
+/// quaternion (within 1e-3; renormalised). A keyframe without one holds the one before.
+fn parse_object(path: &Path, o: &RigObject) -> Result<AnimatedObject, RigError> {
+    let bad = |what: String| RigError::Object { path: path.into(), object: o.name.clone(), what };
+    if o.keyframes.is_empty() {
+        return Err(bad("no keyframes".into()));
+    }
+    let mut keys = Vec::with_capacity(o.keyframes.len());
+    let (mut prev, mut t, mut r) = (f64::NEG_INFINITY, Vec3::ZERO, Quat::IDENTITY);
+    for (k, kf) in o.keyframes.iter().enumerate() {
+        if !(kf.time.is_finite() && kf.time > prev) {
+            return Err(bad(format!(
+                "keyframe {k}: time {} must be finite and later than the one before",
+                kf.time
+            )));
+        }
+        prev = kf.time;
+        if let Some(v) = kf.translation {
+            if !v.iter().all(|x| x.is_finite() && x.abs() < 1e9) {
+                return Err(bad(format!("keyframe {k}: translation {v:?} is not finite")));
+            }
+            t = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
+        }
+        if let Some(q) = kf.rotation {
+            let len = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !(q.iter().all(|x| x.is_finite()) && (len - 1.0).abs() <= 1e-3) {
+                return Err(bad(format!(
+                    "keyframe {k}: rotation {q:?} is not a unit quaternion [x, y, z, w] (length {len:.4})"
+                )));
+            }
+            r = Quat::from_xyzw(q[0] as f32, q[1] as f32, q[2] as f32, q[3] as f32).normalize();
+        }
+        keys.push((kf.time, t, r));
+    }
+    Ok(AnimatedObject { name: o.name.clone(), keys })
+}
+
+/// The world-space motion of an object at rest at `rest` moved by `translation` and `rotation`
+/// in its own frame: rest x T x R x rest⁻¹.
+fn world_delta(rest: Mat4, translation: Vec3, rotation: Quat) -> Mat4 {
+    rest * Mat4::from_rotation_translation(rotation, translation) * rest.inverse()
+}
+
+/// Whether a transform's linear part is a rotation (orthonormal, no mirror) within 1e-3.
+fn is_rigid(m: Mat4) -> bool {
+    let l = glam::Mat3::from_mat4(m);
+    let g = l.transpose() * l;
+    m.is_finite()
+        && (g - glam::Mat3::IDENTITY).to_cols_array().iter().all(|x| x.abs() < 1e-3)
+        && l.determinant() > 0.0
+}
+
+/// The movable objects' motion over time, bound to a level ([`Rig::object_motion`]).
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Motion {
+    /// Per movable, its keyframes (empty: it stays at rest).
+    pub keys: Vec<Vec<(f64, Vec3, Quat)>>,
+    rests: Vec<Mat4>,
+}
+
+impl Motion {
+    /// No object moves (a level's movables at rest).
+    pub fn at_rest(scene: &crate::Scene) -> Motion {
+        Motion {
+            keys: vec![Vec::new(); scene.movables.len()],
+            rests: scene.movables.iter().map(|m| m.rest).collect(),
+        }
+    }
+
+    /// Whether any object moves.
+    pub fn moves(&self) -> bool {
+        self.keys.iter().any(|k| !k.is_empty())
+    }
+
+    /// Per movable, the rigid world-space transform from its rest pose to its pose at time `t`:
+    /// translation linear and rotation slerped between keyframes, held outside them.
+    pub fn at_time(&self, t: f64) -> Vec<Mat4> {
+        self.keys
+            .iter()
+            .zip(&self.rests)
+            .map(|(keys, &rest)| {
+                let Some(first) = keys.first() else { return Mat4::IDENTITY };
+                let (tr, rot) = if t <= first.0 {
+                    (first.1, first.2)
+                } else if let Some(w) = keys.windows(2).find(|w| t <= w[1].0) {
+                    let s = ((t - w[0].0) / (w[1].0 - w[0].0)) as f32;
+                    (w[0].1.lerp(w[1].1, s), w[0].2.slerp(w[1].2, s))
+                } else {
+                    let last = keys[keys.len() - 1];
+                    (last.1, last.2)
+                };
+                world_delta(rest, tr, rot)
+            })
+            .collect()
     }
 }
 

@@ -19,6 +19,8 @@ pub struct Triangle {
     pub material: u32,
     /// glTF node that placed it (one mesh may be placed by several nodes).
     pub node: u32,
+    /// 0: the static level; k: [`Scene::movables`]`[k - 1]`, a rigid object that may move.
+    pub object: u32,
     /// glTF mesh index this triangle came from.
     pub mesh: u32,
     /// Primitive index within that mesh.
@@ -161,7 +163,23 @@ pub struct Scene {
     pub textures: Vec<Texture>,
     pub lights: Vec<Light>,
     pub cameras: Vec<Camera>,
+    /// Rigid objects that may move at run time, in the order their nodes were met.
+    pub movables: Vec<Movable>,
+    /// Every glTF node's name (`node N` without one), by node index, for messages.
+    pub node_names: Vec<String>,
     pub report: LoadReport,
+}
+
+/// A glTF node marked movable (`extras: {"prm": {"movable": true}}`) with its subtree: a rigid
+/// object whose triangles have `object` = its index + 1. Its motion (a rig's `objects`) is
+/// given in its own frame, on top of `rest` ([`crate::rig`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Movable {
+    pub name: String,
+    /// Its glTF node index.
+    pub node: u32,
+    /// The node's world transform in the file: the object at rest.
+    pub rest: Mat4,
 }
 
 impl Scene {
@@ -177,6 +195,7 @@ impl Scene {
                 v: [t[0], t[1], t[2]],
                 material: 0,
                 node: 0,
+                object: 0,
                 mesh: 0,
                 primitive: 0,
                 index: k as u32,
@@ -331,6 +350,37 @@ impl Scene {
     /// and tests: where a light sits, not a per-frame query).
     pub fn nearest_surface_distance(&self, p: Vec3) -> f32 {
         (0..self.triangles.len()).map(|t| self.distance_to_triangle(t, p)).fold(f32::INFINITY, f32::min)
+    }
+
+    /// The scene with every movable object moved: `poses[k]` is movable k's rigid world-space
+    /// transform from its rest pose ([`crate::rig::Motion::at_time`]). Static geometry, the
+    /// lightmap UVs and the triangle list are unchanged, so texels keep their triangles.
+    pub fn moved(&self, poses: &[Mat4]) -> Scene {
+        let mut out = self.clone();
+        if self.movables.is_empty() {
+            return out;
+        }
+        let mut object_of_vertex = vec![0u32; self.positions.len()];
+        for t in &self.triangles {
+            for v in t.v {
+                object_of_vertex[v as usize] = t.object;
+            }
+        }
+        for (v, &o) in object_of_vertex.iter().enumerate() {
+            if o == 0 {
+                continue;
+            }
+            let m = poses.get(o as usize - 1).copied().unwrap_or(Mat4::IDENTITY);
+            out.positions[v] = m.transform_point3(self.positions[v]);
+            out.normals[v] = m.transform_vector3(self.normals[v]).normalize_or_zero();
+        }
+        out
+    }
+
+    /// The object (0 static, k movable k - 1) triangle `t` belongs to.
+    #[inline]
+    pub fn object(&self, t: usize) -> u32 {
+        self.triangles[t].object
     }
 
     /// "node N mesh M primitive P triangle T" for messages.

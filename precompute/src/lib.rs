@@ -19,3 +19,4 @@ pub mod scenes;
 pub mod shard;
 pub mod transport;
 pub mod update;
+pub mod visibility;

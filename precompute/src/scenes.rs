@@ -6,6 +6,8 @@
 //!   two lights, standing in for paper 004's marble chamber.
 //! - `two_rooms.glb`: two rooms joined by a door in a 10 cm wall, the light in one room: the
 //!   light-leak test.
+//! - `doorway.glb`: the two rooms with a door that opens and a block that slides, movable
+//!   nodes for paper 003's moving objects (`doorway_rig.json` moves them).
 //!
 //! Surfaces are one-sided and face the space they bound. Lightmap UVs (`TEXCOORD_1`) come from
 //! `uvunwrap`, each quad kept in one chart, packed for a 256^2 atlas with 2-texel padding.
@@ -17,6 +19,8 @@ use prm::glb::{GlbLight, GlbMaterial, GlbMesh, GlbNode, GlbScene};
 #[derive(Default)]
 pub struct Builder {
     materials: Vec<GlbMaterial>,
+    /// Per material: the movable object (node name, pivot) its geometry forms, if any.
+    movable: Vec<Option<(String, Vec3)>>,
     /// Per material: positions, normals, indices, polygon id per triangle.
     parts: Vec<Part>,
     polygons: u32,
@@ -40,7 +44,31 @@ impl Builder {
             double_sided: false,
         });
         self.parts.push(Part::default());
+        self.movable.push(None);
         self.materials.len() - 1
+    }
+
+    /// A material whose geometry is a movable object of its own: one glTF node named `object`
+    /// at `pivot` (positions stay in world space here), marked `{"prm": {"movable": true}}`.
+    pub fn movable_material(&mut self, name: &str, albedo: [f32; 3], object: &str, pivot: Vec3) -> usize {
+        let m = self.material(name, albedo);
+        self.movable[m] = Some((object.into(), pivot));
+        m
+    }
+
+    /// Turn the meshes of movable materials into movable nodes at their pivots.
+    fn place_movables(movable: &[Option<(String, Vec3)>], mesh_of: &[(usize, usize)], scene: &mut GlbScene) {
+        for &(m, mesh) in mesh_of {
+            let Some((name, pivot)) = &movable[m] else { continue };
+            for p in &mut scene.meshes[mesh].positions {
+                *p = (Vec3::from_array(*p) - *pivot).to_array();
+            }
+            if let Some(node) = scene.nodes.iter_mut().find(|n| n.mesh == Some(mesh)) {
+                node.name = name.clone();
+                node.translation = Some(pivot.to_array());
+                node.extras = Some(serde_json::json!({"prm": {"movable": true}}));
+            }
+        }
     }
 
     /// A planar convex polygon, counter-clockwise seen from its front (fan-triangulated).
@@ -143,8 +171,10 @@ impl Builder {
         let (atlas, v_scale, _) =
             prm::uv::unwrap_meshes(&inputs, prm::density::UnwrapLayout::OnePage(resolution))?;
         let mut scene = GlbScene { materials: self.materials, ..Default::default() };
+        let mut mesh_of = Vec::new();
         for (&m, out) in used.iter().zip(&atlas.meshes) {
             let p = &self.parts[m];
+            mesh_of.push((m, scene.meshes.len()));
             scene.add_mesh(GlbMesh {
                 name: scene.materials[m].name.clone(),
                 positions: out.vertices.iter().map(|v| p.positions[v.xref as usize]).collect(),
@@ -154,6 +184,7 @@ impl Builder {
                 material: Some(m),
             });
         }
+        Self::place_movables(&self.movable, &mesh_of, &mut scene);
         Ok(scene)
     }
 }
@@ -420,6 +451,45 @@ fn arcade_row(b: &mut Builder, m: usize, x: f32, zs: &[f32], spring: f32, ht: f3
 /// Two 4 x 3 x 4 m rooms joined by a 1 x 2.1 m door in a 10 cm wall; the light in room A.
 pub fn two_rooms() -> Result<GlbScene, String> {
     let mut b = Builder::default();
+    two_rooms_shell(&mut b);
+    let mut scene = b.finish(256)?;
+    scene.add_light(
+        point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0),
+        Vec3::new(-2.5, 2.4, -0.8),
+        -Vec3::Y,
+    );
+    camera(&mut scene, "camera", Vec3::new(3.8, 1.6, 1.8), Vec3::new(-1.0, 1.0, -0.5), 1.1);
+    Ok(scene)
+}
+
+/// Hinge of the doorway level's door (its node origin) and the door's size.
+pub const DOOR_HINGE: Vec3 = Vec3::new(0.0, 0.0, -0.47);
+/// Resting place of the doorway level's block (its node origin: the middle of its base).
+pub const BLOCK_REST: Vec3 = Vec3::new(-2.2, 0.0, -1.0);
+
+/// [`two_rooms`] with a door that opens and a block that slides (paper 003's moving objects):
+/// the door (0.94 x 2.09 x 0.04 m, node `door`, origin on its hinge) closes the opening at rest
+/// and turns about +Y into room A; the block (0.6 m cube without a base, node `block`) rests on
+/// room A's floor. A lamp hangs in room A, a torch 15 cm from its end wall; room B is lit only
+/// through the door. Atlas 128², the resolution paper 003 ran its Cornell box at.
+pub fn doorway() -> Result<GlbScene, String> {
+    let mut b = Builder::default();
+    two_rooms_shell(&mut b);
+    let wood = b.movable_material("door", [0.55, 0.36, 0.22], "door", DOOR_HINGE);
+    b.boxed(wood, Vec3::new(-0.02, 0.005, -0.47), Vec3::new(0.02, 2.095, 0.47), false, &[]);
+    let stone = b.movable_material("block", [0.35, 0.45, 0.7], "block", BLOCK_REST);
+    let half = Vec3::new(0.3, 0.0, 0.3);
+    b.boxed(stone, BLOCK_REST - half, BLOCK_REST + half + Vec3::Y * 0.6, false, &[2]);
+    let mut scene = b.finish(128)?;
+    scene.add_light(point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0), Vec3::new(-2.5, 2.4, 0.4), -Vec3::Y);
+    scene.add_light(point_light("torch", [1.0, 0.6, 0.3], 3.0), Vec3::new(-3.85, 1.6, 0.3), -Vec3::Y);
+    camera(&mut scene, "camera", Vec3::new(3.8, 1.6, 1.8), Vec3::new(-1.0, 1.0, -0.5), 1.1);
+    Ok(scene)
+}
+
+/// The shell of [`two_rooms`]: two 4 x 3 x 4 m rooms (x < -5 cm and x > 5 cm, |z| < 2 m) and
+/// the door opening |z| < 0.5 m, y < 2.1 m in the wall between them.
+fn two_rooms_shell(b: &mut Builder) {
     let wall = b.material("wall", [0.7, 0.7, 0.7]);
     let floor = b.material("floor", [0.5, 0.45, 0.4]);
     let tint = b.material("room_b_wall", [0.3, 0.55, 0.35]);
@@ -463,9 +533,9 @@ pub fn two_rooms() -> Result<GlbScene, String> {
                 b.quad(m, p0, p1, p2, p3);
             }
         };
-        face(&mut b, -d, -door_z, 0.0, h);
-        face(&mut b, door_z, d, 0.0, h);
-        face(&mut b, -door_z, door_z, door_h, h);
+        face(b, -d, -door_z, 0.0, h);
+        face(b, door_z, d, 0.0, h);
+        face(b, -door_z, door_z, door_h, h);
     }
     // Door jambs, lintel and threshold floor.
     b.quad(
@@ -496,14 +566,6 @@ pub fn two_rooms() -> Result<GlbScene, String> {
         Vec3::new(t, 0.0, door_z),
         Vec3::new(t, 0.0, -door_z),
     );
-    let mut scene = b.finish(256)?;
-    scene.add_light(
-        point_light("room_a_lamp", [1.0, 0.95, 0.85], 20.0),
-        Vec3::new(-2.5, 2.4, -0.8),
-        -Vec3::Y,
-    );
-    camera(&mut scene, "camera", Vec3::new(3.8, 1.6, 1.8), Vec3::new(-1.0, 1.0, -0.5), 1.1);
-    Ok(scene)
 }
 
 /// Room interior (x and z) and height, corridor length (the gap between rooms) and its cross
@@ -651,6 +713,7 @@ pub fn all() -> Vec<(&'static str, SceneBuilder)> {
         ("cornell.glb", cornell),
         ("chamber.glb", chamber),
         ("two_rooms.glb", two_rooms),
+        ("doorway.glb", doorway),
         ("halls.glb", halls_large),
     ]
 }

@@ -54,6 +54,8 @@ pub enum SceneError {
     BadTexture { path: PathBuf, texture: usize, what: String },
     #[error("{path}: the scene has no triangles")]
     NoGeometry { path: PathBuf },
+    #[error("{path}: movable node '{node}': {what}")]
+    Movable { path: PathBuf, node: String, what: String },
     #[error("{path}: malformed glTF: {what}")]
     Malformed { path: PathBuf, what: String },
 }

@@ -5,6 +5,10 @@
 //! `emissiveFactor` x `KHR_materials_emissive_strength`, `TEXCOORD_1` as lightmap UVs,
 //! `KHR_lights_punctual` lights (units: [`crate::light`]) and perspective cameras.
 //!
+//! A node whose extras are `{"prm": {"movable": true}}` is a rigid object that may move at run
+//! time ([`crate::scene::Movable`]): its subtree's triangles carry its object number. A movable
+//! without geometry or inside another movable is an error naming it.
+//!
 //! Bad input is an error that names the file and the place (mesh, primitive, index): a missing
 //! or unreadable file, a non-finite position, an out-of-range index, an albedo outside [0, 1],
 //! negative or non-finite light intensity, overlapping lightmap UVs (unless allowed).
@@ -94,8 +98,9 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
 
     let reader = nodes::NodeReader { path, buffers: &buffers, texture_of: &texture_of, default_material };
     let mut prims = Vec::new();
-    nodes::walk(path, &document, |node, world| {
-        reader.read_node(node, world, &mut prims, &mut scene, &mut report)
+    scene.node_names = document.nodes().map(|n| nodes::node_name(&n)).collect();
+    nodes::walk(path, &document, &mut scene, |node, world, object, scene| {
+        reader.read_node(node, world, object, &mut prims, scene, &mut report)
     })?;
 
     report.primitives_without_uv1 = lightmap::count_missing(path, &prims, opts)?;
@@ -112,6 +117,12 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
     primitive::join_primitives(path, prims, &mut scene, &mut report)?;
     if scene.triangles.is_empty() {
         return Err(SceneError::NoGeometry { path: path.into() });
+    }
+    for (k, m) in scene.movables.iter().enumerate() {
+        if !scene.triangles.iter().any(|t| t.object == k as u32 + 1) {
+            let what = "it has no geometry (no mesh with triangles in its subtree)".into();
+            return Err(SceneError::Movable { path: path.into(), node: m.name.clone(), what });
+        }
     }
     if !opts.skip_lightmap_uvs {
         lightmap::check(path, &scene, opts, &mut report)?;

@@ -8,18 +8,21 @@ use glam::Mat4;
 use super::lights::read_light;
 use super::primitive::{read_primitive, Prim, PrimSource, Use};
 use super::{Place, SceneError};
-use crate::scene::{Camera, LoadReport, Scene};
+use crate::scene::{Camera, LoadReport, Movable, Scene};
 
-/// Visit every node with its world transform. Depth-first pre-order, children in file order:
-/// scene order decides ties between triangles (texel ownership), so it must be the natural one.
+/// Visit every node with its world transform and the object it belongs to (0: the static
+/// level; k: the k-th movable node met, numbered from 1, whose subtree moves with it).
+/// Depth-first pre-order, children in file order: scene order decides ties between triangles
+/// (texel ownership), so it must be the natural one.
 pub(super) fn walk<'d>(
     path: &Path,
     document: &'d gltf::Document,
-    mut visit: impl FnMut(&gltf::Node<'d>, Mat4) -> Result<(), SceneError>,
+    scene: &mut Scene,
+    mut visit: impl FnMut(&gltf::Node<'d>, Mat4, u32, &mut Scene) -> Result<(), SceneError>,
 ) -> Result<(), SceneError> {
-    let mut stack: Vec<(gltf::Node, Mat4, usize)> =
-        root_nodes(document).into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0)).collect();
-    while let Some((node, parent, depth)) = stack.pop() {
+    let mut stack: Vec<(gltf::Node, Mat4, usize, u32)> =
+        root_nodes(document).into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0, 0)).collect();
+    while let Some((node, parent, depth, parent_object)) = stack.pop() {
         if depth > 256 {
             return Err(SceneError::Malformed {
                 path: path.into(),
@@ -31,13 +34,46 @@ pub(super) fn walk<'d>(
         if !world.is_finite() {
             return Err(SceneError::BadTransform { path: path.into(), node: node.index() });
         }
-        visit(&node, world)?;
+        let object = if movable(path, &node)? {
+            if parent_object != 0 {
+                let outer = &scene.movables[parent_object as usize - 1].name;
+                return Err(SceneError::Movable {
+                    path: path.into(),
+                    node: node_name(&node),
+                    what: format!("it is inside movable node '{outer}'; movables do not nest"),
+                });
+            }
+            scene.movables.push(Movable { name: node_name(&node), node: node.index() as u32, rest: world });
+            scene.movables.len() as u32
+        } else {
+            parent_object
+        };
+        visit(&node, world, object, scene)?;
         let children: Vec<gltf::Node> = node.children().collect();
         for child in children.into_iter().rev() {
-            stack.push((child, world, depth + 1));
+            stack.push((child, world, depth + 1, object));
         }
     }
     Ok(())
+}
+
+/// A node's name, or `node N` for one without.
+pub(super) fn node_name(node: &gltf::Node) -> String {
+    node.name().map(str::to_string).unwrap_or_else(|| format!("node {}", node.index()))
+}
+
+/// Whether the node's extras mark it movable: `{"prm": {"movable": true}}`. Anything else under
+/// `prm.movable` is an error naming the node; other extras are the file's own business.
+fn movable(path: &Path, node: &gltf::Node) -> Result<bool, SceneError> {
+    let Some(raw) = node.extras() else { return Ok(false) };
+    let bad = |what: String| SceneError::Movable { path: path.into(), node: node_name(node), what };
+    let extras: serde_json::Value =
+        serde_json::from_str(raw.get()).map_err(|e| bad(format!("its extras are not JSON: {e}")))?;
+    match extras.get("prm").and_then(|p| p.get("movable")) {
+        None => Ok(false),
+        Some(serde_json::Value::Bool(b)) => Ok(*b),
+        Some(other) => Err(bad(format!("extras prm.movable is {other}; it must be true or false"))),
+    }
 }
 
 /// The default scene's root nodes (else the first scene's); with no scene, every node
@@ -70,12 +106,13 @@ impl NodeReader<'_> {
         &self,
         node: &gltf::Node,
         world: Mat4,
+        object: u32,
         prims: &mut Vec<Prim>,
         scene: &mut Scene,
         report: &mut LoadReport,
     ) -> Result<(), SceneError> {
         if let Some(mesh) = node.mesh() {
-            self.read_mesh(&mesh, node.index(), world, prims, report)?;
+            self.read_mesh(&mesh, (node.index(), object), world, prims, report)?;
         }
         if let Some(light) = node.light() {
             scene.lights.push(read_light(self.path, &light, world)?);
@@ -90,7 +127,7 @@ impl NodeReader<'_> {
     fn read_mesh(
         &self,
         mesh: &gltf::Mesh,
-        node: usize,
+        (node, object): (usize, u32),
         world: Mat4,
         prims: &mut Vec<Prim>,
         report: &mut LoadReport,
@@ -108,7 +145,7 @@ impl NodeReader<'_> {
             let material = prim.material().index().map(|i| i as u32).unwrap_or(self.default_material);
             let tex_set = self.texture_of.get(material as usize).copied().flatten().map(|(_, set)| set);
             let src = PrimSource { path: self.path, buffers: self.buffers, prim: &prim, place };
-            prims.push(read_primitive(src, Use { node, world, material, tex_set }, report)?);
+            prims.push(read_primitive(src, Use { node, object, world, material, tex_set }, report)?);
         }
         Ok(())
     }

@@ -12,6 +12,8 @@ use crate::scene::{LoadReport, Scene, Triangle};
 pub(super) struct Prim {
     pub place: Place,
     pub node: usize,
+    /// 0: the static level; k: movable k - 1 ([`crate::scene::Scene::movables`]).
+    pub object: u32,
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
     pub uv1: Option<Vec<Vec2>>,
@@ -45,6 +47,7 @@ pub(super) struct PrimSource<'a> {
 /// the UV set of that material's albedo texture.
 pub(super) struct Use {
     pub node: usize,
+    pub object: u32,
     pub world: Mat4,
     pub material: u32,
     pub tex_set: Option<u32>,
@@ -80,8 +83,8 @@ pub(super) fn read_primitive(src: PrimSource, at: Use, report: &mut LoadReport) 
             .unwrap_or_else(|| vec![Vec2::ZERO; n]),
         None => vec![Vec2::ZERO; n],
     };
-    let (node, material) = (at.node, at.material);
-    Ok(Prim { place: src.place, node, positions, normals, uv1, uv_albedo, indices, material })
+    let (node, object, material) = (at.node, at.object, at.material);
+    Ok(Prim { place: src.place, node, object, positions, normals, uv1, uv_albedo, indices, material })
 }
 
 impl<'a> PrimSource<'a> {
@@ -222,6 +225,7 @@ pub(super) fn join_primitives(
                 v: [base + t[0], base + t[1], base + t[2]],
                 material: p.material,
                 node: p.node as u32,
+                object: p.object,
                 mesh: p.place.mesh as u32,
                 primitive: p.place.primitive as u32,
                 index: k as u32,

@@ -1,0 +1,144 @@
+//! Precomputed visibility for levels with moving rigid objects (paper 003 §3): the data, the
+//! point-to-point query and the file. [`prm_precompute::visibility`] builds it by ray casting.
+//!
+//! Every object (the static level is object 0; movable `k` is object `k + 1`) has a
+//! [`Cssm`] over its own texels and its own geometry only, in its rest frame; every movable has
+//! besides a [`Csm`] that tests segments passing it. Visibility between texels `r` and `s`
+//! under the frame's poses (§3.3):
+//!
+//! 1. `r`'s cube map sees `s` (in `r`'s object's frame); when `s` is on another object, `s`'s
+//!    cube map must see `r` too (self-occlusion of each);
+//! 2. no third *movable* object blocks the segment (its [`Csm`], in its frame).
+//!
+//! Not tested, as in the paper: the static level blocking a segment between two points on
+//! movables (no static cube map sits at either end), and objects whose convex hulls overlap.
+//!
+//! [`prm_precompute::visibility`]: ../../prm_precompute/visibility/index.html
+
+pub mod csm;
+pub mod cssm;
+pub mod cube;
+mod file;
+
+use glam::{Mat4, Vec3};
+use serde::{Deserialize, Serialize};
+
+pub use csm::Csm;
+pub use cssm::{Cssm, CssmBuilder};
+pub use file::{read_visibility, write_visibility, VisibilityError};
+
+/// One object's visibility data.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectVisibility {
+    pub cssm: Cssm,
+    /// `None` for the static level (it does not move, and nothing is outside it).
+    pub occluder: Option<Csm>,
+    /// Texel index (in the level's texel set) of each cube map, in sequence order.
+    pub texels: Vec<u32>,
+}
+
+/// The visibility of a level (module doc).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Visibility {
+    /// By object: 0 the static level, then the movables in the level's order.
+    pub objects: Vec<ObjectVisibility>,
+    /// Per texel: (object, sequence index in that object's CSSM).
+    pub slots: Vec<(u32, u32)>,
+    /// Atlas size the texels belong to.
+    pub width: u32,
+    pub height: u32,
+}
+
+/// The objects' poses for one frame: per object (0 static, identity), the rigid world
+/// transform from its rest pose, and its inverse.
+#[derive(Clone, Debug)]
+pub struct Poses {
+    pub to_world: Vec<Mat4>,
+    pub to_rest: Vec<Mat4>,
+}
+
+impl Poses {
+    /// From the movables' transforms (`prm::rig::Motion::at_time`).
+    pub fn new(movables: &[Mat4]) -> Poses {
+        let to_world: Vec<Mat4> = std::iter::once(Mat4::IDENTITY).chain(movables.iter().copied()).collect();
+        let to_rest = to_world.iter().map(|m| m.inverse()).collect();
+        Poses { to_world, to_rest }
+    }
+
+    /// Every object at rest.
+    pub fn at_rest(objects: usize) -> Poses {
+        Poses { to_world: vec![Mat4::IDENTITY; objects], to_rest: vec![Mat4::IDENTITY; objects] }
+    }
+}
+
+impl Visibility {
+    /// Fraction in [0, 1] of texel `r` and texel `s` seeing each other, given their current
+    /// world positions `pr` and `ps` (module doc).
+    pub fn between(&self, poses: &Poses, r: usize, pr: Vec3, s: usize, ps: Vec3) -> f32 {
+        let (or, kr) = self.slots[r];
+        let (os, ks) = self.slots[s];
+        let (or, os) = (or as usize, os as usize);
+        let mut v = self.objects[or].cssm.visible(kr, poses.to_rest[or].transform_point3(ps));
+        if v == 0.0 {
+            return 0.0;
+        }
+        if os != or {
+            v *= self.objects[os].cssm.visible(ks, poses.to_rest[os].transform_point3(pr));
+        }
+        for (o, obj) in self.objects.iter().enumerate().skip(1) {
+            if v == 0.0 {
+                break;
+            }
+            if o == or || o == os {
+                continue;
+            }
+            if let Some(csm) = &obj.occluder {
+                let m = poses.to_rest[o];
+                v *= 1.0 - csm.blocks(m.transform_point3(pr), m.transform_point3(ps));
+            }
+        }
+        v
+    }
+
+    /// Bytes of the data (runs, offsets, origins, occluder maps).
+    pub fn bytes(&self) -> usize {
+        self.objects
+            .iter()
+            .map(|o| o.cssm.bytes() + o.occluder.as_ref().map_or(0, Csm::bytes) + o.texels.len() * 4)
+            .sum()
+    }
+
+    /// Cube maps in all, and the bytes they would take uncompressed (16-bit depth).
+    pub fn uncompressed_bytes(&self) -> usize {
+        self.objects.iter().map(|o| o.cssm.len() * 6 * (o.cssm.res as usize).pow(2) * 2).sum()
+    }
+
+    /// Whether the tables are consistent with each other (a file's contents are checked with it).
+    pub fn check(&self, texels: usize) -> Result<(), String> {
+        if self.objects.is_empty() || self.slots.len() != texels {
+            return Err(format!("{} texel slots for {texels} texels", self.slots.len()));
+        }
+        for (o, obj) in self.objects.iter().enumerate() {
+            obj.cssm.check().map_err(|e| format!("object {o}: {e}"))?;
+            if let Some(c) = &obj.occluder {
+                c.check().map_err(|e| format!("object {o}: {e}"))?;
+            }
+            if obj.texels.len() != obj.cssm.len() {
+                return Err(format!(
+                    "object {o}: {} texels for {} cube maps",
+                    obj.texels.len(),
+                    obj.cssm.len()
+                ));
+            }
+            for (k, &t) in obj.texels.iter().enumerate() {
+                if self.slots.get(t as usize) != Some(&(o as u32, k as u32)) {
+                    return Err(format!("object {o}: cube map {k} and texel {t} disagree"));
+                }
+            }
+        }
+        if self.slots.iter().any(|&(o, _)| o as usize >= self.objects.len()) {
+            return Err("a texel names an object that does not exist".into());
+        }
+        Ok(())
+    }
+}
