@@ -134,7 +134,7 @@ fn cube_map(bvh: &Bvh, t: &prm::Texel, res: u32) -> (Vec3, Vec<(f32, f32)>) {
         .collect();
     let intervals = (0..pixels)
         .map(|p| {
-            let Some(own) = hits[p] else { return (0.0, f32::INFINITY) };
+            let Some(own) = hits[p] else { return prm::visibility::cssm::DONT_CARE };
             let (f, y, x) = (p / (r * r), (p / r) % r, p % r);
             let (mut z1, mut z2) = own;
             for ny in y.saturating_sub(1)..=(y + 1).min(r - 1) {

@@ -25,6 +25,9 @@ pub const SLACK: f32 = 0.005;
 /// Relative depth kept behind a first surface with nothing behind it (see `codes`).
 pub const BEHIND: f32 = 0.2;
 
+/// The interval of a "don't care" pixel: any depth will do.
+pub const DONT_CARE: (f32, f32) = (f32::NEG_INFINITY, f32::INFINITY);
+
 /// Depth code meaning "no second surface": every point along the pixel is visible.
 pub const NOTHING: u16 = u16::MAX;
 const STEPS: f32 = (u16::MAX - 1) as f32;
@@ -71,6 +74,9 @@ impl CssmBuilder {
     /// The interval `[lo, hi]` of codes whose depth lies in `[z1, z2)` (module doc); a first
     /// hit without room before the second keeps the first.
     fn codes(&self, z1: f32, z2: f32) -> (u16, u16) {
+        if z1 == f32::NEG_INFINITY {
+            return (0, NOTHING);
+        }
         let up = |z: f32| {
             if z.is_finite() {
                 (z / self.far * STEPS).ceil().clamp(0.0, STEPS) as u16
@@ -88,7 +94,7 @@ impl CssmBuilder {
     }
 
     /// Append the next cube map: its origin and, per pixel, `(z1, z2)` (`f32::INFINITY` where
-    /// there is no such hit; `(0, inf)` for "don't care").
+    /// there is no such hit; [`DONT_CARE`] for a pixel below the surface).
     pub fn push(&mut self, origin: Vec3, intervals: &[(f32, f32)]) {
         debug_assert_eq!(intervals.len(), self.open.len());
         let k = self.origins.len() as u32;
@@ -216,19 +222,22 @@ mod tests {
     #[test]
     fn runs_hold_a_value_inside_every_interval() {
         let mut b = CssmBuilder::new(1, 10.0);
-        let seq =
-            [(1.0, 3.0), (2.0, 4.0), (2.5, f32::INFINITY), (5.0, 6.0), (0.0, f32::INFINITY), (7.0, 9.0)];
+        let seq = [(1.0, 3.0), (2.0, 4.0), (2.5, f32::INFINITY), (5.0, 6.0), DONT_CARE, (7.0, 9.0)];
         for &(z1, z2) in &seq {
             b.push(Vec3::ZERO, &[(z1, z2); 6]);
         }
         let c = b.finish();
         c.check().unwrap();
-        // [1, 3) ∩ [2, 4) ∩ [2.5, inf), then [5, 6) ∩ [0, inf), then [7, 9).
+        // [1, 3) ∩ [2, 4) ∩ [2.5, 3) (nothing behind: BEHIND), then [5, 6) and don't care, then [7, 9).
         assert_eq!(c.run_start[..3], [0, 3, 5]);
         assert_eq!(c.runs(), 6 * 3);
         for (k, &(z1, z2)) in seq.iter().enumerate() {
             let v = c.depth(k as u32, 0);
-            assert!(v >= z1 - 1e-3 && v < z2, "cube map {k}: {v} not in [{z1}, {z2})");
+            let cap = if z2.is_finite() { z2 } else { z1 * (1.0 + BEHIND) };
+            assert!(
+                v >= z1 - 1e-3 && v < cap || z1 < 0.0,
+                "cube map {k}: {v} not in [{z1}, {z2})"
+            );
         }
     }
 
