@@ -188,3 +188,69 @@ fn occluder_maps_block_segments_through_the_object() {
     eprintln!("door occluder maps: {agree} / {n}");
     assert!(agree as f64 >= 0.99 * n as f64, "{agree} of {n}");
 }
+
+/// Bad movables and object rigs are errors that name the node.
+#[test]
+fn bad_movables_and_object_rigs_name_the_node() {
+    use prm::glb::{GlbMesh, GlbNode, GlbScene};
+    let quad = GlbMesh {
+        name: "quad".into(),
+        positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]],
+        uv1: Some(vec![[0.1, 0.1], [0.9, 0.1], [0.9, 0.9], [0.1, 0.9]]),
+        indices: Some(vec![0, 2, 1, 0, 3, 2]),
+        ..Default::default()
+    };
+    let movable = Some(serde_json::json!({"prm": {"movable": true}}));
+    let write = |scene: &GlbScene, dir: &std::path::Path| {
+        let path = dir.join("level.glb");
+        std::fs::write(&path, scene.to_glb()).unwrap();
+        path
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // A movable without geometry.
+    let mut s = GlbScene::default();
+    s.add_mesh(quad.clone());
+    s.add_node(GlbNode { name: "ghost".into(), extras: movable.clone(), ..Default::default() });
+    let err = prm::load_scene(write(&s, dir.path()), &prm::LoadOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("movable node 'ghost'") && err.contains("no geometry"), "{err}");
+    // prm.movable that is not a boolean.
+    let mut s = GlbScene::default();
+    let m = s.add_mesh(quad.clone());
+    s.nodes[m].extras = Some(serde_json::json!({"prm": {"movable": "yes"}}));
+    let err = prm::load_scene(write(&s, dir.path()), &prm::LoadOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("must be true or false"), "{err}");
+    // A movable with a non-uniform scale, and a rig turning it; unknown and unmarked nodes.
+    let mut s = GlbScene::default();
+    s.add_mesh(quad.clone());
+    let mut lid = quad.clone();
+    lid.name = "lid".into();
+    lid.uv1 = Some(vec![[0.1, 0.1], [0.4, 0.1], [0.4, 0.4], [0.1, 0.4]]);
+    s.meshes[0].uv1 = Some(vec![[0.5, 0.5], [0.9, 0.5], [0.9, 0.9], [0.5, 0.9]]);
+    s.meshes.push(lid);
+    s.add_node(GlbNode {
+        name: "lid".into(),
+        mesh: Some(1),
+        scale: Some([1.0, 2.0, 1.0]),
+        translation: Some([0.0, 1.0, 0.0]),
+        extras: movable.clone(),
+        ..Default::default()
+    });
+    let scene = prm::load_scene(write(&s, dir.path()), &prm::LoadOptions::default()).unwrap();
+    assert_eq!(scene.movables.len(), 1);
+    let rig = |json: &str| prm::rig::Rig::parse(std::path::Path::new("r.json"), json, &scene.lights);
+    let bind = |json: &str| {
+        rig(json).unwrap().object_motion(std::path::Path::new("r.json"), &scene).unwrap_err().to_string()
+    };
+    let turn = r#"{"objects": [{"name": "lid", "keyframes": [{"time": 0, "rotation": [0.3826834, 0, 0, 0.9238795]}]}]}"#;
+    assert!(bind(turn).contains("object 'lid'") && bind(turn).contains("not rigid"), "{}", bind(turn));
+    let slide = r#"{"objects": [{"name": "lid", "keyframes": [{"time": 0, "translation": [0, 1, 0]}]}]}"#;
+    assert!(rig(slide).unwrap().object_motion(std::path::Path::new("r.json"), &scene).is_ok());
+    let unknown = r#"{"objects": [{"name": "hatch", "keyframes": [{"time": 0}]}]}"#;
+    assert!(bind(unknown).contains("no such node"), "{}", bind(unknown));
+    let unmarked = r#"{"objects": [{"name": "quad", "keyframes": [{"time": 0}]}]}"#;
+    assert!(bind(unmarked).contains("not marked movable"), "{}", bind(unmarked));
+    let not_unit = r#"{"objects": [{"name": "lid", "keyframes": [{"time": 0, "rotation": [0, 0, 0, 2]}]}]}"#;
+    assert!(rig(not_unit).unwrap_err().to_string().contains("not a unit quaternion"));
+    let back = r#"{"objects": [{"name": "lid", "keyframes": [{"time": 1}, {"time": 0}]}]}"#;
+    assert!(rig(back).unwrap_err().to_string().contains("keyframe 1"));
+}

@@ -1,4 +1,4 @@
-//! A moving object's coherent shadow map as an occluder (paper 003 §3.3, after CSM [17]):
+//! A moving object's coherent shadow map as an occluder (paper 003 §3.3, after CSM, its reference 17):
 //! orthographic depth maps of the object from many directions, for testing whether a segment
 //! between two points *outside* the object passes through it.
 //!

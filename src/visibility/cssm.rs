@@ -5,7 +5,7 @@
 //! first and second surface its ray meets, as linear distance (Euclidean, metres) from the cube
 //! map's origin: any depth in it answers every query about real surfaces, since a point at
 //! distance <= z1 is seen and one at >= z2 is behind the first surface (the dual depth layers of
-//! paper 003 [25]). Pixels facing into the object (below the texel's tangent plane) are "don't
+//! paper 003, reference 25). Pixels facing into the object (below the texel's tangent plane) are "don't
 //! care", `[0, inf)`. Along the sequence, each pixel keeps one value while the intervals still
 //! intersect (greedy: the fewest runs), so a pixel is stored as runs `(first cube map, depth)`.
 //!
@@ -234,10 +234,7 @@ mod tests {
         for (k, &(z1, z2)) in seq.iter().enumerate() {
             let v = c.depth(k as u32, 0);
             let cap = if z2.is_finite() { z2 } else { z1 * (1.0 + BEHIND) };
-            assert!(
-                v >= z1 - 1e-3 && v < cap || z1 < 0.0,
-                "cube map {k}: {v} not in [{z1}, {z2})"
-            );
+            assert!(v >= z1 - 1e-3 && v < cap || z1 < 0.0, "cube map {k}: {v} not in [{z1}, {z2})");
         }
     }
 

@@ -19,6 +19,8 @@ mod budget;
 mod compose;
 pub mod concentrate;
 #[cfg(feature = "cpu-twin")]
+pub mod radiosity;
+#[cfg(feature = "cpu-twin")]
 mod twin;
 
 pub use budget::{

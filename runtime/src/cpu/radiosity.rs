@@ -1,0 +1,313 @@
+//! Hierarchical radiosity with clustering on the lightmap atlas, over precomputed visibility
+//! (paper 003 §4.1-4.5), on the CPU: the twin a GPU version is to be held to.
+//!
+//! - **Hierarchy** (§4.2), built once per object from its texels at rest: a binary median-cut
+//!   tree (split at the median of the longest axis of the points' box), each node with a
+//!   bounding sphere over its texels' points (widened by their size), its area, the area-
+//!   weighted sum of its normals and the range of its leaves. Stored depth first in one array
+//!   with a skip pointer per node (§4.2.1): a node's left child is the next entry, and `skip`
+//!   is where traversal goes when the subtree is not entered. The objects' trees follow one
+//!   another, so one stackless walk covers the level; nodes move with their object's pose.
+//! - **Gather** (§4.3): each receiver texel walks the trees; the oracle refines a node when
+//!   the receiver is within twice its radius or when the node's flux could bring more than
+//!   `threshold` times the level's mean exitance (upper bound `Φ / (π (d - r)²)`, lightcuts'
+//!   bound without its cosine terms); otherwise the node sends
+//!   `Φ max(0, u·m) max(0, -u·n_r) / (π d²)` (m: the mean normal, shorter where the node's
+//!   normals disagree), a single texel `B A cos cos / (π d² + A)`, times CSSM visibility to a
+//!   representative texel of the node.
+//! - **Bounces** (§4.1): `E_1` gathers `albedo x E_direct`, `E_k+1` gathers `albedo x E_k`;
+//!   the indirect lightmap is `E_1 + ... + E_n`. The final pass is the final gather (§4.4) with
+//!   **jittering** (§4.5): its representative texel is drawn per receiver and node from the
+//!   node's leaves (a hash, so frames are deterministic), so the cut's discretisation becomes
+//!   noise instead of bands. The earlier passes use each node's middle leaf.
+//!
+//! Visibility between a receiver and a sender comes from [`prm::visibility::Visibility`]: the
+//! CSSM of each end's object, the occluder maps of the other movables.
+
+use glam::{Mat3, Vec3};
+use prm::visibility::{Poses, Visibility};
+use prm::{Scene, TexelSet};
+use rayon::prelude::*;
+
+/// How finely the gather refines.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RadiosityParams {
+    /// Diffuse bounces of indirect light (the last is the final gather). Default 10: at albedo 0.7 the light left after n bounces is 0.7^n of the first (3 % at 10).
+    pub bounces: u32,
+    /// Refinement threshold relative to the level's mean exitance (smaller: larger cuts,
+    /// slower, more exact). Default 0.02.
+    pub threshold: f32,
+    /// Jitter the final gather's representative texels (§4.5). Default on.
+    pub jitter: bool,
+}
+
+impl Default for RadiosityParams {
+    fn default() -> Self {
+        RadiosityParams { bounces: 10, threshold: 0.02, jitter: true }
+    }
+}
+
+/// One node of the hierarchy (module doc), in its object's rest frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    pub centre: Vec3,
+    pub radius: f32,
+    /// Area-weighted sum of the texels' normals, divided by the area (|m| <= 1).
+    pub normal: Vec3,
+    pub area: f32,
+    pub object: u32,
+    /// Leaves `first..end` of [`Hierarchy::leaves`] are this node's texels.
+    pub first: u32,
+    pub end: u32,
+    /// Next node when this subtree is skipped (`u32::MAX`: the walk ends).
+    pub skip: u32,
+}
+
+impl Node {
+    pub fn is_leaf(&self) -> bool {
+        self.end - self.first == 1
+    }
+}
+
+/// The texel hierarchy of a level (module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hierarchy {
+    pub nodes: Vec<Node>,
+    /// Texel indices in leaf order.
+    pub leaves: Vec<u32>,
+    /// Per texel: its area (square metres) and albedo.
+    pub area: Vec<f32>,
+    pub albedo: Vec<Vec3>,
+}
+
+impl Hierarchy {
+    /// Build the trees of every object of `scene` over `texels` (at rest).
+    pub fn build(scene: &Scene, texels: &TexelSet) -> Hierarchy {
+        let area: Vec<f32> = texels
+            .texels
+            .iter()
+            .map(|t| texels.world_texel_size(scene, t.triangle as usize).powi(2))
+            .collect();
+        let albedo = texels.texels.iter().map(|t| scene.albedo(t.triangle as usize, t.bary)).collect();
+        let mut h = Hierarchy { nodes: Vec::new(), leaves: Vec::new(), area, albedo };
+        for o in 0..=scene.movables.len() as u32 {
+            let mut ids: Vec<u32> = (0..texels.len() as u32)
+                .filter(|&t| scene.object(texels.texels[t as usize].triangle as usize) == o)
+                .collect();
+            if ids.is_empty() {
+                continue;
+            }
+            let root = h.nodes.len();
+            h.split(texels, o, &mut ids);
+            // Each object's root skips to the next object's root (patched below).
+            h.nodes[root].skip = u32::MAX;
+            if root > 0 {
+                let mut k = 0;
+                while h.nodes[k].skip != u32::MAX {
+                    k = h.nodes[k].skip as usize;
+                }
+                h.nodes[k].skip = root as u32;
+            }
+        }
+        h
+    }
+
+    /// Append the subtree over `ids` depth first; returns nothing, patches skip pointers.
+    fn split(&mut self, texels: &TexelSet, object: u32, ids: &mut [u32]) {
+        let at = self.nodes.len();
+        let first = self.leaves.len() as u32;
+        let pos = |t: u32| texels.texels[t as usize].position;
+        let (lo, hi) = ids
+            .iter()
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &t| (lo.min(pos(t)), hi.max(pos(t))));
+        let area: f32 = ids.iter().map(|&t| self.area[t as usize]).sum();
+        let centre = (lo + hi) * 0.5;
+        let radius = ids
+            .iter()
+            .map(|&t| (pos(t) - centre).length() + self.area[t as usize].sqrt() * 0.71)
+            .fold(0.0f32, f32::max);
+        let normal =
+            ids.iter().map(|&t| texels.texels[t as usize].normal * self.area[t as usize]).sum::<Vec3>()
+                / area.max(1e-30);
+        self.nodes.push(Node { centre, radius, normal, area, object, first, end: first, skip: u32::MAX });
+        if ids.len() == 1 {
+            self.leaves.push(ids[0]);
+        } else {
+            let axis = (hi - lo).max_position();
+            let mid = ids.len() / 2;
+            ids.select_nth_unstable_by(mid, |&a, &b| pos(a)[axis].total_cmp(&pos(b)[axis]).then(a.cmp(&b)));
+            let (left, right) = ids.split_at_mut(mid);
+            let left_at = self.nodes.len();
+            self.split(texels, object, left);
+            let right_at = self.nodes.len();
+            self.nodes[left_at].skip = right_at as u32;
+            self.split(texels, object, right);
+        }
+        let end = self.leaves.len() as u32;
+        self.nodes[at].end = end;
+        // A right child's skip is its parent's, set by the caller's caller; fix the chain:
+        // every node whose skip is unset inside this subtree continues after it.
+        let after = self.nodes.len() as u32;
+        for n in &mut self.nodes[at + 1..] {
+            if n.skip == u32::MAX {
+                n.skip = after;
+            }
+        }
+    }
+}
+
+/// One frame's inputs: where every texel is, and the objects' poses.
+pub struct Frame<'a> {
+    pub poses: &'a Poses,
+    /// Texel positions and unit normals under the poses.
+    pub points: &'a [(Vec3, Vec3)],
+}
+
+/// Texel positions and normals under `poses` (texels at rest in `texels`).
+pub fn posed_points(scene: &Scene, texels: &TexelSet, poses: &Poses) -> Vec<(Vec3, Vec3)> {
+    texels
+        .texels
+        .iter()
+        .map(|t| {
+            let m = poses.to_world[scene.object(t.triangle as usize) as usize];
+            (m.transform_point3(t.position), m.transform_vector3(t.normal).normalize_or_zero())
+        })
+        .collect()
+}
+
+/// What a frame's radiosity did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RadiosityStats {
+    /// Node transfers (the cuts' sizes) over all receivers and passes.
+    pub transfers: u64,
+    /// Visibility queries.
+    pub queries: u64,
+}
+
+/// The indirect irradiance at every texel from direct irradiance `direct` (module doc).
+pub fn indirect(
+    h: &Hierarchy,
+    vis: &Visibility,
+    frame: &Frame,
+    direct: &[Vec3],
+    params: &RadiosityParams,
+) -> (Vec<Vec3>, RadiosityStats) {
+    let mut total = vec![Vec3::ZERO; direct.len()];
+    let mut stats = RadiosityStats::default();
+    let mut from = direct.to_vec();
+    for pass in 0..params.bounces {
+        let exitance: Vec<Vec3> = from.iter().zip(&h.albedo).map(|(e, a)| *e * *a).collect();
+        let jitter = params.jitter && pass + 1 == params.bounces;
+        let (gathered, s) = gather(h, vis, frame, &exitance, params.threshold, jitter);
+        stats.transfers += s.transfers;
+        stats.queries += s.queries;
+        for (t, g) in total.iter_mut().zip(&gathered) {
+            *t += *g;
+        }
+        from = gathered;
+    }
+    (total, stats)
+}
+
+/// One pass: irradiance at every texel from exitance `b` (W/m²) at every texel.
+pub fn gather(
+    h: &Hierarchy,
+    vis: &Visibility,
+    frame: &Frame,
+    b: &[Vec3],
+    threshold: f32,
+    jitter: bool,
+) -> (Vec<Vec3>, RadiosityStats) {
+    // Pull (§4.1): node flux from the leaves; leaves are contiguous per node.
+    let mut prefix = vec![Vec3::ZERO; h.leaves.len() + 1];
+    for (k, &t) in h.leaves.iter().enumerate() {
+        prefix[k + 1] = prefix[k] + b[t as usize] * h.area[t as usize];
+    }
+    let flux: Vec<Vec3> = h.nodes.iter().map(|n| prefix[n.end as usize] - prefix[n.first as usize]).collect();
+    let total_area: f32 = h.area.iter().sum();
+    let mean = prm::luminance(prefix[h.leaves.len()]) / total_area.max(1e-30);
+    if !(mean > 0.0) {
+        return (vec![Vec3::ZERO; b.len()], RadiosityStats::default());
+    }
+    let bound = threshold * mean * std::f32::consts::PI;
+    let rot: Vec<Mat3> = frame.poses.to_world.iter().map(|m| Mat3::from_mat4(*m)).collect();
+    let results: Vec<(Vec3, u64, u64)> = (0..b.len())
+        .into_par_iter()
+        .map(|r| {
+            let (x, nr) = frame.points[r];
+            let (mut e, mut transfers, mut queries) = (Vec3::ZERO, 0u64, 0u64);
+            let mut k = 0u32;
+            while (k as usize) < h.nodes.len() {
+                let n = &h.nodes[k as usize];
+                let phi = flux[k as usize];
+                if phi == Vec3::ZERO {
+                    k = n.skip;
+                    continue;
+                }
+                let pose = frame.poses.to_world[n.object as usize];
+                let c = pose.transform_point3(n.centre);
+                let d = (x - c).length();
+                let refine = !n.is_leaf()
+                    && (d < 2.0 * n.radius || prm::luminance(phi) > bound * (d - n.radius).powi(2));
+                if refine {
+                    k += 1;
+                    continue;
+                }
+                k = n.skip;
+                let leaf = if n.is_leaf() {
+                    n.first
+                } else if jitter {
+                    n.first + (hash(r as u32, k) % (n.end - n.first))
+                } else {
+                    (n.first + n.end) / 2
+                };
+                let s = h.leaves[leaf as usize] as usize;
+                if s == r {
+                    continue;
+                }
+                let (ps, ns) = frame.points[s];
+                let (from, m) = if n.is_leaf() { (ps, ns) } else { (c, rot[n.object as usize] * n.normal) };
+                let v = from - x;
+                let d2 = v.length_squared();
+                if !(d2 > 0.0) {
+                    continue;
+                }
+                let u = v / d2.sqrt();
+                let cos_r = u.dot(nr);
+                let cos_s = -u.dot(m);
+                if cos_r <= 0.0 || cos_s <= 0.0 {
+                    continue;
+                }
+                let g = if n.is_leaf() {
+                    cos_r * cos_s / (std::f32::consts::PI * d2 + n.area)
+                } else {
+                    cos_r * cos_s / (std::f32::consts::PI * d2)
+                };
+                transfers += 1;
+                queries += 1;
+                let vis_rs = vis.between(frame.poses, r, x, s, ps);
+                e += phi * g * vis_rs;
+            }
+            (e, transfers, queries)
+        })
+        .collect();
+    let mut stats = RadiosityStats::default();
+    let e = results
+        .iter()
+        .map(|&(e, t, q)| {
+            stats.transfers += t;
+            stats.queries += q;
+            e
+        })
+        .collect();
+    (e, stats)
+}
+
+/// A small integer hash (jittered representatives).
+fn hash(a: u32, b: u32) -> u32 {
+    let mut h = a.wrapping_mul(0x9E37_79B1) ^ b.wrapping_mul(0x85EB_CA77);
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x2C1B_3C6D);
+    h ^= h >> 12;
+    h
+}
