@@ -13,10 +13,14 @@
 //!   `threshold` times the level's mean exitance (upper bound `Φ / (π (d - r)²)`, lightcuts'
 //!   bound without its cosine terms); otherwise the node sends
 //!   `Φ max(0, u·m) max(0, -u·n_r) / (π d²)` (m: the mean normal, shorter where the node's
-//!   normals disagree), a single texel `B A cos cos / (π d² + A)`, times CSSM visibility to a
-//!   representative texel of the node.
+//!   normals disagree), a single texel `B A cos cos / (π d²)`, or within 3 texel sizes
+//!   `B F` with `F` the exact form factor of the texel's atlas square mapped onto its plane
+//!   (Lambert's contour integral, clipped to the receiver's side: a texel's point, often
+//!   clamped onto a chart's edge, stands for it poorly at a corner), times
+//!   visibility to a representative texel of the node.
 //! - **Bounces** (§4.1): `E_1` gathers `albedo x E_direct`, `E_k+1` gathers `albedo x E_k`;
-//!   the indirect lightmap is `E_1 + ... + E_n`. The final pass is the final gather (§4.4) with
+//!   the indirect lightmap is `E_1 + ... + E_n`, plus the bounces not taken as the rest of a
+//!   geometric series at the last pass's power ratio (`E_n k / (1 - k)`). The final pass is the final gather (§4.4) with
 //!   **jittering** (§4.5): its representative texel is drawn per receiver and node from the
 //!   node's leaves (a hash, so frames are deterministic), so the cut's discretisation becomes
 //!   noise instead of bands. The earlier passes use each node's middle leaf.
@@ -32,18 +36,21 @@ use rayon::prelude::*;
 /// How finely the gather refines.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RadiosityParams {
-    /// Diffuse bounces of indirect light (the last is the final gather). Default 10: at albedo 0.7 the light left after n bounces is 0.7^n of the first (3 % at 10).
+    /// Diffuse bounces of indirect light (the last is the final gather). Default 6, and the rest estimated (`tail`).
     pub bounces: u32,
     /// Refinement threshold relative to the level's mean exitance (smaller: larger cuts,
     /// slower, more exact). Default 0.02.
     pub threshold: f32,
     /// Jitter the final gather's representative texels (§4.5). Default on.
     pub jitter: bool,
+    /// Add the bounces not taken as the rest of a geometric series, at the power ratio of
+    /// the last two passes (a closed level keeps about its mean albedo each bounce). Default on.
+    pub tail: bool,
 }
 
 impl Default for RadiosityParams {
     fn default() -> Self {
-        RadiosityParams { bounces: 10, threshold: 0.02, jitter: true }
+        RadiosityParams { bounces: 6, threshold: 0.02, jitter: true, tail: true }
     }
 }
 
@@ -78,18 +85,49 @@ pub struct Hierarchy {
     /// Per texel: its area (square metres) and albedo.
     pub area: Vec<f32>,
     pub albedo: Vec<Vec3>,
+    /// Per texel: its square in the atlas mapped onto its triangle's plane (rest frame), the
+    /// shape it sends with up close. Within a chart these tile the surface.
+    pub quads: Vec<[Vec3; 4]>,
+}
+
+/// Texel `t`'s atlas square mapped through its triangle's UV-to-world map.
+fn texel_quad(scene: &Scene, texels: &TexelSet, t: &prm::Texel) -> [Vec3; 4] {
+    let tri = t.triangle as usize;
+    let size = glam::Vec2::new(texels.width as f32, texels.height as f32);
+    let [a, b, c] = scene.corners(tri);
+    let [ua, ub, uc] = scene.uv1_corners(tri).map(|u| u * size);
+    let (e1, e2) = (ub - ua, uc - ua);
+    let det = e1.perp_dot(e2);
+    let fallback = [t.position; 4];
+    if !(det.abs() > 1e-12) {
+        return fallback;
+    }
+    let to_world = |q: glam::Vec2| {
+        let d = q - ua;
+        let (s, r) = (d.perp_dot(e2) / det, e1.perp_dot(d) / det);
+        a + (b - a) * s + (c - a) * r
+    };
+    let (i, j) = (t.i as f32, t.j as f32);
+    [(i, j), (i + 1.0, j), (i + 1.0, j + 1.0), (i, j + 1.0)].map(|(x, y)| to_world(glam::Vec2::new(x, y)))
 }
 
 impl Hierarchy {
     /// Build the trees of every object of `scene` over `texels` (at rest).
     pub fn build(scene: &Scene, texels: &TexelSet) -> Hierarchy {
+        // A texel stands for an equal share of its triangle: the shares add up to the surface
+        // (a texel's square would count chart borders twice: +13 % on the doorway level).
+        let mut owned = vec![0u32; scene.triangles.len()];
+        for t in &texels.texels {
+            owned[t.triangle as usize] += 1;
+        }
         let area: Vec<f32> = texels
             .texels
             .iter()
-            .map(|t| texels.world_texel_size(scene, t.triangle as usize).powi(2))
+            .map(|t| scene.area(t.triangle as usize) / owned[t.triangle as usize] as f32)
             .collect();
         let albedo = texels.texels.iter().map(|t| scene.albedo(t.triangle as usize, t.bary)).collect();
-        let mut h = Hierarchy { nodes: Vec::new(), leaves: Vec::new(), area, albedo };
+        let quads = texels.texels.iter().map(|t| texel_quad(scene, texels, t)).collect();
+        let mut h = Hierarchy { nodes: Vec::new(), leaves: Vec::new(), area, albedo, quads };
         for o in 0..=scene.movables.len() as u32 {
             let mut ids: Vec<u32> = (0..texels.len() as u32)
                 .filter(|&t| scene.object(texels.texels[t as usize].triangle as usize) == o)
@@ -156,6 +194,34 @@ impl Hierarchy {
     }
 }
 
+/// Visibility between two texels at their current positions `pr` and `ps`, in [0, 1].
+pub trait PairVisibility: Sync {
+    fn between(&self, poses: &Poses, r: usize, pr: Vec3, s: usize, ps: Vec3) -> f32;
+}
+
+/// The precomputed answer (paper 003 §3): CSSMs and occluder maps.
+impl PairVisibility for Visibility {
+    fn between(&self, poses: &Poses, r: usize, pr: Vec3, s: usize, ps: Vec3) -> f32 {
+        Visibility::between(self, poses, r, pr, s, ps)
+    }
+}
+
+/// The exact answer the precomputed one approximates: a shadow ray through the posed level
+/// between the texels' points, each lifted off its surface (the twin for tests and reports).
+pub struct RayVisibility<'a> {
+    /// BVH of the level under the frame's poses.
+    pub bvh: &'a prm::Bvh,
+    /// Texel positions and normals under the poses ([`posed_points`]).
+    pub points: &'a [(Vec3, Vec3)],
+}
+
+impl PairVisibility for RayVisibility<'_> {
+    fn between(&self, _: &Poses, r: usize, _: Vec3, s: usize, _: Vec3) -> f32 {
+        let ((pr, nr), (ps, ns)) = (self.points[r], self.points[s]);
+        self.bvh.visible(pr, nr, ps, ns) as u32 as f32
+    }
+}
+
 /// One frame's inputs: where every texel is, and the objects' poses.
 pub struct Frame<'a> {
     pub poses: &'a Poses,
@@ -187,7 +253,7 @@ pub struct RadiosityStats {
 /// The indirect irradiance at every texel from direct irradiance `direct` (module doc).
 pub fn indirect(
     h: &Hierarchy,
-    vis: &Visibility,
+    vis: &impl PairVisibility,
     frame: &Frame,
     direct: &[Vec3],
     params: &RadiosityParams,
@@ -195,6 +261,10 @@ pub fn indirect(
     let mut total = vec![Vec3::ZERO; direct.len()];
     let mut stats = RadiosityStats::default();
     let mut from = direct.to_vec();
+    let power = |e: &[Vec3]| -> f64 {
+        e.iter().zip(&h.area).zip(&h.albedo).map(|((e, a), r)| (prm::luminance(*e * *r) * a) as f64).sum()
+    };
+    let mut decay = 0.0f64;
     for pass in 0..params.bounces {
         let exitance: Vec<Vec3> = from.iter().zip(&h.albedo).map(|(e, a)| *e * *a).collect();
         let jitter = params.jitter && pass + 1 == params.bounces;
@@ -204,7 +274,17 @@ pub fn indirect(
         for (t, g) in total.iter_mut().zip(&gathered) {
             *t += *g;
         }
+        let (before, after) = (power(&from), power(&gathered));
+        decay = if before > 0.0 { after / before } else { 0.0 };
         from = gathered;
+    }
+    // The bounces not taken: each pass so far kept `decay` of the reflected power, and the
+    // rest of the geometric series, shaped like the last pass, is `last x k / (1 - k)`.
+    if params.tail && params.bounces > 1 {
+        let k = decay.clamp(0.0, 0.95) as f32;
+        for (t, g) in total.iter_mut().zip(&from) {
+            *t += *g * (k / (1.0 - k));
+        }
     }
     (total, stats)
 }
@@ -212,20 +292,22 @@ pub fn indirect(
 /// One pass: irradiance at every texel from exitance `b` (W/m²) at every texel.
 pub fn gather(
     h: &Hierarchy,
-    vis: &Visibility,
+    vis: &impl PairVisibility,
     frame: &Frame,
     b: &[Vec3],
     threshold: f32,
     jitter: bool,
 ) -> (Vec<Vec3>, RadiosityStats) {
     // Pull (§4.1): node flux from the leaves; leaves are contiguous per node.
-    let mut prefix = vec![Vec3::ZERO; h.leaves.len() + 1];
+    // In f64: a node's flux is a difference of prefix sums over the whole level.
+    let mut prefix = vec![glam::DVec3::ZERO; h.leaves.len() + 1];
     for (k, &t) in h.leaves.iter().enumerate() {
-        prefix[k + 1] = prefix[k] + b[t as usize] * h.area[t as usize];
+        prefix[k + 1] = prefix[k] + (b[t as usize] * h.area[t as usize]).as_dvec3();
     }
-    let flux: Vec<Vec3> = h.nodes.iter().map(|n| prefix[n.end as usize] - prefix[n.first as usize]).collect();
+    let flux: Vec<Vec3> =
+        h.nodes.iter().map(|n| (prefix[n.end as usize] - prefix[n.first as usize]).as_vec3()).collect();
     let total_area: f32 = h.area.iter().sum();
-    let mean = prm::luminance(prefix[h.leaves.len()]) / total_area.max(1e-30);
+    let mean = prm::luminance(prefix[h.leaves.len()].as_vec3()) / total_area.max(1e-30);
     if !(mean > 0.0) {
         return (vec![Vec3::ZERO; b.len()], RadiosityStats::default());
     }
@@ -273,13 +355,21 @@ pub fn gather(
                     continue;
                 }
                 let u = v / d2.sqrt();
-                let cos_r = u.dot(nr);
-                let cos_s = -u.dot(m);
+                let (cos_r, cos_s) = (u.dot(nr), -u.dot(m));
                 if cos_r <= 0.0 || cos_s <= 0.0 {
                     continue;
                 }
-                let g = if n.is_leaf() {
-                    cos_r * cos_s / (std::f32::consts::PI * d2 + n.area)
+                let g = if n.is_leaf() && d2 < NEAR * NEAR * n.area {
+                    // Near a texel its point is a poor stand-in: its square in the atlas,
+                    // mapped onto its plane, by Lambert's contour integral, clipped to the
+                    // receiver's side (a corner's other wall); irradiance = exitance x F.
+                    let pose = frame.poses.to_world[n.object as usize];
+                    let square = h.quads[s].map(|q| pose.transform_point3(q));
+                    let f = prm::form_factor::point_to_polygon(x, nr, &square);
+                    if f <= 0.0 {
+                        continue;
+                    }
+                    f / n.area
                 } else {
                     cos_r * cos_s / (std::f32::consts::PI * d2)
                 };
@@ -302,6 +392,9 @@ pub fn gather(
         .collect();
     (e, stats)
 }
+
+/// Distance, in texel sizes, below which a single texel sends by its square's exact form factor.
+const NEAR: f32 = 3.0;
 
 /// A small integer hash (jittered representatives).
 fn hash(a: u32, b: u32) -> u32 {
