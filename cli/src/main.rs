@@ -17,6 +17,7 @@ mod ground_truth;
 mod info;
 mod precompute;
 mod render;
+mod render_cssm;
 mod report;
 mod shard;
 mod texels;
@@ -24,6 +25,7 @@ mod texels;
 mod view;
 #[cfg(feature = "view")]
 mod view_edit;
+mod visibility;
 
 /// Precomputed radiance maps: indirect light for static levels under moving lights.
 #[derive(Parser)]
@@ -55,8 +57,11 @@ enum Command {
     Merge(shard::MergeArgs),
     /// Write a .prm's pane atlases as EXR pages.
     ExportPanes(export_panes::Args),
-    /// Render frames under a (moving) light rig: direct light + the PRM's indirect lightmap.
+    /// Render frames under a (moving) light rig: direct light + the PRM's indirect lightmap
+    /// (or, --mode cssm, hierarchical radiosity over precomputed visibility: moving objects).
     Render(render::Args),
+    /// Precompute a level's visibility for moving objects (paper 003): a .vis file.
+    Visibility(visibility::Args),
     /// The incremental many-light baker (paper 001): bake, then apply a script of edits and
     /// report how fast each converges.
     Bake(bake::Args),
@@ -90,6 +95,7 @@ fn main() -> Result<()> {
         Command::Bake(a) => bake::run(a),
         Command::BakeReference(a) => bake_reference::run(a),
         Command::Render(a) => render::run(a),
+        Command::Visibility(a) => visibility::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Report(a) => report::run(a),
         #[cfg(feature = "view")]

@@ -6,6 +6,8 @@
 //! - `--backend cpu`: the CPU twin's lightmap (`prm_runtime::cpu`), the frame by ray casting
 //!   (first hit, shadow rays, bilinear indirect lookup).
 //!
+//! - `--mode cssm`: moving objects too (`crate::render_cssm`).
+//!
 //! Frames are EXR (linear radiance) and PNG (tone-mapped); `--lightmap-out` adds each frame's
 //! indirect lightmap as EXR (R G B irradiance, W/m², atlas layout).
 
@@ -29,36 +31,56 @@ pub enum Backend {
     Gpu,
 }
 
+/// What gives the indirect light.
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum Mode {
+    /// The precomputed radiance map (--prm): static geometry, moving lights.
+    Prm,
+    /// Hierarchical radiosity over precomputed visibility (--vis, `prm visibility`): the
+    /// rig's objects move too (paper 003). CPU backend for now.
+    Cssm,
+}
+
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    map: MapArgs,
+    pub(crate) scene: crate::common::SceneArgs,
+    /// The level's .prm (--mode prm).
+    #[arg(long)]
+    pub(crate) prm: Option<PathBuf>,
+    /// The level's visibility file (--mode cssm).
+    #[arg(long)]
+    pub(crate) vis: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "prm")]
+    pub(crate) mode: Mode,
+    #[command(flatten)]
+    pub(crate) radiosity: crate::render_cssm::RadiosityArgs,
     /// Light rig (JSON); without one the level's glTF lights, unmoving.
     #[arg(long)]
-    rig: Option<PathBuf>,
+    pub(crate) rig: Option<PathBuf>,
     /// Frames over the rig's duration.
     #[arg(long, default_value_t = 30)]
-    frames: usize,
+    pub(crate) frames: usize,
     /// glTF camera to render from (default: the first).
     #[arg(long)]
-    camera: Option<String>,
+    pub(crate) camera: Option<String>,
     /// Image width in pixels (height from the camera's aspect).
     #[arg(long, default_value_t = 320)]
-    width: u32,
+    pub(crate) width: u32,
     #[command(flatten)]
-    compose: ComposeArgs,
+    pub(crate) compose: ComposeArgs,
     /// Shadow-map texels per side and layer (GPU backend).
     #[arg(long, default_value_t = 1024)]
-    shadow_size: u32,
+    pub(crate) shadow_size: u32,
     /// gpu: the wgpu runtime (falls back to cpu, saying so, without an adapter).
     #[arg(long, value_enum, default_value = "gpu")]
-    backend: Backend,
+    pub(crate) backend: Backend,
     /// Also write each frame's indirect lightmap as EXR.
     #[arg(long)]
-    lightmap_out: bool,
+    pub(crate) lightmap_out: bool,
     /// Output folder (created).
     #[arg(short, long)]
-    output: PathBuf,
+    pub(crate) output: PathBuf,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -68,8 +90,16 @@ pub fn run(a: Args) -> Result<()> {
     if a.width == 0 || a.width > 8192 {
         bail!("--width {} is out of range (1 to 8192)", a.width);
     }
+    if a.mode == Mode::Cssm {
+        return crate::render_cssm::run(a);
+    }
+    if a.vis.is_some() {
+        bail!("--vis is for --mode cssm");
+    }
+    let Some(prm) = a.prm.clone() else { bail!("--mode prm needs the level's map: give --prm FILE") };
+    let map = MapArgs { scene: a.scene.clone(), prm };
     let mut params = a.compose.runtime(a.shadow_size)?;
-    let (scene, prm_file) = a.map.load()?;
+    let (scene, prm_file) = map.load()?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
@@ -224,14 +254,14 @@ pub fn default_camera(scene: &Scene, bvh: &Bvh) -> Camera {
     }
 }
 
-struct Output<'a> {
-    dir: &'a Path,
-    lightmap: Option<Atlas>,
-    size: (usize, usize),
+pub(crate) struct Output<'a> {
+    pub(crate) dir: &'a Path,
+    pub(crate) lightmap: Option<Atlas>,
+    pub(crate) size: (usize, usize),
 }
 
 impl Output<'_> {
-    fn write(&self, f: usize, img: &[Vec3], lightmap: Option<&[Vec3]>) -> Result<()> {
+    pub(crate) fn write(&self, f: usize, img: &[Vec3], lightmap: Option<&[Vec3]>) -> Result<()> {
         let (iw, ih) = self.size;
         let mut ch = Channels::new(iw, ih);
         ch.insert_rgb("", img);

@@ -1357,3 +1357,98 @@ fn a_precompute_in_parts_merges_to_one_machines_bytes() {
     assert!(!ok && err.contains("shard 2 of 3 missing") && err.contains("not written"), "{err}");
     assert!(!out.exists());
 }
+
+#[test]
+fn moving_objects_render_with_precomputed_visibility() {
+    // The doorway level at a 32² atlas: `prm visibility`, then `prm render --mode cssm` over
+    // the door/block rig with its lightmaps, its ground-truth error and the PRM baseline.
+    let dir = tempfile::tempdir().unwrap();
+    let level = asset("doorway.glb");
+    let rig = asset("doorway_rig.json");
+    let vis = dir.path().join("doorway.vis");
+    let (ok, out, err) = prm(&["visibility", &level, "--atlas", "32", "--res", "8", "-o", s(&vis)]);
+    assert!(ok && out.contains("2 movable"), "{err}");
+    let map = dir.path().join("doorway.prm");
+    let (ok, _, err) = prm(&[
+        "precompute",
+        &level,
+        "--atlas",
+        "32",
+        "--preset",
+        "preview",
+        "--entries",
+        "256",
+        "--paths",
+        "4",
+        "-o",
+        s(&map),
+    ]);
+    assert!(ok, "{err}");
+    let frames = dir.path().join("frames");
+    let (ok, out, err) = prm(&[
+        "render",
+        &level,
+        "--mode",
+        "cssm",
+        "--vis",
+        s(&vis),
+        "--rig",
+        &rig,
+        "--frames",
+        "2",
+        "--width",
+        "32",
+        "--backend",
+        "cpu",
+        "--lightmap-out",
+        "--ground-truth-spp",
+        "16",
+        "--baseline-prm",
+        s(&map),
+        "-o",
+        s(&frames),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("indirect error") && out.contains("baseline PRM"), "{out}");
+    for f in ["frame_0001.png", "frame_0001.exr", "lightmap_0001.exr"] {
+        assert!(frames.join(f).exists(), "{f} missing");
+    }
+    // The door open at the last frame: room B's lightmap gains light over the first frame's.
+    let read = |p: &std::path::Path| prm::exr_io::Channels::read(p).unwrap().rgb("").unwrap();
+    let (first, last) = (read(&frames.join("lightmap_0000.exr")), read(&frames.join("lightmap_0001.exr")));
+    let sum = |v: &[glam::Vec3]| v.iter().map(|c| prm::luminance(*c) as f64).sum::<f64>();
+    assert!(sum(&last) > sum(&first), "opening the door added no indirect light");
+    // Bad input: no --vis, a --prm in cssm mode, a damaged or missing visibility file.
+    let base = [
+        "render",
+        level.as_str(),
+        "--mode",
+        "cssm",
+        "--rig",
+        rig.as_str(),
+        "--frames",
+        "1",
+        "-o",
+        s(&frames),
+    ];
+    let run = |extra: &[&str]| {
+        let mut args: Vec<&str> = base.to_vec();
+        args.extend_from_slice(extra);
+        prm(&args)
+    };
+    let (ok, _, err) = run(&[]);
+    assert!(!ok && err.contains("needs the level's visibility"), "{err}");
+    let (ok, _, err) = run(&["--vis", s(&vis), "--prm", s(&map)]);
+    assert!(!ok && err.contains("--prm is for --mode prm"), "{err}");
+    let bad = dir.path().join("bad.vis");
+    let mut bytes = std::fs::read(&vis).unwrap();
+    let k = bytes.len() / 2;
+    bytes[k] ^= 0x40;
+    std::fs::write(&bad, &bytes).unwrap();
+    let (ok, _, err) = run(&["--vis", s(&bad)]);
+    assert!(!ok && err.contains("bad.vis") && err.contains("checksum"), "{err}");
+    let (ok, _, err) = run(&["--vis", s(&dir.path().join("none.vis"))]);
+    assert!(!ok && err.contains("none.vis"), "{err}");
+    let (ok, _, err) = prm(&["visibility", &level, "--atlas", "32", "--res", "0", "-o", s(&bad)]);
+    assert!(!ok && err.contains("cube resolution"), "{err}");
+}

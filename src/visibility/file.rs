@@ -1,5 +1,6 @@
 //! The visibility file (`.vis`): magic, version, the geometry fingerprint of the level it was
-//! made for, the body (postcard), and an FNV-1a checksum of everything before it. Written
+//! made for, the atlas width and height, the body's length and the body (postcard), and an
+//! FNV-1a checksum of everything before it (little-endian throughout). Written
 //! atomically; a wrong, truncated or damaged file is an error naming it.
 
 use std::path::{Path, PathBuf};
@@ -9,6 +10,8 @@ use crate::fingerprint::{fnv1a, FNV_START};
 
 const MAGIC: [u8; 8] = *b"PRMVIS\0\n";
 const VERSION: u32 = 1;
+/// Bytes before the body.
+const HEADER: usize = 36;
 
 #[derive(Debug, thiserror::Error)]
 pub enum VisibilityError {
@@ -24,10 +27,12 @@ pub enum VisibilityError {
 pub fn write_visibility(path: &Path, vis: &Visibility, level: u64) -> Result<u64, VisibilityError> {
     let io = |source| VisibilityError::Io { path: path.into(), source };
     let body = postcard::to_stdvec(vis).map_err(|e| io(std::io::Error::other(format!("encoding: {e}"))))?;
-    let mut bytes = Vec::with_capacity(body.len() + 36);
+    let mut bytes = Vec::with_capacity(body.len() + HEADER + 8);
     bytes.extend_from_slice(&MAGIC);
     bytes.extend_from_slice(&VERSION.to_le_bytes());
     bytes.extend_from_slice(&level.to_le_bytes());
+    bytes.extend_from_slice(&vis.width.to_le_bytes());
+    bytes.extend_from_slice(&vis.height.to_le_bytes());
     bytes.extend_from_slice(&(body.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&body);
     let sum = fnv1a(FNV_START, &bytes);
@@ -41,27 +46,49 @@ pub fn write_visibility(path: &Path, vis: &Visibility, level: u64) -> Result<u64
 pub fn read_visibility(path: &Path, level: u64, texels: usize) -> Result<Visibility, VisibilityError> {
     let bytes = std::fs::read(path).map_err(|source| VisibilityError::Io { path: path.into(), source })?;
     let bad = |what: &str| VisibilityError::Corrupt { path: path.into(), what: what.into() };
-    if bytes.len() < 36 || bytes[..8] != MAGIC {
-        return Err(bad("no visibility header"));
+    let len = check_header(path, &bytes)?;
+    if bytes.len() != HEADER + len + 8 {
+        return Err(bad(&format!("{} bytes, the header says {}", bytes.len(), HEADER + len + 8)));
     }
-    let word = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap_or_default());
-    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
-    if version != VERSION {
-        return Err(bad(&format!("version {version}, this build reads {VERSION}")));
-    }
-    let len = word(20) as usize;
-    if bytes.len() != 28 + len + 8 {
-        return Err(bad(&format!("{} bytes, the header says {}", bytes.len(), 28 + len + 8)));
-    }
-    if fnv1a(FNV_START, &bytes[..28 + len]) != word(28 + len) {
+    if fnv1a(FNV_START, &bytes[..HEADER + len]) != word(&bytes, HEADER + len) {
         return Err(bad("checksum mismatch"));
     }
-    let found = word(12);
+    let found = word(&bytes, 12);
     if found != level {
         return Err(VisibilityError::OtherLevel { path: path.into(), found, expected: level });
     }
     let vis: Visibility =
-        postcard::from_bytes(&bytes[28..28 + len]).map_err(|e| bad(&format!("body: {e}")))?;
+        postcard::from_bytes(&bytes[HEADER..HEADER + len]).map_err(|e| bad(&format!("body: {e}")))?;
     vis.check(texels).map_err(|e| bad(&e))?;
     Ok(vis)
+}
+
+/// The atlas width and height a visibility file was made for, from its header alone (to load
+/// the level at that size before reading the rest).
+pub fn visibility_atlas(path: &Path) -> Result<(u32, u32), VisibilityError> {
+    let mut head = [0u8; HEADER];
+    let io = |source| VisibilityError::Io { path: path.into(), source };
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    std::io::Read::read_exact(&mut f, &mut head)
+        .map_err(|_| VisibilityError::Corrupt { path: path.into(), what: "no visibility header".into() })?;
+    check_header(path, &head)?;
+    let half = |at: usize| u32::from_le_bytes(head[at..at + 4].try_into().unwrap_or_default());
+    Ok((half(20), half(24)))
+}
+
+/// Magic and version; the body's length.
+fn check_header(path: &Path, bytes: &[u8]) -> Result<usize, VisibilityError> {
+    let bad = |what: &str| VisibilityError::Corrupt { path: path.into(), what: what.into() };
+    if bytes.len() < HEADER || bytes[..8] != MAGIC {
+        return Err(bad("no visibility header"));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
+    if version != VERSION {
+        return Err(bad(&format!("version {version}, this build reads {VERSION}")));
+    }
+    Ok(usize::try_from(word(bytes, 28)).unwrap_or(usize::MAX).min(1 << 40))
+}
+
+fn word(bytes: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap_or_default())
 }

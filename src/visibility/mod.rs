@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 pub use csm::Csm;
 pub use cssm::{Cssm, CssmBuilder};
-pub use file::{read_visibility, write_visibility, VisibilityError};
+pub use file::{read_visibility, visibility_atlas, write_visibility, VisibilityError};
 
 /// One object's visibility data.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -1,0 +1,216 @@
+//! `prm render --mode cssm`: frames of a level whose objects move, lit by hierarchical radiosity
+//! over precomputed visibility (paper 003; `prm_runtime::cpu::radiosity`).
+//!
+//! Per frame: the rig's lights and object poses at the frame's time; the level posed (movables
+//! moved); direct irradiance at every texel, ray-traced in the posed level (the CPU twin's
+//! visibility; a GPU would use shadow maps); the radiosity's indirect lightmap; the frame shaded
+//! as in `--mode prm`. `--ground-truth-spp N` also path-traces each frame's indirect lightmap
+//! in the posed level and prints the error (noise removed in quadrature); `--baseline-prm`
+//! adds the PRM's error on the same texels (its CPU twin, the level at rest: what a PRM alone
+//! shows while objects move). CPU only: the GPU
+//! side of the radiosity does not exist yet, and `--backend gpu` says so.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+use prm::density::Atlas;
+use prm::visibility::{read_visibility, visibility_atlas, Poses};
+use prm::Bvh;
+use prm_precompute::ground_truth::{indirect_noise, GtParams, Tracer};
+use prm_precompute::parallel::Control;
+use prm_precompute::visibility::moving_texel_set;
+use prm_runtime::cpu::radiosity::{indirect, posed_points, Frame, Hierarchy, RadiosityParams};
+use rayon::prelude::*;
+
+use crate::common::load_rig;
+use crate::render::{camera, shade, Args, Backend, Output};
+
+/// The radiosity's settings (`--mode cssm`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct RadiosityArgs {
+    /// (--mode cssm) Diffuse bounces before the rest is estimated.
+    #[arg(long, default_value_t = RadiosityParams::default().bounces)]
+    bounces: u32,
+    /// (--mode cssm) Refinement threshold, relative to the level's mean exitance.
+    #[arg(long, default_value_t = RadiosityParams::default().threshold)]
+    threshold: f32,
+    /// (--mode cssm) Also path-trace each frame's indirect lightmap with this many paths per
+    /// texel and print the radiosity's error against it.
+    #[arg(long)]
+    ground_truth_spp: Option<u32>,
+    /// (--mode cssm, with --ground-truth-spp) Also compose this .prm of the level at rest (the
+    /// CPU twin, --top-k panes) each frame and print its error on the same texels: the
+    /// baseline that cannot see objects move.
+    #[arg(long)]
+    baseline_prm: Option<std::path::PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.prm.is_some() {
+        bail!("--prm is for --mode prm; --mode cssm reads --vis (from `prm visibility`)");
+    }
+    let Some(vis_path) = a.vis.as_deref() else {
+        bail!("--mode cssm needs the level's visibility: give --vis FILE (made by `prm visibility`)")
+    };
+    let r = &a.radiosity;
+    if !(1..=64).contains(&r.bounces) {
+        bail!("--bounces {} is out of range (1 to 64)", r.bounces);
+    }
+    if !(r.threshold.is_finite() && r.threshold >= 0.0) {
+        bail!("--threshold {} must be a finite number >= 0", r.threshold);
+    }
+    if let Some(spp) = r.ground_truth_spp {
+        GtParams { spp, ..GtParams::preview() }
+            .validate()
+            .map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
+    }
+    if a.backend == Backend::Gpu {
+        eprintln!("note: the radiosity has no GPU side yet; rendering --mode cssm with the CPU");
+    }
+    let (w, h) = visibility_atlas(vis_path)?;
+    let scene = crate::common::load(&a.scene, w, false)?;
+    let texels = moving_texel_set(&scene, w, h);
+    let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
+    let hierarchy = Hierarchy::build(&scene, &texels);
+    let rig = load_rig(a.rig.as_deref(), &scene)?;
+    let motion = rig.object_motion(a.rig.as_deref().unwrap_or(Path::new("(no rig)")), &scene)?;
+    let cam = camera(&scene, a.camera.as_deref())?;
+    let (iw, ih) = cam.image_size(a.width);
+    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let atlas = Atlas::single(w);
+    let out = Output {
+        dir: &a.output,
+        lightmap: a.lightmap_out.then_some(atlas),
+        size: (iw as usize, ih as usize),
+    };
+    let params = RadiosityParams { bounces: r.bounces, threshold: r.threshold, ..Default::default() };
+    println!(
+        "{} texels, {} movables ({}), {} hierarchy nodes",
+        texels.len(),
+        scene.movables.len(),
+        scene.movables.iter().map(|m| m.name.as_str()).collect::<Vec<_>>().join(", "),
+        hierarchy.nodes.len()
+    );
+    if r.baseline_prm.is_some() && r.ground_truth_spp.is_none() {
+        bail!("--baseline-prm is compared with the ground truth: give --ground-truth-spp too");
+    }
+    let baseline = match &r.baseline_prm {
+        Some(p) => {
+            let map = prm::prm_file::Prm::read(p, None).context("reading the baseline map failed")?;
+            map.check_scene(p, &scene)?;
+            if map.header().atlas() != atlas {
+                bail!(
+                    "{}: baked for a {} atlas, the visibility for {atlas}",
+                    p.display(),
+                    map.header().atlas()
+                );
+            }
+            Some(map)
+        }
+        None => None,
+    };
+    let rest_bvh = Bvh::build(&scene);
+    let compose = a.compose.runtime(a.shadow_size)?;
+    let mut twin = baseline.as_ref().map(|m| {
+        let mut t = prm_runtime::cpu::CpuTwin::new(m, &rest_bvh, compose.top_k);
+        t.set_residual(compose.residual);
+        t.set_budget(compose.budget);
+        t
+    });
+    let mut sums = [0.0f64; 3];
+    let mut errors = Vec::new();
+    let mut baseline_errors = Vec::new();
+    for f in 0..a.frames {
+        let time = rig.frame_time(f, a.frames);
+        let lights = rig.at_time(time);
+        let moves = motion.at_time(time);
+        let poses = Poses::new(&moves);
+        let posed = scene.moved(&moves);
+        let bvh = Bvh::build_with_extent(&posed, scene.diagonal());
+        let points = posed_points(&scene, &texels, &poses);
+        let t = Instant::now();
+        let direct: Vec<Vec3> =
+            points.par_iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
+        let direct_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let frame = Frame { poses: &poses, points: &points };
+        let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params);
+        let radiosity_s = t.elapsed().as_secs_f64();
+        let lightmap = texels.to_image(&ind, Vec3::ZERO);
+        let t = Instant::now();
+        let img = shade(&posed, &bvh, &cam, &lights, &lightmap, atlas, out.size);
+        let shade_s = t.elapsed().as_secs_f64();
+        out.write(f, &img, Some(&lightmap[..]).filter(|_| a.lightmap_out))?;
+        let mut line = format!(
+            "frame {f:4} (t = {time:5.2} s): direct {:7.1} ms, radiosity {:7.1} ms ({:.0} transfers a texel), \
+             shading {:7.1} ms",
+            direct_s * 1e3,
+            radiosity_s * 1e3,
+            stats.transfers as f64 / texels.len().max(1) as f64,
+            shade_s * 1e3
+        );
+        if let Some(spp) = r.ground_truth_spp {
+            let mut moved = texels.texels.clone();
+            for (m, &(p, n)) in moved.iter_mut().zip(&points) {
+                m.position = p;
+                m.normal = n;
+            }
+            let gt = Tracer::new(&posed, &bvh, GtParams { spp, ..GtParams::preview() })
+                .texels(&moved, w, Control::none())
+                .map_err(|_| anyhow::anyhow!("stopped"))?;
+            let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
+            let c = prm::metric::compare(&ind, &truth, None);
+            let noise = indirect_noise(&gt);
+            let err = (c.error * c.error - noise * noise).max(0.0).sqrt();
+            errors.push(err);
+            line += &format!(
+                ", indirect error {:.1} % (bias {:+.1} %, ground-truth noise {:.1} % removed)",
+                err * 100.0,
+                c.bias * 100.0,
+                noise * 100.0
+            );
+            if let Some(twin) = twin.as_mut() {
+                let img = twin.frame(&lights);
+                let prm_ind: Vec<Vec3> =
+                    texels.texels.iter().map(|t| img[(t.j * w + t.i) as usize]).collect();
+                let c = prm::metric::compare(&prm_ind, &truth, None);
+                let err = (c.error * c.error - noise * noise).max(0.0).sqrt();
+                baseline_errors.push(err);
+                line += &format!("; PRM {:.1} % (bias {:+.1} %)", err * 100.0, c.bias * 100.0);
+            }
+        }
+        println!("{line}");
+        sums[0] += direct_s;
+        sums[1] += radiosity_s;
+        sums[2] += shade_s;
+    }
+    let n = a.frames as f64;
+    println!(
+        "{} frames: mean direct {:.1} ms, radiosity {:.1} ms, shading {:.1} ms (CPU, {} threads){} -> {}",
+        a.frames,
+        sums[0] * 1e3 / n,
+        sums[1] * 1e3 / n,
+        sums[2] * 1e3 / n,
+        rayon::current_num_threads(),
+        if errors.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; indirect error mean {:.1} %, worst {:.1} %",
+                errors.iter().sum::<f64>() / errors.len() as f64 * 100.0,
+                errors.iter().cloned().fold(0.0, f64::max) * 100.0
+            )
+        },
+        a.output.display()
+    );
+    if !baseline_errors.is_empty() {
+        println!(
+            "baseline PRM (objects at rest): indirect error mean {:.1} %, worst {:.1} %",
+            baseline_errors.iter().sum::<f64>() / baseline_errors.len() as f64 * 100.0,
+            baseline_errors.iter().cloned().fold(0.0, f64::max) * 100.0
+        );
+    }
+    Ok(())
+}
