@@ -37,7 +37,7 @@ pub enum Mode {
     /// The precomputed radiance map (--prm): static geometry, moving lights.
     Prm,
     /// Hierarchical radiosity over precomputed visibility (--vis, `prm visibility`): the
-    /// rig's objects move too (paper 003). CPU backend for now.
+    /// rig's objects move too (paper 003). The radiosity runs on either backend; direct light and shading on the CPU.
     Cssm,
 }
 

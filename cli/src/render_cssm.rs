@@ -4,11 +4,12 @@
 //! Per frame: the rig's lights and object poses at the frame's time; the level posed (movables
 //! moved); direct irradiance at every texel, ray-traced in the posed level (the CPU twin's
 //! visibility; a GPU would use shadow maps); the radiosity's indirect lightmap; the frame shaded
-//! as in `--mode prm`. `--ground-truth-spp N` also path-traces each frame's indirect lightmap
+//! as in `--mode prm`. With `--backend gpu` (the default) the radiosity runs on the GPU
+//! (`prm_runtime::radiosity`; its readback is in the frame time); the direct light and the
+//! shading stay on the CPU here. `--ground-truth-spp N` also path-traces each frame's indirect lightmap
 //! in the posed level and prints the error (noise removed in quadrature); `--baseline-prm`
 //! adds the PRM's error on the same texels (its CPU twin, the level at rest: what a PRM alone
-//! shows while objects move). CPU only: the GPU
-//! side of the radiosity does not exist yet, and `--backend gpu` says so.
+//! shows while objects move).
 
 use std::path::Path;
 use std::time::Instant;
@@ -66,14 +67,25 @@ pub fn run(a: Args) -> Result<()> {
             .validate()
             .map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
     }
-    if a.backend == Backend::Gpu {
-        eprintln!("note: the radiosity has no GPU side yet; rendering --mode cssm with the CPU");
-    }
+    let gpu = match a.backend {
+        Backend::Cpu => None,
+        Backend::Gpu => match prm_runtime::Gpu::new() {
+            Ok(g) => Some(g),
+            Err(e) => {
+                eprintln!("note: {e}\nnote: rendering with the CPU twin instead");
+                None
+            }
+        },
+    };
     let (w, h) = visibility_atlas(vis_path)?;
     let scene = crate::common::load(&a.scene, w, false)?;
     let texels = moving_texel_set(&scene, w, h);
     let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
     let hierarchy = Hierarchy::build(&scene, &texels);
+    let mut pass = gpu.as_ref().map(|g| {
+        println!("device: {}", g.describe());
+        prm_runtime::radiosity::RadiosityPass::new(&g.device, &scene, &texels, &hierarchy, &vis)
+    });
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let motion = rig.object_motion(a.rig.as_deref().unwrap_or(Path::new("(no rig)")), &scene)?;
     let cam = camera(&scene, a.camera.as_deref())?;
@@ -136,19 +148,28 @@ pub fn run(a: Args) -> Result<()> {
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let frame = Frame { poses: &poses, points: &points };
-        let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params);
+        let (ind, transfers) = match (gpu.as_ref(), pass.as_mut()) {
+            (Some(g), Some(p)) => {
+                (p.indirect(&g.device, &g.queue, &poses, &direct, &params, &hierarchy.albedo)?, None)
+            }
+            _ => {
+                let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params);
+                (ind, Some(stats.transfers))
+            }
+        };
         let radiosity_s = t.elapsed().as_secs_f64();
         let lightmap = texels.to_image(&ind, Vec3::ZERO);
         let t = Instant::now();
         let img = shade(&posed, &bvh, &cam, &lights, &lightmap, atlas, out.size);
         let shade_s = t.elapsed().as_secs_f64();
         out.write(f, &img, Some(&lightmap[..]).filter(|_| a.lightmap_out))?;
+        let cut = transfers.map_or(String::new(), |n| {
+            format!(" ({:.0} transfers a texel)", n as f64 / texels.len().max(1) as f64)
+        });
         let mut line = format!(
-            "frame {f:4} (t = {time:5.2} s): direct {:7.1} ms, radiosity {:7.1} ms ({:.0} transfers a texel), \
-             shading {:7.1} ms",
+            "frame {f:4} (t = {time:5.2} s): direct {:7.1} ms, radiosity {:7.1} ms{cut}, shading {:7.1} ms",
             direct_s * 1e3,
             radiosity_s * 1e3,
-            stats.transfers as f64 / texels.len().max(1) as f64,
             shade_s * 1e3
         );
         if let Some(spp) = r.ground_truth_spp {
@@ -188,12 +209,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     let n = a.frames as f64;
     println!(
-        "{} frames: mean direct {:.1} ms, radiosity {:.1} ms, shading {:.1} ms (CPU, {} threads){} -> {}",
+        "{} frames: mean direct {:.1} ms (CPU), radiosity {:.1} ms ({}), shading {:.1} ms (CPU){} -> {}",
         a.frames,
         sums[0] * 1e3 / n,
         sums[1] * 1e3 / n,
+        gpu.as_ref()
+            .map_or(format!("CPU, {} threads", rayon::current_num_threads()), |g| g.info.name.clone()),
         sums[2] * 1e3 / n,
-        rayon::current_num_threads(),
         if errors.is_empty() {
             String::new()
         } else {

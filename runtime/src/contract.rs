@@ -58,6 +58,8 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
+    ("CSSM_NOTHING", prm::visibility::cssm::NOTHING as u32),
+    ("CSM_MISS", prm::visibility::csm::MISS as u32),
 ];
 
 /// The WGSL every shader starts with: shared constants, functions and structs.
@@ -92,6 +94,15 @@ pub fn prelude() -> &'static str {
              if code == 0u {{\n        return 0.0;\n    }}\n    \
              return exp2({:?}f * f32(255u - code) / 254.0);\n}}\n",
             prm::prm_file::INTENSITY_FLOOR.log2()
+        );
+        let _ = writeln!(
+            s,
+            "// Radiosity: texel sizes within which a texel sends by its square's form factor\n\
+             // (prm_runtime::radiosity::NEAR), and the CSSM's relative depth slack\n\
+             // (prm::visibility::cssm::SLACK).\n\
+             const RADIOSITY_NEAR: f32 = {:?}f;\nconst CSSM_SLACK: f32 = {:?}f;\n",
+            crate::radiosity::NEAR,
+            prm::visibility::cssm::SLACK
         );
         s += "// glTF range window (prm::light::range_window).\n";
         s += prm::light::RANGE_WINDOW_WGSL;
@@ -174,7 +185,7 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 12] = [
+pub const SHADERS: [&Shader; 13] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
@@ -187,4 +198,5 @@ pub const SHADERS: [&Shader; 12] = [
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,
+    &crate::radiosity::SHADER,
 ];

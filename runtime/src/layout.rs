@@ -389,6 +389,82 @@ gpu_struct! {
     }
 }
 
+gpu_struct! {
+    /// A node of the radiosity hierarchy (`crate::cpu::radiosity::Node`), rest frame.
+    pub struct RadNode {
+        pub centre: [f32; 3],
+        pub radius: f32,
+        pub normal: [f32; 3],
+        pub area: f32,
+        pub object: u32,
+        pub first: u32,
+        pub end: u32,
+        /// `u32::MAX`: the walk ends.
+        pub skip: u32,
+    }
+}
+
+gpu_struct! {
+    /// A texel as the radiosity reads it, rest frame: point, area, normal, object, albedo, its
+    /// place in its object's CSSM sequence, and its atlas square on its plane (`q0`-`q3`).
+    pub struct RadTexel {
+        pub position: [f32; 3],
+        pub area: f32,
+        pub normal: [f32; 3],
+        pub object: u32,
+        pub albedo: [f32; 3],
+        pub seq: u32,
+        pub q0: [f32; 4],
+        pub q1: [f32; 4],
+        pub q2: [f32; 4],
+        pub q3: [f32; 4],
+    }
+}
+
+gpu_struct! {
+    /// An object of the radiosity: its pose this frame, and where its visibility data start in
+    /// the packed `vdata` words (`crate::radiosity::pack_visibility`).
+    pub struct RadObject {
+        pub to_world: [[f32; 4]; 4],
+        pub to_rest: [[f32; 4]; 4],
+        pub csm_centre: [f32; 3],
+        pub csm_radius: f32,
+        /// Word offsets of the CSSM's origins (3 words each), run offsets, run starts and
+        /// depths (two 16-bit codes a word).
+        pub origins: u32,
+        pub offsets: u32,
+        pub starts: u32,
+        pub depths: u32,
+        pub res: u32,
+        pub far: f32,
+        /// Word offset of the occluder maps (two 16-bit entry/exit pairs a word), or `u32::MAX`.
+        pub csm: u32,
+        pub csm_dirs: u32,
+        pub csm_res: u32,
+        /// Its tree's root node (`u32::MAX`: no texels).
+        pub root: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+    }
+}
+
+gpu_struct! {
+    /// The uniform of `shaders/radiosity.wgsl`, written before each pass.
+    pub struct RadParams {
+        pub texels: u32,
+        pub nodes: u32,
+        pub objects: u32,
+        /// Jitter the representative texels (the final pass).
+        pub jitter: u32,
+        pub threshold: f32,
+        /// The half of `flux` this pass writes and reads.
+        pub flux_half: u32,
+        /// Sum of the texels' areas, m².
+        pub total_area: f32,
+        pub _pad0: u32,
+    }
+}
+
 /// Every [`GpuStruct`], as `(name, WGSL declaration, size, fields)`: what the prelude declares
 /// and the layout test checks.
 pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
@@ -411,5 +487,9 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<ActiveRecord>(),
         one::<ShadeParams>(),
         one::<TonemapParams>(),
+        one::<RadNode>(),
+        one::<RadTexel>(),
+        one::<RadObject>(),
+        one::<RadParams>(),
     ]
 }

@@ -65,6 +65,7 @@ mod layout;
 mod lights;
 pub mod memory;
 mod near;
+pub mod radiosity;
 mod runtime;
 mod shade;
 mod shadow;

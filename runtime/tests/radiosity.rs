@@ -85,6 +85,31 @@ fn the_hierarchy_covers_every_texel_once_and_a_full_cut_is_brute_force() {
     }
 }
 
+/// In the closed level (door shut) every watt a bounce sends lands somewhere: the transport
+/// keeps the power it is given, up to the texel discretisation (brute force, threshold 0) and
+/// the clusters' approximations (the default cut).
+#[test]
+fn a_bounce_keeps_the_power_it_is_given() {
+    let (scene, texels, vis, h) = setup();
+    let poses = Poses::at_rest(3);
+    let points = posed_points(&scene, &texels, &poses);
+    let frame = Frame { poses: &poses, points: &points };
+    let bvh = Bvh::build(&scene);
+    let direct: Vec<Vec3> =
+        points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &scene.lights, p, n)).collect();
+    let b: Vec<Vec3> = direct.iter().zip(&h.albedo).map(|(e, a)| *e * *a).collect();
+    let power =
+        |e: &[Vec3]| -> f64 { e.iter().zip(&h.area).map(|(e, a)| (prm::luminance(*e) * a) as f64).sum() };
+    let rays = RayVisibility { bvh: &bvh, points: &points };
+    for (threshold, keep) in [(0.0, 0.95), (RadiosityParams::default().threshold, 0.93)] {
+        let (e, _) = gather(&h, &rays, &frame, &b, threshold, false);
+        let kept = power(&e) / power(&b);
+        eprintln!("threshold {threshold}: a bounce keeps {:.2} % of its power", kept * 100.0);
+        assert!((keep..=1.01).contains(&kept), "threshold {threshold}: {:.2} %", kept * 100.0);
+    }
+    let _ = vis;
+}
+
 /// Per frame of the doorway rig (door closed, half open, open; the block sliding), the
 /// radiosity's indirect lightmap against the ground truth's (noise removed in quadrature).
 /// Issue 15's target is 10 %. Measured at this 64² atlas (25 cm texels): 21.1, 23.8 and 30.0 %
@@ -127,43 +152,9 @@ fn radiosity_follows_the_moving_door_and_block() {
             .unwrap();
         let (ind, stats) = indirect(&h, &vis, &frame, &direct, &params);
         let rays = RayVisibility { bvh: &bvh, points: &points };
-        if std::env::var("RAD_DEBUG").is_ok() {
-            let b: Vec<Vec3> = direct.iter().zip(&h.albedo).map(|(e, a)| *e * *a).collect();
-            for thr in [0.02, 0.0] {
-                let (e1, _) = gather(&h, &rays, &frame, &b, thr, false);
-                let out: f32 = b.iter().zip(&h.area).map(|(b, a)| prm::luminance(*b) * a).sum();
-                let inn: f32 = e1.iter().zip(&h.area).map(|(e, a)| prm::luminance(*e) * a).sum();
-                eprintln!(
-                    "  threshold {thr}: flux out {out:.2} W, in {inn:.2} W ({:+.1} %)",
-                    (inn / out - 1.0) * 100.0
-                );
-            }
-            let gd: Vec<Vec3> = gt.iter().map(|g| g.direct).collect();
-            let cd = prm::metric::compare(&direct, &gd, None);
-            eprintln!(
-                "  direct against the ground truth's: {:.2} % bias {:+.2} %",
-                cd.error * 100.0,
-                cd.bias * 100.0
-            );
-        }
         let (ind_rays, _) = indirect(&h, &rays, &frame, &direct, &params);
         let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
         let c = prm::metric::compare(&ind, &truth, None);
-        if std::env::var("RAD_DEBUG").is_ok() {
-            let mut worst: Vec<(f32, usize)> = (0..truth.len())
-                .map(|k| ((prm::luminance(ind_rays[k]) - prm::luminance(truth[k])).powi(2), k))
-                .collect();
-            worst.sort_by(|a, b| b.0.total_cmp(&a.0));
-            let total: f32 = worst.iter().map(|w| w.0).sum();
-            let mut acc = 0.0;
-            for &(e, k) in worst.iter().take(12) {
-                acc += e;
-                eprintln!(
-                    "  texel {k} at {:.2} n {:.1}: rays {:.3} truth {:.3} direct {:.2} (cum {:.0} % of squared error)",
-                    points[k].0, points[k].1, prm::luminance(ind_rays[k]), prm::luminance(truth[k]), prm::luminance(direct[k]), acc / total * 100.0
-                );
-            }
-        }
         let noise = indirect_noise(&gt);
         let cr = prm::metric::compare(&ind_rays, &truth, None);
         let cv = prm::metric::compare(&ind, &ind_rays, None);
@@ -185,5 +176,43 @@ fn radiosity_follows_the_moving_door_and_block() {
         );
         assert!(c.non_finite == 0 && c.negative == 0);
         assert!(err <= limit, "t = {t}: {:.1} %", err * 100.0);
+    }
+}
+
+/// The GPU radiosity against its CPU twin on the doorway level, at rest and with the door half
+/// open and the block moved (the same poses, direct light and parameters): the jittered final
+/// pass, the CSSM and occluder-map queries and the tail included.
+#[test]
+fn gpu_radiosity_matches_the_cpu_twin() {
+    let gpu = match prm_runtime::Gpu::new() {
+        Ok(g) => g,
+        Err(e) => panic!("this GPU test needs a wgpu adapter: {e}"),
+    };
+    let (scene, texels, vis, h) = setup();
+    let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
+    let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
+    let mut pass = prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis);
+    for t in [0.0, 2.0] {
+        let poses = Poses::new(&motion.at_time(t));
+        let posed = scene.moved(&motion.at_time(t));
+        let bvh = Bvh::build(&posed);
+        let points = posed_points(&scene, &texels, &poses);
+        let lights = rig.at_time(t);
+        let direct: Vec<Vec3> =
+            points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
+        let params = RadiosityParams::default();
+        let frame = Frame { poses: &poses, points: &points };
+        let (cpu, _) = indirect(&h, &vis, &frame, &direct, &params);
+        let gpu_out = pass.indirect(&gpu.device, &gpu.queue, &poses, &direct, &params, &h.albedo).unwrap();
+        let c = prm::metric::compare(&gpu_out, &cpu, None);
+        eprintln!(
+            "t = {t}: GPU against CPU {:.4} % (max {:.2e}), on {}",
+            c.error * 100.0,
+            c.max_abs,
+            gpu.describe()
+        );
+        // Float sums in another order, f32 contour integrals (the CPU's are f64) and a PCF tap
+        // that flips on a rounding: 0.5 % is far below the radiosity's own error.
+        assert!(c.non_finite == 0 && c.error < 0.005, "t = {t}: {:.3} %", c.error * 100.0);
     }
 }

@@ -393,8 +393,7 @@ pub fn gather(
     (e, stats)
 }
 
-/// Distance, in texel sizes, below which a single texel sends by its square's exact form factor.
-const NEAR: f32 = 3.0;
+pub use crate::radiosity::NEAR;
 
 /// A small integer hash (jittered representatives).
 fn hash(a: u32, b: u32) -> u32 {

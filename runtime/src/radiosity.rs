@@ -1,0 +1,322 @@
+//! Hierarchical radiosity over precomputed visibility on the GPU (`shaders/radiosity.wgsl`),
+//! twin of [`crate::cpu::radiosity`] (its module doc says what is computed; the shader follows
+//! it step for step, and a test holds the two together).
+//!
+//! Per frame: the objects' poses and the texels' direct irradiance are uploaded, then per
+//! bounce three dispatches (`flux_main` per node: the pull; `gather_main` per texel: refine and
+//! gather; `next_main` per texel: add to the total, reflect), one submit each since the uniform
+//! changes; then, with the tail on, one more pull and `tail_main`. The visibility's tables are
+//! packed once into one `u32` buffer (`vdata`, [`pack_visibility`]): a stage has few storage
+//! bindings.
+//!
+//! The pass needs the texel hierarchy, built from the level's texel set, so it comes with the
+//! `cpu-twin` feature for now; the shader and its tables are always built (the contract test
+//! checks them). The direct light is an input: the CPU twin's ray-traced irradiance at the
+//! texels (the shadow maps of [`crate::Runtime`] do not light texels yet).
+
+use crate::bindings::{b, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR};
+
+/// Texel sizes within which a single texel sends by the exact form factor of its atlas square.
+pub const NEAR: f32 = 3.0;
+
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform("RadParams"), COMPUTE),
+    b("nodes", Res::Read("array<RadNode>"), COMPUTE),
+    b("texels", Res::Read("array<RadTexel>"), COMPUTE),
+    b("leaves", Res::Read("array<u32>"), COMPUTE),
+    b("objects", Res::Read("array<RadObject>"), COMPUTE),
+    // The visibility's tables, packed ([`pack_visibility`]).
+    b("vdata", Res::Read("array<u32>"), COMPUTE),
+    // Exitance | gathered | total, a section of `texels` each.
+    b("values", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Node fluxes, two halves.
+    b("flux", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "radiosity",
+    body: include_str!("../../shaders/radiosity.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[
+        Compute { entry: "flux_main", workgroup: LINEAR },
+        Compute { entry: "gather_main", workgroup: LINEAR },
+        Compute { entry: "next_main", workgroup: LINEAR },
+        Compute { entry: "tail_main", workgroup: LINEAR },
+    ],
+};
+
+#[cfg(feature = "cpu-twin")]
+pub use pass::{pack_visibility, RadiosityPass};
+
+#[cfg(feature = "cpu-twin")]
+mod pass {
+    use glam::{Mat4, Vec3};
+    use prm::visibility::{Poses, Visibility};
+    use prm::TexelSet;
+
+    use super::{BINDINGS, SHADER};
+    use crate::bindings::bind;
+    use crate::contract::WG_LINEAR;
+    use crate::cpu::radiosity::{Hierarchy, RadiosityParams};
+    use crate::gpu::{self, GpuError};
+    use crate::layout::{mat, RadNode, RadObject, RadParams, RadTexel};
+
+    /// Where each object's tables start in the packed words.
+    #[derive(Clone, Copy, Debug, Default)]
+    struct Bases {
+        origins: u32,
+        offsets: u32,
+        starts: u32,
+        depths: u32,
+        csm: u32,
+    }
+
+    /// The visibility's tables as one `u32` array (origins as f32 bits, run offsets, run
+    /// starts, depth codes two a word, occluder maps' entry/exit pairs two a word), with each
+    /// object's offsets into it.
+    pub fn pack_visibility(vis: &Visibility) -> (Vec<u32>, Vec<[u32; 5]>) {
+        let mut words = Vec::new();
+        let mut bases = Vec::new();
+        for o in &vis.objects {
+            let c = &o.cssm;
+            let mut base = Bases { origins: words.len() as u32, ..Default::default() };
+            words.extend(c.origins.iter().flat_map(|v| v.to_array().map(f32::to_bits)));
+            base.offsets = words.len() as u32;
+            words.extend_from_slice(&c.offsets);
+            base.starts = words.len() as u32;
+            words.extend_from_slice(&c.run_start);
+            base.depths = words.len() as u32;
+            words.extend(c.run_depth.chunks(2).map(|p| p[0] as u32 | (*p.get(1).unwrap_or(&0) as u32) << 16));
+            base.csm = match &o.occluder {
+                Some(m) => {
+                    let at = words.len() as u32;
+                    let pairs: Vec<u32> =
+                        m.depths.iter().map(|[e, x]| *e as u32 | (*x as u32) << 8).collect();
+                    words.extend(pairs.chunks(2).map(|p| p[0] | p.get(1).unwrap_or(&0) << 16));
+                    at
+                }
+                None => u32::MAX,
+            };
+            bases.push([base.origins, base.offsets, base.starts, base.depths, base.csm]);
+        }
+        (words, bases)
+    }
+
+    /// The GPU radiosity of one level (module doc).
+    pub struct RadiosityPass {
+        flux: wgpu::ComputePipeline,
+        gather: wgpu::ComputePipeline,
+        next: wgpu::ComputePipeline,
+        tail: wgpu::ComputePipeline,
+        group: wgpu::BindGroup,
+        params: wgpu::Buffer,
+        objects: wgpu::Buffer,
+        values: wgpu::Buffer,
+        object_rows: Vec<RadObject>,
+        texels: u32,
+        nodes: u32,
+        total_area: f32,
+    }
+
+    impl RadiosityPass {
+        pub fn new(
+            device: &wgpu::Device,
+            scene: &prm::Scene,
+            texels: &TexelSet,
+            hierarchy: &Hierarchy,
+            vis: &Visibility,
+        ) -> RadiosityPass {
+            let nodes: Vec<RadNode> = hierarchy
+                .nodes
+                .iter()
+                .map(|n| RadNode {
+                    centre: n.centre.to_array(),
+                    radius: n.radius,
+                    normal: n.normal.to_array(),
+                    area: n.area,
+                    object: n.object,
+                    first: n.first,
+                    end: n.end,
+                    skip: n.skip,
+                })
+                .collect();
+            let rows: Vec<RadTexel> = texels
+                .texels
+                .iter()
+                .enumerate()
+                .map(|(k, t)| {
+                    let q = hierarchy.quads[k].map(|v| [v.x, v.y, v.z, 0.0]);
+                    RadTexel {
+                        position: t.position.to_array(),
+                        area: hierarchy.area[k],
+                        normal: t.normal.to_array(),
+                        object: scene.object(t.triangle as usize),
+                        albedo: hierarchy.albedo[k].to_array(),
+                        seq: vis.slots[k].1,
+                        q0: q[0],
+                        q1: q[1],
+                        q2: q[2],
+                        q3: q[3],
+                    }
+                })
+                .collect();
+            let (words, bases) = pack_visibility(vis);
+            let object_rows: Vec<RadObject> = vis
+                .objects
+                .iter()
+                .zip(&bases)
+                .enumerate()
+                .map(|(o, (ov, b))| {
+                    let (centre, radius, dirs, res) = ov
+                        .occluder
+                        .as_ref()
+                        .map_or((Vec3::ZERO, 1.0, 0, 0), |m| (m.centre, m.radius, m.dirs, m.res));
+                    RadObject {
+                        to_world: mat(Mat4::IDENTITY),
+                        to_rest: mat(Mat4::IDENTITY),
+                        csm_centre: centre.to_array(),
+                        csm_radius: radius,
+                        origins: b[0],
+                        offsets: b[1],
+                        starts: b[2],
+                        depths: b[3],
+                        res: ov.cssm.res,
+                        far: ov.cssm.far,
+                        csm: b[4],
+                        csm_dirs: dirs,
+                        csm_res: res,
+                        root: hierarchy
+                            .nodes
+                            .iter()
+                            .position(|n| n.object == o as u32)
+                            .map_or(u32::MAX, |k| k as u32),
+                        ..Default::default()
+                    }
+                })
+                .collect();
+            let none = wgpu::BufferUsages::empty();
+            let copy = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
+            let node_buf = gpu::storage_buffer(device, "radiosity nodes", bytemuck::cast_slice(&nodes), none);
+            let texel_buf =
+                gpu::storage_buffer(device, "radiosity texels", bytemuck::cast_slice(&rows), none);
+            let leaves = gpu::storage_buffer(
+                device,
+                "radiosity leaves",
+                bytemuck::cast_slice(&hierarchy.leaves),
+                none,
+            );
+            let objects =
+                gpu::storage_buffer(device, "radiosity objects", bytemuck::cast_slice(&object_rows), copy);
+            let vdata = gpu::storage_buffer(device, "visibility", bytemuck::cast_slice(&words), none);
+            let values =
+                gpu::storage_buffer(device, "radiosity values", &vec![0u8; rows.len() * 3 * 16], copy);
+            let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 2 * 16], none);
+            let params = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("radiosity params"),
+                size: std::mem::size_of::<RadParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let layout = SHADER.layout(device, 0);
+            let group = bind(
+                device,
+                "radiosity",
+                &layout,
+                BINDINGS,
+                &[
+                    ("params", params.as_entire_binding()),
+                    ("nodes", node_buf.as_entire_binding()),
+                    ("texels", texel_buf.as_entire_binding()),
+                    ("leaves", leaves.as_entire_binding()),
+                    ("objects", objects.as_entire_binding()),
+                    ("vdata", vdata.as_entire_binding()),
+                    ("values", values.as_entire_binding()),
+                    ("flux", flux.as_entire_binding()),
+                ],
+            );
+            let source = SHADER.source();
+            let pipeline =
+                |entry| gpu::compute_pipeline(device, "radiosity.wgsl", &source, entry, &[&layout]);
+            RadiosityPass {
+                flux: pipeline("flux_main"),
+                gather: pipeline("gather_main"),
+                next: pipeline("next_main"),
+                tail: pipeline("tail_main"),
+                group,
+                params,
+                objects,
+                values,
+                object_rows,
+                texels: rows.len() as u32,
+                nodes: nodes.len() as u32,
+                total_area: hierarchy.area.iter().sum(),
+            }
+        }
+
+        /// The indirect irradiance at every texel under `poses` from the direct irradiance
+        /// `direct` (W/m², per texel), read back.
+        pub fn indirect(
+            &mut self,
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            poses: &Poses,
+            direct: &[Vec3],
+            params: &RadiosityParams,
+            albedo: &[Vec3],
+        ) -> Result<Vec<Vec3>, GpuError> {
+            for (row, (w, r)) in self.object_rows.iter_mut().zip(poses.to_world.iter().zip(&poses.to_rest)) {
+                row.to_world = mat(*w);
+                row.to_rest = mat(*r);
+            }
+            queue.write_buffer(&self.objects, 0, bytemuck::cast_slice(&self.object_rows));
+            let t = self.texels as usize;
+            let mut init = vec![[0f32; 4]; 3 * t];
+            for k in 0..t {
+                let b = direct[k] * albedo[k];
+                init[k] = [b.x, b.y, b.z, 0.0];
+            }
+            queue.write_buffer(&self.values, 0, bytemuck::cast_slice(&init));
+            let texel_groups = self.texels.div_ceil(WG_LINEAR);
+            let node_groups = self.nodes.div_ceil(WG_LINEAR);
+            let run = |half: u32, jitter: bool, steps: &[(&wgpu::ComputePipeline, u32)]| {
+                let p = RadParams {
+                    texels: self.texels,
+                    nodes: self.nodes,
+                    objects: self.object_rows.len() as u32,
+                    jitter: jitter as u32,
+                    threshold: params.threshold,
+                    flux_half: half,
+                    total_area: self.total_area,
+                    _pad0: 0,
+                };
+                queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&p));
+                let mut enc = device.create_command_encoder(&Default::default());
+                {
+                    let mut pass = enc.begin_compute_pass(&Default::default());
+                    pass.set_bind_group(0, &self.group, &[]);
+                    for (pipeline, groups) in steps {
+                        pass.set_pipeline(pipeline);
+                        pass.dispatch_workgroups(*groups, 1, 1);
+                    }
+                }
+                queue.submit([enc.finish()]);
+            };
+            for pass in 0..params.bounces {
+                let jitter = params.jitter && pass + 1 == params.bounces;
+                run(
+                    pass % 2,
+                    jitter,
+                    &[(&self.flux, node_groups), (&self.gather, texel_groups), (&self.next, texel_groups)],
+                );
+            }
+            if params.tail && params.bounces > 1 {
+                run(params.bounces % 2, false, &[(&self.flux, node_groups), (&self.tail, texel_groups)]);
+            }
+            let bytes = gpu::read_buffer(device, queue, &self.values)?;
+            let all: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+            Ok(all[2 * t..3 * t].iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect())
+        }
+    }
+}
