@@ -3,9 +3,10 @@
 // representative texels, jitter hash and visibility queries, one invocation per node or texel.
 //
 // `values` holds three sections of `params.texels` each: the exitance this pass gathers from,
-// what it gathered, and the running total. `flux` holds two halves of `params.nodes` node
-// fluxes: `params.flux_half` is the one `flux_main` writes and `gather_main` reads; the tail
-// compares the two halves' roots.
+// what it gathered, and the running total. `flux` holds three sections of `params.nodes`: two
+// halves of node fluxes (xyz: exitance x area; w: its luminance less the escaping share, the
+// power conservation's "sent"), `params.flux_half` the one `flux_main` writes and `gather_main`
+// reads, the tail comparing the two halves' roots; and the nodes' gathered power (x, "got").
 
 const PI: f32 = 3.14159265358979;
 const BIG: f32 = 3.0e38;
@@ -298,11 +299,31 @@ fn flux_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let n = nodes[k];
     var f = vec3f(0.0);
+    var sent = 0.0;
     for (var i = n.first; i < n.end; i++) {
         let t = leaves[i];
-        f += values[t].xyz * texels[t].area;
+        let p = values[t].xyz * texels[t].area;
+        f += p;
+        // q0.w: the texel's escaping share (prm::visibility::Visibility::escape).
+        sent += luminance(p) * (1.0 - texels[t].q0.w);
     }
-    flux[params.flux_half * params.nodes + k] = vec4f(f, 0.0);
+    flux[params.flux_half * params.nodes + k] = vec4f(f, sent);
+}
+
+// Each node's gathered power (luminance x area), for power conservation.
+@compute @workgroup_size(WG_LINEAR)
+fn got_main(@builtin(global_invocation_id) id: vec3u) {
+    let k = id.x;
+    if k >= params.nodes {
+        return;
+    }
+    let n = nodes[k];
+    var got = 0.0;
+    for (var i = n.first; i < n.end; i++) {
+        let t = leaves[i];
+        got += luminance(values[params.texels + t].xyz) * texels[t].area;
+    }
+    flux[2u * params.nodes + k] = vec4f(got, 0.0, 0.0, 0.0);
 }
 
 fn root_power(half: u32) -> f32 {
@@ -403,15 +424,32 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     values[T + r] = vec4f(e, 0.0);
 }
 
-// total += gathered; the next pass gathers from albedo x gathered.
+// Scale the gathered light to deliver what was sent (crate::cpu::radiosity::conserve_scale),
+// total += it; the next pass gathers from albedo x it.
 @compute @workgroup_size(WG_LINEAR)
 fn next_main(@builtin(global_invocation_id) id: vec3u) {
     let t = id.x;
     if t >= params.texels {
         return;
     }
+    var scale = 1.0;
+    if params.conserve != 0u {
+        var sent = 0.0;
+        var got = 0.0;
+        for (var o = 0u; o < params.objects; o++) {
+            let root = objects[o].root;
+            if root != NO_SLOT {
+                sent += flux[params.flux_half * params.nodes + root].w;
+                got += flux[2u * params.nodes + root].x;
+            }
+        }
+        if got > 0.0 {
+            scale = clamp(sent / got, 1.0, MAX_CONSERVE);
+        }
+    }
     let T = params.texels;
-    let g = values[T + t];
+    let g = values[T + t] * scale;
+    values[T + t] = g;
     values[2u * T + t] += g;
     values[t] = vec4f(g.xyz * texels[t].albedo, 0.0);
 }

@@ -153,7 +153,7 @@ pub fn run(a: Args) -> Result<()> {
                 (p.indirect(&g.device, &g.queue, &poses, &direct, &params, &hierarchy.albedo)?, None)
             }
             _ => {
-                let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params);
+                let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params, &vis.escape);
                 (ind, Some(stats.transfers))
             }
         };

@@ -70,6 +70,7 @@ pub fn build_visibility(
 ) -> Result<Visibility, Cancelled> {
     let objects = scene.movables.len() + 1;
     let mut slots = vec![(0u32, 0u32); texels.len()];
+    let mut escape = vec![0f32; texels.len()];
     let mut out = Vec::with_capacity(objects);
     let mut done = 0;
     for o in 0..objects as u32 {
@@ -85,10 +86,13 @@ pub fn build_visibility(
         let mut builder = CssmBuilder::new(params.res, diagonal * 1.01);
         for chunk in order.chunks(CHUNK) {
             control.check()?;
-            let maps: Vec<(Vec3, Vec<(f32, f32)>)> =
+            let maps: Vec<CubeMap> =
                 chunk.par_iter().map(|&t| cube_map(&bvh, &texels.texels[t as usize], params.res)).collect();
-            for (origin, intervals) in maps {
+            for (&t, (origin, intervals, open)) in chunk.iter().zip(maps) {
                 builder.push(origin, &intervals);
+                if o == 0 {
+                    escape[t as usize] = open;
+                }
             }
             done += chunk.len();
             (control.progress)(done);
@@ -99,10 +103,14 @@ pub fn build_visibility(
         let occluder = (o > 0).then(|| occluder_maps(&bvh, lo, hi, params));
         out.push(ObjectVisibility { cssm: builder.finish(), occluder, texels: order });
     }
-    Ok(Visibility { objects: out, slots, width: texels.width, height: texels.height })
+    Ok(Visibility { objects: out, slots, escape, width: texels.width, height: texels.height })
 }
 
-/// The depth intervals of one texel's cube map: (origin, per pixel (z1, z2)).
+/// One texel's cube map: its origin, per pixel `(z1, z2)`, and the cosine-weighted share of
+/// the pixels above the surface that meet nothing.
+type CubeMap = (Vec3, Vec<(f32, f32)>, f32);
+
+/// The depth intervals of one texel's cube map ([`CubeMap`]).
 ///
 /// A pixel's interval holds for the directions bilinear filtering reads it for (within one
 /// pixel of its centre), not only its centre: `z1` is the largest first hit and `z2` the
@@ -110,7 +118,7 @@ pub fn build_visibility(
 /// point on the first surface anywhere there is then seen without a depth slack that would let
 /// thin walls leak. Where that span holds a depth discontinuity (no common interval), the
 /// centre's own interval is kept.
-fn cube_map(bvh: &Bvh, t: &prm::Texel, res: u32) -> (Vec3, Vec<(f32, f32)>) {
+fn cube_map(bvh: &Bvh, t: &prm::Texel, res: u32) -> CubeMap {
     let origin = bvh.offset(t.position, t.normal);
     let r = res as usize;
     let pixels = 6 * r * r;
@@ -132,6 +140,20 @@ fn cube_map(bvh: &Bvh, t: &prm::Texel, res: u32) -> (Vec3, Vec<(f32, f32)>) {
             Some((first.t, second))
         })
         .collect();
+    // Each pixel's solid angle is about (2/res)² cos³ of its angle to its face's axis; weighted
+    // by the cosine to the normal, the pixels that meet nothing are the share that escapes.
+    let (mut open, mut all) = (0.0f32, 0.0f32);
+    for (p, h) in hits.iter().enumerate() {
+        if let Some((z1, _)) = h {
+            let d = cube::pixel_direction(p, res);
+            let w = d.abs().max_element().powi(3) * d.dot(t.normal);
+            all += w;
+            if !z1.is_finite() {
+                open += w;
+            }
+        }
+    }
+    let escape = if all > 0.0 { (open / all).clamp(0.0, 1.0) } else { 0.0 };
     let intervals = (0..pixels)
         .map(|p| {
             let Some(own) = hits[p] else { return prm::visibility::cssm::DONT_CARE };
@@ -152,7 +174,7 @@ fn cube_map(bvh: &Bvh, t: &prm::Texel, res: u32) -> (Vec3, Vec<(f32, f32)>) {
             }
         })
         .collect();
-    (origin, intervals)
+    (origin, intervals, escape)
 }
 
 /// The texels `member` selects, in the coherent zig-zag order of the module doc.

@@ -254,3 +254,27 @@ fn bad_movables_and_object_rigs_name_the_node() {
     let back = r#"{"objects": [{"name": "lid", "keyframes": [{"time": 1}, {"time": 0}]}]}"#;
     assert!(rig(back).unwrap_err().to_string().contains("keyframe 1"));
 }
+
+/// The escaping share: none inside the closed doorway level, all of it above a lone floor.
+#[test]
+fn escape_is_the_open_share_of_the_hemisphere() {
+    let scene = level();
+    let texels = moving_texel_set(&scene, 32, 32);
+    let params = VisibilityParams { res: 8, ..Default::default() };
+    let vis = build_visibility(&scene, &texels, &params, Control::none()).unwrap();
+    let worst = vis.escape.iter().cloned().fold(0.0f32, f32::max);
+    assert!(worst < 0.02, "a texel of the closed level escapes {worst}");
+    let floor = Scene::from_mesh(
+        vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, 1.0), Vec3::Z],
+        vec![
+            glam::Vec2::new(0.05, 0.05),
+            glam::Vec2::new(0.95, 0.05),
+            glam::Vec2::new(0.95, 0.95),
+            glam::Vec2::new(0.05, 0.95),
+        ],
+        &[0, 2, 1, 0, 3, 2],
+    );
+    let texels = TexelSet::build(&floor, 8, 8);
+    let vis = build_visibility(&floor, &texels, &params, Control::none()).unwrap();
+    assert!(vis.escape.iter().all(|&e| (e - 1.0).abs() < 1e-6), "{:?}", &vis.escape[..4]);
+}

@@ -100,9 +100,11 @@ pub fn prelude() -> &'static str {
             "// Radiosity: texel sizes within which a texel sends by its square's form factor\n\
              // (prm_runtime::radiosity::NEAR), and the CSSM's relative depth slack\n\
              // (prm::visibility::cssm::SLACK).\n\
-             const RADIOSITY_NEAR: f32 = {:?}f;\nconst CSSM_SLACK: f32 = {:?}f;\n",
+             const RADIOSITY_NEAR: f32 = {:?}f;\nconst CSSM_SLACK: f32 = {:?}f;\n\
+             // The largest factor power conservation scales a pass by.\nconst MAX_CONSERVE: f32 = {:?}f;\n",
             crate::radiosity::NEAR,
-            prm::visibility::cssm::SLACK
+            prm::visibility::cssm::SLACK,
+            crate::radiosity::MAX_CONSERVE
         );
         s += "// glTF range window (prm::light::range_window).\n";
         s += prm::light::RANGE_WINDOW_WGSL;

@@ -406,7 +406,8 @@ gpu_struct! {
 
 gpu_struct! {
     /// A texel as the radiosity reads it, rest frame: point, area, normal, object, albedo, its
-    /// place in its object's CSSM sequence, and its atlas square on its plane (`q0`-`q3`).
+    /// place in its object's CSSM sequence, and its atlas square on its plane (`q0`-`q3`
+    /// xyz; `q0.w`: its escaping share, `prm::visibility::Visibility::escape`).
     pub struct RadTexel {
         pub position: [f32; 3],
         pub area: f32,
@@ -461,7 +462,8 @@ gpu_struct! {
         pub flux_half: u32,
         /// Sum of the texels' areas, m².
         pub total_area: f32,
-        pub _pad0: u32,
+        /// Scale each pass to conserve power (`RadiosityParams::conserve`).
+        pub conserve: u32,
     }
 }
 

@@ -3,9 +3,9 @@
 //! it step for step, and a test holds the two together).
 //!
 //! Per frame: the objects' poses and the texels' direct irradiance are uploaded, then per
-//! bounce three dispatches (`flux_main` per node: the pull; `gather_main` per texel: refine and
-//! gather; `next_main` per texel: add to the total, reflect), one submit each since the uniform
-//! changes; then, with the tail on, one more pull and `tail_main`. The visibility's tables are
+//! bounce four dispatches (`flux_main` per node: the pull; `gather_main` per texel: refine and
+//! gather; `got_main` per node: the power gathered; `next_main` per texel: conserve power, add
+//! to the total, reflect), one submit per bounce since the uniform changes; then, with the tail on, one more pull and `tail_main`. The visibility's tables are
 //! packed once into one `u32` buffer (`vdata`, [`pack_visibility`]): a stage has few storage
 //! bindings.
 //!
@@ -30,9 +30,12 @@ pub const BINDINGS: &[Binding] = &[
     b("vdata", Res::Read("array<u32>"), COMPUTE),
     // Exitance | gathered | total, a section of `texels` each.
     b("values", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // Node fluxes, two halves.
+    // Node fluxes, two halves, then the nodes' gathered power.
     b("flux", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
+
+/// The largest factor power conservation scales a pass by.
+pub const MAX_CONSERVE: f32 = 1.25;
 
 pub const SHADER: Shader = Shader {
     stem: "radiosity",
@@ -42,6 +45,7 @@ pub const SHADER: Shader = Shader {
     compute: &[
         Compute { entry: "flux_main", workgroup: LINEAR },
         Compute { entry: "gather_main", workgroup: LINEAR },
+        Compute { entry: "got_main", workgroup: LINEAR },
         Compute { entry: "next_main", workgroup: LINEAR },
         Compute { entry: "tail_main", workgroup: LINEAR },
     ],
@@ -108,6 +112,7 @@ mod pass {
     pub struct RadiosityPass {
         flux: wgpu::ComputePipeline,
         gather: wgpu::ComputePipeline,
+        got: wgpu::ComputePipeline,
         next: wgpu::ComputePipeline,
         tail: wgpu::ComputePipeline,
         group: wgpu::BindGroup,
@@ -147,7 +152,8 @@ mod pass {
                 .iter()
                 .enumerate()
                 .map(|(k, t)| {
-                    let q = hierarchy.quads[k].map(|v| [v.x, v.y, v.z, 0.0]);
+                    let mut q = hierarchy.quads[k].map(|v| [v.x, v.y, v.z, 0.0]);
+                    q[0][3] = vis.escape[k];
                     RadTexel {
                         position: t.position.to_array(),
                         area: hierarchy.area[k],
@@ -212,7 +218,7 @@ mod pass {
             let vdata = gpu::storage_buffer(device, "visibility", bytemuck::cast_slice(&words), none);
             let values =
                 gpu::storage_buffer(device, "radiosity values", &vec![0u8; rows.len() * 3 * 16], copy);
-            let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 2 * 16], none);
+            let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 3 * 16], none);
             let params = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("radiosity params"),
                 size: std::mem::size_of::<RadParams>() as u64,
@@ -242,6 +248,7 @@ mod pass {
             RadiosityPass {
                 flux: pipeline("flux_main"),
                 gather: pipeline("gather_main"),
+                got: pipeline("got_main"),
                 next: pipeline("next_main"),
                 tail: pipeline("tail_main"),
                 group,
@@ -289,7 +296,7 @@ mod pass {
                     threshold: params.threshold,
                     flux_half: half,
                     total_area: self.total_area,
-                    _pad0: 0,
+                    conserve: params.conserve as u32,
                 };
                 queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&p));
                 let mut enc = device.create_command_encoder(&Default::default());
@@ -308,7 +315,12 @@ mod pass {
                 run(
                     pass % 2,
                     jitter,
-                    &[(&self.flux, node_groups), (&self.gather, texel_groups), (&self.next, texel_groups)],
+                    &[
+                        (&self.flux, node_groups),
+                        (&self.gather, texel_groups),
+                        (&self.got, node_groups),
+                        (&self.next, texel_groups),
+                    ],
                 );
             }
             if params.tail && params.bounces > 1 {

@@ -112,18 +112,19 @@ fn a_bounce_keeps_the_power_it_is_given() {
 
 /// Per frame of the doorway rig (door closed, half open, open; the block sliding), the
 /// radiosity's indirect lightmap against the ground truth's (noise removed in quadrature).
-/// Issue 15's target is 10 %. Measured at this 64² atlas (25 cm texels): 21.1, 23.8 and 30.0 %
-/// (bias -19 to -20 %); with ray-cast instead of precomputed visibility 14.9-26.9 %, so most of
-/// it is the radiosity's texel discretisation, not the CSSM (9-10 % off ray casting). At 128²
-/// (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0 gives 14.3 % (10.1 % with ray casting; the
-/// transport keeps 96.8 % of the power a bounce at the default cut, 98.4 % at threshold 0).
-/// The limits hold today's figures, not the target.
+/// Issue 15's target is 10 %. Measured at this 64² atlas (25 cm texels): 8.5, 13.3 and 24.7 %
+/// (bias -2.5 to -3 %); with ray-cast visibility 7.5, 13.1 and 24.7 %: as the door opens, the
+/// radiosity's own error grows (the worst texels sit on the door's 4 cm top and the lintel,
+/// sample points on edges sending for texels mostly in shadow), not the CSSM's (6-7 % off ray
+/// casting, no bias). At 128² (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0 gives 4.6 %.
+/// Without power conservation (`conserve`) 21-30 % here: the cut and the point-sampled texels
+/// lose 4-5 % a bounce. The limits hold today's figures.
 #[test]
 fn radiosity_follows_the_moving_door_and_block() {
     let (scene, texels, vis, h) = setup();
     let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
     let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
-    for (t, limit) in [(0.0, 0.24), (2.0, 0.27), (4.0, 0.33)] {
+    for (t, limit) in [(0.0, 0.11), (2.0, 0.16), (4.0, 0.28)] {
         if std::env::var("RAD_T0").is_ok() && t > 0.0 {
             break;
         }
@@ -135,13 +136,7 @@ fn radiosity_follows_the_moving_door_and_block() {
         let direct: Vec<Vec3> =
             points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
         let frame = Frame { poses: &poses, points: &points };
-        let mut params = RadiosityParams::default();
-        if let Some(v) = std::env::var("RAD_T").ok().and_then(|v| v.parse().ok()) {
-            params.threshold = v;
-        }
-        if std::env::var("RAD_NOJITTER").is_ok() {
-            params.jitter = false;
-        }
+        let params = RadiosityParams::default();
         let mut moved = texels.texels.clone();
         for (m, &(p, n)) in moved.iter_mut().zip(&points) {
             m.position = p;
@@ -150,9 +145,9 @@ fn radiosity_follows_the_moving_door_and_block() {
         let gt = Tracer::new(&posed, &bvh, GtParams { spp: 128, ..GtParams::preview() })
             .texels(&moved, texels.width, Control::none())
             .unwrap();
-        let (ind, stats) = indirect(&h, &vis, &frame, &direct, &params);
+        let (ind, stats) = indirect(&h, &vis, &frame, &direct, &params, &vis.escape);
         let rays = RayVisibility { bvh: &bvh, points: &points };
-        let (ind_rays, _) = indirect(&h, &rays, &frame, &direct, &params);
+        let (ind_rays, _) = indirect(&h, &rays, &frame, &direct, &params, &vis.escape);
         let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
         let c = prm::metric::compare(&ind, &truth, None);
         let noise = indirect_noise(&gt);
@@ -202,7 +197,7 @@ fn gpu_radiosity_matches_the_cpu_twin() {
             points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
         let params = RadiosityParams::default();
         let frame = Frame { poses: &poses, points: &points };
-        let (cpu, _) = indirect(&h, &vis, &frame, &direct, &params);
+        let (cpu, _) = indirect(&h, &vis, &frame, &direct, &params, &vis.escape);
         let gpu_out = pass.indirect(&gpu.device, &gpu.queue, &poses, &direct, &params, &h.albedo).unwrap();
         let c = prm::metric::compare(&gpu_out, &cpu, None);
         eprintln!(

@@ -9,7 +9,7 @@ use super::Visibility;
 use crate::fingerprint::{fnv1a, FNV_START};
 
 const MAGIC: [u8; 8] = *b"PRMVIS\0\n";
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 /// Bytes before the body.
 const HEADER: usize = 36;
 

@@ -44,6 +44,10 @@ pub struct Visibility {
     pub objects: Vec<ObjectVisibility>,
     /// Per texel: (object, sequence index in that object's CSSM).
     pub slots: Vec<(u32, u32)>,
+    /// Per texel: the cosine-weighted share of its hemisphere that meets nothing of its own
+    /// object (the sky of an open level; 0 inside a closed one). Movables' texels are 0: they
+    /// are taken to sit inside the level.
+    pub escape: Vec<f32>,
     /// Atlas size the texels belong to.
     pub width: u32,
     pub height: u32,
@@ -115,7 +119,7 @@ impl Visibility {
 
     /// Whether the tables are consistent with each other (a file's contents are checked with it).
     pub fn check(&self, texels: usize) -> Result<(), String> {
-        if self.objects.is_empty() || self.slots.len() != texels {
+        if self.objects.is_empty() || self.slots.len() != texels || self.escape.len() != texels {
             return Err(format!("{} texel slots for {texels} texels", self.slots.len()));
         }
         for (o, obj) in self.objects.iter().enumerate() {
@@ -135,6 +139,9 @@ impl Visibility {
                     return Err(format!("object {o}: cube map {k} and texel {t} disagree"));
                 }
             }
+        }
+        if self.escape.iter().any(|e| !(0.0..=1.0).contains(e)) {
+            return Err("an escape share outside [0, 1]".into());
         }
         if self.slots.iter().any(|&(o, _)| o as usize >= self.objects.len()) {
             return Err("a texel names an object that does not exist".into());

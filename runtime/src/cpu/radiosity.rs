@@ -20,7 +20,9 @@
 //!   visibility to a representative texel of the node.
 //! - **Bounces** (§4.1): `E_1` gathers `albedo x E_direct`, `E_k+1` gathers `albedo x E_k`;
 //!   the indirect lightmap is `E_1 + ... + E_n`, plus the bounces not taken as the rest of a
-//!   geometric series at the last pass's power ratio (`E_n k / (1 - k)`). The final pass is the final gather (§4.4) with
+//!   geometric series at the last pass's power ratio (`E_n k / (1 - k)`). Each pass is scaled
+//!   to deliver the power it was sent less what escapes the level (power conservation: the
+//!   cut and the point-sampled texels lose a few per cent a bounce, which compounds). The final pass is the final gather (§4.4) with
 //!   **jittering** (§4.5): its representative texel is drawn per receiver and node from the
 //!   node's leaves (a hash, so frames are deterministic), so the cut's discretisation becomes
 //!   noise instead of bands. The earlier passes use each node's middle leaf.
@@ -46,11 +48,18 @@ pub struct RadiosityParams {
     /// Add the bounces not taken as the rest of a geometric series, at the power ratio of
     /// the last two passes (a closed level keeps about its mean albedo each bounce). Default on.
     pub tail: bool,
+    /// Scale each pass's light so that the power it delivers is the power sent less the share
+    /// escaping the level (`Visibility::escape`): the cut's approximations and the texels'
+    /// point sampling lose a few per cent a bounce, which compounds over bounces. At most
+    /// [`MAX_CONSERVE`]. Default on.
+    pub conserve: bool,
 }
+
+pub use crate::radiosity::MAX_CONSERVE;
 
 impl Default for RadiosityParams {
     fn default() -> Self {
-        RadiosityParams { bounces: 6, threshold: 0.02, jitter: true, tail: true }
+        RadiosityParams { bounces: 6, threshold: 0.02, jitter: true, tail: true, conserve: true }
     }
 }
 
@@ -257,6 +266,7 @@ pub fn indirect(
     frame: &Frame,
     direct: &[Vec3],
     params: &RadiosityParams,
+    escape: &[f32],
 ) -> (Vec<Vec3>, RadiosityStats) {
     let mut total = vec![Vec3::ZERO; direct.len()];
     let mut stats = RadiosityStats::default();
@@ -268,7 +278,20 @@ pub fn indirect(
     for pass in 0..params.bounces {
         let exitance: Vec<Vec3> = from.iter().zip(&h.albedo).map(|(e, a)| *e * *a).collect();
         let jitter = params.jitter && pass + 1 == params.bounces;
-        let (gathered, s) = gather(h, vis, frame, &exitance, params.threshold, jitter);
+        let (mut gathered, s) = gather(h, vis, frame, &exitance, params.threshold, jitter);
+        if params.conserve {
+            let sent: f64 = exitance
+                .iter()
+                .zip(&h.area)
+                .zip(escape)
+                .map(|((b, a), e)| (prm::luminance(*b) * a * (1.0 - e)) as f64)
+                .sum();
+            let got: f64 = gathered.iter().zip(&h.area).map(|(g, a)| (prm::luminance(*g) * a) as f64).sum();
+            let scale = conserve_scale(sent, got);
+            for g in &mut gathered {
+                *g *= scale;
+            }
+        }
         stats.transfers += s.transfers;
         stats.queries += s.queries;
         for (t, g) in total.iter_mut().zip(&gathered) {
@@ -287,6 +310,16 @@ pub fn indirect(
         }
     }
     (total, stats)
+}
+
+/// The factor that makes a pass deliver `sent` instead of `got`, within [1, MAX_CONSERVE]
+/// (never darker: a pass that delivers more than was sent is left alone).
+pub fn conserve_scale(sent: f64, got: f64) -> f32 {
+    if got > 0.0 {
+        ((sent / got) as f32).clamp(1.0, MAX_CONSERVE)
+    } else {
+        1.0
+    }
 }
 
 /// One pass: irradiance at every texel from exitance `b` (W/m²) at every texel.
