@@ -241,17 +241,23 @@ fn between(r: RadTexel, pr: vec3f, s: RadTexel, ps: vec3f) -> f32 {
 
 // --- Lambert's contour integral (prm::form_factor::point_to_polygon) ---
 
-fn point_to_quad(p: vec3f, n: vec3f, q: array<vec3f, 4>) -> f32 {
+// Texel t's shape (crate::cpu::radiosity::Shape) posed by `w`: its vertices, count in [7].x.
+fn shape_vertex(t: u32, i: u32, w: mat4x4f) -> vec3f {
+    return (w * vec4f(shapes[8u * t + i].xyz, 1.0)).xyz;
+}
+
+fn point_to_shape(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
+    let count = u32(shapes[8u * t + 7u].x);
     var scale = 0.0;
-    for (var i = 0u; i < 4u; i++) {
-        scale = max(scale, length(q[i] - p));
+    for (var i = 0u; i < count; i++) {
+        scale = max(scale, length(shape_vertex(t, i, w) - p));
     }
     let tol = 1e-5 * scale;
     var c: array<vec3f, 8>;
     var m = 0u;
-    for (var i = 0u; i < 4u; i++) {
-        let a = q[i];
-        let b = q[(i + 1u) % 4u];
+    for (var i = 0u; i < count; i++) {
+        let a = shape_vertex(t, i, w);
+        let b = shape_vertex(t, (i + 1u) % count, w);
         let da = dot(a - p, n) - tol;
         let db = dot(b - p, n) - tol;
         if da > 0.0 {
@@ -304,8 +310,7 @@ fn flux_main(@builtin(global_invocation_id) id: vec3u) {
         let t = leaves[i];
         let p = values[t].xyz * texels[t].area;
         f += p;
-        // q0.w: the texel's escaping share (prm::visibility::Visibility::escape).
-        sent += luminance(p) * (1.0 - texels[t].q0.w);
+        sent += luminance(p) * (1.0 - texels[t].escape);
     }
     flux[params.flux_half * params.nodes + k] = vec4f(f, sent);
 }
@@ -406,18 +411,14 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
         }
         var g = cos_r * cos_s / (PI * d2);
         if leaf_node && d2 < RADIOSITY_NEAR * RADIOSITY_NEAR * n.area {
-            let w = objects[n.object].to_world;
-            let quad = array<vec3f, 4>(
-                (w * vec4f(st.q0.xyz, 1.0)).xyz,
-                (w * vec4f(st.q1.xyz, 1.0)).xyz,
-                (w * vec4f(st.q2.xyz, 1.0)).xyz,
-                (w * vec4f(st.q3.xyz, 1.0)).xyz,
-            );
-            let f = point_to_quad(x, nr, quad);
+            if st.shape_area <= 0.0 {
+                continue;
+            }
+            let f = point_to_shape(x, nr, s, objects[n.object].to_world);
             if f <= 0.0 {
                 continue;
             }
-            g = f / n.area;
+            g = f / st.shape_area;
         }
         e += phi * g * between(rt, x, st, ps);
     }

@@ -406,8 +406,9 @@ gpu_struct! {
 
 gpu_struct! {
     /// A texel as the radiosity reads it, rest frame: point, area, normal, object, albedo, its
-    /// place in its object's CSSM sequence, and its atlas square on its plane (`q0`-`q3`
-    /// xyz; `q0.w`: its escaping share, `prm::visibility::Visibility::escape`).
+    /// place in its object's CSSM sequence, its escaping share
+    /// (`prm::visibility::Visibility::escape`) and its shape's area (the shape's vertices are
+    /// in the `shapes` buffer, `crate::cpu::radiosity::Shape`).
     pub struct RadTexel {
         pub position: [f32; 3],
         pub area: f32,
@@ -415,10 +416,10 @@ gpu_struct! {
         pub object: u32,
         pub albedo: [f32; 3],
         pub seq: u32,
-        pub q0: [f32; 4],
-        pub q1: [f32; 4],
-        pub q2: [f32; 4],
-        pub q3: [f32; 4],
+        pub escape: f32,
+        pub shape_area: f32,
+        pub _pad0: u32,
+        pub _pad1: u32,
     }
 }
 

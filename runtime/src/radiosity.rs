@@ -28,6 +28,8 @@ pub const BINDINGS: &[Binding] = &[
     b("objects", Res::Read("array<RadObject>"), COMPUTE),
     // The visibility's tables, packed ([`pack_visibility`]).
     b("vdata", Res::Read("array<u32>"), COMPUTE),
+    // Per texel, its shape's vertices (xyz, 7 of them) and their number (the 8th's x).
+    b("shapes", Res::Read("array<vec4f>"), COMPUTE),
     // Exitance | gathered | total, a section of `texels` each.
     b("values", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // Node fluxes, two halves, then the nodes' gathered power.
@@ -151,24 +153,28 @@ mod pass {
                 .texels
                 .iter()
                 .enumerate()
-                .map(|(k, t)| {
-                    let mut q = hierarchy.quads[k].map(|v| [v.x, v.y, v.z, 0.0]);
-                    q[0][3] = vis.escape[k];
-                    RadTexel {
-                        position: t.position.to_array(),
-                        area: hierarchy.area[k],
-                        normal: t.normal.to_array(),
-                        object: scene.object(t.triangle as usize),
-                        albedo: hierarchy.albedo[k].to_array(),
-                        seq: vis.slots[k].1,
-                        q0: q[0],
-                        q1: q[1],
-                        q2: q[2],
-                        q3: q[3],
-                    }
+                .map(|(k, t)| RadTexel {
+                    position: t.position.to_array(),
+                    area: hierarchy.area[k],
+                    normal: t.normal.to_array(),
+                    object: scene.object(t.triangle as usize),
+                    albedo: hierarchy.albedo[k].to_array(),
+                    seq: vis.slots[k].1,
+                    escape: vis.escape[k],
+                    shape_area: hierarchy.shapes[k].area,
+                    ..Default::default()
                 })
                 .collect();
             let (words, bases) = pack_visibility(vis);
+            let shapes: Vec<[f32; 4]> = hierarchy
+                .shapes
+                .iter()
+                .flat_map(|sh| {
+                    let mut v = sh.points.map(|p| [p.x, p.y, p.z, 0.0]).to_vec();
+                    v.push([sh.len as f32, 0.0, 0.0, 0.0]);
+                    v
+                })
+                .collect();
             let object_rows: Vec<RadObject> = vis
                 .objects
                 .iter()
@@ -216,6 +222,8 @@ mod pass {
             let objects =
                 gpu::storage_buffer(device, "radiosity objects", bytemuck::cast_slice(&object_rows), copy);
             let vdata = gpu::storage_buffer(device, "visibility", bytemuck::cast_slice(&words), none);
+            let shape_buf =
+                gpu::storage_buffer(device, "radiosity shapes", bytemuck::cast_slice(&shapes), none);
             let values =
                 gpu::storage_buffer(device, "radiosity values", &vec![0u8; rows.len() * 3 * 16], copy);
             let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 3 * 16], none);
@@ -238,6 +246,7 @@ mod pass {
                     ("leaves", leaves.as_entire_binding()),
                     ("objects", objects.as_entire_binding()),
                     ("vdata", vdata.as_entire_binding()),
+                    ("shapes", shape_buf.as_entire_binding()),
                     ("values", values.as_entire_binding()),
                     ("flux", flux.as_entire_binding()),
                 ],

@@ -69,9 +69,12 @@ fn the_hierarchy_covers_every_texel_once_and_a_full_cut_is_brute_force() {
             if s == r || u.dot(nr) <= 0.0 || -u.dot(ns) <= 0.0 {
                 continue;
             }
-            // Within 3 texel sizes a texel sends by the form factor of its atlas square.
+            // Within 3 texel sizes a texel sends by the form factor of its shape.
             let g = if d2 < 9.0 * h.area[s] {
-                prm::form_factor::point_to_polygon(x, nr, &h.quads[s]) / h.area[s]
+                if h.shapes[s].area <= 0.0 {
+                    continue;
+                }
+                prm::form_factor::point_to_polygon(x, nr, h.shapes[s].vertices()) / h.shapes[s].area
             } else {
                 u.dot(nr) * -u.dot(ns) / (std::f32::consts::PI * d2)
             };
@@ -101,7 +104,7 @@ fn a_bounce_keeps_the_power_it_is_given() {
     let power =
         |e: &[Vec3]| -> f64 { e.iter().zip(&h.area).map(|(e, a)| (prm::luminance(*e) * a) as f64).sum() };
     let rays = RayVisibility { bvh: &bvh, points: &points };
-    for (threshold, keep) in [(0.0, 0.95), (RadiosityParams::default().threshold, 0.93)] {
+    for (threshold, keep) in [(0.0, 0.99), (RadiosityParams::default().threshold, 0.975)] {
         let (e, _) = gather(&h, &rays, &frame, &b, threshold, false);
         let kept = power(&e) / power(&b);
         eprintln!("threshold {threshold}: a bounce keeps {:.2} % of its power", kept * 100.0);
@@ -112,19 +115,19 @@ fn a_bounce_keeps_the_power_it_is_given() {
 
 /// Per frame of the doorway rig (door closed, half open, open; the block sliding), the
 /// radiosity's indirect lightmap against the ground truth's (noise removed in quadrature).
-/// Issue 15's target is 10 %. Measured at this 64² atlas (25 cm texels): 8.5, 13.3 and 24.7 %
-/// (bias -2.5 to -3 %); with ray-cast visibility 7.5, 13.1 and 24.7 %: as the door opens, the
-/// radiosity's own error grows (the worst texels sit on the door's 4 cm top and the lintel,
-/// sample points on edges sending for texels mostly in shadow), not the CSSM's (6-7 % off ray
-/// casting, no bias). At 128² (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0 gives 4.6 %.
-/// Without power conservation (`conserve`) 21-30 % here: the cut and the point-sampled texels
-/// lose 4-5 % a bounce. The limits hold today's figures.
+/// Issue 15's target is 10 %. Measured at this 64² atlas (25 cm texels): 6.7, 11.3 and 23.0 %
+/// (bias -0.6 to -1.4 %); with ray-cast visibility 4.5, 10.3 and 22.8 %: what grows is the
+/// radiosity's own error in room A as the lamp moves near the open door (texels on the door's
+/// faces 1-2 cm from the jamb and the partition read 2-3x the truth), not the CSSM's (5-6 % off
+/// ray casting). The objects' motion alone (lamp fixed) keeps it at the rest frame's figure.
+/// At 128² (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0 gives 3.5 % (1.2 % with ray
+/// casting). The limits hold today's figures.
 #[test]
 fn radiosity_follows_the_moving_door_and_block() {
     let (scene, texels, vis, h) = setup();
     let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
     let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
-    for (t, limit) in [(0.0, 0.11), (2.0, 0.16), (4.0, 0.28)] {
+    for (t, limit) in [(0.0, 0.09), (2.0, 0.14), (4.0, 0.26)] {
         if std::env::var("RAD_T0").is_ok() && t > 0.0 {
             break;
         }

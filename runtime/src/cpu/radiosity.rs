@@ -14,9 +14,10 @@
 //!   bound without its cosine terms); otherwise the node sends
 //!   `Φ max(0, u·m) max(0, -u·n_r) / (π d²)` (m: the mean normal, shorter where the node's
 //!   normals disagree), a single texel `B A cos cos / (π d²)`, or within 3 texel sizes
-//!   `B F` with `F` the exact form factor of the texel's atlas square mapped onto its plane
-//!   (Lambert's contour integral, clipped to the receiver's side: a texel's point, often
-//!   clamped onto a chart's edge, stands for it poorly at a corner), times
+//!   `Φ F / a` with `F` the exact form factor of the texel's shape (its atlas square clipped
+//!   to its triangle, mapped onto it, of area `a`: Lambert's contour integral, clipped to the
+//!   receiver's side; a texel's point, often clamped onto a chart's edge, stands for it poorly
+//!   at a corner), times
 //!   visibility to a representative texel of the node.
 //! - **Bounces** (§4.1): `E_1` gathers `albedo x E_direct`, `E_k+1` gathers `albedo x E_k`;
 //!   the indirect lightmap is `E_1 + ... + E_n`, plus the bounces not taken as the rest of a
@@ -94,37 +95,85 @@ pub struct Hierarchy {
     /// Per texel: its area (square metres) and albedo.
     pub area: Vec<f32>,
     pub albedo: Vec<Vec3>,
-    /// Per texel: its square in the atlas mapped onto its triangle's plane (rest frame), the
-    /// shape it sends with up close. Within a chart these tile the surface.
-    pub quads: Vec<[Vec3; 4]>,
+    /// Per texel: the part of its atlas square its triangle covers, mapped onto the triangle
+    /// (rest frame): the shape it sends with up close.
+    pub shapes: Vec<Shape>,
 }
 
-/// Texel `t`'s atlas square mapped through its triangle's UV-to-world map.
-fn texel_quad(scene: &Scene, texels: &TexelSet, t: &prm::Texel) -> [Vec3; 4] {
+/// A convex polygon of up to 7 vertices (a square clipped by a triangle) and its area.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shape {
+    pub points: [Vec3; 7],
+    pub len: u8,
+    /// Square metres.
+    pub area: f32,
+}
+
+impl Shape {
+    pub fn vertices(&self) -> &[Vec3] {
+        &self.points[..self.len as usize]
+    }
+}
+
+/// Texel `t`'s atlas square clipped to its chart (the edges of its triangle that no other
+/// triangle shares in the atlas: `boundary[k]` for edge k -> k + 1), mapped onto the triangle.
+/// Not the whole square: where a chart ends at a hole (a door's opening under its lintel) the
+/// square's far part would hang over nothing and send light from there. Edges inside a chart
+/// (a wall's diagonal) are not cut: the squares tile the chart.
+fn texel_shape(scene: &Scene, texels: &TexelSet, t: &prm::Texel, boundary: [bool; 3]) -> Shape {
     let tri = t.triangle as usize;
     let size = glam::Vec2::new(texels.width as f32, texels.height as f32);
     let [a, b, c] = scene.corners(tri);
-    let [ua, ub, uc] = scene.uv1_corners(tri).map(|u| u * size);
-    let (e1, e2) = (ub - ua, uc - ua);
+    let uv = scene.uv1_corners(tri).map(|u| u * size);
+    let (e1, e2) = (uv[1] - uv[0], uv[2] - uv[0]);
     let det = e1.perp_dot(e2);
-    let fallback = [t.position; 4];
+    let point = Shape { points: [t.position; 7], len: 1, area: 0.0 };
     if !(det.abs() > 1e-12) {
-        return fallback;
+        return point;
+    }
+    let (i, j) = (t.i as f32, t.j as f32);
+    let mut poly: Vec<glam::Vec2> =
+        [(i, j), (i + 1.0, j), (i + 1.0, j + 1.0), (i, j + 1.0)].map(|(x, y)| glam::Vec2::new(x, y)).to_vec();
+    // Sutherland-Hodgman against the triangle's three edges, inside = same side as the third
+    // corner.
+    for k in (0..3).filter(|&k| boundary[k]) {
+        let (p, q, r) = (uv[k], uv[(k + 1) % 3], uv[(k + 2) % 3]);
+        let side = |x: glam::Vec2| (q - p).perp_dot(x - p) * (q - p).perp_dot(r - p).signum();
+        let mut out = Vec::with_capacity(poly.len() + 1);
+        for m in 0..poly.len() {
+            let (u, v) = (poly[m], poly[(m + 1) % poly.len()]);
+            let (du, dv) = (side(u), side(v));
+            if du >= 0.0 {
+                out.push(u);
+            }
+            if (du >= 0.0) != (dv >= 0.0) {
+                out.push(u + (v - u) * (du / (du - dv)));
+            }
+        }
+        poly = out;
+        if poly.len() < 3 {
+            return point;
+        }
     }
     let to_world = |q: glam::Vec2| {
-        let d = q - ua;
+        let d = q - uv[0];
         let (s, r) = (d.perp_dot(e2) / det, e1.perp_dot(d) / det);
         a + (b - a) * s + (c - a) * r
     };
-    let (i, j) = (t.i as f32, t.j as f32);
-    [(i, j), (i + 1.0, j), (i + 1.0, j + 1.0), (i, j + 1.0)].map(|(x, y)| to_world(glam::Vec2::new(x, y)))
+    let mut shape = point;
+    shape.len = poly.len().min(7) as u8;
+    for (k, q) in poly.iter().take(7).enumerate() {
+        shape.points[k] = to_world(*q);
+    }
+    let v = shape.vertices();
+    shape.area = 0.5 * (1..v.len() - 1).map(|k| (v[k] - v[0]).cross(v[k + 1] - v[0])).sum::<Vec3>().length();
+    shape
 }
 
 impl Hierarchy {
     /// Build the trees of every object of `scene` over `texels` (at rest).
     pub fn build(scene: &Scene, texels: &TexelSet) -> Hierarchy {
-        // A texel stands for an equal share of its triangle: the shares add up to the surface
-        // (a texel's square would count chart borders twice: +13 % on the doorway level).
+        // Without a shape (a texel on a sliver), an equal share of its triangle.
         let mut owned = vec![0u32; scene.triangles.len()];
         for t in &texels.texels {
             owned[t.triangle as usize] += 1;
@@ -135,8 +184,35 @@ impl Hierarchy {
             .map(|t| scene.area(t.triangle as usize) / owned[t.triangle as usize] as f32)
             .collect();
         let albedo = texels.texels.iter().map(|t| scene.albedo(t.triangle as usize, t.bary)).collect();
-        let quads = texels.texels.iter().map(|t| texel_quad(scene, texels, t)).collect();
-        let mut h = Hierarchy { nodes: Vec::new(), leaves: Vec::new(), area, albedo, quads };
+        // Atlas edges used by two triangles are inside a chart.
+        let key = |a: glam::Vec2, b: glam::Vec2| {
+            let (a, b) = ((a.x.to_bits(), a.y.to_bits()), (b.x.to_bits(), b.y.to_bits()));
+            if a <= b {
+                (a, b)
+            } else {
+                (b, a)
+            }
+        };
+        let mut uses = std::collections::HashMap::new();
+        for t in 0..scene.triangles.len() {
+            let uv = scene.uv1_corners(t);
+            for k in 0..3 {
+                *uses.entry(key(uv[k], uv[(k + 1) % 3])).or_insert(0u32) += 1;
+            }
+        }
+        let shapes: Vec<Shape> = texels
+            .texels
+            .iter()
+            .map(|t| {
+                let uv = scene.uv1_corners(t.triangle as usize);
+                let boundary = [0, 1, 2].map(|k| uses[&key(uv[k], uv[(k + 1) % 3])] < 2);
+                texel_shape(scene, texels, t, boundary)
+            })
+            .collect();
+        // A texel's area is its shape's: the shapes tile the surface.
+        let area: Vec<f32> =
+            area.iter().zip(&shapes).map(|(a, s)| if s.area > 0.0 { s.area } else { *a }).collect();
+        let mut h = Hierarchy { nodes: Vec::new(), leaves: Vec::new(), area, albedo, shapes };
         for o in 0..=scene.movables.len() as u32 {
             let mut ids: Vec<u32> = (0..texels.len() as u32)
                 .filter(|&t| scene.object(texels.texels[t as usize].triangle as usize) == o)
@@ -393,16 +469,21 @@ pub fn gather(
                     continue;
                 }
                 let g = if n.is_leaf() && d2 < NEAR * NEAR * n.area {
-                    // Near a texel its point is a poor stand-in: its square in the atlas,
-                    // mapped onto its plane, by Lambert's contour integral, clipped to the
-                    // receiver's side (a corner's other wall); irradiance = exitance x F.
+                    // Near a texel its point is a poor stand-in: its shape (module doc) by
+                    // Lambert's contour integral, clipped to the receiver's side (a corner's
+                    // other wall); its flux spread over the shape.
                     let pose = frame.poses.to_world[n.object as usize];
-                    let square = h.quads[s].map(|q| pose.transform_point3(q));
+                    let shape = &h.shapes[s];
+                    if shape.area <= 0.0 {
+                        continue;
+                    }
+                    let square: Vec<Vec3> =
+                        shape.vertices().iter().map(|q| pose.transform_point3(*q)).collect();
                     let f = prm::form_factor::point_to_polygon(x, nr, &square);
                     if f <= 0.0 {
                         continue;
                     }
-                    f / n.area
+                    f / shape.area
                 } else {
                     cos_r * cos_s / (std::f32::consts::PI * d2)
                 };
