@@ -15,6 +15,7 @@ mod export_panes;
 mod gen_assets;
 mod ground_truth;
 mod info;
+mod moving;
 mod precompute;
 mod render;
 mod render_cssm;

@@ -17,15 +17,15 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use prm::density::Atlas;
-use prm::visibility::{read_visibility, visibility_atlas, Poses};
+use prm::visibility::{read_visibility, visibility_atlas};
 use prm::Bvh;
-use prm_precompute::ground_truth::{indirect_noise, GtParams, Tracer};
-use prm_precompute::parallel::Control;
+use prm_precompute::ground_truth::GtParams;
 use prm_precompute::visibility::moving_texel_set;
-use prm_runtime::cpu::radiosity::{indirect, posed_points, Frame, Hierarchy, RadiosityParams};
-use rayon::prelude::*;
+use prm_runtime::cpu::radiosity::RadiosityParams;
+use prm_runtime::radiosity::RadiosityPass;
 
 use crate::common::load_rig;
+use crate::moving::MovingLevel;
 use crate::render::{camera, shade, Args, Backend, Output};
 
 /// The radiosity's settings (`--mode cssm`).
@@ -77,18 +77,21 @@ pub fn run(a: Args) -> Result<()> {
             }
         },
     };
+    if r.baseline_prm.is_some() && r.ground_truth_spp.is_none() {
+        bail!("--baseline-prm is compared with the ground truth: give --ground-truth-spp too");
+    }
     let (w, h) = visibility_atlas(vis_path)?;
     let scene = crate::common::load(&a.scene, w, false)?;
     let texels = moving_texel_set(&scene, w, h);
     let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
-    let hierarchy = Hierarchy::build(&scene, &texels);
+    let rig = load_rig(a.rig.as_deref(), &scene)?;
+    let level = MovingLevel::new(scene, texels, vis, rig, a.rig.as_deref().unwrap_or(Path::new("(no rig)")))?;
+    let (scene, texels) = (&level.scene, &level.texels);
     let mut pass = gpu.as_ref().map(|g| {
         println!("device: {}", g.describe());
-        prm_runtime::radiosity::RadiosityPass::new(&g.device, &scene, &texels, &hierarchy, &vis)
+        RadiosityPass::new(&g.device, scene, texels, &level.hierarchy, &level.vis)
     });
-    let rig = load_rig(a.rig.as_deref(), &scene)?;
-    let motion = rig.object_motion(a.rig.as_deref().unwrap_or(Path::new("(no rig)")), &scene)?;
-    let cam = camera(&scene, a.camera.as_deref())?;
+    let cam = camera(scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
     let atlas = Atlas::single(w);
@@ -103,15 +106,12 @@ pub fn run(a: Args) -> Result<()> {
         texels.len(),
         scene.movables.len(),
         scene.movables.iter().map(|m| m.name.as_str()).collect::<Vec<_>>().join(", "),
-        hierarchy.nodes.len()
+        level.hierarchy.nodes.len()
     );
-    if r.baseline_prm.is_some() && r.ground_truth_spp.is_none() {
-        bail!("--baseline-prm is compared with the ground truth: give --ground-truth-spp too");
-    }
     let baseline = match &r.baseline_prm {
         Some(p) => {
             let map = prm::prm_file::Prm::read(p, None).context("reading the baseline map failed")?;
-            map.check_scene(p, &scene)?;
+            map.check_scene(p, scene)?;
             if map.header().atlas() != atlas {
                 bail!(
                     "{}: baked for a {} atlas, the visibility for {atlas}",
@@ -123,7 +123,7 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => None,
     };
-    let rest_bvh = Bvh::build(&scene);
+    let rest_bvh = Bvh::build(scene);
     let compose = a.compose.runtime(a.shadow_size)?;
     let mut twin = baseline.as_ref().map(|m| {
         let mut t = prm_runtime::cpu::CpuTwin::new(m, &rest_bvh, compose.top_k);
@@ -135,76 +135,39 @@ pub fn run(a: Args) -> Result<()> {
     let mut errors = Vec::new();
     let mut baseline_errors = Vec::new();
     for f in 0..a.frames {
-        let time = rig.frame_time(f, a.frames);
-        let lights = rig.at_time(time);
-        let moves = motion.at_time(time);
-        let poses = Poses::new(&moves);
-        let posed = scene.moved(&moves);
-        let bvh = Bvh::build_with_extent(&posed, scene.diagonal());
-        let points = posed_points(&scene, &texels, &poses);
+        let time = level.rig.frame_time(f, a.frames);
+        let gpu_pass = gpu.as_ref().zip(pass.as_mut());
+        let e = level.frame(time, &params, gpu_pass, r.ground_truth_spp, 0, twin.as_mut())?;
+        let lightmap = texels.to_image(&e.indirect, Vec3::ZERO);
         let t = Instant::now();
-        let direct: Vec<Vec3> =
-            points.par_iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
-        let direct_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let frame = Frame { poses: &poses, points: &points };
-        let (ind, transfers) = match (gpu.as_ref(), pass.as_mut()) {
-            (Some(g), Some(p)) => {
-                (p.indirect(&g.device, &g.queue, &poses, &direct, &params, &hierarchy.albedo)?, None)
-            }
-            _ => {
-                let (ind, stats) = indirect(&hierarchy, &vis, &frame, &direct, &params, &vis.escape);
-                (ind, Some(stats.transfers))
-            }
-        };
-        let radiosity_s = t.elapsed().as_secs_f64();
-        let lightmap = texels.to_image(&ind, Vec3::ZERO);
-        let t = Instant::now();
-        let img = shade(&posed, &bvh, &cam, &lights, &lightmap, atlas, out.size);
+        let img = shade(&e.posed, &e.bvh, &cam, &e.lights, &lightmap, atlas, out.size);
         let shade_s = t.elapsed().as_secs_f64();
         out.write(f, &img, Some(&lightmap[..]).filter(|_| a.lightmap_out))?;
-        let cut = transfers.map_or(String::new(), |n| {
+        let cut = e.transfers.map_or(String::new(), |n| {
             format!(" ({:.0} transfers a texel)", n as f64 / texels.len().max(1) as f64)
         });
         let mut line = format!(
             "frame {f:4} (t = {time:5.2} s): direct {:7.1} ms, radiosity {:7.1} ms{cut}, shading {:7.1} ms",
-            direct_s * 1e3,
-            radiosity_s * 1e3,
+            e.direct_s * 1e3,
+            e.radiosity_s * 1e3,
             shade_s * 1e3
         );
-        if let Some(spp) = r.ground_truth_spp {
-            let mut moved = texels.texels.clone();
-            for (m, &(p, n)) in moved.iter_mut().zip(&points) {
-                m.position = p;
-                m.normal = n;
-            }
-            let gt = Tracer::new(&posed, &bvh, GtParams { spp, ..GtParams::preview() })
-                .texels(&moved, w, Control::none())
-                .map_err(|_| anyhow::anyhow!("stopped"))?;
-            let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
-            let c = prm::metric::compare(&ind, &truth, None);
-            let noise = indirect_noise(&gt);
-            let err = (c.error * c.error - noise * noise).max(0.0).sqrt();
+        if let Some((err, bias, noise)) = e.error {
             errors.push(err);
             line += &format!(
                 ", indirect error {:.1} % (bias {:+.1} %, ground-truth noise {:.1} % removed)",
                 err * 100.0,
-                c.bias * 100.0,
+                bias * 100.0,
                 noise * 100.0
             );
-            if let Some(twin) = twin.as_mut() {
-                let img = twin.frame(&lights);
-                let prm_ind: Vec<Vec3> =
-                    texels.texels.iter().map(|t| img[(t.j * w + t.i) as usize]).collect();
-                let c = prm::metric::compare(&prm_ind, &truth, None);
-                let err = (c.error * c.error - noise * noise).max(0.0).sqrt();
-                baseline_errors.push(err);
-                line += &format!("; PRM {:.1} % (bias {:+.1} %)", err * 100.0, c.bias * 100.0);
-            }
+        }
+        if let Some((err, bias)) = e.prm_error {
+            baseline_errors.push(err);
+            line += &format!("; PRM {:.1} % (bias {:+.1} %)", err * 100.0, bias * 100.0);
         }
         println!("{line}");
-        sums[0] += direct_s;
-        sums[1] += radiosity_s;
+        sums[0] += e.direct_s;
+        sums[1] += e.radiosity_s;
         sums[2] += shade_s;
     }
     let n = a.frames as f64;

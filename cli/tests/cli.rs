@@ -1452,3 +1452,27 @@ fn moving_objects_render_with_precomputed_visibility() {
     let (ok, _, err) = prm(&["visibility", &level, "--atlas", "32", "--res", "0", "-o", s(&bad)]);
     assert!(!ok && err.contains("cube resolution"), "{err}");
 }
+
+#[test]
+fn the_report_has_a_moving_objects_section_on_a_level_with_movables() {
+    // The doorway level with its objects rig beside it (--smoke: 32² atlas, 3 frames).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let (ok, _, err) = prm(&["report", &asset("doorway.glb"), "--smoke", "-o", s(&out)]);
+    assert!(ok, "{err}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let section = md.split("## Moving objects").nth(1).expect("no moving-objects section");
+    let rows: Vec<&str> = section
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| t ") && !l.starts_with("| ---"))
+        .collect();
+    assert_eq!(rows.len(), 3, "{section}");
+    // Every row gives both errors as finite percentages.
+    for r in rows {
+        let cells: Vec<&str> = r.split('|').map(str::trim).collect();
+        for c in [cells[2], cells[4]] {
+            let v: f64 = c.trim_end_matches(" %").parse().unwrap_or(f64::NAN);
+            assert!(v.is_finite() && v >= 0.0, "{r}");
+        }
+    }
+}

@@ -34,6 +34,7 @@ pub fn markdown(
         rig_section(&mut s, a, b, &f.frames, plots);
         placement_section(&mut s, b, f, plots);
         editing_section(&mut s, b, f.editing.as_ref(), plots);
+        super::moving::section(&mut s, f, plots);
     }
     if let Some(rows) = scale {
         scale_section(&mut s, a, rows, plots);

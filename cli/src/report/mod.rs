@@ -13,6 +13,8 @@
 //!   and their flicker: the RMS change of the error image from one frame to the next, over the
 //!   mean ground truth. Every frame's ground truth uses the same seed (common random numbers),
 //!   so its noise changes little between frames and the flicker is mostly the method's own;
+//! - on a level with movable objects and an objects rig, the moving-objects part (`moving`):
+//!   hierarchical radiosity over precomputed visibility against the PRM baked at rest;
 //! - light placements from a torch rig, and an edit script (see `editing`): the incremental
 //!   baker's error against the time since each edit, beside a full re-bake, and the PRM's
 //!   `--update` against a full precompute.
@@ -24,6 +26,7 @@
 mod editing;
 mod markdown;
 mod measure;
+mod moving;
 mod placement;
 mod plots;
 mod rig;
@@ -72,6 +75,10 @@ pub struct Args {
     /// `<level>_edits.json` beside the level; without one the part is left out).
     #[arg(long)]
     edits: Option<PathBuf>,
+    /// Objects rig for the moving-objects part (default: `<level>_rig.json` beside the level
+    /// when it moves objects; the part runs only on a level with movable nodes).
+    #[arg(long)]
+    objects_rig: Option<PathBuf>,
     /// A smaller budget: under 15 minutes per bundled scene on 2 cores.
     #[arg(long)]
     quick: bool,
@@ -104,6 +111,8 @@ struct Budget {
     placement_heights: Vec<f32>,
     frame_width: u32,
     frame_reps: usize,
+    /// Atlas side of the moving-objects part.
+    moving_atlas: u32,
 }
 
 impl Budget {
@@ -122,6 +131,7 @@ impl Budget {
                 placement_heights: vec![0.02, 0.5],
                 frame_width: 32,
                 frame_reps: 2,
+                moving_atlas: 32,
             };
         }
         let mut b = Budget {
@@ -137,6 +147,7 @@ impl Budget {
             placement_heights: vec![0.02, 0.15, 0.5, 2.0],
             frame_width: 640,
             frame_reps: 9,
+            moving_atlas: moving::ATLAS,
         };
         if !quick {
             b.gt_spp = 2048;
@@ -168,6 +179,8 @@ struct Figures {
     placements: Vec<placement::Placement>,
     /// The editing part, when there is an edit script.
     editing: Option<editing::Editing>,
+    /// The moving-objects part, on a level with movables and an objects rig.
+    moving: Option<moving::Moving>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -231,6 +244,9 @@ fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) 
         figures.placements = placement::placements(b, &level, r, &figures.map, gpu, a.seed)?;
         figures.torches = Some(path.clone());
     }
+    if let Some(r) = a.objects_rig.clone().or_else(|| moving::objects_rig_beside(path)) {
+        figures.moving = moving::moving(b, &args, &r, gpu, a.seed)?;
+    }
     if let Some(script) = a.edits.clone().or_else(|| editing::edits_beside(path)) {
         let budget = editing::EditBudget::new(a.quick, a.smoke);
         figures.editing = Some(editing::editing(budget, &level, path, &script, figures.prod, a.seed)?);
@@ -261,5 +277,6 @@ fn measure(b: &Budget, level: &Level, rig: &Rig, gpu: Option<&Gpu>, seed: u64) -
         torches: None,
         placements: Vec::new(),
         editing: None,
+        moving: None,
     })
 }

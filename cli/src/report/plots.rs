@@ -39,6 +39,9 @@ pub fn write_plots(
         if let Some(e) = f.editing.as_ref().filter(|e| !e.rows.is_empty()) {
             plot_editing(&output.join("editing.png"), e)?;
         }
+        if let Some(m) = f.moving.as_ref().filter(|m| !m.rows.is_empty()) {
+            super::moving::plot(&output.join("moving.png"), m)?;
+        }
     }
     if let Some(rows) = scale.filter(|r| !r.is_empty()) {
         plot_scale(&output.join("scale.png"), rows)?;

@@ -1,0 +1,140 @@
+//! A level with moving objects, lit by hierarchical radiosity over precomputed visibility
+//! (paper 003): what `prm render --mode cssm` and the report's moving-objects section share.
+//!
+//! [`MovingLevel`] holds the level at rest, its texels, visibility, texel hierarchy and the
+//! rig's motion; [`MovingLevel::frame`] poses it at a time, lights the texels directly (ray
+//! traced in the posed level: the CPU twin's visibility), runs the radiosity on the GPU or the
+//! CPU, and optionally measures it, and a PRM of the level at rest, against the ground truth of
+//! the posed level on the same texels (noise removed in quadrature).
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{anyhow, Result};
+use glam::Vec3;
+use prm::rig::{Motion, Rig};
+use prm::visibility::{Poses, Visibility};
+use prm::{Bvh, Scene, TexelSet};
+use prm_precompute::ground_truth::{indirect_noise, GtParams, Tracer};
+use prm_precompute::parallel::Control;
+use prm_runtime::cpu::radiosity::{indirect, posed_points, Frame, Hierarchy, RadiosityParams};
+use prm_runtime::cpu::CpuTwin;
+use prm_runtime::radiosity::RadiosityPass;
+use prm_runtime::Gpu;
+use rayon::prelude::*;
+
+/// The level, its texels, visibility and hierarchy, and the rig's motion.
+pub struct MovingLevel {
+    pub scene: Scene,
+    pub texels: TexelSet,
+    pub vis: Visibility,
+    pub hierarchy: Hierarchy,
+    pub rig: Rig,
+    pub motion: Motion,
+}
+
+/// One frame of a [`MovingLevel`].
+pub struct FrameEval {
+    pub lights: Vec<prm::Light>,
+    pub posed: Scene,
+    pub bvh: Bvh,
+    /// Indirect irradiance per texel.
+    pub indirect: Vec<Vec3>,
+    pub direct_s: f64,
+    pub radiosity_s: f64,
+    /// Node transfers (CPU radiosity only).
+    pub transfers: Option<u64>,
+    /// (error, bias, ground-truth noise) of the radiosity, with a ground truth.
+    pub error: Option<(f64, f64, f64)>,
+    /// (error, bias) of the PRM at rest on the same texels, with a ground truth and a map.
+    pub prm_error: Option<(f64, f64)>,
+}
+
+impl MovingLevel {
+    /// `rig_path` only names the rig in messages.
+    pub fn new(
+        scene: Scene,
+        texels: TexelSet,
+        vis: Visibility,
+        rig: Rig,
+        rig_path: &Path,
+    ) -> Result<MovingLevel> {
+        let motion = rig.object_motion(rig_path, &scene)?;
+        let hierarchy = Hierarchy::build(&scene, &texels);
+        Ok(MovingLevel { scene, texels, vis, hierarchy, rig, motion })
+    }
+
+    /// The frame at `time` seconds (module doc). `gpu` runs the radiosity there; `gt_spp`
+    /// measures it (with `seed`), and `baseline` the PRM's twin beside it.
+    #[allow(clippy::too_many_arguments)]
+    pub fn frame(
+        &self,
+        time: f64,
+        params: &RadiosityParams,
+        gpu: Option<(&Gpu, &mut RadiosityPass)>,
+        gt_spp: Option<u32>,
+        seed: u64,
+        baseline: Option<&mut CpuTwin>,
+    ) -> Result<FrameEval> {
+        let lights = self.rig.at_time(time);
+        let moves = self.motion.at_time(time);
+        let poses = Poses::new(&moves);
+        let posed = self.scene.moved(&moves);
+        let bvh = Bvh::build_with_extent(&posed, self.scene.diagonal());
+        let points = posed_points(&self.scene, &self.texels, &poses);
+        let t = Instant::now();
+        let direct: Vec<Vec3> =
+            points.par_iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
+        let direct_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (indirect, transfers) = match gpu {
+            Some((g, pass)) => {
+                (pass.indirect(&g.device, &g.queue, &poses, &direct, params, &self.hierarchy.albedo)?, None)
+            }
+            None => {
+                let frame = Frame { poses: &poses, points: &points };
+                let (e, stats) =
+                    indirect(&self.hierarchy, &self.vis, &frame, &direct, params, &self.vis.escape);
+                (e, Some(stats.transfers))
+            }
+        };
+        let radiosity_s = t.elapsed().as_secs_f64();
+        let mut out = FrameEval {
+            lights,
+            posed,
+            bvh,
+            indirect,
+            direct_s,
+            radiosity_s,
+            transfers,
+            error: None,
+            prm_error: None,
+        };
+        if let Some(spp) = gt_spp {
+            let mut moved = self.texels.texels.clone();
+            for (m, &(p, n)) in moved.iter_mut().zip(&points) {
+                m.position = p;
+                m.normal = n;
+            }
+            let mut lit = out.posed.clone();
+            lit.lights = out.lights.clone();
+            let gt = Tracer::new(&lit, &out.bvh, GtParams { spp, seed, ..GtParams::preview() })
+                .texels(&moved, self.texels.width, Control::none())
+                .map_err(|_| anyhow!("ground truth stopped"))?;
+            let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
+            let noise = indirect_noise(&gt);
+            let denoise = |e: f64| (e * e - noise * noise).max(0.0).sqrt();
+            let c = prm::metric::compare(&out.indirect, &truth, None);
+            out.error = Some((denoise(c.error), c.bias, noise));
+            if let Some(twin) = baseline {
+                let img = twin.frame(&out.lights);
+                let w = self.texels.width;
+                let prm_ind: Vec<Vec3> =
+                    self.texels.texels.iter().map(|t| img[(t.j * w + t.i) as usize]).collect();
+                let c = prm::metric::compare(&prm_ind, &truth, None);
+                out.prm_error = Some((denoise(c.error), c.bias));
+            }
+        }
+        Ok(out)
+    }
+}
