@@ -179,8 +179,8 @@ fn csm_blocks(o: RadObject, a: vec3f, b: vec3f) -> f32 {
     if abs(tb - ta) > 1e-6 * len {
         for (var i = 0u; i < 2u; i++) {
             let rel = p - o.csm_centre;
-            let x = u32(round(csm_coord(o, dot(rel, e[0]))));
-            let y = u32(round(csm_coord(o, dot(rel, e[1]))));
+            let x = u32(floor(csm_coord(o, dot(rel, e[0])) + 0.5));
+            let y = u32(floor(csm_coord(o, dot(rel, e[1])) + 0.5));
             let ee = csm_entry_exit(o, base + y * r + x);
             if ee.x == CSM_MISS {
                 break;

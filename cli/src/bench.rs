@@ -29,16 +29,26 @@ use crate::render::camera;
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    map: MapArgs,
+    pub(crate) scene: crate::common::SceneArgs,
+    /// The level's .prm (--mode prm).
+    #[arg(long)]
+    pub(crate) prm: Option<PathBuf>,
+    /// What to measure: the PRM runtime's frames, or (cssm) the moving-objects radiosity over
+    /// the visibility file --vis.
+    #[arg(long, value_enum, default_value = "prm")]
+    pub(crate) mode: crate::render::Mode,
+    /// The level's visibility file (--mode cssm).
+    #[arg(long)]
+    pub(crate) vis: Option<PathBuf>,
     /// Light rig (JSON); without one the level's glTF lights (which do not move).
     #[arg(long)]
-    rig: Option<PathBuf>,
+    pub(crate) rig: Option<PathBuf>,
     /// Frames per block.
     #[arg(long, default_value_t = 60)]
-    frames: usize,
+    pub(crate) frames: usize,
     /// Blocks of each kind (direct-only, full), alternated.
     #[arg(long, default_value_t = 3)]
-    rounds: usize,
+    pub(crate) rounds: usize,
     /// Frame width in pixels.
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -49,17 +59,17 @@ pub struct Args {
     shadow_size: u32,
     /// Print the figures as JSON.
     #[arg(long)]
-    json: bool,
+    pub(crate) json: bool,
 }
 
 #[derive(Serialize, Default)]
-struct Stats {
-    median_ms: f64,
-    p95_ms: f64,
-    mean_ms: f64,
+pub(crate) struct Stats {
+    pub(crate) median_ms: f64,
+    pub(crate) p95_ms: f64,
+    pub(crate) mean_ms: f64,
 }
 
-fn stats(mut v: Vec<f64>) -> Stats {
+pub(crate) fn stats(mut v: Vec<f64>) -> Stats {
     if v.is_empty() {
         return Stats::default();
     }
@@ -121,6 +131,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.width == 0 || a.width > 8192 {
         bail!("--width must be 1 to 8192");
     }
+    if a.mode == crate::render::Mode::Cssm {
+        return crate::bench_cssm::run(&a);
+    }
     let params = a.compose.runtime(a.shadow_size)?;
     let mut bench = Bench::new(&a, params)?;
     bench.warm_up()?;
@@ -168,7 +181,11 @@ struct ComposeAlone {
 
 impl Bench {
     fn new(a: &Args, mut params: RuntimeParams) -> Result<Bench> {
-        let (scene, prm_file) = a.map.load()?;
+        if a.vis.is_some() {
+            bail!("--vis is for --mode cssm");
+        }
+        let Some(prm) = a.prm.clone() else { bail!("--mode prm needs the level's map: give --prm FILE") };
+        let (scene, prm_file) = MapArgs { scene: a.scene.clone(), prm }.load()?;
         let rig = load_rig(a.rig.as_deref(), &scene)?;
         let cam = camera(&scene, None)?;
         let (w, h) = cam.image_size(a.width);
@@ -280,7 +297,7 @@ impl Bench {
         let gpu_pass_ms = pass_medians(&times.passes);
         Report {
             device: self.g.describe(),
-            scene: a.map.scene.scene.display().to_string(),
+            scene: a.scene.scene.display().to_string(),
             width: self.size.0,
             height: self.size.1,
             top_k: self.params.top_k,

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 mod bake;
 mod bake_reference;
 mod bench;
+mod bench_cssm;
 mod bench_rays;
 mod budget;
 mod common;

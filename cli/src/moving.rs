@@ -59,6 +59,11 @@ impl MovingLevel {
         rig: Rig,
         rig_path: &Path,
     ) -> Result<MovingLevel> {
+        vis.check_objects(&scene, &texels.texels).map_err(|e| {
+            anyhow!(
+                "the visibility does not fit the level's movable objects: {e}; run `prm visibility` again"
+            )
+        })?;
         let motion = rig.object_motion(rig_path, &scene)?;
         let hierarchy = Hierarchy::build(&scene, &texels);
         Ok(MovingLevel { scene, texels, vis, hierarchy, rig, motion })

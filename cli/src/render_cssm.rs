@@ -81,16 +81,23 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--baseline-prm is compared with the ground truth: give --ground-truth-spp too");
     }
     let (w, h) = visibility_atlas(vis_path)?;
+    crate::common::check_atlas(w)?;
+    if h != w {
+        bail!("{}: a {w} x {h} atlas; visibility files hold square atlases", vis_path.display());
+    }
     let scene = crate::common::load(&a.scene, w, false)?;
     let texels = moving_texel_set(&scene, w, h);
     let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
     let rig = load_rig(a.rig.as_deref(), &scene)?;
     let level = MovingLevel::new(scene, texels, vis, rig, a.rig.as_deref().unwrap_or(Path::new("(no rig)")))?;
     let (scene, texels) = (&level.scene, &level.texels);
-    let mut pass = gpu.as_ref().map(|g| {
-        println!("device: {}", g.describe());
-        RadiosityPass::new(&g.device, scene, texels, &level.hierarchy, &level.vis)
-    });
+    let mut pass = match gpu.as_ref() {
+        Some(g) => {
+            println!("device: {}", g.describe());
+            Some(RadiosityPass::new(&g.device, scene, texels, &level.hierarchy, &level.vis)?)
+        }
+        None => None,
+    };
     let cam = camera(scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
     std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;

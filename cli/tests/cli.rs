@@ -1418,6 +1418,26 @@ fn moving_objects_render_with_precomputed_visibility() {
     let (first, last) = (read(&frames.join("lightmap_0000.exr")), read(&frames.join("lightmap_0001.exr")));
     let sum = |v: &[glam::Vec3]| v.iter().map(|c| prm::luminance(*c) as f64).sum::<f64>();
     assert!(sum(&last) > sum(&first), "opening the door added no indirect light");
+    // The bench: CPU twin beside the GPU pass, side by side.
+    let (ok, out, err) = prm(&[
+        "bench",
+        &level,
+        "--mode",
+        "cssm",
+        "--vis",
+        s(&vis),
+        "--rig",
+        &rig,
+        "--frames",
+        "2",
+        "--rounds",
+        "1",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(report["radiosity_cpu"]["median_ms"].as_f64().unwrap() > 0.0, "{out}");
+    assert!(report["texels"].as_u64().unwrap() > 0);
     // Bad input: no --vis, a --prm in cssm mode, a damaged or missing visibility file.
     let base = [
         "render",

@@ -123,6 +123,26 @@ fn cssm_visibility_agrees_with_ray_casting_at_rest_and_moved() {
     eprintln!("visibility: {} bytes, {} uncompressed", vis.bytes(), vis.uncompressed_bytes());
 }
 
+/// Visibility made for a level whose movable flags changed since (same geometry, other
+/// objects) is refused.
+#[test]
+fn visibility_of_another_arrangement_of_objects_is_refused() {
+    let scene = level();
+    let texels = moving_texel_set(&scene, 32, 32);
+    let params = VisibilityParams { res: 4, occluder_dirs: 2, occluder_res: 4 };
+    let vis = build_visibility(&scene, &texels, &params, Control::none()).unwrap();
+    vis.check_objects(&scene, &texels.texels).unwrap();
+    let mut fixed = scene.clone();
+    fixed.movables.pop();
+    for t in &mut fixed.triangles {
+        if t.object == 2 {
+            t.object = 0;
+        }
+    }
+    let err = vis.check_objects(&fixed, &texels.texels).unwrap_err();
+    assert!(err.contains("2 movable objects, the level has 1"), "{err}");
+}
+
 #[test]
 fn bad_visibility_files_are_named_errors() {
     let scene = level();

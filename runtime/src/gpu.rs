@@ -24,6 +24,8 @@ pub enum GpuError {
     Device { adapter: String, source: wgpu::RequestDeviceError },
     #[error("reading results back from the GPU failed: {0}")]
     Readback(String),
+    #[error("{what} needs {bytes} bytes in one buffer; this device binds at most {limit}")]
+    TooLarge { what: &'static str, bytes: u64, limit: u64 },
 }
 
 impl Gpu {

@@ -134,7 +134,7 @@ mod pass {
             texels: &TexelSet,
             hierarchy: &Hierarchy,
             vis: &Visibility,
-        ) -> RadiosityPass {
+        ) -> Result<RadiosityPass, GpuError> {
             let nodes: Vec<RadNode> = hierarchy
                 .nodes
                 .iter()
@@ -208,6 +208,17 @@ mod pass {
                     }
                 })
                 .collect();
+            let limit = device.limits().max_storage_buffer_binding_size;
+            for (what, bytes) in [
+                ("the packed visibility", words.len() as u64 * 4),
+                ("the texel shapes", shapes.len() as u64 * 16),
+                ("the radiosity's texel values", rows.len() as u64 * 3 * 16),
+                ("the radiosity's node fluxes", nodes.len() as u64 * 3 * 16),
+            ] {
+                if bytes > limit {
+                    return Err(GpuError::TooLarge { what, bytes, limit });
+                }
+            }
             let none = wgpu::BufferUsages::empty();
             let copy = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
             let node_buf = gpu::storage_buffer(device, "radiosity nodes", bytemuck::cast_slice(&nodes), none);
@@ -254,7 +265,7 @@ mod pass {
             let source = SHADER.source();
             let pipeline =
                 |entry| gpu::compute_pipeline(device, "radiosity.wgsl", &source, entry, &[&layout]);
-            RadiosityPass {
+            Ok(RadiosityPass {
                 flux: pipeline("flux_main"),
                 gather: pipeline("gather_main"),
                 got: pipeline("got_main"),
@@ -268,7 +279,7 @@ mod pass {
                 texels: rows.len() as u32,
                 nodes: nodes.len() as u32,
                 total_area: hierarchy.area.iter().sum(),
-            }
+            })
         }
 
         /// The indirect irradiance at every texel under `poses` from the direct irradiance

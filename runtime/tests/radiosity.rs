@@ -189,7 +189,8 @@ fn gpu_radiosity_matches_the_cpu_twin() {
     let (scene, texels, vis, h) = setup();
     let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
     let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
-    let mut pass = prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis);
+    let mut pass =
+        prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
     for t in [0.0, 2.0] {
         let poses = Poses::new(&motion.at_time(t));
         let posed = scene.moved(&motion.at_time(t));
@@ -209,8 +210,8 @@ fn gpu_radiosity_matches_the_cpu_twin() {
             c.max_abs,
             gpu.describe()
         );
-        // Float sums in another order, f32 contour integrals (the CPU's are f64) and a PCF tap
-        // that flips on a rounding: 0.5 % is far below the radiosity's own error.
-        assert!(c.non_finite == 0 && c.error < 0.005, "t = {t}: {:.3} %", c.error * 100.0);
+        // The same walk, cut, representatives and queries: only float sums in another order
+        // and f32 contour integrals (the CPU's are f64) differ. Measured 1e-6.
+        assert!(c.non_finite == 0 && c.error < 1e-4, "t = {t}: {:.5} %", c.error * 100.0);
     }
 }

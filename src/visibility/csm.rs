@@ -86,7 +86,9 @@ impl Csm {
         if (tb - ta).abs() > 1e-6 * len {
             for _ in 0..2 {
                 let rel = p - self.centre;
-                let (x, y) = (to(rel.dot(e1)).round() as usize, to(rel.dot(e2)).round() as usize);
+                // floor(t + 0.5), not round(): WGSL rounds halves to even, Rust away from zero.
+                let (x, y) =
+                    ((to(rel.dot(e1)) + 0.5).floor() as usize, (to(rel.dot(e2)) + 0.5).floor() as usize);
                 let [entry, exit] = self.depths[base + y * r + x];
                 if entry == MISS {
                     break;

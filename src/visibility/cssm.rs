@@ -195,6 +195,10 @@ impl Cssm {
         if self.offsets[0] != 0 || *self.offsets.last().unwrap_or(&0) as usize != self.run_start.len() {
             return Err("run offsets do not cover the runs".into());
         }
+        if self.origins.is_empty() {
+            // An object without texels (a small movable at a coarse atlas): no runs at all.
+            return if self.run_start.is_empty() { Ok(()) } else { Err("runs without cube maps".into()) };
+        }
         for p in 0..pixels {
             let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
             if a >= b || b > self.run_start.len() || self.run_start[a] != 0 {

@@ -117,6 +117,26 @@ impl Visibility {
         self.objects.iter().map(|o| o.cssm.len() * 6 * (o.cssm.res as usize).pow(2) * 2).sum()
     }
 
+    #[cfg(feature = "texels")]
+    /// Whether the visibility was made for this arrangement of objects: one per movable plus
+    /// the static level, and every texel on the object its triangle belongs to (a level whose
+    /// movable flags changed since has the same geometry but not the same objects).
+    pub fn check_objects(&self, scene: &crate::Scene, texels: &[crate::Texel]) -> Result<(), String> {
+        if self.objects.len() != scene.movables.len() + 1 {
+            return Err(format!(
+                "made for {} movable objects, the level has {}",
+                self.objects.len().saturating_sub(1),
+                scene.movables.len()
+            ));
+        }
+        for (t, tex) in texels.iter().enumerate() {
+            if self.slots.get(t).map(|s| s.0) != Some(scene.object(tex.triangle as usize)) {
+                return Err(format!("texel {t} is on another object than when it was made"));
+            }
+        }
+        Ok(())
+    }
+
     /// Whether the tables are consistent with each other (a file's contents are checked with it).
     pub fn check(&self, texels: usize) -> Result<(), String> {
         if self.objects.is_empty() || self.slots.len() != texels || self.escape.len() != texels {
@@ -143,8 +163,11 @@ impl Visibility {
         if self.escape.iter().any(|e| !(0.0..=1.0).contains(e)) {
             return Err("an escape share outside [0, 1]".into());
         }
-        if self.slots.iter().any(|&(o, _)| o as usize >= self.objects.len()) {
-            return Err("a texel names an object that does not exist".into());
+        for (t, &(o, k)) in self.slots.iter().enumerate() {
+            let obj = self.objects.get(o as usize).ok_or("a texel names an object that does not exist")?;
+            if obj.texels.get(k as usize) != Some(&(t as u32)) {
+                return Err(format!("texel {t} and its cube map disagree"));
+            }
         }
         Ok(())
     }

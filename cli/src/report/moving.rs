@@ -93,8 +93,12 @@ pub fn moving(
         precompute(&scene, &rest_bvh, &p, &|_, _, _| {}, &cancel).map_err(|e| anyhow!("precompute: {e}"))?;
     let mut twin = CpuTwin::new(&map, &rest_bvh, 32);
     let level = MovingLevel::new(scene, texels, vis, rig, rig_path)?;
-    let mut pass =
-        gpu.map(|g| RadiosityPass::new(&g.device, &level.scene, &level.texels, &level.hierarchy, &level.vis));
+    let mut pass = match gpu {
+        Some(g) => {
+            Some(RadiosityPass::new(&g.device, &level.scene, &level.texels, &level.hierarchy, &level.vis)?)
+        }
+        None => None,
+    };
     let params = RadiosityParams::default();
     let mut rows = Vec::new();
     for f in 0..b.rig_frames {

@@ -15,7 +15,7 @@
 //!   `Φ max(0, u·m) max(0, -u·n_r) / (π d²)` (m: the mean normal, shorter where the node's
 //!   normals disagree), a single texel `B A cos cos / (π d²)`, or within 3 texel sizes
 //!   `Φ F / a` with `F` the exact form factor of the texel's shape (its atlas square clipped
-//!   to its triangle, mapped onto it, of area `a`: Lambert's contour integral, clipped to the
+//!   to its chart's border, mapped onto its triangle's plane, of area `a`: Lambert's contour integral, clipped to the
 //!   receiver's side; a texel's point, often clamped onto a chart's edge, stands for it poorly
 //!   at a corner), times
 //!   visibility to a representative texel of the node.
@@ -95,8 +95,8 @@ pub struct Hierarchy {
     /// Per texel: its area (square metres) and albedo.
     pub area: Vec<f32>,
     pub albedo: Vec<Vec3>,
-    /// Per texel: the part of its atlas square its triangle covers, mapped onto the triangle
-    /// (rest frame): the shape it sends with up close.
+    /// Per texel: its atlas square clipped to its chart's border, mapped onto its triangle's
+    /// plane (rest frame): the shape it sends with up close (planar charts: they tile it).
     pub shapes: Vec<Shape>,
 }
 
@@ -444,11 +444,12 @@ pub fn gather(
                     k += 1;
                     continue;
                 }
+                let here = k;
                 k = n.skip;
                 let leaf = if n.is_leaf() {
                     n.first
                 } else if jitter {
-                    n.first + (hash(r as u32, k) % (n.end - n.first))
+                    n.first + (hash(r as u32, here) % (n.end - n.first))
                 } else {
                     (n.first + n.end) / 2
                 };
