@@ -3,18 +3,13 @@
 //! frames, alternated in `--rounds` blocks, median and p95, with the direct light at the texels
 //! (ray-traced on the CPU: the shadow maps do not light texels yet) for scale.
 
-use std::path::Path;
-
 use anyhow::{bail, Result};
-use prm::visibility::{read_visibility, visibility_atlas};
-use prm_precompute::visibility::moving_texel_set;
 use prm_runtime::cpu::radiosity::RadiosityParams;
 use prm_runtime::radiosity::RadiosityPass;
 use prm_runtime::Gpu;
 use serde::Serialize;
 
 use crate::bench::{stats, Args, Stats};
-use crate::common::load_rig;
 use crate::moving::MovingLevel;
 
 #[derive(Serialize)]
@@ -39,16 +34,7 @@ pub fn run(a: &Args) -> Result<()> {
     if a.prm.is_some() {
         bail!("--prm is for --mode prm");
     }
-    let (w, h) = visibility_atlas(vis_path)?;
-    crate::common::check_atlas(w)?;
-    if h != w {
-        bail!("{}: a {w} x {h} atlas; visibility files hold square atlases", vis_path.display());
-    }
-    let scene = crate::common::load(&a.scene, w, true)?;
-    let texels = moving_texel_set(&scene, w, h);
-    let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
-    let rig = load_rig(a.rig.as_deref(), &scene)?;
-    let level = MovingLevel::new(scene, texels, vis, rig, a.rig.as_deref().unwrap_or(Path::new("(no rig)")))?;
+    let level = MovingLevel::load(&a.scene, vis_path, a.rig.as_deref())?;
     let gpu = match Gpu::new() {
         Ok(g) => Some(g),
         Err(e) => {

@@ -69,6 +69,25 @@ impl MovingLevel {
         Ok(MovingLevel { scene, texels, vis, hierarchy, rig, motion })
     }
 
+    /// The level `args` with its visibility file `vis_path` (the level loaded at the file's
+    /// atlas, its texels checked against it) and the rig `rig` (the level's lights without one).
+    pub fn load(args: &crate::common::SceneArgs, vis_path: &Path, rig: Option<&Path>) -> Result<MovingLevel> {
+        let (w, h) = prm::visibility::visibility_atlas(vis_path)?;
+        crate::common::check_atlas(w)?;
+        if h != w {
+            anyhow::bail!("{}: a {w} x {h} atlas; visibility files hold square atlases", vis_path.display());
+        }
+        let scene = crate::common::load(args, w, false)?;
+        let texels = prm_precompute::visibility::moving_texel_set(&scene, w, h);
+        let vis = prm::visibility::read_visibility(
+            vis_path,
+            prm::fingerprint::geometry_fingerprint(&scene),
+            texels.len(),
+        )?;
+        let rig_data = crate::common::load_rig(rig, &scene)?;
+        MovingLevel::new(scene, texels, vis, rig_data, rig.unwrap_or(Path::new("(no rig)")))
+    }
+
     /// The frame at `time` seconds (module doc). `gpu` runs the radiosity there; `gt_spp`
     /// measures it (with `seed`), and `baseline` the PRM's twin beside it.
     #[allow(clippy::too_many_arguments)]

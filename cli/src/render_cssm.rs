@@ -11,20 +11,16 @@
 //! adds the PRM's error on the same texels (its CPU twin, the level at rest: what a PRM alone
 //! shows while objects move).
 
-use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use prm::density::Atlas;
-use prm::visibility::{read_visibility, visibility_atlas};
 use prm::Bvh;
 use prm_precompute::ground_truth::GtParams;
-use prm_precompute::visibility::moving_texel_set;
 use prm_runtime::cpu::radiosity::RadiosityParams;
 use prm_runtime::radiosity::RadiosityPass;
 
-use crate::common::load_rig;
 use crate::moving::MovingLevel;
 use crate::render::{camera, shade, Args, Backend, Output};
 
@@ -80,16 +76,8 @@ pub fn run(a: Args) -> Result<()> {
     if r.baseline_prm.is_some() && r.ground_truth_spp.is_none() {
         bail!("--baseline-prm is compared with the ground truth: give --ground-truth-spp too");
     }
-    let (w, h) = visibility_atlas(vis_path)?;
-    crate::common::check_atlas(w)?;
-    if h != w {
-        bail!("{}: a {w} x {h} atlas; visibility files hold square atlases", vis_path.display());
-    }
-    let scene = crate::common::load(&a.scene, w, false)?;
-    let texels = moving_texel_set(&scene, w, h);
-    let vis = read_visibility(vis_path, prm::fingerprint::geometry_fingerprint(&scene), texels.len())?;
-    let rig = load_rig(a.rig.as_deref(), &scene)?;
-    let level = MovingLevel::new(scene, texels, vis, rig, a.rig.as_deref().unwrap_or(Path::new("(no rig)")))?;
+    let level = MovingLevel::load(&a.scene, vis_path, a.rig.as_deref())?;
+    let w = level.vis.width;
     let (scene, texels) = (&level.scene, &level.texels);
     let mut pass = match gpu.as_ref() {
         Some(g) => {

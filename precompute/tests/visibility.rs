@@ -13,18 +13,6 @@ fn level() -> Scene {
     prm::load_scene(&path, &prm::LoadOptions { unwrap_resolution: Some(64), ..Default::default() }).unwrap()
 }
 
-/// Texel positions and normals under `poses`.
-fn moved(texels: &TexelSet, scene: &Scene, poses: &Poses) -> Vec<(Vec3, Vec3)> {
-    texels
-        .texels
-        .iter()
-        .map(|t| {
-            let m = poses.to_world[scene.object(t.triangle as usize) as usize];
-            (m.transform_point3(t.position), m.transform_vector3(t.normal).normalize())
-        })
-        .collect()
-}
-
 /// Agreement of `vis` with ray casting through the posed level on random facing texel pairs
 /// away from shadow edges, split by whether an end is on the static level; pairs with an end buried in the
 /// posed level (under the block) are left out.
@@ -41,7 +29,7 @@ fn agreement(
 ) -> ((usize, usize), (usize, usize)) {
     let posed = scene.moved(&poses.to_world[1..]);
     let bvh = Bvh::build(&posed);
-    let at = moved(texels, scene, poses);
+    let at = poses.texel_points(scene, &texels.texels);
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(7);
     let (mut with_static, mut movables_only) = ((0, 0), (0, 0));
     let mut tries = 0;

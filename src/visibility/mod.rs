@@ -73,6 +73,18 @@ impl Poses {
     pub fn at_rest(objects: usize) -> Poses {
         Poses { to_world: vec![Mat4::IDENTITY; objects], to_rest: vec![Mat4::IDENTITY; objects] }
     }
+
+    /// The texels' points and unit normals under these poses (`texels` at rest in `scene`).
+    #[cfg(feature = "texels")]
+    pub fn texel_points(&self, scene: &crate::Scene, texels: &[crate::Texel]) -> Vec<(Vec3, Vec3)> {
+        texels
+            .iter()
+            .map(|t| {
+                let m = self.to_world[scene.object(t.triangle as usize) as usize];
+                (m.transform_point3(t.position), m.transform_vector3(t.normal).normalize_or_zero())
+            })
+            .collect()
+    }
 }
 
 impl Visibility {

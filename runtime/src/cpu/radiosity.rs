@@ -316,14 +316,7 @@ pub struct Frame<'a> {
 
 /// Texel positions and normals under `poses` (texels at rest in `texels`).
 pub fn posed_points(scene: &Scene, texels: &TexelSet, poses: &Poses) -> Vec<(Vec3, Vec3)> {
-    texels
-        .texels
-        .iter()
-        .map(|t| {
-            let m = poses.to_world[scene.object(t.triangle as usize) as usize];
-            (m.transform_point3(t.position), m.transform_vector3(t.normal).normalize_or_zero())
-        })
-        .collect()
+    poses.texel_points(scene, &texels.texels)
 }
 
 /// What a frame's radiosity did.
