@@ -3,7 +3,8 @@
 //!
 //! [`MovingLevel`] holds the level at rest, its texels, visibility, texel hierarchy and the
 //! rig's motion; [`MovingLevel::frame`] poses it at a time, lights the texels directly (ray
-//! traced in the posed level: the CPU twin's visibility), runs the radiosity on the GPU or the
+//! traced in the posed level: the CPU twin's visibility; each texel's mean over its shape,
+//! `prm_runtime::cpu::radiosity::sender_direct`), runs the radiosity on the GPU or the
 //! CPU, and optionally measures it, and a PRM of the level at rest, against the ground truth of
 //! the posed level on the same texels (noise removed in quadrature).
 
@@ -17,11 +18,10 @@ use prm::visibility::{Poses, Visibility};
 use prm::{Bvh, Scene, TexelSet};
 use prm_precompute::ground_truth::{indirect_noise, GtParams, Tracer};
 use prm_precompute::parallel::Control;
-use prm_runtime::cpu::radiosity::{indirect, posed_points, Frame, Hierarchy, RadiosityParams};
+use prm_runtime::cpu::radiosity::{indirect, posed_points, sender_direct, Frame, Hierarchy, RadiosityParams};
 use prm_runtime::cpu::CpuTwin;
 use prm_runtime::radiosity::RadiosityPass;
 use prm_runtime::Gpu;
-use rayon::prelude::*;
 
 /// The level, its texels, visibility and hierarchy, and the rig's motion.
 pub struct MovingLevel {
@@ -107,8 +107,11 @@ impl MovingLevel {
         let bvh = Bvh::build_with_extent(&posed, self.scene.diagonal());
         let points = posed_points(&self.scene, &self.texels, &poses);
         let t = Instant::now();
-        let direct: Vec<Vec3> =
-            points.par_iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
+        // What each texel sends with: its direct light averaged over its shape.
+        let direct = {
+            let frame = Frame { poses: &poses, points: &points };
+            sender_direct(&self.scene, &self.texels, &self.hierarchy, &frame, &bvh, &lights)
+        };
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (indirect, transfers) = match gpu {

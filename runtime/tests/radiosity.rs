@@ -9,7 +9,7 @@ use prm_precompute::ground_truth::{indirect_noise, GtParams, Tracer};
 use prm_precompute::parallel::Control;
 use prm_precompute::visibility::{build_visibility, moving_texel_set, VisibilityParams};
 use prm_runtime::cpu::radiosity::{
-    gather, indirect, posed_points, Frame, Hierarchy, RadiosityParams, RayVisibility,
+    gather, indirect, posed_points, sender_direct, Frame, Hierarchy, RadiosityParams, RayVisibility,
 };
 
 fn root() -> std::path::PathBuf {
@@ -136,9 +136,8 @@ fn radiosity_follows_the_moving_door_and_block() {
         posed.lights = lights.clone();
         let bvh = Bvh::build(&posed);
         let points = posed_points(&scene, &texels, &poses);
-        let direct: Vec<Vec3> =
-            points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
         let frame = Frame { poses: &poses, points: &points };
+        let direct = sender_direct(&scene, &texels, &h, &frame, &bvh, &lights);
         let params = RadiosityParams::default();
         let mut moved = texels.texels.clone();
         for (m, &(p, n)) in moved.iter_mut().zip(&points) {

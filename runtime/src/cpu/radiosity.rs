@@ -319,6 +319,40 @@ pub fn posed_points(scene: &Scene, texels: &TexelSet, poses: &Poses) -> Vec<(Vec
     poses.texel_points(scene, &texels.texels)
 }
 
+/// The direct irradiance each texel *sends* with: the mean over its shape (its centroid and the
+/// points halfway from it to each vertex), in the posed level. A texel's sample point alone
+/// stands for it poorly where the light changes within it: a lamp 15 cm from a corner puts
+/// most of a texel's power in part of it. The lightmap's receivers stay points.
+pub fn sender_direct(
+    scene: &Scene,
+    texels: &TexelSet,
+    h: &Hierarchy,
+    frame: &Frame,
+    bvh: &prm::Bvh,
+    lights: &[prm::Light],
+) -> Vec<Vec3> {
+    texels
+        .texels
+        .par_iter()
+        .enumerate()
+        .map(|(k, t)| {
+            let shape = &h.shapes[k];
+            let normal = frame.points[k].1;
+            if shape.len < 3 {
+                return prm::bvh::direct_irradiance(bvh, lights, frame.points[k].0, normal);
+            }
+            let pose = frame.poses.to_world[scene.object(t.triangle as usize) as usize];
+            let v: Vec<Vec3> = shape.vertices().iter().map(|p| pose.transform_point3(*p)).collect();
+            let c = v.iter().sum::<Vec3>() / v.len() as f32;
+            let mut sum = prm::bvh::direct_irradiance(bvh, lights, c, normal);
+            for p in &v {
+                sum += prm::bvh::direct_irradiance(bvh, lights, c.lerp(*p, 0.5), normal);
+            }
+            sum / (v.len() + 1) as f32
+        })
+        .collect()
+}
+
 /// What a frame's radiosity did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RadiosityStats {
