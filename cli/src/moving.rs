@@ -115,9 +115,7 @@ impl MovingLevel {
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (indirect, transfers) = match gpu {
-            Some((g, pass)) => {
-                (pass.indirect(&g.device, &g.queue, &poses, &direct, params, &self.hierarchy.albedo)?, None)
-            }
+            Some((g, pass)) => (pass.indirect(&g.device, &g.queue, &poses, &direct, params)?, None),
             None => {
                 let frame = Frame { poses: &poses, points: &points };
                 let (e, stats) =

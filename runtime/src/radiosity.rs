@@ -122,6 +122,8 @@ mod pass {
         objects: wgpu::Buffer,
         values: wgpu::Buffer,
         object_rows: Vec<RadObject>,
+        /// Per texel, to reflect the uploaded direct light (the shader's `texels` hold it too).
+        albedo: Vec<Vec3>,
         texels: u32,
         nodes: u32,
         total_area: f32,
@@ -276,6 +278,7 @@ mod pass {
                 objects,
                 values,
                 object_rows,
+                albedo: hierarchy.albedo.clone(),
                 texels: rows.len() as u32,
                 nodes: nodes.len() as u32,
                 total_area: hierarchy.area.iter().sum(),
@@ -291,7 +294,6 @@ mod pass {
             poses: &Poses,
             direct: &[Vec3],
             params: &RadiosityParams,
-            albedo: &[Vec3],
         ) -> Result<Vec<Vec3>, GpuError> {
             for (row, (w, r)) in self.object_rows.iter_mut().zip(poses.to_world.iter().zip(&poses.to_rest)) {
                 row.to_world = mat(*w);
@@ -301,7 +303,7 @@ mod pass {
             let t = self.texels as usize;
             let mut init = vec![[0f32; 4]; 3 * t];
             for k in 0..t {
-                let b = direct[k] * albedo[k];
+                let b = direct[k] * self.albedo[k];
                 init[k] = [b.x, b.y, b.z, 0.0];
             }
             queue.write_buffer(&self.values, 0, bytemuck::cast_slice(&init));

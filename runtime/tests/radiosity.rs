@@ -201,7 +201,7 @@ fn gpu_radiosity_matches_the_cpu_twin() {
         let params = RadiosityParams::default();
         let frame = Frame { poses: &poses, points: &points };
         let (cpu, _) = indirect(&h, &vis, &frame, &direct, &params, &vis.escape);
-        let gpu_out = pass.indirect(&gpu.device, &gpu.queue, &poses, &direct, &params, &h.albedo).unwrap();
+        let gpu_out = pass.indirect(&gpu.device, &gpu.queue, &poses, &direct, &params).unwrap();
         let c = prm::metric::compare(&gpu_out, &cpu, None);
         eprintln!(
             "t = {t}: GPU against CPU {:.4} % (max {:.2e}), on {}",
