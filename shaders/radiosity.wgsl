@@ -425,6 +425,21 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     values[T + r] = vec4f(e, 0.0);
 }
 
+// Before the first pass: the direct irradiance, put in the total's section (by a buffer copy),
+// becomes the exitance the first pass gathers from (albedo x it); the other sections clear.
+@compute @workgroup_size(WG_LINEAR)
+fn seed_main(@builtin(global_invocation_id) id: vec3u) {
+    let t = id.x;
+    if t >= params.texels {
+        return;
+    }
+    let T = params.texels;
+    let e = values[2u * T + t];
+    values[t] = vec4f(e.xyz * texels[t].albedo, 0.0);
+    values[T + t] = vec4f(0.0);
+    values[2u * T + t] = vec4f(0.0);
+}
+
 // Scale the gathered light to deliver what was sent (crate::cpu::radiosity::conserve_scale),
 // total += it; the next pass gathers from albedo x it.
 @compute @workgroup_size(WG_LINEAR)

@@ -56,7 +56,7 @@ pub struct Args {
     compose: ComposeArgs,
     /// Shadow-map texels per side and layer.
     #[arg(long, default_value_t = 1024)]
-    shadow_size: u32,
+    pub(crate) shadow_size: u32,
     /// Print the figures as JSON.
     #[arg(long)]
     pub(crate) json: bool,

@@ -1,7 +1,8 @@
 //! `prm bench --mode cssm`: what the moving-objects radiosity costs per frame, measured side by
 //! side in one run: the GPU pass (where an adapter exists) and the CPU twin over the rig's
-//! frames, alternated in `--rounds` blocks, median and p95, with the direct light at the texels
-//! (ray-traced on the CPU: the shadow maps do not light texels yet) for scale.
+//! frames, alternated in `--rounds` blocks, median and p95: the direct light at the texels
+//! (on the GPU from `--shadow-size` shadow maps of the posed level, waited for; on the CPU by
+//! rays) and the radiosity from it, and the two together.
 
 use anyhow::{bail, Result};
 use prm_runtime::cpu::radiosity::RadiosityParams;
@@ -21,9 +22,13 @@ struct Report {
     visibility_bytes: usize,
     frames_per_block: usize,
     rounds: usize,
+    shadow_size: u32,
     direct_cpu: Stats,
     radiosity_cpu: Stats,
+    frame_cpu: Stats,
+    direct_gpu: Option<Stats>,
     radiosity_gpu: Option<Stats>,
+    frame_gpu: Option<Stats>,
     cpu_threads: usize,
 }
 
@@ -49,22 +54,28 @@ pub fn run(a: &Args) -> Result<()> {
         None => None,
     };
     let params = RadiosityParams::default();
-    let (mut direct, mut cpu, mut on_gpu) = (Vec::new(), Vec::new(), Vec::new());
+    // Milliseconds per frame: [direct, radiosity, both], CPU then GPU.
+    let mut ms: [Vec<f64>; 6] = Default::default();
+    let mut push = |at: usize, e: &crate::moving::FrameEval| {
+        ms[at].push(e.direct_s * 1e3);
+        ms[at + 1].push(e.radiosity_s * 1e3);
+        ms[at + 2].push((e.direct_s + e.radiosity_s) * 1e3);
+    };
     for _ in 0..a.rounds {
         for f in 0..a.frames {
             let time = level.rig.frame_time(f, a.frames);
-            let e = level.frame(time, &params, None, None, 0, None)?;
-            direct.push(e.direct_s * 1e3);
-            cpu.push(e.radiosity_s * 1e3);
+            push(0, &level.frame(time, &params, None, None, 0, None)?);
         }
         if let (Some(g), Some(p)) = (gpu.as_ref(), pass.as_mut()) {
             for f in 0..a.frames {
                 let time = level.rig.frame_time(f, a.frames);
-                let e = level.frame(time, &params, Some((g, &mut *p)), None, 0, None)?;
-                on_gpu.push(e.radiosity_s * 1e3);
+                let on = crate::moving::GpuFrame { gpu: g, pass: &mut *p, shadow_size: a.shadow_size };
+                push(3, &level.frame(time, &params, Some(on), None, 0, None)?);
             }
         }
     }
+    let [direct, cpu, frame_cpu, direct_gpu, on_gpu, frame_gpu] = ms;
+    let some = |v: Vec<f64>| (!v.is_empty()).then(|| stats(v));
     let report = Report {
         device: gpu.as_ref().map_or("none".into(), |g| g.describe()),
         scene: a.scene.scene.display().to_string(),
@@ -73,9 +84,13 @@ pub fn run(a: &Args) -> Result<()> {
         visibility_bytes: level.vis.bytes(),
         frames_per_block: a.frames,
         rounds: a.rounds,
+        shadow_size: a.shadow_size,
         direct_cpu: stats(direct),
         radiosity_cpu: stats(cpu),
-        radiosity_gpu: (!on_gpu.is_empty()).then(|| stats(on_gpu)),
+        frame_cpu: stats(frame_cpu),
+        direct_gpu: some(direct_gpu),
+        radiosity_gpu: some(on_gpu),
+        frame_gpu: some(frame_gpu),
         cpu_threads: rayon::current_num_threads(),
     };
     if a.json {
@@ -94,15 +109,19 @@ pub fn run(a: &Args) -> Result<()> {
     );
     let line = |what: &str, s: &Stats| {
         println!(
-            "{what:<34} median {:9.1} ms, p95 {:9.1} ms, mean {:9.1} ms",
+            "{what:<46} median {:9.1} ms, p95 {:9.1} ms, mean {:9.1} ms",
             s.median_ms, s.p95_ms, s.mean_ms
         )
     };
-    line("direct light at the texels (CPU)", &report.direct_cpu);
-    line(&format!("radiosity, CPU twin ({} threads)", report.cpu_threads), &report.radiosity_cpu);
-    if let Some(g) = &report.radiosity_gpu {
-        line("radiosity, GPU (with its readback)", g);
-        println!("GPU / CPU: {:.2}", g.median_ms / report.radiosity_cpu.median_ms.max(1e-9));
+    let threads = report.cpu_threads;
+    line(&format!("direct light at the texels, CPU rays ({threads} threads)"), &report.direct_cpu);
+    line(&format!("radiosity, CPU twin ({threads} threads)"), &report.radiosity_cpu);
+    line("both, CPU", &report.frame_cpu);
+    if let (Some(d), Some(r), Some(f)) = (&report.direct_gpu, &report.radiosity_gpu, &report.frame_gpu) {
+        line(&format!("direct light, GPU ({}² shadow maps)", report.shadow_size), d);
+        line("radiosity, GPU (with its readback)", r);
+        line("both, GPU", f);
+        println!("GPU / CPU (both): {:.3}", f.median_ms / report.frame_cpu.median_ms.max(1e-9));
     }
     Ok(())
 }

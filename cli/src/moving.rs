@@ -2,11 +2,13 @@
 //! (paper 003): what `prm render --mode cssm` and the report's moving-objects section share.
 //!
 //! [`MovingLevel`] holds the level at rest, its texels, visibility, texel hierarchy and the
-//! rig's motion; [`MovingLevel::frame`] poses it at a time, lights the texels directly (ray
-//! traced in the posed level: the CPU twin's visibility; each texel's mean over its shape,
-//! `prm_runtime::cpu::radiosity::sender_direct`), runs the radiosity on the GPU or the
-//! CPU, and optionally measures it, and a PRM of the level at rest, against the ground truth of
-//! the posed level on the same texels (noise removed in quadrature).
+//! rig's motion; [`MovingLevel::frame`] poses it at a time, lights the texels directly (each
+//! texel's mean over its shape) and runs the radiosity from that: on the GPU, shadow maps of
+//! the posed level light the texels (`RadiosityPass::light_texels`) and nothing leaves the GPU
+//! but the lightmap; on the CPU, rays in the posed level do
+//! (`prm_runtime::cpu::radiosity::sender_direct`). It optionally measures the result, and a
+//! PRM of the level at rest, against the ground truth of the posed level on the same texels
+//! (noise removed in quadrature).
 
 use std::path::Path;
 use std::time::Instant;
@@ -33,6 +35,13 @@ pub struct MovingLevel {
     pub motion: Motion,
 }
 
+/// Where a frame runs on the GPU: the adapter, the level's pass and its shadow maps' size.
+pub struct GpuFrame<'a> {
+    pub gpu: &'a Gpu,
+    pub pass: &'a mut RadiosityPass,
+    pub shadow_size: u32,
+}
+
 /// One frame of a [`MovingLevel`].
 pub struct FrameEval {
     pub lights: Vec<prm::Light>,
@@ -40,6 +49,8 @@ pub struct FrameEval {
     pub bvh: Bvh,
     /// Indirect irradiance per texel.
     pub indirect: Vec<Vec3>,
+    /// Direct light at the texels: shadow maps and the texel pass on the GPU (waited for),
+    /// rays on the CPU.
     pub direct_s: f64,
     pub radiosity_s: f64,
     /// Node transfers (CPU radiosity only).
@@ -95,7 +106,7 @@ impl MovingLevel {
         &self,
         time: f64,
         params: &RadiosityParams,
-        gpu: Option<(&Gpu, &mut RadiosityPass)>,
+        gpu: Option<GpuFrame<'_>>,
         gt_spp: Option<u32>,
         seed: u64,
         baseline: Option<&mut CpuTwin>,
@@ -106,24 +117,28 @@ impl MovingLevel {
         let posed = self.scene.moved(&moves);
         let bvh = Bvh::build_with_extent(&posed, self.scene.diagonal());
         let points = posed_points(&self.scene, &self.texels, &poses);
-        let t = Instant::now();
-        // What each texel sends with: its direct light averaged over its shape.
-        let direct = {
-            let frame = Frame { poses: &poses, points: &points };
-            sender_direct(&self.scene, &self.texels, &self.hierarchy, &frame, &bvh, &lights)
-        };
-        let direct_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let (indirect, transfers) = match gpu {
-            Some((g, pass)) => (pass.indirect(&g.device, &g.queue, &poses, &direct, params)?, None),
+        let frame = Frame { poses: &poses, points: &points };
+        let (indirect, transfers, direct_s, radiosity_s) = match gpu {
+            Some(GpuFrame { gpu: g, pass, shadow_size }) => {
+                let t = Instant::now();
+                pass.light_texels(&g.device, &g.queue, &posed, &poses, &lights, shadow_size)?;
+                let _ = g.device.poll(wgpu::PollType::wait_indefinitely());
+                let direct_s = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let e = pass.indirect_lit(&g.device, &g.queue, params)?;
+                (e, None, direct_s, t.elapsed().as_secs_f64())
+            }
             None => {
-                let frame = Frame { poses: &poses, points: &points };
+                let t = Instant::now();
+                // What each texel sends with: its direct light averaged over its shape.
+                let direct = sender_direct(&self.scene, &self.texels, &self.hierarchy, &frame, &bvh, &lights);
+                let direct_s = t.elapsed().as_secs_f64();
+                let t = Instant::now();
                 let (e, stats) =
                     indirect(&self.hierarchy, &self.vis, &frame, &direct, params, &self.vis.escape);
-                (e, Some(stats.transfers))
+                (e, Some(stats.transfers), direct_s, t.elapsed().as_secs_f64())
             }
         };
-        let radiosity_s = t.elapsed().as_secs_f64();
         let mut out = FrameEval {
             lights,
             posed,

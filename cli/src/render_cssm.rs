@@ -2,11 +2,11 @@
 //! over precomputed visibility (paper 003; `prm_runtime::cpu::radiosity`).
 //!
 //! Per frame: the rig's lights and object poses at the frame's time; the level posed (movables
-//! moved); direct irradiance at every texel, ray-traced in the posed level (the CPU twin's
-//! visibility; a GPU would use shadow maps); the radiosity's indirect lightmap; the frame shaded
-//! as in `--mode prm`. With `--backend gpu` (the default) the radiosity runs on the GPU
-//! (`prm_runtime::radiosity`; its readback is in the frame time); the direct light and the
-//! shading stay on the CPU here. `--ground-truth-spp N` also path-traces each frame's indirect lightmap
+//! moved); direct irradiance at every texel; the radiosity's indirect lightmap; the frame shaded
+//! as in `--mode prm`. With `--backend gpu` (the default) the direct light comes from shadow
+//! maps of the posed level (`--shadow-size`) and the radiosity runs on the GPU
+//! (`prm_runtime::radiosity`; its readback is in the frame time); with `--backend cpu` both are
+//! the CPU twin's (rays). The shading stays on the CPU here. `--ground-truth-spp N` also path-traces each frame's indirect lightmap
 //! in the posed level and prints the error (noise removed in quadrature); `--baseline-prm`
 //! adds the PRM's error on the same texels (its CPU twin, the level at rest: what a PRM alone
 //! shows while objects move).
@@ -131,7 +131,11 @@ pub fn run(a: Args) -> Result<()> {
     let mut baseline_errors = Vec::new();
     for f in 0..a.frames {
         let time = level.rig.frame_time(f, a.frames);
-        let gpu_pass = gpu.as_ref().zip(pass.as_mut());
+        let gpu_pass = gpu.as_ref().zip(pass.as_mut()).map(|(g, p)| crate::moving::GpuFrame {
+            gpu: g,
+            pass: p,
+            shadow_size: a.shadow_size,
+        });
         let e = level.frame(time, &params, gpu_pass, r.ground_truth_spp, 0, twin.as_mut())?;
         let lightmap = texels.to_image(&e.indirect, Vec3::ZERO);
         let t = Instant::now();
@@ -167,12 +171,14 @@ pub fn run(a: Args) -> Result<()> {
     }
     let n = a.frames as f64;
     println!(
-        "{} frames: mean direct {:.1} ms (CPU), radiosity {:.1} ms ({}), shading {:.1} ms (CPU){} -> {}",
+        "{} frames: mean direct {:.1} ms, radiosity {:.1} ms ({}), shading {:.1} ms (CPU){} -> {}",
         a.frames,
         sums[0] * 1e3 / n,
         sums[1] * 1e3 / n,
-        gpu.as_ref()
-            .map_or(format!("CPU, {} threads", rayon::current_num_threads()), |g| g.info.name.clone()),
+        gpu.as_ref().map_or(format!("CPU, {} threads", rayon::current_num_threads()), |g| format!(
+            "{}, direct from {}² shadow maps",
+            g.info.name, a.shadow_size
+        )),
         sums[2] * 1e3 / n,
         if errors.is_empty() {
             String::new()

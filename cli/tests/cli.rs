@@ -1438,6 +1438,12 @@ fn moving_objects_render_with_precomputed_visibility() {
     let report: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert!(report["radiosity_cpu"]["median_ms"].as_f64().unwrap() > 0.0, "{out}");
     assert!(report["texels"].as_u64().unwrap() > 0);
+    // With an adapter, the GPU's whole frame: shadow-mapped direct light, then the radiosity.
+    if report["device"] != "none" {
+        for k in ["direct_gpu", "radiosity_gpu", "frame_gpu"] {
+            assert!(report[k]["median_ms"].as_f64().unwrap() > 0.0, "{k}: {out}");
+        }
+    }
     // Bad input: no --vis, a --prm in cssm mode, a damaged or missing visibility file.
     let base = [
         "render",

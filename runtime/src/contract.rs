@@ -187,7 +187,7 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 13] = [
+pub const SHADERS: [&Shader; 14] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
@@ -201,4 +201,5 @@ pub const SHADERS: [&Shader; 13] = [
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,
     &crate::radiosity::SHADER,
+    &crate::radiosity::DIRECT,
 ];

@@ -468,6 +468,16 @@ gpu_struct! {
     }
 }
 
+gpu_struct! {
+    /// The uniform of `shaders/texel_direct.wgsl`.
+    pub struct DirectParams {
+        pub texels: u32,
+        pub light_count: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+    }
+}
+
 /// Every [`GpuStruct`], as `(name, WGSL declaration, size, fields)`: what the prelude declares
 /// and the layout test checks.
 pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
@@ -494,5 +504,6 @@ pub fn gpu_structs() -> Vec<(&'static str, String, usize, &'static [Field])> {
         one::<RadTexel>(),
         one::<RadObject>(),
         one::<RadParams>(),
+        one::<DirectParams>(),
     ]
 }

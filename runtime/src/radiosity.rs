@@ -9,13 +9,21 @@
 //! packed once into one `u32` buffer (`vdata`, [`pack_visibility`]): a stage has few storage
 //! bindings.
 //!
+//! The direct light the radiosity starts from comes from either end:
+//! [`RadiosityPass::light_texels`] renders shadow maps of the posed level ([`crate::shadow`],
+//! the PRM runtime's) and lights each texel from them (`shaders/texel_direct.wgsl`: the mean
+//! over the texel's shape, as the CPU twin's ray-traced
+//! [`crate::cpu::radiosity::sender_direct`]), so a frame never leaves the GPU until its
+//! lightmap is read; [`RadiosityPass::indirect`] takes it from the CPU instead. Either way it
+//! lands in the total's section of `values`, and `seed_main` makes it the first exitance.
+//!
 //! The pass needs the texel hierarchy, built from the level's texel set, so it comes with the
-//! `cpu-twin` feature for now; the shader and its tables are always built (the contract test
-//! checks them). The direct light is an input: the CPU twin's ray-traced irradiance at the
-//! texels (the shadow maps of [`crate::Runtime`] do not light texels yet).
+//! `cpu-twin` feature for now; the shaders and their tables are always built (the contract
+//! test checks them).
 
 use crate::bindings::{b, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR};
+use crate::shadow::SHADOW_GROUP;
 
 /// Texel sizes within which a single texel sends by the exact form factor of its atlas square.
 pub const NEAR: f32 = 3.0;
@@ -50,7 +58,27 @@ pub const SHADER: Shader = Shader {
         Compute { entry: "got_main", workgroup: LINEAR },
         Compute { entry: "next_main", workgroup: LINEAR },
         Compute { entry: "tail_main", workgroup: LINEAR },
+        Compute { entry: "seed_main", workgroup: LINEAR },
     ],
+};
+
+/// Group 1 of `shaders/texel_direct.wgsl` (group 0 is [`SHADOW_GROUP`]).
+pub const DIRECT_BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform("DirectParams"), COMPUTE),
+    b("texels", Res::Read("array<RadTexel>"), COMPUTE),
+    b("objects", Res::Read("array<RadObject>"), COMPUTE),
+    b("shapes", Res::Read("array<vec4f>"), COMPUTE),
+    // Direct irradiance per texel (W/m², w unused).
+    b("direct", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+/// Direct light at the texels from the shadow maps (module doc).
+pub const DIRECT: Shader = Shader {
+    stem: "texel_direct",
+    body: include_str!("../../shaders/texel_direct.wgsl"),
+    lights: true,
+    groups: &[SHADOW_GROUP, DIRECT_BINDINGS],
+    compute: &[Compute { entry: "texel_direct_main", workgroup: LINEAR }],
 };
 
 #[cfg(feature = "cpu-twin")]
@@ -62,12 +90,14 @@ mod pass {
     use prm::visibility::{Poses, Visibility};
     use prm::TexelSet;
 
-    use super::{BINDINGS, SHADER};
+    use super::{BINDINGS, DIRECT, DIRECT_BINDINGS, SHADER};
     use crate::bindings::bind;
     use crate::contract::WG_LINEAR;
     use crate::cpu::radiosity::{Hierarchy, RadiosityParams};
     use crate::gpu::{self, GpuError};
-    use crate::layout::{mat, RadNode, RadObject, RadParams, RadTexel};
+    use crate::layout::{mat, DirectParams, RadNode, RadObject, RadParams, RadTexel};
+    use crate::lights::LightError;
+    use crate::shadow::ShadowMaps;
 
     /// Where each object's tables start in the packed words.
     #[derive(Clone, Copy, Debug, Default)]
@@ -110,6 +140,26 @@ mod pass {
         (words, bases)
     }
 
+    /// Why [`RadiosityPass::light_texels`] could not light the texels.
+    #[derive(Debug, thiserror::Error)]
+    pub enum TexelLightError {
+        #[error(transparent)]
+        Lights(#[from] LightError),
+        #[error("the posed level has {posed} triangles, the pass was built for {built}")]
+        Geometry { posed: usize, built: usize },
+        #[error("shadow maps of {size} texels: between 16 and {max}")]
+        ShadowSize { size: u32, max: u32 },
+    }
+
+    /// Shadow maps of the posed level and the pass lighting the texels from them.
+    struct TexelLight {
+        shadows: ShadowMaps,
+        pipeline: wgpu::ComputePipeline,
+        group: wgpu::BindGroup,
+        params: wgpu::Buffer,
+        triangles: usize,
+    }
+
     /// The GPU radiosity of one level (module doc).
     pub struct RadiosityPass {
         flux: wgpu::ComputePipeline,
@@ -117,13 +167,18 @@ mod pass {
         got: wgpu::ComputePipeline,
         next: wgpu::ComputePipeline,
         tail: wgpu::ComputePipeline,
+        seed: wgpu::ComputePipeline,
         group: wgpu::BindGroup,
         params: wgpu::Buffer,
         objects: wgpu::Buffer,
         values: wgpu::Buffer,
+        texel_buf: wgpu::Buffer,
+        shape_buf: wgpu::Buffer,
+        /// Direct irradiance per texel, `vec4f` each: from [`RadiosityPass::light_texels`] or
+        /// the CPU.
+        direct: wgpu::Buffer,
+        light: Option<TexelLight>,
         object_rows: Vec<RadObject>,
-        /// Per texel, to reflect the uploaded direct light (the shader's `texels` hold it too).
-        albedo: Vec<Vec3>,
         texels: u32,
         nodes: u32,
         total_area: f32,
@@ -240,6 +295,8 @@ mod pass {
             let values =
                 gpu::storage_buffer(device, "radiosity values", &vec![0u8; rows.len() * 3 * 16], copy);
             let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 3 * 16], none);
+            let direct =
+                gpu::storage_buffer(device, "texels' direct light", &vec![0u8; rows.len().max(1) * 16], copy);
             let params = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("radiosity params"),
                 size: std::mem::size_of::<RadParams>() as u64,
@@ -273,12 +330,16 @@ mod pass {
                 got: pipeline("got_main"),
                 next: pipeline("next_main"),
                 tail: pipeline("tail_main"),
+                seed: pipeline("seed_main"),
                 group,
                 params,
                 objects,
                 values,
+                texel_buf,
+                shape_buf,
+                direct,
+                light: None,
                 object_rows,
-                albedo: hierarchy.albedo.clone(),
                 texels: rows.len() as u32,
                 nodes: nodes.len() as u32,
                 total_area: hierarchy.area.iter().sum(),
@@ -286,7 +347,7 @@ mod pass {
         }
 
         /// The indirect irradiance at every texel under `poses` from the direct irradiance
-        /// `direct` (W/m², per texel), read back.
+        /// `direct` (W/m², per texel, e.g. the CPU twin's), read back.
         pub fn indirect(
             &mut self,
             device: &wgpu::Device,
@@ -295,19 +356,124 @@ mod pass {
             direct: &[Vec3],
             params: &RadiosityParams,
         ) -> Result<Vec<Vec3>, GpuError> {
+            self.set_poses(queue, poses);
+            let rows: Vec<[f32; 4]> = direct.iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
+            queue.write_buffer(&self.direct, 0, bytemuck::cast_slice(&rows));
+            self.indirect_lit(device, queue, params)
+        }
+
+        fn set_poses(&mut self, queue: &wgpu::Queue, poses: &Poses) {
             for (row, (w, r)) in self.object_rows.iter_mut().zip(poses.to_world.iter().zip(&poses.to_rest)) {
                 row.to_world = mat(*w);
                 row.to_rest = mat(*r);
             }
             queue.write_buffer(&self.objects, 0, bytemuck::cast_slice(&self.object_rows));
-            let t = self.texels as usize;
-            let mut init = vec![[0f32; 4]; 3 * t];
-            for k in 0..t {
-                let b = direct[k] * self.albedo[k];
-                init[k] = [b.x, b.y, b.z, 0.0];
+        }
+
+        /// Lights the texels under `poses` with `lights` from shadow maps of `posed` (the
+        /// level with its objects where `poses` put them, `prm::Scene::moved`), `shadow_size`
+        /// texels a side: the direct light [`RadiosityPass::indirect_lit`] starts from.
+        pub fn light_texels(
+            &mut self,
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            posed: &prm::Scene,
+            poses: &Poses,
+            lights: &[prm::Light],
+            shadow_size: u32,
+        ) -> Result<(), TexelLightError> {
+            let max = device.limits().max_texture_dimension_2d;
+            if !(16..=max).contains(&shadow_size) {
+                return Err(TexelLightError::ShadowSize { size: shadow_size, max });
             }
-            queue.write_buffer(&self.values, 0, bytemuck::cast_slice(&init));
+            if self.light.as_ref().is_none_or(|l| l.shadows.size() != shadow_size) {
+                self.light = Some(self.texel_light(device, queue, posed, shadow_size));
+            }
+            self.set_poses(queue, poses);
+            let light = self.light.as_mut().expect("made above");
+            if !light.shadows.set_geometry(posed) {
+                return Err(TexelLightError::Geometry {
+                    posed: posed.triangles.len(),
+                    built: light.triangles,
+                });
+            }
+            light.shadows.update(lights)?;
+            let p =
+                DirectParams { texels: self.texels, light_count: lights.len() as u32, ..Default::default() };
+            queue.write_buffer(&light.params, 0, bytemuck::bytes_of(&p));
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&light.pipeline);
+                pass.set_bind_group(0, light.shadows.group().expect("update allocates the maps"), &[]);
+                pass.set_bind_group(1, &light.group, &[]);
+                pass.dispatch_workgroups(self.texels.div_ceil(WG_LINEAR), 1, 1);
+            }
+            queue.submit([enc.finish()]);
+            Ok(())
+        }
+
+        fn texel_light(
+            &self,
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            posed: &prm::Scene,
+            size: u32,
+        ) -> TexelLight {
+            let shadows = ShadowMaps::new(device, queue, posed, size);
+            let params = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("texel direct params"),
+                size: std::mem::size_of::<DirectParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let layout = DIRECT.layout(device, 1);
+            let group = bind(
+                device,
+                "texel direct",
+                &layout,
+                DIRECT_BINDINGS,
+                &[
+                    ("params", params.as_entire_binding()),
+                    ("texels", self.texel_buf.as_entire_binding()),
+                    ("objects", self.objects.as_entire_binding()),
+                    ("shapes", self.shape_buf.as_entire_binding()),
+                    ("direct", self.direct.as_entire_binding()),
+                ],
+            );
+            let pipeline = gpu::compute_pipeline(
+                device,
+                "texel_direct.wgsl",
+                &DIRECT.source(),
+                "texel_direct_main",
+                &[shadows.layout(), &layout],
+            );
+            TexelLight { shadows, pipeline, group, params, triangles: posed.triangles.len() }
+        }
+
+        /// The texels' direct irradiance as the pass holds it now (W/m²), read back: what
+        /// [`RadiosityPass::light_texels`] or [`RadiosityPass::indirect`] put there.
+        pub fn direct(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Vec<Vec3>, GpuError> {
+            let bytes = gpu::read_buffer(device, queue, &self.direct)?;
+            let all: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+            Ok(all[..self.texels as usize].iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect())
+        }
+
+        /// The indirect irradiance at every texel from the direct light the pass holds
+        /// ([`RadiosityPass::light_texels`]), read back.
+        pub fn indirect_lit(
+            &mut self,
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            params: &RadiosityParams,
+        ) -> Result<Vec<Vec3>, GpuError> {
+            let t = self.texels as usize;
             let texel_groups = self.texels.div_ceil(WG_LINEAR);
+            {
+                let mut enc = device.create_command_encoder(&Default::default());
+                enc.copy_buffer_to_buffer(&self.direct, 0, &self.values, 2 * t as u64 * 16, t as u64 * 16);
+                queue.submit([enc.finish()]);
+            }
             let node_groups = self.nodes.div_ceil(WG_LINEAR);
             let run = |half: u32, jitter: bool, steps: &[(&wgpu::ComputePipeline, u32)]| {
                 let p = RadParams {
@@ -332,18 +498,20 @@ mod pass {
                 }
                 queue.submit([enc.finish()]);
             };
+            if params.bounces == 0 {
+                // Nothing gathered: the seed only clears the total.
+                run(0, false, &[(&self.seed, texel_groups)]);
+            }
             for pass in 0..params.bounces {
                 let jitter = params.jitter && pass + 1 == params.bounces;
-                run(
-                    pass % 2,
-                    jitter,
-                    &[
-                        (&self.flux, node_groups),
-                        (&self.gather, texel_groups),
-                        (&self.got, node_groups),
-                        (&self.next, texel_groups),
-                    ],
-                );
+                let steps = [
+                    (&self.seed, texel_groups),
+                    (&self.flux, node_groups),
+                    (&self.gather, texel_groups),
+                    (&self.got, node_groups),
+                    (&self.next, texel_groups),
+                ];
+                run(pass % 2, jitter, &steps[if pass == 0 { 0 } else { 1 }..]);
             }
             if params.tail && params.bounces > 1 {
                 run(params.bounces % 2, false, &[(&self.flux, node_groups), (&self.tail, texel_groups)]);

@@ -43,6 +43,16 @@ pub const SHADER: Shader = Shader {
 };
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
+/// The sphere the directional lights' frusta cover.
+fn scene_bounds(scene: &Scene) -> Bounds {
+    let (lo, hi) = scene.bounds();
+    if lo.is_finite() && hi.is_finite() {
+        Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() }
+    } else {
+        Bounds { centre: Vec3::ZERO, radius: 1.0 }
+    }
+}
+
 /// The lights' shadow maps in one depth array, with the light buffer: bind group 0 of the
 /// lighting shaders (`bindings` `SHADOW_GROUP`). A game shading with the same shadows binds
 /// [`ShadowMaps::group`] with [`ShadowMaps::layout`].
@@ -81,14 +91,9 @@ impl ShadowMaps {
             } else {
                 &positions[..]
             }),
-            usage: wgpu::BufferUsages::VERTEX,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
         });
-        let (lo, hi) = scene.bounds();
-        let bounds = if lo.is_finite() && hi.is_finite() {
-            Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() }
-        } else {
-            Bounds { centre: Vec3::ZERO, radius: 1.0 }
-        };
+        let bounds = scene_bounds(scene);
         let max_layers = device.limits().max_texture_array_layers;
         let layout = crate::bindings::layout(device, "lights + shadow maps", SHADOW_GROUP);
         let mats_group_layout = SHADER.layout(device, 0);
@@ -215,6 +220,24 @@ impl ShadowMaps {
         self.light_count = lights.len() as u32;
         self.last = Some(lights.to_vec());
         Ok(true)
+    }
+
+    /// Moves the level's triangles to where `posed` has them (the same level with its movable
+    /// objects posed, `prm::Scene::moved`): the next [`ShadowMaps::update`] renders every layer
+    /// again. Returns false (and changes nothing) when `posed` has another triangle count.
+    #[cfg_attr(not(feature = "cpu-twin"), allow(dead_code, reason = "the radiosity pass needs the twin"))]
+    pub(crate) fn set_geometry(&mut self, posed: &Scene) -> bool {
+        if posed.triangles.len() as u32 * 3 != self.vertex_count {
+            return false;
+        }
+        if self.vertex_count > 0 {
+            let positions: Vec<[f32; 3]> =
+                (0..posed.triangles.len()).flat_map(|t| posed.corners(t)).map(|p| p.to_array()).collect();
+            self.queue.write_buffer(&self.vertices, 0, bytemuck::cast_slice(&positions));
+        }
+        self.bounds = scene_bounds(posed);
+        self.last = None;
+        true
     }
 
     /// Bytes of the shadow-map layers allocated now.
