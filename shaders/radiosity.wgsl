@@ -219,11 +219,12 @@ fn csm_blocks(o: RadObject, a: vec3f, b: vec3f) -> f32 {
 fn between(r: RadTexel, pr: vec3f, s: RadTexel, ps: vec3f) -> f32 {
     let orr = objects[r.object];
     var v = cssm_visible(orr, r.seq, (orr.to_rest * vec4f(ps, 1.0)).xyz);
-    if v == 0.0 {
-        return 0.0;
-    }
-    if s.object != r.object {
-        let os = objects[s.object];
+    let os = objects[s.object];
+    if s.object == r.object {
+        if v > 0.0 && v < 1.0 {
+            v = 0.5 * (v + cssm_visible(os, s.seq, (os.to_rest * vec4f(pr, 1.0)).xyz));
+        }
+    } else if v > 0.0 {
         v *= cssm_visible(os, s.seq, (os.to_rest * vec4f(pr, 1.0)).xyz);
     }
     for (var o = 1u; o < params.objects; o++) {

@@ -20,6 +20,8 @@ fn level() -> Scene {
 /// "Away from shadow edges": ray casting gives the same answer with either end moved by one
 /// cube-map pixel's footprint at the pair's distance (2 / res radians) across the segment, in
 /// four directions: visibility that changes within a pixel is an edge the map cannot resolve.
+/// (`VIS_EDGE=tangent`: moved along its own surface instead; a move off the surface tends to
+/// put the end behind a wall, which makes blocked pairs look stable.)
 fn agreement(
     scene: &Scene,
     texels: &TexelSet,
@@ -46,9 +48,17 @@ fn agreement(
         }
         let truth = bvh.visible(pr, nr, ps, ns);
         let step = d.length() * 2.0 / res as f32;
-        let (u, v) = (d / d.length()).any_orthonormal_pair();
-        let stable = [u, -u, v, -v].iter().all(|&o| bvh.visible(pr + o * step, nr, ps, ns) == truth)
-            && [u, -u, v, -v].iter().all(|&o| bvh.visible(pr, nr, ps + o * step, ns) == truth);
+        let stable = if std::env::var("VIS_EDGE").is_ok_and(|m| m == "tangent") {
+            // Either end slid along its own surface (the edge of a shadow as it falls).
+            let (ur, vr) = nr.any_orthonormal_pair();
+            let (us, vs) = ns.any_orthonormal_pair();
+            [ur, -ur, vr, -vr].iter().all(|&o| bvh.visible(pr + o * step, nr, ps, ns) == truth)
+                && [us, -us, vs, -vs].iter().all(|&o| bvh.visible(pr, nr, ps + o * step, ns) == truth)
+        } else {
+            let (u, v) = (d / d.length()).any_orthonormal_pair();
+            [u, -u, v, -v].iter().all(|&o| bvh.visible(pr + o * step, nr, ps, ns) == truth)
+                && [u, -u, v, -v].iter().all(|&o| bvh.visible(pr, nr, ps + o * step, ns) == truth)
+        };
         if !stable {
             continue;
         }
@@ -102,11 +112,10 @@ fn cssm_visibility_agrees_with_ray_casting_at_rest_and_moved() {
         let ((ok, n), (mok, mn)) = agreement(&scene, &texels, &vis, &poses, params.res);
         let rate = ok as f64 / n as f64;
         eprintln!("t = {t}: {ok} / {n} = {:.4} (pairs between movables: {mok} / {mn})", rate);
-        // Issue 15's target is 99 %; measured 98.1 % at rest (res 16; 98.8 % at res 32): the
-        // misses are segments through the 3 cm gap between the closed door and its jamb, where
-        // the static map (which has no door) and the door's occluder map each sit at their own
-        // edge. 97.5 % holds the rest of the structure to its figure.
-        assert!(n >= 4000 && rate >= 0.975, "t = {t}: {ok} of {n} pairs agree");
+        // Issue 15's target: 99 %. Measured 99.5-99.7 % (res 16). With one end's map only for
+        // pairs on one object, 98.1-98.8 %: the misses were its filtered lookups near 1/2, both
+        // ways, which the other end's map mostly settles (`Visibility::between`).
+        assert!(n >= 4000 && rate >= 0.99, "t = {t}: {ok} of {n} pairs agree");
     }
     eprintln!("visibility: {} bytes, {} uncompressed", vis.bytes(), vis.uncompressed_bytes());
 }

@@ -115,9 +115,9 @@ fn a_bounce_keeps_the_power_it_is_given() {
 
 /// Per frame of the doorway rig (door closed, half open, open; the block sliding), the
 /// radiosity's indirect lightmap against the ground truth's (noise removed in quadrature).
-/// Issue 15's target: 10 % on every frame. Measured at this 64² atlas (25 cm texels): 6.7, 5.5
-/// and 6.4 % (bias -0.6 %); with ray-cast visibility 4.5, 3.0 and 3.4 %, so the CSSM adds 5-6 %
-/// (its agreement test says where). At 128² (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0
+/// Issue 15's target: 10 % on every frame. Measured at this 64² atlas (25 cm texels): 5.7, 4.5
+/// and 5.7 % (bias -0.6 %); with ray-cast visibility 4.3, 2.7 and 3.1 %; the CSSM against ray
+/// casting 4.1-5.3 % (bias -0.7 %). At 128² (the level's own, `RAD_SIZE=128 RAD_T0=1`) t = 0
 /// gives 3.5 %. Without power conservation the cut and the point-sampled texels lose 1-2 % a
 /// bounce, compounding (21-30 % before it and the texel shapes).
 #[test]

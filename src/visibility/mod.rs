@@ -6,8 +6,16 @@
 //! besides a [`Csm`] that tests segments passing it. Visibility between texels `r` and `s`
 //! under the frame's poses (§3.3):
 //!
-//! 1. `r`'s cube map sees `s` (in `r`'s object's frame); when `s` is on another object, `s`'s
-//!    cube map must see `r` too (self-occlusion of each);
+//! 1. `r`'s cube map sees `s` (in `r`'s object's frame). When `s` is on the same object and
+//!    that lookup is at an edge (its filtered value strictly between 0 and 1), the mean of it
+//!    and `s`'s map seeing `r`: both maps hold the same geometry, and a second look settles
+//!    most pairs the first filtered to near 1/2. On the doorway level, pairs away from shadow
+//!    edges agreed with ray casting on 98.1-98.8 % with one look, 99.5-99.7 % with the second
+//!    at edges (99.3-99.5 % with it always: the second map's own conservative filtering then
+//!    darkens pairs the first sees clearly, and the radiosity's error grew by 0.4 points
+//!    where the second at edges lowered it by 0.9-1.0). When `s` is on another object, the
+//!    product of `r`'s map seeing `s` and `s`'s map seeing `r` (self-occlusion of each, in
+//!    its frame);
 //! 2. no third *movable* object blocks the segment (its [`Csm`], in its frame).
 //!
 //! Not tested, as in the paper: the static level blocking a segment between two points on
@@ -95,11 +103,13 @@ impl Visibility {
         let (os, ks) = self.slots[s];
         let (or, os) = (or as usize, os as usize);
         let mut v = self.objects[or].cssm.visible(kr, poses.to_rest[or].transform_point3(ps));
-        if v == 0.0 {
-            return 0.0;
-        }
-        if os != or {
-            v *= self.objects[os].cssm.visible(ks, poses.to_rest[os].transform_point3(pr));
+        let back = || self.objects[os].cssm.visible(ks, poses.to_rest[os].transform_point3(pr));
+        if os == or {
+            if v > 0.0 && v < 1.0 {
+                v = 0.5 * (v + back());
+            }
+        } else if v > 0.0 {
+            v *= back();
         }
         for (o, obj) in self.objects.iter().enumerate().skip(1) {
             if v == 0.0 {
