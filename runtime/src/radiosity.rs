@@ -10,7 +10,7 @@
 //! bindings.
 //!
 //! The direct light the radiosity starts from comes from either end:
-//! [`RadiosityPass::light_texels`] renders shadow maps of the posed level ([`crate::shadow`],
+//! [`RadiosityPass::light_texels`] renders shadow maps of the posed level (`crate::shadow`,
 //! the PRM runtime's) and lights each texel from them (`shaders/texel_direct.wgsl`: the mean
 //! over the texel's shape, as the CPU twin's ray-traced
 //! [`crate::cpu::radiosity::sender_direct`]), so a frame never leaves the GPU until its
@@ -62,7 +62,7 @@ pub const SHADER: Shader = Shader {
     ],
 };
 
-/// Group 1 of `shaders/texel_direct.wgsl` (group 0 is [`SHADOW_GROUP`]).
+/// Group 1 of `shaders/texel_direct.wgsl` (group 0 is the shadow maps' `SHADOW_GROUP`).
 pub const DIRECT_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform("DirectParams"), COMPUTE),
     b("texels", Res::Read("array<RadTexel>"), COMPUTE),
