@@ -221,7 +221,7 @@ fn between(r: RadTexel, pr: vec3f, s: RadTexel, ps: vec3f) -> f32 {
     var v = cssm_visible(orr, r.seq, (orr.to_rest * vec4f(ps, 1.0)).xyz);
     let os = objects[s.object];
     if s.object == r.object {
-        if v > 0.0 && v < 1.0 {
+        if v > CSSM_EDGE && v < 1.0 - CSSM_EDGE {
             v = 0.5 * (v + cssm_visible(os, s.seq, (os.to_rest * vec4f(pr, 1.0)).xyz));
         }
     } else if v > 0.0 {

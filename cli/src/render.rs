@@ -37,7 +37,8 @@ pub enum Mode {
     /// The precomputed radiance map (--prm): static geometry, moving lights.
     Prm,
     /// Hierarchical radiosity over precomputed visibility (--vis, `prm visibility`): the
-    /// rig's objects move too (paper 003). The radiosity runs on either backend; direct light and shading on the CPU.
+    /// rig's objects move too (paper 003). Direct light at the texels and the radiosity run on
+    /// either backend (GPU: from --shadow-size shadow maps); the shading on the CPU.
     Cssm,
 }
 

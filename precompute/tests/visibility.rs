@@ -112,7 +112,7 @@ fn cssm_visibility_agrees_with_ray_casting_at_rest_and_moved() {
         let ((ok, n), (mok, mn)) = agreement(&scene, &texels, &vis, &poses, params.res);
         let rate = ok as f64 / n as f64;
         eprintln!("t = {t}: {ok} / {n} = {:.4} (pairs between movables: {mok} / {mn})", rate);
-        // Issue 15's target: 99 %. Measured 99.5-99.7 % (res 16). With one end's map only for
+        // Issue 15's target: 99 %. Measured 99.4-99.7 % (res 16). With one end's map only for
         // pairs on one object, 98.1-98.8 %: the misses were its filtered lookups near 1/2, both
         // ways, which the other end's map mostly settles (`Visibility::between`).
         assert!(n >= 4000 && rate >= 0.99, "t = {t}: {ok} of {n} pairs agree");

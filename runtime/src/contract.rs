@@ -99,11 +99,12 @@ pub fn prelude() -> &'static str {
             s,
             "// Radiosity: texel sizes within which a texel sends by its square's form factor\n\
              // (prm_runtime::radiosity::NEAR), and the CSSM's relative depth slack\n\
-             // (prm::visibility::cssm::SLACK).\n\
-             const RADIOSITY_NEAR: f32 = {:?}f;\nconst CSSM_SLACK: f32 = {:?}f;\n\
+             // (prm::visibility::cssm::SLACK) and edge margin (prm::visibility::cssm::EDGE).\n\
+             const RADIOSITY_NEAR: f32 = {:?}f;\nconst CSSM_SLACK: f32 = {:?}f;\nconst CSSM_EDGE: f32 = {:?}f;\n\
              // The largest factor power conservation scales a pass by.\nconst MAX_CONSERVE: f32 = {:?}f;\n",
             crate::radiosity::NEAR,
             prm::visibility::cssm::SLACK,
+            prm::visibility::cssm::EDGE,
             crate::radiosity::MAX_CONSERVE
         );
         s += "// glTF range window (prm::light::range_window).\n";

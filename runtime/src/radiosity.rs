@@ -82,7 +82,7 @@ pub const DIRECT: Shader = Shader {
 };
 
 #[cfg(feature = "cpu-twin")]
-pub use pass::{pack_visibility, RadiosityPass};
+pub use pass::{pack_visibility, RadiosityPass, TexelLightError};
 
 #[cfg(feature = "cpu-twin")]
 mod pass {
@@ -140,13 +140,18 @@ mod pass {
         (words, bases)
     }
 
-    /// Why [`RadiosityPass::light_texels`] could not light the texels.
+    /// Why [`RadiosityPass::light_texels`] could not light the texels, or
+    /// [`RadiosityPass::indirect`] take the direct light it was given.
     #[derive(Debug, thiserror::Error)]
     pub enum TexelLightError {
         #[error(transparent)]
         Lights(#[from] LightError),
         #[error("the posed level has {posed} triangles, the pass was built for {built}")]
         Geometry { posed: usize, built: usize },
+        #[error(transparent)]
+        Gpu(#[from] GpuError),
+        #[error("direct light for {given} texels, the pass has {texels}")]
+        Texels { given: usize, texels: usize },
         #[error("shadow maps of {size} texels: between 16 and {max}")]
         ShadowSize { size: u32, max: u32 },
     }
@@ -157,7 +162,6 @@ mod pass {
         pipeline: wgpu::ComputePipeline,
         group: wgpu::BindGroup,
         params: wgpu::Buffer,
-        triangles: usize,
     }
 
     /// The GPU radiosity of one level (module doc).
@@ -178,6 +182,8 @@ mod pass {
         /// the CPU.
         direct: wgpu::Buffer,
         light: Option<TexelLight>,
+        /// The level's triangles (a posed level must have as many).
+        triangles: usize,
         object_rows: Vec<RadObject>,
         texels: u32,
         nodes: u32,
@@ -339,6 +345,7 @@ mod pass {
                 shape_buf,
                 direct,
                 light: None,
+                triangles: scene.triangles.len(),
                 object_rows,
                 texels: rows.len() as u32,
                 nodes: nodes.len() as u32,
@@ -355,11 +362,14 @@ mod pass {
             poses: &Poses,
             direct: &[Vec3],
             params: &RadiosityParams,
-        ) -> Result<Vec<Vec3>, GpuError> {
+        ) -> Result<Vec<Vec3>, TexelLightError> {
+            if direct.len() != self.texels as usize {
+                return Err(TexelLightError::Texels { given: direct.len(), texels: self.texels as usize });
+            }
             self.set_poses(queue, poses);
             let rows: Vec<[f32; 4]> = direct.iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
             queue.write_buffer(&self.direct, 0, bytemuck::cast_slice(&rows));
-            self.indirect_lit(device, queue, params)
+            Ok(self.indirect_lit(device, queue, params)?)
         }
 
         fn set_poses(&mut self, queue: &wgpu::Queue, poses: &Poses) {
@@ -386,18 +396,22 @@ mod pass {
             if !(16..=max).contains(&shadow_size) {
                 return Err(TexelLightError::ShadowSize { size: shadow_size, max });
             }
+            if posed.triangles.len() != self.triangles {
+                return Err(TexelLightError::Geometry {
+                    posed: posed.triangles.len(),
+                    built: self.triangles,
+                });
+            }
+            crate::lights::validate(lights)?;
             if self.light.as_ref().is_none_or(|l| l.shadows.size() != shadow_size) {
                 self.light = Some(self.texel_light(device, queue, posed, shadow_size));
             }
-            self.set_poses(queue, poses);
             let light = self.light.as_mut().expect("made above");
-            if !light.shadows.set_geometry(posed) {
-                return Err(TexelLightError::Geometry {
-                    posed: posed.triangles.len(),
-                    built: light.triangles,
-                });
-            }
+            let moved = light.shadows.set_geometry(posed);
+            debug_assert!(moved, "the triangle count is checked above");
             light.shadows.update(lights)?;
+            self.set_poses(queue, poses);
+            let light = self.light.as_ref().expect("made above");
             let p =
                 DirectParams { texels: self.texels, light_count: lights.len() as u32, ..Default::default() };
             queue.write_buffer(&light.params, 0, bytemuck::bytes_of(&p));
@@ -448,7 +462,7 @@ mod pass {
                 "texel_direct_main",
                 &[shadows.layout(), &layout],
             );
-            TexelLight { shadows, pipeline, group, params, triangles: posed.triangles.len() }
+            TexelLight { shadows, pipeline, group, params }
         }
 
         /// The texels' direct irradiance as the pass holds it now (W/m²), read back: what

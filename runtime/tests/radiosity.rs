@@ -237,9 +237,12 @@ fn shadow_mapped_texel_light_matches_rays_and_the_ground_truth() {
     assert!(err.to_string().contains("shadow maps of 4 texels"), "{err}");
     let mut fewer = scene.clone();
     fewer.triangles.pop();
-    pass.light_texels(&gpu.device, &gpu.queue, &scene, &poses, &lights, 256).unwrap();
     let err = pass.light_texels(&gpu.device, &gpu.queue, &fewer, &poses, &lights, 256).unwrap_err();
     assert!(err.to_string().contains("triangles"), "{err}");
+    let short = vec![Vec3::ONE; texels.len() - 1];
+    let err =
+        pass.indirect(&gpu.device, &gpu.queue, &poses, &short, &RadiosityParams::default()).unwrap_err();
+    assert!(err.to_string().contains("direct light for"), "{err}");
     for t in [0.0, 2.0, 4.0] {
         let moves = motion.at_time(t);
         let poses = Poses::new(&moves);

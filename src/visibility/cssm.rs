@@ -18,6 +18,11 @@ use serde::{Deserialize, Serialize};
 
 use super::cube;
 
+/// A lookup counts as at an edge (`Visibility::between` asks the other end too) when its
+/// filtered value is more than this from both 0 and 1: the bilinear weights of a lookup whose
+/// taps all pass sum to 1 only within rounding.
+pub const EDGE: f32 = 1e-3;
+
 /// Relative depth slack of a query: 16-bit depth codes and the offset of cube map origins off
 /// their surface are far below it.
 pub const SLACK: f32 = 0.005;
