@@ -215,6 +215,48 @@ fn gpu_radiosity_matches_the_cpu_twin() {
     }
 }
 
+/// What a texel sends with carries the power its shape receives, at any light height: a
+/// lamp 2 cm, 10 cm and 1 m over room B's floor delivers the same power to the floor's texels
+/// (the sum of sender direct light x shape area) as to its triangles (`Light::triangle_power`,
+/// exact), on the CPU with rays and on the GPU with shadow maps. A texel's point, or a few
+/// points over it, misses most of a hot spot 2 cm across.
+#[test]
+fn senders_carry_the_power_their_shapes_receive_at_any_light_height() {
+    let gpu = prm_runtime::Gpu::new().expect("this GPU test needs a wgpu adapter");
+    let (scene, texels, vis, h) = setup();
+    let poses = Poses::at_rest(scene.movables.len() + 1);
+    let points = posed_points(&scene, &texels, &poses);
+    let frame = Frame { poses: &poses, points: &points };
+    let bvh = Bvh::build(&scene);
+    let floor_b = |t: usize| {
+        let [a, b, c] = scene.corners(t);
+        let n = (b - a).cross(c - a).normalize_or_zero();
+        n.y > 0.99 && a.y.abs() < 1e-4 && (a + b + c).x / 3.0 > 0.1
+    };
+    let on_floor: Vec<usize> =
+        (0..texels.len()).filter(|&k| floor_b(texels.texels[k].triangle as usize)).collect();
+    assert!(on_floor.len() > 100, "{} texels on room B's floor", on_floor.len());
+    let mut pass =
+        prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
+    for height in [0.02f32, 0.1, 1.0] {
+        let lamp = prm::Light::point("lamp", Vec3::new(2.0, height, 0.1), Vec3::splat(10.0));
+        let exact: f64 = (0..scene.triangles.len())
+            .filter(|&t| floor_b(t))
+            .map(|t| prm::luminance(lamp.triangle_power(&scene.corners(t))) as f64)
+            .sum();
+        let lights = [lamp];
+        let cpu = sender_direct(&scene, &texels, &h, &frame, &bvh, &lights);
+        pass.light_texels(&gpu.device, &gpu.queue, &scene, &poses, &lights, 1024).unwrap();
+        let gpu_direct = pass.direct(&gpu.device, &gpu.queue).unwrap();
+        let carried = |e: &[Vec3]| -> f64 {
+            on_floor.iter().map(|&k| prm::luminance(e[k]) as f64 * h.shapes[k].area as f64).sum()
+        };
+        let (c, g) = (carried(&cpu) / exact, carried(&gpu_direct) / exact);
+        eprintln!("lamp {height} m over the floor: senders carry {c:.4} (CPU), {g:.4} (GPU) of the power");
+        assert!((c - 1.0).abs() < 0.01 && (g - 1.0).abs() < 0.01, "{height} m: {c:.4} / {g:.4}");
+    }
+}
+
 /// The GPU's own direct light at the texels (shadow maps of the posed level,
 /// `RadiosityPass::light_texels`) against the CPU twin's ray-traced one, and the radiosity lit
 /// by it against the ground truth, with the door half open and the block moved: a frame that

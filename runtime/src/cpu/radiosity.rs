@@ -319,10 +319,14 @@ pub fn posed_points(scene: &Scene, texels: &TexelSet, poses: &Poses) -> Vec<(Vec
     poses.texel_points(scene, &texels.texels)
 }
 
-/// The direct irradiance each texel *sends* with: the mean over its shape (its centroid and the
-/// points halfway from it to each vertex), in the posed level. A texel's sample point alone
-/// stands for it poorly where the light changes within it: a lamp 15 cm from a corner puts
-/// most of a texel's power in part of it. The lightmap's receivers stay points.
+/// The direct irradiance each texel *sends* with: the mean over its shape, in the posed level.
+/// For point, spot and directional lights the unshadowed part is exact at any distance: the
+/// power the light delivers to the shape (`prm::Light::triangle_power` over a fan of its
+/// triangles) over its area; it is scaled by the shape's visible share, the irradiance-weighted
+/// mean of shadow rays from its centroid and the points halfway from it to each vertex. Area
+/// lights: the mean of the shadowed irradiance at those points. A texel's sample point alone
+/// stands for it poorly where the light changes within it: a lamp 15 cm from a corner puts most
+/// of a texel's power in part of it. The lightmap's receivers stay points.
 pub fn sender_direct(
     scene: &Scene,
     texels: &TexelSet,
@@ -338,17 +342,55 @@ pub fn sender_direct(
         .map(|(k, t)| {
             let shape = &h.shapes[k];
             let normal = frame.points[k].1;
-            if shape.len < 3 {
+            if shape.len < 3 || !(shape.area > 0.0) {
                 return prm::bvh::direct_irradiance(bvh, lights, frame.points[k].0, normal);
             }
             let pose = frame.poses.to_world[scene.object(t.triangle as usize) as usize];
             let v: Vec<Vec3> = shape.vertices().iter().map(|p| pose.transform_point3(*p)).collect();
             let c = v.iter().sum::<Vec3>() / v.len() as f32;
-            let mut sum = prm::bvh::direct_irradiance(bvh, lights, c, normal);
-            for p in &v {
-                sum += prm::bvh::direct_irradiance(bvh, lights, c.lerp(*p, 0.5), normal);
+            let samples: Vec<Vec3> = std::iter::once(c).chain(v.iter().map(|p| c.lerp(*p, 0.5))).collect();
+            let mut sum = Vec3::ZERO;
+            for l in lights {
+                if l.is_area() {
+                    let one = std::slice::from_ref(l);
+                    let e: Vec3 =
+                        samples.iter().map(|&p| prm::bvh::direct_irradiance(bvh, one, p, normal)).sum();
+                    sum += e / samples.len() as f32;
+                    continue;
+                }
+                let mut power = Vec3::ZERO;
+                for m in 1..v.len() - 1 {
+                    let mut tri = [v[0], v[m], v[m + 1]];
+                    if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(normal) < 0.0 {
+                        tri.swap(1, 2);
+                    }
+                    power += l.triangle_power(&tri);
+                }
+                if power == Vec3::ZERO {
+                    continue;
+                }
+                let (mut seen, mut total) = (0.0f32, 0.0f32);
+                for &p in &samples {
+                    let inc = l.incident(p);
+                    let w = prm::luminance(inc.irradiance) * normal.dot(inc.to_light);
+                    if !(w > 0.0) {
+                        continue;
+                    }
+                    total += w;
+                    let visible = if l.is_positional() {
+                        bvh.visible_point(p, normal, l.position)
+                    } else {
+                        bvh.visible_dir(p, normal, inc.to_light)
+                    };
+                    if visible {
+                        seen += w;
+                    }
+                }
+                if total > 0.0 {
+                    sum += power / shape.area * (seen / total);
+                }
             }
-            sum / (v.len() + 1) as f32
+            sum
         })
         .collect()
 }
