@@ -247,18 +247,19 @@ fn shape_vertex(t: u32, i: u32, w: mat4x4f) -> vec3f {
     return (w * vec4f(shapes[8u * t + i].xyz, 1.0)).xyz;
 }
 
-fn point_to_shape(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
-    let count = u32(shapes[8u * t + 7u].x);
+// Form factor from the point p (unit normal n) to the convex polygon v[0..count], clipped to
+// p's side (prm::form_factor::point_to_polygon).
+fn clipped_form_factor(p: vec3f, n: vec3f, v: array<vec3f, 8>, count: u32) -> f32 {
     var scale = 0.0;
     for (var i = 0u; i < count; i++) {
-        scale = max(scale, length(shape_vertex(t, i, w) - p));
+        scale = max(scale, length(v[i] - p));
     }
     let tol = 1e-5 * scale;
-    var c: array<vec3f, 8>;
+    var c: array<vec3f, 9>;
     var m = 0u;
     for (var i = 0u; i < count; i++) {
-        let a = shape_vertex(t, i, w);
-        let b = shape_vertex(t, (i + 1u) % count, w);
+        let a = v[i];
+        let b = v[(i + 1u) % count];
         let da = dot(a - p, n) - tol;
         let db = dot(b - p, n) - tol;
         if da > 0.0 {
@@ -287,6 +288,42 @@ fn point_to_shape(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
     return min(abs(sum) / (2.0 * PI), 1.0);
 }
 
+// Texel t's shape posed by `w`, and its vertex count.
+fn posed_shape(t: u32, w: mat4x4f) -> array<vec3f, 8> {
+    var v: array<vec3f, 8>;
+    let count = u32(shapes[8u * t + 7u].x);
+    for (var i = 0u; i < count; i++) {
+        v[i] = shape_vertex(t, i, w);
+    }
+    return v;
+}
+
+fn point_to_shape(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
+    return clipped_form_factor(p, n, posed_shape(t, w), u32(shapes[8u * t + 7u].x));
+}
+
+// The same, each part (centroid, vertex i, vertex i + 1) weighted by its share of the direct
+// light (crate::cpu::radiosity::SenderLight::parts, the shape vertices' w).
+fn point_to_parts(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
+    let count = u32(shapes[8u * t + 7u].x);
+    let v = posed_shape(t, w);
+    var c = vec3f(0.0);
+    for (var i = 0u; i < count; i++) {
+        c += v[i];
+    }
+    c /= f32(count);
+    var sum = 0.0;
+    for (var i = 0u; i < count; i++) {
+        var tri: array<vec3f, 8>;
+        tri[0] = c;
+        tri[1] = v[i];
+        tri[2] = v[(i + 1u) % count];
+        sum += shapes[8u * t + i].w * clipped_form_factor(p, n, tri, 3u);
+    }
+    return sum;
+}
+
+// The jittered representatives' hash (crate::cpu::radiosity::hash).
 fn hash(a: u32, b: u32) -> u32 {
     var h = (a * 0x9E3779B1u) ^ (b * 0x85EBCA77u);
     h ^= h >> 15u;
@@ -415,7 +452,12 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
             if st.shape_area <= 0.0 {
                 continue;
             }
-            let f = point_to_shape(x, nr, s, objects[n.object].to_world);
+            var f = 0.0;
+            if params.parts != 0u {
+                f = point_to_parts(x, nr, s, objects[n.object].to_world);
+            } else {
+                f = point_to_shape(x, nr, s, objects[n.object].to_world);
+            }
             if f <= 0.0 {
                 continue;
             }

@@ -465,6 +465,11 @@ gpu_struct! {
         pub total_area: f32,
         /// Scale each pass to conserve power (`RadiosityParams::conserve`).
         pub conserve: u32,
+        /// Near texels send by their shapes' parts (the first pass: direct light).
+        pub parts: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 

@@ -36,7 +36,8 @@ pub const BINDINGS: &[Binding] = &[
     b("objects", Res::Read("array<RadObject>"), COMPUTE),
     // The visibility's tables, packed ([`pack_visibility`]).
     b("vdata", Res::Read("array<u32>"), COMPUTE),
-    // Per texel, its shape's vertices (xyz, 7 of them) and their number (the 8th's x).
+    // Per texel, its shape's vertices (xyz, 7 of them; w: the direct light's part from the
+    // centroid to that vertex's edge, `SenderLight::parts`) and their number (the 8th's x).
     b("shapes", Res::Read("array<vec4f>"), COMPUTE),
     // Exitance | gathered | total, a section of `texels` each.
     b("values", Res::ReadWrite("array<vec4f>"), COMPUTE),
@@ -67,7 +68,8 @@ pub const DIRECT_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform("DirectParams"), COMPUTE),
     b("texels", Res::Read("array<RadTexel>"), COMPUTE),
     b("objects", Res::Read("array<RadObject>"), COMPUTE),
-    b("shapes", Res::Read("array<vec4f>"), COMPUTE),
+    // Written: each part's share of the direct light, the w of its shape vertex.
+    b("shapes", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // Direct irradiance per texel (W/m², w unused).
     b("direct", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
@@ -93,7 +95,7 @@ mod pass {
     use super::{BINDINGS, DIRECT, DIRECT_BINDINGS, SHADER};
     use crate::bindings::bind;
     use crate::contract::WG_LINEAR;
-    use crate::cpu::radiosity::{Hierarchy, RadiosityParams};
+    use crate::cpu::radiosity::{Hierarchy, RadiosityParams, SenderLight};
     use crate::gpu::{self, GpuError};
     use crate::layout::{mat, DirectParams, RadNode, RadObject, RadParams, RadTexel};
     use crate::lights::LightError;
@@ -178,6 +180,8 @@ mod pass {
         values: wgpu::Buffer,
         texel_buf: wgpu::Buffer,
         shape_buf: wgpu::Buffer,
+        /// The shapes' rows as uploaded (their w rewritten from a CPU [`SenderLight`]).
+        shape_rows: Vec<[f32; 4]>,
         /// Direct irradiance per texel, `vec4f` each: from [`RadiosityPass::light_texels`] or
         /// the CPU.
         direct: wgpu::Buffer,
@@ -233,7 +237,8 @@ mod pass {
                 .shapes
                 .iter()
                 .flat_map(|sh| {
-                    let mut v = sh.points.map(|p| [p.x, p.y, p.z, 0.0]).to_vec();
+                    // w: the direct light's parts, even until a frame says otherwise.
+                    let mut v = sh.points.map(|p| [p.x, p.y, p.z, 1.0]).to_vec();
                     v.push([sh.len as f32, 0.0, 0.0, 0.0]);
                     v
                 })
@@ -297,7 +302,7 @@ mod pass {
                 gpu::storage_buffer(device, "radiosity objects", bytemuck::cast_slice(&object_rows), copy);
             let vdata = gpu::storage_buffer(device, "visibility", bytemuck::cast_slice(&words), none);
             let shape_buf =
-                gpu::storage_buffer(device, "radiosity shapes", bytemuck::cast_slice(&shapes), none);
+                gpu::storage_buffer(device, "radiosity shapes", bytemuck::cast_slice(&shapes), copy);
             let values =
                 gpu::storage_buffer(device, "radiosity values", &vec![0u8; rows.len() * 3 * 16], copy);
             let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 3 * 16], none);
@@ -343,6 +348,7 @@ mod pass {
                 values,
                 texel_buf,
                 shape_buf,
+                shape_rows: shapes,
                 direct,
                 light: None,
                 triangles: scene.triangles.len(),
@@ -353,22 +359,32 @@ mod pass {
             })
         }
 
-        /// The indirect irradiance at every texel under `poses` from the direct irradiance
-        /// `direct` (W/m², per texel, e.g. the CPU twin's), read back.
+        /// The indirect irradiance at every texel under `poses` from the direct light `light`
+        /// (e.g. the CPU twin's), read back.
         pub fn indirect(
             &mut self,
             device: &wgpu::Device,
             queue: &wgpu::Queue,
             poses: &Poses,
-            direct: &[Vec3],
+            light: &SenderLight,
             params: &RadiosityParams,
         ) -> Result<Vec<Vec3>, TexelLightError> {
-            if direct.len() != self.texels as usize {
-                return Err(TexelLightError::Texels { given: direct.len(), texels: self.texels as usize });
+            let texels = self.texels as usize;
+            if light.mean.len() != texels || light.parts.len() != texels {
+                return Err(TexelLightError::Texels {
+                    given: light.mean.len().min(light.parts.len()),
+                    texels,
+                });
             }
             self.set_poses(queue, poses);
-            let rows: Vec<[f32; 4]> = direct.iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
+            let rows: Vec<[f32; 4]> = light.mean.iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
             queue.write_buffer(&self.direct, 0, bytemuck::cast_slice(&rows));
+            for (k, parts) in light.parts.iter().enumerate() {
+                for (i, &part) in parts.iter().enumerate() {
+                    self.shape_rows[8 * k + i][3] = part;
+                }
+            }
+            queue.write_buffer(&self.shape_buf, 0, bytemuck::cast_slice(&self.shape_rows));
             Ok(self.indirect_lit(device, queue, params)?)
         }
 
@@ -465,12 +481,17 @@ mod pass {
             TexelLight { shadows, pipeline, group, params }
         }
 
-        /// The texels' direct irradiance as the pass holds it now (W/m²), read back: what
+        /// The texels' direct light as the pass holds it now, read back: what
         /// [`RadiosityPass::light_texels`] or [`RadiosityPass::indirect`] put there.
-        pub fn direct(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Vec<Vec3>, GpuError> {
+        pub fn direct(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<SenderLight, GpuError> {
             let bytes = gpu::read_buffer(device, queue, &self.direct)?;
             let all: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
-            Ok(all[..self.texels as usize].iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect())
+            let mean = all[..self.texels as usize].iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect();
+            let bytes = gpu::read_buffer(device, queue, &self.shape_buf)?;
+            let rows: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+            let parts =
+                rows.chunks(8).take(self.texels as usize).map(|r| std::array::from_fn(|i| r[i][3])).collect();
+            Ok(SenderLight { mean, parts })
         }
 
         /// The indirect irradiance at every texel from the direct light the pass holds
@@ -489,7 +510,7 @@ mod pass {
                 queue.submit([enc.finish()]);
             }
             let node_groups = self.nodes.div_ceil(WG_LINEAR);
-            let run = |half: u32, jitter: bool, steps: &[(&wgpu::ComputePipeline, u32)]| {
+            let run = |half: u32, jitter: bool, first: bool, steps: &[(&wgpu::ComputePipeline, u32)]| {
                 let p = RadParams {
                     texels: self.texels,
                     nodes: self.nodes,
@@ -499,6 +520,8 @@ mod pass {
                     flux_half: half,
                     total_area: self.total_area,
                     conserve: params.conserve as u32,
+                    parts: first as u32,
+                    ..Default::default()
                 };
                 queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&p));
                 let mut enc = device.create_command_encoder(&Default::default());
@@ -514,7 +537,7 @@ mod pass {
             };
             if params.bounces == 0 {
                 // Nothing gathered: the seed only clears the total.
-                run(0, false, &[(&self.seed, texel_groups)]);
+                run(0, false, false, &[(&self.seed, texel_groups)]);
             }
             for pass in 0..params.bounces {
                 let jitter = params.jitter && pass + 1 == params.bounces;
@@ -525,10 +548,15 @@ mod pass {
                     (&self.got, node_groups),
                     (&self.next, texel_groups),
                 ];
-                run(pass % 2, jitter, &steps[if pass == 0 { 0 } else { 1 }..]);
+                run(pass % 2, jitter, pass == 0, &steps[if pass == 0 { 0 } else { 1 }..]);
             }
             if params.tail && params.bounces > 1 {
-                run(params.bounces % 2, false, &[(&self.flux, node_groups), (&self.tail, texel_groups)]);
+                run(
+                    params.bounces % 2,
+                    false,
+                    false,
+                    &[(&self.flux, node_groups), (&self.tail, texel_groups)],
+                );
             }
             let bytes = gpu::read_buffer(device, queue, &self.values)?;
             let all: &[[f32; 4]] = bytemuck::cast_slice(&bytes);

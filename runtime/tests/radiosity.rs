@@ -10,6 +10,7 @@ use prm_precompute::parallel::Control;
 use prm_precompute::visibility::{build_visibility, moving_texel_set, VisibilityParams};
 use prm_runtime::cpu::radiosity::{
     gather, indirect, posed_points, sender_direct, Frame, Hierarchy, RadiosityParams, RayVisibility,
+    SenderLight,
 };
 
 fn root() -> std::path::PathBuf {
@@ -55,7 +56,7 @@ fn the_hierarchy_covers_every_texel_once_and_a_full_cut_is_brute_force() {
     let points = posed_points(&scene, &texels, &poses);
     let frame = Frame { poses: &poses, points: &points };
     let b: Vec<Vec3> = (0..texels.len()).map(|t| Vec3::splat(((t * 7919) % 13) as f32 + 1.0)).collect();
-    let (e, _) = gather(&h, &vis, &frame, &b, 0.0, false);
+    let (e, _) = gather(&h, &vis, &frame, &b, None, 0.0, false);
     let total: f32 = h.area.iter().sum();
     eprintln!("texel area {total:.2} m², surfaces {:.2} m²", scene.total_area());
     for r in (0..texels.len()).step_by(97) {
@@ -105,7 +106,7 @@ fn a_bounce_keeps_the_power_it_is_given() {
         |e: &[Vec3]| -> f64 { e.iter().zip(&h.area).map(|(e, a)| (prm::luminance(*e) * a) as f64).sum() };
     let rays = RayVisibility { bvh: &bvh, points: &points };
     for (threshold, keep) in [(0.0, 0.99), (RadiosityParams::default().threshold, 0.975)] {
-        let (e, _) = gather(&h, &rays, &frame, &b, threshold, false);
+        let (e, _) = gather(&h, &rays, &frame, &b, None, threshold, false);
         let kept = power(&e) / power(&b);
         eprintln!("threshold {threshold}: a bounce keeps {:.2} % of its power", kept * 100.0);
         assert!((keep..=1.01).contains(&kept), "threshold {threshold}: {:.2} %", kept * 100.0);
@@ -196,10 +197,9 @@ fn gpu_radiosity_matches_the_cpu_twin() {
         let bvh = Bvh::build(&posed);
         let points = posed_points(&scene, &texels, &poses);
         let lights = rig.at_time(t);
-        let direct: Vec<Vec3> =
-            points.iter().map(|&(p, n)| prm::bvh::direct_irradiance(&bvh, &lights, p, n)).collect();
-        let params = RadiosityParams::default();
         let frame = Frame { poses: &poses, points: &points };
+        let direct = sender_direct(&scene, &texels, &h, &frame, &bvh, &lights);
+        let params = RadiosityParams::default();
         let (cpu, _) = indirect(&h, &vis, &frame, &direct, &params, &vis.escape);
         let gpu_out = pass.indirect(&gpu.device, &gpu.queue, &poses, &direct, &params).unwrap();
         let c = prm::metric::compare(&gpu_out, &cpu, None);
@@ -251,9 +251,28 @@ fn senders_carry_the_power_their_shapes_receive_at_any_light_height() {
         let carried = |e: &[Vec3]| -> f64 {
             on_floor.iter().map(|&k| prm::luminance(e[k]) as f64 * h.shapes[k].area as f64).sum()
         };
-        let (c, g) = (carried(&cpu) / exact, carried(&gpu_direct) / exact);
+        let (c, g) = (carried(&cpu.mean) / exact, carried(&gpu_direct.mean) / exact);
         eprintln!("lamp {height} m over the floor: senders carry {c:.4} (CPU), {g:.4} (GPU) of the power");
         assert!((c - 1.0).abs() < 0.01 && (g - 1.0).abs() < 0.01, "{height} m: {c:.4} / {g:.4}");
+        // The parts divide the mean: area-weighted, they average to 1 on every lit texel,
+        // and the GPU's (shadow maps) are the CPU's (rays) where no shadow falls.
+        for &k in &on_floor {
+            let v = h.shapes[k].vertices();
+            let c0 = v.iter().sum::<Vec3>() / v.len() as f32;
+            let area = |i: usize| 0.5 * (v[i] - c0).cross(v[(i + 1) % v.len()] - c0).length();
+            for (what, light) in [("CPU", &cpu), ("GPU", &gpu_direct)] {
+                let m: f32 =
+                    (0..v.len()).map(|i| light.parts[k][i] * area(i)).sum::<f32>() / h.shapes[k].area;
+                assert!((m - 1.0).abs() < 1e-3, "{height} m, texel {k} ({what}): parts average {m}");
+            }
+            for i in 0..v.len() {
+                let (a, b) = (cpu.parts[k][i], gpu_direct.parts[k][i]);
+                assert!(
+                    (a - b).abs() <= 1e-3 * a.abs().max(1.0),
+                    "{height} m, texel {k} part {i}: {a} / {b}"
+                );
+            }
+        }
     }
 }
 
@@ -281,7 +300,7 @@ fn shadow_mapped_texel_light_matches_rays_and_the_ground_truth() {
     fewer.triangles.pop();
     let err = pass.light_texels(&gpu.device, &gpu.queue, &fewer, &poses, &lights, 256).unwrap_err();
     assert!(err.to_string().contains("triangles"), "{err}");
-    let short = vec![Vec3::ONE; texels.len() - 1];
+    let short = SenderLight::uniform(vec![Vec3::ONE; texels.len() - 1]);
     let err =
         pass.indirect(&gpu.device, &gpu.queue, &poses, &short, &RadiosityParams::default()).unwrap_err();
     assert!(err.to_string().contains("direct light for"), "{err}");
@@ -297,7 +316,7 @@ fn shadow_mapped_texel_light_matches_rays_and_the_ground_truth() {
         let rays = sender_direct(&scene, &texels, &h, &frame, &bvh, &lights);
         pass.light_texels(&gpu.device, &gpu.queue, &posed, &poses, &lights, 1024).unwrap();
         let mapped = pass.direct(&gpu.device, &gpu.queue).unwrap();
-        let c = prm::metric::compare(&mapped, &rays, None);
+        let c = prm::metric::compare(&mapped.mean, &rays.mean, None);
         eprintln!(
             "t = {t}: shadow-mapped direct light against ray traced {:.2} % (bias {:+.2} %) on {}",
             c.error * 100.0,
