@@ -30,6 +30,27 @@ fn setup() -> (Scene, TexelSet, Visibility, Hierarchy) {
     (scene, texels, vis, h)
 }
 
+/// The doorway level with its rig, and a GPU radiosity pass over it.
+struct Level {
+    gpu: prm_runtime::Gpu,
+    scene: Scene,
+    texels: TexelSet,
+    vis: Visibility,
+    h: Hierarchy,
+    rig: prm::rig::Rig,
+    motion: prm::rig::Motion,
+    pass: prm_runtime::radiosity::RadiosityPass,
+}
+
+fn gpu_level() -> Level {
+    let gpu = prm_runtime::Gpu::new().expect("this GPU test needs a wgpu adapter");
+    let (scene, texels, vis, h) = setup();
+    let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
+    let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
+    let pass = prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
+    Level { gpu, scene, texels, vis, h, rig, motion, pass }
+}
+
 /// The walk visits every texel exactly once when nothing is refined away; every node's
 /// sphere holds its leaves; with threshold 0 the gather equals the texel-by-texel sum.
 #[test]
@@ -182,15 +203,7 @@ fn radiosity_follows_the_moving_door_and_block() {
 /// pass, the CSSM and occluder-map queries and the tail included.
 #[test]
 fn gpu_radiosity_matches_the_cpu_twin() {
-    let gpu = match prm_runtime::Gpu::new() {
-        Ok(g) => g,
-        Err(e) => panic!("this GPU test needs a wgpu adapter: {e}"),
-    };
-    let (scene, texels, vis, h) = setup();
-    let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
-    let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
-    let mut pass =
-        prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
+    let Level { gpu, scene, texels, vis, h, rig, motion, mut pass } = gpu_level();
     for t in [0.0, 2.0] {
         let poses = Poses::new(&motion.at_time(t));
         let posed = scene.moved(&motion.at_time(t));
@@ -222,8 +235,7 @@ fn gpu_radiosity_matches_the_cpu_twin() {
 /// points over it, misses most of a hot spot 2 cm across.
 #[test]
 fn senders_carry_the_power_their_shapes_receive_at_any_light_height() {
-    let gpu = prm_runtime::Gpu::new().expect("this GPU test needs a wgpu adapter");
-    let (scene, texels, vis, h) = setup();
+    let Level { gpu, scene, texels, h, mut pass, .. } = gpu_level();
     let poses = Poses::at_rest(scene.movables.len() + 1);
     let points = posed_points(&scene, &texels, &poses);
     let frame = Frame { poses: &poses, points: &points };
@@ -236,8 +248,6 @@ fn senders_carry_the_power_their_shapes_receive_at_any_light_height() {
     let on_floor: Vec<usize> =
         (0..texels.len()).filter(|&k| floor_b(texels.texels[k].triangle as usize)).collect();
     assert!(on_floor.len() > 100, "{} texels on room B's floor", on_floor.len());
-    let mut pass =
-        prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
     for height in [0.02f32, 0.1, 1.0] {
         let lamp = prm::Light::point("lamp", Vec3::new(2.0, height, 0.1), Vec3::splat(10.0));
         let exact: f64 = (0..scene.triangles.len())
@@ -282,15 +292,7 @@ fn senders_carry_the_power_their_shapes_receive_at_any_light_height() {
 /// never leaves the GPU is held to the same 10 % as the twin.
 #[test]
 fn shadow_mapped_texel_light_matches_rays_and_the_ground_truth() {
-    let gpu = match prm_runtime::Gpu::new() {
-        Ok(g) => g,
-        Err(e) => panic!("this GPU test needs a wgpu adapter: {e}"),
-    };
-    let (scene, texels, vis, h) = setup();
-    let rig = prm::rig::Rig::load(&root().join("assets/doorway_rig.json"), &scene.lights).unwrap();
-    let motion = rig.object_motion(std::path::Path::new("rig"), &scene).unwrap();
-    let mut pass =
-        prm_runtime::radiosity::RadiosityPass::new(&gpu.device, &scene, &texels, &h, &vis).unwrap();
+    let Level { gpu, scene, texels, vis, h, rig, motion, mut pass } = gpu_level();
     // Bad sizes and a level of another shape are refused by name.
     let poses = Poses::at_rest(scene.movables.len() + 1);
     let lights = rig.at_time(0.0);

@@ -17,8 +17,8 @@
 //!   `Φ F / a` with `F` the exact form factor of the texel's shape (its atlas square clipped
 //!   to its chart's border, mapped onto its triangle's plane, of area `a`: Lambert's contour integral, clipped to the
 //!   receiver's side; a texel's point, often clamped onto a chart's edge, stands for it poorly
-//!   at a corner), times
-//!   visibility to a representative texel of the node.
+//!   at a corner; in the first bounce, the shape's parts each with their own share of the
+//!   direct light, [`SenderLight`]), times visibility to a representative texel of the node.
 //! - **Bounces** (§4.1): `E_1` gathers `albedo x E_direct`, `E_k+1` gathers `albedo x E_k`;
 //!   the indirect lightmap is `E_1 + ... + E_n`, plus the bounces not taken as the rest of a
 //!   geometric series at the last pass's power ratio (`E_n k / (1 - k)`). Each pass is scaled
