@@ -30,6 +30,19 @@ fn setup() -> (Scene, TexelSet, Visibility, Hierarchy) {
     (scene, texels, vis, h)
 }
 
+/// The posed level's indirect irradiance at the posed texel points (128 paths) and its noise.
+fn ground_truth(posed: &Scene, bvh: &Bvh, texels: &TexelSet, points: &[(Vec3, Vec3)]) -> (Vec<Vec3>, f64) {
+    let mut moved = texels.texels.clone();
+    for (m, &(p, n)) in moved.iter_mut().zip(points) {
+        m.position = p;
+        m.normal = n;
+    }
+    let gt = Tracer::new(posed, bvh, GtParams { spp: 128, ..GtParams::preview() })
+        .texels(&moved, texels.width, Control::none())
+        .unwrap();
+    (gt.iter().map(|g| g.indirect).collect(), indirect_noise(&gt))
+}
+
 /// The doorway level with its rig, and a GPU radiosity pass over it.
 struct Level {
     gpu: prm_runtime::Gpu,
@@ -161,20 +174,11 @@ fn radiosity_follows_the_moving_door_and_block() {
         let frame = Frame { poses: &poses, points: &points };
         let direct = sender_direct(&scene, &texels, &h, &frame, &bvh, &lights);
         let params = RadiosityParams::default();
-        let mut moved = texels.texels.clone();
-        for (m, &(p, n)) in moved.iter_mut().zip(&points) {
-            m.position = p;
-            m.normal = n;
-        }
-        let gt = Tracer::new(&posed, &bvh, GtParams { spp: 128, ..GtParams::preview() })
-            .texels(&moved, texels.width, Control::none())
-            .unwrap();
+        let (truth, noise) = ground_truth(&posed, &bvh, &texels, &points);
         let (ind, stats) = indirect(&h, &vis, &frame, &direct, &params, &vis.escape);
         let rays = RayVisibility { bvh: &bvh, points: &points };
         let (ind_rays, _) = indirect(&h, &rays, &frame, &direct, &params, &vis.escape);
-        let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
         let c = prm::metric::compare(&ind, &truth, None);
-        let noise = indirect_noise(&gt);
         let cr = prm::metric::compare(&ind_rays, &truth, None);
         let cv = prm::metric::compare(&ind, &ind_rays, None);
         eprintln!(
@@ -335,17 +339,8 @@ fn shadow_mapped_texel_light_matches_rays_and_the_ground_truth() {
         eprintln!("t = {t}: its radiosity against the ray-lit twin's {:.2} %", ct.error * 100.0);
         assert!(ct.non_finite == 0 && ct.error < 0.01, "t = {t}: {:.2} %", ct.error * 100.0);
         if t == 2.0 {
-            let mut moved = texels.texels.clone();
-            for (m, &(p, n)) in moved.iter_mut().zip(&points) {
-                m.position = p;
-                m.normal = n;
-            }
-            let gt = Tracer::new(&posed, &bvh, GtParams { spp: 128, ..GtParams::preview() })
-                .texels(&moved, texels.width, Control::none())
-                .unwrap();
-            let truth: Vec<Vec3> = gt.iter().map(|g| g.indirect).collect();
+            let (truth, noise) = ground_truth(&posed, &bvh, &texels, &points);
             let c = prm::metric::compare(&lit, &truth, None);
-            let noise = indirect_noise(&gt);
             let err = (c.error * c.error - noise * noise).max(0.0).sqrt();
             eprintln!("t = {t}: GPU-lit radiosity against the ground truth {:.2} %", err * 100.0);
             assert!(err <= 0.10, "t = {t}: {:.1} %", err * 100.0);
