@@ -127,6 +127,16 @@ pub fn storage_buffer(
     })
 }
 
+/// A uniform buffer the size of `T`, written per frame (`queue.write_buffer`).
+pub fn uniform_buffer<T>(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: std::mem::size_of::<T>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
 /// Copies `buffer` back to the CPU, waiting for the GPU (tests, exports, readbacks: not a
 /// per-frame path).
 pub fn read_buffer(

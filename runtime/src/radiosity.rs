@@ -308,12 +308,7 @@ mod pass {
             let flux = gpu::storage_buffer(device, "radiosity flux", &vec![0u8; nodes.len() * 3 * 16], none);
             let direct =
                 gpu::storage_buffer(device, "texels' direct light", &vec![0u8; rows.len().max(1) * 16], copy);
-            let params = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("radiosity params"),
-                size: std::mem::size_of::<RadParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
+            let params = gpu::uniform_buffer::<RadParams>(device, "radiosity params");
             let layout = SHADER.layout(device, 0);
             let group = bind(
                 device,
@@ -451,12 +446,7 @@ mod pass {
             size: u32,
         ) -> TexelLight {
             let shadows = ShadowMaps::new(device, queue, posed, size);
-            let params = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("texel direct params"),
-                size: std::mem::size_of::<DirectParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
+            let params = gpu::uniform_buffer::<DirectParams>(device, "texel direct params");
             let layout = DIRECT.layout(device, 1);
             let group = bind(
                 device,

@@ -125,12 +125,7 @@ impl Runtime {
         check_limits(device, prm)?;
         // Every table the map needs, its allocations recorded (`gpu_memory`).
         let recording = crate::memory::Recording::start();
-        let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("indirect params"),
-            size: std::mem::size_of::<IndirectParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params_buf = crate::gpu::uniform_buffer::<IndirectParams>(device, "indirect params");
         let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);

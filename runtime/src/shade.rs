@@ -80,12 +80,7 @@ impl Renderer {
             contents: bytemuck::cast_slice(&vertices),
             usage: wgpu::BufferUsages::VERTEX,
         });
-        let params_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("shade params"),
-            size: std::mem::size_of::<ShadeParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params_buf = crate::gpu::uniform_buffer::<ShadeParams>(device, "shade params");
         let layout = SHADER.layout(device, 1);
         let lightmap_view = runtime.lightmap().create_view(&crate::compose::array_view());
         let group = bind(

@@ -59,12 +59,7 @@ impl Tonemap {
             multiview_mask: None,
             cache: None,
         });
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("tonemap params"),
-            size: std::mem::size_of::<TonemapParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = crate::gpu::uniform_buffer::<TonemapParams>(device, "tonemap params");
         Tonemap { pipeline, layout, params, encode: !format.is_srgb() }
     }
 

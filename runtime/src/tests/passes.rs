@@ -58,12 +58,7 @@ fn gpu_cell_irradiance(
     let points = areas;
     let mut shadows = ShadowMaps::new(&g.device, &g.queue, scene, size);
     shadows.update(lights).unwrap();
-    let params = g.device.create_buffer(&wgpu::BufferDescriptor {
-        label: None,
-        size: std::mem::size_of::<crate::layout::IndirectParams>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
+    let params = crate::gpu::uniform_buffer::<crate::layout::IndirectParams>(&g.device, "params");
     let p = crate::layout::IndirectParams {
         entry_count: points.len() as u32,
         light_count: lights.len() as u32,
