@@ -270,7 +270,7 @@ impl Bench {
         let bytes = self.rt.compose_bytes()?;
         let weights: Vec<glam::Vec3> = {
             let e = self.rt.read_entry_irradiance()?;
-            prm_runtime::cpu::cluster_weights(&self.prm_file, &e)
+            prm_runtime::cpu::pane_weights(&self.prm_file, &e)
         };
         let reps = 20;
         let t = Instant::now();

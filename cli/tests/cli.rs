@@ -306,8 +306,9 @@ fn precompute_evaluate_and_export_panes() {
     ]);
     assert!(ok, "{err}");
     let c = Channels::read(&lm).unwrap();
-    // Every pane (no --top-k): the lightmap is the slow compose of the cluster weights (from the
-    // ray-traced entry irradiance) plus the near field, hot cells as their texels see them. The
+    // Every pane (no --top-k): the lightmap is the slow compose of the pane weights (balanced,
+    // then lifted by the near field; from the ray-traced entry irradiance) plus the near field,
+    // hot cells as their texels see them. The
     // same f32 operations in the same order, so equal up to 1e-6 of the brightest texel.
     let scene = level("cornell.glb", 32);
     let bvh = prm::Bvh::build(&scene);
@@ -318,9 +319,9 @@ fn precompute_evaluate_and_export_panes() {
     assert!(hot.hot.iter().any(|&h| h), "the corner torch makes no cell hot: this checks less");
     let moments = prm_runtime::cpu::dipole_moments(&file, &tables, &e);
     let lin = prm_runtime::cpu::dipole_offsets(&file, &tables, &moments);
-    let w = prm_runtime::cpu::cluster_weights_with(&file, &tables, &hot, &e, &lin);
+    let (w, near) = prm_runtime::cpu::pane_weights_with(&file, &tables, &hot, &e, &lin);
     let mut want = prm_runtime::cpu::compose(&file, &w, &moments);
-    prm_runtime::cpu::add_near_field_with(&file, &tables, &hot, &e, &w, &lin, &mut want);
+    prm_runtime::cpu::add_and_clamp(&mut want, &near);
     assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
     let rgb = c.rgb("").unwrap();

@@ -254,10 +254,7 @@ fn gather_agrees_with_a_brute_force_scatter_twin() {
             prm.entries().iter().map(|en| if en.normal.y > 0.5 { Vec3::ONE } else { Vec3::ZERO }).collect();
         // The whole indirect light, as the runtime makes it: clusters straddling the floor's
         // edge have uneven light, which their weights leave to the near and far fields.
-        let weights = cpu::cluster_weights(&prm, &e);
-        let mut img = cpu::compose(&prm, &weights, &[]);
-        cpu::add_near_field(&prm, &e, &weights, &mut img);
-        at_texels(&set, &img)
+        at_texels(&set, &cpu::lightmap(&prm, &e))
     };
     let ours = [("gather", estimate(Estimator::Gather)), ("mis", estimate(Estimator::Mis))];
 

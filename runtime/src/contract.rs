@@ -188,7 +188,7 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 14] = [
+pub const SHADERS: [&Shader; 15] = [
     &crate::shadow::SHADER,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
@@ -198,6 +198,7 @@ pub const SHADERS: [&Shader; 14] = [
     &crate::near::SHADER,
     &crate::near::ECHO,
     &crate::far::SHADER,
+    &crate::lift::SHADER,
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,

@@ -62,6 +62,7 @@ mod far;
 mod gpu;
 mod irradiance;
 mod layout;
+mod lift;
 mod lights;
 pub mod memory;
 mod near;

@@ -1,8 +1,9 @@
 //! The per-frame indirect lightmap on the GPU (DESIGN.md §5 steps 1-4): what a game links.
 //!
 //! [`Runtime::update`] takes the frame's lights. When nothing changed it does nothing at all;
-//! otherwise it re-renders the shadow maps of the lights that moved, then records four compute
-//! passes in one submission: entry irradiance, cluster weights, top-K selection, compose.
+//! otherwise it re-renders the shadow maps of the lights that moved, then records the compute
+//! passes in one submission: entry irradiance, cluster weights, the near field, the weights
+//! lifted by it, top-K selection, compose.
 //! The result stays on the GPU in [`Runtime::lightmap`].
 
 use std::path::Path;
@@ -15,6 +16,7 @@ use crate::compose::{ComposeBytes, ComposePass};
 use crate::concentrate::{ConcentratePass, NearBuffers};
 use crate::irradiance::EntryPass;
 use crate::layout::IndirectParams;
+use crate::lift::{LiftBuffers, LiftPass};
 use crate::lights::LightError;
 use crate::near::{NearData, NearPass};
 use crate::shadow::ShadowMaps;
@@ -84,6 +86,8 @@ pub struct Runtime {
     concentrate: ConcentratePass,
     weights: WeightPass,
     near: NearPass,
+    /// The near field's later bounces (`crate::cpu::lift_weights`); none without a far field.
+    lift: Option<LiftPass>,
     compose: ComposePass,
     energies: Vec<f32>,
     clusters: usize,
@@ -155,6 +159,20 @@ impl Runtime {
             &near_data,
             &concentrate.link_light,
         );
+        let lift = LiftPass::new(
+            device,
+            prm,
+            &tables,
+            &near.index,
+            LiftBuffers {
+                params: &params_buf,
+                ranges: &weights.ranges,
+                energy: &weights.energy,
+                weights: &weights.weights,
+                scores: &weights.scores,
+                near_sum: &near.sums,
+            },
+        );
         let compose = ComposePass::new(device, prm, &weights.selected, &near);
         let memory = recording.finish();
         let entry_count = areas.len() as u32;
@@ -168,6 +186,7 @@ impl Runtime {
             concentrate,
             weights,
             near,
+            lift,
             compose,
             energies: prm.clusters().iter().map(|c| c.energy).collect(),
             clusters: prm.clusters().len(),
@@ -218,8 +237,12 @@ impl Runtime {
         if self.any_hot {
             self.concentrate.encode(&mut enc, shadows);
         }
-        self.weights.encode(&mut enc, false, timer.map(|t| t.writes(1)));
+        self.weights.encode_weights(&mut enc, timer.map(|t| t.writes(1)));
         self.near.encode(&mut enc);
+        if let Some(lift) = &self.lift {
+            lift.encode(&mut enc);
+        }
+        self.weights.encode_selection(&mut enc);
         self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
         self.queue.submit([enc.finish()]);
         self.composes += 1;
@@ -256,7 +279,7 @@ impl Runtime {
         self.weights.upload(&self.queue, weights, &self.energies);
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
-        self.weights.encode(&mut enc, true, None);
+        self.weights.encode_selection(&mut enc);
         self.near.clear(&mut enc);
         self.compose.encode(&mut enc, None);
         self.queue.submit([enc.finish()]);

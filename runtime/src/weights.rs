@@ -94,6 +94,10 @@ pub struct WeightPass {
     pub scores: wgpu::Buffer,
     /// Weights of the selected clusters, 0 elsewhere, then the groups' weights (`vec4f`, C + G).
     pub selected: wgpu::Buffer,
+    /// Per cluster, then per group: (first, count) into the members (`vec2u`).
+    pub ranges: wgpu::Buffer,
+    /// Pane energy: clusters, groups, then the balance's dipole terms (`f32`).
+    pub energy: wgpu::Buffer,
 }
 
 impl WeightPass {
@@ -244,33 +248,40 @@ impl WeightPass {
             weights,
             scores,
             selected,
+            ranges,
+            energy,
         }
     }
 
-    /// Records weights (unless `uploaded`: weights and scores were written by the CPU) and
-    /// selection.
-    pub fn encode(
+    /// Records the weights: the dipole moments and fits, then `weights_main` (the balanced
+    /// weights the near pass reads).
+    pub fn encode_weights(
         &self,
         enc: &mut wgpu::CommandEncoder,
-        uploaded: bool,
         timestamps: Option<wgpu::ComputePassTimestampWrites>,
     ) {
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("weights + selection"),
+            label: Some("weights"),
             timestamp_writes: timestamps,
         });
-        if !uploaded {
-            pass.set_bind_group(0, &self.dipole_group, &[]);
-            pass.set_pipeline(&self.moments_pipeline);
-            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
-            pass.set_pipeline(&self.lin_pipeline);
-            pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
-        }
+        pass.set_bind_group(0, &self.dipole_group, &[]);
+        pass.set_pipeline(&self.moments_pipeline);
+        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        pass.set_pipeline(&self.lin_pipeline);
+        pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
         pass.set_bind_group(0, &self.group, &[]);
-        if !uploaded {
-            pass.set_pipeline(&self.weights_pipeline);
-            pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
-        }
+        pass.set_pipeline(&self.weights_pipeline);
+        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+    }
+
+    /// Records the selection of the weights and scores as they stand (from `encode_weights`
+    /// and the lift, or uploaded) and the groups' residual weights.
+    pub fn encode_selection(&self, enc: &mut wgpu::CommandEncoder) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("selection"),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.select_pipeline);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
         if self.groups > 0 {

@@ -2,7 +2,7 @@
 //! does no compose work.
 
 mod common;
-use common::open_box;
+use common::{closed_box, open_box};
 use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
@@ -31,10 +31,8 @@ fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     let prm = bake(&scene);
     let bvh = Bvh::build(&scene);
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
-    let w = cpu::cluster_weights(&prm, &e);
-    let moments = cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e);
-    let mut full = cpu::compose(&prm, &w, &moments);
-    cpu::add_near_field(&prm, &e, &w, &mut full);
+    let w = cpu::pane_weights(&prm, &e);
+    let full = cpu::lightmap(&prm, &e);
     let mut twin = CpuTwin::new(&prm, &bvh, prm.clusters().len());
     let all = twin.frame(&scene.lights).to_vec();
     for (a, b) in all.iter().zip(&full) {
@@ -77,10 +75,11 @@ fn an_unchanged_frame_does_no_compose_work() {
 /// Against the ground truth (light paths, its noise removed), the near-field links must at
 /// least halve the PRM's error (measured: 0.80 without, 0.37 with links spreading each cell's
 /// light evenly over it), and weighing each hot cell's light by how the texel sees it
-/// (`cpu::concentrate`) must cut what is left by a further fifth (measured: 0.37 -> 0.26); the
-/// near field's echo (its second and third bounce between the three surfaces) by a further 5 %
-/// (measured: 0.26 -> 0.24; in the chamber's corner, where the hot spots are 54 cm cells apart
-/// rather than 5 cm, it takes the torch from 33 % to 8 %).
+/// (`cpu::concentrate`) must cut what is left by a further fifth (measured: 0.36 -> 0.25); the
+/// near field's echo (its second and third bounce between the three surfaces) by a further 3 %
+/// (measured: 0.251 -> 0.239, 5 %; 0.26 -> 0.24 before the lift, `cpu::lift_weights`, took
+/// over part of the near field's later bounces; in the chamber's corner, where the hot spots
+/// are 54 cm cells apart rather than 5 cm, the echo takes the torch from 33 % to 8 %).
 #[test]
 fn the_near_field_lights_a_corner_next_to_a_lamp() {
     let mut scene = open_box();
@@ -116,12 +115,7 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
             CpuTwin::new(&prm, &bvh, usize::MAX).frame(&scene.lights).to_vec()
         } else {
             // The twin's frame with every cell's light spread evenly over it.
-            let e = entry_irradiance(&prm, &bvh, &scene.lights);
-            let w = cpu::cluster_weights(&prm, &e);
-            let moments = cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e);
-            let mut img = cpu::compose(&prm, &w, &moments);
-            cpu::add_near_field(&prm, &e, &w, &mut img);
-            img
+            cpu::lightmap(&prm, &entry_irradiance(&prm, &bvh, &scene.lights))
         };
         let at: Vec<Vec3> = set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect();
         let e = prm::metric::compare(&at, &gt, None).error;
@@ -135,7 +129,74 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
     );
     assert!(with <= 0.5 * without, "error {with} with the near field, {without} without");
     assert!(seen <= 0.8 * with, "error {seen} with hot cells seen, {with} spread evenly");
-    assert!(echo <= 0.95 * seen, "error {echo} with the echo, {seen} without");
+    assert!(echo <= 0.97 * seen, "error {echo} with the echo, {seen} without");
+}
+
+/// The near field's later bounces (`cpu::lift_weights`) add no energy: per channel `sum_c w_c
+/// energy_c` is the balanced weights' (to float rounding), a near field of zero leaves every
+/// weight as it was, and a lamp 2 cm from the back wall of a closed 4 x 2 x 2 m room (one hot
+/// spot whose first bounce the near links and far field carry) changes the weights. On this
+/// bare box the lift moves the error against the ground truth little (measured 0.095 -> 0.094,
+/// noise removed; a 6 x 3 x 3 m box with the lamp 2 cm from its end wall 0.123 -> 0.130); on
+/// the bundled levels it helps every torch and every level's own lights (README); asserted
+/// here: no worse than 2 % of the error.
+#[test]
+fn the_near_fields_later_bounces_keep_the_energy() {
+    let mut scene = closed_box(Vec3::new(4.0, 2.0, 2.0));
+    scene.lights[0].position = Vec3::new(0.5, 0.4, 0.02);
+    let bvh = Bvh::build(&scene);
+    let atlas = 32;
+    let set = prm::TexelSet::build_visible(&scene, &bvh, atlas, atlas);
+    let tracer = prm_precompute::ground_truth::Tracer::new(
+        &scene,
+        &bvh,
+        prm_precompute::ground_truth::GtParams { spp: 256, seed: 7, ..Default::default() },
+    );
+    let gt = tracer.texels(&set.texels, set.width, prm_precompute::parallel::Control::none()).unwrap();
+    let noise = prm_precompute::ground_truth::indirect_noise(&gt);
+    let gt: Vec<Vec3> = gt.iter().map(|r| r.indirect).collect();
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 1024,
+        paths: 64,
+        clusters: 32,
+        atlas: prm::density::Atlas::single(atlas),
+        ..Default::default()
+    };
+    let (prm, _) =
+        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
+            .unwrap();
+    assert!(!prm.far().texels.is_empty());
+    let e = entry_irradiance(&prm, &bvh, &scene.lights);
+    let tables = cpu::NearTables::new(&prm);
+    let light = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
+    let moments = cpu::dipole_moments(&prm, &tables, &e);
+    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &light, &e, &lin);
+    let near = cpu::near_field(&prm, &tables, &light, &e, &balanced, &lin);
+    let lifted = cpu::lift_weights(&prm, &tables, &balanced, &near);
+    let error = |weights: &[Vec3]| {
+        let mut img = cpu::compose(&prm, weights, &moments);
+        cpu::add_and_clamp(&mut img, &near);
+        let at: Vec<Vec3> = set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect();
+        let e = prm::metric::compare(&at, &gt, None).error;
+        (e * e - noise * noise).max(0.0).sqrt()
+    };
+    let (without, with) = (error(&balanced), error(&lifted));
+    println!(
+        "wall lamp: error {without:.3} without the lift, {with:.3} with (ground-truth noise {noise:.3})"
+    );
+    assert!(with <= 1.02 * without, "error {with} with the lift, {without} without");
+    let energy = |w: &[Vec3]| {
+        w.iter().zip(prm.clusters()).fold(glam::DVec3::ZERO, |a, (w, c)| a + w.as_dvec3() * c.energy as f64)
+    };
+    let (before, after) = (energy(&balanced), energy(&lifted));
+    assert!((after - before).abs().max_element() <= 1e-5 * before.max_element(), "{before} -> {after}");
+    assert!(lifted
+        .iter()
+        .zip(&balanced)
+        .any(|(a, b)| (*a - *b).abs().max_element() > 1e-3 * b.max_element()));
+    let zero = vec![Vec3::ZERO; prm.texel_count()];
+    assert_eq!(cpu::lift_weights(&prm, &tables, &balanced, &zero), balanced);
 }
 
 /// One cell lit alone and every cluster weight 0, so the panes say nothing and each deviation is

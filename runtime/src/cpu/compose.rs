@@ -105,6 +105,30 @@ pub struct NearTables {
     /// Per entry: what one W/m² of its weight adds to its cluster's moment along each axis,
     /// `A/N (1 / lambda_k) v_k . (x_j - o)` ([`dipole_moments`]).
     pub dipole_coef: Vec<[f32; 3]>,
+    /// Per entry, the atlas texel where [`lift_weights`] reads the near field at its point: of
+    /// the far texels whose nearest entry it is, the closest ([`NO_TEXEL`] for none, and for
+    /// every entry of a map without a far field).
+    pub entry_texel: Vec<u32>,
+}
+
+/// [`NearTables::entry_texel`] of an entry no texel stands for.
+pub const NO_TEXEL: u32 = u32::MAX;
+
+/// Per entry, the far texel closest to it among those whose nearest entry it is (the far
+/// field's neighbours are sorted nearest first): [`NearTables::entry_texel`].
+fn entry_texels(prm: &Prm) -> Vec<u32> {
+    let entries = prm.entries();
+    let mut best = vec![(f32::INFINITY, NO_TEXEL); entries.len()];
+    for t in &prm.far().texels {
+        let j = t.entries[0] as usize;
+        if let Some(e) = entries.get(j) {
+            let d2 = e.position.distance_squared(t.position);
+            if d2 < best[j].0 {
+                best[j] = (d2, t.texel);
+            }
+        }
+    }
+    best.into_iter().map(|(_, t)| t).collect()
 }
 
 impl NearTables {
@@ -155,6 +179,7 @@ impl NearTables {
             echo_gain,
             dipole_offset,
             dipole_coef,
+            entry_texel: entry_texels(prm),
         }
     }
 }
@@ -439,6 +464,43 @@ pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> 
     img
 }
 
+/// The whole indirect lightmap of every pane for these entry irradiances (no link light, as
+/// [`cluster_weights`]): balanced weights, the near field, the weights lifted by it
+/// ([`lift_weights`]), the panes with their dipoles, the near field added and the sum clamped
+/// at zero. What the twin and the GPU give with every pane composed.
+pub fn lightmap(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
+    let tables = NearTables::new(prm);
+    let moments = dipole_moments(prm, &tables, entry_irradiance);
+    let lin = dipole_offsets(prm, &tables, &moments);
+    let (weights, near) = pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin);
+    let mut img = compose(prm, &weights, &moments);
+    add_and_clamp(&mut img, &near);
+    img
+}
+
+/// The weights the panes are composed with, and the near field (per atlas texel, signed):
+/// [`cluster_weights_with`], the near field under them ([`near_field`]), then
+/// [`lift_weights`]. The GPU's weight, near and lift passes.
+pub fn pane_weights_with(
+    prm: &Prm,
+    tables: &NearTables,
+    link_light: &LinkLight,
+    entry_irradiance: &[Vec3],
+    lin: &[Vec3],
+) -> (Vec<Vec3>, Vec<Vec3>) {
+    let balanced = cluster_weights_with(prm, tables, link_light, entry_irradiance, lin);
+    let near = near_field(prm, tables, link_light, entry_irradiance, &balanced, lin);
+    (lift_weights(prm, tables, &balanced, &near), near)
+}
+
+/// [`pane_weights_with`]'s weights with no light on the links of hot cells, as
+/// [`cluster_weights`].
+pub fn pane_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
+    let tables = NearTables::new(prm);
+    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
+    pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin).0
+}
+
 /// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`): each texel with
 /// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
 /// the entries' irradiance and the cluster weights, its echo, and the far field
@@ -463,6 +525,33 @@ pub fn add_near_field_with(
     lin: &[Vec3],
     img: &mut [Vec3],
 ) {
+    let near = near_field(prm, tables, link_light, entry_irradiance, weights, lin);
+    add_and_clamp(img, &near);
+}
+
+/// Adds the near field (signed) into a lightmap of panes, then clamps every texel at zero (the
+/// near and far fields and the dipole panes are signed), as the GPU's compose does.
+pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
+    for (v, n) in img.iter_mut().zip(near) {
+        *v += *n;
+    }
+    // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
+    for v in img.iter_mut() {
+        *v = v.max(Vec3::ZERO);
+    }
+}
+
+/// The near field of [`add_near_field_with`] on its own, per atlas texel and signed: the
+/// links' first bounce of the deviation with its echo, and the far field.
+pub fn near_field(
+    prm: &Prm,
+    tables: &NearTables,
+    link_light: &LinkLight,
+    entry_irradiance: &[Vec3],
+    weights: &[Vec3],
+    lin: &[Vec3],
+) -> Vec<Vec3> {
+    let mut img = vec![Vec3::ZERO; prm.texel_count()];
     let mut k = 0;
     let runs: Vec<&[prm::prm_file::NearLink]> = prm.near().chunk_by(|a, b| a.texel == b.texel).collect();
     let mut near: Vec<Vec3> = runs
@@ -490,15 +579,50 @@ pub fn add_near_field_with(
         }
     }
     for (links, sum) in runs.iter().zip(near) {
-        let texel = links[0].texel as usize;
-        img[texel] += sum;
+        img[links[0].texel as usize] += sum;
     }
     let sources = far_sources(prm, tables, entry_irradiance, weights, lin);
     for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources)) {
         img[t.texel as usize] += v;
     }
-    // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
-    for v in img.iter_mut() {
-        *v = v.max(Vec3::ZERO);
+    img
+}
+
+/// The cluster weights with the near field's later bounces: `(1 - lambda) w_c + u_c`.
+///
+/// The near and far fields deliver the first bounce of the light's deviation from each
+/// cluster's mean (`K D`); its later bounces were left out, or rather spread by the balance
+/// over the deviating cluster's pane. But `K D` is itself light on the level's surfaces, and a
+/// pane is the answer (all bounces) to light on its cluster: so `u_c`, the mean of the near
+/// field over cluster c's cells (read at each entry's texel, [`NearTables::entry_texel`],
+/// weighted by `t_j`), weights c's pane with what the deviation's first bounce puts there. A
+/// lamp 5 cm from the chamber's wall lights the floor in front of it through the near and far
+/// fields; that floor's clusters now light the wall around the lamp with it (measured on the
+/// chamber's torch rig: every placement better, the 5 cm wall 9.3 -> 8.7 %, the ceiling 9.9
+/// -> 7.9 %).
+///
+/// The balance already kept each cluster's energy with the near field's, so the later bounces
+/// must not add any: `lambda = sum_c u_c energy_c / sum_c w_c energy_c` (per channel) takes
+/// it back from every pane in proportion. Without a far field (no texel stands for an entry)
+/// the weights are returned unchanged.
+pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Vec3]) -> Vec<Vec3> {
+    let mut lift = vec![Vec3::ZERO; weights.len()];
+    let (mut lifted, mut kept) = (Vec3::ZERO, Vec3::ZERO);
+    for (c, cl) in prm.clusters().iter().enumerate() {
+        let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
+        for &m in &cl.members {
+            let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
+            if texel != NO_TEXEL {
+                sum += near[texel as usize] * tables.area_ratio[m];
+                t_sum += tables.area_ratio[m];
+            }
+        }
+        if t_sum > 0.0 {
+            lift[c] = sum / t_sum;
+        }
+        lifted += lift[c] * cl.energy;
+        kept += weights[c] * cl.energy;
     }
+    let lambda = Vec3::select(kept.cmpgt(Vec3::ZERO), lifted / kept, Vec3::ZERO);
+    weights.iter().zip(lift).map(|(w, u)| *w * (Vec3::ONE - lambda) + u).collect()
 }

@@ -3,7 +3,9 @@
 //! 1. Entry irradiance `E_j = sum_lights I(w) V cos / r²` (or E V cos for directional lights).
 //!    **Visibility is ray-traced** (one shadow ray per entry and light, offset as everywhere
 //!    else), not shadow-mapped: the twin is the exact answer the GPU's shadow maps approximate.
-//! 2. Cluster weights: the mean irradiance of each cluster's members.
+//! 2. Cluster weights: the mean irradiance of each cluster's members, balanced against the near
+//!    field's energy ([`cluster_weights`]), then lifted by what the near field puts on each
+//!    cluster ([`lift_weights`]).
 //! 3. Selection: the K clusters with the largest `luminance(w_c) x energy_c`; clusters with zero
 //!    weight are never selected. Ties go to the lower index.
 //! 4. Compose: `sum w_c pane_c` over the selected clusters' stored tiles only, plus (with
@@ -28,9 +30,10 @@ pub use budget::{
     TileRecord,
 };
 pub use compose::{
-    add_dipole, add_near_field, add_near_field_with, add_pane, cluster_weights, cluster_weights_with,
-    compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain, far_field,
-    far_sources, residual_weights, select_top_k, NearTables, ECHO_BOUNCES, FAR_SOURCES,
+    add_and_clamp, add_dipole, add_near_field, add_near_field_with, add_pane, cluster_weights,
+    cluster_weights_with, compose, compose_selected, dipole_moments, dipole_offsets, echo_bounce, echo_gain,
+    far_field, far_sources, lift_weights, lightmap, near_field, pane_weights, pane_weights_with,
+    residual_weights, select_top_k, NearTables, ECHO_BOUNCES, FAR_SOURCES, NO_TEXEL,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

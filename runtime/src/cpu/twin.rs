@@ -10,8 +10,8 @@ use rayon::prelude::*;
 
 use super::concentrate::triangle_visibility;
 use super::{
-    add_near_field_with, cluster_weights_with, compose_local, compose_selected, dipole_moments,
-    dipole_offsets, select_top_k, LinkLight, NearTables, TileBudget,
+    add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
+    select_top_k, LinkLight, NearTables, TileBudget,
 };
 
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
@@ -113,7 +113,7 @@ impl<'a> CpuTwin<'a> {
         let link_light = link_light(self.prm, self.bvh, &self.near, &e, lights);
         let moments = dipole_moments(self.prm, &self.near, &e);
         let lin = dipole_offsets(self.prm, &self.near, &moments);
-        let w = cluster_weights_with(self.prm, &self.near, &link_light, &e, &lin);
+        let (w, near) = pane_weights_with(self.prm, &self.near, &link_light, &e, &lin);
         if self.budget == Budget::Local {
             let budget = self.tile_budget.get_or_insert_with(|| TileBudget::new(self.prm, &self.layout));
             let local =
@@ -130,7 +130,7 @@ impl<'a> CpuTwin<'a> {
             self.lightmap = compose_selected(self.prm, &w, &moments, &chosen, self.residual, &self.layout);
             self.last_selected = selected.len();
         }
-        add_near_field_with(self.prm, &self.near, &link_light, &e, &w, &lin, &mut self.lightmap);
+        add_and_clamp(&mut self.lightmap, &near);
         self.composes += 1;
         self.last_lights = Some(lights.to_vec());
         &self.lightmap

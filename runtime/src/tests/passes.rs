@@ -311,7 +311,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     // Weights: member means of (nearly) the same irradiance; selection: the GPU ranks its own
     // weights exactly as the CPU ranks them.
     let gpu_w = rt.read_weights().unwrap();
-    let cpu_w = cpu::cluster_weights(&prm, &cpu_e);
+    let cpu_w = cpu::pane_weights(&prm, &cpu_e);
     let bad = cpu_w
         .iter()
         .zip(&gpu_w)

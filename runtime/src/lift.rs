@@ -1,0 +1,129 @@
+//! The near field's later bounces on the GPU (`shaders/lift.wgsl`; twin:
+//! [`crate::cpu::lift_weights`], whose doc says why). Three dispatches between the near pass
+//! and the selection: each cluster's mean of the near field over its cells (read at each
+//! member's texel, [`crate::cpu::NearTables::entry_texel`]), the share `lambda` that keeps the
+//! panes' energy, and the lifted weights with their scores.
+
+use prm::prm_file::Prm;
+
+use crate::bindings::{b, bind, Binding, Res, COMPUTE};
+use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
+use crate::cpu::{NearTables, NO_TEXEL};
+use crate::gpu;
+use crate::layout::{GpuStruct, IndirectParams};
+
+pub const BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    // The weight pass's member ranges (clusters first).
+    b("ranges", Res::Read("array<vec2u>"), COMPUTE),
+    // Per member, in the weight pass's `indices` order: its texel's slot among the near sums
+    // (NO_SLOT for none), its cell's area over A/N (f32 bits).
+    b("lift_members", Res::Read("array<vec2u>"), COMPUTE),
+    // The near pass's sums: near links with their echo, and the far field.
+    b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
+    // Pane energy: clusters first.
+    b("energy", Res::Read("array<f32>"), COMPUTE),
+    b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
+    // Per cluster u_c, then lambda (C + 1).
+    b("lifted", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const SHADER: Shader = Shader {
+    stem: "lift",
+    body: include_str!("../../shaders/lift.wgsl"),
+    lights: false,
+    groups: &[BINDINGS],
+    compute: &[
+        Compute { entry: "lift_main", workgroup: LINEAR },
+        Compute { entry: "lambda_main", workgroup: LINEAR },
+        Compute { entry: "apply_main", workgroup: LINEAR },
+    ],
+};
+
+/// The buffers of the weight and near passes the lift reads and writes.
+pub struct LiftBuffers<'a> {
+    pub params: &'a wgpu::Buffer,
+    pub ranges: &'a wgpu::Buffer,
+    pub energy: &'a wgpu::Buffer,
+    pub weights: &'a wgpu::Buffer,
+    pub scores: &'a wgpu::Buffer,
+    pub near_sum: &'a wgpu::Buffer,
+}
+
+pub struct LiftPass {
+    lift: wgpu::ComputePipeline,
+    lambda: wgpu::ComputePipeline,
+    apply: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+    clusters: u32,
+}
+
+impl LiftPass {
+    /// None when no member has a texel to read (a map without a far field): the weights stay.
+    /// `slot_of(texel)`: the texel's place in the near sums (`crate::near::NearData::index`).
+    pub fn new(
+        device: &wgpu::Device,
+        prm: &Prm,
+        tables: &NearTables,
+        slot_of: &[u32],
+        buffers: LiftBuffers,
+    ) -> Option<LiftPass> {
+        let members: Vec<[u32; 2]> = prm
+            .clusters()
+            .iter()
+            .flat_map(|c| c.members.iter())
+            .map(|&m| {
+                let texel = tables.entry_texel[m as usize];
+                let slot = if texel == NO_TEXEL { NO_SLOT } else { slot_of[texel as usize] };
+                [slot, tables.area_ratio[m as usize].to_bits()]
+            })
+            .collect();
+        if members.iter().all(|m| m[0] == NO_SLOT) {
+            return None;
+        }
+        let clusters = prm.clusters().len();
+        let none = wgpu::BufferUsages::empty();
+        let members = gpu::storage_buffer(device, "lift members", bytemuck::cast_slice(&members), none);
+        let lifted = gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + 1) * 16], none);
+        let layout = SHADER.layout(device, 0);
+        let group = bind(
+            device,
+            "lift",
+            &layout,
+            BINDINGS,
+            &[
+                ("params", buffers.params.as_entire_binding()),
+                ("ranges", buffers.ranges.as_entire_binding()),
+                ("lift_members", members.as_entire_binding()),
+                ("near_sum", buffers.near_sum.as_entire_binding()),
+                ("energy", buffers.energy.as_entire_binding()),
+                ("weights", buffers.weights.as_entire_binding()),
+                ("scores", buffers.scores.as_entire_binding()),
+                ("lifted", lifted.as_entire_binding()),
+            ],
+        );
+        let source = SHADER.source();
+        let pipeline = |entry| gpu::compute_pipeline(device, "lift.wgsl", &source, entry, &[&layout]);
+        Some(LiftPass {
+            lift: pipeline("lift_main"),
+            lambda: pipeline("lambda_main"),
+            apply: pipeline("apply_main"),
+            group,
+            clusters: clusters as u32,
+        })
+    }
+
+    /// Records the pass (after the near pass, before the selection).
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder) {
+        let mut pass = enc
+            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("lift"), timestamp_writes: None });
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(&self.lift);
+        pass.dispatch_workgroups(self.clusters.div_ceil(WG_LINEAR), 1, 1);
+        pass.set_pipeline(&self.lambda);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(&self.apply);
+        pass.dispatch_workgroups(self.clusters.div_ceil(WG_LINEAR), 1, 1);
+    }
+}

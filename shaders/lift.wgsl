@@ -1,0 +1,71 @@
+// The near field's later bounces (runtime/src/lift.rs; twin: prm_runtime::cpu::lift_weights).
+// After the near pass (near links, echo, far field into near_sum) and before the selection:
+// lift_main, one invocation per cluster: u_c = sum over its members with a slot of
+// t_j near_sum(slot_j) / sum t_j, into lifted[c]. lambda_main, one workgroup: per channel
+// lambda = sum_c u_c energy_c / sum_c w_c energy_c (0 where the second sum is 0), into
+// lifted[C]. apply_main, one per cluster: w_c = w_c (1 - lambda) + u_c and its score.
+// Bindings, IndirectParams, NO_SLOT, luminance and WG_LINEAR: the generated prelude.
+
+@compute @workgroup_size(WG_LINEAR)
+fn lift_main(@builtin(global_invocation_id) id: vec3u) {
+    let c = id.x;
+    if c >= params.cluster_count {
+        return;
+    }
+    let r = ranges[c];
+    var sum = vec3f(0.0);
+    var t_sum = 0.0;
+    for (var k = r.x; k < r.x + r.y; k++) {
+        let m = lift_members[k];
+        if m.x != NO_SLOT {
+            let t = bitcast<f32>(m.y);
+            sum += near_sum[m.x].xyz * t;
+            t_sum += t;
+        }
+    }
+    var u = vec3f(0.0);
+    if t_sum > 0.0 {
+        u = sum / t_sum;
+    }
+    lifted[c] = vec4f(u, 0.0);
+}
+
+var<workgroup> part_lifted: array<vec3f, WG_LINEAR>;
+var<workgroup> part_kept: array<vec3f, WG_LINEAR>;
+
+@compute @workgroup_size(WG_LINEAR)
+fn lambda_main(@builtin(local_invocation_index) lid: u32) {
+    var l = vec3f(0.0);
+    var k = vec3f(0.0);
+    for (var c = lid; c < params.cluster_count; c += WG_LINEAR) {
+        l += lifted[c].xyz * energy[c];
+        k += weights[c].xyz * energy[c];
+    }
+    part_lifted[lid] = l;
+    part_kept[lid] = k;
+    workgroupBarrier();
+    for (var stride = WG_LINEAR / 2u; stride > 0u; stride /= 2u) {
+        if lid < stride {
+            part_lifted[lid] += part_lifted[lid + stride];
+            part_kept[lid] += part_kept[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if lid == 0u {
+        let kept = part_kept[0];
+        let ratio = part_lifted[0] / max(kept, vec3f(1e-30));
+        lifted[params.cluster_count] = vec4f(select(vec3f(0.0), ratio, kept > vec3f(0.0)), 0.0);
+    }
+}
+
+@compute @workgroup_size(WG_LINEAR)
+fn apply_main(@builtin(global_invocation_id) id: vec3u) {
+    let c = id.x;
+    if c >= params.cluster_count {
+        return;
+    }
+    let lambda = lifted[params.cluster_count].xyz;
+    let w = weights[c].xyz * (vec3f(1.0) - lambda) + lifted[c].xyz;
+    weights[c] = vec4f(w, 0.0);
+    scores[c] = luminance(w) * energy[c];
+}
