@@ -603,8 +603,10 @@ pub fn near_field(
 ///
 /// The balance already kept each cluster's energy with the near field's, so the later bounces
 /// must not add any: `lambda = sum_c u_c energy_c / sum_c w_c energy_c` (per channel) takes
-/// it back from every pane in proportion. Without a far field (no texel stands for an entry)
-/// the weights are returned unchanged.
+/// it back from every pane in proportion. A weight is an irradiance, kept at >= 0 as the
+/// balance keeps it (a cluster next to a hot one, whose deviation is negative, can fall below:
+/// selected or not, it then adds nothing, and the groups carry nothing for it). Without a far
+/// field (no texel stands for an entry) the weights are returned unchanged.
 pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Vec3]) -> Vec<Vec3> {
     let mut lift = vec![Vec3::ZERO; weights.len()];
     let (mut lifted, mut kept) = (Vec3::ZERO, Vec3::ZERO);
@@ -624,5 +626,5 @@ pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Ve
         kept += weights[c] * cl.energy;
     }
     let lambda = Vec3::select(kept.cmpgt(Vec3::ZERO), lifted / kept, Vec3::ZERO);
-    weights.iter().zip(lift).map(|(w, u)| *w * (Vec3::ONE - lambda) + u).collect()
+    weights.iter().zip(lift).map(|(w, u)| (*w * (Vec3::ONE - lambda) + u).max(Vec3::ZERO)).collect()
 }
