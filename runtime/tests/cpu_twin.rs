@@ -9,6 +9,20 @@ use glam::Vec3;
 use prm::{Bvh, Scene};
 use prm_runtime::cpu::{self, entry_irradiance, select_top_k, CpuTwin};
 
+/// The scene's texels at `atlas`², their indirect light by the path tracer (256 samples, light
+/// paths) and its normalised noise.
+fn ground_truth(scene: &Scene, bvh: &Bvh, atlas: u32, seed: u64) -> (prm::TexelSet, Vec<Vec3>, f64) {
+    let set = prm::TexelSet::build_visible(scene, bvh, atlas, atlas);
+    let tracer = prm_precompute::ground_truth::Tracer::new(
+        scene,
+        bvh,
+        prm_precompute::ground_truth::GtParams { spp: 256, seed, ..Default::default() },
+    );
+    let gt = tracer.texels(&set.texels, set.width, prm_precompute::parallel::Control::none()).unwrap();
+    let noise = prm_precompute::ground_truth::indirect_noise(&gt);
+    (set, gt.iter().map(|r| r.indirect).collect(), noise)
+}
+
 fn bake(scene: &Scene) -> prm::prm_file::Prm {
     bake_at(scene, 24)
 }
@@ -86,15 +100,7 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
     scene.lights[0].position = glam::Vec3::new(0.04, 0.04, 0.04);
     let bvh = Bvh::build(&scene);
     let atlas = 32;
-    let set = prm::TexelSet::build_visible(&scene, &bvh, atlas, atlas);
-    let tracer = prm_precompute::ground_truth::Tracer::new(
-        &scene,
-        &bvh,
-        prm_precompute::ground_truth::GtParams { spp: 256, seed: 5, ..Default::default() },
-    );
-    let gt = tracer.texels(&set.texels, set.width, prm_precompute::parallel::Control::none()).unwrap();
-    let noise = prm_precompute::ground_truth::indirect_noise(&gt);
-    let gt: Vec<Vec3> = gt.iter().map(|r| r.indirect).collect();
+    let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 5);
     let error = |near_radius: f32, concentrate: bool, echo_radius: f32| {
         let p = prm_precompute::precompute::PrecomputeParams {
             entries: 1024,
@@ -147,15 +153,7 @@ fn the_near_fields_later_bounces_keep_the_energy() {
     scene.lights[0].position = Vec3::new(0.5, 0.4, 0.02);
     let bvh = Bvh::build(&scene);
     let atlas = 32;
-    let set = prm::TexelSet::build_visible(&scene, &bvh, atlas, atlas);
-    let tracer = prm_precompute::ground_truth::Tracer::new(
-        &scene,
-        &bvh,
-        prm_precompute::ground_truth::GtParams { spp: 256, seed: 7, ..Default::default() },
-    );
-    let gt = tracer.texels(&set.texels, set.width, prm_precompute::parallel::Control::none()).unwrap();
-    let noise = prm_precompute::ground_truth::indirect_noise(&gt);
-    let gt: Vec<Vec3> = gt.iter().map(|r| r.indirect).collect();
+    let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 7);
     let p = prm_precompute::precompute::PrecomputeParams {
         entries: 1024,
         paths: 64,

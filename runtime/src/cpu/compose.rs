@@ -532,12 +532,9 @@ pub fn add_near_field_with(
 /// Adds the near field (signed) into a lightmap of panes, then clamps every texel at zero (the
 /// near and far fields and the dipole panes are signed), as the GPU's compose does.
 pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
-    for (v, n) in img.iter_mut().zip(near) {
-        *v += *n;
-    }
     // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
-    for v in img.iter_mut() {
-        *v = v.max(Vec3::ZERO);
+    for (v, n) in img.iter_mut().zip(near) {
+        *v = (*v + *n).max(Vec3::ZERO);
     }
 }
 
