@@ -251,7 +251,7 @@ fn linked_shares(set: &TexelSet, cell: &[(Vec3, f32)], near: &[NearLink], far: &
 /// Per covered texel, what the links left out of the walks add to each cluster's pane: per
 /// unit of cluster irradiance, cell j takes `t_j` of it (its area over A/N), which its link
 /// turns into `albedo_j factor t_j` at the texel; exactly what the runtime's near field takes
-/// back from `w_c` (`prm_runtime::cpu::add_near_field`).
+/// back from `w_c` (`prm_runtime::cpu::near_field`).
 fn exact_first_bounce(
     set: &TexelSet,
     entries: &[Entry],

@@ -18,7 +18,7 @@ use super::concentrate::LinkLight;
 /// is the answer to unit irradiance over the region, whatever its area (measured: the plain
 /// mean left cornell's indirect light 1.9 % high, this -0.4 %).
 ///
-/// The near field (`add_near_field`) adds `sum_j (E_j - w_c t_j) near_j` of energy over the
+/// The near field ([`near_field`]) adds `sum_j (E_j - w_c t_j) near_j` of energy over the
 /// texels (`near_j`: entry j's links' energy per unit weight); nothing makes that zero (a hot
 /// entry on a floor has no links to its coplanar floor, its colder neighbours by a wall do). So
 /// `w_c` is chosen to keep the cluster's energy, panes plus near field, at `m_c energy_c`:
@@ -501,21 +501,15 @@ pub fn pane_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
     pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin).0
 }
 
-/// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`): each texel with
-/// links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them (`t_j`: [`NearTables`]), from
-/// the entries' irradiance and the cluster weights, its echo, and the far field
-/// ([`far_sources`], [`far_field`]); then every texel is clamped at zero (the near and far
-/// fields and the dipole panes are signed), as on the GPU.
-pub fn add_near_field(prm: &Prm, entry_irradiance: &[Vec3], weights: &[Vec3], img: &mut [Vec3]) {
-    let tables = NearTables::new(prm);
-    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
-    add_near_field_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, weights, &lin, img);
-}
-
-/// [`add_near_field`] with the map's [`NearTables`] built once and this frame's light on the
-/// links of hot cells (each such link uses its own `E_j kappa` for `E_j`); with dipoles
-/// (`lin`: [`dipole_offsets`]) a link's deviation is from the cluster's linear fit, `E_j - t_j
-/// (w_c + lin_j)`, since the dipole panes already carry the fit's slope.
+/// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`) added to a
+/// lightmap of panes: each texel with links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over
+/// them (`t_j`: [`NearTables`]), from the entries' irradiance and the cluster weights, its
+/// echo, and the far field ([`far_sources`], [`far_field`]); then every texel is clamped at
+/// zero (the near and far fields and the dipole panes are signed), as on the GPU. Hot cells'
+/// links use their own `E_j kappa` for `E_j` (`link_light`); with dipoles (`lin`:
+/// [`dipole_offsets`]) a link's deviation is from the cluster's linear fit, `E_j - t_j (w_c +
+/// lin_j)`, since the dipole panes already carry the fit's slope. `weights` are the balanced
+/// ones ([`cluster_weights_with`]); the panes take them lifted ([`pane_weights_with`]).
 pub fn add_near_field_with(
     prm: &Prm,
     tables: &NearTables,
