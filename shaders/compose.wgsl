@@ -19,7 +19,7 @@
 // vertices of the atlas tile grid, then blended bilinearly over each tile from its four
 // corners (no step where neighbouring tiles pick differently). select_main (one workgroup per
 // vertex) takes the panes stored in the up-to-four tiles around the vertex, each pane's energy
-// summed over them, and keeps the local_k clusters with the largest luminance(weight) x energy
+// summed over them, and keeps the local_k clusters with the largest |luminance(weight)| x energy
 // (ties to the lower pane; the local_k-th score found a byte at a time by histograms of the
 // scores' bits, which order non-negative floats as their values); a group's weight there is the light of its
 // clusters left out over its own energy, a kept cluster's dipoles get its moments. It writes
@@ -80,7 +80,7 @@ fn find(r: vec2u, pane: u32) -> u32 {
     return NO_SLOT;
 }
 
-// The score at vertex v of record k in slot `slot`: luminance(weight) x the pane's energy
+// The score at vertex v of record k in slot `slot`: |luminance(weight)| x the pane's energy
 // around v for a cluster's record standing for its pane there, else 0. select_main keeps it in
 // the record's own words for the corner (where the pane's weight goes afterwards).
 fn vertex_score(k: u32, slot: u32) -> u32 {
@@ -89,8 +89,9 @@ fn vertex_score(k: u32, slot: u32) -> u32 {
     if records[k].owner[corner] != k * 4u + corner || cluster >= params.cluster_count {
         return 0u;
     }
-    // Positive scores only (not -0 or NaN, whose bits would rank first), as the CPU's.
-    let s = luminance(selected[cluster].xyz) * records[k].summed[corner];
+    // Positive scores only (not -0 or NaN, whose bits would rank first), as the CPU's; a weight
+    // the lift made negative ranks by its magnitude.
+    let s = abs(luminance(selected[cluster].xyz)) * records[k].summed[corner];
     return select(0u, bitcast<u32>(s), s > 0.0);
 }
 

@@ -3,7 +3,8 @@
 // lift_main, one invocation per cluster: u_c = sum over its members with a slot of
 // t_j near_sum(slot_j) / sum t_j, into lifted[c]. lambda_main, one workgroup: per channel
 // lambda = sum_c u_c energy_c / sum_c w_c energy_c (0 where the second sum is 0), into
-// lifted[C]. apply_main, one per cluster: w_c = max(w_c (1 - lambda) + u_c, 0) and its score.
+// lifted[C]. apply_main, one per cluster: w_c = w_c (1 - lambda) + u_c, signed (the twin's doc
+// says why), and its score |luminance(w_c)| x energy_c.
 // Bindings, IndirectParams, NO_SLOT, luminance and WG_LINEAR: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -65,7 +66,7 @@ fn apply_main(@builtin(global_invocation_id) id: vec3u) {
         return;
     }
     let lambda = lifted[params.cluster_count].xyz;
-    let w = max(weights[c].xyz * (vec3f(1.0) - lambda) + lifted[c].xyz, vec3f(0.0));
+    let w = weights[c].xyz * (vec3f(1.0) - lambda) + lifted[c].xyz;
     weights[c] = vec4f(w, 0.0);
-    scores[c] = luminance(w) * energy[c];
+    scores[c] = abs(luminance(w)) * energy[c];
 }

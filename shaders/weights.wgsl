@@ -2,7 +2,7 @@
 //
 // weights_main: w_c = the power on cluster c's cells over their area, less the near field's
 // share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
-// energy_c. select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
+// energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
 // sum over its left-out clusters of w_c x energy_c / energy_g (prm_runtime::cpu::

@@ -40,7 +40,7 @@ pub enum Budget {
 pub struct RuntimeParams {
     /// Panes composed per frame (default 32; >= the cluster count means all): picked at each
     /// vertex of the atlas tile grid or for the whole map, as `budget` says, the strongest by
-    /// `luminance(weight) x energy`.
+    /// `|luminance(weight)| x energy` (a lifted weight may be negative, `cpu::lift_weights`).
     pub top_k: usize,
     /// Where `top_k` applies (default local: at each tile grid vertex).
     pub budget: Budget,

@@ -1,6 +1,7 @@
 //! Cluster weights and top-K selection on the GPU (DESIGN.md §5 steps 2-3;
 //! `shaders/weights.wgsl`). `weights_main` averages each cluster's member irradiance and scores
-//! it by `luminance(w) x pane energy`; `select_main` ranks every cluster against all others
+//! it by `luminance(w) x pane energy` (`lift.wgsl` rescores the lifted, signed, weights by
+//! `|luminance(w)|`); `select_main` ranks every cluster against all others
 //! (O(C²), a few hundred thousand comparisons at C = 256, no sort, no atomics) and writes the
 //! weights of the kept ones, zero for the rest, into [`WeightPass::selected`]; `residual_main`
 //! then gives each group of clusters the weight of its left-out clusters' light (after the C

@@ -90,10 +90,11 @@ fn an_unchanged_frame_does_no_compose_work() {
 /// least halve the PRM's error (measured: 0.80 without, 0.37 with links spreading each cell's
 /// light evenly over it), and weighing each hot cell's light by how the texel sees it
 /// (`cpu::concentrate`) must cut what is left by a further fifth (measured: 0.36 -> 0.25); the
-/// near field's echo (its second and third bounce between the three surfaces) by a further 3 %
-/// (measured: 0.251 -> 0.239, 5 %; 0.26 -> 0.24 before the lift, `cpu::lift_weights`, took
-/// over part of the near field's later bounces; in the chamber's corner, where the hot spots
-/// are 54 cm cells apart rather than 5 cm, the echo takes the torch from 33 % to 8 %).
+/// near field's echo (its second and third bounce between the three surfaces) by a further 1.5 %
+/// (measured: 0.251 -> 0.246, 2 %; 0.26 -> 0.24 before the lift, `cpu::lift_weights`, took
+/// over part of the near field's later bounces, and 0.251 -> 0.239 while lifted weights were
+/// cut at 0, which added energy; in the chamber's corner, where the hot spots are 54 cm cells
+/// apart rather than 5 cm, the echo takes the torch from 33 % to 8 %).
 #[test]
 fn the_near_field_lights_a_corner_next_to_a_lamp() {
     let mut scene = open_box();
@@ -135,13 +136,12 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
     );
     assert!(with <= 0.5 * without, "error {with} with the near field, {without} without");
     assert!(seen <= 0.8 * with, "error {seen} with hot cells seen, {with} spread evenly");
-    assert!(echo <= 0.97 * seen, "error {echo} with the echo, {seen} without");
+    assert!(echo <= 0.985 * seen, "error {echo} with the echo, {seen} without");
 }
 
 /// The near field's later bounces (`cpu::lift_weights`) add no energy: per channel `sum_c w_c
-/// energy_c` is the balanced weights' but for what keeping a weight at >= 0 adds (measured
-/// +0.05 %; asserted: 0.2 %), a near field of zero leaves every
-/// weight as it was, and a lamp 2 cm from the back wall of a closed 4 x 2 x 2 m room (one hot
+/// energy_c` is the balanced weights' (to float rounding: weights are signed, nothing is cut
+/// at 0), a near field of zero leaves every weight as it was, and a lamp 2 cm from the back wall of a closed 4 x 2 x 2 m room (one hot
 /// spot whose first bounce the near links and far field carry) changes the weights. On this
 /// bare box the lift moves the error against the ground truth little (measured 0.095 -> 0.094,
 /// noise removed; a 6 x 3 x 3 m box with the lamp 2 cm from its end wall 0.123 -> 0.130); on
@@ -190,7 +190,7 @@ fn the_near_fields_later_bounces_keep_the_energy() {
     };
     let (before, after) = (energy(&balanced), energy(&lifted));
     println!("pane energy {before} -> {after}");
-    assert!((after - before).abs().max_element() <= 2e-3 * before.max_element(), "{before} -> {after}");
+    assert!((after - before).abs().max_element() <= 1e-5 * before.max_element(), "{before} -> {after}");
     assert!(lifted
         .iter()
         .zip(&balanced)

@@ -121,7 +121,7 @@ pub fn vertex_weights(
         .iter()
         .enumerate()
         .filter(|(_, p)| (p.0 as usize) < c_count)
-        .map(|(i, p)| (luminance(weights[p.0 as usize]) * p.1, i))
+        .map(|(i, p)| (luminance(weights[p.0 as usize]).abs() * p.1, i))
         .filter(|(s, _)| *s > 0.0)
         .collect();
     scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
