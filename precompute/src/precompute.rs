@@ -408,6 +408,16 @@ pub fn precompute_with(
         if prm_checksum(old) != cache.prm_checksum {
             return Err(Refused("the cache belongs to another .prm (checksums differ)".into()).into());
         }
+        // Every triangle reads as it did (a light moved or recoloured, a camera, a node that
+        // holds no geometry): the map is made of nothing else, so the update is OLD, to the
+        // byte, and its cache; the preamble a plan would need costs what it saves (the
+        // chamber's lamp moved 7 m: 1.7 s, 42 % of a full precompute, for no walk).
+        if triangles.as_ref() == Some(&cache.triangles) {
+            report.entries = old.entries().len() as u32;
+            report.clusters = old.clusters().len() as u32;
+            report.seconds_total = all.elapsed().as_secs_f64();
+            return Ok(Baked { prm: old.clone(), report, cache: Some(cache.clone()) });
+        }
     }
     let same_entries = |entries: &[Entry]| match reuse.cache() {
         Some(cache) if entries.len() != cache.assignment.len() => Err(Refused(format!(

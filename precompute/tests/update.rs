@@ -149,16 +149,32 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
     assert_eq!(back.prm.to_bytes(), old_bytes, "moving the block back is not the original");
 }
 
+/// The map is made of the level's triangles alone (never its lights): with every triangle as
+/// it was, the update hands back the old file and cache without a plan or a walk, and that is
+/// what walking everything again with the old clusters gives (its twin), for no edit and for a
+/// light moved and recoloured.
 #[test]
 fn an_update_with_no_edit_writes_the_same_file_and_cache() {
     let p = params();
-    let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    let mut level = two_sealed_rooms(v(0.3, 0.0, 0.3));
+    level.lights = vec![prm::Light::point("lamp", v(0.5, 0.8, 0.5), Vec3::ONE)];
     let (old, cache, bytes) = baked(&level, &p, Reuse::Nothing, true);
+    let (_, twin_cache, twin_bytes) = baked(&level, &p, Reuse::Clusters(&cache), true);
+    assert_eq!(twin_bytes, bytes);
+    assert_eq!(twin_cache, cache);
     let up = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
     assert_eq!(up.report.update_tiles_hit, 0);
     assert_eq!(up.report.update_texels_walked, 0);
     assert_eq!(up.prm.to_bytes(), bytes);
     assert_eq!(up.cache.as_ref(), Some(&cache));
+    level.lights[0].position = v(2.5, 0.2, 0.5);
+    level.lights[0].intensity = v(1.0, 0.5, 0.2);
+    let moved = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    assert_eq!(moved.report.update_texels_walked, 0);
+    assert_eq!(moved.prm.to_bytes(), bytes);
+    assert_eq!(moved.cache.as_ref(), Some(&cache));
+    let fresh = run(&level, &p, Reuse::Nothing, false).unwrap();
+    assert_eq!(fresh.prm.to_bytes(), bytes, "a fresh precompute read the lights");
 }
 
 #[test]
