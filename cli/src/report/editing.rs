@@ -68,6 +68,9 @@ pub struct EditRow {
 pub struct UpdateRow {
     pub seconds_update: f64,
     pub seconds_full: f64,
+    /// The full precompute keeping its update cache (`--cache`: its walks traced), what an
+    /// editing loop that goes on updating runs instead.
+    pub seconds_full_cached: f64,
     pub tiles_hit: usize,
     pub tiles: usize,
     pub texels_walked: usize,
@@ -192,6 +195,9 @@ pub fn editing(
         let t = Instant::now();
         let full = run_precompute(&edited.scene, &edited.bvh, &pp, Reuse::Nothing, false)?;
         let seconds_full = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        run_precompute(&edited.scene, &edited.bvh, &pp, Reuse::Nothing, true)?;
+        let seconds_full_cached = t.elapsed().as_secs_f64();
         let map_error = |m: &Prm| {
             let img = CpuTwin::new(m, &edited.bvh, usize::MAX).frame(&gt_lights).to_vec();
             compare(&edited.set, &img, &gt).0
@@ -200,6 +206,7 @@ pub fn editing(
         let update = UpdateRow {
             seconds_update,
             seconds_full,
+            seconds_full_cached,
             tiles_hit: updated.report.update_tiles_hit,
             tiles: (pp.atlas.width().div_ceil(ts) * pp.atlas.height().div_ceil(ts)) as usize,
             texels_walked: updated.report.update_texels_walked,
