@@ -9,6 +9,7 @@ pub mod entries;
 pub mod far;
 pub mod ground_truth;
 pub mod incremental;
+pub mod memory;
 pub mod near;
 pub mod panes;
 pub mod parallel;

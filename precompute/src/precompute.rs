@@ -502,6 +502,7 @@ pub fn precompute_with(
         Ok(out)
     };
     let cached = plan.as_ref().map(|(plan, cache)| (&plan.dirty[..], &cache.panes[..]));
+    crate::memory::release_freed();
     let mut acc = walk_and_encode(&pre, params, &mut walk, cached, progress, cancel, &mut report)?;
     // The estimator's tables (virtual lights, MIS) are the walks' only (`walk`, which borrows
     // them, is not used again).
@@ -607,8 +608,12 @@ pub(crate) fn finish(
     report: &mut Report,
     all: Instant,
 ) -> Result<Prm, PrecomputeError> {
-    // The links' shares and exact first bounce are the walks' only.
-    (pre.keep, pre.exact) = (None, Vec::new());
+    // The links' shares and exact first bounce, the cell owners and the smoothing are the
+    // walks' and the encoding's only: out of memory before the tiles are assembled (what the
+    // peak is made of).
+    (pre.keep, pre.exact, pre.smoothing) = (None, Vec::new(), None);
+    pre.owners = crate::cells::CellOwners::default();
+    crate::memory::release_freed();
     let t = Instant::now();
     let encoder = Encoder::new(&pre.set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let (members, threshold) = (&pre.clustering.members, params.drop_threshold);
@@ -691,6 +696,8 @@ pub(crate) fn walk_and_encode(
         let gone = (range.start - first).min(panes.len());
         panes.drain(..gone);
         dips.drain(..gone.min(dips.len()));
+        // The walks the last band no longer needs, and its encoding's scratch.
+        crate::memory::release_freed();
         first = range.start;
         let have = first + panes.len();
         if range.end > have {
