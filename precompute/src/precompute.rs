@@ -413,8 +413,7 @@ pub fn precompute_with(
         // byte, and its cache; the preamble a plan would need costs what it saves (the
         // chamber's lamp moved 7 m: 1.7 s, 42 % of a full precompute, for no walk).
         if triangles.as_ref() == Some(&cache.triangles) {
-            report.entries = old.entries().len() as u32;
-            report.clusters = old.clusters().len() as u32;
+            let mut report = Report::of_map(params, old);
             report.seconds_total = all.elapsed().as_secs_f64();
             return Ok(Baked { prm: old.clone(), report, cache: Some(cache.clone()) });
         }
@@ -576,6 +575,36 @@ pub(crate) fn check_params(scene: &Scene, params: &PrecomputeParams) -> Result<(
 
 impl Report {
     /// A report with the parameters filled in and nothing measured yet.
+    /// What a bake that made `map` reported of it, from its header (an update that hands back
+    /// the old map: nothing was walked or timed). A map from before its header recorded the
+    /// texels reads the far field's (every covered texel when it has one).
+    fn of_map(params: &PrecomputeParams, map: &Prm) -> Report {
+        let h = map.header();
+        let p = &h.provenance;
+        let count = |k: &str| p[k].as_u64().unwrap_or(0) as usize;
+        Report {
+            entries: h.entries,
+            clusters: h.clusters,
+            texels: p.get("texels").map_or(count("far_texels"), |t| t.as_u64().unwrap_or(0) as usize),
+            entries_enclosed: count("entries_enclosed"),
+            near_links: count("near_links"),
+            echo_links: count("echo_links"),
+            far_texels: count("far_texels"),
+            far_pairs: count("far_pairs"),
+            cell_triangles: count("cell_triangles"),
+            area_without_entry: p["area_without_entry"].as_f64().unwrap_or(0.0),
+            walks_truncated: count("walks_truncated"),
+            unowned_vertices: count("unowned_vertices"),
+            tiles_kept: h.tiles,
+            tiles_dropped: h.tiles_dropped,
+            dropped_energy: h.dropped_energy,
+            pane_bytes: map.data().len(),
+            dipole_tiles: map.dipoles().tiles.len(),
+            dipole_bytes: map.dipoles().data.len(),
+            ..Report::new(params)
+        }
+    }
+
     pub(crate) fn new(params: &PrecomputeParams) -> Report {
         Report {
             estimator: params.estimator.to_string(),
@@ -782,6 +811,7 @@ fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Ti
             "dipole_tiles": report.dipole_tiles,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
+            "texels": report.texels,
             "entries_enclosed": report.entries_enclosed,
             "cell_triangles": report.cell_triangles, "area_without_entry": report.area_without_entry,
         }),

@@ -171,6 +171,23 @@ fn an_update_with_no_edit_writes_the_same_file_and_cache() {
     level.lights[0].intensity = v(1.0, 0.5, 0.2);
     let moved = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
     assert_eq!(moved.report.update_texels_walked, 0);
+    // Its report is the old bake's, from the map's header (what `--json` prints).
+    let first = run(&level, &p, Reuse::Nothing, false).unwrap().report;
+    let r = &moved.report;
+    assert!(r.texels > 0);
+    assert_eq!(
+        (r.texels, r.entries, r.clusters, r.tiles_kept, r.tiles_dropped, r.near_links, r.far_pairs),
+        (
+            first.texels,
+            first.entries,
+            first.clusters,
+            first.tiles_kept,
+            first.tiles_dropped,
+            first.near_links,
+            first.far_pairs
+        )
+    );
+    assert_eq!(r.pane_bytes, first.pane_bytes);
     assert_eq!(moved.prm.to_bytes(), bytes);
     assert_eq!(moved.cache.as_ref(), Some(&cache));
     let fresh = run(&level, &p, Reuse::Nothing, false).unwrap();

@@ -141,8 +141,9 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
 
 /// The near field's later bounces (`cpu::lift_weights`) add no energy: per channel `sum_c w_c
 /// energy_c` is the balanced weights' (to float rounding: weights are signed, nothing is cut
-/// at 0), a near field of zero leaves every weight as it was, and a lamp 2 cm from the back wall of a closed 4 x 2 x 2 m room (one hot
-/// spot whose first bounce the near links and far field carry) changes the weights. On this
+/// at 0), a near field of zero leaves every weight as it was, and a lamp 2 cm from the back
+/// wall of a closed 4 x 2 x 2 m room (one hot spot whose first bounce the near links and far
+/// field carry) changes the weights. On this
 /// bare box the lift moves the error against the ground truth little (measured 0.095 -> 0.094,
 /// noise removed; a 6 x 3 x 3 m box with the lamp 2 cm from its end wall 0.123 -> 0.130); on
 /// the bundled levels it helps every torch and every level's own lights (README); asserted
