@@ -227,7 +227,10 @@ fn near_links_and_far_field_add_up_to_one_cells_first_bounce() {
         let mut e = vec![Vec3::ZERO; n];
         e[j0] = Vec3::ONE;
         let mut img = vec![Vec3::ZERO; prm.texel_count()];
-        cpu::add_near_field_with(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[], &mut img);
+        cpu::add_and_clamp(
+            &mut img,
+            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[]),
+        );
         let entry = &prm.entries()[j0];
         let cell_area = prm.cells().area(j0);
         let (mut got, mut want) = (Vec::new(), Vec::new());
@@ -269,7 +272,10 @@ fn the_balance_counts_what_the_near_and_far_fields_deliver() {
         let mut e = vec![Vec3::ZERO; n];
         e[j] = Vec3::ONE;
         let mut img = vec![Vec3::ZERO; prm.texel_count()];
-        cpu::add_near_field_with(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[], &mut img);
+        cpu::add_and_clamp(
+            &mut img,
+            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[]),
+        );
         delivered +=
             prm.far().texels.iter().map(|t| prm::luminance(img[t.texel as usize]) as f64).sum::<f64>();
         counted += tables.energy[j] as f64;

@@ -502,28 +502,6 @@ pub fn pane_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
     pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin).0
 }
 
-/// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`) added to a
-/// lightmap of panes: each texel with links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over
-/// them (`t_j`: [`NearTables`]), from the entries' irradiance and the cluster weights, its
-/// echo, and the far field ([`far_sources`], [`far_field`]); then every texel is clamped at
-/// zero (the near and far fields and the dipole panes are signed), as on the GPU. Hot cells'
-/// links use their own `E_j kappa` for `E_j` (`link_light`); with dipoles (`lin`:
-/// [`dipole_offsets`]) a link's deviation is from the cluster's linear fit, `E_j - t_j (w_c +
-/// lin_j)`, since the dipole panes already carry the fit's slope. `weights` are the balanced
-/// ones ([`cluster_weights_with`]); the panes take them lifted ([`pane_weights_with`]).
-pub fn add_near_field_with(
-    prm: &Prm,
-    tables: &NearTables,
-    link_light: &LinkLight,
-    entry_irradiance: &[Vec3],
-    weights: &[Vec3],
-    lin: &[Vec3],
-    img: &mut [Vec3],
-) {
-    let near = near_field(prm, tables, link_light, entry_irradiance, weights, lin);
-    add_and_clamp(img, &near);
-}
-
 /// Adds the near field (signed) into a lightmap of panes, then clamps every texel at zero (the
 /// near and far fields and the dipole panes are signed), as the GPU's compose does.
 pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
@@ -533,8 +511,15 @@ pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
     }
 }
 
-/// The near field of [`add_near_field_with`] on its own, per atlas texel and signed: the
-/// links' first bounce of the deviation with its echo, and the far field.
+/// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`), per atlas texel
+/// and signed: each texel with links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them
+/// (`t_j`: [`NearTables`]), from the entries' irradiance and the cluster weights, its echo,
+/// and the far field ([`far_sources`], [`far_field`]). Hot cells' links use their own `E_j
+/// kappa` for `E_j` (`link_light`); with dipoles (`lin`: [`dipole_offsets`]) a link's
+/// deviation is from the cluster's linear fit, `E_j - t_j (w_c + lin_j)`, since the dipole
+/// panes already carry the fit's slope. `weights` are the balanced ones
+/// ([`cluster_weights_with`]); the panes take them lifted ([`pane_weights_with`]). A frame adds
+/// it to the panes with [`add_and_clamp`].
 pub fn near_field(
     prm: &Prm,
     tables: &NearTables,
