@@ -238,10 +238,10 @@ fn no_intermediate_state_is_further_from_the_final_one_than_before_the_edit() {
     b.converge();
     b.apply(&Edit::Transform { node: 1, matrix: translate(0.2, 0.1) }).unwrap();
     let mut states = vec![total(&b)];
-    let mut resolved = Vec::new();
+    let mut reports = Vec::new();
     while let Some(r) = b.step() {
         states.push(total(&b));
-        resolved.push(r.resolved);
+        reports.push(r);
     }
     let last = states.last().unwrap().clone();
     let before = rms(&states[0], &last);
@@ -250,8 +250,17 @@ fn no_intermediate_state_is_further_from_the_final_one_than_before_the_edit() {
         let d = rms(s, &last);
         assert!(d <= before * (1.0 + 1e-3), "state {k}: {d} from the final, {before} before the edit");
     }
-    // Most urgent first: the first update resolves at least as much as any later one.
-    assert!(resolved.iter().all(|&r| r <= resolved[0] + 1e-6), "{resolved:?}");
+    // Most invalid flux per unit of expected work first (consolidations, resolving none, last).
+    let urgency: Vec<f32> = reports.iter().map(|r| r.resolved / r.cost).collect();
+    assert!(urgency.iter().all(|u| u.is_finite() && *u >= 0.0), "{urgency:?}");
+    assert!(urgency.windows(2).all(|w| w[1] <= w[0] * (1.0 + 1e-5)), "{urgency:?}");
+    let mut kinds: Vec<UpdateKind> = Vec::new();
+    for r in reports.iter().filter(|r| r.resolved > 0.0) {
+        if !kinds.contains(&r.kind) {
+            kinds.push(r.kind);
+        }
+    }
+    assert!(kinds.len() >= 2, "the move queues updates of more than one kind: {kinds:?}");
 }
 
 #[test]

@@ -36,7 +36,10 @@
 //! its cells exchanged for the new cut's, the same light in other clusters), interleaved with
 //! the validation updates at eq. (2)'s ratio for the next one's invalid share.
 //!
-//! Updates go in order of invalid flux: for a rebuild, the flux of the VPLs that differ
+//! Updates go in order of invalid flux per unit of expected work (texel x virtual-light
+//! evaluations: a rebuild's old and new cells at every texel, a correction's lights, a
+//! refresh's texels on what moved and a cheap ray test at the others), so that most of the
+//! invalid light is gone soonest. The invalid flux: for a rebuild, the flux of the VPLs that differ
 //! between the baked and the new cells (both counted, as paper 001's absolute term) plus the
 //! flux of validated path segments that leave the region and now land elsewhere; for a
 //! correction, the flux of its VPLs; for a refresh, those segments (paper 001's estimate) and
@@ -222,6 +225,22 @@ enum Work {
     Refresh(CellKey),
 }
 
+/// A refresh's cost per texel that did not move and light, over a full evaluation's: the texel's
+/// shadow rays drawn and tested against the moved boxes (cost model of [`Baker::plan`]).
+const REFRESH_TEST: f32 = 0.05;
+/// A correction's virtual light over a cell's, per texel: its polygons span a coarser cell and
+/// light more texels (measured on the chamber's edits, 2 cores).
+const DELTA_LIGHT: f32 = 1.9;
+
+/// Virtual lights a baked entry evaluates at each texel (a direct light counts one).
+fn lights_of(b: &Baked) -> f32 {
+    match &b.source {
+        Source::Direct(_) => 1.0,
+        Source::Lights(ls) => ls.len() as f32,
+        Source::Delta { plus, minus } => (plus.len() + minus.len()) as f32,
+    }
+}
+
 /// Update tiers: invalid light first, interleaved with balancing by eq. (2) (a region whose VPLs
 /// are all valid but whose balanced cut changed: its cells exchanged for the new cut's), then
 /// consolidation (which only exchanges a region's corrections and old cells for the cells a
@@ -242,6 +261,8 @@ pub fn validation_ratio(share: f32, t: f32) -> f32 {
 struct Unit {
     tier: u8,
     priority: f32,
+    /// What it costs, in texel x virtual-light evaluations ([`Baker::plan`]'s model).
+    cost: f32,
     /// Invalid flux over the flux of the cells it updates (at most 1), for eq. (2).
     share: f32,
     root: CellKey,
@@ -271,6 +292,9 @@ pub struct StepReport {
     pub kind: UpdateKind,
     /// Invalid flux it resolved (the unit's priority; 0 for a consolidation), W (luminance).
     pub resolved: f32,
+    /// What the scheduler expected it to cost, in texel x virtual-light evaluations: invalid
+    /// light goes in order of `resolved / cost`.
+    pub cost: f32,
     /// Texels it evaluated.
     pub texels: usize,
 }
@@ -325,7 +349,7 @@ pub struct Baker {
     frame: Frame,
     lights: BTreeMap<u32, LightPaths>,
     baked: BTreeMap<CellKey, Baked>,
-    /// Waiting updates, lowest priority first.
+    /// Waiting updates, the next one last.
     work: Vec<Unit>,
     /// Edits that moved geometry, by the version they made.
     log: Vec<(u64, Changes)>,
@@ -618,6 +642,20 @@ impl Baker {
                 by_root.entry(r).or_default().push((c, m));
             }
         }
+        let texel_count = self.level.texels().texels.len() as f32;
+        let per_cell = self.params.lights_per_cell as f32;
+        // What a rebuild costs: its old entries taken out and its cells baked, at every texel.
+        let rebuild_cost = |baked_here: &[CellKey], add: &[(CellKey, Content)]| -> f32 {
+            let out: f32 = baked_here.iter().map(|k| lights_of(&self.baked[k])).sum();
+            let put: f32 = add
+                .iter()
+                .map(|(_, c)| match c.light {
+                    Some(_) => 1.0,
+                    None => (c.members.len() as f32).min(per_cell),
+                })
+                .sum();
+            texel_count * (out + put).max(1.0)
+        };
         let mut units = Vec::new();
         let mut in_units: BTreeSet<CellKey> = BTreeSet::new();
         // Differing VPLs of the regions that take corrections, and those regions.
@@ -640,6 +678,7 @@ impl Baker {
                 units.push(Unit {
                     tier: TIER_INVALID,
                     priority: differing + seg,
+                    cost: rebuild_cost(&baked_here, &add),
                     share: 1.0,
                     root: r,
                     work: Work::Rebuild { add },
@@ -669,13 +708,15 @@ impl Baker {
                     true => (TIER_INVALID, stale, (stale / held.max(f32::MIN_POSITIVE)).min(1.0)),
                     false => (TIER_BALANCE, held, 0.0),
                 };
-                units.push(Unit { tier, priority, share, root: r, work: Work::Rebuild { add } });
+                let cost = rebuild_cost(&baked_here, &add);
+                units.push(Unit { tier, priority, cost, share, root: r, work: Work::Rebuild { add } });
             } else if differing > self.params.rebuild_share * held {
                 let add = wanted_under(&want, r);
                 in_units.extend(baked_here.iter().copied());
                 units.push(Unit {
                     tier: TIER_INVALID,
                     priority: differing + seg,
+                    cost: rebuild_cost(&baked_here, &add),
                     share: ((differing + seg) / held.max(f32::MIN_POSITIVE)).min(1.0),
                     root: r,
                     work: Work::Rebuild { add },
@@ -708,9 +749,12 @@ impl Baker {
             }
             let priority = plus.iter().chain(&minus).map(|m| luminance(m.power)).sum();
             delta_codes.push(cell);
+            let lights = (plus.len() as f32).min(per_cell) + (minus.len() as f32).min(per_cell);
+            let cost = DELTA_LIGHT * texel_count * lights;
             units.push(Unit {
                 tier: TIER_INVALID,
                 priority,
+                cost: cost.max(1.0),
                 share: 1.0,
                 root: CellKey::Cell(cell),
                 work: Work::Delta { code: cell, plus, minus },
@@ -738,6 +782,7 @@ impl Baker {
                 units.push(Unit {
                     tier: TIER_CONSOLIDATE,
                     priority: 0.0,
+                    cost: 1.0,
                     share: 0.0,
                     root: r,
                     work: Work::Rebuild { add },
@@ -745,18 +790,31 @@ impl Baker {
             }
         }
         // Refreshes: baked entries outside the rebuilds that an edit since their bake may shadow.
+        let mut on_moved: HashMap<u64, f32> = HashMap::new();
         for (k, b) in &self.baked {
             if in_units.contains(k) {
                 continue;
             }
-            if let Some(priority) = self.refresh_priority(*k, b, v.id) {
+            if let Some((priority, view)) = self.refresh_estimate(*k, b, v.id) {
+                // A refresh evaluates the texels on what moved twice, and tests every other
+                // texel's rays against the moved boxes, tracing the few that cross them.
+                let moved =
+                    *on_moved.entry(b.version.id).or_insert_with(|| self.texels_moved_since(b.version.id));
+                let cost = lights_of(b) * (2.0 * moved + texel_count * (REFRESH_TEST + view));
                 // A direct light's entry holds its flux; a cell's, its VPLs'.
                 let whole = match &b.source {
                     Source::Direct(l) => self.flux_of(l),
                     _ => b.weight,
                 };
                 let share = (priority / whole.max(f32::MIN_POSITIVE)).min(1.0);
-                units.push(Unit { tier: TIER_INVALID, priority, share, root: *k, work: Work::Refresh(*k) });
+                units.push(Unit {
+                    tier: TIER_INVALID,
+                    priority,
+                    cost: cost.max(1.0),
+                    share,
+                    root: *k,
+                    work: Work::Refresh(*k),
+                });
             }
         }
         let rank = |w: &Work| match w {
@@ -764,9 +822,15 @@ impl Baker {
             Work::Delta { .. } => 1,
             Work::Refresh(_) => 2,
         };
+        // Invalid light goes in order of flux resolved per unit of cost, so that most of it is
+        // gone soonest; balancing by the flux it moves.
+        let urgency = |u: &Unit| match u.tier {
+            TIER_INVALID => u.priority / u.cost,
+            _ => u.priority,
+        };
         units.sort_by(|a, b| {
-            (a.tier, a.priority)
-                .partial_cmp(&(b.tier, b.priority))
+            (a.tier, urgency(a))
+                .partial_cmp(&(b.tier, urgency(b)))
                 .unwrap_or(std::cmp::Ordering::Equal)
                 .then(b.root.cmp(&a.root))
                 .then(rank(&b.work).cmp(&rank(&a.work)))
@@ -801,6 +865,12 @@ impl Baker {
     /// The invalid flux a baked entry may carry because geometry moved since it was baked
     /// (with the current version `now`); `None` when nothing moved since.
     fn refresh_priority(&self, k: CellKey, b: &Baked, now: u64) -> Option<f32> {
+        self.refresh_estimate(k, b, now).map(|(flux, _)| flux)
+    }
+
+    /// [`Self::refresh_priority`] and the largest share of the entry's view that a box where
+    /// geometry moved since takes (about the solid angle over 2 pi).
+    fn refresh_estimate(&self, k: CellKey, b: &Baked, now: u64) -> Option<(f32, f32)> {
         if b.version.id == now {
             return None;
         }
@@ -823,10 +893,28 @@ impl Baker {
         // view. Virtual lights: the flux of their paths' next segments that now land
         // elsewhere (paper 001's estimate, unbiased), and where none did, at most about one
         // path's worth (the edit's shadow may still fall between the paths).
-        Some(match &b.source {
+        let flux = match &b.source {
             Source::Direct(l) => self.flux_of(l) * view,
             _ => self.segments.get(&k).copied().unwrap_or(0.0) + self.frame.quantum * view,
-        })
+        };
+        Some((flux, view))
+    }
+
+    /// Texels on the nodes that edits since version `id` moved.
+    fn texels_moved_since(&self, id: u64) -> f32 {
+        let nodes: BTreeSet<u32> = self
+            .log
+            .iter()
+            .filter(|(e, _)| *e > id)
+            .flat_map(|(_, c)| c.moved_nodes.iter().copied())
+            .collect();
+        if nodes.is_empty() {
+            return 0.0;
+        }
+        let v = self.level.current();
+        let texels = self.level.texels();
+        texels.texels.iter().filter(|t| nodes.contains(&v.scene.triangles[t.triangle as usize].node)).count()
+            as f32
     }
 
     /// Updates waiting.
@@ -878,6 +966,7 @@ impl Baker {
         let root = self.frame.root;
         let (k_lights, p_min) = (self.params.lights_per_cell, self.params.min_polygon);
         let resolved = if unit.tier == TIER_INVALID { unit.priority } else { 0.0 };
+        let cost = unit.cost;
         match unit.work {
             Work::Rebuild { add } => {
                 let remove: Vec<CellKey> =
@@ -924,7 +1013,7 @@ impl Baker {
                     TIER_BALANCE => UpdateKind::Balance,
                     _ => UpdateKind::Consolidate,
                 };
-                Some(StepReport { cell: unit.root, kind, resolved, texels: texels.texels.len() })
+                Some(StepReport { cell: unit.root, kind, resolved, cost, texels: texels.texels.len() })
             }
             Work::Delta { code, plus, minus } => {
                 let bx = cell_box(&root, code);
@@ -951,7 +1040,13 @@ impl Baker {
                 self.accumulate(&[], &new);
                 let [(k, baked)] = new;
                 self.baked.insert(k, baked);
-                Some(StepReport { cell: k, kind: UpdateKind::Delta, resolved, texels: texels.texels.len() })
+                Some(StepReport {
+                    cell: k,
+                    kind: UpdateKind::Delta,
+                    resolved,
+                    cost,
+                    texels: texels.texels.len(),
+                })
             }
             Work::Refresh(k) => {
                 let old = self.baked.get(&k)?.version.clone();
@@ -1002,7 +1097,7 @@ impl Baker {
                     self.indirect[i] += di;
                 }
                 self.segments.remove(&k);
-                Some(StepReport { cell: k, kind: UpdateKind::Refresh, resolved, texels: picked.len() })
+                Some(StepReport { cell: k, kind: UpdateKind::Refresh, resolved, cost, texels: picked.len() })
             }
         }
     }
