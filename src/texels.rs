@@ -198,14 +198,33 @@ impl TexelSet {
         first_row: u32,
         rows: std::ops::Range<u32>,
     ) {
+        self.dilate_rows_in(img, first_row, rows, 0..self.width);
+    }
+
+    /// [`TexelSet::dilate_rows`] for the targets in columns `cols` only (their sources lie at
+    /// most one column outside).
+    pub fn dilate_rows_in<T: Copy + Dilatable>(
+        &self,
+        img: &mut [T],
+        first_row: u32,
+        rows: std::ops::Range<u32>,
+        cols: std::ops::Range<u32>,
+    ) {
         let w = self.width as usize;
         let offset = first_row as usize * w;
-        let from = self.dilation.partition_point(|d| (d.target as usize) < rows.start as usize * w);
-        let to = self.dilation.partition_point(|d| (d.target as usize) < rows.end as usize * w);
-        for d in &self.dilation[from..to.max(from)] {
-            let src = &d.sources[..d.count as usize];
-            img[d.target as usize - offset] =
-                T::mean(src.iter().map(|&s| img[s as usize - offset]), src.len());
+        let cols = cols.start.min(self.width) as usize..cols.end.min(self.width) as usize;
+        if cols.start >= cols.end {
+            return;
+        }
+        for row in rows {
+            let at = |x: usize| row as usize * w + x;
+            let from = self.dilation.partition_point(|d| (d.target as usize) < at(cols.start));
+            let to = self.dilation.partition_point(|d| (d.target as usize) < at(cols.end));
+            for d in &self.dilation[from..to.max(from)] {
+                let src = &d.sources[..d.count as usize];
+                img[d.target as usize - offset] =
+                    T::mean(src.iter().map(|&s| img[s as usize - offset]), src.len());
+            }
         }
     }
 

@@ -178,3 +178,36 @@ fn a_window_of_rows_is_smoothed_as_the_whole_atlas() {
         assert!(hi > lo, "window {window:?} has rows to check");
     }
 }
+
+/// A pane lit in one chart only, smoothed and dilated over the columns it can reach (how the
+/// precompute encodes a pane of a level of many rooms: `apply_rows_in`, `dilate_rows_in`),
+/// equals the whole atlas's filter bit for bit, inside those columns and (zero) outside.
+#[test]
+fn columns_around_the_light_are_smoothed_as_the_whole_atlas() {
+    for radius in [1, 3, 6] {
+        let (set, smoothing) = setup(radius);
+        let reach = smoothing.column_reach();
+        assert!(reach >= radius && reach <= radius + 1, "radius {radius}: columns reached {reach}");
+        let mut rng = Pcg64Mcg::seed_from_u64(radius as u64);
+        // Light on chart A's columns 40..50 only.
+        let walked = image(&set, |c, i, _| match c == A && (8..18).contains(&i) {
+            true => Vec3::new(rng.random(), rng.random(), rng.random()),
+            false => Vec3::ZERO,
+        });
+        let mut whole = walked.clone();
+        smoothing.apply(&mut whole);
+        set.dilate(&mut whole);
+        let cols = (A * SIDE + 8).saturating_sub(reach + 1)..A * SIDE + 18 + reach + 1;
+        let mut img = walked.clone();
+        smoothing.apply_rows_in(&mut img, 0..SIDE, SIDE, cols.clone());
+        set.dilate_rows_in(&mut img, 0, 0..SIDE, cols.clone());
+        let w = set.width as usize;
+        for j in 0..SIDE as usize {
+            for i in 0..w {
+                let (a, b) = (img[j * w + i], whole[j * w + i]);
+                assert!(a == b, "radius {radius}, texel ({i}, {j}): {a} vs {b}");
+            }
+        }
+        assert!(img.iter().filter(|v| **v != Vec3::ZERO).count() > 10 * SIDE as usize);
+    }
+}

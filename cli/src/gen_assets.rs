@@ -16,18 +16,38 @@ pub struct Args {
     /// levels of any size for scale measurements.
     #[arg(long, value_name = "NXxNZ", conflicts_with = "check")]
     halls: Option<String>,
+    /// Write only NX x NZ copies of the bundled chamber side by side, without lightmap UVs, as
+    /// chambers_NXxNZ.glb (issue 13's scale target: 16 chambers).
+    #[arg(long, value_name = "NXxNZ", conflicts_with_all = ["check", "halls"])]
+    chambers: Option<String>,
+}
+
+/// `NXxNZ` with each 1 to 16.
+fn grid(flag: &str, grid: &str) -> Result<(u32, u32)> {
+    let parsed =
+        grid.split_once('x').and_then(|(x, z)| Some((x.parse::<u32>().ok()?, z.parse::<u32>().ok()?)));
+    match parsed {
+        Some((nx, nz)) if (1..=16).contains(&nx) && (1..=16).contains(&nz) => Ok((nx, nz)),
+        _ => bail!("--{flag} {grid}: give NXxNZ with each 1 to 16, e.g. 2x2"),
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if let Some(grid) = &a.halls {
-        let parsed =
-            grid.split_once('x').and_then(|(x, z)| Some((x.parse::<u32>().ok()?, z.parse::<u32>().ok()?)));
-        let (nx, nz) = match parsed {
-            Some((nx, nz)) if (1..=16).contains(&nx) && (1..=16).contains(&nz) => (nx, nz),
-            _ => bail!("--halls {grid}: give NXxNZ with each 1 to 16, e.g. 2x2"),
-        };
-        let bytes = prm_precompute::scenes::halls(nx, nz, 32, 8).to_glb();
-        let path = a.output.join(format!("halls_{nx}x{nz}.glb"));
+    let one = match (&a.halls, &a.chambers) {
+        (Some(g), _) => {
+            let (nx, nz) = grid("halls", g)?;
+            Some((prm_precompute::scenes::halls(nx, nz, 32, 8), format!("halls_{nx}x{nz}.glb")))
+        }
+        (None, Some(g)) => {
+            let (nx, nz) = grid("chambers", g)?;
+            let scene = prm_precompute::scenes::chambers(nx, nz).map_err(|e| anyhow!("generating: {e}"))?;
+            Some((scene, format!("chambers_{nx}x{nz}.glb")))
+        }
+        (None, None) => None,
+    };
+    if let Some((scene, name)) = one {
+        let bytes = scene.to_glb();
+        let path = a.output.join(name);
         prm::fsutil::write_bytes_atomic(&path, &bytes)
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {} ({} bytes)", path.display(), bytes.len());

@@ -91,6 +91,8 @@ pub struct Encoder<'a> {
     stored: Vec<bool>,
     /// Walked rows a band needs beyond its own: the smoothing's reach and the dilation's row.
     margin: u32,
+    /// Columns a pane's smoothed and dilated light reaches beyond its own texels.
+    column_margin: u32,
     /// Tile rows per band.
     band_tile_rows: usize,
 }
@@ -103,6 +105,7 @@ impl<'a> Encoder<'a> {
         band_tile_rows: u32,
     ) -> Self {
         let margin = smoothing.map_or(0, Smoothing::row_reach) + 1;
+        let column_margin = smoothing.map_or(0, Smoothing::column_reach) + 1;
         let band_tile_rows = band_tile_rows.max(1) as usize;
         Encoder {
             set,
@@ -110,6 +113,7 @@ impl<'a> Encoder<'a> {
             grid: Grid::new(set, tile_size),
             stored: stored_mask(set),
             margin,
+            column_margin,
             band_tile_rows,
         }
     }
@@ -155,17 +159,34 @@ impl<'a> Encoder<'a> {
         let n = acc.len();
         let (start, list) = transpose(panes, first, n, |k, i| panes[k][i].1);
         let (exact_start, exact_list) = transpose(exact, first, n, |k, i| exact[k][i].1);
+        let size = self.grid.w * band.window.len();
         let out: Vec<Option<PaneBand>> = (0..n)
             .into_par_iter()
-            .map(|c| {
-                let walked = &list[start[c]..start[c + 1]];
-                let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
-                let img =
-                    (!walked.is_empty() || !exact.is_empty()).then(|| self.band_image(band, walked, exact));
-                let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
-                let pane = self.encode_pane_band(band, img.as_deref(), acc.energy[c], reuse);
-                (!pane.tiles.is_empty()).then_some(pane)
-            })
+            .map_init(
+                || vec![Vec3::ZERO; size],
+                |img, c| {
+                    let walked = &list[start[c]..start[c + 1]];
+                    let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
+                    let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
+                    let pane = if walked.is_empty() && exact.is_empty() {
+                        self.encode_pane_band(band, None, 0..0, acc.energy[c], reuse)
+                    } else {
+                        // The pane's light in this band, and the tile columns it reaches: work
+                        // and clearing stay there, so a pane costs its own charts, not the band.
+                        let tiles = self.footprint(walked.iter().chain(exact));
+                        let cols = (tiles.start * self.grid.ts) as u32..(tiles.end * self.grid.ts) as u32;
+                        self.band_image(band, walked, exact, img, cols.clone());
+                        let pane = self.encode_pane_band(band, Some(img), tiles, acc.energy[c], reuse);
+                        let w = self.grid.w;
+                        let cols = cols.start as usize..(cols.end as usize).min(w);
+                        for row in img.chunks_mut(w) {
+                            row[cols.clone()].fill(Vec3::ZERO);
+                        }
+                        pane
+                    };
+                    (!pane.tiles.is_empty()).then_some(pane)
+                },
+            )
             .collect();
         acc.add(out)
     }
@@ -217,7 +238,8 @@ impl<'a> Encoder<'a> {
                 }
                 let axis: Vec<(u32, Vec3)> =
                     list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
-                let img = self.band_image(band, &axis, &[]);
+                let mut img = vec![Vec3::ZERO; grid.w * band.window.len()];
+                self.band_image(band, &axis, &[], &mut img, 0..grid.w as u32);
                 let offset = band.window.start as usize * grid.w;
                 let energy = self.carry_energy(band, own.clone(), &img, acc.energy[pk]);
                 let mut means = vec![Vec3::ZERO; bw * block_rows.len()];
@@ -238,38 +260,62 @@ impl<'a> Encoder<'a> {
         acc.add(out)
     }
 
-    /// One pane over the band's window rows: its walked values smoothed, its exact part
-    /// added, dilated; exact in the band's own rows (module doc).
-    fn band_image(&self, band: &Band, walked: &[(u32, Vec3)], exact: &[(u32, Vec3)]) -> Vec<Vec3> {
+    /// The tile columns (a range) that hold the texels `values` name, grown by the columns
+    /// smoothing and dilation carry their light.
+    fn footprint<'v>(&self, values: impl Iterator<Item = &'v (u32, Vec3)>) -> Range<usize> {
+        let (mut lo, mut hi) = (usize::MAX, 0usize);
+        for &(k, _) in values {
+            let i = self.set.texels[k as usize].i as usize;
+            lo = lo.min(i);
+            hi = hi.max(i + 1);
+        }
+        if lo >= hi {
+            return 0..0;
+        }
+        let m = self.column_margin as usize;
+        let ts = self.grid.ts;
+        lo.saturating_sub(m) / ts..(hi + m).div_ceil(ts).min(self.grid.tx)
+    }
+
+    /// One pane over the band's window rows, into `img` (zero where this writes nothing): its
+    /// walked values smoothed, its exact part added, dilated; exact in the band's own rows
+    /// (module doc), in columns `cols`, which must hold every texel the values reach.
+    fn band_image(
+        &self,
+        band: &Band,
+        walked: &[(u32, Vec3)],
+        exact: &[(u32, Vec3)],
+        img: &mut [Vec3],
+        cols: Range<u32>,
+    ) {
         let w = self.grid.w;
         let r0 = band.window.start as usize;
         let at = |k: u32| {
             let t = &self.set.texels[k as usize];
             (t.j as usize - r0) * w + t.i as usize
         };
-        let mut img = vec![Vec3::ZERO; w * band.window.len()];
         for &(k, v) in walked {
             img[at(k)] = v;
         }
         if let Some(smoothing) = self.smoothing {
-            smoothing.apply_rows(&mut img, band.window.clone(), self.grid.h as u32);
+            smoothing.apply_rows_in(img, band.window.clone(), self.grid.h as u32, cols.clone());
         }
         for &(k, v) in exact {
             img[at(k)] += v;
         }
-        self.set.dilate_rows(&mut img, band.window.start, band.rows.clone());
-        img
+        self.set.dilate_rows_in(img, band.window.start, band.rows.clone(), cols);
     }
 
     /// A pane's tiles in the band (those holding any non-zero texel; none without an image),
     /// encoded, and its energy (signed luminance over the covered texels, the runtime's
     /// ranking energy) carried on from `energy`, tile after tile in atlas order, so the sum is
     /// the same to the bit whichever tiles came from a cache. With `reuse`, tiles not marked
-    /// dirty are the cached ones.
+    /// dirty are the cached ones. The image is zero outside the tile columns `columns`.
     fn encode_pane_band(
         &self,
         band: &Band,
         img: Option<&[Vec3]>,
+        columns: Range<usize>,
         energy: f64,
         reuse: Option<(&[bool], &[CachedTile])>,
     ) -> PaneBand {
@@ -277,6 +323,10 @@ impl<'a> Encoder<'a> {
         let offset = band.window.start as usize * grid.w;
         let mut tiles = Vec::new();
         for index in band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx {
+            // Outside `columns` the image is zero: only cached tiles can be there.
+            if reuse.is_none() && !columns.contains(&(index % grid.tx)) {
+                continue;
+            }
             if let Some((dirty, cached)) = reuse {
                 if !dirty[index] {
                     if let Ok(k) = cached.binary_search_by_key(&(index as u32), |t| t.index) {
@@ -293,6 +343,9 @@ impl<'a> Encoder<'a> {
                 }
             }
             let Some(img) = img else { continue };
+            if !columns.contains(&(index % grid.tx)) {
+                continue;
+            }
             let (mut e, mut carried) = (0.0f64, 0.0f64);
             let mut any = false;
             for k in grid.texels(index) {

@@ -704,6 +704,50 @@ pub fn halls_large() -> Result<GlbScene, String> {
     Ok(halls(4, 4, 32, 8))
 }
 
+/// Side-by-side spacing of [`chambers`]' copies (x, z): the chamber is 12 x 20 m, its walls
+/// single surfaces, so a 1 m gap keeps every copy a closed room of its own.
+pub const CHAMBER_PITCH: (f32, f32) = (13.0, 21.0);
+
+/// `nx` x `nz` copies of the chamber side by side (issue 13's level of "16 copies of the
+/// bundled chamber"), without lightmap UVs so that the unwrapper packs them, every node, mesh
+/// and light copied with its place moved and its name suffixed `_I_J`; the first copy's camera
+/// only. Each copy is a closed room: light does not pass between them.
+pub fn chambers(nx: u32, nz: u32) -> Result<GlbScene, String> {
+    let one = chamber()?;
+    let mut scene = GlbScene { materials: one.materials.clone(), ..Default::default() };
+    for j in 0..nz {
+        for i in 0..nx {
+            let o = Vec3::new(i as f32 * CHAMBER_PITCH.0, 0.0, j as f32 * CHAMBER_PITCH.1);
+            for n in &one.nodes {
+                if n.matrix.is_some() || !n.children.is_empty() {
+                    return Err(format!("chamber node '{}' has a matrix or children", n.name));
+                }
+                if n.camera.is_some() && (i, j) != (0, 0) {
+                    continue;
+                }
+                let mut c = n.clone();
+                c.name = format!("{}_{i}_{j}", n.name);
+                c.translation = Some((Vec3::from_array(n.translation.unwrap_or_default()) + o).to_array());
+                if let Some(m) = n.mesh {
+                    let mut mesh = one.meshes[m].clone();
+                    mesh.name = format!("{}_{i}_{j}", mesh.name);
+                    mesh.uv1 = None;
+                    scene.meshes.push(mesh);
+                    c.mesh = Some(scene.meshes.len() - 1);
+                }
+                if let Some(l) = n.light {
+                    let mut light = one.lights[l].clone();
+                    light.name = format!("{}_{i}_{j}", light.name);
+                    scene.lights.push(light);
+                    c.light = Some(scene.lights.len() - 1);
+                }
+                scene.add_node(c);
+            }
+        }
+    }
+    Ok(scene)
+}
+
 /// A bundled scene's generator.
 pub type SceneBuilder = fn() -> Result<GlbScene, String>;
 

@@ -162,3 +162,53 @@ fn charts_that_pack_worse_than_the_density_estimated_get_pages_not_an_error() {
     let size = (scene.total_area() / set.len() as f64).sqrt();
     assert!((0.7..=1.0).contains(&(size / texel as f64)), "asked {texel} m, got {size:.3} m in {atlas}");
 }
+
+/// Issue 13's "16 copies of the chamber" (`prm gen-assets --chambers`): copies of the bundled
+/// chamber's geometry and lights, each moved by the pitch and renamed, without lightmap UVs;
+/// each copy a closed room whose light never reaches the next.
+#[test]
+fn chambers_are_closed_copies_of_the_chamber() {
+    use prm_precompute::scenes::{chamber, chambers, CHAMBER_PITCH};
+    let dir = tempfile::tempdir().unwrap();
+    let (one, two) = (dir.path().join("one.glb"), dir.path().join("two.glb"));
+    std::fs::write(&one, chamber().unwrap().to_glb()).unwrap();
+    std::fs::write(&two, chambers(2, 1).unwrap().to_glb()).unwrap();
+    let one = load_scene(&one, &LoadOptions::default()).unwrap();
+    let opts = LoadOptions { unwrap_resolution: None, texel_size: 0.3, ..Default::default() };
+    let two = load_scene(&two, &opts).unwrap();
+    assert!(two.report.generated_atlas.is_some(), "the copies have no lightmap UVs");
+    assert_eq!(two.triangles.len(), 2 * one.triangles.len());
+    assert_eq!(two.lights.len(), 2 * one.lights.len());
+    assert_eq!(two.cameras.len(), 1, "the first copy's camera only");
+    let mut names: Vec<&str> = two.lights.iter().map(|l| l.name.as_str()).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), two.lights.len(), "light names are unique");
+    for l in &one.lights {
+        let shifted = l.position + glam::Vec3::new(CHAMBER_PITCH.0, 0.0, 0.0);
+        let copy =
+            two.lights.iter().find(|c| c.name.starts_with(&l.name) && c.name.ends_with("_1_0")).unwrap();
+        assert!((copy.position - shifted).length() < 1e-4, "{} at {}", copy.name, copy.position);
+        assert_eq!(copy.intensity, l.intensity);
+    }
+    let (lo1, hi1) = one.bounds();
+    let (lo2, hi2) = two.bounds();
+    assert!((lo2 - lo1).length() < 1e-4);
+    assert!((hi2 - (hi1 + glam::Vec3::new(CHAMBER_PITCH.0, 0.0, 0.0))).length() < 1e-4);
+    // Closed: a ray from any texel of the first copy ends inside it.
+    let bvh = prm::Bvh::build(&two);
+    let set = TexelSet::build(&two, 96, 96);
+    let mut rays = 0;
+    for t in set.texels.iter().filter(|t| t.position.x < hi1.x).step_by(7) {
+        for d in [t.normal, (t.normal + glam::Vec3::new(0.7, 0.1, 0.2)).normalize()] {
+            if d.dot(t.normal) <= 0.05 {
+                continue;
+            }
+            let hit = bvh.trace_from_surface(t.position, t.normal, d).expect("a closed room");
+            let q = t.position + d * hit.t;
+            assert!(q.x <= hi1.x + 1e-2, "a ray from {} left its chamber for {q}", t.position);
+            rays += 1;
+        }
+    }
+    assert!(rays > 100, "{rays} rays");
+}

@@ -61,15 +61,44 @@ impl Smoothing {
         self.passes.iter().map(|p| p.row_reach).sum()
     }
 
+    /// How many columns a smoothed texel's value reaches (the row pass's largest radius, at
+    /// most [`MAX_RADIUS`]; the column pass stays in its column). Scans the taps.
+    pub fn column_reach(&self) -> u32 {
+        let pass = &self.passes[0];
+        let mut reach = 0u32;
+        for (k, &t) in pass.target.iter().enumerate() {
+            for &(n, _) in &pass.taps[pass.start[k] as usize..pass.start[k + 1] as usize] {
+                reach = reach.max(n.abs_diff(t));
+            }
+        }
+        reach
+    }
+
     /// Smooth a window of whole atlas rows in place: `img` holds rows `window` of an atlas
     /// `height` rows high, row-major. A texel at least [`Smoothing::row_reach`] rows inside
     /// the window (or nearer the atlas's edge than that) gets exactly what
     /// [`Smoothing::apply`] gives it; the rest of the window is left unspecified. This is what
     /// lets the precompute smooth panes a band at a time.
     pub fn apply_rows(&self, img: &mut [Vec3], window: std::ops::Range<u32>, height: u32) {
+        self.apply_rows_in(img, window, height, 0..self.width);
+    }
+
+    /// [`Smoothing::apply_rows`] for the texels of columns `cols` only: each of them gets what
+    /// `apply_rows` gives it, provided the image is zero at every texel outside `cols` within
+    /// [`Smoothing::column_reach`] columns of one inside (the row pass reads that far; the column pass stays
+    /// in its column). The rest of the image is left as it is. A pane whose light lies in a
+    /// few charts is smoothed at the cost of those, not of the whole band.
+    pub fn apply_rows_in(
+        &self,
+        img: &mut [Vec3],
+        window: std::ops::Range<u32>,
+        height: u32,
+        cols: std::ops::Range<u32>,
+    ) {
         let w = self.width as usize;
         let offset = window.start as usize * w;
         let mut valid = window;
+        let cols = cols.start.min(self.width) as usize..cols.end.min(self.width) as usize;
         for pass in &self.passes {
             if valid.start > 0 {
                 valid.start += pass.row_reach;
@@ -77,18 +106,28 @@ impl Smoothing {
             if valid.end < height {
                 valid.end = valid.end.saturating_sub(pass.row_reach);
             }
-            let first = pass.target.partition_point(|&t| (t as usize) < valid.start as usize * w);
-            let last = pass.target.partition_point(|&t| (t as usize) < valid.end as usize * w);
-            let out: Vec<Vec3> = pass.start[first..=last.max(first)]
-                .windows(2)
-                .map(|r| {
+            // Every output of the pass is computed before any is written.
+            let mut runs = Vec::new();
+            let mut out: Vec<Vec3> = Vec::new();
+            for row in valid.clone() {
+                let at = |x: usize| row as usize * w + x;
+                let first = pass.target.partition_point(|&t| (t as usize) < at(cols.start));
+                let last = pass.target.partition_point(|&t| (t as usize) < at(cols.end));
+                if first >= last {
+                    continue;
+                }
+                runs.push(first..last);
+                out.extend(pass.start[first..=last].windows(2).map(|r| {
                     pass.taps[r[0] as usize..r[1] as usize]
                         .iter()
                         .fold(Vec3::ZERO, |a, &(n, wgt)| a + img[n as usize - offset] * wgt)
-                })
-                .collect();
-            for (&t, v) in pass.target[first..last.max(first)].iter().zip(out) {
-                img[t as usize - offset] = v;
+                }));
+            }
+            let mut values = out.into_iter();
+            for run in runs {
+                for (&t, v) in pass.target[run].iter().zip(&mut values) {
+                    img[t as usize - offset] = v;
+                }
             }
         }
     }
