@@ -179,7 +179,7 @@ fn a_window_of_rows_is_smoothed_as_the_whole_atlas() {
     }
 }
 
-/// A pane lit in one chart only, smoothed and dilated over the columns it can reach (how the
+/// A pane lit in two charts only, smoothed and dilated over the runs of columns it can reach (how the
 /// precompute encodes a pane of a level of many rooms: `apply_rows_in`, `dilate_rows_in`),
 /// equals the whole atlas's filter bit for bit, inside those columns and (zero) outside.
 #[test]
@@ -189,18 +189,24 @@ fn columns_around_the_light_are_smoothed_as_the_whole_atlas() {
         let reach = smoothing.column_reach();
         assert!(reach >= radius && reach <= radius + 1, "radius {radius}: columns reached {reach}");
         let mut rng = Pcg64Mcg::seed_from_u64(radius as u64);
-        // Light on chart A's columns 40..50 only.
-        let walked = image(&set, |c, i, _| match c == A && (8..18).contains(&i) {
-            true => Vec3::new(rng.random(), rng.random(), rng.random()),
-            false => Vec3::ZERO,
+        // Light on chart A's columns 40..44 and chart B's 84..88 only: two runs of columns.
+        let walked = image(&set, |c, i, _| {
+            match (c == A && (8..12).contains(&i)) || (c == B && (20..24).contains(&i)) {
+                true => Vec3::new(rng.random(), rng.random(), rng.random()),
+                false => Vec3::ZERO,
+            }
         });
         let mut whole = walked.clone();
         smoothing.apply(&mut whole);
         set.dilate(&mut whole);
-        let cols = (A * SIDE + 8).saturating_sub(reach + 1)..A * SIDE + 18 + reach + 1;
+        let around =
+            |c: u32, lo: u32, hi: u32| (c * SIDE + lo).saturating_sub(reach + 1)..c * SIDE + hi + reach + 1;
+        let runs = [around(A, 8, 12), around(B, 20, 24)];
         let mut img = walked.clone();
-        smoothing.apply_rows_in(&mut img, 0..SIDE, SIDE, cols.clone());
-        set.dilate_rows_in(&mut img, 0, 0..SIDE, cols.clone());
+        smoothing.apply_rows_in(&mut img, 0..SIDE, SIDE, &runs);
+        for r in &runs {
+            set.dilate_rows_in(&mut img, 0, 0..SIDE, r.clone());
+        }
         let w = set.width as usize;
         for j in 0..SIDE as usize {
             for i in 0..w {

@@ -169,18 +169,22 @@ impl<'a> Encoder<'a> {
                     let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
                     let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
                     let pane = if walked.is_empty() && exact.is_empty() {
-                        self.encode_pane_band(band, None, 0..0, acc.energy[c], reuse)
+                        self.encode_pane_band(band, None, &[], acc.energy[c], reuse)
                     } else {
-                        // The pane's light in this band, and the tile columns it reaches: work
-                        // and clearing stay there, so a pane costs its own charts, not the band.
+                        // The pane's light in this band, and the runs of tile columns it
+                        // reaches: work and clearing stay there, so a pane costs its own
+                        // charts, not the band.
                         let tiles = self.footprint(walked.iter().chain(exact));
-                        let cols = (tiles.start * self.grid.ts) as u32..(tiles.end * self.grid.ts) as u32;
-                        self.band_image(band, walked, exact, img, cols.clone());
-                        let pane = self.encode_pane_band(band, Some(img), tiles, acc.energy[c], reuse);
+                        let ts = self.grid.ts as u32;
+                        let cols: Vec<Range<u32>> =
+                            tiles.iter().map(|t| t.start as u32 * ts..t.end as u32 * ts).collect();
+                        self.band_image(band, walked, exact, img, &cols);
+                        let pane = self.encode_pane_band(band, Some(img), &tiles, acc.energy[c], reuse);
                         let w = self.grid.w;
-                        let cols = cols.start as usize..(cols.end as usize).min(w);
                         for row in img.chunks_mut(w) {
-                            row[cols.clone()].fill(Vec3::ZERO);
+                            for c in &cols {
+                                row[c.start as usize..(c.end as usize).min(w)].fill(Vec3::ZERO);
+                            }
                         }
                         pane
                     };
@@ -239,7 +243,7 @@ impl<'a> Encoder<'a> {
                 let axis: Vec<(u32, Vec3)> =
                     list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
                 let mut img = vec![Vec3::ZERO; grid.w * band.window.len()];
-                self.band_image(band, &axis, &[], &mut img, 0..grid.w as u32);
+                self.band_image(band, &axis, &[], &mut img, std::slice::from_ref(&(0..grid.w as u32)));
                 let offset = band.window.start as usize * grid.w;
                 let energy = self.carry_energy(band, own.clone(), &img, acc.energy[pk]);
                 let mut means = vec![Vec3::ZERO; bw * block_rows.len()];
@@ -260,33 +264,38 @@ impl<'a> Encoder<'a> {
         acc.add(out)
     }
 
-    /// The tile columns (a range) that hold the texels `values` name, grown by the columns
-    /// smoothing and dilation carry their light.
-    fn footprint<'v>(&self, values: impl Iterator<Item = &'v (u32, Vec3)>) -> Range<usize> {
-        let (mut lo, mut hi) = (usize::MAX, 0usize);
+    /// The runs of tile columns (ascending, apart) that the texels `values` name light, each
+    /// texel's reach grown by the columns smoothing and dilation carry its light: two runs are
+    /// independent, no texel's light reaching the other's columns.
+    fn footprint<'v>(&self, values: impl Iterator<Item = &'v (u32, Vec3)>) -> Vec<Range<usize>> {
+        let (m, ts, tx) = (self.column_margin as usize, self.grid.ts, self.grid.tx);
+        let mut lit = vec![false; tx];
         for &(k, _) in values {
             let i = self.set.texels[k as usize].i as usize;
-            lo = lo.min(i);
-            hi = hi.max(i + 1);
+            let (lo, hi) = (i.saturating_sub(m) / ts, ((i + m) / ts).min(tx - 1));
+            lit[lo..=hi].fill(true);
         }
-        if lo >= hi {
-            return 0..0;
+        let mut runs: Vec<Range<usize>> = Vec::new();
+        for (t, &on) in lit.iter().enumerate() {
+            match runs.last_mut() {
+                Some(r) if on && r.end == t => r.end = t + 1,
+                _ if on => runs.push(t..t + 1),
+                _ => {}
+            }
         }
-        let m = self.column_margin as usize;
-        let ts = self.grid.ts;
-        lo.saturating_sub(m) / ts..(hi + m).div_ceil(ts).min(self.grid.tx)
+        runs
     }
 
     /// One pane over the band's window rows, into `img` (zero where this writes nothing): its
     /// walked values smoothed, its exact part added, dilated; exact in the band's own rows
-    /// (module doc), in columns `cols`, which must hold every texel the values reach.
+    /// (module doc), in the column runs `cols`, which must hold every texel the values reach.
     fn band_image(
         &self,
         band: &Band,
         walked: &[(u32, Vec3)],
         exact: &[(u32, Vec3)],
         img: &mut [Vec3],
-        cols: Range<u32>,
+        cols: &[Range<u32>],
     ) {
         let w = self.grid.w;
         let r0 = band.window.start as usize;
@@ -298,24 +307,26 @@ impl<'a> Encoder<'a> {
             img[at(k)] = v;
         }
         if let Some(smoothing) = self.smoothing {
-            smoothing.apply_rows_in(img, band.window.clone(), self.grid.h as u32, cols.clone());
+            smoothing.apply_rows_in(img, band.window.clone(), self.grid.h as u32, cols);
         }
         for &(k, v) in exact {
             img[at(k)] += v;
         }
-        self.set.dilate_rows_in(img, band.window.start, band.rows.clone(), cols);
+        for c in cols {
+            self.set.dilate_rows_in(img, band.window.start, band.rows.clone(), c.clone());
+        }
     }
 
     /// A pane's tiles in the band (those holding any non-zero texel; none without an image),
     /// encoded, and its energy (signed luminance over the covered texels, the runtime's
     /// ranking energy) carried on from `energy`, tile after tile in atlas order, so the sum is
     /// the same to the bit whichever tiles came from a cache. With `reuse`, tiles not marked
-    /// dirty are the cached ones. The image is zero outside the tile columns `columns`.
+    /// dirty are the cached ones. The image is zero outside the runs of tile columns `columns`.
     fn encode_pane_band(
         &self,
         band: &Band,
         img: Option<&[Vec3]>,
-        columns: Range<usize>,
+        columns: &[Range<usize>],
         energy: f64,
         reuse: Option<(&[bool], &[CachedTile])>,
     ) -> PaneBand {
@@ -324,7 +335,8 @@ impl<'a> Encoder<'a> {
         let mut tiles = Vec::new();
         for index in band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx {
             // Outside `columns` the image is zero: only cached tiles can be there.
-            if reuse.is_none() && !columns.contains(&(index % grid.tx)) {
+            let inside = columns.iter().any(|r| r.contains(&(index % grid.tx)));
+            if reuse.is_none() && !inside {
                 continue;
             }
             if let Some((dirty, cached)) = reuse {
@@ -343,7 +355,7 @@ impl<'a> Encoder<'a> {
                 }
             }
             let Some(img) = img else { continue };
-            if !columns.contains(&(index % grid.tx)) {
+            if !inside {
                 continue;
             }
             let (mut e, mut carried) = (0.0f64, 0.0f64);

@@ -80,25 +80,25 @@ impl Smoothing {
     /// [`Smoothing::apply`] gives it; the rest of the window is left unspecified. This is what
     /// lets the precompute smooth panes a band at a time.
     pub fn apply_rows(&self, img: &mut [Vec3], window: std::ops::Range<u32>, height: u32) {
-        self.apply_rows_in(img, window, height, 0..self.width);
+        self.apply_rows_in(img, window, height, std::slice::from_ref(&(0..self.width)));
     }
 
-    /// [`Smoothing::apply_rows`] for the texels of columns `cols` only: each of them gets what
-    /// `apply_rows` gives it, provided the image is zero at every texel outside `cols` within
-    /// [`Smoothing::column_reach`] columns of one inside (the row pass reads that far; the column pass stays
-    /// in its column). The rest of the image is left as it is. A pane whose light lies in a
-    /// few charts is smoothed at the cost of those, not of the whole band.
+    /// [`Smoothing::apply_rows`] for the texels of the column runs `cols` only (ascending, not
+    /// overlapping): each of them gets what `apply_rows` gives it, provided the image is zero
+    /// at every texel outside the runs within [`Smoothing::column_reach`] columns of one inside
+    /// (the row pass reads that far; the column pass stays in its column). The rest of the
+    /// image is left as it is. A pane whose light lies in a few charts is smoothed at the cost
+    /// of those, not of the whole band.
     pub fn apply_rows_in(
         &self,
         img: &mut [Vec3],
         window: std::ops::Range<u32>,
         height: u32,
-        cols: std::ops::Range<u32>,
+        cols: &[std::ops::Range<u32>],
     ) {
         let w = self.width as usize;
         let offset = window.start as usize * w;
         let mut valid = window;
-        let cols = cols.start.min(self.width) as usize..cols.end.min(self.width) as usize;
         for pass in &self.passes {
             if valid.start > 0 {
                 valid.start += pass.row_reach;
@@ -106,22 +106,24 @@ impl Smoothing {
             if valid.end < height {
                 valid.end = valid.end.saturating_sub(pass.row_reach);
             }
-            // Every output of the pass is computed before any is written.
+            // Every output of the pass, in every run, is computed before any is written.
             let mut runs = Vec::new();
             let mut out: Vec<Vec3> = Vec::new();
             for row in valid.clone() {
-                let at = |x: usize| row as usize * w + x;
-                let first = pass.target.partition_point(|&t| (t as usize) < at(cols.start));
-                let last = pass.target.partition_point(|&t| (t as usize) < at(cols.end));
-                if first >= last {
-                    continue;
+                for c in cols {
+                    let at = |x: u32| row as usize * w + x.min(self.width) as usize;
+                    let first = pass.target.partition_point(|&t| (t as usize) < at(c.start));
+                    let last = pass.target.partition_point(|&t| (t as usize) < at(c.end));
+                    if first >= last {
+                        continue;
+                    }
+                    runs.push(first..last);
+                    out.extend(pass.start[first..=last].windows(2).map(|r| {
+                        pass.taps[r[0] as usize..r[1] as usize]
+                            .iter()
+                            .fold(Vec3::ZERO, |a, &(n, wgt)| a + img[n as usize - offset] * wgt)
+                    }));
                 }
-                runs.push(first..last);
-                out.extend(pass.start[first..=last].windows(2).map(|r| {
-                    pass.taps[r[0] as usize..r[1] as usize]
-                        .iter()
-                        .fold(Vec3::ZERO, |a, &(n, wgt)| a + img[n as usize - offset] * wgt)
-                }));
             }
             let mut values = out.into_iter();
             for run in runs {
