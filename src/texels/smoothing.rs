@@ -62,7 +62,7 @@ impl Smoothing {
     }
 
     /// How many columns a smoothed texel's value reaches (the row pass's largest radius, at
-    /// most [`MAX_RADIUS`]; the column pass stays in its column). Scans the taps.
+    /// most 16 texels; the column pass stays in its column). Scans the taps.
     pub fn column_reach(&self) -> u32 {
         let pass = &self.passes[0];
         let mut reach = 0u32;
