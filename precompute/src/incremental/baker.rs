@@ -232,6 +232,14 @@ const REFRESH_TEST: f32 = 0.05;
 /// light more texels (measured on the chamber's edits, 2 cores).
 const DELTA_LIGHT: f32 = 1.9;
 
+/// The glTF nodes that the edits logged after version `was`, up to `now`, moved.
+fn moved_nodes(log: &[(u64, Changes)], was: u64, now: u64) -> BTreeSet<u32> {
+    log.iter()
+        .filter(|(id, _)| *id > was && *id <= now)
+        .flat_map(|(_, c)| c.moved_nodes.iter().copied())
+        .collect()
+}
+
 /// Virtual lights a baked entry evaluates at each texel (a direct light counts one).
 fn lights_of(b: &Baked) -> f32 {
     match &b.source {
@@ -902,12 +910,7 @@ impl Baker {
 
     /// Texels on the nodes that edits since version `id` moved.
     fn texels_moved_since(&self, id: u64) -> f32 {
-        let nodes: BTreeSet<u32> = self
-            .log
-            .iter()
-            .filter(|(e, _)| *e > id)
-            .flat_map(|(_, c)| c.moved_nodes.iter().copied())
-            .collect();
+        let nodes = moved_nodes(&self.log, id, u64::MAX);
         if nodes.is_empty() {
             return 0.0;
         }
@@ -1113,9 +1116,8 @@ impl Baker {
         self.movers
             .entry((was.id, now.id))
             .or_insert_with(|| {
+                let nodes = moved_nodes(log, was.id, now.id);
                 let since = log.iter().filter(|(id, _)| *id > was.id && *id <= now.id).map(|(_, c)| c);
-                let nodes: BTreeSet<u32> =
-                    since.clone().flat_map(|c| c.moved_nodes.iter().copied()).collect();
                 let boxes = since.flat_map(|c| c.regions.iter().map(|x| x.grown(margin))).collect();
                 let on_node = |t: u32| nodes.contains(&now.scene.triangles[t as usize].node);
                 let tris: Vec<u32> = (0..now.scene.triangles.len() as u32).filter(|&t| on_node(t)).collect();
