@@ -80,6 +80,11 @@ pub struct Args {
     /// the near links to the whole level; on by default).
     #[arg(long)]
     no_far_field: bool,
+    /// Walks credit each cluster their next hit lands in, instead of reading the clusters'
+    /// first bounce at each vertex from a table (the table is on by default; it needs the far
+    /// field and the near links).
+    #[arg(long)]
+    no_next_bounce: bool,
     /// Entries farther apart than this, in entry spacings, exchange no far-field light (its
     /// visibility then grows with the level, not its square; default 48, about 26 m at the
     /// production density).
@@ -146,6 +151,7 @@ pub fn run(a: Args) -> Result<()> {
             ("--echo-radius", a.echo_radius.is_some()),
             ("--dipole-block", a.dipole_block.is_some()),
             ("--no-far-field", a.no_far_field),
+            ("--no-next-bounce", a.no_next_bounce),
             ("--far-radius", a.far_radius.is_some()),
             ("--smooth", a.smooth.is_some()),
             ("--groups", a.groups.is_some()),
@@ -167,6 +173,7 @@ pub fn run(a: Args) -> Result<()> {
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
     p.far_field &= !a.no_far_field;
+    p.next_bounce &= !a.no_next_bounce;
     p.far_radius = a.far_radius.unwrap_or(p.far_radius);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);
     p.tile_size = a.tile_size.unwrap_or(p.tile_size);

@@ -79,6 +79,11 @@ pub struct PrecomputeParams {
     /// density, the bundled levels' rooms whole; 20 m from a deviation of 1 W its far field is
     /// under a thousandth of a W/m²).
     pub far_radius: f32,
+    /// The walks read every bounce after the first from a table of the clusters' first bounce
+    /// at the cell each vertex lies in (`crate::transport::NextBounce`; default on; needs the
+    /// near links and the far field, which give that first bounce): 4-5x less walk noise, so
+    /// the default takes 64 walks instead of 128.
+    pub next_bounce: bool,
     /// Tile rows walked and encoded at a time (`crate::panes`; default 2): memory and time
     /// only, the result is the same bytes at any value.
     pub band_tile_rows: u32,
@@ -93,7 +98,7 @@ impl PrecomputeParams {
     pub fn production() -> Self {
         PrecomputeParams {
             entries: 4096,
-            paths: 128,
+            paths: 64,
             clusters: 256,
             atlas: Atlas::single(256),
             seed: 0,
@@ -111,6 +116,7 @@ impl PrecomputeParams {
             dipole_block: 0,
             far_field: true,
             far_radius: 48.0,
+            next_bounce: true,
             band_tile_rows: crate::panes::BAND_TILE_ROWS,
         }
     }
@@ -120,7 +126,7 @@ impl PrecomputeParams {
     pub fn canonical(&self) -> String {
         format!(
             "entries {} paths {} clusters {} atlas {} seed {} estimator {} tile {} drop {:e} bounces {} \
-             kmeans {} smooth {} groups {} near {} echo {} dipole {} far {} far-radius {}",
+             kmeans {} smooth {} groups {} near {} echo {} dipole {} far {} far-radius {} next {}",
             self.entries,
             self.paths,
             self.clusters,
@@ -137,7 +143,8 @@ impl PrecomputeParams {
             self.echo_radius,
             self.dipole_block,
             self.far_field,
-            self.far_radius
+            self.far_radius,
+            self.next_bounce
         )
     }
 
@@ -431,6 +438,7 @@ pub fn precompute_with(
         Preamble::build(scene, bvh, params, reuse.cache(), same_entries, &mut report, progress, cancel)?;
     let linked = pre.linked();
     let set = &pre.set;
+    let rows = pre.next.as_ref().map_or(Vec::new(), |n| n.row_digests());
     // The update's plan: which tiles the edit reaches, which texels to walk again.
     let digests = tracing
         .then(|| tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &pre.exact));
@@ -442,6 +450,7 @@ pub fn precompute_with(
                 scene,
                 (old.entries(), old.cells()),
                 (&pre.entries, &pre.cells),
+                &rows,
             );
             let plan = Plan::new(cache, set, params.tile_size, pre.smoothing.as_ref(), digests, &edited);
             let layout = Encoder::new(set, None, params.tile_size, 1).tile_codes();
@@ -551,6 +560,7 @@ pub fn precompute_with(
                 clusters: report.clusters,
                 group_of,
                 groups,
+                rows,
                 tiles: records,
                 panes,
             })
@@ -807,7 +817,7 @@ fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Ti
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
             "near_links": report.near_links, "echo_radius": params.echo_radius,
             "echo_links": report.echo_links, "dipole_block": params.dipole_block,
-            "far_field": params.far_field, "far_texels": report.far_texels, "far_pairs": report.far_pairs,
+            "far_field": params.far_field, "next_bounce": params.next_bounce, "far_texels": report.far_texels, "far_pairs": report.far_pairs,
             "dipole_tiles": report.dipole_tiles,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,

@@ -20,7 +20,7 @@ use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::far_field;
 use crate::near::{echo_links, near_links};
 use crate::parallel::stop_if;
-use crate::transport::{Estimator, Frame, LinkedCells, TexelPanes, Transport};
+use crate::transport::{Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
 use crate::update::UpdateCache;
 
 /// Everything the walks and the panes' encoding take from the level before any walk: the
@@ -44,6 +44,8 @@ pub struct Preamble {
     /// Per near link, the share of its cell's first bounce the walks keep (None: the walks
     /// keep all of it: `transport::LinkedCells`).
     pub(crate) keep: Option<Vec<f32>>,
+    /// The walks' next-bounce table (None: their hits give every bounce).
+    pub(crate) next: Option<NextBounce>,
     /// Per covered texel, the links' exact first bounce per cluster (empty without links).
     pub(crate) exact: Vec<TexelPanes>,
     pub(crate) echo: Echo,
@@ -138,13 +140,31 @@ impl Preamble {
         // this (the MIS and scatter estimators, and dipole panes, walk it as before).
         let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
         let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
-        let exact = match &keep {
+        let mut exact = match &keep {
             Some(keep) => {
                 let linked = LinkedCells { links: &near, keep };
                 exact_first_bounce(&set, &entries, &cell, &linked, &clustering)
             }
             None => Vec::new(),
         };
+        // The far field's share of every cluster's first bounce joins the links' in the
+        // exact panes, and the walks read each later bounce from a table of it
+        // (`transport::NextBounce`).
+        let next = (params.next_bounce && keep.is_some() && !far.texels.is_empty()).then(|| {
+            timed(&mut report.seconds_far, || {
+                let clusters = clustering.members.len();
+                let whole = crate::far::first_bounce_into(
+                    &set,
+                    &entries,
+                    &cell,
+                    &far,
+                    &clustering.assignment,
+                    clusters,
+                    &mut exact,
+                );
+                NextBounce::build(&set, &owners, &exact, &whole, entries.len(), clusters, far.radius)
+            })
+        });
         // The echo links need the near links' points only; made now, so nothing of the walks
         // is held while they are.
         let echo = timed(&mut report.seconds_near, || {
@@ -171,6 +191,7 @@ impl Preamble {
             near,
             near_points,
             keep,
+            next,
             exact,
             echo,
             smoothing,
@@ -220,6 +241,7 @@ impl Preamble {
             entries: &self.entries,
             owners: &self.owners,
             linked,
+            next: self.next.as_ref(),
             assignment: &self.clustering.assignment,
             clusters: self.clustering.members.len(),
             frames: &self.frames,

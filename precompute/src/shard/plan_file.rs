@@ -13,7 +13,7 @@ use super::{file_error, ShardError, PLAN_MAGIC, VERSION};
 use crate::cells::CellOwners;
 use crate::cluster::Clustering;
 use crate::precompute::{Preamble, PrecomputeParams};
-use crate::transport::TexelPanes;
+use crate::transport::{NextBounce, TexelPanes};
 
 /// A precompute's plan: its parameters and preamble, and the checksum its file ends with
 /// (what every part records; 0 until it is written). The checksum (FNV-1a) guards against
@@ -27,8 +27,17 @@ pub struct Plan {
 }
 
 /// The plan's first section: what the walks need (a shard reads only it).
-type Walks =
-    (PrecomputeParams, u64, TexelSet, Vec<Entry>, CellOwners, Clustering, Vec<NearLink>, Option<Vec<f32>>);
+type Walks = (
+    PrecomputeParams,
+    u64,
+    TexelSet,
+    Vec<Entry>,
+    CellOwners,
+    Clustering,
+    Vec<NearLink>,
+    Option<Vec<f32>>,
+    Option<NextBounce>,
+);
 type WalksRef<'a> = (
     &'a PrecomputeParams,
     u64,
@@ -38,6 +47,7 @@ type WalksRef<'a> = (
     &'a Clustering,
     &'a [NearLink],
     &'a Option<Vec<f32>>,
+    &'a Option<NextBounce>,
 );
 /// Its second: what the encoding and the file need besides.
 type Rest = (
@@ -86,8 +96,17 @@ impl Plan {
             return Err(ShardError::Refused("a plan read for a shard cannot be written".into()));
         }
         let (p, pre) = (&self.params, &self.preamble);
-        let walks: WalksRef =
-            (p, pre.geometry, &pre.set, &pre.entries, &pre.owners, &pre.clustering, &pre.near, &pre.keep);
+        let walks: WalksRef = (
+            p,
+            pre.geometry,
+            &pre.set,
+            &pre.entries,
+            &pre.owners,
+            &pre.clustering,
+            &pre.near,
+            &pre.keep,
+            &pre.next,
+        );
         let rest: RestRef = (
             &pre.fingerprint,
             pre.page_texel_size,
@@ -158,12 +177,15 @@ impl Plan {
     }
 
     fn from_walks(bytes: &[u8], checksum: u64) -> Result<Plan, String> {
-        let (params, geometry, set, entries, owners, clustering, near, keep): Walks =
+        let (params, geometry, set, entries, owners, clustering, near, keep, next): Walks =
             postcard::from_bytes(bytes).map_err(|e| format!("damaged (cannot be decoded: {e})"))?;
         params.validate().map_err(|e| format!("damaged (bad parameter: {e})"))?;
         if set.texels.len() > u32::MAX as usize
             || clustering.assignment.len() != entries.len()
             || keep.as_ref().is_some_and(|k| k.len() != near.len())
+            || next
+                .as_ref()
+                .is_some_and(|n| !n.fits(entries.len(), clustering.members.len(), set.index.len()))
         {
             return Err("damaged (its sections do not agree)".into());
         }
@@ -179,6 +201,7 @@ impl Plan {
             near,
             near_points: Vec::new(),
             keep,
+            next,
             exact: Vec::new(),
             echo: Echo::default(),
             smoothing: None,

@@ -45,10 +45,16 @@ impl Transport<'_> {
         // hemisphere; the first bounce carries most of the indirect light.
         let shift: (f32, f32) = (rng.random(), rng.random());
         let linked = self.linked.map(|l| l.of(t.j * width + t.i));
+        // The table's next bounce (module `next`): not with MIS, whose first bounce is its own.
+        let next = self.next.filter(|_| mis.is_none());
+        let whole = next.is_some_and(|n| n.whole(t.j * width + t.i));
         for path in 0..k {
             let (mut x, mut n) = (t.position, t.normal);
             let mut beta = Vec3::ONE;
             let mut depth = 0;
+            // Whether the bounce to the next hit is given (the texel's exact panes, then the
+            // table's row at each vertex).
+            let mut given = whole;
             loop {
                 let (u1, u2) = if depth == 0 {
                     shifted_hammersley(path, k, shift)
@@ -70,11 +76,20 @@ impl Transport<'_> {
                 // a double-sided one has none, and its light is lost (counted).
                 let front = ny.dot(self.scene.face_normal(v.triangle)) > 0.0;
                 let owner = if front { self.owners.owner(v.triangle, y) } else { None };
-                // A linked cell's first bounce is the links' (the walk goes on through it).
+                // A linked cell's first bounce is the links' (the walk goes on through it); a
+                // bounce the table gives is the table's.
                 let credit = match (depth, owner, linked) {
+                    _ if given && next.is_some_and(|n| n.reaches(x.distance(y))) => 0.0,
                     (0, Some(e), Some(linked)) => kept_share(linked, e),
                     _ => 1.0,
                 };
+                given = false;
+                if let (Some(n), Some(e)) = (next, owner) {
+                    if n.row(e).is_some() {
+                        scratch.visit(e, beta, self.entries.len());
+                        given = true;
+                    }
+                }
                 match owner.map(|e| self.assignment[e as usize]) {
                     Some(_) if credit == 0.0 => {}
                     Some(c) if depth == 0 && mis.is_some() => {
@@ -105,6 +120,9 @@ impl Transport<'_> {
                 x = y;
                 n = ny;
             }
+        }
+        if let Some(n) = next {
+            scratch.add_visits(n);
         }
         if let Some(m) = mis {
             // The entry strategy, already averaged (it is not one of the K walks): scale it by K

@@ -1,6 +1,6 @@
 //! Light transport from entry clusters to exit texels: the panes' contents.
 //!
-//! Two estimators of the same quantity, `pane_c(x)` = indirect irradiance at texel x when the
+//! Three estimators of the same quantity, `pane_c(x)` = indirect irradiance at texel x when the
 //! entries of cluster c receive 1 W/m² (DESIGN.md §4):
 //!
 //! - [`Estimator::Scatter`] is paper 004's: from each entry, M cosine-sampled Russian-roulette
@@ -17,7 +17,11 @@
 //!   are different triangles, so one room's light never goes to the other. Where the near
 //!   links carry a cell's first bounce exactly, the first vertex leaves it to them
 //!   ([`LinkedCells`]). No 1/r² term appears at all, so there is no spike to clamp, and the
-//!   cost is per texel, not per texel x light.
+//!   cost is per texel, not per texel x light. With a [`NextBounce`] table (the default with
+//!   the near links and the far field) no hit is credited where the table reaches: the
+//!   texel's own first bounce is given whole (links plus far field), and each vertex y_k adds
+//!   `beta_k F_c(y_k)` for every cluster c, the first bounce c sends to y_k's cell, read
+//!   from the table (module `next`).
 //!
 //! - [`Estimator::Mis`] is the gather with the first bounce estimated twice and combined by
 //!   multiple importance sampling (balance heuristic): the gather's first vertex y (density
@@ -38,6 +42,7 @@
 //! share and the dispatch.
 
 mod gather;
+mod next;
 mod scatter;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -51,6 +56,7 @@ use crate::cells::CellOwners;
 use crate::parallel::{par_texels, Cancelled, Control};
 use crate::update::{Recorder, VoxelGrid};
 pub use gather::MisTables;
+pub use next::NextBounce;
 
 /// How pane contents are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -112,6 +118,10 @@ struct Scratch<'f> {
     dense: Vec<Vec3>,
     dipole: Vec<[Vec3; 3]>,
     touched: Vec<u32>,
+    /// Per entry, the walks' throughput at vertices in its cell (sized on first use), and
+    /// the entries with any ([`NextBounce`]).
+    visits: Vec<Vec3>,
+    visited: Vec<u32>,
     /// The clusters' dipole frames (empty: no dipoles).
     frames: &'f [Frame],
     /// Where the texel's walks go, when recorded ([`Transport::run_traced`]).
@@ -143,6 +153,8 @@ impl<'f> Scratch<'f> {
             dense: vec![Vec3::ZERO; clusters],
             dipole: vec![[Vec3::ZERO; 3]; dipoles],
             touched: Vec::new(),
+            visits: Vec::new(),
+            visited: Vec::new(),
             frames,
             trace: grid.map(|grid| Tracing { grid, voxels: Recorder::new(grid), truncated: 0, unowned: 0 }),
         }
@@ -184,6 +196,39 @@ impl<'f> Scratch<'f> {
             }
         }
     }
+    /// Notes a walk vertex in entry `e`'s cell (of `entries`) with throughput `beta`.
+    fn visit(&mut self, e: u32, beta: Vec3, entries: usize) {
+        if self.visits.len() != entries {
+            self.visits = vec![Vec3::ZERO; entries];
+        }
+        let slot = &mut self.visits[e as usize];
+        if *slot == Vec3::ZERO {
+            self.visited.push(e);
+        }
+        *slot += beta;
+    }
+
+    /// Adds each visited cell's row of `next`, times the throughput noted there, and forgets
+    /// the visits. Rows never carry dipoles (the table is built without them).
+    fn add_visits(&mut self, next: &NextBounce) {
+        self.visited.sort_unstable();
+        for &e in &self.visited {
+            let w = std::mem::take(&mut self.visits[e as usize]);
+            let Some((clusters, values)) = next.row(e) else { continue };
+            for (&c, &v) in clusters.iter().zip(values) {
+                let slot = &mut self.dense[c as usize];
+                if *slot == Vec3::ZERO {
+                    self.touched.push(c);
+                }
+                *slot += w * v;
+                if *slot == Vec3::ZERO {
+                    *slot = Vec3::splat(f32::MIN_POSITIVE);
+                }
+            }
+        }
+        self.visited.clear();
+    }
+
     fn take(&mut self, scale: f32) -> (TexelPanes, TexelDipoles) {
         self.touched.sort_unstable();
         let out = self.touched.iter().map(|&c| (c, self.dense[c as usize] * scale)).collect();
@@ -221,6 +266,8 @@ pub struct Transport<'a> {
     /// The first bounce the near links carry exactly, left out of the gather's first hits
     /// (None: nothing left out).
     pub linked: Option<&'a LinkedCells<'a>>,
+    /// The next bounce at each vertex from a table (None: the hits say it; `next`).
+    pub next: Option<&'a NextBounce>,
     /// Cluster of each entry.
     pub assignment: &'a [u32],
     pub clusters: usize,

@@ -30,7 +30,7 @@ use prm::fingerprint::{fnv1a, FNV_START};
 use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, and the voxels its own texels' walks passed through.
@@ -68,6 +68,9 @@ pub struct UpdateCache {
     /// Group of each cluster (empty without groups) and the group count.
     pub group_of: Vec<u32>,
     pub groups: u32,
+    /// Per entry, a digest of its row of the walks' next-bounce table (empty without one:
+    /// `crate::transport::NextBounce::row_digests`).
+    pub rows: Vec<u64>,
     pub tiles: Vec<TileRecord>,
     /// Clusters' panes, then groups'.
     pub panes: Vec<Vec<CachedTile>>,
@@ -104,6 +107,8 @@ impl UpdateCache {
         put_u32(&mut b, self.clusters);
         put_u32(&mut b, self.groups);
         self.group_of.iter().for_each(|&g| put_u32(&mut b, g));
+        put_u32(&mut b, self.rows.len() as u32);
+        self.rows.iter().for_each(|&d| put_u64(&mut b, d));
         put_u32(&mut b, self.tiles.len() as u32);
         for t in &self.tiles {
             put_u64(&mut b, t.inputs);
@@ -186,6 +191,11 @@ impl UpdateCache {
         } else {
             Vec::new()
         };
+        let n = r.count(8)?;
+        let rows = (0..n).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?;
+        if !rows.is_empty() && rows.len() != assignment.len() {
+            return Err(format!("{} table rows for {} entries", rows.len(), assignment.len()));
+        }
         let words = grid.words();
         let n = r.count(24 + 8 * words)?;
         let tiles = (0..n)
@@ -232,6 +242,7 @@ impl UpdateCache {
             clusters,
             group_of,
             groups,
+            rows,
             tiles,
             panes,
         })

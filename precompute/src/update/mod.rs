@@ -17,7 +17,10 @@
 //! every segment of them stayed clear of everything the edit changed: the triangles whose
 //! corners, normals, UVs or material changed (where they were and where they are), and the
 //! cells and sites of entries that moved (the gather credits a hit to the nearest entry on the
-//! triangle hit). The bake of OLD recorded, per atlas tile, the voxels its texels' walks passed
+//! triangle hit), and the cells whose row of the walks' next-bounce table changed
+//! (`crate::transport::NextBounce`: a walk through such a cell reads its row, so an edit that
+//! shades a cell reaches every walk through it; the cache keeps a digest per row). The bake
+//! of OLD recorded, per atlas tile, the voxels its texels' walks passed
 //! through ([`footprint`]), and a digest of the tile's other inputs (its texels, their exact
 //! first bounce and near-link shares, their smoothing taps, the dilation into the tile). A
 //! tile is *hit* when its footprint meets the edit's voxels (grown by one, which makes the
@@ -188,13 +191,16 @@ pub fn tile_digests(
 }
 
 /// The voxels an edit changed, grown by one (module doc): triangles whose digest differs,
-/// where they were and where they are, and the cells and triangles of entries that differ.
+/// where they were and where they are, the cells and triangles of entries that differ, and
+/// the cells whose row of the walks' next-bounce table differs (`rows`, this bake's row
+/// digests: a walk through such a cell reads its row, wherever the edit that changed it).
 pub fn edited_voxels(
     cache: &UpdateCache,
     now: &[([Vec3; 3], u64)],
     scene: &Scene,
     old: (&[Entry], &Cells),
     new: (&[Entry], &Cells),
+    rows: &[u64],
 ) -> Vec<u64> {
     let grid = &cache.grid;
     let mut bits = vec![0u64; grid.words()];
@@ -229,6 +235,15 @@ pub fn edited_voxels(
         }
         mark(&[a.position]);
         mark(&[b.position]);
+    }
+    if cache.rows != rows {
+        for j in 0..old.0.len().min(new.0.len()) {
+            if cache.rows.get(j) != rows.get(j) {
+                for cell in [old.1.of(j), new.1.of(j)] {
+                    cell.iter().for_each(|t| mark(t));
+                }
+            }
+        }
     }
     grid.grow(&bits)
 }
