@@ -346,9 +346,20 @@ fn texel_neighbours(set: &TexelSet, entries: &[Entry]) -> Vec<FarTexel> {
     texels
 }
 
-/// The far field's part of every cluster's first bounce, added to each covered texel's
-/// `exact` (the set's order; the links' part is already there, `precompute::exact_first_bounce`),
-/// and which texels now have their whole first bounce given: the far field's texels.
+/// Which covered texels (the set's order) the far field lights: those whose first bounce
+/// [`FirstBounce`] gives whole, with the links'.
+pub fn far_lit(set: &TexelSet, far: &Far) -> Vec<bool> {
+    let mut lit = vec![false; set.len()];
+    for t in &far.texels {
+        if let Some(&k) = set.index.get(t.texel as usize).filter(|&&k| (k as usize) < set.len()) {
+            lit[k as usize] = true;
+        }
+    }
+    lit
+}
+
+/// The far field's part of every cluster's first bounce at a texel (the links carry the rest,
+/// `precompute::exact_first_bounce`).
 ///
 /// Per unit of cluster irradiance, entry j's cell sends `albedo_j A_j` W, and the far field
 /// delivers it as it delivers a deviation (`prm_runtime::cpu::far_field`): `share V cos_x cos_j
@@ -357,128 +368,166 @@ fn texel_neighbours(set: &TexelSet, entries: &[Entry]) -> Vec<FarTexel> {
 /// to the far radius, with no walk noise in it. The walks' first hits used to carry it: a
 /// texel 8 m from a hot cluster met it once in a hundred walks, and the pane filter spread
 /// that one hit over eight texels.
-pub fn first_bounce_into(
-    set: &TexelSet,
-    entries: &[Entry],
-    cell: &[(Vec3, f32)],
-    far: &Far,
-    assignment: &[u32],
+///
+/// It is a few hundred clusters at every texel, so it is made where it is used (a band of
+/// texels at a time, or a few texels per cell for the walks' table), never held for the
+/// whole level: on the sixteen chambers that was 2.5 GB.
+pub struct FirstBounce<'a> {
+    set: &'a TexelSet,
+    entries: &'a [Entry],
+    /// Each cell's centroid.
+    centroid: Vec<Vec3>,
+    /// Each cell's size (square root of its area) and the flux it sends per unit irradiance.
+    size: Vec<f32>,
+    flux: Vec<Vec3>,
+    far: &'a Far,
+    assignment: &'a [u32],
     clusters: usize,
-    exact: &mut [crate::transport::TexelPanes],
-) -> Vec<bool> {
-    const B: usize = Far::BLOCK;
-    let mut whole = vec![false; set.len()];
-    if far.texels.is_empty() || exact.len() != set.len() {
-        return whole;
-    }
-    let size: Vec<f32> = cell.iter().map(|c| c.1.max(0.0).sqrt()).collect();
-    let flux: Vec<Vec3> = entries.iter().zip(cell).map(|(e, c)| e.albedo * c.1).collect();
-    // Covered texels and far texels are both in atlas order.
-    let mut of_texel: Vec<Option<&FarTexel>> = vec![None; set.len()];
-    for t in &far.texels {
-        if let Some(k) = set.index.get(t.texel as usize).filter(|&&k| (k as usize) < set.len()) {
-            of_texel[*k as usize] = Some(t);
-            whole[*k as usize] = true;
+}
+
+impl<'a> FirstBounce<'a> {
+    /// For `entries` with their cells' centroids and areas (`cell`) in `clusters` clusters.
+    pub fn new(
+        set: &'a TexelSet,
+        entries: &'a [Entry],
+        cell: &[(Vec3, f32)],
+        far: &'a Far,
+        assignment: &'a [u32],
+        clusters: usize,
+    ) -> Self {
+        FirstBounce {
+            set,
+            entries,
+            centroid: cell.iter().map(|c| c.0).collect(),
+            size: cell.iter().map(|c| c.1.max(0.0).sqrt()).collect(),
+            flux: entries.iter().zip(cell).map(|(e, c)| e.albedo * c.1).collect(),
+            far,
+            assignment,
+            clusters,
         }
     }
-    // The run of block pairs of the block holding entry q.
-    let run = |q: usize| {
-        let b = q / B;
-        match (far.block_first.get(b), far.block_first.get(b + 1)) {
-            (Some(&from), Some(&to)) => from as usize..to as usize,
-            _ => 0..0,
+
+    /// Adds the far field's first bounce at covered texels `texels` (set indices) to `out`
+    /// (one per texel, clusters ascending; what the links gave is already there). Texels the
+    /// far field does not light get nothing.
+    pub fn add(&self, texels: &[usize], out: &mut [crate::transport::TexelPanes]) {
+        const B: usize = Far::BLOCK;
+        let (set, entries, far, assignment) = (self.set, self.entries, self.far, self.assignment);
+        let (cell, size, flux) = (&self.centroid, &self.size, &self.flux);
+        if far.texels.is_empty() {
+            return;
         }
-    };
-    exact.par_iter_mut().zip(&of_texel).for_each_init(
-        || (vec![Vec3::ZERO; clusters], Vec::new(), Vec::new()),
-        |(acc, touched, blocks): &mut (Vec<Vec3>, Vec<u32>, Vec<u32>), (out, t)| {
-            let Some(t) = t else { return };
-            let q: [usize; NEIGHBOURS] = std::array::from_fn(|k| t.entries[k] as usize);
-            let runs = q.map(run);
-            // The blocks any neighbour sees something of (an entry sees itself).
-            blocks.clear();
-            for k in 0..NEIGHBOURS {
-                blocks.extend_from_slice(&far.pair_block[runs[k].clone()]);
-                blocks.push((q[k] / B) as u32);
+        let of_texel = |k: usize| {
+            let t = set.texels.get(k)?;
+            let atlas = t.j * set.width + t.i;
+            far.texels.binary_search_by_key(&atlas, |f| f.texel).ok().map(|i| &far.texels[i])
+        };
+        // The run of block pairs of the block holding entry q.
+        let run = |q: usize| {
+            let b = q / B;
+            match (far.block_first.get(b), far.block_first.get(b + 1)) {
+                (Some(&from), Some(&to)) => from as usize..to as usize,
+                _ => 0..0,
             }
-            blocks.sort_unstable();
-            blocks.dedup();
-            // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
-            let planes: [(Vec3, f32); NEIGHBOURS] =
-                std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(cell[q[k]].0)));
-            let mut at = runs.clone().map(|r| r.start);
-            for &b in blocks.iter() {
-                let b = b as usize;
-                let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
-                    while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
-                        at[k] += 1;
-                    }
-                    let mut w = 0;
-                    if at[k] < runs[k].end && far.pair_block[at[k]] as usize == b {
-                        w = far.visible[at[k] * B + q[k] % B];
-                    }
-                    if q[k] / B == b {
-                        w |= 1 << (q[k] % B);
-                    }
-                    w
-                });
-                // An entry no neighbour sees gets no light from the vote.
-                let mut any = bits.iter().fold(0, |a, w| a | w);
-                while any != 0 {
-                    let r = any.trailing_zeros() as usize;
-                    any &= any - 1;
-                    let j = b * B + r;
-                    let centroid = cell[j].0;
-                    let d = centroid - t.position;
-                    let (cx, cy) = (t.normal.dot(d), -entries[j].normal.dot(d));
-                    if cx <= 0.0 || cy <= 0.0 {
-                        continue;
-                    }
-                    let r2 = d.length_squared();
-                    let share = far_share(r2.sqrt(), far.reach, size[j]);
-                    if share <= 0.0 {
-                        continue;
-                    }
-                    let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
-                    for k in 0..NEIGHBOURS {
-                        let sees = if bits[k] >> r & 1 == 1 { t.weights[k] } else { 0.0 };
-                        every += sees;
-                        if planes[k].0.dot(centroid) > planes[k].1 {
-                            seen += sees;
-                            total += t.weights[k];
+        };
+        out.par_iter_mut().zip(texels).for_each_init(
+            || (vec![Vec3::ZERO; self.clusters], Vec::new(), Vec::new()),
+            |(acc, touched, blocks): &mut (Vec<Vec3>, Vec<u32>, Vec<u32>), (out, &k)| {
+                let Some(t) = of_texel(k) else { return };
+                let q: [usize; NEIGHBOURS] = std::array::from_fn(|k| t.entries[k] as usize);
+                let runs = q.map(run);
+                // The blocks any neighbour sees something of (an entry sees itself).
+                blocks.clear();
+                for k in 0..NEIGHBOURS {
+                    blocks.extend_from_slice(&far.pair_block[runs[k].clone()]);
+                    blocks.push((q[k] / B) as u32);
+                }
+                blocks.sort_unstable();
+                blocks.dedup();
+                // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
+                let planes: [(Vec3, f32); NEIGHBOURS] =
+                    std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(cell[q[k]])));
+                let mut at = runs.clone().map(|r| r.start);
+                for &b in blocks.iter() {
+                    let b = b as usize;
+                    let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
+                        while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
+                            at[k] += 1;
                         }
+                        let mut w = 0;
+                        if at[k] < runs[k].end && far.pair_block[at[k]] as usize == b {
+                            w = far.visible[at[k] * B + q[k] % B];
+                        }
+                        if q[k] / B == b {
+                            w |= 1 << (q[k] % B);
+                        }
+                        w
+                    });
+                    // An entry no neighbour sees gets no light from the vote.
+                    let mut any = bits.iter().fold(0, |a, w| a | w);
+                    while any != 0 {
+                        let r = any.trailing_zeros() as usize;
+                        any &= any - 1;
+                        let j = b * B + r;
+                        let centroid = cell[j];
+                        let d = centroid - t.position;
+                        let (cx, cy) = (t.normal.dot(d), -entries[j].normal.dot(d));
+                        if cx <= 0.0 || cy <= 0.0 {
+                            continue;
+                        }
+                        let r2 = d.length_squared();
+                        let share = far_share(r2.sqrt(), far.reach, size[j]);
+                        if share <= 0.0 {
+                            continue;
+                        }
+                        // Every neighbour sees it: the vote is 1 whichever of them face it.
+                        let all = bits.iter().all(|w| w >> r & 1 == 1);
+                        let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
+                        for k in (0..NEIGHBOURS).filter(|_| !all) {
+                            let sees = if bits[k] >> r & 1 == 1 { t.weights[k] } else { 0.0 };
+                            every += sees;
+                            if planes[k].0.dot(centroid) > planes[k].1 {
+                                seen += sees;
+                                total += t.weights[k];
+                            }
+                        }
+                        let v = if all {
+                            1.0
+                        } else if total > 0.0 {
+                            seen / total
+                        } else {
+                            every
+                        };
+                        if v <= 0.0 {
+                            continue;
+                        }
+                        let s2 = size[j] * size[j];
+                        let c = assignment[j] as usize;
+                        if acc[c] == Vec3::ZERO {
+                            touched.push(c as u32);
+                        }
+                        acc[c] += flux[j] * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
                     }
-                    let v = if total > 0.0 { seen / total } else { every };
-                    if v <= 0.0 {
-                        continue;
+                }
+                for &(c, v) in out.iter() {
+                    if acc[c as usize] == Vec3::ZERO {
+                        touched.push(c);
                     }
-                    let s2 = size[j] * size[j];
-                    let c = assignment[j] as usize;
-                    if acc[c] == Vec3::ZERO {
-                        touched.push(c as u32);
+                    acc[c as usize] += v;
+                }
+                touched.sort_unstable();
+                touched.dedup();
+                out.clear();
+                for &c in touched.iter() {
+                    let v = std::mem::take(&mut acc[c as usize]);
+                    if v != Vec3::ZERO {
+                        out.push((c, v));
                     }
-                    acc[c] += flux[j] * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
                 }
-            }
-            for &(c, v) in out.iter() {
-                if acc[c as usize] == Vec3::ZERO {
-                    touched.push(c);
-                }
-                acc[c as usize] += v;
-            }
-            touched.sort_unstable();
-            touched.dedup();
-            out.clear();
-            for &c in touched.iter() {
-                let v = std::mem::take(&mut acc[c as usize]);
-                if v != Vec3::ZERO {
-                    out.push((c, v));
-                }
-            }
-            touched.clear();
-        },
-    );
-    whole
+                touched.clear();
+            },
+        );
+    }
 }
 
 #[cfg(test)]

@@ -440,8 +440,9 @@ pub fn precompute_with(
     let set = &pre.set;
     let rows = pre.next.as_ref().map_or(Vec::new(), |n| n.row_digests());
     // The update's plan: which tiles the edit reaches, which texels to walk again.
-    let digests = tracing
-        .then(|| tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &pre.exact));
+    let digests = tracing.then(|| {
+        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &|r| pre.band_exact(r))
+    });
     let plan = match (reuse, &triangles, &digests) {
         (Reuse::Update { cache, old }, Some(triangles), Some(digests)) => {
             let edited = edited_voxels(
@@ -730,6 +731,8 @@ pub(crate) fn walk_and_encode(
     let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
         (0, Vec::new(), Vec::new());
     let n = set.len();
+    // The last band's exact first bounce and its texels.
+    let (mut last, mut last_at): (Vec<TexelPanes>, std::ops::Range<usize>) = (Vec::new(), 0..0);
     for band in encoder.bands() {
         let range = encoder.texel_range(band.window.clone());
         let gone = (range.start - first).min(panes.len());
@@ -751,11 +754,22 @@ pub(crate) fn walk_and_encode(
         }
         stop_if(cancel)?;
         let t = Instant::now();
-        let exact = pre.exact.get(range.clone()).unwrap_or(&[]);
+        // The exact first bounce of the band's texels; the part the last band made is kept.
+        let kept = range.start.clamp(last_at.start, last_at.end)..range.end.clamp(last_at.start, last_at.end);
+        let mut exact: Vec<TexelPanes> = if last.len() == last_at.len() {
+            last.drain(kept.start - last_at.start..kept.end - last_at.start).collect()
+        } else {
+            Vec::new()
+        };
+        if kept.start == range.start && !exact.is_empty() {
+            exact.extend(pre.band_exact(kept.end..range.end));
+        } else {
+            exact = pre.band_exact(range.clone());
+        }
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
-        encoder.encode_band(&band, first, &panes, exact, &mut out.fine, fine_reuse)?;
+        encoder.encode_band(&band, first, &panes, &exact, &mut out.fine, fine_reuse)?;
         if let Some(g) = grouping {
-            let (group_panes, group_exact) = (by_group(&panes, g), by_group(exact, g));
+            let (group_panes, group_exact) = (by_group(&panes, g), by_group(&exact, g));
             let group_reuse = reuse.map(|(dirty, _, groups)| (dirty, groups));
             encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
         }
@@ -770,6 +784,7 @@ pub(crate) fn walk_and_encode(
                 acc,
             )?;
         }
+        (last, last_at) = (exact, range);
         report.seconds_panes += t.elapsed().as_secs_f64();
     }
     Ok(out)

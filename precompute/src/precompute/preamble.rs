@@ -17,7 +17,7 @@ use super::{Phase, PrecomputeError, PrecomputeParams, Report};
 use crate::cells::{entry_cells, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
-use crate::far::far_field;
+use crate::far::{far_field, FirstBounce};
 use crate::near::{echo_links, near_links};
 use crate::parallel::stop_if;
 use crate::transport::{Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
@@ -140,29 +140,22 @@ impl Preamble {
         // this (the MIS and scatter estimators, and dipole panes, walk it as before).
         let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
         let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
-        let mut exact = match &keep {
+        let exact = match &keep {
             Some(keep) => {
                 let linked = LinkedCells { links: &near, keep };
                 exact_first_bounce(&set, &entries, &cell, &linked, &clustering)
             }
             None => Vec::new(),
         };
-        // The far field's share of every cluster's first bounce joins the links' in the
-        // exact panes, and the walks read each later bounce from a table of it
-        // (`transport::NextBounce`).
+        // The walks read each bounce after the first from a table of the clusters' first
+        // bounce (`transport::NextBounce`); the far field's share of it joins the links' in
+        // each band's exact panes as it is encoded (`Preamble::band_exact`).
         let next = (params.next_bounce && keep.is_some() && !far.texels.is_empty()).then(|| {
             timed(&mut report.seconds_far, || {
                 let clusters = clustering.members.len();
-                let whole = crate::far::first_bounce_into(
-                    &set,
-                    &entries,
-                    &cell,
-                    &far,
-                    &clustering.assignment,
-                    clusters,
-                    &mut exact,
-                );
-                NextBounce::build(&set, &owners, &exact, &whole, entries.len(), clusters, far.radius)
+                let first = FirstBounce::new(&set, &entries, &cell, &far, &clustering.assignment, clusters);
+                let lit = crate::far::far_lit(&set, &far);
+                NextBounce::build(&set, &owners, &exact, &lit, &first, entries.len(), clusters, far.radius)
             })
         });
         // The echo links need the near links' points only; made now, so nothing of the walks
@@ -219,6 +212,34 @@ impl Preamble {
         report.far_pairs = self.far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
         report.near_links = self.near.len();
         report.echo_links = self.echo.links.len();
+    }
+
+    /// The exact first bounce of covered texels `range` (set order): the links', and with the
+    /// walks' next-bounce table the far field's too (`crate::far::FirstBounce`), made here so
+    /// that it is never held for the whole level.
+    pub(crate) fn band_exact(&self, range: std::ops::Range<usize>) -> Vec<TexelPanes> {
+        if self.exact.is_empty() && self.next.is_none() {
+            return Vec::new();
+        }
+        let mut out: Vec<TexelPanes> =
+            range.clone().map(|k| self.exact.get(k).cloned().unwrap_or_default()).collect();
+        if self.next.is_some() {
+            let cell: Vec<(Vec3, f32)> = (0..self.entries.len())
+                .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
+                .collect();
+            let clusters = self.clustering.members.len();
+            let first = FirstBounce::new(
+                &self.set,
+                &self.entries,
+                &cell,
+                &self.far,
+                &self.clustering.assignment,
+                clusters,
+            );
+            let texels: Vec<usize> = range.collect();
+            first.add(&texels, &mut out);
+        }
+        out
     }
 
     /// The near links with the share of their first bounce the walks keep (None: the walks

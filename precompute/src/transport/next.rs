@@ -27,6 +27,12 @@ use prm::TexelSet;
 use rayon::prelude::*;
 
 use super::TexelPanes;
+
+/// Texels per cell whose first bounce makes its row (their mean).
+pub const CELL_SAMPLES: usize = 4;
+
+/// Cells whose rows are made at a time (what the sampled texels' first bounce holds).
+const CELL_CHUNK: usize = 2048;
 use crate::cells::CellOwners;
 
 /// Per entry cell, the first bounce per unit irradiance of each cluster at its texels (their
@@ -46,18 +52,22 @@ pub struct NextBounce {
 }
 
 impl NextBounce {
-    /// The table for `entries` cells from the covered texels' exact first bounce (`exact`,
-    /// the set's order), those with `whole[k]` set having all of it: each row is the mean of
-    /// its cell's whole texels (a cell holds a texel when its entry owns the texel's point).
+    /// The table for `entries` cells: each row is the mean first bounce at up to
+    /// [`CELL_SAMPLES`] of its cell's texels spread over it (a cell holds a texel when its
+    /// entry owns the texel's point), the links' (`links`, per covered texel) plus the far
+    /// field's (`first`). `lit`: the covered texels whose whole first bounce that is.
+    #[allow(clippy::too_many_arguments)]
     pub fn build(
         set: &TexelSet,
         owners: &CellOwners,
-        exact: &[TexelPanes],
-        whole: &[bool],
+        links: &[TexelPanes],
+        lit: &[bool],
+        first: &crate::far::FirstBounce,
         entries: usize,
         clusters: usize,
         radius: f32,
     ) -> NextBounce {
+        let whole = lit;
         let owner: Vec<Option<u32>> = set
             .texels
             .par_iter()
@@ -77,14 +87,29 @@ impl NextBounce {
         for e in 0..entries {
             start[e + 1] += start[e];
         }
-        let rows: Vec<TexelPanes> = (0..entries)
-            .into_par_iter()
-            .map_init(
+        // Up to CELL_SAMPLES texels per cell, evenly spread over its list (set order); a few
+        // thousand cells at a time, since a texel's first bounce names hundreds of clusters.
+        let sample = |e: usize| {
+            let texels = &by_cell[start[e]..start[e + 1]];
+            let m = texels.len().min(CELL_SAMPLES);
+            (0..m).map(move |i| texels[(2 * i + 1) * texels.len() / (2 * m)].1 as usize)
+        };
+        let mut rows: Vec<TexelPanes> = Vec::with_capacity(entries);
+        for cells in (0..entries).collect::<Vec<_>>().chunks(CELL_CHUNK) {
+            let flat: Vec<usize> = cells.iter().flat_map(|&e| sample(e)).collect();
+            let mut exact: Vec<TexelPanes> =
+                flat.iter().map(|&k| links.get(k).cloned().unwrap_or_default()).collect();
+            first.add(&flat, &mut exact);
+            let mut from = vec![0usize; cells.len() + 1];
+            for (i, &e) in cells.iter().enumerate() {
+                from[i + 1] = from[i] + sample(e).count();
+            }
+            rows.par_extend((0..cells.len()).into_par_iter().map_init(
                 || (vec![Vec3::ZERO; clusters], Vec::new()),
-                |(acc, touched): &mut (Vec<Vec3>, Vec<u32>), e| {
-                    let texels = &by_cell[start[e]..start[e + 1]];
-                    for &(_, k) in texels {
-                        for &(c, v) in &exact[k as usize] {
+                |(acc, touched): &mut (Vec<Vec3>, Vec<u32>), i| {
+                    let texels = &exact[from[i]..from[i + 1]];
+                    for tp in texels {
+                        for &(c, v) in tp {
                             if acc[c as usize] == Vec3::ZERO {
                                 touched.push(c);
                             }
@@ -94,7 +119,7 @@ impl NextBounce {
                     touched.sort_unstable();
                     touched.dedup();
                     let scale = 1.0 / texels.len().max(1) as f32;
-                    let row = touched
+                    let row: TexelPanes = touched
                         .iter()
                         .map(|&c| (c, std::mem::take(&mut acc[c as usize]) * scale))
                         .filter(|(_, v)| *v != Vec3::ZERO)
@@ -102,8 +127,8 @@ impl NextBounce {
                     touched.clear();
                     row
                 },
-            )
-            .collect();
+            ));
+        }
         let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
         for (t, _) in set.texels.iter().zip(whole).filter(|(_, &w)| w) {
             let a = t.j as usize * set.width as usize + t.i as usize;

@@ -148,19 +148,25 @@ pub fn tile_digests(
     tile_size: u32,
     smoothing: Option<&Smoothing>,
     linked: Option<&LinkedCells>,
-    exact: &[TexelPanes],
+    exact: &(dyn Fn(std::ops::Range<usize>) -> Vec<TexelPanes> + Sync),
 ) -> Vec<u64> {
     let tx = set.width.div_ceil(tile_size) as usize;
     let ty = set.height.div_ceil(tile_size) as usize;
     let mut h = vec![FNV_START; tx * ty];
+    // The exact first bounce a chunk of texels at a time (it is not held for the whole level).
+    const CHUNK: usize = 4096;
+    let mut chunk: Vec<TexelPanes> = Vec::new();
     for (k, t) in set.texels.iter().enumerate() {
+        if k % CHUNK == 0 {
+            chunk = exact(k..(k + CHUNK).min(set.len()));
+        }
         let d = &mut h[tile_of(t.i, t.j, tile_size, tx)];
         let atlas = t.j * set.width + t.i;
         let mut x = fnv1a(*d, &[t.i.to_le_bytes(), t.j.to_le_bytes(), t.triangle.to_le_bytes()].concat());
         for v in [t.position, t.normal, t.bary] {
             x = mix_coarse(x, &v.to_array());
         }
-        for &(c, v) in exact.get(k).map_or(&[][..], |e| &e[..]) {
+        for &(c, v) in chunk.get(k % CHUNK).map_or(&[][..], |e| &e[..]) {
             x = fnv1a(x, &c.to_le_bytes());
             x = mix_coarse(x, &v.to_array());
         }
