@@ -53,7 +53,7 @@ pub struct NextBounce {
 
 impl NextBounce {
     /// The table for `entries` cells: each row is the mean first bounce at up to
-    /// [`CELL_SAMPLES`] of its cell's texels spread over it (a cell holds a texel when its
+    /// `CELL_SAMPLES` (4) of its cell's texels spread over it (a cell holds a texel when its
     /// entry owns the texel's point), the links' (`links`, per covered texel) plus the far
     /// field's (`first`). `lit`: the covered texels whose whole first bounce that is.
     #[allow(clippy::too_many_arguments)]
