@@ -12,8 +12,9 @@
 //! (`crate::far::first_bounce_into`). So each vertex adds `beta F_c` for every cluster at once,
 //! read from the table row of the cell it lies in (the mean of `F_c` over that cell's
 //! texels), and the next hit adds nothing: every cluster that vertex sees contributes every
-//! time. On the chamber's torches the walks' noise went from 4.6-7.2 % to 1.3-1.4 % at the
-//! same 128 walks, which is what lets the default take fewer walks.
+//! time. On the chamber's torches the walks' noise went from 4.9-8.1 % to 1.3-1.4 % at the
+//! same 128 walks (measured on a first version whose rows were the first bounce at the entry
+//! point), which is what lets the default take 64 walks.
 //!
 //! What the table cannot say is left to the walks' hits, unchanged: a vertex in a cell with
 //! no texel (no row), a vertex with no cell (the back of a double-sided triangle), a texel
@@ -67,11 +68,10 @@ impl NextBounce {
         clusters: usize,
         radius: f32,
     ) -> NextBounce {
-        let whole = lit;
         let owner: Vec<Option<u32>> = set
             .texels
             .par_iter()
-            .zip(whole)
+            .zip(lit)
             .map(|(t, &w)| if w { owners.owner(t.triangle as usize, t.position) } else { None })
             .collect();
         let mut by_cell: Vec<(u32, u32)> = owner
@@ -130,7 +130,7 @@ impl NextBounce {
             ));
         }
         let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
-        for (t, _) in set.texels.iter().zip(whole).filter(|(_, &w)| w) {
+        for (t, _) in set.texels.iter().zip(lit).filter(|(_, &w)| w) {
             let a = t.j as usize * set.width as usize + t.i as usize;
             bits[a / 64] |= 1 << (a % 64);
         }
@@ -194,10 +194,5 @@ impl NextBounce {
                 h
             })
             .collect()
-    }
-
-    /// Entries with a row, and the rows' total length.
-    pub fn counts(&self) -> (usize, usize) {
-        (self.first.windows(2).filter(|w| w[1] > w[0]).count(), self.cluster.len())
     }
 }
