@@ -12,9 +12,8 @@
 //! (`crate::far::first_bounce_into`). So each vertex adds `beta F_c` for every cluster at once,
 //! read from the table row of the cell it lies in (the mean of `F_c` over that cell's
 //! texels), and the next hit adds nothing: every cluster that vertex sees contributes every
-//! time. On the chamber's torches the walks' noise went from 4.9-8.1 % to 1.3-1.4 % at the
-//! same 128 walks (measured on a first version whose rows were the first bounce at the entry
-//! point), which is what lets the default take 64 walks.
+//! time. On the chamber's torches the walks' noise went from 4.9-8.1 % to 1.4-1.5 % at the
+//! same 128 walks (1.8-2.1 % at 64), which is what lets the default take 64 walks.
 //!
 //! What the table cannot say is left to the walks' hits, unchanged: a vertex in a cell with
 //! no texel (no row), a vertex with no cell (the back of a double-sided triangle), a texel
