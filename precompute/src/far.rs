@@ -29,7 +29,7 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
-use prm::prm_file::{far_share, Entry, Far, FarTexel};
+use prm::prm_file::{far_share, far_vote, Entry, Far, FarTexel};
 use prm::sampling::{cosine_direction, shifted_hammersley, stream};
 use prm::{luminance, Bvh, Scene, TexelSet};
 use rand::Rng;
@@ -481,22 +481,14 @@ impl<'a> FirstBounce<'a> {
                             continue;
                         }
                         // Every neighbour sees it: the vote is 1 whichever of them face it.
-                        let all = bits.iter().all(|w| w >> r & 1 == 1);
-                        let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
-                        for k in (0..NEIGHBOURS).filter(|_| !all) {
-                            let sees = if bits[k] >> r & 1 == 1 { t.weights[k] } else { 0.0 };
-                            every += sees;
-                            if planes[k].0.dot(centroid) > planes[k].1 {
-                                seen += sees;
-                                total += t.weights[k];
-                            }
-                        }
-                        let v = if all {
+                        let v = if bits.iter().all(|w| w >> r & 1 == 1) {
                             1.0
-                        } else if total > 0.0 {
-                            seen / total
                         } else {
-                            every
+                            far_vote(
+                                &t.weights,
+                                |k| bits[k] >> r & 1 == 1,
+                                |k| planes[k].0.dot(centroid) > planes[k].1,
+                            )
                         };
                         if v <= 0.0 {
                             continue;

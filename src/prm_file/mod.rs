@@ -443,6 +443,29 @@ pub fn far_share(d: f32, reach: f32, size: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// A far texel's visibility of a far-field source: the vote of its four neighbour entries
+/// (`weights`), each for the source where its pair bit is set (`sees(k)`), counted over the
+/// neighbours that face the source (`faces(k)`); with none facing it, all of them vote. The
+/// runtime's far field and the precompute's first bounce (`prm_precompute::far::FirstBounce`)
+/// both take it from here.
+#[inline]
+pub fn far_vote(weights: &[f32; 4], sees: impl Fn(usize) -> bool, faces: impl Fn(usize) -> bool) -> f32 {
+    let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
+    for (k, &w) in weights.iter().enumerate() {
+        let s = if sees(k) { w } else { 0.0 };
+        every += s;
+        if faces(k) {
+            seen += s;
+            total += w;
+        }
+    }
+    if total > 0.0 {
+        seen / total
+    } else {
+        every
+    }
+}
+
 /// [`far_share`] in WGSL, for the runtime's shader prelude: the same operations in the same
 /// order; a GPU test holds the two together.
 pub const FAR_SHARE_WGSL: &str = "fn far_share(d: f32, reach: f32, size: f32) -> f32 {

@@ -432,20 +432,7 @@ fn vote(
     j: usize,
     faces: impl Fn(usize) -> bool,
 ) -> f32 {
-    let (mut seen, mut total, mut every) = (0.0f32, 0.0f32, 0.0f32);
-    for k in 0..4 {
-        let sees = if far.sees(t.entries[k] as usize, j) { t.weights[k] } else { 0.0 };
-        every += sees;
-        if faces(k) {
-            seen += sees;
-            total += t.weights[k];
-        }
-    }
-    if total > 0.0 {
-        seen / total
-    } else {
-        every
-    }
+    prm::prm_file::far_vote(&t.weights, |k| far.sees(t.entries[k] as usize, j), faces)
 }
 
 /// The indirect lightmap for per-cluster weights (W/m² of entry irradiance) and dipole weights
