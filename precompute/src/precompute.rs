@@ -441,7 +441,10 @@ pub fn precompute_with(
     let rows = pre.next.as_ref().map_or(Vec::new(), |n| n.row_digests());
     // The update's plan: which tiles the edit reaches, which texels to walk again.
     let digests = tracing.then(|| {
-        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &|r| pre.band_exact(r))
+        let first = pre.first_bounce();
+        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &|r| {
+            pre.band_exact(r, first.as_ref())
+        })
     });
     let plan = match (reuse, &triangles, &digests) {
         (Reuse::Update { cache, old }, Some(triangles), Some(digests)) => {
@@ -731,6 +734,7 @@ pub(crate) fn walk_and_encode(
     let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
         (0, Vec::new(), Vec::new());
     let n = set.len();
+    let first_bounce = pre.first_bounce();
     // The last band's exact first bounce and its texels.
     let (mut last, mut last_at): (Vec<TexelPanes>, std::ops::Range<usize>) = (Vec::new(), 0..0);
     for band in encoder.bands() {
@@ -762,9 +766,9 @@ pub(crate) fn walk_and_encode(
             Vec::new()
         };
         if kept.start == range.start && !exact.is_empty() {
-            exact.extend(pre.band_exact(kept.end..range.end));
+            exact.extend(pre.band_exact(kept.end..range.end, first_bounce.as_ref()));
         } else {
-            exact = pre.band_exact(range.clone());
+            exact = pre.band_exact(range.clone(), first_bounce.as_ref());
         }
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
         encoder.encode_band(&band, first, &panes, &exact, &mut out.fine, fine_reuse)?;

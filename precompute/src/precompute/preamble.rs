@@ -214,28 +214,38 @@ impl Preamble {
         report.echo_links = self.echo.links.len();
     }
 
-    /// The exact first bounce of covered texels `range` (set order): the links', and with the
-    /// walks' next-bounce table the far field's too (`crate::far::FirstBounce`), made here so
-    /// that it is never held for the whole level.
-    pub(crate) fn band_exact(&self, range: std::ops::Range<usize>) -> Vec<TexelPanes> {
-        if self.exact.is_empty() && self.next.is_none() {
+    /// The far field's first bounce for the exact panes (`crate::far::FirstBounce`): with the
+    /// walks' next-bounce table only. Made once per use of [`Preamble::band_exact`]'s loop.
+    pub(crate) fn first_bounce(&self) -> Option<FirstBounce<'_>> {
+        self.next.as_ref()?;
+        let cell: Vec<(Vec3, f32)> = (0..self.entries.len())
+            .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
+            .collect();
+        let clusters = self.clustering.members.len();
+        Some(FirstBounce::new(
+            &self.set,
+            &self.entries,
+            &cell,
+            &self.far,
+            &self.clustering.assignment,
+            clusters,
+        ))
+    }
+
+    /// The exact first bounce of covered texels `range` (set order): the links', and the far
+    /// field's too where `first` is given ([`Preamble::first_bounce`]), made here so that it is
+    /// never held for the whole level.
+    pub(crate) fn band_exact(
+        &self,
+        range: std::ops::Range<usize>,
+        first: Option<&FirstBounce>,
+    ) -> Vec<TexelPanes> {
+        if self.exact.is_empty() && first.is_none() {
             return Vec::new();
         }
         let mut out: Vec<TexelPanes> =
             range.clone().map(|k| self.exact.get(k).cloned().unwrap_or_default()).collect();
-        if self.next.is_some() {
-            let cell: Vec<(Vec3, f32)> = (0..self.entries.len())
-                .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
-                .collect();
-            let clusters = self.clustering.members.len();
-            let first = FirstBounce::new(
-                &self.set,
-                &self.entries,
-                &cell,
-                &self.far,
-                &self.clustering.assignment,
-                clusters,
-            );
+        if let Some(first) = first {
             let texels: Vec<usize> = range.collect();
             first.add(&texels, &mut out);
         }

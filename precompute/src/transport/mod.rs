@@ -180,6 +180,17 @@ impl<'f> Scratch<'f> {
     }
     /// Adds `v` to cluster `c`, the light having entered the cluster at `at`.
     fn add(&mut self, c: u32, v: Vec3, at: Vec3) {
+        self.accumulate(c, v);
+        if let Some(f) = self.frames.get(c as usize) {
+            let u = f.coords(at);
+            for (a, d) in self.dipole[c as usize].iter_mut().zip(u.to_array()) {
+                *a += v * d;
+            }
+        }
+    }
+
+    /// Adds `v` to cluster `c`'s pane value, listing `c` the first time.
+    fn accumulate(&mut self, c: u32, v: Vec3) {
         let k = c as usize;
         if self.dense[k] == Vec3::ZERO {
             self.touched.push(c);
@@ -189,13 +200,8 @@ impl<'f> Scratch<'f> {
             // Keep it listed; a sum that lands on exactly zero is rare and harmless.
             self.dense[k] = Vec3::splat(f32::MIN_POSITIVE);
         }
-        if let Some(f) = self.frames.get(k) {
-            let u = f.coords(at);
-            for (a, d) in self.dipole[k].iter_mut().zip(u.to_array()) {
-                *a += v * d;
-            }
-        }
     }
+
     /// Notes a walk vertex in entry `e`'s cell (of `entries`) with throughput `beta`.
     fn visit(&mut self, e: u32, beta: Vec3, entries: usize) {
         if self.visits.len() != entries {
@@ -211,22 +217,17 @@ impl<'f> Scratch<'f> {
     /// Adds each visited cell's row of `next`, times the throughput noted there, and forgets
     /// the visits. Rows never carry dipoles (the table is built without them).
     fn add_visits(&mut self, next: &NextBounce) {
-        self.visited.sort_unstable();
-        for &e in &self.visited {
+        let mut visited = std::mem::take(&mut self.visited);
+        visited.sort_unstable();
+        for &e in &visited {
             let w = std::mem::take(&mut self.visits[e as usize]);
             let Some((clusters, values)) = next.row(e) else { continue };
             for (&c, &v) in clusters.iter().zip(values) {
-                let slot = &mut self.dense[c as usize];
-                if *slot == Vec3::ZERO {
-                    self.touched.push(c);
-                }
-                *slot += w * v;
-                if *slot == Vec3::ZERO {
-                    *slot = Vec3::splat(f32::MIN_POSITIVE);
-                }
+                self.accumulate(c, w * v);
             }
         }
-        self.visited.clear();
+        visited.clear();
+        self.visited = visited;
     }
 
     fn take(&mut self, scale: f32) -> (TexelPanes, TexelDipoles) {
