@@ -156,43 +156,51 @@ impl<'a> Encoder<'a> {
         acc: &mut Accumulated,
         reuse: Option<(&[bool], &[Vec<CachedTile>])>,
     ) -> std::io::Result<()> {
-        let n = acc.len();
-        let (start, list) = transpose(panes, first, n, |k, i| panes[k][i].1);
-        let (exact_start, exact_list) = transpose(exact, first, n, |k, i| exact[k][i].1);
-        let size = self.grid.w * band.window.len();
-        let out: Vec<Option<PaneBand>> = (0..n)
-            .into_par_iter()
-            .map_init(
-                || vec![Vec3::ZERO; size],
-                |img, c| {
-                    let walked = &list[start[c]..start[c + 1]];
-                    let exact = exact_start.get(c + 1).map_or(&[][..], |&e| &exact_list[exact_start[c]..e]);
-                    let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
-                    let pane = if walked.is_empty() && exact.is_empty() {
-                        self.encode_pane_band(band, None, &[], acc.energy[c], reuse)
-                    } else {
-                        // The pane's light in this band, and the runs of tile columns it
-                        // reaches: work and clearing stay there, so a pane costs its own
-                        // charts, not the band.
-                        let tiles = self.footprint(walked.iter().chain(exact));
-                        let ts = self.grid.ts as u32;
-                        let cols: Vec<Range<u32>> =
-                            tiles.iter().map(|t| t.start as u32 * ts..t.end as u32 * ts).collect();
-                        self.band_image(band, walked, exact, img, &cols);
-                        let pane = self.encode_pane_band(band, Some(img), &tiles, acc.energy[c], reuse);
-                        let w = self.grid.w;
-                        for row in img.chunks_mut(w) {
-                            for c in &cols {
-                                row[c.start as usize..(c.end as usize).min(w)].fill(Vec3::ZERO);
+        // A few clusters at a time, so that the band's contributions are held once more per
+        // chunk, not once more whole (with the walks' next bounce a texel names every
+        // cluster of its room: on the 4 x 4 chambers that copy was 230 MB).
+        for chunk in cluster_chunks(&[panes, exact], acc.len(), TRANSPOSE_ITEMS) {
+            let (start, list) = transpose(panes, first, chunk.clone(), |k, i| panes[k][i].1);
+            let (exact_start, exact_list) = transpose(exact, first, chunk.clone(), |k, i| exact[k][i].1);
+            let size = self.grid.w * band.window.len();
+            let out: Vec<Option<PaneBand>> = chunk
+                .clone()
+                .into_par_iter()
+                .map_init(
+                    || vec![Vec3::ZERO; size],
+                    |img, c| {
+                        let j = c - chunk.start;
+                        let walked = &list[start[j]..start[j + 1]];
+                        let exact =
+                            exact_start.get(j + 1).map_or(&[][..], |&e| &exact_list[exact_start[j]..e]);
+                        let reuse = reuse.map(|(dirty, cached)| (dirty, &cached[c][..]));
+                        let pane = if walked.is_empty() && exact.is_empty() {
+                            self.encode_pane_band(band, None, &[], acc.energy[c], reuse)
+                        } else {
+                            // The pane's light in this band, and the runs of tile columns it
+                            // reaches: work and clearing stay there, so a pane costs its own
+                            // charts, not the band.
+                            let tiles = self.footprint(walked.iter().chain(exact));
+                            let ts = self.grid.ts as u32;
+                            let cols: Vec<Range<u32>> =
+                                tiles.iter().map(|t| t.start as u32 * ts..t.end as u32 * ts).collect();
+                            self.band_image(band, walked, exact, img, &cols);
+                            let pane = self.encode_pane_band(band, Some(img), &tiles, acc.energy[c], reuse);
+                            let w = self.grid.w;
+                            for row in img.chunks_mut(w) {
+                                for c in &cols {
+                                    row[c.start as usize..(c.end as usize).min(w)].fill(Vec3::ZERO);
+                                }
                             }
-                        }
-                        pane
-                    };
-                    (!pane.tiles.is_empty()).then_some(pane)
-                },
-            )
-            .collect();
-        acc.add(out)
+                            pane
+                        };
+                        (!pane.tiles.is_empty()).then_some(pane)
+                    },
+                )
+                .collect();
+            acc.add(chunk.start, out)?;
+        }
+        Ok(())
     }
 
     /// Codes a stored pane tile holds, per atlas tile.
@@ -222,7 +230,7 @@ impl<'a> Encoder<'a> {
     ) -> std::io::Result<()> {
         let (grid, b) = (&self.grid, block as usize);
         let clusters = dipoles.len();
-        let (start, list) = transpose(texel_panes, first, clusters, |k, i| texel_dipoles[k][i]);
+        let (start, list) = transpose(texel_panes, first, 0..clusters, |k, i| texel_dipoles[k][i]);
         let own = self.texel_range(band.rows.clone());
         let bw = grid.w.div_ceil(b);
         let block_rows = band.rows.start as usize / b..(band.rows.end as usize).div_ceil(b);
@@ -261,7 +269,7 @@ impl<'a> Encoder<'a> {
                 Some(PaneBand { energy, tiles })
             })
             .collect();
-        acc.add(out)
+        acc.add(0, out)
     }
 
     /// The runs of tile columns (ascending, apart) that the texels `values` name light, each
@@ -412,28 +420,64 @@ fn stored_mask(set: &TexelSet) -> Vec<bool> {
 fn transpose<T: Copy + Default>(
     texel_panes: &[TexelPanes],
     first: usize,
-    panes: usize,
+    panes: Range<usize>,
     value: impl Fn(usize, usize) -> T,
 ) -> (Vec<usize>, Vec<(u32, T)>) {
-    let mut counts = vec![0usize; panes];
-    for tp in texel_panes {
-        for &(c, _) in tp {
-            counts[c as usize] += 1;
+    let (lo, m) = (panes.start, panes.len());
+    // Each texel's entries for these panes (its list is ascending).
+    let spans: Vec<Range<usize>> = texel_panes.iter().map(|tp| span(tp, panes.clone())).collect();
+    let mut start = vec![0usize; m + 1];
+    for (tp, s) in texel_panes.iter().zip(&spans) {
+        for &(c, _) in &tp[s.clone()] {
+            start[c as usize - lo + 1] += 1;
         }
     }
-    let mut start = vec![0usize; panes + 1];
-    for c in 0..panes {
-        start[c + 1] = start[c] + counts[c];
+    for c in 0..m {
+        start[c + 1] += start[c];
     }
     let mut fill = start.clone();
-    let mut list = vec![(0u32, T::default()); start[panes]];
-    for (k, tp) in texel_panes.iter().enumerate() {
-        for (i, &(c, _)) in tp.iter().enumerate() {
-            list[fill[c as usize]] = ((first + k) as u32, value(k, i));
-            fill[c as usize] += 1;
+    let mut list = vec![(0u32, T::default()); start[m]];
+    for (k, (tp, s)) in texel_panes.iter().zip(&spans).enumerate() {
+        for i in s.clone() {
+            let c = tp[i].0 as usize - lo;
+            list[fill[c]] = ((first + k) as u32, value(k, i));
+            fill[c] += 1;
         }
     }
     (start, list)
+}
+
+/// The entries of `tp` (ascending by pane) for the panes in `panes`.
+fn span(tp: &[(u32, Vec3)], panes: Range<usize>) -> Range<usize> {
+    tp.partition_point(|&(c, _)| (c as usize) < panes.start)
+        ..tp.partition_point(|&(c, _)| (c as usize) < panes.end)
+}
+
+/// Contributions (texel, pane) a band transposes at once (16 bytes each): 2^21, 32 MB.
+const TRANSPOSE_ITEMS: usize = 1 << 21;
+
+/// Runs of panes, in order, each naming at most `items` contributions over `lists` (a run of
+/// one pane may name more), covering `0..panes`.
+fn cluster_chunks(lists: &[&[TexelPanes]], panes: usize, items: usize) -> Vec<Range<usize>> {
+    let mut count = vec![0usize; panes];
+    for tp in lists.iter().flat_map(|l| l.iter()) {
+        for &(c, _) in tp {
+            count[c as usize] += 1;
+        }
+    }
+    let mut chunks = Vec::new();
+    let (mut from, mut held) = (0, 0);
+    for (c, &k) in count.iter().enumerate() {
+        if held + k > items && c > from {
+            chunks.push(from..c);
+            (from, held) = (c, 0);
+        }
+        held += k;
+    }
+    if from < panes {
+        chunks.push(from..panes);
+    }
+    chunks
 }
 
 /// A tile encoded before the drop rule: its atlas index, RGB scale, energy (|luminance|
@@ -492,10 +536,11 @@ impl Accumulated {
         self.energy.is_empty()
     }
 
-    /// Add one band's output, pane by pane (None: nothing of that pane in the band).
-    fn add(&mut self, out: Vec<Option<PaneBand>>) -> std::io::Result<()> {
+    /// Add one band's output for panes `first..`, pane by pane (None: nothing of that pane in
+    /// the band).
+    fn add(&mut self, first: usize, out: Vec<Option<PaneBand>>) -> std::io::Result<()> {
         use std::io::Write;
-        for (c, pane) in out.into_iter().enumerate() {
+        for (c, pane) in (first..).zip(out) {
             let Some(pane) = pane else { continue };
             self.energy[c] = pane.energy;
             if pane.tiles.is_empty() {
@@ -760,4 +805,57 @@ fn encode_dipole_band(
             Some(EncodedTile { index: index as u32, scale: chroma * peak, energy, carried: 0.0, data })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Random per-texel lists over `panes` panes, each ascending.
+    fn lists(texels: usize, panes: u32, seed: u64) -> Vec<TexelPanes> {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        (0..texels)
+            .map(|_| {
+                let mut tp = TexelPanes::new();
+                for c in 0..panes {
+                    if rng.random::<f32>() < 0.3 {
+                        tp.push((c, Vec3::splat(rng.random::<f32>())));
+                    }
+                }
+                tp
+            })
+            .collect()
+    }
+
+    /// The band is transposed a run of panes at a time: each run's lists are exactly the
+    /// whole transpose's for those panes, and the runs cover every pane within the bound.
+    #[test]
+    fn transposing_by_runs_of_panes_is_the_whole_transpose() {
+        let (walked, exact) = (lists(200, 40, 1), lists(200, 40, 2));
+        let (start, list) = transpose(&walked, 7, 0..40, |k, i| walked[k][i].1);
+        for items in [1, 50, 300, 1 << 20] {
+            let chunks = cluster_chunks(&[&walked, &exact], 40, items);
+            assert_eq!(chunks.first().map(|c| c.start), Some(0));
+            assert_eq!(chunks.last().map(|c| c.end), Some(40));
+            assert!(chunks.windows(2).all(|w| w[0].end == w[1].start));
+            let count = |c: usize| {
+                walked.iter().chain(&exact).filter(|tp| tp.iter().any(|&(p, _)| p as usize == c)).count()
+            };
+            for chunk in &chunks {
+                let held: usize = chunk.clone().map(count).sum();
+                assert!(held <= items || chunk.len() == 1, "run {chunk:?} holds {held} > {items}");
+                let (s, l) = transpose(&walked, 7, chunk.clone(), |k, i| walked[k][i].1);
+                for c in chunk.clone() {
+                    let j = c - chunk.start;
+                    assert_eq!(l[s[j]..s[j + 1]], list[start[c]..start[c + 1]], "pane {c}");
+                }
+            }
+            if items == 1 << 20 {
+                assert_eq!(chunks.len(), 1);
+            } else {
+                assert!(chunks.len() > 1);
+            }
+        }
+    }
 }

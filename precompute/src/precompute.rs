@@ -737,7 +737,8 @@ pub(crate) fn walk_and_encode(
     let first_bounce = pre.first_bounce();
     // The last band's exact first bounce and its texels.
     let (mut last, mut last_at): (Vec<TexelPanes>, std::ops::Range<usize>) = (Vec::new(), 0..0);
-    for band in encoder.bands() {
+    let bands = encoder.bands();
+    for (b, band) in bands.iter().enumerate() {
         let range = encoder.texel_range(band.window.clone());
         let gone = (range.start - first).min(panes.len());
         panes.drain(..gone);
@@ -771,24 +772,26 @@ pub(crate) fn walk_and_encode(
             exact = pre.band_exact(range.clone(), first_bounce.as_ref());
         }
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
-        encoder.encode_band(&band, first, &panes, &exact, &mut out.fine, fine_reuse)?;
+        encoder.encode_band(band, first, &panes, &exact, &mut out.fine, fine_reuse)?;
         if let Some(g) = grouping {
             let (group_panes, group_exact) = (by_group(&panes, g), by_group(&exact, g));
             let group_reuse = reuse.map(|(dirty, _, groups)| (dirty, groups));
-            encoder.encode_band(&band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
+            encoder.encode_band(band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
         }
         if let Some(acc) = out.dipoles.as_mut() {
-            encoder.encode_dipole_band(
-                &band,
-                first,
-                &panes,
-                &dips,
-                &pre.dipoles,
-                params.dipole_block,
-                acc,
-            )?;
+            encoder.encode_dipole_band(band, first, &panes, &dips, &pre.dipoles, params.dipole_block, acc)?;
         }
-        (last, last_at) = (exact, range);
+        // Only what the next band's window holds is kept.
+        let next = bands
+            .get(b + 1)
+            .map_or(range.end, |next| encoder.texel_range(next.window.clone()).start)
+            .clamp(range.start, range.end);
+        if exact.len() == range.len() {
+            exact.drain(..next - range.start);
+            (last, last_at) = (exact, next..range.end);
+        } else {
+            (last, last_at) = (exact, range);
+        }
         report.seconds_panes += t.elapsed().as_secs_f64();
     }
     Ok(out)

@@ -93,7 +93,14 @@ impl NextBounce {
             let m = texels.len().min(CELL_SAMPLES);
             (0..m).map(move |i| texels[(2 * i + 1) * texels.len() / (2 * m)].1 as usize)
         };
-        let mut rows: Vec<TexelPanes> = Vec::with_capacity(entries);
+        let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
+        for (t, _) in set.texels.iter().zip(lit).filter(|(_, &w)| w) {
+            let a = t.j as usize * set.width as usize + t.i as usize;
+            bits[a / 64] |= 1 << (a % 64);
+        }
+        let mut out = NextBounce { whole: bits, radius, ..NextBounce::default() };
+        out.first.reserve(entries + 1);
+        // Each chunk's rows go straight into the table: only a chunk's are ever held twice.
         for cells in (0..entries).collect::<Vec<_>>().chunks(CELL_CHUNK) {
             let flat: Vec<usize> = cells.iter().flat_map(|&e| sample(e)).collect();
             let mut exact: Vec<TexelPanes> =
@@ -103,43 +110,40 @@ impl NextBounce {
             for (i, &e) in cells.iter().enumerate() {
                 from[i + 1] = from[i] + sample(e).count();
             }
-            rows.par_extend((0..cells.len()).into_par_iter().map_init(
-                || (vec![Vec3::ZERO; clusters], Vec::new()),
-                |(acc, touched): &mut (Vec<Vec3>, Vec<u32>), i| {
-                    let texels = &exact[from[i]..from[i + 1]];
-                    for tp in texels {
-                        for &(c, v) in tp {
-                            if acc[c as usize] == Vec3::ZERO {
-                                touched.push(c);
+            let rows: Vec<TexelPanes> = (0..cells.len())
+                .into_par_iter()
+                .map_init(
+                    || (vec![Vec3::ZERO; clusters], Vec::new()),
+                    |(acc, touched): &mut (Vec<Vec3>, Vec<u32>), i| {
+                        let texels = &exact[from[i]..from[i + 1]];
+                        for tp in texels {
+                            for &(c, v) in tp {
+                                if acc[c as usize] == Vec3::ZERO {
+                                    touched.push(c);
+                                }
+                                acc[c as usize] += v;
                             }
-                            acc[c as usize] += v;
                         }
-                    }
-                    touched.sort_unstable();
-                    touched.dedup();
-                    let scale = 1.0 / texels.len().max(1) as f32;
-                    let row: TexelPanes = touched
-                        .iter()
-                        .map(|&c| (c, std::mem::take(&mut acc[c as usize]) * scale))
-                        .filter(|(_, v)| *v != Vec3::ZERO)
-                        .collect();
-                    touched.clear();
-                    row
-                },
-            ));
-        }
-        let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
-        for (t, _) in set.texels.iter().zip(lit).filter(|(_, &w)| w) {
-            let a = t.j as usize * set.width as usize + t.i as usize;
-            bits[a / 64] |= 1 << (a % 64);
-        }
-        let mut out = NextBounce { whole: bits, radius, ..NextBounce::default() };
-        out.first.reserve(entries + 1);
-        for row in rows {
-            out.first.push(out.cluster.len() as u32);
-            for (c, v) in row {
-                out.cluster.push(c);
-                out.value.push(v);
+                        touched.sort_unstable();
+                        touched.dedup();
+                        let scale = 1.0 / texels.len().max(1) as f32;
+                        let row: TexelPanes = touched
+                            .iter()
+                            .map(|&c| (c, std::mem::take(&mut acc[c as usize]) * scale))
+                            .filter(|(_, v)| *v != Vec3::ZERO)
+                            .collect();
+                        touched.clear();
+                        row
+                    },
+                )
+                .collect();
+            drop(exact);
+            for row in rows {
+                out.first.push(out.cluster.len() as u32);
+                for (c, v) in row {
+                    out.cluster.push(c);
+                    out.value.push(v);
+                }
             }
         }
         out.first.push(out.cluster.len() as u32);
