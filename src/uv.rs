@@ -81,13 +81,21 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> 
             ..uvunwrap::MeshInput::new(&m.positions, &m.indices)
         })
         .collect();
-    let (atlas, v_scale, pages) = unwrap_meshes(&inputs, layout)?;
+    let (atlas, v_scale, mut pages) = unwrap_meshes(&inputs, layout)?;
+    let mut rects: Vec<ZoneRect> = Vec::with_capacity(atlas.meshes.len());
+    for m in &atlas.meshes {
+        let r = m.instances.first().ok_or("uvunwrap placed a zone nowhere")?;
+        rects.push(ZoneRect { page: r.page, min: r.min, max: r.max });
+    }
+    if let UnwrapLayout::Pages { .. } = layout {
+        pages.pages = shelve(&mut rects, pages.side, PADDING)?;
+    }
     // Rebuild each primitive, its triangles in their order, from the zones' output vertices.
     let mut rebuilt: Vec<Rebuilt> = prims.iter().map(|_| Rebuilt::default()).collect();
     for (k, &(p, _)) in tris.iter().enumerate() {
         let (z, local_t) = slot[k];
         let out = &atlas.meshes[z as usize];
-        let rect = out.instances.first().ok_or("uvunwrap placed a zone nowhere")?;
+        let rect = &rects[z as usize];
         let r = &mut rebuilt[p];
         for c in 0..3 {
             let ov = out.indices[3 * local_t + c];
@@ -109,6 +117,72 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> 
         *p.uv_albedo = r.source.iter().map(|&i| p.uv_albedo[i as usize]).collect();
         *p.uv1 = Some(r.uv1);
         *p.indices = r.indices;
+    }
+    Ok(pages)
+}
+
+#[cfg(feature = "unwrap")]
+/// Texels between a chart and its neighbours or a page edge (uvunwrap's padding).
+const PADDING: u32 = 2;
+
+#[cfg(feature = "unwrap")]
+/// Rows a shelf of zones starts on a multiple of: the precompute's default tile side, so that
+/// two shelves never share a pane tile.
+const SHELF_ROWS: u32 = 16;
+
+#[cfg(feature = "unwrap")]
+/// Where a zone's charts lie: a page and the rectangle in its [0, 1] coordinates (the charts'
+/// own coordinates are relative to it).
+struct ZoneRect {
+    page: u32,
+    min: [f32; 2],
+    max: [f32; 2],
+}
+
+#[cfg(feature = "unwrap")]
+/// Place the zones again in their own order, on shelves across pages of `side` texels.
+///
+/// uvunwrap packs rectangles largest first, so the zones of one room land all over the pages,
+/// and tiles where zones of two rooms meet hold texels of both: a pane is stored in those
+/// tiles for each. The zones' order is the k-d split's (`crate::zones`), so zones next in the
+/// order are next to each other in the level: laid left to right on shelves in that order, a
+/// room's zones are a run of one or two shelves. Each rectangle moves by whole texels (its
+/// charts' rasterisation is unchanged), keeps `pad` texels of its own all round, and each shelf
+/// starts on a multiple of [`SHELF_ROWS`] rows. Returns the pages used.
+fn shelve(rects: &mut [ZoneRect], side: u32, pad: u32) -> Result<u32, UnwrapError> {
+    let s = side as f32;
+    let (mut page, mut x, mut y, mut shelf) = (0u32, 0u32, 0u32, 0u32);
+    for r in rects.iter_mut() {
+        // The rectangle's texels with its padding, and where that starts now.
+        let size = [0, 1].map(|a| ((r.max[a] - r.min[a]) * s).ceil() as u32 + 2 * pad);
+        let from = [0, 1].map(|a| (r.min[a] * s).round() as i64 - pad as i64);
+        if size[0] > side || size[1] > side {
+            return Err(
+                format!("a zone of {}x{} texels does not fit a {side}^2 page", size[0], size[1]).into()
+            );
+        }
+        if x + size[0] > side {
+            (x, y, shelf) = (0, (y + shelf).next_multiple_of(SHELF_ROWS), 0);
+        }
+        if y + size[1] > side {
+            (page, x, y, shelf) = (page + 1, 0, 0, 0);
+        }
+        let delta = [x as i64 - from[0], y as i64 - from[1]].map(|d| d as f32 / s);
+        for (a, d) in delta.into_iter().enumerate() {
+            r.min[a] += d;
+            r.max[a] += d;
+        }
+        r.page = page;
+        x += size[0];
+        shelf = shelf.max(size[1]);
+    }
+    let pages = page + 1;
+    if pages > MAX_PAGES {
+        return Err(format!(
+            "the charts need {pages} pages of {side}^2, over the {MAX_PAGES} limit; give a larger --page-size or \
+             --texel-size"
+        )
+        .into());
     }
     Ok(pages)
 }
@@ -190,7 +264,7 @@ pub fn unwrap_meshes(
             uvunwrap::Density::Fixed { texels_per_unit: 1.0 / texel_size, page_size: Some(page_size) }
         }
     };
-    let options = uvunwrap::Options { density, padding: 2, ..Default::default() };
+    let options = uvunwrap::Options { density, padding: PADDING, ..Default::default() };
     let atlas = uvunwrap::generate(inputs, &options).map_err(|e| match (e, layout) {
         (uvunwrap::Error::ChartTooLarge { width, height, .. }, UnwrapLayout::Pages { texel_size, page_size }) => {
             format!(
@@ -373,6 +447,78 @@ mod tests {
 
     fn tri(p: [(f64, f64); 3]) -> [DVec2; 3] {
         p.map(|(x, y)| DVec2::new(x, y))
+    }
+
+    /// Zones laid on shelves in their order: each keeps its size, moves by whole texels, stays
+    /// on its page with its padding, none overlaps another's padded rectangle, shelves start on
+    /// tile rows, and the zones fill a page before the next is begun.
+    #[cfg(feature = "unwrap")]
+    #[test]
+    fn shelved_zones_keep_their_size_their_padding_and_their_order() {
+        let side = 256u32;
+        let s = side as f32;
+        // Zones of assorted sizes (texels) where a packer might have put them.
+        let sizes: Vec<(u32, u32)> = (0..40).map(|k| (10 + (k * 37) % 90, 8 + (k * 53) % 70)).collect();
+        let mut rects: Vec<ZoneRect> = sizes
+            .iter()
+            .enumerate()
+            .map(|(k, &(w, h))| {
+                let (x, y) = (3 + (k as u32 * 11) % 100, 5 + (k as u32 * 7) % 100);
+                ZoneRect {
+                    page: 0,
+                    min: [x as f32 / s, y as f32 / s],
+                    max: [(x + w) as f32 / s, (y + h) as f32 / s],
+                }
+            })
+            .collect();
+        let before: Vec<[f32; 2]> = rects.iter().map(|r| r.min).collect();
+        let pages = shelve(&mut rects, side, PADDING).unwrap();
+        assert!(pages >= 2, "40 zones of this size need more than one 256^2 page: {pages}");
+        let texels = |v: f32| v * s;
+        let mut boxes = Vec::new();
+        for (k, (r, &(w, h))) in rects.iter().zip(&sizes).enumerate() {
+            let (x0, y0) = (texels(r.min[0]), texels(r.min[1]));
+            assert!(
+                (texels(r.max[0]) - x0 - w as f32).abs() < 1e-3
+                    && (texels(r.max[1]) - y0 - h as f32).abs() < 1e-3
+            );
+            for (a, b) in [(x0, before[k][0]), (y0, before[k][1])] {
+                let moved = a - texels(b);
+                assert!((moved - moved.round()).abs() < 1e-3, "zone {k} moved by {moved} texels");
+            }
+            let pad = PADDING as f32;
+            assert!(x0 >= pad - 1e-3 && y0 >= pad - 1e-3, "zone {k} at {x0}, {y0}");
+            assert!(x0 + (w as f32) + pad <= s + 1e-3 && y0 + (h as f32) + pad <= s + 1e-3, "zone {k}");
+            assert!(r.page < pages);
+            boxes.push((r.page, x0 - pad, y0 - pad, x0 + w as f32 + pad, y0 + h as f32 + pad));
+        }
+        for (i, a) in boxes.iter().enumerate() {
+            for b in &boxes[i + 1..] {
+                let apart = a.0 != b.0
+                    || a.3 <= b.1 + 1e-3
+                    || b.3 <= a.1 + 1e-3
+                    || a.4 <= b.2 + 1e-3
+                    || b.4 <= a.2 + 1e-3;
+                assert!(apart, "padded zones overlap: {a:?} {b:?}");
+            }
+        }
+        // In order: along a shelf left to right, shelves down the page, pages one after another.
+        for (k, w) in boxes.windows(2).enumerate() {
+            let (a, b) = (w[0], w[1]);
+            let next_on_shelf = a.0 == b.0 && (b.2 - a.2).abs() < 1e-3 && (b.1 - a.3).abs() < 1e-3;
+            let next_shelf =
+                a.0 == b.0 && b.2 > a.2 && b.1.abs() < 1e-3 && (b.2.round() as u32) % SHELF_ROWS == 0;
+            let next_page = b.0 == a.0 + 1 && b.1.abs() < 1e-3 && b.2.abs() < 1e-3;
+            assert!(
+                next_on_shelf || next_shelf || next_page,
+                "zone {} after zone {k}: {b:?} after {a:?}",
+                k + 1
+            );
+        }
+        // A zone larger than a page is refused with its size.
+        let mut big = vec![ZoneRect { page: 0, min: [0.0, 0.0], max: [1.0, 0.5] }];
+        let e = shelve(&mut big, side, PADDING).unwrap_err();
+        assert!(format!("{e}").contains("does not fit"), "{e}");
     }
 
     #[test]
