@@ -1,21 +1,22 @@
-//! The `.prm` file, format v9 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v11 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 9
+//! 8   u32    version = 11 (10 is read too)
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, pages, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
-//!     NEAR  u32 R runs, u32 L links, u32 entry width W (2 or 4); the box of the runs' points
-//!           (min, max: 6 x f32); R x 16 B: texel u32 (row-major atlas index), link count u16,
-//!           the texel's sample point (3 x u16 across the box), its normal (octahedral,
-//!           2 x i16 snorm); L x W B: entry (u16 or u32); L x f16: factor. Links sorted by
-//!           texel then entry
+//!     NEAR  u32 R runs, u32 L links, u32 entry width W (2, 3 or 4); the box of the runs'
+//!           points (min, max: 6 x f32); R x 16 B: texel u32 (row-major atlas index), link
+//!           count u16, the texel's sample point (3 x u16 across the box), its normal
+//!           (octahedral, 2 x i16 snorm); W = 3 (v11): R x u32, each run's smallest entry;
+//!           L x 2 or 4 B: entry (u16; u16 above its run's smallest at W = 3; u32 at W = 4);
+//!           L x f16: factor. Links sorted by texel then entry
 //!     CLUS  C x 32 B: first member u32, member count u32, centroid (3 x f32), energy f32,
 //!                     first tile u32, tile count u32
 //!     MEMB  u32 entry indices, grouped by cluster
@@ -122,8 +123,11 @@ use sections::{Reader, SectionError, Writer};
 
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
-/// The format version this code writes and reads.
-pub const VERSION: u32 = 10;
+/// The format version this code writes.
+pub const VERSION: u32 = 11;
+/// The oldest version this code reads: a v10 file is a v11 file whose near links never take
+/// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries).
+pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -649,7 +653,7 @@ pub enum PrmError {
     #[error("{path}: not a .prm file (bad magic)")]
     Magic { path: PathBuf },
     #[error(
-        "{path}: .prm version {found}, this build reads version {VERSION} (version 9 keeps the far \
+        "{path}: .prm version {found}, this build reads versions {OLDEST_READ} to {VERSION} (version 9 keeps the far \
          field's visibility for every pair of entries, 8 lacks lightmap pages, 7 the far field's energy, \
          6 and older the far field); run prm precompute again"
     )]
@@ -996,7 +1000,7 @@ impl Prm {
             return Err(truncated("no header"));
         }
         let version = u32_at(8);
-        if version != VERSION {
+        if !(OLDEST_READ..=VERSION).contains(&version) {
             return Err(PrmError::Version { path: path.into(), found: version });
         }
         if bytes.len() < 24 {
@@ -1155,6 +1159,16 @@ mod tests {
         bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
         assert!(err.contains("version 9 keeps the far field's visibility for every pair"), "{err}");
+        // A v10 file is read: it differs only in what v11 added (the near links' run bases).
+        bytes[8..12].copy_from_slice(&10u32.to_le_bytes());
+        let body = bytes.len() - 8;
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes[..body]);
+        bytes[body..].copy_from_slice(&sum.to_le_bytes());
+        assert_eq!(Prm::from_bytes(Path::new("v10.prm"), &bytes).unwrap(), Prm::new(parts()).unwrap());
+        // A version from a later build is refused, not misread.
+        bytes[8..12].copy_from_slice(&12u32.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
+        assert!(err.contains("version 12") && err.contains("versions 10 to 11"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back

@@ -87,17 +87,31 @@ impl<'a> Writer<'a> {
     }
 
     /// `NEAR`: the box of the points, runs of links per texel with the texel's point, then
-    /// the entries (u16 when every index fits, else u32), then the factors as half floats.
-    /// A run longer than u16 allows is split (the reader joins runs of one texel again).
+    /// the entries, then the factors as half floats. Entries are u16 when every index fits
+    /// (width 2); else, when every run's entries lie within 65,536 of its smallest, each run's
+    /// smallest (u32, after the heads) and the entries as u16 above it (width 3, v11: a level
+    /// of more than 65,536 entries, where one past that bound made every link 4 bytes: 12 MB
+    /// of the 16 chambers' 406); else u32 (width 4). A run longer than u16 allows is split (the
+    /// reader joins runs of one texel again).
     pub(super) fn near(&mut self, near: &[NearLink], points: &[NearPoint]) {
         let runs: Vec<&[NearLink]> =
             near.chunk_by(|a, b| a.texel == b.texel).flat_map(|r| r.chunks(u16::MAX as usize)).collect();
-        let wide = near.iter().any(|l| l.entry > u16::MAX as u32);
+        let span = |r: &[NearLink]| {
+            let lo = r.iter().map(|l| l.entry).min().unwrap_or(0);
+            (lo, r.iter().map(|l| l.entry - lo).max().unwrap_or(0))
+        };
+        let width: u32 = if near.iter().all(|l| l.entry <= u16::MAX as u32) {
+            2
+        } else if runs.iter().all(|r| span(r).1 <= u16::MAX as u32) {
+            3
+        } else {
+            4
+        };
         let bounds = near_point_box(points);
-        let mut n = Vec::with_capacity(36 + runs.len() * NEAR_RUN_BYTES + near.len() * 6);
+        let mut n = Vec::with_capacity(36 + runs.len() * (NEAR_RUN_BYTES + 4) + near.len() * 6);
         n.extend_from_slice(&(runs.len() as u32).to_le_bytes());
         n.extend_from_slice(&(near.len() as u32).to_le_bytes());
-        n.extend_from_slice(&(if wide { 4u32 } else { 2u32 }).to_le_bytes());
+        n.extend_from_slice(&width.to_le_bytes());
         for v in bounds.0.to_array().into_iter().chain(bounds.1.to_array()) {
             n.extend_from_slice(&v.to_le_bytes());
         }
@@ -121,12 +135,18 @@ impl<'a> Writer<'a> {
                 n.extend_from_slice(&v.to_le_bytes());
             }
         }
-        for l in near {
-            if wide {
-                n.extend_from_slice(&l.entry.to_le_bytes());
-            } else {
-                n.extend_from_slice(&(l.entry as u16).to_le_bytes());
+        match width {
+            2 => near.iter().for_each(|l| n.extend_from_slice(&(l.entry as u16).to_le_bytes())),
+            3 => {
+                for r in &runs {
+                    n.extend_from_slice(&span(r).0.to_le_bytes());
+                }
+                for r in &runs {
+                    let lo = span(r).0;
+                    r.iter().for_each(|l| n.extend_from_slice(&((l.entry - lo) as u16).to_le_bytes()));
+                }
             }
+            _ => near.iter().for_each(|l| n.extend_from_slice(&l.entry.to_le_bytes())),
         }
         for l in near {
             n.extend_from_slice(&f16::from_f32(l.factor).to_le_bytes());
@@ -502,9 +522,13 @@ impl<'a> Reader<'a> {
             return Err(Corrupt(format!("near-field section of {} bytes", n.len())));
         }
         let (runs, links, width) = (u32_at(n, 0) as u64, u32_at(n, 4) as u64, u32_at(n, 8) as u64);
-        if !(width == 2 || width == 4)
-            || n.len() as u64 != 36 + runs * NEAR_RUN_BYTES as u64 + links * (width + 2)
-        {
+        // Width 3: a u32 base per run, then u16 entries above it.
+        let (bases, bytes) = match width {
+            2 | 4 => (0, width),
+            3 => (4 * runs, 2),
+            _ => (0, 0),
+        };
+        if bytes == 0 || n.len() as u64 != 36 + runs * NEAR_RUN_BYTES as u64 + bases + links * (bytes + 2) {
             return Err(Corrupt(format!(
                 "{runs} near-field runs and {links} links of {width}-byte entries declared, {} bytes",
                 n.len()
@@ -512,20 +536,23 @@ impl<'a> Reader<'a> {
         }
         let bounds = (v3(n, 12), v3(n, 24));
         let (heads, rest) = n[36..].split_at(runs as usize * NEAR_RUN_BYTES);
-        let (entries, factors) = rest.split_at((links * width) as usize);
-        let entry = |k: usize| {
-            let i = k * width as usize;
-            if width == 2 {
-                u16::from_le_bytes([entries[i], entries[i + 1]]) as u32
-            } else {
-                u32_at(entries, i)
+        let (base, rest) = rest.split_at(bases as usize);
+        let (entries, factors) = rest.split_at((links * bytes) as usize);
+        let entry = |k: usize, run: usize| -> Result<u32, SectionError> {
+            let i = k * bytes as usize;
+            match width {
+                2 => Ok(u16::from_le_bytes([entries[i], entries[i + 1]]) as u32),
+                3 => u32_at(base, 4 * run)
+                    .checked_add(u16::from_le_bytes([entries[i], entries[i + 1]]) as u32)
+                    .ok_or_else(|| Corrupt("a near-field run's base overflows".into())),
+                _ => Ok(u32_at(entries, i)),
             }
         };
         let mut out = Vec::with_capacity(links as usize);
         let mut points: Vec<NearPoint> = Vec::with_capacity(runs as usize);
         let i16_at = |b: &[u8], i: usize| i16::from_le_bytes([b[i], b[i + 1]]);
         let u16_at = |b: &[u8], i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
-        for h in heads.chunks_exact(NEAR_RUN_BYTES) {
+        for (run, h) in heads.chunks_exact(NEAR_RUN_BYTES).enumerate() {
             let (texel, count) = (u32_at(h, 0), u16_at(h, 4) as u64);
             if out.len() as u64 + count > links {
                 return Err(Corrupt("near-field runs hold more links than declared".into()));
@@ -542,7 +569,7 @@ impl<'a> Reader<'a> {
             for _ in 0..count {
                 let k = out.len();
                 let factor = f16::from_le_bytes([factors[2 * k], factors[2 * k + 1]]).to_f32();
-                out.push(NearLink { texel, entry: entry(k), factor });
+                out.push(NearLink { texel, entry: entry(k, run)?, factor });
             }
         }
         if out.len() as u64 != links {
@@ -620,5 +647,56 @@ impl<'a> Reader<'a> {
     /// layout's business, checked with the other invariants).
     pub(super) fn data(&mut self) -> Result<Vec<u8>, SectionError> {
         Ok(self.next(b"DATA")?.to_vec())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Links written and read back, their points round as stored.
+    fn round_trip(near: &[NearLink], points: &[NearPoint]) -> (u32, usize, Vec<NearLink>) {
+        let mut bytes = Vec::new();
+        let mut w = Writer::new(&mut bytes);
+        w.near(near, points);
+        assert!(w.error.is_none());
+        let width = u32_at(&bytes, 12 + 8);
+        let Ok((back, _)) = Reader::new(&bytes, 0).near() else { panic!("width {width} not read back") };
+        (width, bytes.len(), back)
+    }
+
+    /// The three entry widths: 2 bytes while every entry fits, 2 above each run's smallest
+    /// when the level has more entries but a texel's links lie together, 4 when they do not;
+    /// each reads back the same links, and a base that overflows is refused.
+    #[test]
+    fn near_entries_take_the_narrowest_width_that_holds_them() {
+        let points: Vec<NearPoint> = (0..40)
+            .map(|t| NearPoint { texel: t, position: Vec3::splat(t as f32), normal: Vec3::Y })
+            .collect();
+        let links = |entry: &dyn Fn(u32, u32) -> u32| -> Vec<NearLink> {
+            (0..40)
+                .flat_map(|t| (0..5).map(move |k| (t, k)))
+                .map(|(t, k)| NearLink { texel: t, entry: entry(t, k), factor: 0.25 * k as f32 })
+                .collect()
+        };
+        let small = links(&|t, k| t * 100 + k);
+        let together = links(&|t, k| 70_000 + t * 1_000 + 7 * k);
+        let apart = links(&|t, k| if k == 4 { 200_000 } else { t });
+        let mut sizes = Vec::new();
+        for (near, want) in [(&small, 2), (&together, 3), (&apart, 4)] {
+            let (width, size, back) = round_trip(near, &points);
+            assert_eq!(width, want);
+            assert_eq!(&back, near, "width {want}");
+            sizes.push(size);
+        }
+        // Width 3 pays 4 bytes a run (40 runs) against 2 a link (200 links) at width 4.
+        assert_eq!(sizes[1], sizes[0] + 40 * 4);
+        assert_eq!(sizes[2], sizes[0] + 200 * 2);
+        // A run's base plus its offset past u32: refused, not wrapped.
+        let mut bytes = Vec::new();
+        Writer::new(&mut bytes).near(&together, &points);
+        let base = 12 + 36 + 40 * NEAR_RUN_BYTES;
+        bytes[base..base + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(Reader::new(&bytes, 0).near(), Err(Corrupt(_))));
     }
 }
