@@ -44,6 +44,7 @@ pub mod metric;
 pub mod photometry;
 pub mod prm_file;
 pub mod rig;
+pub mod rooms;
 #[cfg(feature = "sampling")]
 pub mod sampling;
 pub mod scene;

@@ -190,6 +190,96 @@ impl<'a> Centres<'a> {
     }
 }
 
+/// k-means within each room (`room`: per entry, a room of `prm::rooms`; any ids), so that no
+/// cluster takes entries from both sides of a wall. The k clusters are shared out by the
+/// rooms' entry area (each room with entries gets at least one, and no more than it has
+/// entries), each room's clusters are [`cluster_entries`]' with L from its own area, and the
+/// clusters are numbered room after room in the order the rooms first appear. One room (or
+/// fewer clusters than rooms): exactly `cluster_entries` over all.
+pub fn cluster_by_room(
+    entries: &[Entry],
+    room: &[u32],
+    k: usize,
+    total_area: f64,
+    iterations: usize,
+    seed: u64,
+) -> Clustering {
+    let mut rooms: Vec<u32> = Vec::new();
+    let mut index = std::collections::HashMap::new();
+    let of: Vec<usize> = room
+        .iter()
+        .map(|&r| {
+            *index.entry(r).or_insert_with(|| {
+                rooms.push(r);
+                rooms.len() - 1
+            })
+        })
+        .collect();
+    let n = entries.len();
+    if rooms.len() <= 1 || k < rooms.len() || room.len() != n {
+        return cluster_entries(entries, k, total_area, iterations, seed);
+    }
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); rooms.len()];
+    let mut area = vec![0.0f64; rooms.len()];
+    for (e, &r) in of.iter().enumerate() {
+        members[r].push(e as u32);
+        area[r] += entries[e].area.max(0.0) as f64;
+    }
+    let whole: f64 = area.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    // One cluster each, then the rest one at a time to the room with the most area per
+    // cluster that still has entries to spare (ties to the first room).
+    let mut share = vec![1usize; rooms.len()];
+    let mut heap: std::collections::BinaryHeap<(OrdF64, std::cmp::Reverse<usize>)> = (0..rooms.len())
+        .filter(|&r| members[r].len() > 1)
+        .map(|r| (OrdF64(area[r]), std::cmp::Reverse(r)))
+        .collect();
+    let mut left = k.min(n) - rooms.len();
+    while left > 0 {
+        let Some((_, std::cmp::Reverse(r))) = heap.pop() else { break };
+        share[r] += 1;
+        left -= 1;
+        if share[r] < members[r].len() {
+            heap.push((OrdF64(area[r] / share[r] as f64), std::cmp::Reverse(r)));
+        }
+    }
+    let mut out = Clustering { assignment: vec![0; n], members: Vec::with_capacity(k) };
+    for (r, list) in members.iter().enumerate() {
+        let sub: Vec<Entry> = list.iter().map(|&e| entries[e as usize]).collect();
+        let room_area = total_area * area[r] / whole;
+        let c = cluster_entries(
+            &sub,
+            share[r],
+            room_area,
+            iterations,
+            seed ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
+        let base = out.members.len() as u32;
+        for (i, &e) in list.iter().enumerate() {
+            out.assignment[e as usize] = base + c.assignment[i];
+        }
+        out.members.extend(c.members.into_iter().map(|m| m.into_iter().map(|i| list[i as usize]).collect()));
+    }
+    out
+}
+
+/// An f64 ordered by `total_cmp` (for the shares' heap).
+#[derive(Clone, Copy, PartialEq)]
+struct OrdF64(f64);
+
+impl Eq for OrdF64 {}
+
+impl PartialOrd for OrdF64 {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrdF64 {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
 /// Cluster `entries` into `k` clusters (at most one per entry) with `iterations` Lloyd steps.
 pub fn cluster_entries(
     entries: &[Entry],
@@ -354,6 +444,74 @@ pub fn centroids(entries: &[Entry], clustering: &Clustering) -> Vec<Vec3> {
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    /// Entries on the floors and ceilings of two closed 6 x 3 x 8 m rooms a metre apart
+    /// (coplanar edges a metre apart: what made k-means join the sixteen chambers' neighbours),
+    /// and each entry's room from `prm::rooms`.
+    fn two_rooms() -> (Vec<Entry>, Vec<u32>) {
+        let mut corners = Vec::new();
+        let mut entries = Vec::new();
+        for x0 in [0.0f32, 7.0] {
+            let (lo, hi) = (Vec3::new(x0, 0.0, 0.0), Vec3::new(x0 + 6.0, 3.0, 8.0));
+            let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+            for q in [
+                [v(lo.x, lo.y, lo.z), v(hi.x, lo.y, lo.z), v(hi.x, lo.y, hi.z), v(lo.x, lo.y, hi.z)],
+                [v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)],
+                [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
+                [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
+                [v(lo.x, lo.y, lo.z), v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(lo.x, hi.y, lo.z)],
+                [v(lo.x, lo.y, hi.z), v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)],
+            ] {
+                corners.push([q[0], q[1], q[2]]);
+                corners.push([q[0], q[2], q[3]]);
+            }
+            for (y, n) in [(0.0, Vec3::Y), (3.0, -Vec3::Y)] {
+                for i in 0..12 {
+                    for k in 0..16 {
+                        let position = Vec3::new(x0 + 0.25 + 0.5 * i as f32, y, 0.25 + 0.5 * k as f32);
+                        entries.push(Entry {
+                            position,
+                            normal: n,
+                            albedo: Vec3::splat(0.5),
+                            area: 0.25,
+                            triangle: 0,
+                        });
+                    }
+                }
+            }
+        }
+        let rooms = prm::rooms::Rooms::new(&corners);
+        let room = entries.iter().map(|e| rooms.room_of(e.position, e.normal).unwrap()).collect();
+        (entries, room)
+    }
+
+    /// k-means alone joins the two rooms' floors at the metre between them; by room, no
+    /// cluster crosses, every cluster is used, the rooms share the clusters by area (equal
+    /// here), and with one room the clusters are exactly k-means'.
+    #[test]
+    fn clusters_keep_to_one_room() {
+        let (entries, room) = two_rooms();
+        let area = entries.iter().map(|e| e.area as f64).sum::<f64>();
+        assert_eq!(room.iter().collect::<std::collections::BTreeSet<_>>().len(), 2);
+        let side = |e: u32| entries[e as usize].position.x > 6.5;
+        let crossing =
+            |c: &Clustering| c.members.iter().filter(|m| m.iter().any(|&e| side(e) != side(m[0]))).count();
+        // The first even k at which k-means crosses the wall.
+        let k = (2..=24).step_by(2).find(|&k| crossing(&cluster_entries(&entries, k, area, 20, 3)) > 0);
+        let Some(k) = k else { panic!("the test wants k-means to cross the wall at some k") };
+        let plain = cluster_entries(&entries, k, area, 20, 3);
+        let by_room = cluster_by_room(&entries, &room, k, area, 20, 3);
+        assert_eq!(crossing(&by_room), 0);
+        assert_eq!(by_room.members.len(), k);
+        assert!(by_room.members.iter().all(|m| !m.is_empty()));
+        let left = by_room.members.iter().filter(|m| !side(m[0])).count();
+        assert_eq!(left, k / 2, "equal rooms, equal shares");
+        for (e, &c) in by_room.assignment.iter().enumerate() {
+            assert!(by_room.members[c as usize].contains(&(e as u32)));
+        }
+        let one = vec![7u32; entries.len()];
+        assert_eq!(cluster_by_room(&entries, &one, k, area, 20, 3), plain);
+    }
 
     /// Features over three far-apart rooms, many sharing a position (ties), some sharing the
     /// whole feature (exact ties, which go to the lower index).

@@ -270,6 +270,9 @@ pub struct Report {
     /// Entries dropped because they lie inside a solid and no point of their triangle tried
     /// outside it was free (the others are moved there).
     pub entries_enclosed: usize,
+    /// Rooms (connected free space, `prm::rooms`) the entries lie in: k-means keeps within
+    /// each. 0 when the clusters came from an update's cache.
+    pub rooms: usize,
     /// Near-field links (`crate::near`) and the seconds they took.
     pub near_links: usize,
     /// Links of the near field's echo.

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::{Phase, PrecomputeError, PrecomputeParams, Report};
 use crate::cells::{entry_cells, CellOwners, CellReport};
-use crate::cluster::{centroids, cluster_entries, Clustering};
+use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FirstBounce};
 use crate::near::{echo_links, near_links};
@@ -95,8 +95,11 @@ impl Preamble {
             Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
             None => {
                 let k = params.clusters as usize;
-                cluster_entries(
+                let room = entry_rooms(scene, &entries);
+                report.rooms = room.iter().collect::<std::collections::BTreeSet<_>>().len();
+                cluster_by_room(
                     &entries,
+                    &room,
                     k,
                     scene.total_area(),
                     params.kmeans_iterations as usize,
@@ -331,6 +334,22 @@ fn exact_first_bounce(
 }
 
 /// `f()`, with its run time in seconds added to `seconds`.
+/// Each entry's room (`prm::rooms`), so that clusters keep to one side of a wall. An entry with
+/// no free voxel in front of it takes the room of the nearest entry before it that has one
+/// (entries follow their triangles, so that is its neighbour), or after it.
+fn entry_rooms(scene: &Scene, entries: &[Entry]) -> Vec<u32> {
+    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+    let rooms = prm::rooms::Rooms::new(&corners);
+    let found: Vec<Option<u32>> = entries.par_iter().map(|e| rooms.room_of(e.position, e.normal)).collect();
+    let mut room = vec![0u32; entries.len()];
+    let mut last = found.iter().flatten().next().copied().unwrap_or(0);
+    for (r, f) in room.iter_mut().zip(&found) {
+        last = f.unwrap_or(last);
+        *r = last;
+    }
+    room
+}
+
 fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     let t = Instant::now();
     let out = f();

@@ -1,0 +1,257 @@
+//! Rooms: the connected parts of a level's free space (issue 13).
+//!
+//! k-means over entries (position and normal) knows nothing of walls: on 16 closed chambers a
+//! metre apart, the floors' and ceilings' edges of two neighbours lie in one plane a metre
+//! apart, and 98 of 4,096 clusters took entries from both. Such a cluster's pane is the
+//! response to light spread over both rooms, so it lights the dark neighbour through the wall
+//! (only the near field's deviation takes it back, and only near the cluster). Rooms let the
+//! clustering keep to one side of a wall.
+//!
+//! The level's surfaces are marked in a voxel grid (every voxel a surface passes through or
+//! comes within a quarter voxel of, from points sampled at most half a voxel apart), and the
+//! free voxels are labelled by 6-connected flood fill: a room is one component. A door wider
+//! than about two voxels joins the rooms on its two sides; a narrower one (or a level whose
+//! voxels had to grow past its doors) keeps them apart, which only restricts the clustering
+//! further. The grid has at most [`MAX_VOXELS`] voxels, cubes of at least [`MIN_SIDE`] of the
+//! level's diagonal. A point on a surface belongs to the room of the first free voxel along its
+//! normal.
+
+use glam::Vec3;
+
+/// Most voxels a grid has (the side grows for a larger level).
+pub const MAX_VOXELS: f64 = 1.0e6;
+
+/// Smallest voxel side, as a share of the level's diagonal.
+pub const MIN_SIDE: f32 = 1.0 / 1024.0;
+
+/// Label of a voxel a surface passes through.
+const SOLID: u32 = u32::MAX;
+
+/// The rooms of a level: a label per voxel.
+pub struct Rooms {
+    lo: Vec3,
+    side: f32,
+    dims: [usize; 3],
+    label: Vec<u32>,
+    count: u32,
+}
+
+impl Rooms {
+    /// The rooms of the level made of `triangles` (corner positions).
+    pub fn new(triangles: &[[Vec3; 3]]) -> Rooms {
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for t in triangles {
+            for &p in t {
+                if p.is_finite() {
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+        }
+        if !(lo.cmple(hi).all()) {
+            return Rooms { lo: Vec3::ZERO, side: 1.0, dims: [1, 1, 1], label: vec![0], count: 1 };
+        }
+        let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
+        let diagonal = extent.length().max(f32::MIN_POSITIVE);
+        // Side so that the grid (with a free voxel all round) holds at most MAX_VOXELS.
+        let volume = (extent + Vec3::splat(2.0 * MIN_SIDE * diagonal)).as_dvec3();
+        let side = ((volume.x * volume.y * volume.z / MAX_VOXELS).cbrt() as f32).max(MIN_SIDE * diagonal);
+        let lo = lo - Vec3::splat(side);
+        let dims = ((extent + Vec3::splat(2.0 * side)) / side).ceil().as_uvec3().max(glam::UVec3::ONE);
+        let dims = [dims.x as usize + 1, dims.y as usize + 1, dims.z as usize + 1];
+        let mut rooms = Rooms { lo, side, dims, label: vec![0; dims[0] * dims[1] * dims[2]], count: 0 };
+        for t in triangles {
+            rooms.mark(t);
+        }
+        rooms.flood();
+        rooms
+    }
+
+    /// How many rooms (free components, the outside included).
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// The room of a point on a surface with normal `n`: the first free voxel along `n` within
+    /// four voxels (None: none there, or a point outside the grid).
+    pub fn room_of(&self, p: Vec3, n: Vec3) -> Option<u32> {
+        let n = n.normalize_or_zero();
+        (1..=8).find_map(|k| self.free_at(p + n * (k as f32 * 0.5 * self.side)))
+    }
+
+    fn free_at(&self, p: Vec3) -> Option<u32> {
+        let v = self.voxel(p)?;
+        let l = self.label[v];
+        (l != SOLID).then_some(l)
+    }
+
+    fn voxel(&self, p: Vec3) -> Option<usize> {
+        let q = (p - self.lo) / self.side;
+        if !q.is_finite() || q.min_element() < 0.0 {
+            return None;
+        }
+        let [x, y, z] = [q.x as usize, q.y as usize, q.z as usize];
+        (x < self.dims[0] && y < self.dims[1] && z < self.dims[2])
+            .then(|| (z * self.dims[1] + y) * self.dims[0] + x)
+    }
+
+    /// Mark the voxels the triangle passes through or comes within a quarter voxel of.
+    fn mark(&mut self, t: &[Vec3; 3]) {
+        if !t.iter().all(|p| p.is_finite()) {
+            return;
+        }
+        let longest = (t[1] - t[0]).length().max((t[2] - t[1]).length()).max((t[0] - t[2]).length());
+        let steps = ((2.0 * longest / self.side).ceil() as usize).clamp(1, 1 << 14);
+        let reach = 0.25 * self.side;
+        for i in 0..=steps {
+            for j in 0..=steps - i {
+                let (a, b) = (i as f32 / steps as f32, j as f32 / steps as f32);
+                let p = t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b;
+                for corner in 0..8 {
+                    let d = Vec3::new(
+                        if corner & 1 == 0 { -reach } else { reach },
+                        if corner & 2 == 0 { -reach } else { reach },
+                        if corner & 4 == 0 { -reach } else { reach },
+                    );
+                    if let Some(v) = self.voxel(p + d) {
+                        self.label[v] = SOLID;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Label the free voxels by 6-connected component, in voxel order.
+    fn flood(&mut self) {
+        const UNSEEN: u32 = 0;
+        // Labels start at 1 while flooding (0 is unseen), then shift down.
+        let [nx, ny, nz] = self.dims;
+        let mut next = 1u32;
+        let mut stack = Vec::new();
+        for start in 0..self.label.len() {
+            if self.label[start] != UNSEEN {
+                continue;
+            }
+            self.label[start] = next;
+            stack.push(start);
+            while let Some(v) = stack.pop() {
+                let (x, y, z) = (v % nx, (v / nx) % ny, v / (nx * ny));
+                let mut visit = |w: usize, label: &mut Vec<u32>| {
+                    if label[w] == UNSEEN {
+                        label[w] = next;
+                        stack.push(w);
+                    }
+                };
+                if x > 0 {
+                    visit(v - 1, &mut self.label);
+                }
+                if x + 1 < nx {
+                    visit(v + 1, &mut self.label);
+                }
+                if y > 0 {
+                    visit(v - nx, &mut self.label);
+                }
+                if y + 1 < ny {
+                    visit(v + nx, &mut self.label);
+                }
+                if z > 0 {
+                    visit(v - nx * ny, &mut self.label);
+                }
+                if z + 1 < nz {
+                    visit(v + nx * ny, &mut self.label);
+                }
+            }
+            next += 1;
+        }
+        for l in &mut self.label {
+            if *l != SOLID {
+                *l -= 1;
+            }
+        }
+        self.count = next - 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The six inward faces of a box as triangles, with a square hole of side `door` (0: none)
+    /// in the middle of its +x wall.
+    fn closed_box(lo: Vec3, hi: Vec3, door: f32) -> Vec<[Vec3; 3]> {
+        let mut out = Vec::new();
+        let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
+            out.push([a, b, c]);
+            out.push([a, c, d]);
+        };
+        let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+        let (l, h) = (lo, hi);
+        quad(v(l.x, l.y, l.z), v(h.x, l.y, l.z), v(h.x, l.y, h.z), v(l.x, l.y, h.z));
+        quad(v(l.x, h.y, l.z), v(l.x, h.y, h.z), v(h.x, h.y, h.z), v(h.x, h.y, l.z));
+        quad(v(l.x, l.y, l.z), v(l.x, l.y, h.z), v(l.x, h.y, h.z), v(l.x, h.y, l.z));
+        quad(v(l.x, l.y, l.z), v(l.x, h.y, l.z), v(h.x, h.y, l.z), v(h.x, l.y, l.z));
+        quad(v(l.x, l.y, h.z), v(h.x, l.y, h.z), v(h.x, h.y, h.z), v(l.x, h.y, h.z));
+        // The +x wall, around a door (a hole from the floor up).
+        let (zm, d) = (0.5 * (l.z + h.z), 0.5 * door);
+        let top = l.y + door.min(h.y - l.y);
+        if door > 0.0 {
+            quad(v(h.x, l.y, l.z), v(h.x, h.y, l.z), v(h.x, h.y, zm - d), v(h.x, l.y, zm - d));
+            quad(v(h.x, l.y, zm + d), v(h.x, h.y, zm + d), v(h.x, h.y, h.z), v(h.x, l.y, h.z));
+            quad(v(h.x, top, zm - d), v(h.x, h.y, zm - d), v(h.x, h.y, zm + d), v(h.x, top, zm + d));
+        } else {
+            quad(v(h.x, l.y, l.z), v(h.x, h.y, l.z), v(h.x, h.y, h.z), v(h.x, l.y, h.z));
+        }
+        out
+    }
+
+    /// Two closed boxes a metre apart are two rooms (and the outside a third); the same boxes
+    /// joined by a 1.5 m door through a corridor are one. A point on a floor is in its box's
+    /// room; on the outside of a wall, in the outside's.
+    #[test]
+    fn walls_part_rooms_and_doors_join_them() {
+        let a = closed_box(Vec3::ZERO, Vec3::new(6.0, 3.0, 8.0), 0.0);
+        let b = closed_box(Vec3::new(7.0, 0.0, 0.0), Vec3::new(13.0, 3.0, 8.0), 0.0);
+        let rooms = Rooms::new(&[a.clone(), b.clone()].concat());
+        let up = Vec3::Y;
+        let (ra, rb) =
+            (rooms.room_of(Vec3::new(5.9, 0.0, 4.0), up), rooms.room_of(Vec3::new(7.1, 0.0, 4.0), up));
+        let outside = rooms.room_of(Vec3::new(6.0, 1.5, 4.0), Vec3::X);
+        assert!(ra.is_some() && rb.is_some() && outside.is_some());
+        assert!(ra != rb && ra != outside && rb != outside, "{ra:?} {rb:?} {outside:?}");
+        assert_eq!(rooms.room_of(Vec3::new(1.0, 3.0, 1.0), -up), ra, "the ceiling faces into its room");
+
+        // A 1.5 m door in each box's facing wall (the second box is the first's mirror image)
+        // and a corridor between them without end walls: one room.
+        let a = closed_box(Vec3::ZERO, Vec3::new(6.0, 3.0, 8.0), 1.5);
+        let b: Vec<[Vec3; 3]> = closed_box(Vec3::new(7.0, 0.0, 0.0), Vec3::new(13.0, 3.0, 8.0), 1.5)
+            .into_iter()
+            .map(|t| t.map(|p| Vec3::new(20.0 - p.x, p.y, p.z)))
+            .collect();
+        let corridor: Vec<[Vec3; 3]> = closed_box(Vec3::new(6.0, 0.0, 3.25), Vec3::new(7.0, 1.5, 4.75), 0.0)
+            .into_iter()
+            .filter(|t| !(t.iter().all(|p| p.x == 6.0) || t.iter().all(|p| p.x == 7.0)))
+            .collect();
+        let shut = Rooms::new(&[a.clone(), b.clone()].concat());
+        let (ra, rb) =
+            (shut.room_of(Vec3::new(1.0, 0.0, 4.0), up), shut.room_of(Vec3::new(12.0, 0.0, 4.0), up));
+        assert_eq!(ra, rb, "doors into the open gap: both boxes open onto the outside");
+        let rooms = Rooms::new(&[a, b, corridor].concat());
+        let (ra, rb) =
+            (rooms.room_of(Vec3::new(1.0, 0.0, 4.0), up), rooms.room_of(Vec3::new(12.0, 0.0, 4.0), up));
+        assert!(ra.is_some());
+        assert_eq!(ra, rb, "the door joins the two rooms");
+        assert_ne!(
+            ra,
+            rooms.room_of(Vec3::new(6.5, 3.0, 1.0), up),
+            "the corridor keeps them from the outside"
+        );
+    }
+
+    /// Non-finite corners and an empty level give one room, never a panic.
+    #[test]
+    fn degenerate_levels_are_one_room() {
+        assert_eq!(Rooms::new(&[]).count(), 1);
+        let nan = [[Vec3::NAN, Vec3::ZERO, Vec3::X]];
+        assert!(Rooms::new(&nan).count() >= 1);
+    }
+}
