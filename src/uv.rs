@@ -54,7 +54,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> 
             crate::zones::ZONE_AREA.min(0.2 * (page_size as f64 * texel_size as f64).powi(2))
         }
     };
-    let zone = crate::zones::zones(&corners, zone_area);
+    let (zone, room_of_zone) = crate::zones::zones_in_rooms(&corners, zone_area);
     let zone_count = zone.iter().map(|&z| z as usize + 1).max().unwrap_or(0);
     // Each zone as one mesh: its vertices are (primitive, vertex) pairs.
     let mut meshes = vec![ZoneMesh::default(); zone_count];
@@ -88,7 +88,7 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> 
         rects.push(ZoneRect { page: r.page, min: r.min, max: r.max });
     }
     if let UnwrapLayout::Pages { .. } = layout {
-        pages.pages = shelve(&mut rects, pages.side, PADDING)?;
+        pages.pages = shelve(&mut rects, &room_of_zone, pages.side, PADDING)?;
     }
     // Rebuild each primitive, its triangles in their order, from the zones' output vertices.
     let mut rebuilt: Vec<Rebuilt> = prims.iter().map(|_| Rebuilt::default()).collect();
@@ -126,8 +126,8 @@ pub fn unwrap_primitives(prims: &mut [UnwrapPrim<'_>], layout: UnwrapLayout) -> 
 const PADDING: u32 = 2;
 
 #[cfg(feature = "unwrap")]
-/// Rows a shelf of zones starts on a multiple of: the precompute's default tile side, so that
-/// two shelves never share a pane tile.
+/// Rows a shelf of zones, and columns a room's first zone, start on a multiple of: the
+/// precompute's default tile side, so that two shelves, or two rooms, never share a pane tile.
 const SHELF_ROWS: u32 = 16;
 
 #[cfg(feature = "unwrap")]
@@ -147,12 +147,18 @@ struct ZoneRect {
 /// tiles for each. The zones' order is the k-d split's (`crate::zones`), so zones next in the
 /// order are next to each other in the level: laid left to right on shelves in that order, a
 /// room's zones are a run of one or two shelves. Each rectangle moves by whole texels (its
-/// charts' rasterisation is unchanged), keeps `pad` texels of its own all round, and each shelf
-/// starts on a multiple of [`SHELF_ROWS`] rows. Returns the pages used.
-fn shelve(rects: &mut [ZoneRect], side: u32, pad: u32) -> Result<u32, UnwrapError> {
+/// charts' rasterisation is unchanged), keeps `pad` texels of its own all round, each shelf
+/// starts on a multiple of [`SHELF_ROWS`] rows, and the first zone of each room (`room`, per
+/// zone: `crate::zones::zones_in_rooms`) on a multiple of as many columns. Returns the pages
+/// used.
+fn shelve(rects: &mut [ZoneRect], room: &[u32], side: u32, pad: u32) -> Result<u32, UnwrapError> {
     let s = side as f32;
     let (mut page, mut x, mut y, mut shelf) = (0u32, 0u32, 0u32, 0u32);
-    for r in rects.iter_mut() {
+    for (k, r) in rects.iter_mut().enumerate() {
+        // A room's first zone starts on a tile column: two rooms never share a tile.
+        if k > 0 && room.get(k) != room.get(k - 1) {
+            x = x.next_multiple_of(SHELF_ROWS);
+        }
         // The rectangle's texels with its padding, and where that starts now.
         let size = [0, 1].map(|a| ((r.max[a] - r.min[a]) * s).ceil() as u32 + 2 * pad);
         let from = [0, 1].map(|a| (r.min[a] * s).round() as i64 - pad as i64);
@@ -472,7 +478,8 @@ mod tests {
             })
             .collect();
         let before: Vec<[f32; 2]> = rects.iter().map(|r| r.min).collect();
-        let pages = shelve(&mut rects, side, PADDING).unwrap();
+        let room: Vec<u32> = (0..40).map(|k| k / 7).collect();
+        let pages = shelve(&mut rects, &room, side, PADDING).unwrap();
         assert!(pages >= 2, "40 zones of this size need more than one 256^2 page: {pages}");
         let texels = |v: f32| v * s;
         let mut boxes = Vec::new();
@@ -505,7 +512,13 @@ mod tests {
         // In order: along a shelf left to right, shelves down the page, pages one after another.
         for (k, w) in boxes.windows(2).enumerate() {
             let (a, b) = (w[0], w[1]);
-            let next_on_shelf = a.0 == b.0 && (b.2 - a.2).abs() < 1e-3 && (b.1 - a.3).abs() < 1e-3;
+            // Within a room, right after the last; a new room from the next tile column.
+            let at = if room[k + 1] == room[k] {
+                a.3
+            } else {
+                (a.3.round() as u32).next_multiple_of(SHELF_ROWS) as f32
+            };
+            let next_on_shelf = a.0 == b.0 && (b.2 - a.2).abs() < 1e-3 && (b.1 - at).abs() < 1e-3;
             let next_shelf =
                 a.0 == b.0 && b.2 > a.2 && b.1.abs() < 1e-3 && (b.2.round() as u32) % SHELF_ROWS == 0;
             let next_page = b.0 == a.0 + 1 && b.1.abs() < 1e-3 && b.2.abs() < 1e-3;
@@ -517,7 +530,7 @@ mod tests {
         }
         // A zone larger than a page is refused with its size.
         let mut big = vec![ZoneRect { page: 0, min: [0.0, 0.0], max: [1.0, 0.5] }];
-        let e = shelve(&mut big, side, PADDING).unwrap_err();
+        let e = shelve(&mut big, &[0], side, PADDING).unwrap_err();
         assert!(format!("{e}").contains("does not fit"), "{e}");
     }
 

@@ -8,8 +8,10 @@
 //! zone stays together in the atlas.
 //!
 //! Zones are made of patches: triangles joined across shared edges (equal endpoint positions)
-//! and lying in one plane, so a flat quad is never cut along its diagonal. Patches are split
-//! by a k-d tree: along the longest axis of their centroids, at the widest gap between
+//! and lying in one plane, so a flat quad is never cut along its diagonal. Patches are first
+//! parted by the room they face into ([`crate::rooms`]: most of the patch's area), so no zone
+//! holds both sides of a wall between two rooms, and zones are numbered room after room (in
+//! the order of the rooms' first patches). Each room's patches are then split by a k-d tree: along the longest axis of their centroids, at the widest gap between
 //! centroids within the middle half of the area, until a zone's area is at most [`ZONE_AREA`]
 //! or it is a single patch.
 
@@ -27,6 +29,12 @@ pub type Corners = [Vec3; 3];
 
 /// Zone index per triangle (dense, from 0), for triangles given as corner positions.
 pub fn zones(triangles: &[Corners], max_area: f64) -> Vec<u32> {
+    zones_in_rooms(triangles, max_area).0
+}
+
+/// [`zones`], and per zone the room its patches face into (dense, from 0, in the zones'
+/// order: the zones of a room are consecutive).
+pub fn zones_in_rooms(triangles: &[Corners], max_area: f64) -> (Vec<u32>, Vec<u32>) {
     let patch = patches(triangles);
     let count = patch.iter().map(|&p| p as usize + 1).max().unwrap_or(0);
     let mut area = vec![0.0f64; count];
@@ -44,10 +52,68 @@ pub fn zones(triangles: &[Corners], max_area: f64) -> Vec<u32> {
             centroid: if area[p] > 0.0 { centroid[p] / area[p] } else { glam::DVec3::ZERO },
         })
         .collect();
+    // Each patch's room (the one most of its area faces into), rooms in order of first patch.
+    let rooms = crate::rooms::Rooms::new(triangles);
+    let mut facing: Vec<Vec<(u32, f64)>> = vec![Vec::new(); count];
+    for (t, c) in triangles.iter().enumerate() {
+        let n = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero();
+        if let Some(r) = rooms.room_of((c[0] + c[1] + c[2]) / 3.0, n) {
+            let f = &mut facing[patch[t] as usize];
+            match f.iter_mut().find(|(q, _)| *q == r) {
+                Some(e) => e.1 += tri_area(c),
+                None => f.push((r, tri_area(c))),
+            }
+        }
+    }
+    let mut room_of: Vec<u32> = facing
+        .iter()
+        .map(|f| f.iter().fold((u32::MAX, -1.0), |b, &(r, a)| if a > b.1 { (r, a) } else { b }).0)
+        .collect();
+    // A patch with no free voxel in front of it (a face of a small solid, wound the other way,
+    // or in a gap narrower than a voxel) or facing into a room of under 1 % of the largest's
+    // surface (the inside of a hollow object) takes the room of the nearest patch in a larger
+    // room: left as they are, such patches from every room would share zones.
+    let mut room_area: std::collections::HashMap<u32, f64> = std::collections::HashMap::new();
+    for (p, &r) in room_of.iter().enumerate() {
+        *room_area.entry(r).or_default() += area[p];
+    }
+    room_area.remove(&u32::MAX);
+    let largest = room_area.values().fold(0.0f64, |a, &b| a.max(b));
+    let settled = |r: u32| room_area.get(&r).is_some_and(|&a| a >= 0.01 * largest);
+    let anchors: Vec<usize> = (0..count).filter(|&p| settled(room_of[p])).collect();
+    if !anchors.is_empty() {
+        let moved: Vec<(usize, u32)> = (0..count)
+            .filter(|&p| !settled(room_of[p]))
+            .map(|p| {
+                let c = patches[p].centroid;
+                let near = anchors.iter().min_by(|&&a, &&b| {
+                    c.distance_squared(patches[a].centroid)
+                        .total_cmp(&c.distance_squared(patches[b].centroid))
+                });
+                (p, near.map_or(u32::MAX, |&a| room_of[a]))
+            })
+            .collect();
+        for (p, r) in moved {
+            room_of[p] = r;
+        }
+    }
+    let mut slot = std::collections::HashMap::new();
+    let mut by_room: Vec<Vec<Patch>> = Vec::new();
+    for (p, patch) in patches.into_iter().enumerate() {
+        let k = *slot.entry(room_of[p]).or_insert_with(|| {
+            by_room.push(Vec::new());
+            by_room.len() - 1
+        });
+        by_room[k].push(patch);
+    }
     let mut zone_of_patch = vec![0u32; count];
     let mut next = 0u32;
-    split(patches, max_area, &mut zone_of_patch, &mut next);
-    patch.iter().map(|&p| zone_of_patch[p as usize]).collect()
+    let mut room_of_zone = Vec::new();
+    for (r, set) in by_room.into_iter().enumerate() {
+        split(set, max_area, &mut zone_of_patch, &mut next);
+        room_of_zone.resize(next as usize, r as u32);
+    }
+    (patch.iter().map(|&p| zone_of_patch[p as usize]).collect(), room_of_zone)
 }
 
 struct Patch {
@@ -149,6 +215,50 @@ mod tests {
         let t = floor(4, 4);
         assert!(patches(&t).iter().all(|&p| p == 0));
         assert!(zones(&t, 100.0).iter().all(|&z| z == 0));
+    }
+
+    /// The six inward faces of a closed box, each a grid of unit quads (one patch a face).
+    fn closed_box(lo: Vec3, size: [usize; 3]) -> Vec<Corners> {
+        let mut t = Vec::new();
+        let [sx, sy, sz] = size;
+        // (origin, u, v, u count, v count) for each face, u x v pointing inwards.
+        let faces = [
+            (Vec3::ZERO, Vec3::Z, Vec3::X, sz, sx),
+            (Vec3::new(0.0, sy as f32, 0.0), Vec3::X, Vec3::Z, sx, sz),
+            (Vec3::ZERO, Vec3::Y, Vec3::Z, sy, sz),
+            (Vec3::new(sx as f32, 0.0, 0.0), Vec3::Z, Vec3::Y, sz, sy),
+            (Vec3::ZERO, Vec3::X, Vec3::Y, sx, sy),
+            (Vec3::new(0.0, 0.0, sz as f32), Vec3::Y, Vec3::X, sy, sx),
+        ];
+        for (o, u, v, nu, nv) in faces {
+            for j in 0..nv {
+                for i in 0..nu {
+                    let p = |a: usize, b: usize| lo + o + u * a as f32 + v * b as f32;
+                    t.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+                    t.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+                }
+            }
+        }
+        t
+    }
+
+    /// Two closed rooms a metre apart, cut into zones much smaller than a room: no zone holds
+    /// faces of both, and the first room's zones come first.
+    #[test]
+    fn no_zone_holds_both_sides_of_a_wall() {
+        let a = closed_box(Vec3::ZERO, [6, 3, 8]);
+        let b = closed_box(Vec3::new(7.0, 0.0, 0.0), [6, 3, 8]);
+        let n = a.len();
+        let (z, rooms) = zones_in_rooms(&[a, b].concat(), 20.0);
+        let last_a = *z[..n].iter().max().unwrap();
+        let first_b = *z[n..].iter().min().unwrap();
+        assert!(last_a < first_b, "zones {last_a} and {first_b}");
+        assert_eq!(rooms.len(), *z.iter().max().unwrap() as usize + 1);
+        assert!(
+            rooms[..=last_a as usize].iter().all(|&r| r == 0)
+                && rooms[first_b as usize..].iter().all(|&r| r == 1)
+        );
+        assert!(last_a >= 4, "a room cut into several zones: {}", last_a + 1);
     }
 
     #[test]
