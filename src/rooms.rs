@@ -12,14 +12,19 @@
 //! free voxels are labelled by 6-connected flood fill: a room is one component. A door wider
 //! than about two voxels joins the rooms on its two sides; a narrower one (or a level whose
 //! voxels had to grow past its doors) keeps them apart, which only restricts the clustering
-//! further. The grid has at most [`MAX_VOXELS`] voxels, cubes of at least [`MIN_SIDE`] of the
-//! level's diagonal. A point on a surface belongs to the room of the first free voxel along its
+//! further. The grid has at most [`MAX_VOXELS`] voxels, cubes of at least [`MIN_METRES`] (glTF
+//! units are metres) and [`MIN_SIDE`] of the level's diagonal: 0.1 m on the chamber, 0.2 m on
+//! 16 chambers, so openings under about 0.4 m may part rooms there; a level of 100 chambers
+//! gets about 0.45 m. A point on a surface belongs to the room of the first free voxel along its
 //! normal.
 
 use glam::Vec3;
 
 /// Most voxels a grid has (the side grows for a larger level).
-pub const MAX_VOXELS: f64 = 1.0e6;
+pub const MAX_VOXELS: f64 = 4.0e6;
+
+/// Smallest voxel side in metres: finer buys nothing for rooms and costs time on small levels.
+pub const MIN_METRES: f32 = 0.1;
 
 /// Smallest voxel side, as a share of the level's diagonal.
 pub const MIN_SIDE: f32 = 1.0 / 1024.0;
@@ -55,7 +60,9 @@ impl Rooms {
         let diagonal = extent.length().max(f32::MIN_POSITIVE);
         // Side so that the grid (with a free voxel all round) holds at most MAX_VOXELS.
         let volume = (extent + Vec3::splat(2.0 * MIN_SIDE * diagonal)).as_dvec3();
-        let side = ((volume.x * volume.y * volume.z / MAX_VOXELS).cbrt() as f32).max(MIN_SIDE * diagonal);
+        let side = ((volume.x * volume.y * volume.z / MAX_VOXELS).cbrt() as f32)
+            .max(MIN_SIDE * diagonal)
+            .max(MIN_METRES);
         let lo = lo - Vec3::splat(side);
         let dims = ((extent + Vec3::splat(2.0 * side)) / side).ceil().as_uvec3().max(glam::UVec3::ONE);
         let dims = [dims.x as usize + 1, dims.y as usize + 1, dims.z as usize + 1];
@@ -65,6 +72,11 @@ impl Rooms {
         }
         rooms.flood();
         rooms
+    }
+
+    /// The voxels' side (scene units).
+    pub fn voxel_side(&self) -> f32 {
+        self.side
     }
 
     /// How many rooms (free components, the outside included).
@@ -214,7 +226,7 @@ mod tests {
         let rooms = Rooms::new(&[a.clone(), b.clone()].concat());
         let up = Vec3::Y;
         let (ra, rb) =
-            (rooms.room_of(Vec3::new(5.9, 0.0, 4.0), up), rooms.room_of(Vec3::new(7.1, 0.0, 4.0), up));
+            (rooms.room_of(Vec3::new(5.5, 0.0, 4.0), up), rooms.room_of(Vec3::new(7.5, 0.0, 4.0), up));
         let outside = rooms.room_of(Vec3::new(6.0, 1.5, 4.0), Vec3::X);
         assert!(ra.is_some() && rb.is_some() && outside.is_some());
         assert!(ra != rb && ra != outside && rb != outside, "{ra:?} {rb:?} {outside:?}");

@@ -56,13 +56,16 @@ const MIN_NORMAL_DOT: f32 = 0.5;
 /// The far field for these entries: visibility bits between the pairs within `radius` of each
 /// other that could exchange light, each covered texel's neighbours, and each entry's energy
 /// (`far_energy`, counting only what lands within `radius`). `reach` and `radius` are in scene
-/// units; `cell` is each entry's cell centroid and area.
+/// units; `cell` is each entry's cell centroid and area; `room` each entry's room
+/// (`prm::rooms`; empty: not known): two blocks of entries whose rooms all differ exchange
+/// no light and are not traced.
 #[allow(clippy::too_many_arguments)]
 pub fn far_field(
     scene: &Scene,
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
+    room: &[u32],
     cell: &[(Vec3, f32)],
     reach: f32,
     radius: f32,
@@ -78,7 +81,7 @@ pub fn far_field(
         return Far::default();
     }
     let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed);
-    let (block_first, pair_block, visible) = pair_visibility(bvh, entries, radius);
+    let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius);
     Far { reach, radius, block_first, pair_block, visible, texels, energy }
 }
 
@@ -161,7 +164,12 @@ fn far_energy(
 /// away (a texel near either may face the other even where its entry only grazes it). A pair of
 /// blocks is kept when any of its bits is set. Each pair of entries is traced once (from the
 /// lower block, or the lower entry within a block) and its bit set both ways.
-fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+fn pair_visibility(
+    bvh: &Bvh,
+    entries: &[Entry],
+    room: &[u32],
+    radius: f32,
+) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
     const B: usize = Far::BLOCK;
     let n = entries.len();
     let spacing = entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt());
@@ -184,6 +192,22 @@ fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<
             })
         })
         .collect();
+    // Each block's rooms, ascending (None: not known, so it may see any).
+    let rooms: Vec<Option<Vec<u32>>> = (0..blocks)
+        .map(|a| {
+            let mut r = room.get(members(a))?.to_vec();
+            r.sort_unstable();
+            r.dedup();
+            Some(r)
+        })
+        .collect();
+    // Free space joins no room to another: blocks whose rooms are known and all differ see
+    // nothing of each other (the 16 chambers' neighbours a metre apart were traced ray by ray
+    // through their walls: 33x the one chamber's pair time).
+    let apart = |a: usize, b: usize| match (&rooms[a], &rooms[b]) {
+        (Some(x), Some(y)) => !x.iter().any(|r| y.binary_search(r).is_ok()),
+        _ => false,
+    };
     // Gap between two boxes: no pair of their entries is closer.
     let gap = |a: usize, b: usize| {
         let ((la, ha), (lb, hb)) = (bounds[a], bounds[b]);
@@ -213,7 +237,7 @@ fn pair_visibility(bvh: &Bvh, entries: &[Entry], radius: f32) -> (Vec<u32>, Vec<
         .map(|a| {
             let mut kept = Vec::new();
             for b in a..blocks {
-                if gap(a, b) > radius {
+                if gap(a, b) > radius || apart(a, b) {
                     continue;
                 }
                 if gap(a, b) > PROBE_GAP * spacing && !probe(a, b) {
@@ -551,7 +575,7 @@ mod tests {
             entry(Vec3::new(1.0, 3.0, 0.0), Vec3::NEG_X),
             entry(Vec3::new(3.0, 3.0, 0.0), Vec3::X),
         ];
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, 100.0);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0);
         let far = Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() };
         let n = entries.len();
         let open = [(2, 3), (0, 3), (1, 2)];
@@ -563,7 +587,7 @@ mod tests {
             }
         }
         // Within a radius of 3, the open pairs 2.2 and 3.2 apart (entries 0-3 and 1-2) go.
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, 3.0);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 3.0);
         let near = Far { radius: 3.0, block_first, pair_block, visible, ..Far::default() };
         assert!(near.sees(2, 3) && near.sees(3, 2) && !near.sees(0, 3) && !near.sees(1, 2));
     }
@@ -585,7 +609,7 @@ mod tests {
             })
             .collect();
         let radius = 6.0;
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, radius);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], radius);
         let far = Far { radius, block_first, pair_block, visible, ..Far::default() };
         for i in 0..entries.len() {
             for j in 0..entries.len() {
@@ -603,6 +627,48 @@ mod tests {
         // Blocks 0 (z 0 .. 12.4) and 3 (z 38.4 .. 39.6) are 26 apart: not kept.
         assert_eq!((far.pair(0, 3), far.pair(3, 0)), (None, None));
         assert!(far.pair(0, 1).is_some() && far.pair(1, 0).is_some());
+    }
+
+    /// Two rows of 64 entries facing each other 2 m apart (within the probe gap, so traced
+    /// ray by ray), in rooms 0 and 1: no bit across, every bit within a row as without rooms;
+    /// with the second row's third block in both rooms, that block is traced as before.
+    #[test]
+    fn blocks_in_different_rooms_are_not_traced() {
+        let pos = vec![Vec3::new(50.0, 0.0, 0.0), Vec3::new(50.0, 1.0, 0.0), Vec3::new(50.0, 0.0, 1.0)];
+        let scene = Scene::from_mesh(pos, vec![glam::Vec2::ZERO; 3], &[0, 1, 2]);
+        let bvh = Bvh::build(&scene);
+        let entries: Vec<Entry> = (0..128)
+            .map(|k| {
+                let (x, n) = if k < 64 { (-1.0, Vec3::X) } else { (1.0, Vec3::NEG_X) };
+                entry(Vec3::new(x, 0.1 * (k % 64) as f32, 0.1 * (k % 3) as f32), n)
+            })
+            .collect();
+        let far_of = |room: &[u32]| {
+            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, room, 100.0);
+            Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() }
+        };
+        let open = far_of(&[]);
+        let rooms: Vec<u32> = (0..128).map(|k| (k >= 64) as u32).collect();
+        let parted = far_of(&rooms);
+        let mut both = rooms.clone();
+        both[70] = 0;
+        let half = far_of(&both);
+        let mut across = 0;
+        for i in 0..128 {
+            for j in 0..128 {
+                if (i < 64) == (j < 64) {
+                    assert_eq!(parted.sees(i, j), open.sees(i, j), "pair {i} {j}");
+                } else {
+                    across += open.sees(i, j) as usize;
+                    assert!(!parted.sees(i, j), "pair {i} {j} across rooms");
+                    assert_eq!(
+                        half.sees(i, j),
+                        open.sees(i, j) && (i >= 64 || j >= 64) && (i.max(j) / 32 == 2)
+                    );
+                }
+            }
+        }
+        assert!(across > 1000, "the rows see each other without rooms: {across}");
     }
 
     /// Two rows of 64 entries 10 m apart facing each other (blocks far past the probe gap),
@@ -636,7 +702,7 @@ mod tests {
             let idx: Vec<u32> = (0..pos.len() as u32).collect();
             let scene = Scene::from_mesh(pos, uv, &idx);
             let bvh = Bvh::build(&scene);
-            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, 100.0);
+            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0);
             let far = Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() };
             let mut across = 0;
             for i in 0..64 {

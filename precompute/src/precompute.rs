@@ -273,6 +273,9 @@ pub struct Report {
     /// Rooms (connected free space, `prm::rooms`) the entries lie in: k-means keeps within
     /// each. 0 when the clusters came from an update's cache.
     pub rooms: usize,
+    /// The side of the voxels the rooms were found in (scene units): openings narrower than
+    /// about two of them may part rooms, and the far field does not trace between rooms.
+    pub room_voxel: f32,
     /// Near-field links (`crate::near`) and the seconds they took.
     pub near_links: usize,
     /// Links of the near field's echo.

@@ -91,11 +91,14 @@ impl Preamble {
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
 
+        // Each entry's room; one with no free voxel in front of it takes its neighbour's.
+        let (found, side) = timed(&mut report.seconds_clustering, || entry_rooms(scene, &entries));
+        let room = filled_rooms(&found);
+        report.room_voxel = side;
         let clustering = timed(&mut report.seconds_clustering, || match cache {
             Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
             None => {
                 let k = params.clusters as usize;
-                let room = entry_rooms(scene, &entries);
                 report.rooms = room.iter().collect::<std::collections::BTreeSet<_>>().len();
                 cluster_by_room(
                     &entries,
@@ -126,7 +129,7 @@ impl Preamble {
             if params.far_field {
                 let reach = params.near_radius * spacing;
                 let radius = params.far_radius * spacing;
-                far_field(scene, bvh, &set, &entries, &cell, reach, radius, params.seed)
+                far_field(scene, bvh, &set, &entries, &room, &cell, reach, radius, params.seed)
             } else {
                 Far::default()
             }
@@ -333,23 +336,29 @@ fn exact_first_bounce(
     out
 }
 
-/// `f()`, with its run time in seconds added to `seconds`.
-/// Each entry's room (`prm::rooms`), so that clusters keep to one side of a wall. An entry with
-/// no free voxel in front of it takes the room of the nearest entry before it that has one
-/// (entries follow their triangles, so that is its neighbour), or after it.
-fn entry_rooms(scene: &Scene, entries: &[Entry]) -> Vec<u32> {
+/// Each entry's room (`prm::rooms`): the clusters keep to one room, and the far field does not
+/// trace between blocks of entries in different rooms. None: no free voxel in front of it.
+/// Also the voxels' side.
+fn entry_rooms(scene: &Scene, entries: &[Entry]) -> (Vec<Option<u32>>, f32) {
     let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
     let rooms = prm::rooms::Rooms::new(&corners);
-    let found: Vec<Option<u32>> = entries.par_iter().map(|e| rooms.room_of(e.position, e.normal)).collect();
-    let mut room = vec![0u32; entries.len()];
-    let mut last = found.iter().flatten().next().copied().unwrap_or(0);
-    for (r, f) in room.iter_mut().zip(&found) {
-        last = f.unwrap_or(last);
-        *r = last;
-    }
-    room
+    (entries.par_iter().map(|e| rooms.room_of(e.position, e.normal)).collect(), rooms.voxel_side())
 }
 
+/// The rooms with each entry that has none given the room of the nearest entry before it that
+/// has one (entries follow their triangles, so that is its neighbour), or after it.
+fn filled_rooms(found: &[Option<u32>]) -> Vec<u32> {
+    let mut last = found.iter().flatten().next().copied().unwrap_or(0);
+    found
+        .iter()
+        .map(|f| {
+            last = f.unwrap_or(last);
+            last
+        })
+        .collect()
+}
+
+/// `f()`, with its run time in seconds added to `seconds`.
 fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     let t = Instant::now();
     let out = f();
