@@ -11,9 +11,10 @@
 //! and lying in one plane, so a flat quad is never cut along its diagonal. Patches are first
 //! parted by the room they face into ([`crate::rooms`]: most of the patch's area), so no zone
 //! holds both sides of a wall between two rooms, and zones are numbered room after room (in
-//! the order of the rooms' first patches). Each room's patches are then split by a k-d tree: along the longest axis of their centroids, at the widest gap between
-//! centroids within the middle half of the area, until a zone's area is at most [`ZONE_AREA`]
-//! or it is a single patch.
+//! the order of the rooms' first patches). Each room's patches are then split by a k-d tree:
+//! along the longest axis of their centroids, at the widest gap between centroids within the
+//! middle half of the area, until a zone's area is at most [`ZONE_AREA`] or it is a single
+//! patch.
 
 use glam::Vec3;
 
@@ -52,7 +53,33 @@ pub fn zones_in_rooms(triangles: &[Corners], max_area: f64) -> (Vec<u32>, Vec<u3
             centroid: if area[p] > 0.0 { centroid[p] / area[p] } else { glam::DVec3::ZERO },
         })
         .collect();
-    // Each patch's room (the one most of its area faces into), rooms in order of first patch.
+    let room_of = patch_rooms(triangles, &patch, &patches);
+    let mut slot = std::collections::HashMap::new();
+    let mut by_room: Vec<Vec<Patch>> = Vec::new();
+    for (p, patch) in patches.into_iter().enumerate() {
+        let k = *slot.entry(room_of[p]).or_insert_with(|| {
+            by_room.push(Vec::new());
+            by_room.len() - 1
+        });
+        by_room[k].push(patch);
+    }
+    let mut zone_of_patch = vec![0u32; count];
+    let mut next = 0u32;
+    let mut room_of_zone = Vec::new();
+    for (r, set) in by_room.into_iter().enumerate() {
+        split(set, max_area, &mut zone_of_patch, &mut next);
+        room_of_zone.resize(next as usize, r as u32);
+    }
+    (patch.iter().map(|&p| zone_of_patch[p as usize]).collect(), room_of_zone)
+}
+
+/// Each patch's room (`crate::rooms`): the one most of its area faces into. A patch with no
+/// free voxel in front of it (a face of a small solid, wound the other way, or in a gap
+/// narrower than a voxel) or facing into a room of under 1 % of the largest's surface (the
+/// inside of a hollow object) takes the room of the nearest patch in a larger room: left as
+/// they are, such patches from every room would share zones.
+fn patch_rooms(triangles: &[Corners], patch: &[u32], patches: &[Patch]) -> Vec<u32> {
+    let count = patches.len();
     let rooms = crate::rooms::Rooms::new(triangles);
     let mut facing: Vec<Vec<(u32, f64)>> = vec![Vec::new(); count];
     for (t, c) in triangles.iter().enumerate() {
@@ -69,13 +96,9 @@ pub fn zones_in_rooms(triangles: &[Corners], max_area: f64) -> (Vec<u32>, Vec<u3
         .iter()
         .map(|f| f.iter().fold((u32::MAX, -1.0), |b, &(r, a)| if a > b.1 { (r, a) } else { b }).0)
         .collect();
-    // A patch with no free voxel in front of it (a face of a small solid, wound the other way,
-    // or in a gap narrower than a voxel) or facing into a room of under 1 % of the largest's
-    // surface (the inside of a hollow object) takes the room of the nearest patch in a larger
-    // room: left as they are, such patches from every room would share zones.
     let mut room_area: std::collections::HashMap<u32, f64> = std::collections::HashMap::new();
     for (p, &r) in room_of.iter().enumerate() {
-        *room_area.entry(r).or_default() += area[p];
+        *room_area.entry(r).or_default() += patches[p].area;
     }
     room_area.remove(&u32::MAX);
     let largest = room_area.values().fold(0.0f64, |a, &b| a.max(b));
@@ -97,23 +120,7 @@ pub fn zones_in_rooms(triangles: &[Corners], max_area: f64) -> (Vec<u32>, Vec<u3
             room_of[p] = r;
         }
     }
-    let mut slot = std::collections::HashMap::new();
-    let mut by_room: Vec<Vec<Patch>> = Vec::new();
-    for (p, patch) in patches.into_iter().enumerate() {
-        let k = *slot.entry(room_of[p]).or_insert_with(|| {
-            by_room.push(Vec::new());
-            by_room.len() - 1
-        });
-        by_room[k].push(patch);
-    }
-    let mut zone_of_patch = vec![0u32; count];
-    let mut next = 0u32;
-    let mut room_of_zone = Vec::new();
-    for (r, set) in by_room.into_iter().enumerate() {
-        split(set, max_area, &mut zone_of_patch, &mut next);
-        room_of_zone.resize(next as usize, r as u32);
-    }
-    (patch.iter().map(|&p| zone_of_patch[p as usize]).collect(), room_of_zone)
+    room_of
 }
 
 struct Patch {
