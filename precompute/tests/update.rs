@@ -98,6 +98,37 @@ fn distance(a: &Prm, b: &Prm, mask: &[bool]) -> f64 {
     (d / s.max(1e-30)).sqrt()
 }
 
+/// Two sealed rooms baked whole: the entries lie in two rooms, no cluster takes entries from
+/// both, and the far field has no pair across them, while within a room it has many.
+#[test]
+fn a_precompute_keeps_clusters_and_the_far_field_to_their_rooms() {
+    let b = run(&two_sealed_rooms(v(0.3, 0.0, 0.3)), &params(), Reuse::Nothing, false).unwrap();
+    assert_eq!(b.report.rooms, 2);
+    assert!(b.report.room_voxel > 0.0 && b.report.room_voxel <= 0.1 + 1e-6, "{}", b.report.room_voxel);
+    let (map, second) = (&b.prm, |e: &prm::prm_file::Entry| e.position.x > 1.5);
+    let entries = map.entries();
+    for (c, cluster) in map.clusters().iter().enumerate() {
+        let first = second(&entries[cluster.members[0] as usize]);
+        assert!(
+            cluster.members.iter().all(|&e| second(&entries[e as usize]) == first),
+            "cluster {c} takes entries from both rooms"
+        );
+    }
+    let (mut within, mut across) = (0, 0);
+    for i in 0..entries.len() {
+        for j in 0..entries.len() {
+            if map.far().sees(i, j) {
+                if second(&entries[i]) == second(&entries[j]) {
+                    within += 1;
+                } else {
+                    across += 1;
+                }
+            }
+        }
+    }
+    assert!(within > 1000 && across == 0, "far pairs within {within}, across {across}");
+}
+
 #[test]
 fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
     let p = params();
