@@ -185,16 +185,18 @@ impl Rooms {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    /// The six inward faces of a box as triangles, with a square hole of side `door` (0: none)
-    /// in the middle of its +x wall.
-    fn closed_box(lo: Vec3, hi: Vec3, door: f32) -> Vec<[Vec3; 3]> {
+    /// The six faces of a box as triangles fronting its inside, with a square hole of side
+    /// `door` (0: none) in the middle of its +x wall.
+    pub(crate) fn closed_box(lo: Vec3, hi: Vec3, door: f32) -> Vec<[Vec3; 3]> {
         let mut out = Vec::new();
+        // The corners below go round each face counter-clockwise seen from outside: wound the
+        // other way, so that every face fronts the inside.
         let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
-            out.push([a, b, c]);
-            out.push([a, c, d]);
+            out.push([a, c, b]);
+            out.push([a, d, c]);
         };
         let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
         let (l, h) = (lo, hi);

@@ -224,37 +224,13 @@ mod tests {
         assert!(zones(&t, 100.0).iter().all(|&z| z == 0));
     }
 
-    /// The six inward faces of a closed box, each a grid of unit quads (one patch a face).
-    fn closed_box(lo: Vec3, size: [usize; 3]) -> Vec<Corners> {
-        let mut t = Vec::new();
-        let [sx, sy, sz] = size;
-        // (origin, u, v, u count, v count) for each face, u x v pointing inwards.
-        let faces = [
-            (Vec3::ZERO, Vec3::Z, Vec3::X, sz, sx),
-            (Vec3::new(0.0, sy as f32, 0.0), Vec3::X, Vec3::Z, sx, sz),
-            (Vec3::ZERO, Vec3::Y, Vec3::Z, sy, sz),
-            (Vec3::new(sx as f32, 0.0, 0.0), Vec3::Z, Vec3::Y, sz, sy),
-            (Vec3::ZERO, Vec3::X, Vec3::Y, sx, sy),
-            (Vec3::new(0.0, 0.0, sz as f32), Vec3::Y, Vec3::X, sy, sx),
-        ];
-        for (o, u, v, nu, nv) in faces {
-            for j in 0..nv {
-                for i in 0..nu {
-                    let p = |a: usize, b: usize| lo + o + u * a as f32 + v * b as f32;
-                    t.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
-                    t.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
-                }
-            }
-        }
-        t
-    }
-
     /// Two closed rooms a metre apart, cut into zones much smaller than a room: no zone holds
     /// faces of both, and the first room's zones come first.
     #[test]
     fn no_zone_holds_both_sides_of_a_wall() {
-        let a = closed_box(Vec3::ZERO, [6, 3, 8]);
-        let b = closed_box(Vec3::new(7.0, 0.0, 0.0), [6, 3, 8]);
+        use crate::rooms::tests::closed_box;
+        let a = closed_box(Vec3::ZERO, Vec3::new(6.0, 3.0, 8.0), 0.0);
+        let b = closed_box(Vec3::new(7.0, 0.0, 0.0), Vec3::new(13.0, 3.0, 8.0), 0.0);
         let n = a.len();
         let (z, rooms) = zones_in_rooms(&[a, b].concat(), 20.0);
         let last_a = *z[..n].iter().max().unwrap();
