@@ -198,6 +198,21 @@ const MAX_PLANE_OFFSET: f32 = 0.5;
 /// dropped from the result. The result is in the kept entries' order, with the owners of the
 /// level's points in that order too.
 pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, CellOwners, CellReport) {
+    entry_cells_in_rooms(scene, entries, keep, None)
+}
+
+/// [`entry_cells`], a triangle without an entry joining only an entry of its own room
+/// (`prm::rooms`; where both rooms are known). Without rooms a small floor triangle by the wall
+/// to the next room joined that room's floor entry, one spacing away in the same plane: the
+/// walks credited its light to the other room's cluster, and the next-bounce table's row of
+/// that cell named every cluster of both rooms (on the 16 chambers, half of the pane tiles
+/// encoded were such light, then dropped as negligible).
+pub fn entry_cells_in_rooms(
+    scene: &Scene,
+    entries: &[Entry],
+    keep: &[bool],
+    rooms: Option<&prm::rooms::Rooms>,
+) -> (Cells, CellOwners, CellReport) {
     // Only kept entries share out their triangles: a triangle whose entries were all dropped
     // (inside a solid) is as one without entries, and is joined to a neighbour's cell.
     let mut by_triangle: Vec<Vec<usize>> = vec![Vec::new(); scene.triangles.len()];
@@ -225,7 +240,28 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
         }
     }
     let spacing = entries.first().map_or(0.0, |e| e.area.sqrt());
-    let mut joined = join_along_surfaces(scene, entries, &by_triangle, spacing);
+    let (entry_room, triangle_room): (Vec<Option<u32>>, Vec<Option<u32>>) = match rooms {
+        Some(rooms) => {
+            let entry = entry_rooms(rooms, entries);
+            let triangle = (0..scene.triangles.len())
+                .into_par_iter()
+                .map(|t| {
+                    by_triangle[t]
+                        .is_empty()
+                        .then(|| triangle_room(scene, rooms, t, scene.face_normal(t)))
+                        .flatten()
+                })
+                .collect();
+            (entry, triangle)
+        }
+        None => (Vec::new(), Vec::new()),
+    };
+    // Whether triangle t may join entry j: not when both rooms are known and differ.
+    let same_room = |t: usize, j: usize| match (triangle_room.get(t), entry_room.get(j)) {
+        (Some(Some(a)), Some(Some(b))) => a == b,
+        _ => true,
+    };
+    let mut joined = join_along_surfaces(scene, entries, &by_triangle, spacing, &same_room);
     let mut report = CellReport::default();
     for (t, members) in by_triangle.iter().enumerate() {
         if !members.is_empty() || scene.area(t) <= 0.0 {
@@ -233,7 +269,7 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
         }
         let corners = scene.corners(t);
         if joined[t] == NONE {
-            joined[t] = nearest_in_plane(entries, keep, corners, spacing);
+            joined[t] = nearest_in_plane(entries, keep, corners, spacing, |j| same_room(t, j));
         }
         match joined[t] {
             NONE => report.area_without_entry += scene.area(t) as f64,
@@ -260,15 +296,41 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
     (Cells::from_lists(kept_lists), CellOwners { first, sites, joined, grid_of, grids }, report)
 }
 
+/// Each entry's room (`prm::rooms`): the one in front of its point, else the first found among
+/// the entries on its triangle (an entry 5 cm from a wall stands in the wall's voxels; its
+/// triangle's centroid may lie under a pillar on that floor, in the pillar's hollow), else None.
+pub fn entry_rooms(rooms: &prm::rooms::Rooms, entries: &[Entry]) -> Vec<Option<u32>> {
+    let found: Vec<Option<u32>> = entries.par_iter().map(|e| rooms.room_of(e.position, e.normal)).collect();
+    let mut of_triangle: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
+    for (e, f) in entries.iter().zip(&found) {
+        if let Some(r) = f {
+            of_triangle.entry(e.triangle).or_insert(*r);
+        }
+    }
+    entries.iter().zip(found).map(|(e, f)| f.or_else(|| of_triangle.get(&e.triangle).copied())).collect()
+}
+
+/// The room in front of triangle `t`, seen along `n` (`prm::rooms`): its centroid's, else one
+/// near a corner (a strip along a wall has its centroid in the wall's voxels, its far corners
+/// in the room); None if all lie in surfaces' voxels.
+pub fn triangle_room(scene: &Scene, rooms: &prm::rooms::Rooms, t: usize, n: Vec3) -> Option<u32> {
+    let corners = scene.corners(t);
+    let centroid = corners.iter().sum::<Vec3>() / 3.0;
+    let points = std::iter::once(centroid).chain(corners.map(|c| c.lerp(centroid, 0.1)));
+    points.filter_map(|p| rooms.room_of(p, n)).next()
+}
+
 /// For each triangle without an entry, the kept entry (sampled index) nearest along the
 /// surface: a shortest path over triangle centroids from the triangles holding kept entries,
 /// across edges shared by welded positions, through triangles without entries that face the
-/// entry's way, no longer than [`MAX_SPACINGS`]. [`NONE`] where none is reached.
+/// entry's way and lie in its room (`same_room(triangle, entry)`), no longer than
+/// [`MAX_SPACINGS`]. [`NONE`] where none is reached.
 fn join_along_surfaces(
     scene: &Scene,
     entries: &[Entry],
     by_triangle: &[Vec<usize>],
     spacing: f32,
+    same_room: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> Vec<u32> {
     let n = scene.triangles.len();
     let mut joined = vec![NONE; n];
@@ -301,7 +363,11 @@ fn join_along_surfaces(
         let (d, normal) = (f32::from_bits(d), entries[j as usize].normal);
         for &u in &neighbours[t] {
             let u = u as usize;
-            if done[u] || !by_triangle[u].is_empty() || scene.face_normal(u).dot(normal) < MIN_NORMAL_COS {
+            if done[u]
+                || !by_triangle[u].is_empty()
+                || scene.face_normal(u).dot(normal) < MIN_NORMAL_COS
+                || !same_room(u, j as usize)
+            {
                 continue;
             }
             let du = d + centroid(t).distance(centroid(u));
@@ -350,11 +416,17 @@ fn edge_neighbours(scene: &Scene) -> Vec<Vec<u32>> {
 /// [`MAX_SPACINGS_APART`] of its centroid and [`MAX_PLANE_OFFSET`] spacings of its plane (a
 /// coplanar neighbour that shares no edge with it, or the pillar face 15 cm behind a plinth
 /// side that got no entry; not the floor 30 cm under a plinth top); [`NONE`] if there is none.
-fn nearest_in_plane(entries: &[Entry], keep: &[bool], corners: [Vec3; 3], spacing: f32) -> u32 {
+fn nearest_in_plane(
+    entries: &[Entry],
+    keep: &[bool],
+    corners: [Vec3; 3],
+    spacing: f32,
+    same_room: impl Fn(usize) -> bool,
+) -> u32 {
     let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
     let n = (corners[1] - corners[0]).cross(corners[2] - corners[0]).normalize_or_zero();
     (0..entries.len())
-        .filter(|&j| keep[j] && entries[j].normal.dot(n) >= MIN_NORMAL_COS)
+        .filter(|&j| keep[j] && entries[j].normal.dot(n) >= MIN_NORMAL_COS && same_room(j))
         .filter(|&j| n.dot(entries[j].position - centroid).abs() <= MAX_PLANE_OFFSET * spacing)
         .map(|j| (j, entries[j].position.distance_squared(centroid)))
         .filter(|&(_, d2)| d2 <= (MAX_SPACINGS_APART * spacing).powi(2))

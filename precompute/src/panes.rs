@@ -2,7 +2,7 @@
 //! 8-bit logarithmic intensities with an RGB scale per tile (format in `prm::prm_file`).
 //!
 //! **A band at a time.** The walks are not held for the whole atlas: the precompute walks the
-//! texels of a band of a few tile rows ([`BAND_TILE_ROWS`]), plus a margin of the smoothing's and the
+//! texels of a band of tile rows ([`BAND_TILE_ROWS`]), plus a margin of the smoothing's and the
 //! dilation's reach above and below ([`Encoder::bands`]), encodes every pane's tiles in that
 //! band ([`Encoder::encode_band`]), and frees the walks that no later band needs. Smoothing
 //! and dilation read at most `margin` rows away, so a band's tiles are exactly those of the
@@ -32,10 +32,12 @@ use crate::transport::{TexelDipoles, TexelPanes};
 use crate::update::CachedTile;
 
 /// Tile rows a band encodes at once, by default. With the margin (at most 17 rows each side)
-/// a band of 2 holds the walks of up to 66 texel rows; taller bands hold more walks, shorter
+/// a band of 1 holds the walks of up to 50 texel rows; taller bands hold more walks, shorter
 /// ones smooth the margins' texels more often (walked once, smoothed once per band they are
-/// in). 4 rows took more memory on the 4 x 4 halls, in the same time.
-pub const BAND_TILE_ROWS: u32 = 2;
+/// in). 4 rows took more memory on the 4 x 4 halls, in the same time; on the 16 chambers,
+/// where every texel's walks name every cluster of its room, 2 rows held 264 MB of walks and
+/// exact first bounce at their largest band and 1 row 144 MB, in the same time.
+pub const BAND_TILE_ROWS: u32 = 1;
 
 /// Tiles and their data for all panes (clusters, then groups), plus drop statistics.
 pub struct Tiled {
@@ -497,24 +499,28 @@ struct PaneBand {
     tiles: Vec<EncodedTile>,
 }
 
-/// Every pane's tiles encoded so far, before the drop rule. The tiles' codes wait in an
-/// anonymous scratch file, band after band, and only their records stay in memory: the
-/// output is then filled pane after pane from the file (`drain_into`), so the codes are held
-/// once, in the output, instead of once per band and again in the output (on the 4 x 4 halls,
-/// 124 MB of codes; held in memory, the heap kept the bands' pieces and the peak grew by
-/// twice that).
+/// Every pane's tiles encoded so far, before the drop rule. The tiles wait in an anonymous
+/// scratch file, band after band (each its atlas index, scale, carried energy and codes), and
+/// only their energies (what the drop rule ranks) stay in memory: the output is then filled
+/// pane after pane from the file (`drain_into`), so the codes are held once, in the output,
+/// instead of once per band and again in the output (on the 4 x 4 halls, 124 MB of codes;
+/// held in memory, the heap kept the bands' pieces and the peak grew by twice that). The
+/// records stayed in memory until the 16 chambers' 2.5 million tiles made them 80 MB.
 pub struct Accumulated {
     /// Each pane's energy so far.
     energy: Vec<f64>,
-    /// Each pane's tiles so far, in atlas tile order: (atlas tile, RGB scale, energy,
-    /// carried energy).
-    tiles: Vec<Vec<(u32, Vec3, f64, f64)>>,
-    /// Each pane's runs of codes in the scratch file, one per band holding any of its tiles:
-    /// (offset, tiles).
-    runs: Vec<Vec<(u64, u32)>>,
+    /// Each pane's tiles' energies and atlas indices so far, in atlas tile order.
+    tiles: Vec<Vec<f64>>,
+    index: Vec<Vec<u32>>,
+    /// Each pane's runs of tiles in the scratch file, one per band holding any of its tiles:
+    /// (offset, tiles, bytes).
+    runs: Vec<Vec<(u64, u32, u32)>>,
     spill: std::io::BufWriter<std::fs::File>,
     written: u64,
 }
+
+/// A spilled tile's record before its codes: atlas index, RGB scale, carried energy, codes.
+const RECORD: usize = 4 + 12 + 8 + 4;
 
 impl Accumulated {
     /// Room for `panes` panes, with a scratch file (the error if none can be made).
@@ -522,6 +528,7 @@ impl Accumulated {
         Ok(Accumulated {
             energy: vec![0.0; panes],
             tiles: vec![Vec::new(); panes],
+            index: vec![Vec::new(); panes],
             runs: vec![Vec::new(); panes],
             spill: std::io::BufWriter::new(tempfile::tempfile()?),
             written: 0,
@@ -546,38 +553,56 @@ impl Accumulated {
             if pane.tiles.is_empty() {
                 continue;
             }
-            self.runs[c].push((self.written, pane.tiles.len() as u32));
-            for t in pane.tiles {
-                self.tiles[c].push((t.index, t.scale, t.energy, t.carried));
+            let start = self.written;
+            for t in &pane.tiles {
+                self.tiles[c].push(t.energy);
+                self.index[c].push(t.index);
+                self.spill.write_all(&t.index.to_le_bytes())?;
+                for x in t.scale.to_array() {
+                    self.spill.write_all(&x.to_le_bytes())?;
+                }
+                self.spill.write_all(&t.carried.to_le_bytes())?;
+                self.spill.write_all(&(t.data.len() as u32).to_le_bytes())?;
                 self.spill.write_all(&t.data)?;
-                self.written += t.data.len() as u64;
+                self.written += (RECORD + t.data.len()) as u64;
             }
+            let bytes = u32::try_from(self.written - start).map_err(std::io::Error::other)?;
+            self.runs[c].push((start, pane.tiles.len() as u32, bytes));
         }
         Ok(())
     }
 
-    /// Every pane's tiles with their codes (`codes(index)`: codes a tile at atlas tile
-    /// `index` has), read back from the scratch file: what `crate::update` caches.
-    pub fn export(&mut self, codes: &impl Fn(u32) -> usize) -> std::io::Result<Vec<Vec<CachedTile>>> {
+    /// Each pane's tiles, read back from the scratch file run by run: `each(pane, tile in
+    /// the pane, its energy, its record and codes)`.
+    fn read_back(&mut self, mut each: impl FnMut(usize, usize, f64, CachedTile)) -> std::io::Result<()> {
         use std::io::{Read, Seek, SeekFrom, Write};
         self.spill.flush()?;
         let file = self.spill.get_mut();
-        let mut out = Vec::with_capacity(self.tiles.len());
-        for (pane, runs) in self.tiles.iter().zip(&self.runs) {
-            let mut tiles = Vec::with_capacity(pane.len());
+        let mut buf = Vec::new();
+        for (c, (pane, runs)) in self.tiles.iter().zip(&self.runs).enumerate() {
             let mut t = 0;
-            for &(offset, count) in runs {
+            for &(offset, count, bytes) in runs {
+                buf.resize(bytes as usize, 0);
                 file.seek(SeekFrom::Start(offset))?;
-                for &(index, scale, energy, carried) in &pane[t..t + count as usize] {
-                    let mut codes_of = vec![0u8; codes(index)];
-                    file.read_exact(&mut codes_of)?;
-                    tiles.push(CachedTile { index, scale, energy, carried, codes: codes_of });
+                file.read_exact(&mut buf)?;
+                let mut at = 0;
+                for &energy in &pane[t..t + count as usize] {
+                    let (tile, len) = spilled_tile(&buf[at..], energy)?;
+                    each(c, t, energy, tile);
+                    at += len;
+                    t += 1;
                 }
-                t += count as usize;
             }
-            out.push(tiles);
         }
         file.seek(SeekFrom::End(0))?;
+        Ok(())
+    }
+
+    /// Every pane's tiles with their codes, read back from the scratch file: what
+    /// `crate::update` caches.
+    pub fn export(&mut self) -> std::io::Result<Vec<Vec<CachedTile>>> {
+        let mut out: Vec<Vec<CachedTile>> = self.tiles.iter().map(|p| Vec::with_capacity(p.len())).collect();
+        self.read_back(|c, _, _, tile| out[c].push(tile))?;
         Ok(out)
     }
 
@@ -593,17 +618,17 @@ impl Accumulated {
         let keep = self
             .tiles
             .iter()
-            .map(|pane| {
-                let e: Vec<f64> = pane.iter().map(|t| t.2).collect();
+            .zip(&self.index)
+            .map(|(e, index)| {
                 let total: f64 = e.iter().sum();
-                let (keep, n, energy) = drop_tiles(&e, drop_threshold * total);
+                let (keep, n, energy) = drop_tiles(e, drop_threshold * total);
                 dropped.tiles += n;
                 dropped.energy += energy;
                 dropped.total += total;
-                for (t, &k) in pane.iter().zip(&keep) {
+                for (&i, &k) in index.iter().zip(&keep) {
                     if k {
                         tiles += 1;
-                        kept_codes += codes(t.0);
+                        kept_codes += codes(i);
                     }
                 }
                 keep
@@ -616,41 +641,46 @@ impl Accumulated {
     /// their codes, read back from the scratch file, to `data`, pane after pane. Per pane:
     /// (energy, first tile, tile count).
     fn drain_into(
-        self,
+        mut self,
         keep: &[Vec<bool>],
         first_pane: u32,
-        codes: &impl Fn(u32) -> usize,
         tiles: &mut Vec<Tile>,
         data: &mut Vec<u8>,
     ) -> std::io::Result<Vec<(f32, u32, u32)>> {
-        use std::io::{Read, Seek, SeekFrom};
-        let mut file = self.spill.into_inner().map_err(|e| e.into_error())?;
-        let mut buf = Vec::new();
-        let mut out = Vec::with_capacity(self.energy.len());
-        for (c, (pane, runs)) in self.tiles.iter().zip(&self.runs).enumerate() {
-            let first = tiles.len() as u32;
-            let mut t = 0;
-            for &(offset, count) in runs {
-                let run = &pane[t..t + count as usize];
-                let len: usize = run.iter().map(|r| codes(r.0)).sum();
-                buf.resize(len, 0);
-                file.seek(SeekFrom::Start(offset))?;
-                file.read_exact(&mut buf)?;
-                let mut at = 0;
-                for (k, &(index, scale, _, _)) in run.iter().enumerate() {
-                    let n = codes(index);
-                    if keep[c][t + k] {
-                        tiles.push(Tile { cluster: first_pane + c as u32, index, scale });
-                        data.extend_from_slice(&buf[at..at + n]);
-                    }
-                    at += n;
-                }
-                t += count as usize;
+        let before = tiles.len() as u32;
+        let mut count = vec![0u32; self.tiles.len()];
+        self.read_back(|c, t, _, tile| {
+            if keep[c][t] {
+                tiles.push(Tile { cluster: first_pane + c as u32, index: tile.index, scale: tile.scale });
+                data.extend_from_slice(&tile.codes);
+                count[c] += 1;
             }
-            out.push((self.energy[c] as f32, first, tiles.len() as u32 - first));
-        }
-        Ok(out)
+        })?;
+        let mut first = before;
+        Ok(count
+            .iter()
+            .zip(&self.energy)
+            .map(|(&n, &energy)| {
+                first += n;
+                (energy as f32, first - n, n)
+            })
+            .collect())
     }
+}
+
+/// A spilled tile read back (`Accumulated::add` wrote it; `energy` was kept in memory) and
+/// the bytes it took.
+fn spilled_tile(bytes: &[u8], energy: f64) -> std::io::Result<(CachedTile, usize)> {
+    let short = || std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "a spilled pane tile is cut short");
+    let head = bytes.get(..RECORD).ok_or_else(short)?;
+    let word = |k: usize| <[u8; 4]>::try_from(&head[k..k + 4]).unwrap_or_default();
+    let index = u32::from_le_bytes(word(0));
+    let scale =
+        Vec3::new(f32::from_le_bytes(word(4)), f32::from_le_bytes(word(8)), f32::from_le_bytes(word(12)));
+    let carried = f64::from_le_bytes(<[u8; 8]>::try_from(&head[16..24]).unwrap_or_default());
+    let n = u32::from_le_bytes(word(24)) as usize;
+    let codes = bytes.get(RECORD..RECORD + n).ok_or_else(short)?.to_vec();
+    Ok((CachedTile { index, scale, energy, carried, codes }, RECORD + n))
 }
 
 /// What the drop rule left out of some panes: tiles, their energy, and the panes' whole energy.
@@ -678,7 +708,7 @@ pub fn assemble(
     let (group_keep, group_tiles, group_codes, _) = groups.keep(drop_threshold, &codes);
     let mut tiles = Vec::with_capacity(fine_tiles + group_tiles);
     let mut data = Vec::with_capacity(fine_codes + group_codes);
-    let fine_panes = fine.drain_into(&fine_keep, 0, &codes, &mut tiles, &mut data)?;
+    let fine_panes = fine.drain_into(&fine_keep, 0, &mut tiles, &mut data)?;
     let clusters = fine_panes
         .into_iter()
         .zip(members.iter().zip(centroids))
@@ -692,7 +722,7 @@ pub fn assemble(
         .collect::<Vec<_>>();
     let first_group = clusters.len() as u32;
     let groups = groups
-        .drain_into(&group_keep, first_group, &codes, &mut tiles, &mut data)?
+        .drain_into(&group_keep, first_group, &mut tiles, &mut data)?
         .into_iter()
         .map(|(energy, first_tile, tile_count)| Group { energy, first_tile, tile_count })
         .collect();
@@ -720,7 +750,7 @@ pub fn assemble_dipoles(
     let codes = |_: u32| side * side;
     let (keep, n_tiles, n_codes, _) = acc.keep(drop_threshold, &codes);
     let (mut tiles, mut data) = (Vec::with_capacity(n_tiles), Vec::with_capacity(n_codes));
-    let axes = acc.drain_into(&keep, 0, &codes, &mut tiles, &mut data)?;
+    let axes = acc.drain_into(&keep, 0, &mut tiles, &mut data)?;
     for (pk, (energy, first, count)) in axes.into_iter().enumerate() {
         let (c, k) = (pk / 3, pk % 3);
         if k == 0 {

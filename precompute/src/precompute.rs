@@ -541,10 +541,8 @@ pub fn precompute_with(
         report.unowned_vertices = records.iter().map(|r| r.unowned as usize).sum();
     }
     let pane_cache = if tracing {
-        let layout = Encoder::new(set, None, params.tile_size, 1).tile_codes();
-        let codes = |index: u32| layout[index as usize];
-        let mut panes = acc.fine.export(&codes)?;
-        panes.extend(acc.groups.export(&codes)?);
+        let mut panes = acc.fine.export()?;
+        panes.extend(acc.groups.export()?);
         Some(panes)
     } else {
         None
@@ -660,7 +658,7 @@ pub(crate) fn finish(
     // The links' shares and exact first bounce, the cell owners and the smoothing are the
     // walks' and the encoding's only: out of memory before the tiles are assembled (what the
     // peak is made of).
-    (pre.keep, pre.exact, pre.smoothing) = (None, Vec::new(), None);
+    (pre.keep, pre.smoothing) = (None, None);
     pre.owners = crate::cells::CellOwners::default();
     crate::memory::release_freed();
     let t = Instant::now();

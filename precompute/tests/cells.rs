@@ -7,11 +7,11 @@ use std::path::PathBuf;
 
 use glam::Vec3;
 use prm::{load_scene, LoadOptions, Scene};
-use prm_precompute::cells::entry_cells;
+use prm_precompute::cells::{entry_cells, entry_cells_in_rooms};
 use prm_precompute::entries::sample_entries;
 
 mod common;
-use common::{quads, v};
+use common::{quads, unit_box_faces, v};
 
 fn level(name: &str) -> Scene {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets").join(name);
@@ -157,4 +157,53 @@ fn a_plinth_top_joins_no_floor_cell() {
     }
     // Both cases were tried.
     assert!(without > 0 && without < 16, "{without} of 16 seeds left the top without an entry");
+}
+
+/// Two sealed 2 m rooms 30 cm apart. In the second, a 5 cm floor strip 30 cm from its wall
+/// shares no edge with the rest of that floor and has no entry; the first room's floor entry
+/// is the nearest in its plane (0.76-0.77 m, within three spacings), the second's 0.95 m away.
+#[test]
+fn a_triangle_without_an_entry_joins_only_a_cell_of_its_own_room() {
+    let box_at = |x: f32| unit_box_faces().into_iter().map(move |q| q.map(|p| p * 2.0 + v(x, 0.0, 0.0)));
+    let floor =
+        |x0: f32, x1: f32, z0: f32, z1: f32| [v(x0, 0., z0), v(x0, 0., z1), v(x1, 0., z1), v(x1, 0., z0)];
+    let strip = floor(2.6, 2.65, 0.5, 1.5);
+    let mut qs: Vec<[Vec3; 4]> = box_at(0.0).collect();
+    qs.extend(box_at(2.3).skip(1));
+    qs.extend([
+        floor(2.3, 2.6, 0.0, 2.0),
+        strip,
+        floor(2.6, 2.65, 0.0, 0.5),
+        floor(2.6, 2.65, 1.5, 2.0),
+        floor(2.65, 4.3, 0.0, 2.0),
+    ]);
+    let scene = quads(&qs, 0.5);
+    let on =
+        |p: Vec3| (0..scene.triangles.len()).find(|&t| inside(&scene.corners(t), p, 1e-4)).unwrap() as u32;
+    let entry = |p: Vec3| prm::prm_file::Entry {
+        position: p,
+        normal: Vec3::Y,
+        albedo: Vec3::splat(0.5),
+        area: 0.07,
+        triangle: on(p),
+    };
+    let entries = [entry(v(1.88, 0.0, 1.0)), entry(v(3.6, 0.0, 1.0))];
+    let strip_triangles: Vec<usize> =
+        (0..scene.triangles.len()).filter(|&t| scene.corners(t).iter().all(|c| strip.contains(c))).collect();
+    assert_eq!(strip_triangles.len(), 2);
+    let centroid = |t: usize| scene.corners(t).iter().sum::<Vec3>() / 3.0;
+    // Without rooms the strip joins the first room's entry, through two walls.
+    let (_, owners, _) = entry_cells(&scene, &entries, &[true; 2]);
+    for &t in &strip_triangles {
+        assert_eq!(owners.owner(t, centroid(t)), Some(0), "triangle {t}");
+    }
+    // With them it joins none (the second room's entry is too far): its area is left out.
+    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+    let rooms = prm::rooms::Rooms::new(&corners);
+    let (_, owners, _) = entry_cells_in_rooms(&scene, &entries, &[true; 2], Some(&rooms));
+    for &t in &strip_triangles {
+        assert_eq!(owners.owner(t, centroid(t)), None, "triangle {t}");
+    }
+    // And the first room's own floor still belongs to its entry.
+    assert_eq!(owners.owner(0, centroid(0)), Some(0));
 }

@@ -14,7 +14,7 @@ use prm::{Bvh, Scene, Smoothing, TexelSet};
 use rayon::prelude::*;
 
 use super::{Phase, PrecomputeError, PrecomputeParams, Report};
-use crate::cells::{entry_cells, CellOwners, CellReport};
+use crate::cells::{entry_cells_in_rooms, entry_rooms, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FirstBounce};
@@ -46,8 +46,6 @@ pub struct Preamble {
     pub(crate) keep: Option<Vec<f32>>,
     /// The walks' next-bounce table (None: their hits give every bounce).
     pub(crate) next: Option<NextBounce>,
-    /// Per covered texel, the links' exact first bounce per cluster (empty without links).
-    pub(crate) exact: Vec<TexelPanes>,
     pub(crate) echo: Echo,
     pub(crate) smoothing: Option<Smoothing>,
     /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
@@ -85,15 +83,27 @@ impl Preamble {
             TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
         });
         progress(Phase::Texels, 1, 1);
+        // The level's rooms (`prm::rooms`): cells, clusters and the far field keep to them.
+        let rooms = timed(&mut report.seconds_clustering, || {
+            let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+            prm::rooms::Rooms::new(&corners)
+        });
         let (entries, (cells, owners, cell_report), enclosed) =
-            timed(&mut report.seconds_entries, || lit_entries(scene, bvh, params));
+            timed(&mut report.seconds_entries, || lit_entries(scene, bvh, &rooms, params));
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
 
-        // Each entry's room; one with no free voxel in front of it takes its neighbour's.
-        let (found, side) = timed(&mut report.seconds_clustering, || entry_rooms(scene, &entries));
+        // Each entry's room; one with no free voxel in front of it takes its neighbour's, and
+        // a texel with none (on a floor a millimetre from the wall, whose voxel column is the
+        // wall's) its cell's.
+        let (found, mut texel_room, side) =
+            timed(&mut report.seconds_clustering, || rooms_of(&rooms, &entries, &set));
+        drop(rooms);
         let room = filled_rooms(&found);
+        for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
+            *r = owners.owner(t.triangle as usize, t.position).and_then(|e| room.get(e as usize).copied());
+        }
         report.room_voxel = side;
         let clustering = timed(&mut report.seconds_clustering, || match cache {
             Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
@@ -129,7 +139,7 @@ impl Preamble {
             if params.far_field {
                 let reach = params.near_radius * spacing;
                 let radius = params.far_radius * spacing;
-                far_field(scene, bvh, &set, &entries, &room, &cell, reach, radius, params.seed)
+                far_field(scene, bvh, &set, &entries, &room, &texel_room, &cell, reach, radius, params.seed)
             } else {
                 Far::default()
             }
@@ -146,13 +156,6 @@ impl Preamble {
         // this (the MIS and scatter estimators, and dipole panes, walk it as before).
         let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
         let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
-        let exact = match &keep {
-            Some(keep) => {
-                let linked = LinkedCells { links: &near, keep };
-                exact_first_bounce(&set, &entries, &cell, &linked, &clustering)
-            }
-            None => Vec::new(),
-        };
         // The walks read each bounce after the first from a table of the clusters' first
         // bounce (`transport::NextBounce`); the far field's share of it joins the links' in
         // each band's exact panes as it is encoded (`Preamble::band_exact`).
@@ -161,6 +164,12 @@ impl Preamble {
                 let clusters = clustering.members.len();
                 let first = FirstBounce::new(&set, &entries, &cell, &far, &clustering.assignment, clusters);
                 let lit = crate::far::far_lit(&set, &far);
+                let area: Vec<f32> = cell.iter().map(|c| c.1).collect();
+                let exact = |k: usize| {
+                    exact_first_bounce(&set, &entries, &area, &near, &clustering.assignment, k..k + 1)
+                        .pop()
+                        .unwrap_or_default()
+                };
                 NextBounce::build(&set, &owners, &exact, &lit, &first, entries.len(), clusters, far.radius)
             })
         });
@@ -191,7 +200,6 @@ impl Preamble {
             near_points,
             keep,
             next,
-            exact,
             echo,
             smoothing,
             frames,
@@ -246,11 +254,17 @@ impl Preamble {
         range: std::ops::Range<usize>,
         first: Option<&FirstBounce>,
     ) -> Vec<TexelPanes> {
-        if self.exact.is_empty() && first.is_none() {
+        let linked = self.keep.is_some();
+        if !linked && first.is_none() {
             return Vec::new();
         }
-        let mut out: Vec<TexelPanes> =
-            range.clone().map(|k| self.exact.get(k).cloned().unwrap_or_default()).collect();
+        let mut out: Vec<TexelPanes> = if linked {
+            let area: Vec<f32> = (0..self.entries.len()).map(|j| self.cells.area(j)).collect();
+            let assignment = &self.clustering.assignment;
+            exact_first_bounce(&self.set, &self.entries, &area, &self.near, assignment, range.clone())
+        } else {
+            vec![Vec::new(); range.len()]
+        };
         if let Some(first) = first {
             let texels: Vec<usize> = range.collect();
             first.add(&texels, &mut out);
@@ -307,23 +321,30 @@ fn linked_shares(set: &TexelSet, cell: &[(Vec3, f32)], near: &[NearLink], far: &
         .collect()
 }
 
-/// Per covered texel, what the links left out of the walks add to each cluster's pane: per
-/// unit of cluster irradiance, cell j takes `t_j` of it (its area over A/N), which its link
-/// turns into `albedo_j factor t_j` at the texel; exactly what the runtime's near field takes
-/// back from `w_c` (`prm_runtime::cpu::near_field`).
+/// Per covered texel of `range` (set order), what the links left out of the walks add to each
+/// cluster's pane: per unit of cluster irradiance, cell j (its area `area[j]`) takes `t_j` of
+/// it (its area over A/N), which its link turns into `albedo_j factor t_j` at the texel;
+/// exactly what the runtime's near field takes back from `w_c`
+/// (`prm_runtime::cpu::near_field`). Made where it is needed (a band, a table chunk) rather
+/// than held for the whole level: on the 16 chambers that was 48 MB.
 fn exact_first_bounce(
     set: &TexelSet,
     entries: &[Entry],
-    cell: &[(Vec3, f32)],
-    linked: &LinkedCells,
-    clustering: &Clustering,
+    area: &[f32],
+    links: &[NearLink],
+    assignment: &[u32],
+    range: std::ops::Range<usize>,
 ) -> Vec<TexelPanes> {
-    let mut out: Vec<TexelPanes> = vec![Vec::new(); set.len()];
-    for l in linked.links {
-        let (j, area) = (l.entry as usize, cell[l.entry as usize].1);
+    // The links are sorted by atlas texel, as the covered texels are: a range's are one run.
+    let atlas = |k: usize| set.texels.get(k).map_or(u32::MAX, |t| t.j * set.width + t.i);
+    let (from, to) = (atlas(range.start), atlas(range.end));
+    let run = links.partition_point(|l| l.texel < from)..links.partition_point(|l| l.texel < to);
+    let mut out: Vec<TexelPanes> = vec![Vec::new(); range.len()];
+    for l in &links[run] {
+        let j = l.entry as usize;
         let e = &entries[j];
-        let t = if e.area > 0.0 { area / e.area } else { 0.0 };
-        let (k, c) = (set.index[l.texel as usize] as usize, clustering.assignment[j]);
+        let t = if e.area > 0.0 { area[j] / e.area } else { 0.0 };
+        let (k, c) = (set.index[l.texel as usize] as usize - range.start, assignment[j]);
         let v = e.albedo * (l.factor * t);
         match out[k].iter_mut().find(|(x, _)| *x == c) {
             Some(slot) => slot.1 += v,
@@ -337,12 +358,17 @@ fn exact_first_bounce(
 }
 
 /// Each entry's room (`prm::rooms`): the clusters keep to one room, and the far field does not
-/// trace between blocks of entries in different rooms. None: no free voxel in front of it.
-/// Also the voxels' side.
-fn entry_rooms(scene: &Scene, entries: &[Entry]) -> (Vec<Option<u32>>, f32) {
-    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-    let rooms = prm::rooms::Rooms::new(&corners);
-    (entries.par_iter().map(|e| rooms.room_of(e.position, e.normal)).collect(), rooms.voxel_side())
+/// trace between blocks of entries in different rooms. None: no free voxel in front of it nor
+/// of another entry on its triangle (`cells::entry_rooms`). Also each covered texel's (set order), whose far field borrows from its room's entries
+/// only, and the voxels' side.
+fn rooms_of(
+    rooms: &prm::rooms::Rooms,
+    entries: &[Entry],
+    set: &TexelSet,
+) -> (Vec<Option<u32>>, Vec<Option<u32>>, f32) {
+    let entry = entry_rooms(rooms, entries);
+    let texel = set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect();
+    (entry, texel, rooms.voxel_side())
 }
 
 /// The rooms with each entry that has none given the room of the nearest entry before it that
@@ -372,6 +398,7 @@ fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
 fn lit_entries(
     scene: &Scene,
     bvh: &Bvh,
+    rooms: &prm::rooms::Rooms,
     params: &PrecomputeParams,
 ) -> (Vec<Entry>, (Cells, CellOwners, CellReport), usize) {
     let first = sample_entries(scene, params.entries as usize, params.seed);
@@ -391,7 +418,7 @@ fn lit_entries(
     // A left-out entry keeps its first point: it takes no cell.
     let placed: Vec<Entry> = sampled.iter().zip(&first).map(|(e, f)| e.unwrap_or(*f)).collect();
     let entries: Vec<Entry> = sampled.iter().flatten().copied().collect();
-    let cells = entry_cells(scene, &placed, &keep);
+    let cells = entry_cells_in_rooms(scene, &placed, &keep, Some(rooms));
     let enclosed = sampled.len() - entries.len();
     (entries, cells, enclosed)
 }

@@ -60,7 +60,7 @@ use part_file::{check_parts, Hashing, PartWalks};
 
 const PLAN_MAGIC: [u8; 8] = *b"PRMPLAN\n";
 const PART_MAGIC: [u8; 8] = *b"PRMPART\n";
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 /// Texels walked and written at a time: a shard holds one chunk's walks.
 const CHUNK_TEXELS: usize = 4096;
 /// Most shards a precompute is cut into.

@@ -13,7 +13,7 @@ use super::{file_error, ShardError, PLAN_MAGIC, VERSION};
 use crate::cells::CellOwners;
 use crate::cluster::Clustering;
 use crate::precompute::{Preamble, PrecomputeParams};
-use crate::transport::{NextBounce, TexelPanes};
+use crate::transport::NextBounce;
 
 /// A precompute's plan: its parameters and preamble, and the checksum its file ends with
 /// (what every part records; 0 until it is written). The checksum (FNV-1a) guards against
@@ -60,7 +60,6 @@ type Rest = (
     Option<Clustering>,
     Far,
     Vec<NearPoint>,
-    Vec<TexelPanes>,
     Echo,
     Option<Smoothing>,
 );
@@ -74,7 +73,6 @@ type RestRef<'a> = (
     &'a Option<Clustering>,
     &'a Far,
     &'a [NearPoint],
-    &'a [TexelPanes],
     &'a Echo,
     &'a Option<Smoothing>,
 );
@@ -117,7 +115,6 @@ impl Plan {
             &pre.grouping,
             &pre.far,
             &pre.near_points,
-            &pre.exact,
             &pre.echo,
             &pre.smoothing,
         );
@@ -202,7 +199,6 @@ impl Plan {
             near_points: Vec::new(),
             keep,
             next,
-            exact: Vec::new(),
             echo: Echo::default(),
             smoothing: None,
             frames: Vec::new(),
@@ -234,9 +230,9 @@ impl Plan {
         (pre.fingerprint, pre.page_texel_size, pre.enclosed, pre.area_without_entry) =
             (rest.0, rest.1, rest.2, rest.3);
         (pre.cells, pre.centroids, pre.grouping, pre.far) = (rest.4, rest.5, rest.6, rest.7);
-        (pre.near_points, pre.exact, pre.echo, pre.smoothing) = (rest.8, rest.9, rest.10, rest.11);
+        (pre.near_points, pre.echo, pre.smoothing) = (rest.8, rest.9, rest.10);
         let clusters = pre.clustering.members.len();
-        if pre.centroids.len() != clusters || (!pre.exact.is_empty() && pre.exact.len() != pre.set.len()) {
+        if pre.centroids.len() != clusters {
             return Err("damaged (its sections do not agree)".into());
         }
         Ok(plan)

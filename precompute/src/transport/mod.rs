@@ -221,9 +221,11 @@ impl<'f> Scratch<'f> {
         visited.sort_unstable();
         for &e in &visited {
             let w = std::mem::take(&mut self.visits[e as usize]);
-            let Some((clusters, values)) = next.row(e) else { continue };
-            for (&c, &v) in clusters.iter().zip(values) {
-                self.accumulate(c, w * v);
+            let Some(row) = next.row(e) else { continue };
+            // The row's step folded into the throughput once: each element is then whole steps.
+            let w = w * row.unit;
+            for (&c, &q) in row.cluster.iter().zip(row.value) {
+                self.accumulate(u32::from(c), w * next::steps(q));
             }
         }
         visited.clear();

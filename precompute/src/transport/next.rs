@@ -43,10 +43,15 @@ pub struct NextBounce {
     whole: Vec<u64>,
     /// Per entry, where its row starts in `cluster` and `value`; then their length.
     first: Vec<u32>,
-    /// Per row, the clusters ascending and their first bounce (irradiance per unit cluster
-    /// irradiance).
-    cluster: Vec<u32>,
-    value: Vec<Vec3>,
+    /// Per row, the clusters ascending (at most 65,536 clusters: `PrecomputeParams::check`)
+    /// and their first bounce (irradiance per unit cluster irradiance) in steps of the row's
+    /// `unit`: 8 bytes an element instead of 16, the table being the largest thing the walks
+    /// hold (192 MB on the 16 chambers before). A step is 1/65,535 of the row's largest value
+    /// per channel, far below the walks' noise.
+    cluster: Vec<u16>,
+    value: Vec<[u16; 3]>,
+    /// Per entry, its row's step per channel.
+    unit: Vec<Vec3>,
     /// A hit farther than this from its vertex is the walks' (scene units).
     radius: f32,
 }
@@ -54,13 +59,13 @@ pub struct NextBounce {
 impl NextBounce {
     /// The table for `entries` cells: each row is the mean first bounce at up to
     /// `CELL_SAMPLES` (4) of its cell's texels spread over it (a cell holds a texel when its
-    /// entry owns the texel's point), the links' (`links`, per covered texel) plus the far
+    /// entry owns the texel's point), the links' (`links(k)`, covered texel k's) plus the far
     /// field's (`first`). `lit`: the covered texels whose whole first bounce that is.
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         set: &TexelSet,
         owners: &CellOwners,
-        links: &[TexelPanes],
+        links: &(dyn Fn(usize) -> TexelPanes + Sync),
         lit: &[bool],
         first: &crate::far::FirstBounce,
         entries: usize,
@@ -103,14 +108,13 @@ impl NextBounce {
         // Each chunk's rows go straight into the table: only a chunk's are ever held twice.
         for cells in (0..entries).collect::<Vec<_>>().chunks(CELL_CHUNK) {
             let flat: Vec<usize> = cells.iter().flat_map(|&e| sample(e)).collect();
-            let mut exact: Vec<TexelPanes> =
-                flat.iter().map(|&k| links.get(k).cloned().unwrap_or_default()).collect();
+            let mut exact: Vec<TexelPanes> = flat.par_iter().map(|&k| links(k)).collect();
             first.add(&flat, &mut exact);
             let mut from = vec![0usize; cells.len() + 1];
             for (i, &e) in cells.iter().enumerate() {
                 from[i + 1] = from[i] + sample(e).count();
             }
-            let rows: Vec<TexelPanes> = (0..cells.len())
+            let rows: Vec<QuantisedRow> = (0..cells.len())
                 .into_par_iter()
                 .map_init(
                     || (vec![Vec3::ZERO; clusters], Vec::new()),
@@ -130,19 +134,19 @@ impl NextBounce {
                         let row: TexelPanes = touched
                             .iter()
                             .map(|&c| (c, std::mem::take(&mut acc[c as usize]) * scale))
-                            .filter(|(_, v)| *v != Vec3::ZERO)
                             .collect();
                         touched.clear();
-                        row
+                        quantise(&row)
                     },
                 )
                 .collect();
             drop(exact);
-            for row in rows {
+            for (unit, row) in rows {
                 out.first.push(out.cluster.len() as u32);
-                for (c, v) in row {
+                out.unit.push(unit);
+                for (c, q) in row {
                     out.cluster.push(c);
-                    out.value.push(v);
+                    out.value.push(q);
                 }
             }
         }
@@ -156,11 +160,12 @@ impl NextBounce {
         self.whole.get(a / 64).is_some_and(|w| w >> (a % 64) & 1 == 1)
     }
 
-    /// Entry `e`'s row (clusters, first bounce), None where its cell has none.
-    pub fn row(&self, e: u32) -> Option<(&[u32], &[Vec3])> {
+    /// Entry `e`'s row (clusters, first bounce in steps, the step), None where its cell has
+    /// none. Element k's first bounce is `unit * steps(value[k])`.
+    pub fn row(&self, e: u32) -> Option<Row<'_>> {
         let e = e as usize;
         let (a, b) = (*self.first.get(e)? as usize, *self.first.get(e + 1)? as usize);
-        (b > a).then(|| (&self.cluster[a..b], &self.value[a..b]))
+        (b > a).then(|| Row { cluster: &self.cluster[a..b], value: &self.value[a..b], unit: self.unit[e] })
     }
 
     /// Whether a hit `distance` from its vertex is in the table's reach.
@@ -172,6 +177,8 @@ impl NextBounce {
     /// atlas of `texels` texels (a plan file read back is checked with it).
     pub fn fits(&self, entries: usize, clusters: usize, texels: usize) -> bool {
         self.first.len() == entries + 1
+            && self.unit.len() == entries
+            && self.unit.iter().all(|u| u.is_finite() && u.min_element() >= 0.0)
             && self.first.first() == Some(&0)
             && self.first.windows(2).all(|w| w[0] <= w[1])
             && self.first.last().is_some_and(|&l| l as usize == self.cluster.len())
@@ -188,14 +195,81 @@ impl NextBounce {
             .map(|e| {
                 let (a, b) = (self.first[e] as usize, self.first[e + 1] as usize);
                 let mut h = FNV_START;
-                for (c, v) in self.cluster[a..b].iter().zip(&self.value[a..b]) {
+                for x in self.unit[e].to_array() {
+                    h = fnv1a(h, &crate::update::round16(x).to_le_bytes());
+                }
+                for (c, q) in self.cluster[a..b].iter().zip(&self.value[a..b]) {
                     h = fnv1a(h, &c.to_le_bytes());
-                    for x in v.to_array() {
-                        h = fnv1a(h, &crate::update::round16(x).to_le_bytes());
+                    for x in q {
+                        h = fnv1a(h, &x.to_le_bytes());
                     }
                 }
                 h
             })
             .collect()
+    }
+}
+
+/// A row's step per channel and its elements (cluster, steps), as [`quantise`] makes them.
+type QuantisedRow = (Vec3, Vec<(u16, [u16; 3])>);
+
+/// One cell's row of the table ([`NextBounce::row`]).
+pub struct Row<'a> {
+    pub cluster: &'a [u16],
+    pub value: &'a [[u16; 3]],
+    pub unit: Vec3,
+}
+
+/// A row's values as steps, per channel in units of its largest / 65,535, rounded to the
+/// nearest (what it adds is then within half a step of the mean it was made of); elements
+/// that round to nothing in every channel are left out. Clusters are below 65,536
+/// (`PrecomputeParams::check`).
+fn quantise(row: &TexelPanes) -> QuantisedRow {
+    let top = row.iter().fold(Vec3::ZERO, |m, &(_, v)| m.max(v));
+    let unit = top / f32::from(u16::MAX);
+    let inverse = Vec3::select(unit.cmpgt(Vec3::ZERO), unit.recip(), Vec3::ZERO);
+    let out = row
+        .iter()
+        .map(|&(c, v)| {
+            let q = (v * inverse).round().clamp(Vec3::ZERO, Vec3::splat(f32::from(u16::MAX)));
+            (c as u16, [q.x as u16, q.y as u16, q.z as u16])
+        })
+        .filter(|(_, q)| *q != [0; 3])
+        .collect();
+    (unit, out)
+}
+
+/// A row element's steps as floats.
+#[inline]
+pub fn steps(q: [u16; 3]) -> Vec3 {
+    Vec3::new(f32::from(q[0]), f32::from(q[1]), f32::from(q[2]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_quantised_row_is_within_half_a_step_of_its_values_and_drops_only_what_rounds_to_nothing() {
+        let row: TexelPanes = vec![
+            (3, Vec3::new(1.0, 0.5, 0.0)),
+            (7, Vec3::new(1e-6, 0.0, 0.0)),
+            (9, Vec3::new(0.25, 2.0, 1e-9)),
+            (65_535, Vec3::new(0.3, 0.7, 4e-3)),
+        ];
+        let (unit, q) = quantise(&row);
+        // The step per channel is the channel's largest over 65,535.
+        assert_eq!(unit, Vec3::new(1.0, 2.0, 4e-3) / 65_535.0);
+        // 1e-6 is under half a step of 1/65,535 in every channel: left out; the rest kept in order.
+        let kept: Vec<u16> = q.iter().map(|&(c, _)| c).collect();
+        assert_eq!(kept, [3, 9, 65_535]);
+        for &(c, s) in &q {
+            let v = row.iter().find(|&&(x, _)| x as u16 == c).map(|&(_, v)| v).unwrap();
+            let err = (unit * steps(s) - v).abs();
+            assert!(err.cmple(unit * 0.5 + 1e-12).all(), "cluster {c}: {v} came back as {}", unit * steps(s));
+        }
+        // A row of nothing stays nothing, with a zero step rather than a division by zero.
+        let (unit, q) = quantise(&vec![(1, Vec3::ZERO)]);
+        assert_eq!((unit, q.len()), (Vec3::ZERO, 0));
     }
 }
