@@ -203,10 +203,10 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
 
 /// [`entry_cells`], a triangle without an entry joining only an entry of its own room
 /// (`prm::rooms`; where both rooms are known). Without rooms a small floor triangle by the wall
-/// to the next room joined that room's floor entry, one spacing away in the same plane: the
-/// walks credited its light to the other room's cluster, and the next-bounce table's row of
-/// that cell named every cluster of both rooms (on the 16 chambers, half of the pane tiles
-/// encoded were such light, then dropped as negligible).
+/// to the next room could join that room's floor entry, a spacing or two away in the same
+/// plane (tested: two rooms 30 cm apart): the walks would credit its light to the other room's
+/// cluster, and the next-bounce table's row of that cell would name clusters of both rooms,
+/// as the far field's texels by a wall did on the 16 chambers (`crate::far`).
 pub fn entry_cells_in_rooms(
     scene: &Scene,
     entries: &[Entry],
@@ -313,7 +313,7 @@ pub fn entry_rooms(rooms: &prm::rooms::Rooms, entries: &[Entry]) -> Vec<Option<u
 /// The room in front of triangle `t`, seen along `n` (`prm::rooms`): its centroid's, else one
 /// near a corner (a strip along a wall has its centroid in the wall's voxels, its far corners
 /// in the room); None if all lie in surfaces' voxels.
-pub fn triangle_room(scene: &Scene, rooms: &prm::rooms::Rooms, t: usize, n: Vec3) -> Option<u32> {
+fn triangle_room(scene: &Scene, rooms: &prm::rooms::Rooms, t: usize, n: Vec3) -> Option<u32> {
     let corners = scene.corners(t);
     let centroid = corners.iter().sum::<Vec3>() / 3.0;
     let points = std::iter::once(centroid).chain(corners.map(|c| c.lerp(centroid, 0.1)));

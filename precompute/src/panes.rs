@@ -573,8 +573,8 @@ impl Accumulated {
     }
 
     /// Each pane's tiles, read back from the scratch file run by run: `each(pane, tile in
-    /// the pane, its energy, its record and codes)`.
-    fn read_back(&mut self, mut each: impl FnMut(usize, usize, f64, CachedTile)) -> std::io::Result<()> {
+    /// the pane, the tile)`.
+    fn read_back(&mut self, mut each: impl FnMut(usize, usize, CachedTile)) -> std::io::Result<()> {
         use std::io::{Read, Seek, SeekFrom, Write};
         self.spill.flush()?;
         let file = self.spill.get_mut();
@@ -588,7 +588,7 @@ impl Accumulated {
                 let mut at = 0;
                 for &energy in &pane[t..t + count as usize] {
                     let (tile, len) = spilled_tile(&buf[at..], energy)?;
-                    each(c, t, energy, tile);
+                    each(c, t, tile);
                     at += len;
                     t += 1;
                 }
@@ -602,7 +602,7 @@ impl Accumulated {
     /// `crate::update` caches.
     pub fn export(&mut self) -> std::io::Result<Vec<Vec<CachedTile>>> {
         let mut out: Vec<Vec<CachedTile>> = self.tiles.iter().map(|p| Vec::with_capacity(p.len())).collect();
-        self.read_back(|c, _, _, tile| out[c].push(tile))?;
+        self.read_back(|c, _, tile| out[c].push(tile))?;
         Ok(out)
     }
 
@@ -649,7 +649,7 @@ impl Accumulated {
     ) -> std::io::Result<Vec<(f32, u32, u32)>> {
         let before = tiles.len() as u32;
         let mut count = vec![0u32; self.tiles.len()];
-        self.read_back(|c, t, _, tile| {
+        self.read_back(|c, t, tile| {
             if keep[c][t] {
                 tiles.push(Tile { cluster: first_pane + c as u32, index: tile.index, scale: tile.scale });
                 data.extend_from_slice(&tile.codes);

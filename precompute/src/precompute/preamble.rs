@@ -94,9 +94,9 @@ impl Preamble {
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
 
-        // Each entry's room; one with no free voxel in front of it takes its neighbour's, and
-        // a texel with none (on a floor a millimetre from the wall, whose voxel column is the
-        // wall's) its cell's.
+        // Each entry's room; one with no free voxel in front of it takes another entry's on its
+        // triangle, else its neighbour's; a texel with none (on a floor a millimetre from the
+        // wall, whose voxel column is the wall's) takes its cell's.
         let (found, mut texel_room, side) =
             timed(&mut report.seconds_clustering, || rooms_of(&rooms, &entries, &set));
         drop(rooms);
