@@ -91,6 +91,15 @@ impl Rooms {
         (1..=8).find_map(|k| self.free_at(p + n * (k as f32 * 0.5 * self.side)))
     }
 
+    /// The room in front of a triangle (`corners`), seen along `n`: its centroid's, else one
+    /// near a corner (a strip along a wall has its centroid in the wall's voxels and its far
+    /// corners in the room); None if every one lies in surfaces' voxels.
+    pub fn room_of_triangle(&self, corners: [Vec3; 3], n: Vec3) -> Option<u32> {
+        let centroid = corners.iter().sum::<Vec3>() / 3.0;
+        let points = std::iter::once(centroid).chain(corners.map(|c| c.lerp(centroid, 0.1)));
+        points.filter_map(|p| self.room_of(p, n)).next()
+    }
+
     fn free_at(&self, p: Vec3) -> Option<u32> {
         let v = self.voxel(p)?;
         let l = self.label[v];
@@ -216,6 +225,20 @@ pub(crate) mod tests {
             quad(v(h.x, l.y, l.z), v(h.x, h.y, l.z), v(h.x, h.y, h.z), v(h.x, l.y, h.z));
         }
         out
+    }
+
+    /// A 15 cm strip of floor along a wall has its centroid in the wall's voxels (no room), and
+    /// its corner away from the wall in the room.
+    #[test]
+    fn a_strip_along_a_wall_finds_its_room_by_a_corner() {
+        let a = closed_box(Vec3::ZERO, Vec3::new(6.0, 3.0, 8.0), 0.0);
+        let rooms = Rooms::new(&a);
+        let inside = rooms.room_of(Vec3::new(3.0, 0.0, 4.0), Vec3::Y);
+        assert!(inside.is_some());
+        let strip = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 7.0), Vec3::new(0.15, 0.0, 7.0)];
+        let centroid = strip.iter().sum::<Vec3>() / 3.0;
+        assert_eq!(rooms.room_of(centroid, Vec3::Y), None, "the centroid's column is the wall's");
+        assert_eq!(rooms.room_of_triangle(strip, Vec3::Y), inside);
     }
 
     /// Two closed boxes a metre apart are two rooms (and the outside a third); the same boxes

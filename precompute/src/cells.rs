@@ -202,7 +202,7 @@ pub fn entry_cells(scene: &Scene, entries: &[Entry], keep: &[bool]) -> (Cells, C
 }
 
 /// [`entry_cells`], a triangle without an entry joining only an entry of its own room
-/// (`prm::rooms`; where both rooms are known). Without rooms a small floor triangle by the wall
+/// (`rooms` and the entries' rooms, [`entry_rooms`]; where both rooms are known). Without rooms a small floor triangle by the wall
 /// to the next room could join that room's floor entry, a spacing or two away in the same
 /// plane (tested: two rooms 30 cm apart): the walks would credit its light to the other room's
 /// cluster, and the next-bounce table's row of that cell would name clusters of both rooms,
@@ -211,7 +211,7 @@ pub fn entry_cells_in_rooms(
     scene: &Scene,
     entries: &[Entry],
     keep: &[bool],
-    rooms: Option<&prm::rooms::Rooms>,
+    rooms: Option<(&prm::rooms::Rooms, &[Option<u32>])>,
 ) -> (Cells, CellOwners, CellReport) {
     // Only kept entries share out their triangles: a triangle whose entries were all dropped
     // (inside a solid) is as one without entries, and is joined to a neighbour's cell.
@@ -240,21 +240,20 @@ pub fn entry_cells_in_rooms(
         }
     }
     let spacing = entries.first().map_or(0.0, |e| e.area.sqrt());
-    let (entry_room, triangle_room): (Vec<Option<u32>>, Vec<Option<u32>>) = match rooms {
-        Some(rooms) => {
-            let entry = entry_rooms(rooms, entries);
+    let (entry_room, triangle_room): (&[Option<u32>], Vec<Option<u32>>) = match rooms {
+        Some((rooms, entry)) => {
             let triangle = (0..scene.triangles.len())
                 .into_par_iter()
                 .map(|t| {
                     by_triangle[t]
                         .is_empty()
-                        .then(|| triangle_room(scene, rooms, t, scene.face_normal(t)))
+                        .then(|| rooms.room_of_triangle(scene.corners(t), scene.face_normal(t)))
                         .flatten()
                 })
                 .collect();
             (entry, triangle)
         }
-        None => (Vec::new(), Vec::new()),
+        None => (&[], Vec::new()),
     };
     // Whether triangle t may join entry j: not when both rooms are known and differ.
     let same_room = |t: usize, j: usize| match (triangle_room.get(t), entry_room.get(j)) {
@@ -308,16 +307,6 @@ pub fn entry_rooms(rooms: &prm::rooms::Rooms, entries: &[Entry]) -> Vec<Option<u
         }
     }
     entries.iter().zip(found).map(|(e, f)| f.or_else(|| of_triangle.get(&e.triangle).copied())).collect()
-}
-
-/// The room in front of triangle `t`, seen along `n` (`prm::rooms`): its centroid's, else one
-/// near a corner (a strip along a wall has its centroid in the wall's voxels, its far corners
-/// in the room); None if all lie in surfaces' voxels.
-fn triangle_room(scene: &Scene, rooms: &prm::rooms::Rooms, t: usize, n: Vec3) -> Option<u32> {
-    let corners = scene.corners(t);
-    let centroid = corners.iter().sum::<Vec3>() / 3.0;
-    let points = std::iter::once(centroid).chain(corners.map(|c| c.lerp(centroid, 0.1)));
-    points.filter_map(|p| rooms.room_of(p, n)).next()
 }
 
 /// For each triangle without an entry, the kept entry (sampled index) nearest along the

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use glam::Vec3;
 use prm::{load_scene, LoadOptions, Scene};
-use prm_precompute::cells::{entry_cells, entry_cells_in_rooms};
+use prm_precompute::cells::{entry_cells, entry_cells_in_rooms, entry_rooms};
 use prm_precompute::entries::sample_entries;
 
 mod common;
@@ -200,7 +200,8 @@ fn a_triangle_without_an_entry_joins_only_a_cell_of_its_own_room() {
     // With them it joins none (the second room's entry is too far): its area is left out.
     let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
     let rooms = prm::rooms::Rooms::new(&corners);
-    let (_, owners, _) = entry_cells_in_rooms(&scene, &entries, &[true; 2], Some(&rooms));
+    let room = entry_rooms(&rooms, &entries);
+    let (_, owners, _) = entry_cells_in_rooms(&scene, &entries, &[true; 2], Some((&rooms, &room)));
     for &t in &strip_triangles {
         assert_eq!(owners.owner(t, centroid(t)), None, "triangle {t}");
     }

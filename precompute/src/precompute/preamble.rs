@@ -88,7 +88,7 @@ impl Preamble {
             let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
             prm::rooms::Rooms::new(&corners)
         });
-        let (entries, (cells, owners, cell_report), enclosed) =
+        let (entries, found, (cells, owners, cell_report), enclosed) =
             timed(&mut report.seconds_entries, || lit_entries(scene, bvh, &rooms, params));
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
@@ -97,8 +97,10 @@ impl Preamble {
         // Each entry's room; one with no free voxel in front of it takes another entry's on its
         // triangle, else its neighbour's; a texel with none (on a floor a millimetre from the
         // wall, whose voxel column is the wall's) takes its cell's.
-        let (found, mut texel_room, side) =
-            timed(&mut report.seconds_clustering, || rooms_of(&rooms, &entries, &set));
+        let mut texel_room: Vec<Option<u32>> = timed(&mut report.seconds_clustering, || {
+            set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect()
+        });
+        let side = rooms.voxel_side();
         drop(rooms);
         let room = filled_rooms(&found);
         for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
@@ -357,20 +359,6 @@ fn exact_first_bounce(
     out
 }
 
-/// Each entry's room (`prm::rooms`): the clusters keep to one room, and the far field does not
-/// trace between blocks of entries in different rooms. None: no free voxel in front of it nor
-/// of another entry on its triangle (`cells::entry_rooms`). Also each covered texel's (set order), whose far field borrows from its room's entries
-/// only, and the voxels' side.
-fn rooms_of(
-    rooms: &prm::rooms::Rooms,
-    entries: &[Entry],
-    set: &TexelSet,
-) -> (Vec<Option<u32>>, Vec<Option<u32>>, f32) {
-    let entry = entry_rooms(rooms, entries);
-    let texel = set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect();
-    (entry, texel, rooms.voxel_side())
-}
-
 /// The rooms with each entry that has none given the room of the nearest entry before it that
 /// has one (entries follow their triangles, so that is its neighbour), or after it.
 fn filled_rooms(found: &[Option<u32>]) -> Vec<u32> {
@@ -392,15 +380,13 @@ fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
     out
 }
 
-/// The entry points with their cells. An entry inside a solid moves to a point of its
+/// [`lit_entries`]' result: the kept entries, their rooms, their cells, and how many were left out.
+type LitEntries = (Vec<Entry>, Vec<Option<u32>>, (Cells, CellOwners, CellReport), usize);
+
+/// The entry points with their rooms (`cells::entry_rooms`) and cells. An entry inside a solid moves to a point of its
 /// triangle outside it, or is left out (how many are is the last value): it would never see
 /// light, and in a cluster's mean it would only dim it.
-fn lit_entries(
-    scene: &Scene,
-    bvh: &Bvh,
-    rooms: &prm::rooms::Rooms,
-    params: &PrecomputeParams,
-) -> (Vec<Entry>, (Cells, CellOwners, CellReport), usize) {
+fn lit_entries(scene: &Scene, bvh: &Bvh, rooms: &prm::rooms::Rooms, params: &PrecomputeParams) -> LitEntries {
     let first = sample_entries(scene, params.entries as usize, params.seed);
     let sampled: Vec<Option<Entry>> = first
         .par_iter()
@@ -418,9 +404,15 @@ fn lit_entries(
     // A left-out entry keeps its first point: it takes no cell.
     let placed: Vec<Entry> = sampled.iter().zip(&first).map(|(e, f)| e.unwrap_or(*f)).collect();
     let entries: Vec<Entry> = sampled.iter().flatten().copied().collect();
-    let cells = entry_cells_in_rooms(scene, &placed, &keep, Some(rooms));
+    // The kept entries' rooms, once: the cells' (by sampled index, none for a left-out entry)
+    // and the clusters' and far field's.
+    let room = entry_rooms(rooms, &entries);
+    let mut kept = room.iter();
+    let placed_room: Vec<Option<u32>> =
+        keep.iter().map(|&k| if k { kept.next().copied().flatten() } else { None }).collect();
+    let cells = entry_cells_in_rooms(scene, &placed, &keep, Some((rooms, &placed_room)));
     let enclosed = sampled.len() - entries.len();
-    (entries, cells, enclosed)
+    (entries, room, cells, enclosed)
 }
 
 /// The texel size the level's generated UVs were packed at in pages (how it loads again with
