@@ -100,6 +100,75 @@ impl Rooms {
         points.filter_map(|p| self.room_of(p, n)).next()
     }
 
+    /// Calls `found` with the room of each free voxel among a few points of the segment
+    /// `a..b` (half a voxel in from each end, and its middle). A segment of a ray between two
+    /// surfaces lies in free space, and a free voxel has no surface within a quarter voxel, so
+    /// the room of such a point is the room of the whole segment: unlike a point on a surface
+    /// seen along its normal ([`Rooms::room_of`]), nothing can lie between them.
+    pub fn rooms_on_segment(&self, a: Vec3, b: Vec3, mut found: impl FnMut(u32)) {
+        let len = a.distance(b);
+        if !len.is_finite() {
+            return;
+        }
+        let f = (0.5 * self.side / len.max(f32::MIN_POSITIVE)).min(0.5);
+        for t in [f, 0.5, 1.0 - f] {
+            if let Some(r) = self.free_at(a.lerp(b, t)) {
+                found(r);
+            }
+        }
+    }
+
+    /// The rooms whose free voxels overlap the box `lo..hi` grown by `grow` voxels on every
+    /// side (clamped to the grid; a box outside it meets the border voxels), sorted. What an
+    /// update asks of an edited region: which rooms' walks can have passed through it.
+    pub fn rooms_in_box(&self, lo: Vec3, hi: Vec3, grow: usize) -> Vec<u32> {
+        if !(lo.is_finite() && hi.is_finite()) {
+            return (0..self.count).collect();
+        }
+        let cell = |p: Vec3, k: usize| {
+            let q = ((p[k] - self.lo[k]) / self.side).floor();
+            (q.max(0.0) as usize).min(self.dims[k] - 1)
+        };
+        let a: [usize; 3] = std::array::from_fn(|k| cell(lo, k).saturating_sub(grow));
+        let b: [usize; 3] = std::array::from_fn(|k| (cell(hi, k) + grow).min(self.dims[k] - 1));
+        let mut found = std::collections::BTreeSet::new();
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                let row = (z * self.dims[1] + y) * self.dims[0];
+                for &l in &self.label[row + a[0]..=row + b[0]] {
+                    if l != SOLID {
+                        found.insert(l);
+                    }
+                }
+            }
+        }
+        found.into_iter().collect()
+    }
+
+    /// Per room of this level, the rooms of `other` (the same level after an edit) in which
+    /// its free voxels' centres lie, sorted; empty where none does. Room labels are given in
+    /// voxel order, so an edit can renumber rooms it did not touch: this maps the labels of
+    /// one to the other's.
+    pub fn rooms_in(&self, other: &Rooms) -> Vec<Vec<u32>> {
+        let mut sets = vec![std::collections::BTreeSet::new(); self.count as usize];
+        let [nx, ny, _] = self.dims;
+        let mut last = (SOLID, SOLID);
+        for (v, &l) in self.label.iter().enumerate() {
+            if l == SOLID {
+                continue;
+            }
+            let c = Vec3::new((v % nx) as f32, ((v / nx) % ny) as f32, (v / (nx * ny)) as f32);
+            if let Some(m) = other.free_at(self.lo + (c + 0.5) * self.side) {
+                // Neighbouring voxels mostly repeat the last pair.
+                if (l, m) != last {
+                    sets[l as usize].insert(m);
+                    last = (l, m);
+                }
+            }
+        }
+        sets.into_iter().map(|s| s.into_iter().collect()).collect()
+    }
+
     fn free_at(&self, p: Vec3) -> Option<u32> {
         let v = self.voxel(p)?;
         let l = self.label[v];
@@ -282,6 +351,49 @@ pub(crate) mod tests {
             rooms.room_of(Vec3::new(6.5, 3.0, 1.0), up),
             "the corridor keeps them from the outside"
         );
+    }
+
+    /// A box in one of two closed rooms meets that room only; grown past the wall it meets the
+    /// outside too; and after room a is filled with small closed boxes (its labels go to
+    /// their insides, the others' shift), room b maps to the new label of its own space and a
+    /// never to that.
+    #[test]
+    fn rooms_in_a_box_and_the_labels_after_an_edit() {
+        let a = closed_box(Vec3::ZERO, Vec3::new(6.0, 3.0, 8.0), 0.0);
+        let b = closed_box(Vec3::new(7.0, 0.0, 0.0), Vec3::new(13.0, 3.0, 8.0), 0.0);
+        let both = Rooms::new(&[a.clone(), b.clone()].concat());
+        let up = Vec3::Y;
+        let ra = both.room_of(Vec3::new(3.0, 0.0, 4.0), up).unwrap();
+        let rb = both.room_of(Vec3::new(10.0, 0.0, 4.0), up).unwrap();
+        let out = both.room_of(Vec3::new(6.0, 1.5, 4.0), Vec3::X).unwrap();
+        let crate_lo = Vec3::new(2.0, 0.0, 3.0);
+        let crate_hi = Vec3::new(3.0, 1.0, 4.0);
+        assert_eq!(both.rooms_in_box(crate_lo, crate_hi, 2), vec![ra]);
+        assert_eq!(both.rooms_in_box(Vec3::new(10.0, 0.0, 3.0), Vec3::new(11.0, 1.0, 4.0), 2), vec![rb]);
+        let wide = both.rooms_in_box(Vec3::new(5.0, 1.0, 3.0), Vec3::new(5.9, 1.0, 4.0), 2);
+        assert_eq!(wide, {
+            let mut w = vec![ra, out];
+            w.sort();
+            w
+        });
+        assert_eq!(both.rooms_in_box(Vec3::NAN, Vec3::ONE, 0).len(), both.count() as usize);
+
+        // Room a filled solid by a block of small boxes: its space is gone, b keeps its space
+        // under whatever label it now has.
+        let mut fill = Vec::new();
+        for i in 0..12 {
+            for k in 0..16 {
+                let lo = Vec3::new(0.5 * i as f32, 0.0, 0.5 * k as f32);
+                fill.extend(closed_box(lo, lo + Vec3::new(0.5, 3.0, 0.5), 0.0));
+            }
+        }
+        let filled = Rooms::new(&[a, b, fill].concat());
+        let map = both.rooms_in(&filled);
+        assert_eq!(map.len(), both.count() as usize);
+        assert_eq!(map[rb as usize], vec![filled.room_of(Vec3::new(10.0, 0.0, 4.0), up).unwrap()]);
+        assert!(map[ra as usize].iter().all(|&m| m != map[rb as usize][0]), "{map:?}");
+        let same = both.rooms_in(&both);
+        assert!((0..both.count()).all(|r| same[r as usize] == vec![r]), "{same:?}");
     }
 
     /// Non-finite corners and an empty level give one room, never a panic.

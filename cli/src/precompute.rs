@@ -311,6 +311,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             "tiles_hit": report.update_tiles_hit,
             "tiles_encoded": report.update_tiles_encoded,
             "texels_walked": report.update_texels_walked,
+            "rooms_touched": report.update_rooms_touched,
         });
     }
     if a.json {
@@ -350,9 +351,10 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         if a.update.is_some() && refused.is_none() {
             let u = &v["update"];
             println!(
-                "  update of {}: the edit reached {} of {} atlas tiles; {} encoded again, {} of {} texels \
-                    walked again ({:.1} %), the rest from {}",
+                "  update of {}: the edit reached {} room(s) and {} of {} atlas tiles; {} encoded again, {} \
+                    of {} texels walked again ({:.1} %), the rest from {}",
                 a.update.as_ref().map_or(String::new(), |p| p.display().to_string()),
+                report.update_rooms_touched,
                 report.update_tiles_hit,
                 u["tiles"],
                 report.update_tiles_encoded,

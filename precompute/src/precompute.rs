@@ -12,6 +12,7 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use glam::Vec3;
 use prm::density::Atlas;
 use prm::prm_file::{Dipoles, Entry, Header, InvalidPrm, Prm, PrmParts};
 use prm::{Bvh, Scene};
@@ -23,8 +24,8 @@ use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
 use crate::transport::{Estimator, TexelDipoles, TexelPanes};
 use crate::update::{
-    edited_voxels, refusal, tile_digests, triangle_digests, CachedTile, Plan, Refused, TileRecord,
-    UpdateCache, VoxelGrid,
+    edited_voxels, meets, refusal, relabel, tile_digests, triangle_digests, CachedTile, Plan, Refused,
+    TileRecord, UpdateCache, VoxelGrid,
 };
 use rayon::prelude::*;
 
@@ -310,10 +311,12 @@ pub struct Report {
     pub dipole_bytes: usize,
     pub threads: usize,
     /// An update's atlas tiles the edit reached (their walks or other inputs changed), the
-    /// tiles encoded again (those within reach of one), and the texels walked again.
+    /// tiles encoded again (those within reach of one), the texels walked again, and the rooms
+    /// of the level as baked whose walks could meet the edit (`crate::update::Edit::rooms`).
     pub update_tiles_hit: usize,
     pub update_tiles_encoded: usize,
     pub update_texels_walked: usize,
+    pub update_rooms_touched: usize,
 }
 
 /// Why a precompute gave no map.
@@ -440,21 +443,27 @@ pub fn precompute_with(
         .into()),
         _ => Ok(()),
     };
-    let pre =
-        Preamble::build(scene, bvh, params, reuse.cache(), same_entries, &mut report, progress, cancel)?;
+    let pre = Preamble::build(
+        scene,
+        bvh,
+        params,
+        reuse.cache(),
+        tracing,
+        same_entries,
+        &mut report,
+        progress,
+        cancel,
+    )?;
     let linked = pre.linked();
     let set = &pre.set;
     let rows = pre.next.as_ref().map_or(Vec::new(), |n| n.row_digests());
-    // The update's plan: which tiles the edit reaches, which texels to walk again.
-    let digests = tracing.then(|| {
-        let first = pre.first_bounce();
-        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &|r| {
-            pre.band_exact(r, first.as_ref())
-        })
-    });
-    let plan = match (reuse, &triangles, &digests) {
-        (Reuse::Update { cache, old }, Some(triangles), Some(digests)) => {
-            let edited = edited_voxels(
+    // The update's plan: what the edit changed and the rooms whose walks could meet it (in
+    // the rooms of the level as baked, which the cache's tiles name, rebuilt from its
+    // triangles), then which tiles it reaches and which texels to walk again.
+    let t = Instant::now();
+    let edit = match (reuse, &triangles) {
+        (Reuse::Update { cache, old }, Some(triangles)) => {
+            let edit = edited_voxels(
                 cache,
                 triangles,
                 scene,
@@ -462,7 +471,60 @@ pub fn precompute_with(
                 (&pre.entries, &pre.cells),
                 &rows,
             );
-            let plan = Plan::new(cache, set, params.tile_size, pre.smoothing.as_ref(), digests, &edited);
+            let corners: Vec<[Vec3; 3]> = cache.triangles.iter().map(|t| t.0).collect();
+            let baked = prm::rooms::Rooms::new(&corners);
+            let touched = edit.rooms(&baked);
+            // What each room as baked is called now.
+            let now = pre.rooms.as_ref().map(|r| baked.rooms_in(r)).unwrap_or_default();
+            Some((edit, touched, now))
+        }
+        _ => None,
+    };
+    report.seconds_clustering += t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let digests = tracing.then(|| {
+        // An update makes again only the digests of tiles whose walks lay in a touched room
+        // (or that had none): the others' texels, links and far field lie in rooms the edit
+        // did not reach, so their inputs are as the cache has them (module doc of `update`).
+        let only: Option<Vec<bool>> = match (reuse.cache(), &edit) {
+            (Some(cache), Some((_, touched, _))) => {
+                Some(cache.tiles.iter().map(|t| t.rooms.is_empty() || meets(&t.rooms, touched)).collect())
+            }
+            _ => None,
+        };
+        let tx = params.atlas.width().div_ceil(params.tile_size) as usize;
+        let need: Option<Vec<bool>> = only.as_ref().map(|o| {
+            set.texels.iter().map(|t| o[crate::update::tile_of(t.i, t.j, params.tile_size, tx)]).collect()
+        });
+        let first = pre.first_bounce();
+        let exact = |r| pre.band_exact(r, first.as_ref(), need.as_deref());
+        let mut d = tile_digests(
+            set,
+            params.tile_size,
+            pre.smoothing.as_ref(),
+            linked.as_ref(),
+            only.as_deref(),
+            &exact,
+        );
+        if let (Some(only), Some(cache)) = (&only, reuse.cache()) {
+            for (k, d) in d.iter_mut().enumerate().filter(|(k, _)| !only[*k]) {
+                *d = cache.tiles[k].inputs;
+            }
+        }
+        d
+    });
+    report.seconds_panes += t.elapsed().as_secs_f64();
+    let plan = match (reuse, &triangles, &digests, edit) {
+        (Reuse::Update { cache, .. }, Some(_), Some(digests), Some((edit, touched, now))) => {
+            let plan = Plan::new(
+                cache,
+                set,
+                params.tile_size,
+                pre.smoothing.as_ref(),
+                digests,
+                &edit.voxels,
+                &touched,
+            );
             let layout = Encoder::new(set, None, params.tile_size, 1).tile_codes();
             // Tiles taken from the cache must hold as many codes as this atlas stores there
             // (a tile whose stored texels changed has another digest, so it is not taken).
@@ -477,7 +539,8 @@ pub fn precompute_with(
             report.update_tiles_hit = plan.hit.iter().filter(|&&h| h).count();
             report.update_tiles_encoded = plan.dirty.iter().filter(|&&d| d).count();
             report.update_texels_walked = plan.walk.iter().filter(|&&w| w).count();
-            Some((plan, cache))
+            report.update_rooms_touched = touched.len();
+            Some((plan, cache, now))
         }
         _ => None,
     };
@@ -496,16 +559,17 @@ pub fn precompute_with(
     );
     let mut records =
         tracing.then(|| vec![TileRecord { footprint: vec![0; grid.words()], ..Default::default() }; tx * ty]);
+    let rooms = pre.rooms.as_ref();
     // With a voxel grid each walked texel is recorded in its tile; with a plan only its
     // texels are walked (the others give nothing and are taken from the cache).
     let mut walk = |range: Range<usize>, control: Control| -> Result<Walked, PrecomputeError> {
-        let Some(records) = records.as_mut() else {
+        let (Some(records), Some(rooms)) = (records.as_mut(), rooms) else {
             return Ok(transport.run_texels(&prepared, &set.texels[range], set.width, control)?);
         };
         let todo: Vec<usize> =
-            range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _)| p.walk[k])).collect();
+            range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _, _)| p.walk[k])).collect();
         let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
-        let walked = transport.run_traced(&texels, set.width, &grid, control)?;
+        let walked = transport.run_traced(&texels, set.width, &grid, rooms, control)?;
         let mut out: Walked = vec![(Vec::new(), Vec::new()); range.len()];
         for (&k, (p, trace)) in todo.iter().zip(walked) {
             let t = &set.texels[k];
@@ -515,11 +579,20 @@ pub fn precompute_with(
             }
             r.truncated += trace.truncated;
             r.unowned += trace.unowned;
+            if !trace.rooms.iter().all(|x| r.rooms.binary_search(x).is_ok()) {
+                r.rooms.extend(trace.rooms);
+                r.rooms.sort_unstable();
+                r.rooms.dedup();
+            }
             out[k - range.start].0 = p;
         }
         Ok(out)
     };
-    let cached = plan.as_ref().map(|(plan, cache)| (&plan.dirty[..], &cache.panes[..]));
+    let cached = plan.as_ref().map(|(plan, cache, _)| CachedPanes {
+        dirty: &plan.dirty,
+        panes: &cache.panes,
+        walk: &plan.walk,
+    });
     crate::memory::release_freed();
     let mut acc = walk_and_encode(&pre, params, &mut walk, cached, progress, cancel, &mut report)?;
     // The estimator's tables (virtual lights, MIS) are the walks' only (`walk`, which borrows
@@ -531,10 +604,11 @@ pub fn precompute_with(
     report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
     // An update walked some texels only: the counters are the tiles' (the same totals a full
     // bake's walks give, tile by tile).
-    if let (Some((plan, cache)), Some(records)) = (&plan, records.as_mut()) {
+    if let (Some((plan, cache, now)), Some(records)) = (&plan, records.as_mut()) {
         for (k, r) in records.iter_mut().enumerate() {
             if !plan.dirty[k] {
                 *r = cache.tiles[k].clone();
+                r.rooms = relabel(&r.rooms, now);
             }
         }
         report.walks_truncated = records.iter().map(|r| r.truncated as usize).sum();
@@ -713,15 +787,26 @@ pub(crate) struct Encoded {
 /// pane's tiles in each band as it is done (`crate::panes`), holding only the walks the next
 /// bands still need. With `cached` (an update's dirty tiles and the cache's pane tiles), only
 /// the dirty tiles are encoded, the rest taken from the cache.
+/// What an update takes from its cache (`crate::update::Plan`): per atlas tile whether it is
+/// encoded again, the cached pane tiles, and per texel whether it is walked again (only those
+/// need their exact first bounce).
+#[derive(Clone, Copy)]
+pub(crate) struct CachedPanes<'a> {
+    pub dirty: &'a [bool],
+    pub panes: &'a [Vec<CachedTile>],
+    pub walk: &'a [bool],
+}
+
 pub(crate) fn walk_and_encode(
     pre: &Preamble,
     params: &PrecomputeParams,
     walk: &mut WalkSource,
-    cached: Option<(&[bool], &[Vec<CachedTile>])>,
+    cached: Option<CachedPanes>,
     progress: &(dyn Fn(Phase, usize, usize) + Sync),
     cancel: &AtomicBool,
     report: &mut Report,
 ) -> Result<Encoded, PrecomputeError> {
+    let need = cached.map(|c| c.walk);
     let (set, grouping) = (&pre.set, pre.grouping.as_ref());
     let encoder = Encoder::new(set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let clusters = pre.clustering.members.len();
@@ -730,7 +815,7 @@ pub(crate) fn walk_and_encode(
         groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
         dipoles: if pre.dipoles.is_empty() { None } else { Some(Accumulated::new(3 * pre.dipoles.len())?) },
     };
-    let reuse = cached.map(|(dirty, panes)| {
+    let reuse = cached.map(|CachedPanes { dirty, panes, .. }| {
         let split = clusters.min(panes.len());
         (dirty, &panes[..split], &panes[split..])
     });
@@ -771,9 +856,9 @@ pub(crate) fn walk_and_encode(
             Vec::new()
         };
         if kept.start == range.start && !exact.is_empty() {
-            exact.extend(pre.band_exact(kept.end..range.end, first_bounce.as_ref()));
+            exact.extend(pre.band_exact(kept.end..range.end, first_bounce.as_ref(), need));
         } else {
-            exact = pre.band_exact(range.clone(), first_bounce.as_ref());
+            exact = pre.band_exact(range.clone(), first_bounce.as_ref(), need);
         }
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
         encoder.encode_band(band, first, &panes, &exact, &mut out.fine, fine_reuse)?;

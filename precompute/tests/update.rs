@@ -63,6 +63,27 @@ fn two_sealed_rooms(block: Vec3) -> Scene {
     scene(&qs)
 }
 
+/// Two sealed 10 m rooms `gap` apart along x, a 2.5 x 3 x 2.5 m block on the first room's
+/// floor at `block` (its lower corner).
+fn two_large_rooms(gap: f32, block: Vec3) -> Scene {
+    let mut qs: Vec<([Vec3; 4], u32)> = Vec::new();
+    for (room, dx) in [(0, 0.0), (1, 10.0 + gap)] {
+        qs.extend(unit_box_faces().into_iter().map(|q| (q.map(|p| p * 10.0 + v(dx, 0.0, 0.0)), room)));
+    }
+    let (lo, hi) = (block, block + v(2.5, 3.0, 2.5));
+    qs.extend(
+        [
+            [v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(hi.x, hi.y, hi.z), v(hi.x, hi.y, lo.z)],
+            [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, lo.y, lo.z)],
+            [v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
+            [v(lo.x, lo.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z), v(lo.x, lo.y, lo.z)],
+            [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
+        ]
+        .map(|q| (q, 0)),
+    );
+    scene(&qs)
+}
+
 fn params() -> PrecomputeParams {
     PrecomputeParams {
         entries: 1024,
@@ -178,6 +199,73 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
     let d = distance(&back.prm, &old, &covered);
     assert!(d < 1e-4, "moving the block back is {d:.2e} from the original");
     assert_eq!(back.prm.to_bytes(), old_bytes, "moving the block back is not the original");
+}
+
+/// A block moved along the wall two large rooms share. The walks' footprint grid (0.4 m
+/// voxels here, grown by one) cannot tell the far side of a 30 cm gap from the near one, so
+/// by the footprint alone the second room's walks met the edit; by the rooms their points lay
+/// in, they did not, and the update walks none of them and is still its twin to the byte.
+#[test]
+fn rooms_keep_an_edit_by_a_shared_wall_out_of_the_next_room() {
+    let p = params();
+    let gap = 0.3;
+    let before = two_large_rooms(gap, v(7.4, 0.0, 2.0));
+    let after = two_large_rooms(gap, v(7.4, 0.0, 3.0));
+    let (old, cache, _) = baked(&before, &p, Reuse::Nothing, true);
+    assert!(cache.grid.side > 0.3, "the footprint grid is finer than this test needs: {:?}", cache.grid);
+    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let (_, _, twin_bytes) = baked(&after, &p, Reuse::Clusters(&cache), true);
+    assert_eq!(up.prm.to_bytes(), twin_bytes, "the update differs from a full walk with the old clusters");
+
+    // Tiles hold one chart each (two tiles a side); charts 0-5 are the first room's walls,
+    // 6-11 the second's. The second room's walked tiles lay in one room, the same for all.
+    // The first room's never lay in it; some of them are anywhere (ANY_ROOM): the wall texels
+    // behind the block, whose walks stay in the 10 cm slot between the two, in voxels the
+    // surfaces mark, so none of them could be placed.
+    let chart_of = |k: usize| (k / 10 / 2) * 5 + (k % 10) / 2;
+    let walked = |k: usize| !cache.tiles[k].rooms.is_empty();
+    let second: Vec<usize> =
+        (0..cache.tiles.len()).filter(|&k| (6..12).contains(&chart_of(k)) && walked(k)).collect();
+    assert!(!second.is_empty());
+    let room = cache.tiles[second[0]].rooms.clone();
+    assert!(room.len() == 1 && room[0] != prm_precompute::transport::ANY_ROOM, "{room:?}");
+    for &k in &second {
+        assert_eq!(cache.tiles[k].rooms, room, "tile {k} of the second room");
+    }
+    let first: Vec<usize> = (0..cache.tiles.len()).filter(|&k| chart_of(k) < 6 && walked(k)).collect();
+    assert!(first.iter().all(|&k| !cache.tiles[k].rooms.contains(&room[0])));
+    let anywhere =
+        first.iter().filter(|&&k| cache.tiles[k].rooms.contains(&prm_precompute::transport::ANY_ROOM));
+    assert!(anywhere.count() < first.len() / 4, "most of the first room's walks were placed nowhere");
+    // The block's old and new boxes, grown by one voxel as the update grows them, meet the
+    // footprint of some tile of the second room's wall facing the block.
+    let mut bits = vec![0u64; cache.grid.words()];
+    for z in [2.0, 3.0] {
+        cache.grid.mark_box(v(7.4, 0.0, z), v(9.9, 3.0, z + 2.5), &mut bits);
+    }
+    let grown = cache.grid.grow(&bits);
+    let reached = (0..cache.tiles.len())
+        .filter(|&k| (6..12).contains(&chart_of(k)))
+        .filter(|&k| cache.tiles[k].footprint.iter().zip(&grown).any(|(a, b)| a & b != 0))
+        .count();
+    assert!(reached > 0, "no tile of the second room came within a voxel of the block");
+    // ... but none of the second room's texels was walked again.
+    let set = prm::TexelSet::build(&after, 160, 160);
+    let in_first = set.texels.iter().filter(|t| t.position.x < 10.0 + 0.5 * gap).count();
+    let r = &up.report;
+    assert!(
+        r.update_texels_walked > 0 && r.update_texels_walked <= in_first,
+        "{} of {in_first}",
+        r.update_texels_walked
+    );
+    eprintln!(
+        "block by the shared wall: {} of {} tiles hit, {} of {} texels walked, {reached} second-room tiles \
+         within the footprint",
+        r.update_tiles_hit,
+        cache.tiles.len(),
+        r.update_texels_walked,
+        r.texels
+    );
 }
 
 /// The map is made of the level's triangles alone (never its lights): with every triangle as

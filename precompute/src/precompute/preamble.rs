@@ -54,6 +54,9 @@ pub struct Preamble {
     pub(crate) frames: Vec<Frame>,
     #[serde(skip)]
     pub(crate) dipoles: Vec<Dipole>,
+    /// The level's rooms, kept when the walks are recorded for an update (`keep_rooms`).
+    #[serde(skip)]
+    pub(crate) rooms: Option<prm::rooms::Rooms>,
     /// The header's level fingerprint and page texel size, and what the walks' rays meet
     /// (`prm::fingerprint::geometry_fingerprint`: a shard checks its level with it).
     pub(crate) fingerprint: String,
@@ -67,13 +70,14 @@ pub struct Preamble {
 impl Preamble {
     /// Every phase before the walks (module doc), timed into `report`. `check` sees the
     /// entries before they are clustered (an update refuses there); `cache` gives the
-    /// clusters and groups instead of k-means.
+    /// clusters and groups instead of k-means; `keep_rooms` keeps the level's rooms.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn build(
         scene: &Scene,
         bvh: &Bvh,
         params: &PrecomputeParams,
         cache: Option<&UpdateCache>,
+        keep_rooms: bool,
         check: impl FnOnce(&[Entry]) -> Result<(), PrecomputeError>,
         report: &mut Report,
         progress: &(dyn Fn(Phase, usize, usize) + Sync),
@@ -101,17 +105,17 @@ impl Preamble {
             set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect()
         });
         let side = rooms.voxel_side();
-        drop(rooms);
+        let rooms = keep_rooms.then_some(rooms);
         let room = filled_rooms(&found);
         for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
             *r = owners.owner(t.triangle as usize, t.position).and_then(|e| room.get(e as usize).copied());
         }
         report.room_voxel = side;
+        report.rooms = room.iter().collect::<std::collections::BTreeSet<_>>().len();
         let clustering = timed(&mut report.seconds_clustering, || match cache {
             Some(cache) => Clustering::from_assignment(&cache.assignment, cache.clusters),
             None => {
                 let k = params.clusters as usize;
-                report.rooms = room.iter().collect::<std::collections::BTreeSet<_>>().len();
                 cluster_by_room(
                     &entries,
                     &room,
@@ -206,6 +210,7 @@ impl Preamble {
             smoothing,
             frames,
             dipoles,
+            rooms,
             fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
             geometry: geometry_fingerprint(scene),
             page_texel_size: page_texel_size(scene),
@@ -251,25 +256,51 @@ impl Preamble {
     /// The exact first bounce of covered texels `range` (set order): the links', and the far
     /// field's too where `first` is given ([`Preamble::first_bounce`]), made here so that it is
     /// never held for the whole level.
+    /// With `need` (an update's texels walked again) only the texels it marks get theirs;
+    /// the others', which are taken from the cache, are left empty.
     pub(crate) fn band_exact(
         &self,
         range: std::ops::Range<usize>,
         first: Option<&FirstBounce>,
+        need: Option<&[bool]>,
     ) -> Vec<TexelPanes> {
         let linked = self.keep.is_some();
         if !linked && first.is_none() {
             return Vec::new();
         }
-        let mut out: Vec<TexelPanes> = if linked {
+        // Runs of the texels that need it (a texel's value does not depend on the run).
+        let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+        for k in range.clone().filter(|&k| need.is_none_or(|n| n[k])) {
+            match runs.last_mut() {
+                Some(r) if r.end == k => r.end = k + 1,
+                _ => runs.push(k..k + 1),
+            }
+        }
+        let mut out: Vec<TexelPanes> = vec![Vec::new(); range.len()];
+        if linked {
             let area: Vec<f32> = (0..self.entries.len()).map(|j| self.cells.area(j)).collect();
             let assignment = &self.clustering.assignment;
-            exact_first_bounce(&self.set, &self.entries, &area, &self.near, assignment, range.clone())
-        } else {
-            vec![Vec::new(); range.len()]
-        };
+            for run in &runs {
+                let exact =
+                    exact_first_bounce(&self.set, &self.entries, &area, &self.near, assignment, run.clone());
+                for (o, e) in out[run.start - range.start..].iter_mut().zip(exact) {
+                    *o = e;
+                }
+            }
+        }
         if let Some(first) = first {
-            let texels: Vec<usize> = range.collect();
-            first.add(&texels, &mut out);
+            if need.is_none() {
+                let texels: Vec<usize> = range.collect();
+                first.add(&texels, &mut out);
+            } else {
+                let texels: Vec<usize> = runs.iter().flat_map(|r| r.clone()).collect();
+                let mut some: Vec<TexelPanes> =
+                    texels.iter().map(|&k| std::mem::take(&mut out[k - range.start])).collect();
+                first.add(&texels, &mut some);
+                for (&k, e) in texels.iter().zip(some) {
+                    out[k - range.start] = e;
+                }
+            }
         }
         out
     }

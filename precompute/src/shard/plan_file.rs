@@ -203,6 +203,7 @@ impl Plan {
             smoothing: None,
             frames: Vec::new(),
             dipoles: Vec::new(),
+            rooms: None,
             fingerprint: String::new(),
             geometry,
             page_texel_size: 0.0,

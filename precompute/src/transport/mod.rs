@@ -57,6 +57,7 @@ use crate::parallel::{par_texels, Cancelled, Control};
 use crate::update::{Recorder, VoxelGrid};
 pub use gather::MisTables;
 pub use next::NextBounce;
+use prm::rooms::Rooms;
 
 /// How pane contents are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -132,22 +133,33 @@ struct Scratch<'f> {
 struct Tracing<'f> {
     grid: &'f VoxelGrid,
     voxels: Recorder,
+    /// The level's rooms, and those the texel's walks' segments lay in (sorted).
+    rooms: &'f Rooms,
+    found: Vec<u32>,
+    /// Whether any walk of the texel was placed in a room.
+    placed: bool,
     truncated: u64,
     unowned: u64,
 }
 
+/// A texel's rooms ([`Trace::rooms`]) when none of its walks' segments could be placed in a
+/// room: its walks may have been anywhere.
+pub const ANY_ROOM: u32 = u32::MAX;
+
 /// What [`Transport::run_traced`] says of one texel's walks besides its contributions: the
-/// voxels their segments passed through (each once), the walks cut at the bounce cap and the
+/// voxels their segments passed through (each once), the rooms their segments lie in (sorted;
+/// [`ANY_ROOM`] when no segment could be placed), the walks cut at the bounce cap and the
 /// vertices no entry owned.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Trace {
     pub voxels: Vec<u32>,
+    pub rooms: Vec<u32>,
     pub truncated: u64,
     pub unowned: u64,
 }
 
 impl<'f> Scratch<'f> {
-    fn new(clusters: usize, frames: &'f [Frame], grid: Option<&'f VoxelGrid>) -> Self {
+    fn new(clusters: usize, frames: &'f [Frame], grid: Option<(&'f VoxelGrid, &'f Rooms)>) -> Self {
         let dipoles = if frames.is_empty() { 0 } else { clusters };
         Scratch {
             dense: vec![Vec3::ZERO; clusters],
@@ -156,25 +168,48 @@ impl<'f> Scratch<'f> {
             visits: Vec::new(),
             visited: Vec::new(),
             frames,
-            trace: grid.map(|grid| Tracing { grid, voxels: Recorder::new(grid), truncated: 0, unowned: 0 }),
+            trace: grid.map(|(grid, rooms)| Tracing {
+                grid,
+                voxels: Recorder::new(grid),
+                rooms,
+                found: Vec::new(),
+                placed: false,
+                truncated: 0,
+                unowned: 0,
+            }),
         }
     }
 
-    /// Record a walk segment from `x` along `d` to `end` (None: it left the level).
+    /// Record a walk segment from `x` along `d` to `end` (None: it left the level): its voxels
+    /// and the rooms it lies in ([`Rooms::rooms_on_segment`]).
     fn segment(&mut self, x: Vec3, d: Vec3, end: Option<Vec3>) {
-        if let Some(Tracing { grid, voxels, .. }) = self.trace.as_mut() {
+        if let Some(Tracing { grid, voxels, rooms, found, placed, .. }) = self.trace.as_mut() {
             let end = end.unwrap_or_else(|| grid.exit(x, d));
             grid.segment(x, end, |v| voxels.mark(v));
+            rooms.rooms_on_segment(x, end, |r| {
+                *placed = true;
+                if let Err(at) = found.binary_search(&r) {
+                    found.insert(at, r);
+                }
+            });
         }
     }
 
     fn take_trace(&mut self) -> Trace {
         match self.trace.as_mut() {
-            Some(t) => Trace {
-                voxels: t.voxels.take(),
-                truncated: std::mem::take(&mut t.truncated),
-                unowned: std::mem::take(&mut t.unowned),
-            },
+            Some(t) => {
+                // Every walk of a texel starts at the same point, so all lie in the room of any
+                // one placed; a texel none of whose walks was placed may have been anywhere.
+                if !std::mem::take(&mut t.placed) {
+                    t.found = vec![ANY_ROOM];
+                }
+                Trace {
+                    voxels: t.voxels.take(),
+                    rooms: std::mem::take(&mut t.found),
+                    truncated: std::mem::take(&mut t.truncated),
+                    unowned: std::mem::take(&mut t.unowned),
+                }
+            }
             None => Trace::default(),
         }
     }
@@ -391,9 +426,10 @@ impl<'a> Transport<'a> {
         texels: &[Texel],
         width: u32,
         grid: &VoxelGrid,
+        rooms: &Rooms,
         control: Control,
     ) -> Result<Vec<(TexelPanes, Trace)>, Cancelled> {
-        let init = || Scratch::new(self.clusters, self.frames, Some(grid));
+        let init = || Scratch::new(self.clusters, self.frames, Some((grid, rooms)));
         par_texels(texels, control, init, |scratch, t| {
             let (panes, _) = self.gather_texel(scratch, t, width, None);
             (panes, scratch.take_trace())

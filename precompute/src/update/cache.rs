@@ -12,7 +12,7 @@
 //! entries u32, then the cluster of each u32
 //! clusters u32, groups u32, then the group of each cluster u32 (none without groups)
 //! tiles u32, then per atlas tile: inputs digest u64, walks cut u64, unowned vertices u64,
-//!     footprint (grid words x u64)
+//!     footprint (grid words x u64), rooms u32 then each room u32 (sorted; u32::MAX: any)
 //! panes u32 (clusters + groups), then per pane: tiles u32, then per tile:
 //!     atlas tile u32, scale 3 f32, energy f64, carried f64, codes u32, codes bytes
 //! checksum u64                FNV-1a 64 of everything before it
@@ -30,16 +30,19 @@ use prm::fingerprint::{fnv1a, FNV_START};
 use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
-/// walks' counters, and the voxels its own texels' walks passed through.
+/// walks' counters, the voxels its own texels' walks passed through and the rooms
+/// (`prm::rooms`, labelled as in the level baked) their points lay in, sorted, with
+/// [`crate::transport::ANY_ROOM`] when a walk lay in none.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TileRecord {
     pub inputs: u64,
     pub truncated: u64,
     pub unowned: u64,
     pub footprint: Vec<u64>,
+    pub rooms: Vec<u32>,
 }
 
 /// One encoded pane tile before the drop rule.
@@ -115,6 +118,8 @@ impl UpdateCache {
             put_u64(&mut b, t.truncated);
             put_u64(&mut b, t.unowned);
             t.footprint.iter().for_each(|&w| put_u64(&mut b, w));
+            put_u32(&mut b, t.rooms.len() as u32);
+            t.rooms.iter().for_each(|&r| put_u32(&mut b, r));
         }
         put_u32(&mut b, self.panes.len() as u32);
         for pane in &self.panes {
@@ -197,15 +202,17 @@ impl UpdateCache {
             return Err(format!("{} table rows for {} entries", rows.len(), assignment.len()));
         }
         let words = grid.words();
-        let n = r.count(24 + 8 * words)?;
+        let n = r.count(28 + 8 * words)?;
         let tiles = (0..n)
             .map(|_| {
-                Ok(TileRecord {
-                    inputs: r.u64()?,
-                    truncated: r.u64()?,
-                    unowned: r.u64()?,
-                    footprint: (0..words).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?,
-                })
+                let (inputs, truncated, unowned) = (r.u64()?, r.u64()?, r.u64()?);
+                let footprint = (0..words).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?;
+                let m = r.count(4)?;
+                let rooms = (0..m).map(|_| r.u32()).collect::<Result<Vec<_>, _>>()?;
+                if rooms.windows(2).any(|w| w[0] >= w[1]) {
+                    return Err("a tile's rooms are not sorted".to_string());
+                }
+                Ok(TileRecord { inputs, truncated, unowned, footprint, rooms })
             })
             .collect::<Result<Vec<_>, String>>()?;
         let n = r.count(4)?;

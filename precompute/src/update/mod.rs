@@ -29,6 +29,24 @@
 //! dilation's sources; and the texels walked again are those the re-encoded tiles' values are
 //! made of (their taps' taps). Every other tile's codes and energies come from OLD's cache.
 //!
+//! **Rooms.** The footprint grid is coarse on a large level (2.6 m voxels on 16 chambers), so
+//! grown by one it reaches through a wall into the next room, whose walks never meet the
+//! edit. The bake also records, per tile, the rooms (`prm::rooms`) its walks' segments lay in
+//! (a few points of each segment that fall in free voxels, `Rooms::rooms_on_segment`; a texel
+//! none of whose walks was placed makes the tile's rooms [`ANY_ROOM`]). A walk is a path
+//! through connected free space, so it lies in one room, the room of every walk from the
+//! same texel (a walk of short segments in corners may not be placed itself), and a walk that passed through what an edit changed
+//! lies in a room with free voxels within two voxels of the edit's boxes ([`Edit::rooms`],
+//! found in the level as baked, rebuilt from the cache's triangles). A tile is then hit by
+//! the footprint only if its rooms meet those. What this can miss: a walk through a gap
+//! narrower than about two voxels (which parts rooms), placed on one side of it only, that
+//! met the edit on the other; or one that met the edit only in a slot narrower than about
+//! two voxels, whose free voxels lie further from it. (Points on surfaces seen along their
+//! normals, `Rooms::room_of`, were tried first: on the 16 chambers a third of them found
+//! no free voxel, and some found the hollow of a pillar through its wall.) The rooms are
+//! labelled in voxel order, so an edit can renumber them: the tiles taken from the cache have
+//! their rooms mapped to the edited level's labels ([`relabel`]).
+//!
 //! **Float noise.** Moving an object rounds its corners where they now are, so its
 //! triangles' areas move in their last bits. The entries' strata are laid out over areas
 //! rounded to 16 mantissa bits (`crate::entries::sample_entries`), so unless a moved
@@ -49,12 +67,13 @@ pub mod footprint;
 use glam::Vec3;
 use prm::fingerprint::{fnv1a, FNV_START};
 use prm::prm_file::{Cells, Entry};
+use prm::rooms::Rooms;
 use prm::{Scene, Smoothing, TexelSet};
 
 pub use cache::{CacheError, CachedTile, TileRecord, UpdateCache};
 pub use footprint::{Recorder, VoxelGrid};
 
-use crate::transport::{LinkedCells, TexelPanes};
+use crate::transport::{LinkedCells, TexelPanes, ANY_ROOM};
 
 /// Why an update cannot reuse OLD's bake (module doc): the caller runs a full precompute.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -142,12 +161,15 @@ pub fn tile_of(i: u32, j: u32, tile_size: u32, tiles_x: usize) -> usize {
 
 /// Per atlas tile, a digest of what its own covered texels' values are made of besides their
 /// walks (module doc): the texels, their exact first bounce and near-link shares, their
-/// smoothing taps and the dilation records whose target lies in the tile.
+/// smoothing taps and the dilation records whose target lies in the tile. With `only`, the
+/// tiles it does not mark are left at the empty digest (and `exact` need not give their
+/// texels anything).
 pub fn tile_digests(
     set: &TexelSet,
     tile_size: u32,
     smoothing: Option<&Smoothing>,
     linked: Option<&LinkedCells>,
+    only: Option<&[bool]>,
     exact: &(dyn Fn(std::ops::Range<usize>) -> Vec<TexelPanes> + Sync),
 ) -> Vec<u64> {
     let tx = set.width.div_ceil(tile_size) as usize;
@@ -160,7 +182,11 @@ pub fn tile_digests(
         if k % CHUNK == 0 {
             chunk = exact(k..(k + CHUNK).min(set.len()));
         }
-        let d = &mut h[tile_of(t.i, t.j, tile_size, tx)];
+        let tile = tile_of(t.i, t.j, tile_size, tx);
+        if only.is_some_and(|o| !o[tile]) {
+            continue;
+        }
+        let d = &mut h[tile];
         let atlas = t.j * set.width + t.i;
         let mut x = fnv1a(*d, &[t.i.to_le_bytes(), t.j.to_le_bytes(), t.triangle.to_le_bytes()].concat());
         for v in [t.position, t.normal, t.bary] {
@@ -187,13 +213,59 @@ pub fn tile_digests(
     }
     for dl in &set.dilation {
         let (i, j) = (dl.target % set.width, dl.target / set.width);
-        let d = &mut h[tile_of(i, j, tile_size, tx)];
+        let tile = tile_of(i, j, tile_size, tx);
+        if only.is_some_and(|o| !o[tile]) {
+            continue;
+        }
+        let d = &mut h[tile];
         *d = fnv1a(*d, &dl.target.to_le_bytes());
         for &s in &dl.sources[..dl.count as usize] {
             *d = fnv1a(*d, &s.to_le_bytes());
         }
     }
     h
+}
+
+/// What an edit changed (module doc): the footprint grid's voxels, grown by one, and the
+/// boxes they were marked from.
+pub struct Edit {
+    pub voxels: Vec<u64>,
+    pub boxes: Vec<(Vec3, Vec3)>,
+}
+
+impl Edit {
+    /// The rooms of `rooms` (the level as baked) whose free voxels come within two voxels of
+    /// one of the edit's boxes, sorted (module doc): a walk that passed through what the edit
+    /// changed passed through the free space of one of them.
+    pub fn rooms(&self, rooms: &Rooms) -> Vec<u32> {
+        let mut out: Vec<u32> =
+            self.boxes.iter().flat_map(|&(lo, hi)| rooms.rooms_in_box(lo, hi, 2)).collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+}
+
+/// Whether a tile's walks lay in one of the `touched` rooms (both sorted; a tile's
+/// [`ANY_ROOM`] meets every room).
+pub fn meets(tile: &[u32], touched: &[u32]) -> bool {
+    tile.last() == Some(&ANY_ROOM) || tile.iter().any(|r| touched.binary_search(r).is_ok())
+}
+
+/// A tile's rooms in the labels of the level after an edit (`map`: per room as baked, its
+/// space's rooms now: [`Rooms::rooms_in`]); a room whose space is gone, or one the map does
+/// not know, becomes [`ANY_ROOM`].
+pub fn relabel(rooms: &[u32], map: &[Vec<u32>]) -> Vec<u32> {
+    let mut out = Vec::new();
+    for &r in rooms {
+        match map.get(r as usize) {
+            Some(now) if !now.is_empty() => out.extend_from_slice(now),
+            _ => out.push(ANY_ROOM),
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// The voxels an edit changed, grown by one (module doc): triangles whose digest differs,
@@ -207,14 +279,16 @@ pub fn edited_voxels(
     old: (&[Entry], &Cells),
     new: (&[Entry], &Cells),
     rows: &[u64],
-) -> Vec<u64> {
+) -> Edit {
     let grid = &cache.grid;
     let mut bits = vec![0u64; grid.words()];
+    let mut boxes = Vec::new();
     let mut mark = |pts: &[Vec3]| {
         let lo = pts.iter().fold(Vec3::INFINITY, |a, &p| a.min(p));
         let hi = pts.iter().fold(Vec3::NEG_INFINITY, |a, &p| a.max(p));
         if lo.is_finite() && hi.is_finite() {
             grid.mark_box(lo, hi, &mut bits);
+            boxes.push((lo, hi));
         }
     };
     for ((was, a), (is, b)) in cache.triangles.iter().zip(now) {
@@ -251,7 +325,7 @@ pub fn edited_voxels(
             }
         }
     }
-    grid.grow(&bits)
+    Edit { voxels: grid.grow(&bits), boxes }
 }
 
 /// What an update does again (module doc).
@@ -266,7 +340,8 @@ pub struct Plan {
 
 impl Plan {
     /// The plan for a level whose tiles have digests `digests`, against `cache`, given the
-    /// edit's grown voxels `edited`, following the smoothing's taps and the dilation's
+    /// edit's grown voxels `edited` and the rooms it touched (`touched`, labelled as in the
+    /// level baked: [`Edit::rooms`]), following the smoothing's taps and the dilation's
     /// sources (module doc): a texel's stored value is its column taps' row-smoothed values,
     /// each of those its row taps' walked values.
     pub fn new(
@@ -276,13 +351,16 @@ impl Plan {
         smoothing: Option<&Smoothing>,
         digests: &[u64],
         edited: &[u64],
+        touched: &[u32],
     ) -> Plan {
         let tx = set.width.div_ceil(tile_size) as usize;
         let ty = set.height.div_ceil(tile_size) as usize;
         let hit: Vec<bool> = (0..tx * ty)
             .map(|k| {
                 let rec = &cache.tiles[k];
-                rec.inputs != digests[k] || rec.footprint.iter().zip(edited).any(|(a, b)| a & b != 0)
+                rec.inputs != digests[k]
+                    || (rec.footprint.iter().zip(edited).any(|(a, b)| a & b != 0)
+                        && meets(&rec.rooms, touched))
             })
             .collect();
         let tile = |k: usize| tile_of(set.texels[k].i, set.texels[k].j, tile_size, tx);
