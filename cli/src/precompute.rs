@@ -312,6 +312,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             "tiles_encoded": report.update_tiles_encoded,
             "texels_walked": report.update_texels_walked,
             "rooms_touched": report.update_rooms_touched,
+            "entries_settled": report.update_entries_settled,
         });
     }
     if a.json {

@@ -1267,7 +1267,10 @@ fn precompute_update_reuses_the_cache_and_refuses_what_it_cannot_do() {
     let (ok, out, err) =
         prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new)][..], &opts].concat());
     assert!(ok, "{err}");
-    assert!(out.contains("the edit reached 0 room(s) and 0 of 4 atlas tiles") && out.contains("0 of"), "{out}");
+    assert!(
+        out.contains("the edit reached 0 room(s) and 0 of 4 atlas tiles") && out.contains("0 of"),
+        "{out}"
+    );
     assert_eq!(std::fs::read(&old).unwrap(), std::fs::read(&new).unwrap());
     assert_eq!(std::fs::read(&cache).unwrap(), std::fs::read(dir.join("new.prm.cache")).unwrap());
     // The red wall moved: the update writes a map for the moved level (another fingerprint).

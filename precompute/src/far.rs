@@ -71,6 +71,7 @@ pub fn far_field(
     reach: f32,
     radius: f32,
     seed: u64,
+    reuse: Option<&FarReuse>,
 ) -> Far {
     let n = entries.len();
     // Within the near reach the links carry everything: a radius no longer has nothing to send.
@@ -82,8 +83,28 @@ pub fn far_field(
         return Far::default();
     }
     let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed);
-    let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius);
+    let reuse = reuse.filter(|r| r.old.block_first.len() == Far::blocks(entries.len()) + 1);
+    let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
     Far { reach, radius, block_first, pair_block, visible, texels, energy }
+}
+
+/// What an update (`crate::update`) takes from the old bake's far field: the visibility of
+/// every pair of entry blocks both `settled` (each entry as it was, in a room the edit did
+/// not touch: `crate::update::settled_blocks`). Such a pair's rays run through free space the
+/// edit did not reach, so they meet what they met before.
+pub struct FarReuse<'a> {
+    pub old: &'a Far,
+    pub settled: &'a [bool],
+}
+
+impl FarReuse<'_> {
+    /// The old bits of blocks a <= b (None: they saw nothing of each other).
+    fn bits(&self, a: usize, b: usize) -> Option<[u32; Far::BLOCK]> {
+        let old = self.old;
+        let run = old.block_first[a] as usize..old.block_first[a + 1] as usize;
+        let k = run.start + old.pair_block.get(run)?.binary_search(&(b as u32)).ok()?;
+        old.visible.get(k * Far::BLOCK..(k + 1) * Far::BLOCK)?.try_into().ok()
+    }
 }
 
 /// Rays per entry of [`far_energy`]. The estimate only sets how much of a cluster's light the
@@ -170,6 +191,7 @@ fn pair_visibility(
     entries: &[Entry],
     room: &[u32],
     radius: f32,
+    reuse: Option<&FarReuse>,
 ) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
     const B: usize = Far::BLOCK;
     let n = entries.len();
@@ -238,6 +260,10 @@ fn pair_visibility(
         .map(|a| {
             let mut kept = Vec::new();
             for b in a..blocks {
+                if let Some(r) = reuse.filter(|r| r.settled[a] && r.settled[b]) {
+                    kept.extend(r.bits(a, b).map(|bits| (b as u32, bits)));
+                    continue;
+                }
                 if gap(a, b) > radius || apart(a, b) {
                     continue;
                 }
@@ -594,7 +620,7 @@ mod tests {
             entry(Vec3::new(1.0, 3.0, 0.0), Vec3::NEG_X),
             entry(Vec3::new(3.0, 3.0, 0.0), Vec3::X),
         ];
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0, None);
         let far = Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() };
         let n = entries.len();
         let open = [(2, 3), (0, 3), (1, 2)];
@@ -606,7 +632,7 @@ mod tests {
             }
         }
         // Within a radius of 3, the open pairs 2.2 and 3.2 apart (entries 0-3 and 1-2) go.
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 3.0);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 3.0, None);
         let near = Far { radius: 3.0, block_first, pair_block, visible, ..Far::default() };
         assert!(near.sees(2, 3) && near.sees(3, 2) && !near.sees(0, 3) && !near.sees(1, 2));
     }
@@ -628,7 +654,7 @@ mod tests {
             })
             .collect();
         let radius = 6.0;
-        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], radius);
+        let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], radius, None);
         let far = Far { radius, block_first, pair_block, visible, ..Far::default() };
         for i in 0..entries.len() {
             for j in 0..entries.len() {
@@ -663,7 +689,7 @@ mod tests {
             })
             .collect();
         let far_of = |room: &[u32]| {
-            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, room, 100.0);
+            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, room, 100.0, None);
             Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() }
         };
         let open = far_of(&[]);
@@ -721,7 +747,7 @@ mod tests {
             let idx: Vec<u32> = (0..pos.len() as u32).collect();
             let scene = Scene::from_mesh(pos, uv, &idx);
             let bvh = Bvh::build(&scene);
-            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0);
+            let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], 100.0, None);
             let far = Far { radius: 100.0, block_first, pair_block, visible, ..Far::default() };
             let mut across = 0;
             for i in 0..64 {

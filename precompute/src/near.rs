@@ -39,7 +39,10 @@ pub const MIN_FACTOR: f32 = 1e-4;
 /// file stores it. Where the far field (`crate::far`) lights the texel, each link keeps `1 -
 /// far_share` of its factor (`prm::prm_file::far_share`, from the far field's reach to that
 /// plus the cell's size) and the far field has the rest; elsewhere (no far field, or a texel it
-/// leaves out) the link keeps it all.
+/// leaves out) the link keeps it all. With `reuse` (an update: the old bake's links, and per
+/// covered texel whether it is settled, `crate::update::Untouched::texel`) a settled texel
+/// takes its links from the old bake: its texel, the entries it reaches and the rays between
+/// them lie in rooms the edit did not touch.
 pub fn near_links(
     bvh: &Bvh,
     set: &TexelSet,
@@ -47,6 +50,7 @@ pub fn near_links(
     cells: &Cells,
     radius: f32,
     far: &Far,
+    reuse: Option<(&[NearLink], &[bool])>,
 ) -> (Vec<NearLink>, Vec<NearPoint>) {
     let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
@@ -58,8 +62,14 @@ pub fn near_links(
     let per_texel: Vec<Vec<NearLink>> = set
         .texels
         .par_iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(k, t)| {
             let texel = (t.j as usize * width + t.i as usize) as u32;
+            if let Some((old, _)) = reuse.filter(|(_, settled)| settled[k]) {
+                let from = old.partition_point(|l| l.texel < texel);
+                let to = from + old[from..].partition_point(|l| l.texel == texel);
+                return old[from..to].to_vec();
+            }
             let fades = far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok();
             let mut out = Vec::new();
             for j in reaches.around(t.position) {

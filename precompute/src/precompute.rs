@@ -317,6 +317,10 @@ pub struct Report {
     pub update_tiles_encoded: usize,
     pub update_texels_walked: usize,
     pub update_rooms_touched: usize,
+    /// An update's entries settled (each as it was, in a room the edit did not touch), whose
+    /// far-field pairs and texels' near links come from the old bake
+    /// (`crate::update::Untouched`).
+    pub update_entries_settled: usize,
 }
 
 /// Why a precompute gave no map.
@@ -443,11 +447,16 @@ pub fn precompute_with(
         .into()),
         _ => Ok(()),
     };
+    let update = match (reuse, &triangles) {
+        (Reuse::Update { old, .. }, Some(t)) => Some((old, &t[..])),
+        _ => None,
+    };
     let pre = Preamble::build(
         scene,
         bvh,
         params,
         reuse.cache(),
+        update,
         tracing,
         same_entries,
         &mut report,

@@ -182,6 +182,14 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
         r.texels
     );
     assert!(r.update_texels_walked > 0);
+    // The second room's entries are settled: their far-field pairs and texels' near links
+    // come from the old bake (and the bytes above say they are what a full walk makes).
+    assert!(
+        r.update_entries_settled > r.entries as usize / 4 && r.update_entries_settled < r.entries as usize,
+        "{} of {} entries settled",
+        r.update_entries_settled,
+        r.entries
+    );
     eprintln!(
         "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked",
         r.update_tiles_hit, r.update_tiles_encoded, r.update_texels_walked, r.texels

@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::Vec3;
 use prm::density::UnwrapLayout;
 use prm::fingerprint::{fingerprint_hex, geometry_fingerprint};
-use prm::prm_file::{far_share, Cells, Dipole, Echo, Entry, Far, NearLink, NearPoint};
+use prm::prm_file::{far_share, Cells, Dipole, Echo, Entry, Far, NearLink, NearPoint, Prm};
 use prm::{Bvh, Scene, Smoothing, TexelSet};
 use rayon::prelude::*;
 
@@ -17,11 +17,11 @@ use super::{Phase, PrecomputeError, PrecomputeParams, Report};
 use crate::cells::{entry_cells_in_rooms, entry_rooms, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
-use crate::far::{far_field, FirstBounce};
+use crate::far::{far_field, FarReuse, FirstBounce};
 use crate::near::{echo_links, near_links};
 use crate::parallel::stop_if;
 use crate::transport::{Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
-use crate::update::UpdateCache;
+use crate::update::{TriangleDigest, Untouched, UpdateCache};
 
 /// Everything the walks and the panes' encoding take from the level before any walk: the
 /// texel set, the entries and their cells, the clusters and groups, the near, echo and far
@@ -77,6 +77,7 @@ impl Preamble {
         bvh: &Bvh,
         params: &PrecomputeParams,
         cache: Option<&UpdateCache>,
+        update: Option<(&Prm, &[TriangleDigest])>,
         keep_rooms: bool,
         check: impl FnOnce(&[Entry]) -> Result<(), PrecomputeError>,
         report: &mut Report,
@@ -105,6 +106,19 @@ impl Preamble {
             set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect()
         });
         let side = rooms.voxel_side();
+        // An update takes the far field's pairs between blocks of entries the edit cannot
+        // have reached from the old bake (`crate::update::settled_blocks`).
+        let untouched = match (cache, update) {
+            (Some(cache), Some((old, now))) => timed(&mut report.seconds_far, || {
+                let room = filled_rooms(&found);
+                let old = (old.entries(), old.cells());
+                Some(Untouched::new(cache, old, now, scene, &entries, &cells, &rooms, &room))
+            }),
+            _ => None,
+        };
+        report.update_entries_settled =
+            untouched.as_ref().map_or(0, |u| u.entry.iter().filter(|&&s| s).count());
+        let settled = untouched.as_ref().map(|u| u.blocks());
         let rooms = keep_rooms.then_some(rooms);
         let room = filled_rooms(&found);
         for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
@@ -145,14 +159,45 @@ impl Preamble {
             if params.far_field {
                 let reach = params.near_radius * spacing;
                 let radius = params.far_radius * spacing;
-                far_field(scene, bvh, &set, &entries, &room, &texel_room, &cell, reach, radius, params.seed)
+                let reuse = match (update, &settled) {
+                    (Some((old, _)), Some(settled)) => Some(FarReuse { old: old.far(), settled }),
+                    _ => None,
+                };
+                far_field(
+                    scene,
+                    bvh,
+                    &set,
+                    &entries,
+                    &room,
+                    &texel_room,
+                    &cell,
+                    reach,
+                    radius,
+                    params.seed,
+                    reuse.as_ref(),
+                )
             } else {
                 Far::default()
             }
         });
         let (near, near_points) = timed(&mut report.seconds_near, || {
             if params.near_radius > 0.0 {
-                near_links(bvh, &set, &entries, &cells, params.near_radius, &far)
+                // An update takes a settled texel's links from the old bake.
+                let reuse = match (update, &untouched) {
+                    (Some((old, _)), Some(u)) => {
+                        Some((old.near(), texel_room.iter().map(|&r| u.texel(r)).collect::<Vec<bool>>()))
+                    }
+                    _ => None,
+                };
+                near_links(
+                    bvh,
+                    &set,
+                    &entries,
+                    &cells,
+                    params.near_radius,
+                    &far,
+                    reuse.as_ref().map(|(l, s)| (*l, &s[..])),
+                )
             } else {
                 (Vec::new(), Vec::new())
             }

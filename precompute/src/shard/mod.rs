@@ -111,7 +111,7 @@ pub fn plan(
     let all = Instant::now();
     let mut report = Report::new(params);
     let preamble =
-        Preamble::build(scene, bvh, params, None, false, |_| Ok(()), &mut report, progress, cancel)?;
+        Preamble::build(scene, bvh, params, None, None, false, |_| Ok(()), &mut report, progress, cancel)?;
     report.seconds_total = all.elapsed().as_secs_f64();
     // Its checksum is known once it is encoded ([`Plan::write`]).
     let plan = Plan { params: params.clone(), preamble, checksum: 0, walks_only: false };

@@ -4,7 +4,11 @@
 //!
 //! **What is kept.** The walks are the precompute's cost (3.6 s of the chamber's 5.8 s); the
 //! rest (texels, entries, near and far fields, smoothing) is recomputed, which is also what
-//! makes every tile's other inputs comparable. The clustering is OLD's: k-means over all
+//! makes every tile's other inputs comparable, but for what lies in rooms the edit did not
+//! touch ([`Untouched`], below under *Rooms*): there the far field's pairs of entry blocks and
+//! the texels' near links are the old bake's (on 16 chambers those two were 19 of a plain
+//! update's 44 s), and only the tiles whose walks lay in a touched room have their digests
+//! and exact first bounce made again. The clustering is OLD's: k-means over all
 //! entries moves every cluster a little when one object moves, and a pane of a cluster whose
 //! members changed cannot be reused. So an update writes what a full precompute *given OLD's
 //! clusters* writes ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to
@@ -80,9 +84,12 @@ use crate::transport::{LinkedCells, TexelPanes, ANY_ROOM};
 #[error("{0}")]
 pub struct Refused(pub String);
 
+/// A triangle's corners and the digest of everything the walks read of it.
+pub type TriangleDigest = ([Vec3; 3], u64);
+
 /// Per triangle: its corners and a digest of everything the walks read of it: corners, shading
 /// normals, lightmap and albedo UVs, the material's albedo, sidedness and texture.
-pub fn triangle_digests(scene: &Scene) -> Vec<([Vec3; 3], u64)> {
+pub fn triangle_digests(scene: &Scene) -> Vec<TriangleDigest> {
     let textures: Vec<u64> = scene
         .textures
         .iter()
@@ -274,7 +281,7 @@ pub fn relabel(rooms: &[u32], map: &[Vec<u32>]) -> Vec<u32> {
 /// digests: a walk through such a cell reads its row, wherever the edit that changed it).
 pub fn edited_voxels(
     cache: &UpdateCache,
-    now: &[([Vec3; 3], u64)],
+    now: &[TriangleDigest],
     scene: &Scene,
     old: (&[Entry], &Cells),
     new: (&[Entry], &Cells),
@@ -326,6 +333,62 @@ pub fn edited_voxels(
         }
     }
     Edit { voxels: grid.grow(&bits), boxes }
+}
+
+/// What of the preamble an update takes from the old bake: the rooms of the edited level
+/// whose space lay in no room the edit touched, and the entries that are as the old bake had
+/// them and lie in one of those (*settled*). The edit here is the triangles' and the entries'
+/// ([`edited_voxels`] without the table's rows, which are made from the far field), the same
+/// boxes the plan starts from.
+pub struct Untouched {
+    /// Rooms (of the edited level) whose space lay in a room the edit touched.
+    pub touched: std::collections::BTreeSet<u32>,
+    /// Per entry: settled.
+    pub entry: Vec<bool>,
+}
+
+impl Untouched {
+    /// `rooms` and `room` (per entry) are the edited level's.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        cache: &UpdateCache,
+        old: (&[Entry], &Cells),
+        now: &[TriangleDigest],
+        scene: &Scene,
+        entries: &[Entry],
+        cells: &Cells,
+        rooms: &Rooms,
+        room: &[u32],
+    ) -> Untouched {
+        let edit = edited_voxels(cache, now, scene, old, (entries, cells), &cache.rows);
+        let corners: Vec<[Vec3; 3]> = cache.triangles.iter().map(|t| t.0).collect();
+        let baked = Rooms::new(&corners);
+        let map = baked.rooms_in(rooms);
+        let touched: std::collections::BTreeSet<u32> = edit
+            .rooms(&baked)
+            .iter()
+            .flat_map(|&r| map.get(r as usize).into_iter().flatten().copied())
+            .collect();
+        let entry = (0..entries.len())
+            .map(|j| {
+                old.0.get(j).is_some_and(|o| same_entry(o, &entries[j]))
+                    && room.get(j).is_some_and(|r| !touched.contains(r))
+            })
+            .collect();
+        Untouched { touched, entry }
+    }
+
+    /// Per block of entries ([`prm::prm_file::Far::BLOCK`]): all settled. An update takes
+    /// the far-field pairs of two such blocks from the old bake (`crate::far::FarReuse`).
+    pub fn blocks(&self) -> Vec<bool> {
+        self.entry.chunks(prm::prm_file::Far::BLOCK).map(|c| c.iter().all(|&s| s)).collect()
+    }
+
+    /// Whether a texel in room `room` is settled: its near links are the old bake's
+    /// (`crate::near::near_links`). A texel of no room is not.
+    pub fn texel(&self, room: Option<u32>) -> bool {
+        room.is_some_and(|r| !self.touched.contains(&r))
+    }
 }
 
 /// What an update does again (module doc).
