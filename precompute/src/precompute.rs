@@ -480,11 +480,15 @@ pub fn precompute_with(
                 (&pre.entries, &pre.cells),
                 &rows,
             );
-            let corners: Vec<[Vec3; 3]> = cache.triangles.iter().map(|t| t.0).collect();
-            let baked = prm::rooms::Rooms::new(&corners);
-            let touched = edit.rooms(&baked);
-            // What each room as baked is called now.
-            let now = pre.rooms.as_ref().map(|r| baked.rooms_in(r)).unwrap_or_default();
+            // The rooms of the level as baked, as the settled entries found them.
+            let (touched, now) = match &pre.untouched {
+                Some(u) => (edit.rooms(&u.baked), u.map.clone()),
+                None => {
+                    let corners: Vec<[Vec3; 3]> = cache.triangles.iter().map(|t| t.0).collect();
+                    let baked = prm::rooms::Rooms::new(&corners);
+                    (edit.rooms(&baked), pre.rooms.as_ref().map(|r| baked.rooms_in(r)).unwrap_or_default())
+                }
+            };
             Some((edit, touched, now))
         }
         _ => None,

@@ -57,6 +57,9 @@ pub struct Preamble {
     /// The level's rooms, kept when the walks are recorded for an update (`keep_rooms`).
     #[serde(skip)]
     pub(crate) rooms: Option<prm::rooms::Rooms>,
+    /// An update's settled entries and the rooms of the level as baked.
+    #[serde(skip)]
+    pub(crate) untouched: Option<Untouched>,
     /// The header's level fingerprint and page texel size, and what the walks' rays meet
     /// (`prm::fingerprint::geometry_fingerprint`: a shard checks its level with it).
     pub(crate) fingerprint: String,
@@ -256,6 +259,7 @@ impl Preamble {
             frames,
             dipoles,
             rooms,
+            untouched,
             fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
             geometry: geometry_fingerprint(scene),
             page_texel_size: page_texel_size(scene),

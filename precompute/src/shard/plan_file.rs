@@ -204,6 +204,7 @@ impl Plan {
             frames: Vec::new(),
             dipoles: Vec::new(),
             rooms: None,
+            untouched: None,
             fingerprint: String::new(),
             geometry,
             page_texel_size: 0.0,

@@ -345,6 +345,10 @@ pub struct Untouched {
     pub touched: std::collections::BTreeSet<u32>,
     /// Per entry: settled.
     pub entry: Vec<bool>,
+    /// The rooms of the level as baked (which the cache's tiles name), and per room of it the
+    /// edited level's rooms its space lies in ([`Rooms::rooms_in`]): the plan uses both.
+    pub baked: Rooms,
+    pub map: Vec<Vec<u32>>,
 }
 
 impl Untouched {
@@ -375,7 +379,7 @@ impl Untouched {
                     && room.get(j).is_some_and(|r| !touched.contains(r))
             })
             .collect();
-        Untouched { touched, entry }
+        Untouched { touched, entry, baked, map }
     }
 
     /// Per block of entries ([`prm::prm_file::Far::BLOCK`]): all settled. An update takes
