@@ -90,8 +90,8 @@ pub fn far_field(
 
 /// What an update (`crate::update`) takes from the old bake's far field: the visibility of
 /// every pair of entry blocks both `settled` (each entry as it was, in a room the edit did
-/// not touch: `crate::update::settled_blocks`). Such a pair's rays run through free space the
-/// edit did not reach, so they meet what they met before.
+/// not touch: `crate::update::Untouched::blocks`). Such a pair's rays run through free space
+/// the edit did not reach, so they meet what they met before.
 pub struct FarReuse<'a> {
     pub old: &'a Far,
     pub settled: &'a [bool],

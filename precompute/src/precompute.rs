@@ -795,11 +795,6 @@ pub(crate) struct Encoded {
     pub(crate) dipoles: Option<Accumulated>,
 }
 
-/// Walk the texels a band of tile rows at a time (`walk(texels, control)`: the walks of a run
-/// of covered texels, the transport's or a sharded precompute's parts') and encode every
-/// pane's tiles in each band as it is done (`crate::panes`), holding only the walks the next
-/// bands still need. With `cached` (an update's dirty tiles and the cache's pane tiles), only
-/// the dirty tiles are encoded, the rest taken from the cache.
 /// What an update takes from its cache (`crate::update::Plan`): per atlas tile whether it is
 /// encoded again, the cached pane tiles, and per texel whether it is walked again (only those
 /// need their exact first bounce).
@@ -810,6 +805,11 @@ pub(crate) struct CachedPanes<'a> {
     pub walk: &'a [bool],
 }
 
+/// Walk the texels a band of tile rows at a time (`walk(texels, control)`: the walks of a run
+/// of covered texels, the transport's or a sharded precompute's parts') and encode every
+/// pane's tiles in each band as it is done (`crate::panes`), holding only the walks the next
+/// bands still need. With `cached` (an update's dirty tiles and the cache's pane tiles), only
+/// the dirty tiles are encoded, the rest taken from the cache.
 pub(crate) fn walk_and_encode(
     pre: &Preamble,
     params: &PrecomputeParams,

@@ -109,11 +109,12 @@ impl Preamble {
             set.texels.par_iter().map(|t| rooms.room_of(t.position, t.normal)).collect()
         });
         let side = rooms.voxel_side();
-        // An update takes the far field's pairs between blocks of entries the edit cannot
-        // have reached from the old bake (`crate::update::settled_blocks`).
+        let room = filled_rooms(&found);
+        // An update takes the far field's pairs between blocks of entries the edit cannot have
+        // reached, and those entries' texels' near links, from the old bake
+        // (`crate::update::Untouched`).
         let untouched = match (cache, update) {
             (Some(cache), Some((old, now))) => timed(&mut report.seconds_far, || {
-                let room = filled_rooms(&found);
                 let old = (old.entries(), old.cells());
                 Some(Untouched::new(cache, old, now, scene, &entries, &cells, &rooms, &room))
             }),
@@ -123,7 +124,6 @@ impl Preamble {
             untouched.as_ref().map_or(0, |u| u.entry.iter().filter(|&&s| s).count());
         let settled = untouched.as_ref().map(|u| u.blocks());
         let rooms = keep_rooms.then_some(rooms);
-        let room = filled_rooms(&found);
         for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
             *r = owners.owner(t.triangle as usize, t.position).and_then(|e| room.get(e as usize).copied());
         }
@@ -187,9 +187,14 @@ impl Preamble {
             if params.near_radius > 0.0 {
                 // An update takes a settled texel's links from the old bake.
                 let reuse = match (update, &untouched) {
-                    (Some((old, _)), Some(u)) => {
-                        Some((old.near(), texel_room.iter().map(|&r| u.texel(r)).collect::<Vec<bool>>()))
-                    }
+                    (Some((old, _)), Some(u)) => Some((
+                        old.near(),
+                        texel_room
+                            .iter()
+                            .zip(&set.texels)
+                            .map(|(&r, t)| u.texel(t.triangle, r))
+                            .collect::<Vec<bool>>(),
+                    )),
                     _ => None,
                 };
                 near_links(

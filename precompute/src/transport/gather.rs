@@ -68,7 +68,6 @@ impl Transport<'_> {
                 scratch.segment(x, d, hit.as_ref().map(|v| v.position));
                 let Some(v) = hit else { break };
                 let (y, ny, a) = (v.position, v.normal, v.albedo);
-
                 beta *= a;
                 if beta == Vec3::ZERO {
                     break;

@@ -180,8 +180,10 @@ impl<'f> Scratch<'f> {
         }
     }
 
-    /// Record a walk segment from `x` along `d` to `end` (None: it left the level): its voxels
-    /// and the rooms it lies in ([`Rooms::rooms_on_segment`]).
+    /// Record a walk segment from `x` along `d` to `end` (None: it left the level, or met the
+    /// back of a surface, and is recorded to the level's edge): its voxels and the rooms it
+    /// lies in ([`Rooms::rooms_on_segment`]; past a surface's back that may name a room it
+    /// never reached, which only widens what an update walks again).
     fn segment(&mut self, x: Vec3, d: Vec3, end: Option<Vec3>) {
         if let Some(Tracing { grid, voxels, rooms, found, placed, .. }) = self.trace.as_mut() {
             let end = end.unwrap_or_else(|| grid.exit(x, d));

@@ -12,8 +12,8 @@
 //! entries moves every cluster a little when one object moves, and a pane of a cluster whose
 //! members changed cannot be reused. So an update writes what a full precompute *given OLD's
 //! clusters* writes ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to
-//! (to the byte, or within float noise: below); against a fresh precompute (which re-clusters) it is within the distance
-//! between two fresh precomputes of different seeds. A material edit leaves the entries where
+//! (to the byte, or within float noise: below); against a fresh precompute (which
+//! re-clusters) it is within the distance between two fresh precomputes of different seeds. A material edit leaves the entries where
 //! they were, so the clusters agree and so does everything: the update is then byte for byte
 //! the fresh precompute.
 //!
@@ -33,14 +33,15 @@
 //! dilation's sources; and the texels walked again are those the re-encoded tiles' values are
 //! made of (their taps' taps). Every other tile's codes and energies come from OLD's cache.
 //!
-//! **Rooms.** The footprint grid is coarse on a large level (2.6 m voxels on 16 chambers), so
+//! **Rooms.** The footprint grid is coarse on a large level (1.1 m voxels on 16 chambers), so
 //! grown by one it reaches through a wall into the next room, whose walks never meet the
 //! edit. The bake also records, per tile, the rooms (`prm::rooms`) its walks' segments lay in
 //! (a few points of each segment that fall in free voxels, `Rooms::rooms_on_segment`; a texel
 //! none of whose walks was placed makes the tile's rooms [`ANY_ROOM`]). A walk is a path
 //! through connected free space, so it lies in one room, the room of every walk from the
-//! same texel (a walk of short segments in corners may not be placed itself), and a walk that passed through what an edit changed
-//! lies in a room with free voxels within two voxels of the edit's boxes ([`Edit::rooms`],
+//! same texel (a walk of short segments in corners may not be placed itself), and a walk
+//! that passed through what an edit changed lies in a room with free voxels within two
+//! voxels of the edit's boxes ([`Edit::rooms`],
 //! found in the level as baked, rebuilt from the cache's triangles). A tile is then hit by
 //! the footprint only if its rooms meet those. What this can miss: a walk through a gap
 //! narrower than about two voxels (which parts rooms), placed on one side of it only, that
@@ -345,6 +346,8 @@ pub struct Untouched {
     pub touched: std::collections::BTreeSet<u32>,
     /// Per entry: settled.
     pub entry: Vec<bool>,
+    /// Per triangle: as the old bake had it (its digest, [`triangle_digests`]).
+    pub triangle: Vec<bool>,
     /// The rooms of the level as baked (which the cache's tiles name), and per room of it the
     /// edited level's rooms its space lies in ([`Rooms::rooms_in`]): the plan uses both.
     pub baked: Rooms,
@@ -379,7 +382,8 @@ impl Untouched {
                     && room.get(j).is_some_and(|r| !touched.contains(r))
             })
             .collect();
-        Untouched { touched, entry, baked, map }
+        let triangle = cache.triangles.iter().zip(now).map(|(a, b)| a.1 == b.1).collect();
+        Untouched { touched, entry, triangle, baked, map }
     }
 
     /// Per block of entries ([`prm::prm_file::Far::BLOCK`]): all settled. An update takes
@@ -388,10 +392,12 @@ impl Untouched {
         self.entry.chunks(prm::prm_file::Far::BLOCK).map(|c| c.iter().all(|&s| s)).collect()
     }
 
-    /// Whether a texel in room `room` is settled: its near links are the old bake's
-    /// (`crate::near::near_links`). A texel of no room is not.
-    pub fn texel(&self, room: Option<u32>) -> bool {
-        room.is_some_and(|r| !self.touched.contains(&r))
+    /// Whether a texel on `triangle` in room `room` is settled: its triangle as it was and its
+    /// room untouched, so its near links are the old bake's (`crate::near::near_links`). A
+    /// texel of no room is not.
+    pub fn texel(&self, triangle: u32, room: Option<u32>) -> bool {
+        self.triangle.get(triangle as usize) == Some(&true)
+            && room.is_some_and(|r| !self.touched.contains(&r))
     }
 }
 
