@@ -90,6 +90,9 @@ def walk_shard(prm, level_name, level, plan, index, count, load_flags, kill_mark
             mid = seen and not os.path.exists(os.path.join(d, "part"))
             with open(kill_marker, "w") as f:
                 f.write("mid-walk" if mid else "after the walk")
+            # A worker killed outright leaves its temporary directory behind; the test's own
+            # kill removes it first, so that each run of the test does not leave one in /tmp.
+            shutil.rmtree(d, ignore_errors=True)
             os.kill(os.getpid(), signal.SIGKILL)
         summary = json.loads(run_prm(prm, args, d))
         with open(os.path.join(d, "part"), "rb") as f:
