@@ -48,19 +48,19 @@ fn two_sealed_rooms(block: Vec3) -> Scene {
     for (k, q) in unit_box_faces().into_iter().enumerate() {
         qs.push((q.map(|p| p + v(2.0, 0.0, 0.0)), (k == 0) as u32));
     }
-    let (lo, hi) = (block, block + v(0.25, 0.3, 0.25));
-    // The block's top and four sides, outward.
-    qs.extend(
-        [
-            [v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(hi.x, hi.y, hi.z), v(hi.x, hi.y, lo.z)],
-            [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, lo.y, lo.z)],
-            [v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
-            [v(lo.x, lo.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z), v(lo.x, lo.y, lo.z)],
-            [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
-        ]
-        .map(|q| (q, 0)),
-    );
+    qs.extend(block_faces(block, block + v(0.25, 0.3, 0.25)).map(|q| (q, 0)));
     scene(&qs)
+}
+
+/// A block's top and four sides, outward, from its lower corner `lo` to its upper `hi`.
+fn block_faces(lo: Vec3, hi: Vec3) -> [[Vec3; 4]; 5] {
+    [
+        [v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(hi.x, hi.y, hi.z), v(hi.x, hi.y, lo.z)],
+        [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, lo.y, lo.z)],
+        [v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
+        [v(lo.x, lo.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z), v(lo.x, lo.y, lo.z)],
+        [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
+    ]
 }
 
 /// Two sealed 10 m rooms `gap` apart along x, a 2.5 x 3 x 2.5 m block on the first room's
@@ -70,17 +70,7 @@ fn two_large_rooms(gap: f32, block: Vec3) -> Scene {
     for (room, dx) in [(0, 0.0), (1, 10.0 + gap)] {
         qs.extend(unit_box_faces().into_iter().map(|q| (q.map(|p| p * 10.0 + v(dx, 0.0, 0.0)), room)));
     }
-    let (lo, hi) = (block, block + v(2.5, 3.0, 2.5));
-    qs.extend(
-        [
-            [v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(hi.x, hi.y, hi.z), v(hi.x, hi.y, lo.z)],
-            [v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, lo.y, lo.z)],
-            [v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)],
-            [v(lo.x, lo.y, hi.z), v(lo.x, hi.y, hi.z), v(lo.x, hi.y, lo.z), v(lo.x, lo.y, lo.z)],
-            [v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)],
-        ]
-        .map(|q| (q, 0)),
-    );
+    qs.extend(block_faces(block, block + v(2.5, 3.0, 2.5)).map(|q| (q, 0)));
     scene(&qs)
 }
 
