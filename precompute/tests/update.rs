@@ -264,6 +264,30 @@ fn rooms_keep_an_edit_by_a_shared_wall_out_of_the_next_room() {
         r.update_texels_walked,
         r.texels
     );
+
+    // The block is a closed room of its own, labelled in voxel order: pushed against the
+    // first room's end wall its inside comes before the second room and renumbers it. An
+    // update from the last update's cache (whose tiles taken over name the rooms in its
+    // labels) is still its twin, and the second room is still not walked.
+    let label = |level: &Scene| {
+        let corners: Vec<[Vec3; 3]> = (0..level.triangles.len()).map(|t| level.corners(t)).collect();
+        prm::rooms::Rooms::new(&corners).room_of(v(15.0, 0.0, 5.0), Vec3::Y)
+    };
+    let corner = two_large_rooms(gap, v(7.4, 0.0, 0.02));
+    assert_ne!(label(&after), label(&corner), "the second room kept its label");
+    let (up_cache, up_prm) = (up.cache.expect("an update keeps a cache"), up.prm);
+    let next = run(&corner, &p, Reuse::Update { cache: &up_cache, old: &up_prm }, true).unwrap();
+    let (_, _, twin_bytes) = baked(&corner, &p, Reuse::Clusters(&up_cache), true);
+    assert_eq!(next.prm.to_bytes(), twin_bytes, "the second update differs from its full walk");
+    assert!(next.report.update_texels_walked <= in_first);
+    // A third from that one's cache: the second room's tiles were taken over, their rooms
+    // mapped to the new labels (under the old label they would name the block's inside, which
+    // this move touches, and be walked again).
+    let (next_cache, next_prm) = (next.cache.expect("an update keeps a cache"), next.prm);
+    let third = run(&after, &p, Reuse::Update { cache: &next_cache, old: &next_prm }, true).unwrap();
+    let (_, _, twin_bytes) = baked(&after, &p, Reuse::Clusters(&next_cache), true);
+    assert_eq!(third.prm.to_bytes(), twin_bytes, "the third update differs from its full walk");
+    assert!(third.report.update_texels_walked <= in_first, "{}", third.report.update_texels_walked);
 }
 
 /// The map is made of the level's triangles alone (never its lights): with every triangle as
