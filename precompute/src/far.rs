@@ -82,19 +82,25 @@ pub fn far_field(
     if texels.is_empty() {
         return Far::default();
     }
-    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed);
-    let reuse = reuse.filter(|r| r.old.block_first.len() == Far::blocks(entries.len()) + 1);
+    let reuse = reuse.filter(|r| {
+        r.old.block_first.len() == Far::blocks(entries.len()) + 1
+            && r.old.energy.len() == entries.len()
+            && r.entry.len() == entries.len()
+    });
+    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed, reuse);
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
     Far { reach, radius, block_first, pair_block, visible, texels, energy }
 }
 
 /// What an update (`crate::update`) takes from the old bake's far field: the visibility of
 /// every pair of entry blocks both `settled` (each entry as it was, in a room the edit did
-/// not touch: `crate::update::Untouched::blocks`). Such a pair's rays run through free space
-/// the edit did not reach, so they meet what they met before.
+/// not touch: `crate::update::Untouched::blocks`), and the energy of each settled `entry`.
+/// Such a pair's rays, and such an entry's, run through free space the edit did not reach,
+/// so they meet what they met before.
 pub struct FarReuse<'a> {
     pub old: &'a Far,
     pub settled: &'a [bool],
+    pub entry: &'a [bool],
 }
 
 impl FarReuse<'_> {
@@ -132,6 +138,7 @@ fn far_energy(
     reach: f32,
     radius: f32,
     seed: u64,
+    reuse: Option<&FarReuse>,
 ) -> Vec<f32> {
     // Texels per m² of each UV chart: the texels the far field lights (`lit`) that its
     // triangles own, over its area (a chart's partly covered edge texels count whole, as sums
@@ -157,6 +164,9 @@ fn far_energy(
         .par_iter()
         .enumerate()
         .map(|(j, e)| {
+            if let Some(r) = reuse.filter(|r| r.entry[j]) {
+                return r.old.energy[j];
+            }
             let mut rng = stream(seed, 7, j as u64);
             let shift: (f32, f32) = (rng.random(), rng.random());
             let (centroid, area) = cell[j];

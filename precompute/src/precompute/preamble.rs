@@ -163,7 +163,9 @@ impl Preamble {
                 let reach = params.near_radius * spacing;
                 let radius = params.far_radius * spacing;
                 let reuse = match (update, &settled) {
-                    (Some((old, _)), Some(settled)) => Some(FarReuse { old: old.far(), settled }),
+                    (Some((old, _)), Some(settled)) => {
+                        untouched.as_ref().map(|u| FarReuse { old: old.far(), settled, entry: &u.entry })
+                    }
                     _ => None,
                 };
                 far_field(
