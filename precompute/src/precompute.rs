@@ -24,8 +24,8 @@ use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
 use crate::transport::{Estimator, TexelDipoles, TexelPanes};
 use crate::update::{
-    edited_voxels, meets, refusal, relabel, tile_digests, triangle_digests, CachedTile, Plan, Refused,
-    TileRecord, UpdateCache, VoxelGrid,
+    edited_voxels, refusal, relabel, tile_digests, triangle_digests, CachedTile, Plan, Refused, TileRecord,
+    UpdateCache, VoxelGrid,
 };
 use rayon::prelude::*;
 
@@ -496,35 +496,13 @@ pub fn precompute_with(
     report.seconds_clustering += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let digests = tracing.then(|| {
-        // An update makes again only the digests of tiles whose walks lay in a touched room
-        // (or that had none): the others' texels, links and far field lie in rooms the edit
-        // did not reach, so their inputs are as the cache has them (module doc of `update`).
-        let only: Option<Vec<bool>> = match (reuse.cache(), &edit) {
-            (Some(cache), Some((_, touched, _))) => {
-                Some(cache.tiles.iter().map(|t| t.rooms.is_empty() || meets(&t.rooms, touched)).collect())
-            }
-            _ => None,
-        };
-        let tx = params.atlas.width().div_ceil(params.tile_size) as usize;
-        let need: Option<Vec<bool>> = only.as_ref().map(|o| {
-            set.texels.iter().map(|t| o[crate::update::tile_of(t.i, t.j, params.tile_size, tx)]).collect()
-        });
+        // Every tile's digest is made again, the first bounce's exact part included. Made
+        // only for tiles whose walks lay in a touched room, one tile of an untouched chamber
+        // of the 16 kept a stale digest: its far-field first bounce carried 1e-11 of the
+        // edited chamber's clusters' light, which changed.
         let first = pre.first_bounce();
-        let exact = |r| pre.band_exact(r, first.as_ref(), need.as_deref());
-        let mut d = tile_digests(
-            set,
-            params.tile_size,
-            pre.smoothing.as_ref(),
-            linked.as_ref(),
-            only.as_deref(),
-            &exact,
-        );
-        if let (Some(only), Some(cache)) = (&only, reuse.cache()) {
-            for (k, d) in d.iter_mut().enumerate().filter(|(k, _)| !only[*k]) {
-                *d = cache.tiles[k].inputs;
-            }
-        }
-        d
+        let exact = |r| pre.band_exact(r, first.as_ref(), None);
+        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &exact)
     });
     report.seconds_panes += t.elapsed().as_secs_f64();
     let plan = match (reuse, &triangles, &digests, edit) {

@@ -7,8 +7,9 @@
 //! makes every tile's other inputs comparable, but for what lies in rooms the edit did not
 //! touch ([`Untouched`], below under *Rooms*): there the far field's pairs of entry blocks and
 //! the texels' near links are the old bake's (on 16 chambers those two were 19 of a plain
-//! update's 44 s), and only the tiles whose walks lay in a touched room have their digests
-//! and exact first bounce made again. The clustering is OLD's: k-means over all
+//! update's 44 s). Every tile's digest is still made again: a tile of an untouched room can
+//! carry a trace (1e-11) of a touched room's clusters through the far field's first bounce.
+//! The clustering is OLD's: k-means over all
 //! entries moves every cluster a little when one object moves, and a pane of a cluster whose
 //! members changed cannot be reused. So an update writes what a full precompute *given OLD's
 //! clusters* writes ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to
@@ -169,15 +170,12 @@ pub fn tile_of(i: u32, j: u32, tile_size: u32, tiles_x: usize) -> usize {
 
 /// Per atlas tile, a digest of what its own covered texels' values are made of besides their
 /// walks (module doc): the texels, their exact first bounce and near-link shares, their
-/// smoothing taps and the dilation records whose target lies in the tile. With `only`, the
-/// tiles it does not mark are left at the empty digest (and `exact` need not give their
-/// texels anything).
+/// smoothing taps and the dilation records whose target lies in the tile.
 pub fn tile_digests(
     set: &TexelSet,
     tile_size: u32,
     smoothing: Option<&Smoothing>,
     linked: Option<&LinkedCells>,
-    only: Option<&[bool]>,
     exact: &(dyn Fn(std::ops::Range<usize>) -> Vec<TexelPanes> + Sync),
 ) -> Vec<u64> {
     let tx = set.width.div_ceil(tile_size) as usize;
@@ -190,11 +188,7 @@ pub fn tile_digests(
         if k % CHUNK == 0 {
             chunk = exact(k..(k + CHUNK).min(set.len()));
         }
-        let tile = tile_of(t.i, t.j, tile_size, tx);
-        if only.is_some_and(|o| !o[tile]) {
-            continue;
-        }
-        let d = &mut h[tile];
+        let d = &mut h[tile_of(t.i, t.j, tile_size, tx)];
         let atlas = t.j * set.width + t.i;
         let mut x = fnv1a(*d, &[t.i.to_le_bytes(), t.j.to_le_bytes(), t.triangle.to_le_bytes()].concat());
         for v in [t.position, t.normal, t.bary] {
@@ -221,11 +215,7 @@ pub fn tile_digests(
     }
     for dl in &set.dilation {
         let (i, j) = (dl.target % set.width, dl.target / set.width);
-        let tile = tile_of(i, j, tile_size, tx);
-        if only.is_some_and(|o| !o[tile]) {
-            continue;
-        }
-        let d = &mut h[tile];
+        let d = &mut h[tile_of(i, j, tile_size, tx)];
         *d = fnv1a(*d, &dl.target.to_le_bytes());
         for &s in &dl.sources[..dl.count as usize] {
             *d = fnv1a(*d, &s.to_le_bytes());
