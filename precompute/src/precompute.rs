@@ -12,7 +12,6 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use glam::Vec3;
 use prm::density::Atlas;
 use prm::prm_file::{Dipoles, Entry, Header, InvalidPrm, Prm, PrmParts};
 use prm::{Bvh, Scene};
@@ -480,16 +479,12 @@ pub fn precompute_with(
                 (&pre.entries, &pre.cells),
                 &rows,
             );
-            // The rooms of the level as baked, as the settled entries found them.
-            let (touched, now) = match &pre.untouched {
-                Some(u) => (edit.rooms(&u.baked), u.map.clone()),
-                None => {
-                    let corners: Vec<[Vec3; 3]> = cache.triangles.iter().map(|t| t.0).collect();
-                    let baked = prm::rooms::Rooms::new(&corners);
-                    (edit.rooms(&baked), pre.rooms.as_ref().map(|r| baked.rooms_in(r)).unwrap_or_default())
-                }
+            // The rooms of the level as baked, as the settled entries found them (the
+            // preamble makes them for every update).
+            let Some(u) = &pre.untouched else {
+                return Err(Refused("the update found no rooms of the old level".into()).into());
             };
-            Some((edit, touched, now))
+            Some((edit.rooms(&u.baked), u.map.clone(), edit))
         }
         _ => None,
     };
@@ -506,7 +501,7 @@ pub fn precompute_with(
     });
     report.seconds_panes += t.elapsed().as_secs_f64();
     let plan = match (reuse, &triangles, &digests, edit) {
-        (Reuse::Update { cache, .. }, Some(_), Some(digests), Some((edit, touched, now))) => {
+        (Reuse::Update { cache, .. }, Some(_), Some(digests), Some((touched, now, edit))) => {
             let plan = Plan::new(
                 cache,
                 set,
