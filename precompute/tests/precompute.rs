@@ -674,3 +674,33 @@ fn next_bounce_table_keeps_the_light_and_loses_noise() {
     assert!(off(&converged) < 0.05, "1024 walks with the table off by {}", off(&converged));
     assert!(e_with < 0.5 * e_without, "16 walks off by {e_with} with the table, {e_without} without");
 }
+
+/// `max_bounces` caps the table's bounce too: a row read at a walk's vertex is the bounce after
+/// that vertex's, so at the cap it is not read. With one and with two bounces, the open box
+/// gets the same light with the table as from the walks' own hits (1024 walks, to 2 %). Before
+/// the table kept the cap, one bounce read 1.5x the hits' light (the second bounce came in).
+#[test]
+fn next_bounce_table_keeps_the_bounce_cap() {
+    let scene = open_box();
+    let set = TexelSet::build(&scene, 64, 64);
+    let energy = |next_bounce: bool, max_bounces: u32| -> f64 {
+        let p =
+            PrecomputeParams { smooth_radius: 0.0, next_bounce, max_bounces, ..params(256, 1024, 12, 64) };
+        let prm = bake(&scene, &p);
+        let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat((c % 3) as f32)).collect();
+        let lit = at_texels(&set, &cpu::compose(&prm, &w, &[]));
+        lit.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>() / lit.len() as f64
+    };
+    let mut last = 0.0;
+    for bounces in [1, 2] {
+        let (with, without) = (energy(true, bounces), energy(false, bounces));
+        assert!(
+            (with / without - 1.0).abs() < 0.02,
+            "{bounces} bounce(s): {with} with the table, {without} without"
+        );
+        // Each bounce adds light: the cap is what the two agree on, not a cut of both.
+        assert!(without > 1.05 * last, "{bounces} bounce(s) bring {without}, one fewer {last}");
+        last = without;
+    }
+    assert!(energy(false, 1000) > 1.05 * last, "all bounces bring no more than two");
+}

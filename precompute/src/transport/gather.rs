@@ -84,8 +84,9 @@ impl Transport<'_> {
                     _ => 1.0,
                 };
                 given = false;
+                // The row is the bounce after this vertex's own: only within the cap.
                 if let (Some(n), Some(e)) = (next, owner) {
-                    if n.row(e).is_some() {
+                    if depth + 1 < self.max_bounces && n.row(e).is_some() {
                         scratch.visit(e, beta, self.entries.len());
                         given = true;
                     }
