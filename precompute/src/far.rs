@@ -483,6 +483,76 @@ impl<'a> FirstBounce<'a> {
         }
     }
 
+    /// Per covered texel (set order), a digest of everything [`FirstBounce::add`] reads for it
+    /// (0 for a texel the far field does not light), floats at the update's precision
+    /// (`crate::update::coarse`): two bakes whose digests agree at a texel give it the same
+    /// first bounce. It costs a few words per texel where [`FirstBounce::add`] costs every
+    /// entry in view: per entry, once, its row of pair bits and the entries of the blocks it
+    /// sees (cells, normals, flux, clusters); per texel, its own point and its neighbours'.
+    pub fn input_digests(&self) -> Vec<u64> {
+        use crate::update::{mix_floats, mix_word};
+        const B: usize = Far::BLOCK;
+        let (entries, far) = (self.entries, self.far);
+        if far.texels.is_empty() {
+            return vec![0; self.set.len()];
+        }
+        // What a texel reads of an entry it is lit by.
+        let source: Vec<u64> = (0..entries.len())
+            .into_par_iter()
+            .map(|j| {
+                let h = mix_floats(mix_word(0, j as u64), &self.centroid[j].to_array());
+                let h = mix_floats(h, &entries[j].normal.to_array());
+                let h = mix_floats(h, &[self.size[j]]);
+                let h = mix_floats(h, &self.flux[j].to_array());
+                mix_word(h, u64::from(self.assignment[j]))
+            })
+            .collect();
+        // Per entry, all it lends a texel as a neighbour: its facing plane, its bits and the
+        // entries they say it sees (itself included). An edit elsewhere in a block it sees
+        // part of leaves its digest alone.
+        let neighbour: Vec<u64> = (0..entries.len())
+            .into_par_iter()
+            .map(|q| {
+                let b = q / B;
+                let run = match (far.block_first.get(b), far.block_first.get(b + 1)) {
+                    (Some(&from), Some(&to)) => from as usize..to as usize,
+                    _ => 0..0,
+                };
+                let mut h = mix_floats(mix_word(0, q as u64), &entries[q].normal.to_array());
+                h = mix_floats(h, &self.centroid[q].to_array());
+                h = mix_word(h, source[q]);
+                for a in run {
+                    let (other, mut word) = (far.pair_block[a] as usize, far.visible[a * B + q % B]);
+                    h = mix_word(h, (other as u64) << 32 | u64::from(word));
+                    while word != 0 {
+                        let c = word.trailing_zeros() as usize;
+                        word &= word - 1;
+                        h = mix_word(h, source.get(other * B + c).copied().unwrap_or(0));
+                    }
+                }
+                h
+            })
+            .collect();
+        let reach = u64::from(crate::update::coarse(far.reach));
+        (0..self.set.len())
+            .into_par_iter()
+            .map(|k| {
+                let t = &self.set.texels[k];
+                let atlas = t.j * self.set.width + t.i;
+                let Ok(i) = far.texels.binary_search_by_key(&atlas, |f| f.texel) else { return 0 };
+                let f = &far.texels[i];
+                let mut h = mix_word(reach, u64::from(f.texel));
+                h = mix_floats(h, &f.position.to_array());
+                h = mix_floats(h, &f.normal.to_array());
+                h = mix_floats(h, &f.weights);
+                for &q in &f.entries {
+                    h = mix_word(h, neighbour.get(q as usize).copied().unwrap_or(0));
+                }
+                h
+            })
+            .collect()
+    }
+
     /// Adds the far field's first bounce at covered texels `texels` (set indices) to `out`
     /// (one per texel, clusters ascending; what the links gave is already there). Texels the
     /// far field does not light get nothing.

@@ -491,12 +491,11 @@ pub fn precompute_with(
     report.seconds_clustering += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let digests = tracing.then(|| {
-        // Every tile's digest is made again, the first bounce's exact part included. Made
-        // only for tiles whose walks lay in a touched room, one tile of an untouched chamber
-        // of the 16 kept a stale digest: its far-field first bounce carried 1e-11 of the
-        // edited chamber's clusters' light, which changed.
-        let first = pre.first_bounce();
-        let exact = |r| pre.band_exact(r, first.as_ref(), None);
+        // Every tile's digest is made again, what its exact first bounce is made of included.
+        // Made only for tiles whose walks lay in a touched room, one tile of an untouched
+        // chamber of the 16 kept a stale digest: its far-field first bounce carried 1e-11 of
+        // the edited chamber's clusters' light, which changed.
+        let exact = pre.exact_digests(pre.first_bounce().as_ref());
         tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &exact)
     });
     report.seconds_panes += t.elapsed().as_secs_f64();

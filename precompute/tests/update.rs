@@ -420,4 +420,19 @@ fn a_damaged_cache_is_refused_with_what_is_wrong() {
         b.extend_from_slice(&sum.to_le_bytes());
         assert!(UpdateCache::from_bytes(&b).is_err(), "a cache cut at {cut} parsed");
     }
+    // A cache of an older build is not called damaged: the reader says which version it is.
+    let mut older = bytes[..bytes.len() - 8].to_vec();
+    older[8..12].copy_from_slice(&3u32.to_le_bytes());
+    let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &older);
+    older.extend_from_slice(&sum.to_le_bytes());
+    let dir = std::env::temp_dir().join(format!("prm-cache-version-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("old.prm.cache");
+    std::fs::write(&path, &older).unwrap();
+    let said = UpdateCache::read(&path).expect_err("an older cache was read").to_string();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(
+        said.contains("version 3") && said.contains("again with --cache") && !said.contains("damaged"),
+        "{said}"
+    );
 }

@@ -309,6 +309,37 @@ impl Preamble {
         ))
     }
 
+    /// Per covered texel (set order), a digest of what [`Preamble::band_exact`] makes its exact
+    /// first bounce of (with the far field's part where `first` is given): an update's tile
+    /// digests (`crate::update::tile_digests`) hold these instead of the values, which cost the
+    /// far field's sum over every entry in view at every texel (8 s of an update of the 16
+    /// chambers).
+    pub(crate) fn exact_digests(&self, first: Option<&FirstBounce>) -> Vec<u64> {
+        use crate::update::{mix_floats, mix_word};
+        let mut out = match first {
+            Some(f) => f.input_digests(),
+            None => vec![0; self.set.len()],
+        };
+        if self.keep.is_some() {
+            // What `exact_first_bounce` reads of a linked entry.
+            let entry: Vec<u64> = (0..self.entries.len())
+                .map(|j| {
+                    let e = &self.entries[j];
+                    let h = mix_floats(mix_word(1, j as u64), &e.albedo.to_array());
+                    let h = mix_floats(h, &[e.area, self.cells.area(j)]);
+                    mix_word(h, u64::from(self.clustering.assignment[j]))
+                })
+                .collect();
+            for l in &self.near {
+                let k = self.set.index[l.texel as usize] as usize;
+                if let Some(d) = out.get_mut(k) {
+                    *d = mix_word(mix_floats(*d, &[l.factor]), entry[l.entry as usize]);
+                }
+            }
+        }
+        out
+    }
+
     /// The exact first bounce of covered texels `range` (set order): the links', and the far
     /// field's too where `first` is given ([`Preamble::first_bounce`]), made here so that it is
     /// never held for the whole level.

@@ -11,7 +11,8 @@
 //! triangles u32, then per triangle: corners 9 f32, digest u64
 //! entries u32, then the cluster of each u32
 //! clusters u32, groups u32, then the group of each cluster u32 (none without groups)
-//! tiles u32, then per atlas tile: inputs digest u64, walks cut u64, unowned vertices u64,
+//! tiles u32, then per atlas tile: inputs digest u64 (v4: of the exact first bounce's inputs,
+//!     not its values), walks cut u64, unowned vertices u64,
 //!     footprint (grid words x u64), rooms u32 then each room u32 (sorted; u32::MAX: any)
 //! panes u32 (clusters + groups), then per pane: tiles u32, then per tile:
 //!     atlas tile u32, scale 3 f32, energy f64, carried f64, codes u32, codes bytes
@@ -30,7 +31,7 @@ use prm::fingerprint::{fnv1a, FNV_START};
 use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
-const VERSION: u32 = 3;
+const VERSION: u32 = 4;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
@@ -86,6 +87,11 @@ pub enum CacheError {
     Io { path: String, source: std::io::Error },
     #[error("the update cache {path} is damaged: {what}")]
     Corrupt { path: String, what: String },
+    #[error(
+        "the update cache {path} is of version {found}, this build reads version {VERSION}: bake OLD \
+         again with --cache"
+    )]
+    Version { path: String, found: u32 },
 }
 
 impl UpdateCache {
@@ -146,6 +152,13 @@ impl UpdateCache {
     pub fn read(path: &Path) -> Result<UpdateCache, CacheError> {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| CacheError::Io { path: name.clone(), source })?;
+        // The version first: an older cache is not damaged, only of another build.
+        if bytes.len() >= 12 && bytes[..8] == MAGIC {
+            let found = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+            if found != VERSION {
+                return Err(CacheError::Version { path: name, found });
+            }
+        }
         Self::from_bytes(&bytes).map_err(|what| CacheError::Corrupt { path: name, what })
     }
 

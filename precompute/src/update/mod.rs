@@ -9,6 +9,11 @@
 //! the texels' near links are the old bake's (on 16 chambers those two were 19 of a plain
 //! update's 44 s). Every tile's digest is still made again: a tile of an untouched room can
 //! carry a trace (1e-11) of a touched room's clusters through the far field's first bounce.
+//! That digest holds what the exact first bounce is made of, not its values: per texel its
+//! far-field neighbours' pair bits and the cells, normals, flux and clusters of the entries
+//! those bits say they see, and its links' cells (`Preamble::exact_digests`). The values
+//! cost the far field's sum over every entry in view at every texel, 8 s of an update of the
+//! 16 chambers; the inputs cost a few words per texel.
 //! The clustering is OLD's: k-means over all
 //! entries moves every cluster a little when one object moves, and a pane of a cluster whose
 //! members changed cannot be reused. So an update writes what a full precompute *given OLD's
@@ -26,8 +31,9 @@
 //! (`crate::transport::NextBounce`: a walk through such a cell reads its row, so an edit that
 //! shades a cell reaches every walk through it; the cache keeps a digest per row). The bake
 //! of OLD recorded, per atlas tile, the voxels its texels' walks passed
-//! through ([`footprint`]), and a digest of the tile's other inputs (its texels, their exact
-//! first bounce and near-link shares, their smoothing taps, the dilation into the tile). A
+//! through ([`footprint`]), and a digest of the tile's other inputs (its texels, what their
+//! exact first bounce is made of, their near-link shares, their smoothing taps, the dilation
+//! into the tile). A
 //! tile is *hit* when its footprint meets the edit's voxels (grown by one, which makes the
 //! coarse footprint conservative) or its digest changed; a tile is *re-encoded* when it is hit
 //! or one of its texels reads a hit tile's texel through the smoothing's taps or the
@@ -79,7 +85,7 @@ use prm::{Scene, Smoothing, TexelSet};
 pub use cache::{CacheError, CachedTile, TileRecord, UpdateCache};
 pub use footprint::{Recorder, VoxelGrid};
 
-use crate::transport::{LinkedCells, TexelPanes, ANY_ROOM};
+use crate::transport::{LinkedCells, ANY_ROOM};
 
 /// Why an update cannot reuse OLD's bake (module doc): the caller runs a full precompute.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -128,8 +134,22 @@ fn mix(h: u64, xs: &[f32]) -> u64 {
 
 /// A float to 16 of its 23 mantissa bits (1.5e-5 relative), rounded: what a tile's digest
 /// compares (module doc, float noise).
-fn coarse(x: f32) -> u32 {
+pub(crate) fn coarse(x: f32) -> u32 {
     round16(x).to_bits()
+}
+
+/// Mixes a word into a digest (splitmix64's finaliser over `h ^ w`): the input digests'
+/// step, a word at a time where FNV-1a goes a byte at a time.
+pub(crate) fn mix_word(h: u64, w: u64) -> u64 {
+    let mut z = (h ^ w).wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// [`mix_word`] over floats at [`coarse`] precision.
+pub(crate) fn mix_floats(h: u64, xs: &[f32]) -> u64 {
+    xs.iter().fold(h, |h, &x| mix_word(h, u64::from(coarse(x))))
 }
 
 /// `x` rounded to 16 of its 23 mantissa bits (1.5e-5 relative): the precision at which an
@@ -169,35 +189,27 @@ pub fn tile_of(i: u32, j: u32, tile_size: u32, tiles_x: usize) -> usize {
 }
 
 /// Per atlas tile, a digest of what its own covered texels' values are made of besides their
-/// walks (module doc): the texels, their exact first bounce and near-link shares, their
-/// smoothing taps and the dilation records whose target lies in the tile.
+/// walks (module doc): the texels, what their exact first bounce is made of (`exact`, per
+/// covered texel: `Preamble::exact_digests`), their near-link shares, their smoothing taps and
+/// the dilation records whose target lies in the tile.
 pub fn tile_digests(
     set: &TexelSet,
     tile_size: u32,
     smoothing: Option<&Smoothing>,
     linked: Option<&LinkedCells>,
-    exact: &(dyn Fn(std::ops::Range<usize>) -> Vec<TexelPanes> + Sync),
+    exact: &[u64],
 ) -> Vec<u64> {
     let tx = set.width.div_ceil(tile_size) as usize;
     let ty = set.height.div_ceil(tile_size) as usize;
     let mut h = vec![FNV_START; tx * ty];
-    // The exact first bounce a chunk of texels at a time (it is not held for the whole level).
-    const CHUNK: usize = 4096;
-    let mut chunk: Vec<TexelPanes> = Vec::new();
     for (k, t) in set.texels.iter().enumerate() {
-        if k % CHUNK == 0 {
-            chunk = exact(k..(k + CHUNK).min(set.len()));
-        }
         let d = &mut h[tile_of(t.i, t.j, tile_size, tx)];
         let atlas = t.j * set.width + t.i;
         let mut x = fnv1a(*d, &[t.i.to_le_bytes(), t.j.to_le_bytes(), t.triangle.to_le_bytes()].concat());
         for v in [t.position, t.normal, t.bary] {
             x = mix_coarse(x, &v.to_array());
         }
-        for &(c, v) in chunk.get(k % CHUNK).map_or(&[][..], |e| &e[..]) {
-            x = fnv1a(x, &c.to_le_bytes());
-            x = mix_coarse(x, &v.to_array());
-        }
+        x = fnv1a(x, &exact.get(k).copied().unwrap_or(0).to_le_bytes());
         if let Some(l) = linked {
             let (links, keep) = l.of(atlas);
             for (link, &s) in links.iter().zip(keep) {
