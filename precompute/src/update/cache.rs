@@ -152,10 +152,13 @@ impl UpdateCache {
     pub fn read(path: &Path) -> Result<UpdateCache, CacheError> {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| CacheError::Io { path: name.clone(), source })?;
-        // The version first: an older cache is not damaged, only of another build.
-        if bytes.len() >= 12 && bytes[..8] == MAGIC {
+        // An intact cache of another build is not damaged, only of another version.
+        if bytes.len() >= 20 && bytes[..8] == MAGIC {
+            let (body, tail) = bytes.split_at(bytes.len() - 8);
+            let intact =
+                <[u8; 8]>::try_from(tail).map(u64::from_le_bytes).ok() == Some(fnv1a(FNV_START, body));
             let found = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-            if found != VERSION {
+            if intact && found != VERSION {
                 return Err(CacheError::Version { path: name, found });
             }
         }
