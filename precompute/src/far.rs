@@ -681,6 +681,88 @@ mod tests {
     }
 
     /// Two pairs facing each other across x = 0, one behind a square blocker there and one
+    /// A texel's input digest ([`FirstBounce::input_digests`]) follows what
+    /// [`FirstBounce::add`] reads for it: two blocks of entries on a floor facing a texel on the
+    /// ceiling, whose neighbours see entry 37 of the second block and not entry 38. Moving 38 to
+    /// another cluster changes neither the texel's first bounce nor its digest; moving 37 changes
+    /// both, and so does its flux, or a neighbour's bit.
+    #[test]
+    fn input_digests_follow_what_the_first_bounce_reads() {
+        const B: usize = Far::BLOCK;
+        let floor = |j: usize| Entry {
+            position: Vec3::new(j as f32 * 0.1, 0.0, 0.0),
+            normal: Vec3::Y,
+            albedo: Vec3::splat(0.5),
+            area: 0.01,
+            triangle: j as u32,
+        };
+        let entries: Vec<Entry> = (0..2 * B).map(floor).collect();
+        let texel = prm::Texel {
+            i: 0,
+            j: 0,
+            position: Vec3::new(3.0, 2.0, 0.0),
+            normal: Vec3::NEG_Y,
+            triangle: 0,
+            bary: Vec3::splat(1.0 / 3.0),
+        };
+        let set = TexelSet {
+            width: 1,
+            height: 1,
+            texels: vec![texel],
+            index: vec![0],
+            dilation: Vec::new(),
+            zero_uv_area_triangles: 0,
+            shared_gutter_texels: 0,
+            buried: Default::default(),
+        };
+        // Block 0 pairs with block 1 only; its entries 0..4 see entry 37 (bit 5 of block 1).
+        let mut visible = vec![0u32; 2 * B];
+        for q in 0..4 {
+            visible[q] = 1 << 5;
+        }
+        let far = Far {
+            reach: 0.0,
+            radius: 100.0,
+            block_first: vec![0, 1, 1],
+            pair_block: vec![1],
+            visible,
+            texels: vec![FarTexel {
+                texel: 0,
+                position: texel.position,
+                normal: texel.normal,
+                entries: [0, 1, 2, 3],
+                weights: [0.25; 4],
+            }],
+            energy: vec![0.0; 2 * B],
+        };
+        let cell: Vec<(Vec3, f32)> = entries.iter().map(|e| (e.position, e.area)).collect();
+        let lit = |far: &Far, assignment: &[u32], cell: &[(Vec3, f32)]| {
+            let first = FirstBounce::new(&set, &entries, cell, far, assignment, 4);
+            let mut out = vec![Vec::new()];
+            first.add(&[0], &mut out);
+            (out.remove(0), first.input_digests()[0])
+        };
+        let assignment = vec![0u32; 2 * B];
+        let (value, digest) = lit(&far, &assignment, &cell);
+        assert!(value.iter().any(|&(c, v)| c == 0 && v.x > 0.0), "{value:?}");
+        let mut unseen = assignment.clone();
+        unseen[38] = 1;
+        assert_eq!(lit(&far, &unseen, &cell), (value.clone(), digest), "an unseen entry moved the texel");
+        let mut seen = assignment.clone();
+        seen[37] = 1;
+        let (v37, d37) = lit(&far, &seen, &cell);
+        assert!(v37 != value && d37 != digest, "entry 37 changed cluster: {v37:?}, digest {d37} {digest}");
+        let mut brighter = cell.clone();
+        brighter[37].1 *= 2.0;
+        let (vf, df) = lit(&far, &assignment, &brighter);
+        assert!(vf != value && df != digest, "entry 37's flux doubled");
+        let mut blind = far.clone();
+        blind.visible[2] = 0;
+        let (vb, db) = lit(&blind, &assignment, &cell);
+        assert!(vb != value && db != digest, "a neighbour lost its bit");
+    }
+
+    /// Two pairs facing each other across x = 0, one behind a square blocker there and one
     /// above it, and an entry facing away: only the open facing pair gets its bit.
     #[test]
     fn pair_bits_follow_the_rays() {
