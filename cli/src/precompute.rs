@@ -271,6 +271,8 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         }
     }
     bar.finish();
+    // OLD's map and cache are done with: not held while the new ones are written.
+    drop(old);
     let Baked { prm, report, cache } = result.map_err(|e| match e {
         PrecomputeError::Cancelled(_) => anyhow!("stopped by Ctrl-C; {} not written", a.output.display()),
         e => anyhow!("{e}; {} not written", a.output.display()),

@@ -372,9 +372,7 @@ pub struct Baked {
 
 /// The checksum a `.prm` file of `prm` ends with (what an update cache is tied to).
 pub fn prm_checksum(prm: &Prm) -> u64 {
-    let bytes = prm.to_bytes();
-    let tail: [u8; 8] = bytes[bytes.len().saturating_sub(8)..].try_into().unwrap_or_default();
-    u64::from_le_bytes(tail)
+    prm.checksum()
 }
 
 /// Run the precompute. `progress(phase, done, total)` is called as work completes; `cancel`

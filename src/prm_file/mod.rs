@@ -919,6 +919,29 @@ impl Prm {
         self.parts.to_bytes()
     }
 
+    /// The file's checksum, its last 8 bytes, made as [`Prm::write`] makes it but holding no
+    /// copy of the file (an update's old map and new cache each asked for one: twice the
+    /// file in memory on the 16 chambers, 382 MB each).
+    pub fn checksum(&self) -> u64 {
+        /// Keeps the last 8 bytes written.
+        struct Tail([u8; 8]);
+        impl std::io::Write for Tail {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                let n = b.len().min(8);
+                self.0.rotate_left(n);
+                self.0[8 - n..].copy_from_slice(&b[b.len() - n..]);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let mut tail = Tail([0; 8]);
+        // Writing to it cannot fail.
+        let _ = self.parts.write_to(&mut tail);
+        u64::from_le_bytes(tail.0)
+    }
+
     /// Write atomically, a section at a time; returns the file's size.
     pub fn write(&self, path: &Path) -> Result<u64, PrmError> {
         let mut len = 0;
@@ -1139,9 +1162,12 @@ mod tests {
     #[test]
     fn valid_parts_make_a_map_that_round_trips() {
         let prm = Prm::new(parts()).unwrap();
-        let back = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()).unwrap();
+        let bytes = prm.to_bytes();
+        let back = Prm::from_bytes(Path::new("t.prm"), &bytes).unwrap();
         assert_eq!(back, prm);
         assert_eq!(prm.pane_tiles(0, &prm.layout()).map(|t| t.texels.len()).sum::<usize>(), 16);
+        // The checksum made without the bytes is the file's last 8.
+        assert_eq!(prm.checksum().to_le_bytes(), bytes[bytes.len() - 8..]);
     }
 
     /// A v3 file (no texel points for the near field) is refused, saying what to do.

@@ -97,7 +97,25 @@ pub enum CacheError {
 impl UpdateCache {
     /// The cache's bytes (module doc).
     pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        // Writing to a Vec cannot fail.
+        let _ = self.write_to(&mut out);
+        out
+    }
+
+    /// Writes [`UpdateCache::to_bytes`] to `out` a megabyte at a time, the checksum made as it
+    /// goes: no copy of the whole cache is held (370 MB on the 16 chambers, at an update's peak).
+    pub fn write_to(&self, out: &mut dyn Write) -> std::io::Result<()> {
+        let mut sum = FNV_START;
         let mut b = Vec::new();
+        let mut flush = |b: &mut Vec<u8>, at_least: usize| -> std::io::Result<()> {
+            if b.len() >= at_least {
+                sum = fnv1a(sum, b);
+                out.write_all(b)?;
+                b.clear();
+            }
+            Ok(())
+        };
         b.extend_from_slice(&MAGIC);
         put_u32(&mut b, VERSION);
         put_u64(&mut b, self.prm_checksum);
@@ -126,6 +144,7 @@ impl UpdateCache {
             t.footprint.iter().for_each(|&w| put_u64(&mut b, w));
             put_u32(&mut b, t.rooms.len() as u32);
             t.rooms.iter().for_each(|&r| put_u32(&mut b, r));
+            flush(&mut b, 1 << 20)?;
         }
         put_u32(&mut b, self.panes.len() as u32);
         for pane in &self.panes {
@@ -137,16 +156,16 @@ impl UpdateCache {
                 b.extend_from_slice(&t.carried.to_le_bytes());
                 put_u32(&mut b, t.codes.len() as u32);
                 b.extend_from_slice(&t.codes);
+                flush(&mut b, 1 << 20)?;
             }
         }
-        let sum = fnv1a(FNV_START, &b);
-        put_u64(&mut b, sum);
-        b
+        flush(&mut b, 0)?;
+        out.write_all(&sum.to_le_bytes())
     }
 
     /// Write it atomically (never half a file).
     pub fn write(&self, path: &Path) -> std::io::Result<()> {
-        prm::fsutil::write_atomic(path, |w| w.write_all(&self.to_bytes()))
+        prm::fsutil::write_atomic(path, |w| self.write_to(w))
     }
 
     pub fn read(path: &Path) -> Result<UpdateCache, CacheError> {
