@@ -717,9 +717,7 @@ mod tests {
         };
         // Block 0 pairs with block 1 only; its entries 0..4 see entry 37 (bit 5 of block 1).
         let mut visible = vec![0u32; 2 * B];
-        for q in 0..4 {
-            visible[q] = 1 << 5;
-        }
+        visible[..4].fill(1 << 5);
         let far = Far {
             reach: 0.0,
             radius: 100.0,
