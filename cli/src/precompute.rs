@@ -284,7 +284,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let file_bytes = prm.write(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
     let cache_path = cache_path(&a.output);
     if let Some(cache) = &cache {
-        cache.write(&cache_path).with_context(|| format!("writing {}", cache_path.display()))?;
+        cache.write(&cache_path, &prm).with_context(|| format!("writing {}", cache_path.display()))?;
     }
     let write_s = t.elapsed().as_secs_f64();
     let mut v = serde_json::to_value(&report)?;
@@ -448,7 +448,7 @@ fn read_old(path: &std::path::Path, output: &std::path::Path) -> Result<(Prm, Up
         );
     }
     let cache =
-        UpdateCache::read(&cache_file).map_err(|e| anyhow!("{e}; {} not written", output.display()))?;
+        UpdateCache::read(&cache_file, &prm).map_err(|e| anyhow!("{e}; {} not written", output.display()))?;
     Ok((prm, cache))
 }
 

@@ -404,10 +404,37 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
 fn a_damaged_cache_is_refused_with_what_is_wrong() {
     let p = PrecomputeParams { atlas: prm::density::Atlas::single(64), ..params() };
     let level = two_sealed_rooms(v(0.3, 0.0, 0.3));
-    let (_, cache, _) = baked(&level, &p, Reuse::Nothing, true);
-    let bytes = cache.to_bytes();
-    assert_eq!(UpdateCache::from_bytes(&bytes).as_ref(), Ok(&cache));
-    let err = |b: &[u8]| UpdateCache::from_bytes(b).expect_err("a damaged cache parsed");
+    let (map, cache, _) = baked(&level, &p, Reuse::Nothing, true);
+    let bytes = cache.to_bytes(&map);
+    assert_eq!(UpdateCache::from_bytes(&bytes, &map).as_ref(), Ok(&cache));
+    // The tiles the map keeps are not written twice: beside a map that keeps none of them
+    // (another level's) every tile is written whole, and the difference is exactly the kept
+    // tiles' codes, scales and counts.
+    let (other, _, _) = baked(&two_sealed_rooms(v(0.6, 0.0, 0.3)), &p, Reuse::Nothing, true);
+    let whole = cache.to_bytes(&other);
+    let layout = map.layout();
+    let kept: usize = (0..map.clusters().len() + map.groups().len())
+        .flat_map(|c| map.pane_tiles(c, &layout).map(|t| t.data.len() + 16).collect::<Vec<_>>())
+        .sum();
+    assert!(kept > 0);
+    assert_eq!(
+        whole.len() - bytes.len(),
+        kept,
+        "{} bytes beside its map, {} whole",
+        bytes.len(),
+        whole.len()
+    );
+    // Beside another map the codes it leaves out are not there, or they are that map's: then
+    // the cache's tie to its own map (its checksum) refuses the update, which bakes whole.
+    match UpdateCache::from_bytes(&bytes, &other) {
+        Err(e) => assert!(e.contains("not in the map"), "{e}"),
+        Ok(misread) => {
+            assert_ne!(misread.prm_checksum, other.checksum());
+            let update = Reuse::Update { cache: &misread, old: &other };
+            assert!(matches!(run(&level, &p, update, true), Err(PrecomputeError::Refused(_))));
+        }
+    }
+    let err = |b: &[u8]| UpdateCache::from_bytes(b, &map).expect_err("a damaged cache parsed");
     assert!(err(&bytes[..bytes.len() / 2]).contains("checksum"));
     assert!(err(b"not a cache at all").contains("magic"));
     let mut flipped = bytes.clone();
@@ -418,7 +445,7 @@ fn a_damaged_cache_is_refused_with_what_is_wrong() {
         let mut b = bytes[..cut].to_vec();
         let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &b);
         b.extend_from_slice(&sum.to_le_bytes());
-        assert!(UpdateCache::from_bytes(&b).is_err(), "a cache cut at {cut} parsed");
+        assert!(UpdateCache::from_bytes(&b, &map).is_err(), "a cache cut at {cut} parsed");
     }
     // A cache of an older build is not called damaged: the reader says which version it is.
     let mut older = bytes[..bytes.len() - 8].to_vec();
@@ -429,7 +456,7 @@ fn a_damaged_cache_is_refused_with_what_is_wrong() {
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("old.prm.cache");
     std::fs::write(&path, &older).unwrap();
-    let said = UpdateCache::read(&path).expect_err("an older cache was read").to_string();
+    let said = UpdateCache::read(&path, &map).expect_err("an older cache was read").to_string();
     std::fs::remove_dir_all(&dir).unwrap();
     assert!(
         said.contains("version 3") && said.contains("again with --cache") && !said.contains("damaged"),

@@ -15,9 +15,18 @@
 //!     not its values), walks cut u64, unowned vertices u64,
 //!     footprint (grid words x u64), rooms u32 then each room u32 (sorted; u32::MAX: any)
 //! panes u32 (clusters + groups), then per pane: tiles u32, then per tile:
-//!     atlas tile u32, scale 3 f32, energy f64, carried f64, codes u32, codes bytes
+//!     atlas tile u32, energy f64, carried f64, in map u8, then unless in map:
+//!     scale 3 f32, codes u32, codes bytes
 //! checksum u64                FNV-1a 64 of everything before it
 //! ```
+//!
+//! A tile *in map* (v5) is one the `.prm` beside the cache keeps with the same scale and codes:
+//! the reader takes them from that map (`UpdateCache::read` is given it). Only the tiles the
+//! drop rule left out carry their codes here, so the cache no longer holds the map's panes a
+//! second time (16 chambers: 370 -> 134 MB; the rest is mostly the footprints and the
+//! dropped tiles). Read beside another map, a tile may be missing
+//! (an error) or be that map's; the cache's tie to its own map (the map's checksum, checked
+//! before an update uses it) then refuses the update.
 //!
 //! The panes' tiles are every tile the bake encoded, before the drop rule (the file keeps only
 //! those it did not drop), with both energies the rule and the pane's total are made from.
@@ -27,11 +36,12 @@ use std::path::Path;
 
 use glam::Vec3;
 use prm::fingerprint::{fnv1a, FNV_START};
+use prm::prm_file::{PaneTile, Prm};
 
 use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
-const VERSION: u32 = 4;
+const VERSION: u32 = 5;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
@@ -95,17 +105,19 @@ pub enum CacheError {
 }
 
 impl UpdateCache {
-    /// The cache's bytes (module doc).
-    pub fn to_bytes(&self) -> Vec<u8> {
+    /// The cache's bytes (module doc) beside `map`, the map it was baked with: a pane tile the
+    /// map keeps as it is here is written without its codes, which the reader takes from the map.
+    pub fn to_bytes(&self, map: &Prm) -> Vec<u8> {
         let mut out = Vec::new();
         // Writing to a Vec cannot fail.
-        let _ = self.write_to(&mut out);
+        let _ = self.write_to(&mut out, map);
         out
     }
 
     /// Writes [`UpdateCache::to_bytes`] to `out` a megabyte at a time, the checksum made as it
-    /// goes: no copy of the whole cache is held (370 MB on the 16 chambers, at an update's peak).
-    pub fn write_to(&self, out: &mut dyn Write) -> std::io::Result<()> {
+    /// goes: no copy of the whole cache is held.
+    pub fn write_to(&self, out: &mut dyn Write, map: &Prm) -> std::io::Result<()> {
+        let layout = map.layout();
         let mut sum = FNV_START;
         let mut b = Vec::new();
         let mut flush = |b: &mut Vec<u8>, at_least: usize| -> std::io::Result<()> {
@@ -147,15 +159,27 @@ impl UpdateCache {
             flush(&mut b, 1 << 20)?;
         }
         put_u32(&mut b, self.panes.len() as u32);
-        for pane in &self.panes {
+        for (p, pane) in self.panes.iter().enumerate() {
+            let kept: Vec<PaneTile> = if p < map.clusters().len() + map.groups().len() {
+                map.pane_tiles(p, &layout).collect()
+            } else {
+                Vec::new()
+            };
             put_u32(&mut b, pane.len() as u32);
             for t in pane {
                 put_u32(&mut b, t.index);
-                put_vec3(&mut b, t.scale);
                 b.extend_from_slice(&t.energy.to_le_bytes());
                 b.extend_from_slice(&t.carried.to_le_bytes());
-                put_u32(&mut b, t.codes.len() as u32);
-                b.extend_from_slice(&t.codes);
+                let in_map = kept
+                    .binary_search_by_key(&t.index, |k| k.tile.index)
+                    .ok()
+                    .is_some_and(|k| kept[k].tile.scale == t.scale && kept[k].data == &t.codes[..]);
+                b.push(in_map as u8);
+                if !in_map {
+                    put_vec3(&mut b, t.scale);
+                    put_u32(&mut b, t.codes.len() as u32);
+                    b.extend_from_slice(&t.codes);
+                }
                 flush(&mut b, 1 << 20)?;
             }
         }
@@ -163,12 +187,13 @@ impl UpdateCache {
         out.write_all(&sum.to_le_bytes())
     }
 
-    /// Write it atomically (never half a file).
-    pub fn write(&self, path: &Path) -> std::io::Result<()> {
-        prm::fsutil::write_atomic(path, |w| self.write_to(w))
+    /// Write it atomically (never half a file), beside `map` ([`UpdateCache::to_bytes`]).
+    pub fn write(&self, path: &Path, map: &Prm) -> std::io::Result<()> {
+        prm::fsutil::write_atomic(path, |w| self.write_to(w, map))
     }
 
-    pub fn read(path: &Path) -> Result<UpdateCache, CacheError> {
+    /// Read the cache of the map `map` (module doc).
+    pub fn read(path: &Path, map: &Prm) -> Result<UpdateCache, CacheError> {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| CacheError::Io { path: name.clone(), source })?;
         // An intact cache of another build is not damaged, only of another version.
@@ -181,11 +206,12 @@ impl UpdateCache {
                 return Err(CacheError::Version { path: name, found });
             }
         }
-        Self::from_bytes(&bytes).map_err(|what| CacheError::Corrupt { path: name, what })
+        Self::from_bytes(&bytes, map).map_err(|what| CacheError::Corrupt { path: name, what })
     }
 
-    /// Parse and check the bytes; the error says what is wrong.
-    pub fn from_bytes(bytes: &[u8]) -> Result<UpdateCache, String> {
+    /// Parse and check the bytes, the pane tiles written without codes taken from `map`; the
+    /// error says what is wrong.
+    pub fn from_bytes(bytes: &[u8], map: &Prm) -> Result<UpdateCache, String> {
         if bytes.len() < 20 || bytes[..8] != MAGIC {
             return Err("not an update cache (no PRMUPDT magic)".into());
         }
@@ -255,17 +281,38 @@ impl UpdateCache {
             return Err(format!("{n} panes for {clusters} clusters and {groups} groups"));
         }
         let mut panes = Vec::with_capacity(n);
-        for _ in 0..n {
-            let m = r.count(36)?;
+        let layout = map.layout();
+        for p in 0..n {
+            let m = r.count(21)?;
             let mut pane = Vec::with_capacity(m);
+            let kept: Vec<PaneTile> = if p < map.clusters().len() + map.groups().len() {
+                map.pane_tiles(p, &layout).collect()
+            } else {
+                Vec::new()
+            };
             for _ in 0..m {
                 let index = r.u32()?;
                 if index as usize >= tiles.len() {
                     return Err(format!("a pane tile at atlas tile {index} of {}", tiles.len()));
                 }
-                let (scale, energy, carried) = (r.vec3()?, r.f64()?, r.f64()?);
-                let k = r.count(1)?;
-                pane.push(CachedTile { index, scale, energy, carried, codes: r.take(k)?.to_vec() });
+                let (energy, carried) = (r.f64()?, r.f64()?);
+                let (scale, codes) = match r.take(1)?[0] {
+                    0 => {
+                        let scale = r.vec3()?;
+                        let k = r.count(1)?;
+                        (scale, r.take(k)?.to_vec())
+                    }
+                    1 => {
+                        let Ok(k) = kept.binary_search_by_key(&index, |k| k.tile.index) else {
+                            return Err(format!(
+                                "pane {p}'s tile at atlas tile {index} is not in the map beside it (another map's cache?)"
+                            ));
+                        };
+                        (kept[k].tile.scale, kept[k].data.to_vec())
+                    }
+                    f => return Err(format!("pane {p}'s tile at atlas tile {index} has flag {f}")),
+                };
+                pane.push(CachedTile { index, scale, energy, carried, codes });
             }
             if pane.windows(2).any(|w| w[0].index >= w[1].index) {
                 return Err("a pane's tiles are not in atlas order".into());
