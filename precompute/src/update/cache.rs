@@ -24,9 +24,9 @@
 //! the reader takes them from that map (`UpdateCache::read` is given it). Only the tiles the
 //! drop rule left out carry their codes here, so the cache no longer holds the map's panes a
 //! second time (16 chambers: 370 -> 134 MB; the rest is mostly the footprints and the
-//! dropped tiles). Read beside another map, a tile may be missing
-//! (an error) or be that map's; the cache's tie to its own map (the map's checksum, checked
-//! before an update uses it) then refuses the update.
+//! dropped tiles). Read beside another map, a tile may be missing (an error) or be that map's;
+//! the cache's tie to its own map (the map's checksum, checked before an update uses it) then
+//! refuses the update.
 //!
 //! The panes' tiles are every tile the bake encoded, before the drop rule (the file keeps only
 //! those it did not drop), with both energies the rule and the pane's total are made from.
@@ -36,7 +36,7 @@ use std::path::Path;
 
 use glam::Vec3;
 use prm::fingerprint::{fnv1a, FNV_START};
-use prm::prm_file::{PaneTile, Prm};
+use prm::prm_file::{PaneTile, Prm, TileLayout};
 
 use super::footprint::VoxelGrid;
 
@@ -160,11 +160,7 @@ impl UpdateCache {
         }
         put_u32(&mut b, self.panes.len() as u32);
         for (p, pane) in self.panes.iter().enumerate() {
-            let kept: Vec<PaneTile> = if p < map.clusters().len() + map.groups().len() {
-                map.pane_tiles(p, &layout).collect()
-            } else {
-                Vec::new()
-            };
+            let kept = kept_tiles(map, &layout, p);
             put_u32(&mut b, pane.len() as u32);
             for t in pane {
                 put_u32(&mut b, t.index);
@@ -285,11 +281,7 @@ impl UpdateCache {
         for p in 0..n {
             let m = r.count(21)?;
             let mut pane = Vec::with_capacity(m);
-            let kept: Vec<PaneTile> = if p < map.clusters().len() + map.groups().len() {
-                map.pane_tiles(p, &layout).collect()
-            } else {
-                Vec::new()
-            };
+            let kept = kept_tiles(map, &layout, p);
             for _ in 0..m {
                 let index = r.u32()?;
                 if index as usize >= tiles.len() {
@@ -335,6 +327,15 @@ impl UpdateCache {
             tiles,
             panes,
         })
+    }
+}
+
+/// The tiles `map` keeps of pane `p` (none past its panes), in atlas order.
+fn kept_tiles<'a>(map: &'a Prm, layout: &'a TileLayout, p: usize) -> Vec<PaneTile<'a>> {
+    if p < map.clusters().len() + map.groups().len() {
+        map.pane_tiles(p, layout).collect()
+    } else {
+        Vec::new()
     }
 }
 
