@@ -487,7 +487,7 @@ impl<'a> FirstBounce<'a> {
     /// (0 for a texel the far field does not light), floats at the update's precision
     /// (`crate::update::coarse`): two bakes whose digests agree at a texel give it the same
     /// first bounce. It costs a few words per texel where [`FirstBounce::add`] costs every
-    /// entry in view: per entry, once, its row of pair bits and the entries of the blocks it
+    /// entry in view: per entry, once, its row of pair bits and the entries those bits say it
     /// sees (cells, normals, flux, clusters); per texel, its own point and its neighbours'.
     pub fn input_digests(&self) -> Vec<u64> {
         use crate::update::{mix_floats, mix_word};
@@ -680,7 +680,6 @@ mod tests {
         Entry { position: p, normal: n, albedo: Vec3::splat(0.5), area: 0.04, triangle: 0 }
     }
 
-    /// Two pairs facing each other across x = 0, one behind a square blocker there and one
     /// A texel's input digest ([`FirstBounce::input_digests`]) follows what
     /// [`FirstBounce::add`] reads for it: two blocks of entries on a floor facing a texel on the
     /// ceiling, whose neighbours see entry 37 of the second block and not entry 38. Moving 38 to
