@@ -193,21 +193,22 @@ impl UpdateCache {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| CacheError::Io { path: name.clone(), source })?;
         // An intact cache of another build is not damaged, only of another version.
-        if bytes.len() >= 20 && bytes[..8] == MAGIC {
-            let (body, tail) = bytes.split_at(bytes.len() - 8);
-            let intact =
-                <[u8; 8]>::try_from(tail).map(u64::from_le_bytes).ok() == Some(fnv1a(FNV_START, body));
-            let found = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-            if intact && found != VERSION {
-                return Err(CacheError::Version { path: name, found });
-            }
-        }
-        Self::from_bytes(&bytes, map).map_err(|what| CacheError::Corrupt { path: name, what })
+        Self::parse(&bytes, map).map_err(|bad| match bad {
+            Bad::Version(found) => CacheError::Version { path: name, found },
+            Bad::Other(what) => CacheError::Corrupt { path: name, what },
+        })
     }
 
     /// Parse and check the bytes, the pane tiles written without codes taken from `map`; the
     /// error says what is wrong.
     pub fn from_bytes(bytes: &[u8], map: &Prm) -> Result<UpdateCache, String> {
+        Self::parse(bytes, map).map_err(|bad| match bad {
+            Bad::Version(found) => format!("version {found}, this build reads version {VERSION}"),
+            Bad::Other(what) => what,
+        })
+    }
+
+    fn parse(bytes: &[u8], map: &Prm) -> Result<UpdateCache, Bad> {
         if bytes.len() < 20 || bytes[..8] != MAGIC {
             return Err("not an update cache (no PRMUPDT magic)".into());
         }
@@ -219,8 +220,14 @@ impl UpdateCache {
         let mut r = Reader { b: body, at: 8 };
         let version = r.u32()?;
         if version != VERSION {
-            return Err(format!("version {version}, this build reads version {VERSION}"));
+            return Err(Bad::Version(version));
         }
+        Self::sections(body, map).map_err(Bad::Other)
+    }
+
+    /// Everything after the version, of a cache whose magic, checksum and version are right.
+    fn sections(body: &[u8], map: &Prm) -> Result<UpdateCache, String> {
+        let mut r = Reader { b: body, at: 12 };
         let prm_checksum = r.u64()?;
         let n = r.count(1)?;
         let params =
@@ -327,6 +334,24 @@ impl UpdateCache {
             tiles,
             panes,
         })
+    }
+}
+
+/// Why bytes are not a cache: an intact one of another version, or anything else, in words.
+enum Bad {
+    Version(u32),
+    Other(String),
+}
+
+impl From<String> for Bad {
+    fn from(what: String) -> Self {
+        Bad::Other(what)
+    }
+}
+
+impl From<&str> for Bad {
+    fn from(what: &str) -> Self {
+        Bad::Other(what.to_string())
     }
 }
 
