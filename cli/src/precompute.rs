@@ -315,6 +315,7 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             "texels_walked": report.update_texels_walked,
             "rooms_touched": report.update_rooms_touched,
             "entries_settled": report.update_entries_settled,
+            "rows_made": report.update_rows_made,
         });
     }
     if a.json {

@@ -320,6 +320,9 @@ pub struct Report {
     /// far-field pairs and texels' near links come from the old bake
     /// (`crate::update::Untouched`).
     pub update_entries_settled: usize,
+    /// An update's rows of the walks' next-bounce table made again: those whose inputs
+    /// changed and those of the rooms its walks can reach (of `entries`).
+    pub update_rows_made: usize,
 }
 
 /// Why a precompute gave no map.
@@ -448,21 +451,48 @@ pub fn precompute_with(
         (Reuse::Update { old, .. }, Some(t)) => Some((old, &t[..])),
         _ => None,
     };
-    let pre = Preamble::build(
+    let mut pre = Preamble::build(
         scene,
         bvh,
         params,
         reuse.cache(),
         update,
         tracing,
+        update.is_some(),
         same_entries,
         &mut report,
         progress,
         cancel,
     )?;
-    let linked = pre.linked();
-    let set = &pre.set;
-    let rows = pre.next.as_ref().map_or(Vec::new(), |n| n.row_digests());
+    // What each texel's exact first bounce, and so each next-bounce row, is made of: the
+    // tiles' and the rows' digests (an update compares them with the old bake's).
+    let t = Instant::now();
+    let exact = tracing.then(|| pre.exact_digests(pre.first_bounce().as_ref()));
+    let row_inputs = exact.as_ref().map_or(Vec::new(), |e| pre.row_inputs(e));
+    report.seconds_panes += t.elapsed().as_secs_f64();
+    // The rows' values' digests (the plan marks a cell whose row's value changed). An update
+    // makes only the rows whose inputs changed (most of them in the edited room), and keeps
+    // the others' digests; it makes the rows its walks need after its plan.
+    let t = Instant::now();
+    let (rows, changed) = match (&pre.next, reuse.cache()) {
+        (Some(next), _) => (next.row_digests(), None),
+        (None, Some(cache)) if pre.next_on => {
+            let same = cache.row_inputs.len() == row_inputs.len() && cache.rows.len() == row_inputs.len();
+            let changed: Vec<bool> =
+                (0..row_inputs.len()).map(|e| !same || cache.row_inputs[e] != row_inputs[e]).collect();
+            pre.make_next(Some(&changed));
+            let next = pre.next.take();
+            let rows = (0..row_inputs.len())
+                .map(|e| match (&next, changed[e]) {
+                    (Some(n), true) => n.row_digest(e),
+                    _ => cache.rows[e],
+                })
+                .collect();
+            (rows, Some(changed))
+        }
+        _ => (Vec::new(), None),
+    };
+    report.seconds_far += t.elapsed().as_secs_f64();
     // The update's plan: what the edit changed and the rooms whose walks could meet it (in
     // the rooms of the level as baked, which the cache's tiles name, rebuilt from its
     // triangles), then which tiles it reaches and which texels to walk again.
@@ -488,17 +518,17 @@ pub fn precompute_with(
     };
     report.seconds_clustering += t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let digests = tracing.then(|| {
+    let digests = exact.map(|exact| {
         // Every tile's digest is made again, what its exact first bounce is made of included.
         // Made only for tiles whose walks lay in a touched room, one tile of an untouched
         // chamber of the 16 kept a stale digest: its far-field first bounce carried 1e-11 of
         // the edited chamber's clusters' light, which changed.
-        let exact = pre.exact_digests(pre.first_bounce().as_ref());
-        tile_digests(set, params.tile_size, pre.smoothing.as_ref(), linked.as_ref(), &exact)
+        tile_digests(&pre.set, params.tile_size, pre.smoothing.as_ref(), pre.linked().as_ref(), &exact)
     });
     report.seconds_panes += t.elapsed().as_secs_f64();
     let plan = match (reuse, &triangles, &digests, edit) {
         (Reuse::Update { cache, .. }, Some(_), Some(digests), Some((touched, now, edit))) => {
+            let set = &pre.set;
             let plan = Plan::new(
                 cache,
                 set,
@@ -523,10 +553,51 @@ pub fn precompute_with(
             report.update_tiles_encoded = plan.dirty.iter().filter(|&&d| d).count();
             report.update_texels_walked = plan.walk.iter().filter(|&&w| w).count();
             report.update_rooms_touched = touched.len();
-            Some((plan, cache, now))
+            Some((plan, cache, now, touched))
         }
         _ => None,
     };
+    // An update's next-bounce table holds the rows of the rooms its walks can reach: those
+    // the walked tiles' walks lay in when baked, and those the edit touched. A walk that meets
+    // a row left out (through a gap narrower than the rooms' voxels) refuses the update below.
+    if pre.next_on && pre.next.is_none() {
+        let t = Instant::now();
+        let only = plan.as_ref().map(|(plan, cache, now, touched)| {
+            let tx = params.atlas.width().div_ceil(params.tile_size) as usize;
+            let mut rooms = touched.clone();
+            let mut seen = vec![false; cache.tiles.len()];
+            for (t, _) in pre.set.texels.iter().zip(&plan.walk).filter(|(_, &w)| w) {
+                let k = crate::update::tile_of(t.i, t.j, params.tile_size, tx);
+                if !std::mem::replace(&mut seen[k], true) {
+                    rooms.extend_from_slice(&cache.tiles[k].rooms);
+                }
+            }
+            rooms.sort_unstable();
+            rooms.dedup();
+            // In this level's rooms; a baked room whose space is gone (a moved block's inside)
+            // adds none, a tile with a walk placed in no room (`ANY_ROOM`) every one.
+            let (mut reach, mut any) = (Vec::new(), false);
+            for &r in &rooms {
+                match now.get(r as usize) {
+                    Some(in_now) => reach.extend_from_slice(in_now),
+                    None => any = true,
+                }
+            }
+            reach.sort_unstable();
+            (0..pre.entry_room.len())
+                .map(|e| {
+                    let r = &pre.entry_room[e];
+                    any || reach.binary_search(r).is_ok() || changed.as_ref().is_some_and(|c| c[e])
+                })
+                .collect::<Vec<bool>>()
+        });
+        report.update_rows_made =
+            only.as_ref().map_or(pre.entries.len(), |o| o.iter().filter(|&&m| m).count());
+        pre.make_next(only.as_deref());
+        report.seconds_far += t.elapsed().as_secs_f64();
+    }
+    let linked = pre.linked();
+    let set = &pre.set;
     let grid = match reuse.cache() {
         Some(c) => c.grid.clone(),
         None => {
@@ -550,7 +621,7 @@ pub fn precompute_with(
             return Ok(transport.run_texels(&prepared, &set.texels[range], set.width, control)?);
         };
         let todo: Vec<usize> =
-            range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _, _)| p.walk[k])).collect();
+            range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _, _, _)| p.walk[k])).collect();
         let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
         let walked = transport.run_traced(&texels, set.width, &grid, rooms, control)?;
         let mut out: Walked = vec![(Vec::new(), Vec::new()); range.len()];
@@ -571,7 +642,7 @@ pub fn precompute_with(
         }
         Ok(out)
     };
-    let cached = plan.as_ref().map(|(plan, cache, _)| CachedPanes {
+    let cached = plan.as_ref().map(|(plan, cache, _, _)| CachedPanes {
         dirty: &plan.dirty,
         panes: &cache.panes,
         walk: &plan.walk,
@@ -581,13 +652,21 @@ pub fn precompute_with(
     // The estimator's tables (virtual lights, MIS) are the walks' only (`walk`, which borrows
     // them, is not used again).
     drop(prepared);
+    let left_out = transport.stats.rows_left_out.load(Ordering::Relaxed);
+    if left_out > 0 {
+        return Err(Refused(format!(
+            "{left_out} walk vertices met next-bounce rows the update did not make (a walk left the rooms \
+             it lay in when baked)"
+        ))
+        .into());
+    }
     report.rays = transport.stats.rays.load(Ordering::Relaxed);
     report.walks_truncated = transport.stats.truncated.load(Ordering::Relaxed);
     report.unowned_vertices = transport.stats.unowned.load(Ordering::Relaxed);
     report.virtual_lights = transport.stats.vpls.load(Ordering::Relaxed);
     // An update walked some texels only: the counters are the tiles' (the same totals a full
     // bake's walks give, tile by tile).
-    if let (Some((plan, cache, now)), Some(records)) = (&plan, records.as_mut()) {
+    if let (Some((plan, cache, now, _)), Some(records)) = (&plan, records.as_mut()) {
         for (k, r) in records.iter_mut().enumerate() {
             if !plan.dirty[k] {
                 *r = cache.tiles[k].clone();
@@ -626,6 +705,7 @@ pub fn precompute_with(
                 group_of,
                 groups,
                 rows,
+                row_inputs,
                 tiles: records,
                 panes,
             })

@@ -180,9 +180,24 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
         r.update_entries_settled,
         r.entries
     );
+    // Only the first room's next-bounce rows are made again (the second's inputs are as they
+    // were, and its walks are not taken again), and the cache's row digests are the twin's.
+    assert!(
+        r.update_rows_made > 0 && r.update_rows_made < r.entries as usize * 3 / 4,
+        "{} of {} rows made",
+        r.update_rows_made,
+        r.entries
+    );
+    let up_rows = up.cache.as_ref().map(|c| (c.rows.clone(), c.row_inputs.clone()));
+    assert_eq!(up_rows, Some((twin_cache.rows.clone(), twin_cache.row_inputs.clone())));
     eprintln!(
-        "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked",
-        r.update_tiles_hit, r.update_tiles_encoded, r.update_texels_walked, r.texels
+        "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked, {} of {} rows made",
+        r.update_tiles_hit,
+        r.update_tiles_encoded,
+        r.update_texels_walked,
+        r.texels,
+        r.update_rows_made,
+        r.entries
     );
     // And it is a different map from the old one (the block moved).
     assert_ne!(twin_bytes, old_bytes);

@@ -46,6 +46,14 @@ pub struct Preamble {
     pub(crate) keep: Option<Vec<f32>>,
     /// The walks' next-bounce table (None: their hits give every bounce).
     pub(crate) next: Option<NextBounce>,
+    /// Whether the walks read a next-bounce table (`next`, which an update makes after its
+    /// plan: [`Preamble::make_next`]).
+    #[serde(skip)]
+    pub(crate) next_on: bool,
+    /// Per entry, its room (`prm::rooms`, of this level): an update makes the table's rows of
+    /// the rooms its walks can reach only.
+    #[serde(skip)]
+    pub(crate) entry_room: Vec<u32>,
     pub(crate) echo: Echo,
     pub(crate) smoothing: Option<Smoothing>,
     /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
@@ -82,6 +90,7 @@ impl Preamble {
         cache: Option<&UpdateCache>,
         update: Option<(&Prm, &[TriangleDigest])>,
         keep_rooms: bool,
+        defer_next: bool,
         check: impl FnOnce(&[Entry]) -> Result<(), PrecomputeError>,
         report: &mut Report,
         progress: &(dyn Fn(Phase, usize, usize) + Sync),
@@ -219,21 +228,9 @@ impl Preamble {
         let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
         // The walks read each bounce after the first from a table of the clusters' first
         // bounce (`transport::NextBounce`); the far field's share of it joins the links' in
-        // each band's exact panes as it is encoded (`Preamble::band_exact`).
-        let next = (params.next_bounce && keep.is_some() && !far.texels.is_empty()).then(|| {
-            timed(&mut report.seconds_far, || {
-                let clusters = clustering.members.len();
-                let first = FirstBounce::new(&set, &entries, &cell, &far, &clustering.assignment, clusters);
-                let lit = crate::far::far_lit(&set, &far);
-                let area: Vec<f32> = cell.iter().map(|c| c.1).collect();
-                let exact = |k: usize| {
-                    exact_first_bounce(&set, &entries, &area, &near, &clustering.assignment, k..k + 1)
-                        .pop()
-                        .unwrap_or_default()
-                };
-                NextBounce::build(&set, &owners, &exact, &lit, &first, entries.len(), clusters, far.radius)
-            })
-        });
+        // each band's exact panes as it is encoded (`Preamble::band_exact`). An update makes
+        // it after its plan, for the rooms its walks can reach.
+        let next_on = params.next_bounce && keep.is_some() && !far.texels.is_empty();
         // The echo links need the near links' points only; made now, so nothing of the walks
         // is held while they are.
         let echo = timed(&mut report.seconds_near, || {
@@ -260,7 +257,9 @@ impl Preamble {
             near,
             near_points,
             keep,
-            next,
+            next: None,
+            next_on,
+            entry_room: room,
             echo,
             smoothing,
             frames,
@@ -273,6 +272,10 @@ impl Preamble {
             enclosed,
             area_without_entry: cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE),
         };
+        let mut pre = pre;
+        if next_on && !defer_next {
+            timed(&mut report.seconds_far, || pre.make_next(None));
+        }
         pre.count(report);
         Ok(pre)
     }
@@ -294,7 +297,9 @@ impl Preamble {
     /// The far field's first bounce for the exact panes (`crate::far::FirstBounce`): with the
     /// walks' next-bounce table only. Made once per use of [`Preamble::band_exact`]'s loop.
     pub(crate) fn first_bounce(&self) -> Option<FirstBounce<'_>> {
-        self.next.as_ref()?;
+        if !self.next_on {
+            return None;
+        }
         let cell: Vec<(Vec3, f32)> = (0..self.entries.len())
             .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
             .collect();
@@ -307,6 +312,51 @@ impl Preamble {
             &self.clustering.assignment,
             clusters,
         ))
+    }
+
+    /// The walks' next-bounce table (`transport::NextBounce`), made into `next`: every row,
+    /// or with `only` (per entry) those rows alone, the others left out.
+    pub(crate) fn make_next(&mut self, only: Option<&[bool]>) {
+        let Some(first) = self.first_bounce() else { return };
+        let clusters = self.clustering.members.len();
+        let lit = crate::far::far_lit(&self.set, &self.far);
+        let area: Vec<f32> = (0..self.entries.len()).map(|j| self.cells.area(j)).collect();
+        let exact = |k: usize| {
+            exact_first_bounce(
+                &self.set,
+                &self.entries,
+                &area,
+                &self.near,
+                &self.clustering.assignment,
+                k..k + 1,
+            )
+            .pop()
+            .unwrap_or_default()
+        };
+        let next = NextBounce::build(
+            &self.set,
+            &self.owners,
+            &exact,
+            &lit,
+            &first,
+            self.entries.len(),
+            clusters,
+            self.far.radius,
+            only,
+        );
+        drop(first);
+        self.next = Some(next);
+    }
+
+    /// Per entry, a digest of the inputs of its next-bounce row (`NextBounce::input_digests`;
+    /// `exact` from [`Preamble::exact_digests`] with the far field's part); empty without a
+    /// table.
+    pub(crate) fn row_inputs(&self, exact: &[u64]) -> Vec<u64> {
+        if !self.next_on {
+            return Vec::new();
+        }
+        let lit = crate::far::far_lit(&self.set, &self.far);
+        NextBounce::input_digests(&self.set, &self.owners, &lit, exact, self.entries.len(), self.far.radius)
     }
 
     /// Per covered texel (set order), a digest of what [`Preamble::band_exact`] makes its exact
@@ -576,4 +626,116 @@ fn group_clusters(
         params.kmeans_iterations as usize,
         params.seed ^ 0x6772_6f75_7073,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::parallel::Control;
+    use glam::Vec2;
+
+    /// Two sealed unit rooms side by side (the second 2 m along x), each quad its own chart.
+    fn two_rooms() -> Scene {
+        let v = Vec3::new;
+        let faces = [
+            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
+            [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
+            [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
+            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
+            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
+        ];
+        let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, q) in faces.iter().flat_map(|f| [*f, f.map(|p| p + v(2.0, 0.0, 0.0))]).enumerate() {
+            let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
+            let base = pos.len() as u32;
+            for (c, p) in q.iter().enumerate() {
+                pos.push(*p);
+                uv.push(
+                    (cell + Vec2::splat(0.08) + [Vec2::ZERO, Vec2::Y, Vec2::ONE, Vec2::X][c] * 0.84) / 4.0,
+                );
+            }
+            idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+        }
+        let mut s = Scene::from_mesh(pos, uv, &idx);
+        s.materials[0].albedo = Vec3::splat(0.6);
+        s
+    }
+
+    /// An update's table with the first room's rows only (`Preamble::make_next` with `only`):
+    /// those rows are the whole table's to the bit, the second room's are empty and said to be
+    /// left out; the first room's texels walk as with the whole table and meet no row left out,
+    /// while the second room's walks meet them and count it (an update then refuses).
+    #[test]
+    fn rows_left_out_of_the_table_are_empty_and_counted_where_walks_meet_them() {
+        let scene = two_rooms();
+        let bvh = Bvh::build(&scene);
+        let params = PrecomputeParams {
+            entries: 256,
+            paths: 8,
+            clusters: 16,
+            groups: 0,
+            atlas: prm::density::Atlas::single(128),
+            ..PrecomputeParams::production()
+        };
+        let build = |defer: bool| {
+            let mut report = Report::default();
+            Preamble::build(
+                &scene,
+                &bvh,
+                &params,
+                None,
+                None,
+                false,
+                defer,
+                |_| Ok(()),
+                &mut report,
+                &|_, _, _| {},
+                &AtomicBool::new(false),
+            )
+            .unwrap()
+        };
+        let whole = build(false);
+        let mut part = build(true);
+        assert!(part.next_on && part.next.is_none(), "the table waits for the update's plan");
+        let first_room = part.entry_room[part.entries.iter().position(|e| e.position.x < 1.5).unwrap()];
+        let only: Vec<bool> = part.entry_room.iter().map(|&r| r == first_room).collect();
+        let made = only.iter().filter(|&&o| o).count();
+        assert!(made > 0 && made < only.len(), "{made} of {} entries in the first room", only.len());
+        part.make_next(Some(&only));
+        let (w, p) = (whole.next.as_ref().unwrap(), part.next.as_ref().unwrap());
+        let mut rows = 0;
+        for (e, &o) in only.iter().enumerate() {
+            let e = e as u32;
+            match (o, w.row(e), p.row(e)) {
+                (true, Some(a), Some(b)) => {
+                    assert_eq!((a.cluster, a.value, a.unit), (b.cluster, b.value, b.unit), "entry {e}");
+                    rows += 1;
+                }
+                (true, None, None) => {}
+                (true, a, b) => {
+                    panic!("entry {e}: {} in the whole table, {} in the part", a.is_some(), b.is_some())
+                }
+                (false, _, b) => assert!(b.is_none() && p.left_out(e), "entry {e} is not left out"),
+            }
+            assert!(!w.left_out(e), "the whole table left out entry {e}");
+        }
+        assert!(rows > made / 2, "{rows} rows of {made} entries");
+        let walk = |pre: &Preamble, room: bool| {
+            let texels: Vec<prm::Texel> =
+                pre.set.texels.iter().filter(|t| (t.position.x < 1.5) == room).copied().collect();
+            let linked = pre.linked();
+            let transport = pre.transport(&scene, &bvh, linked.as_ref(), &params);
+            let prepared = transport.prepare(Estimator::Gather);
+            let out = transport.run_texels(&prepared, &texels, pre.set.width, Control::none()).unwrap();
+            let met = transport.stats.rows_left_out.load(std::sync::atomic::Ordering::Relaxed);
+            (out.into_iter().map(|(p, _)| p).collect::<Vec<_>>(), met)
+        };
+        let (a, met_whole) = walk(&whole, true);
+        let (b, met_first) = walk(&part, true);
+        assert_eq!((met_whole, met_first), (0, 0));
+        assert!(a == b, "the first room's walks differ with its rows alone");
+        let (_, met_second) = walk(&part, false);
+        assert!(met_second > 0, "the second room's walks met none of its rows left out");
+    }
 }

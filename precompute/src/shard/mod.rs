@@ -60,7 +60,8 @@ use part_file::{check_parts, Hashing, PartWalks};
 
 const PLAN_MAGIC: [u8; 8] = *b"PRMPLAN\n";
 const PART_MAGIC: [u8; 8] = *b"PRMPART\n";
-const VERSION: u32 = 3;
+/// Plan and part file version (4: the next-bounce table may leave rows out).
+const VERSION: u32 = 4;
 /// Texels walked and written at a time: a shard holds one chunk's walks.
 const CHUNK_TEXELS: usize = 4096;
 /// Most shards a precompute is cut into.
@@ -110,8 +111,19 @@ pub fn plan(
     }
     let all = Instant::now();
     let mut report = Report::new(params);
-    let preamble =
-        Preamble::build(scene, bvh, params, None, None, false, |_| Ok(()), &mut report, progress, cancel)?;
+    let preamble = Preamble::build(
+        scene,
+        bvh,
+        params,
+        None,
+        None,
+        false,
+        false,
+        |_| Ok(()),
+        &mut report,
+        progress,
+        cancel,
+    )?;
     report.seconds_total = all.elapsed().as_secs_f64();
     // Its checksum is known once it is encoded ([`Plan::write`]).
     let plan = Plan { params: params.clone(), preamble, checksum: 0, walks_only: false };

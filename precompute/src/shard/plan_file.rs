@@ -186,6 +186,7 @@ impl Plan {
         {
             return Err("damaged (its sections do not agree)".into());
         }
+        let next_on = next.is_some();
         let preamble = Preamble {
             set,
             entries,
@@ -199,6 +200,8 @@ impl Plan {
             near_points: Vec::new(),
             keep,
             next,
+            next_on,
+            entry_room: Vec::new(),
             echo: Echo::default(),
             smoothing: None,
             frames: Vec::new(),

@@ -89,6 +89,9 @@ impl Transport<'_> {
                     if depth + 1 < self.max_bounces && n.row(e).is_some() {
                         scratch.visit(e, beta, self.entries.len());
                         given = true;
+                    } else if depth + 1 < self.max_bounces && n.left_out(e) {
+                        // A row an update did not make: the walk is not what a full bake's is.
+                        self.stats.rows_left_out.fetch_add(1, Ordering::Relaxed);
                     }
                 }
                 match owner.map(|e| self.assignment[e as usize]) {

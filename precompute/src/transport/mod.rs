@@ -112,6 +112,9 @@ pub struct TransportStats {
     pub unowned: AtomicUsize,
     /// Virtual point lights (scatter).
     pub vpls: AtomicUsize,
+    /// Walk vertices in a cell whose next-bounce row was left out (`NextBounce::left_out`):
+    /// an update that made only some rows refuses when this is not zero.
+    pub rows_left_out: AtomicUsize,
 }
 
 /// Accumulates one texel's contributions densely, then emits them sparse.

@@ -52,6 +52,10 @@ pub struct NextBounce {
     value: Vec<[u16; 3]>,
     /// Per entry, its row's step per channel.
     unit: Vec<Vec3>,
+    /// Bit per entry: its row was not made (an update makes only the rows its walks can
+    /// reach; a walk that meets one of these counts it: [`NextBounce::left_out`]). Empty when
+    /// every row was made.
+    left_out: Vec<u64>,
     /// A hit farther than this from its vertex is the walks' (scene units).
     radius: f32,
 }
@@ -60,7 +64,8 @@ impl NextBounce {
     /// The table for `entries` cells: each row is the mean first bounce at up to
     /// `CELL_SAMPLES` (4) of its cell's texels spread over it (a cell holds a texel when its
     /// entry owns the texel's point), the links' (`links(k)`, covered texel k's) plus the far
-    /// field's (`first`). `lit`: the covered texels whose whole first bounce that is.
+    /// field's (`first`). `lit`: the covered texels whose whole first bounce that is. With
+    /// `only`, the rows of the entries it marks alone are made; the others are left out.
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         set: &TexelSet,
@@ -71,33 +76,12 @@ impl NextBounce {
         entries: usize,
         clusters: usize,
         radius: f32,
+        only: Option<&[bool]>,
     ) -> NextBounce {
-        let owner: Vec<Option<u32>> = set
-            .texels
-            .par_iter()
-            .zip(lit)
-            .map(|(t, &w)| if w { owners.owner(t.triangle as usize, t.position) } else { None })
-            .collect();
-        let mut by_cell: Vec<(u32, u32)> = owner
-            .iter()
-            .enumerate()
-            .filter_map(|(k, o)| o.filter(|&e| (e as usize) < entries).map(|e| (e, k as u32)))
-            .collect();
-        by_cell.sort_unstable();
-        let mut start = vec![0usize; entries + 1];
-        for &(e, _) in &by_cell {
-            start[e as usize + 1] += 1;
-        }
-        for e in 0..entries {
-            start[e + 1] += start[e];
-        }
-        // Up to CELL_SAMPLES texels per cell, evenly spread over its list (set order); a few
-        // thousand cells at a time, since a texel's first bounce names hundreds of clusters.
-        let sample = |e: usize| {
-            let texels = &by_cell[start[e]..start[e + 1]];
-            let m = texels.len().min(CELL_SAMPLES);
-            (0..m).map(move |i| texels[(2 * i + 1) * texels.len() / (2 * m)].1 as usize)
-        };
+        let made = |e: usize| only.is_none_or(|o| o.get(e).copied().unwrap_or(false));
+        // A row left out is empty: its entry's texels are not sampled.
+        let samples = CellSamples::new(set, owners, lit, entries);
+        let sample = |e: usize| samples.of(e).take(if made(e) { CELL_SAMPLES } else { 0 });
         let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
         for (t, _) in set.texels.iter().zip(lit).filter(|(_, &w)| w) {
             let a = t.j as usize * set.width as usize + t.i as usize;
@@ -105,6 +89,12 @@ impl NextBounce {
         }
         let mut out = NextBounce { whole: bits, radius, ..NextBounce::default() };
         out.first.reserve(entries + 1);
+        if only.is_some() {
+            out.left_out = vec![0u64; entries.div_ceil(64)];
+            for e in (0..entries).filter(|&e| !made(e)) {
+                out.left_out[e / 64] |= 1 << (e % 64);
+            }
+        }
         // Each chunk's rows go straight into the table: only a chunk's are ever held twice.
         for cells in (0..entries).collect::<Vec<_>>().chunks(CELL_CHUNK) {
             let flat: Vec<usize> = cells.iter().flat_map(|&e| sample(e)).collect();
@@ -168,6 +158,12 @@ impl NextBounce {
         (b > a).then(|| Row { cluster: &self.cluster[a..b], value: &self.value[a..b], unit: self.unit[e] })
     }
 
+    /// Whether entry `e`'s row was left out of the table (not made: `build`'s `only`).
+    pub fn left_out(&self, e: u32) -> bool {
+        let e = e as usize;
+        self.left_out.get(e / 64).is_some_and(|w| w >> (e % 64) & 1 == 1)
+    }
+
     /// Whether a hit `distance` from its vertex is in the table's reach.
     pub fn reaches(&self, distance: f32) -> bool {
         distance <= self.radius
@@ -185,28 +181,101 @@ impl NextBounce {
             && self.cluster.len() == self.value.len()
             && self.cluster.iter().all(|&c| (c as usize) < clusters)
             && self.whole.len() == texels.div_ceil(64)
+            && (self.left_out.is_empty() || self.left_out.len() == entries.div_ceil(64))
             && self.radius >= 0.0
     }
 
     /// Per entry, a digest of its row (clusters, and values to 16 mantissa bits as the update's
     /// other digests: `crate::update`), so an update can tell which rows an edit changed.
     pub fn row_digests(&self) -> Vec<u64> {
-        (0..self.first.len().saturating_sub(1))
+        (0..self.first.len().saturating_sub(1)).map(|e| self.row_digest(e)).collect()
+    }
+
+    /// Entry `e`'s row's digest ([`NextBounce::row_digests`]); a row left out has the digest
+    /// of an empty one.
+    pub fn row_digest(&self, e: usize) -> u64 {
+        let (a, b) = match (self.first.get(e), self.first.get(e + 1)) {
+            (Some(&a), Some(&b)) => (a as usize, b as usize),
+            _ => (0, 0),
+        };
+        let mut h = FNV_START;
+        for x in self.unit.get(e).copied().unwrap_or_default().to_array() {
+            h = fnv1a(h, &crate::update::round16(x).to_le_bytes());
+        }
+        for (c, q) in self.cluster[a..b].iter().zip(&self.value[a..b]) {
+            h = fnv1a(h, &c.to_le_bytes());
+            for x in q {
+                h = fnv1a(h, &x.to_le_bytes());
+            }
+        }
+        h
+    }
+
+    /// Per entry, a digest of what [`NextBounce::build`] makes its row of: which of its
+    /// cell's texels it samples, and each one's digest of its exact first bounce's inputs
+    /// (`exact`, per covered texel: `Preamble::exact_digests`). An update makes again only
+    /// the rows whose inputs differ from the old bake's, to learn which values changed (the
+    /// others' are as they were).
+    pub fn input_digests(
+        set: &TexelSet,
+        owners: &CellOwners,
+        lit: &[bool],
+        exact: &[u64],
+        entries: usize,
+        radius: f32,
+    ) -> Vec<u64> {
+        let samples = CellSamples::new(set, owners, lit, entries);
+        (0..entries)
+            .into_par_iter()
             .map(|e| {
-                let (a, b) = (self.first[e] as usize, self.first[e + 1] as usize);
-                let mut h = FNV_START;
-                for x in self.unit[e].to_array() {
-                    h = fnv1a(h, &crate::update::round16(x).to_le_bytes());
+                let mut h = fnv1a(FNV_START, &radius.to_le_bytes());
+                for k in samples.of(e) {
+                    h = fnv1a(h, &exact.get(k).copied().unwrap_or(0).to_le_bytes());
                 }
-                for (c, q) in self.cluster[a..b].iter().zip(&self.value[a..b]) {
-                    h = fnv1a(h, &c.to_le_bytes());
-                    for x in q {
-                        h = fnv1a(h, &x.to_le_bytes());
-                    }
-                }
-                h
+                fnv1a(h, &(samples.of(e).count() as u32).to_le_bytes())
             })
             .collect()
+    }
+}
+
+/// Per entry cell, the covered texels its row is the mean of: up to [`CELL_SAMPLES`] of the
+/// lit texels its entry owns, evenly spread over them (set order).
+struct CellSamples {
+    /// (entry, texel) pairs, by entry then texel.
+    by_cell: Vec<(u32, u32)>,
+    /// Per entry, where its pairs start; then their length.
+    start: Vec<usize>,
+}
+
+impl CellSamples {
+    fn new(set: &TexelSet, owners: &CellOwners, lit: &[bool], entries: usize) -> CellSamples {
+        let owner: Vec<Option<u32>> = set
+            .texels
+            .par_iter()
+            .zip(lit)
+            .map(|(t, &w)| if w { owners.owner(t.triangle as usize, t.position) } else { None })
+            .collect();
+        let mut by_cell: Vec<(u32, u32)> = owner
+            .iter()
+            .enumerate()
+            .filter_map(|(k, o)| o.filter(|&e| (e as usize) < entries).map(|e| (e, k as u32)))
+            .collect();
+        by_cell.sort_unstable();
+        let mut start = vec![0usize; entries + 1];
+        for &(e, _) in &by_cell {
+            start[e as usize + 1] += 1;
+        }
+        for e in 0..entries {
+            start[e + 1] += start[e];
+        }
+        CellSamples { by_cell, start }
+    }
+
+    /// Entry `e`'s sampled texels (covered texel indices).
+    fn of(&self, e: usize) -> impl Iterator<Item = usize> + Clone + '_ {
+        let texels = &self.by_cell[self.start[e]..self.start[e + 1]];
+        let m = texels.len().min(CELL_SAMPLES);
+        (0..m).map(move |i| texels[(2 * i + 1) * texels.len() / (2 * m)].1 as usize)
     }
 }
 

@@ -41,7 +41,8 @@ use prm::prm_file::{PaneTile, Prm, TileLayout};
 use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
-const VERSION: u32 = 5;
+/// 6: the digests of the rows' inputs (`NextBounce::input_digests`) too.
+const VERSION: u32 = 6;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
@@ -83,8 +84,10 @@ pub struct UpdateCache {
     pub group_of: Vec<u32>,
     pub groups: u32,
     /// Per entry, a digest of its row of the walks' next-bounce table (empty without one:
-    /// `crate::transport::NextBounce::row_digests`).
+    /// `crate::transport::NextBounce::row_digests`), and of what the row is made of
+    /// (`NextBounce::input_digests`).
     pub rows: Vec<u64>,
+    pub row_inputs: Vec<u64>,
     pub tiles: Vec<TileRecord>,
     /// Clusters' panes, then groups'.
     pub panes: Vec<Vec<CachedTile>>,
@@ -148,6 +151,8 @@ impl UpdateCache {
         self.group_of.iter().for_each(|&g| put_u32(&mut b, g));
         put_u32(&mut b, self.rows.len() as u32);
         self.rows.iter().for_each(|&d| put_u64(&mut b, d));
+        put_u32(&mut b, self.row_inputs.len() as u32);
+        self.row_inputs.iter().for_each(|&d| put_u64(&mut b, d));
         put_u32(&mut b, self.tiles.len() as u32);
         for t in &self.tiles {
             put_u64(&mut b, t.inputs);
@@ -265,6 +270,11 @@ impl UpdateCache {
         if !rows.is_empty() && rows.len() != assignment.len() {
             return Err(format!("{} table rows for {} entries", rows.len(), assignment.len()));
         }
+        let n = r.count(8)?;
+        let row_inputs = (0..n).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?;
+        if row_inputs.len() != rows.len() {
+            return Err(format!("{} rows' inputs for {} table rows", row_inputs.len(), rows.len()));
+        }
         let words = grid.words();
         let n = r.count(28 + 8 * words)?;
         let tiles = (0..n)
@@ -331,6 +341,7 @@ impl UpdateCache {
             group_of,
             groups,
             rows,
+            row_inputs,
             tiles,
             panes,
         })

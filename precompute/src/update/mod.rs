@@ -29,7 +29,12 @@
 //! cells and sites of entries that moved (the gather credits a hit to the nearest entry on the
 //! triangle hit), and the cells whose row of the walks' next-bounce table changed
 //! (`crate::transport::NextBounce`: a walk through such a cell reads its row, so an edit that
-//! shades a cell reaches every walk through it; the cache keeps a digest per row). The bake
+//! shades a cell reaches every walk through it; the cache keeps a digest per row, of its
+//! values and of its inputs, and an update makes again only the rows whose inputs changed to
+//! compare their values). The table the walks read holds only the rows of the rooms they can
+//! reach: those the walked tiles' walks lay in when baked, and those the edit touched; a walk
+//! that meets a row left out (a gap narrower than the rooms' voxels, below) refuses the update
+//! (`TransportStats::rows_left_out`), which then runs a full precompute. The bake
 //! of OLD recorded, per atlas tile, the voxels its texels' walks passed
 //! through ([`footprint`]), and a digest of the tile's other inputs (its texels, what their
 //! exact first bounce is made of, their near-link shares, their smoothing taps, the dilation
