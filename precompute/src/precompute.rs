@@ -481,9 +481,8 @@ pub fn precompute_with(
             let changed: Vec<bool> =
                 (0..row_inputs.len()).map(|e| !same || cache.row_inputs[e] != row_inputs[e]).collect();
             pre.make_next(Some(&changed));
-            let next = pre.next.take();
             let rows = (0..row_inputs.len())
-                .map(|e| match (&next, changed[e]) {
+                .map(|e| match (&pre.next, changed[e]) {
                     (Some(n), true) => n.row_digest(e),
                     _ => cache.rows[e],
                 })
@@ -560,7 +559,7 @@ pub fn precompute_with(
     // An update's next-bounce table holds the rows of the rooms its walks can reach: those
     // the walked tiles' walks lay in when baked, and those the edit touched. A walk that meets
     // a row left out (through a gap narrower than the rooms' voxels) refuses the update below.
-    if pre.next_on && pre.next.is_none() {
+    if pre.next_on && pre.next.as_ref().is_none_or(|n| n.left_out_any()) {
         let t = Instant::now();
         let only = plan.as_ref().map(|(plan, cache, now, touched)| {
             let tx = params.atlas.width().div_ceil(params.tile_size) as usize;
@@ -591,10 +590,11 @@ pub fn precompute_with(
                 })
                 .collect::<Vec<bool>>()
         });
-        report.update_rows_made =
-            only.as_ref().map_or(pre.entries.len(), |o| o.iter().filter(|&&m| m).count());
         pre.make_next(only.as_deref());
         report.seconds_far += t.elapsed().as_secs_f64();
+    }
+    if let (Some(next), Some(_)) = (&pre.next, &changed) {
+        report.update_rows_made = (0..pre.entries.len() as u32).filter(|&e| !next.left_out(e)).count();
     }
     let linked = pre.linked();
     let set = &pre.set;

@@ -315,7 +315,8 @@ impl Preamble {
     }
 
     /// The walks' next-bounce table (`transport::NextBounce`), made into `next`: every row,
-    /// or with `only` (per entry) those rows alone, the others left out.
+    /// or with `only` (per entry) those rows alone, the others left out. Rows `next` already
+    /// holds are kept, not made again.
     pub(crate) fn make_next(&mut self, only: Option<&[bool]>) {
         let Some(first) = self.first_bounce() else { return };
         let clusters = self.clustering.members.len();
@@ -333,6 +334,12 @@ impl Preamble {
             .pop()
             .unwrap_or_default()
         };
+        let had = self.next.as_ref();
+        let wanted: Option<Vec<bool>> = had.map(|had| {
+            (0..self.entries.len())
+                .map(|e| had.left_out(e as u32) && only.is_none_or(|o| o.get(e).copied().unwrap_or(false)))
+                .collect()
+        });
         let next = NextBounce::build(
             &self.set,
             &self.owners,
@@ -342,10 +349,13 @@ impl Preamble {
             self.entries.len(),
             clusters,
             self.far.radius,
-            only,
+            wanted.as_deref().or(only),
         );
         drop(first);
-        self.next = Some(next);
+        self.next = Some(match self.next.take() {
+            Some(had) => had.merged(&next),
+            None => next,
+        });
     }
 
     /// Per entry, a digest of the inputs of its next-bounce row (`NextBounce::input_digests`;
@@ -665,7 +675,8 @@ mod tests {
     /// An update's table with the first room's rows only (`Preamble::make_next` with `only`):
     /// those rows are the whole table's to the bit, the second room's are empty and said to be
     /// left out; the first room's texels walk as with the whole table and meet no row left out,
-    /// while the second room's walks meet them and count it (an update then refuses).
+    /// while the second room's walks meet them and count it (an update then refuses). The
+    /// second room's rows made afterwards complete it into the whole table.
     #[test]
     fn rows_left_out_of_the_table_are_empty_and_counted_where_walks_meet_them() {
         let scene = two_rooms();
@@ -737,5 +748,8 @@ mod tests {
         assert!(a == b, "the first room's walks differ with its rows alone");
         let (_, met_second) = walk(&part, false);
         assert!(met_second > 0, "the second room's walks met none of its rows left out");
+        // The rest made later joins the rows made first: the whole table, to the bit.
+        part.make_next(None);
+        assert!(part.next == whole.next, "the table made in two parts is not the whole one");
     }
 }

@@ -158,6 +158,42 @@ impl NextBounce {
         (b > a).then(|| Row { cluster: &self.cluster[a..b], value: &self.value[a..b], unit: self.unit[e] })
     }
 
+    /// This table with the rows `other` made where this one left them out (the two made for
+    /// the same level: an update makes some rows first, the rest it needs later).
+    pub fn merged(self, other: &NextBounce) -> NextBounce {
+        if self.left_out.is_empty() {
+            return self;
+        }
+        let entries = self.unit.len();
+        let mut out = NextBounce { whole: self.whole.clone(), radius: self.radius, ..NextBounce::default() };
+        let mut left_out = vec![0u64; entries.div_ceil(64)];
+        for e in 0..entries {
+            let from = if !self.left_out(e as u32) {
+                &self
+            } else if !other.left_out(e as u32) && other.unit.len() == entries {
+                other
+            } else {
+                left_out[e / 64] |= 1 << (e % 64);
+                &self
+            };
+            let (a, b) = (from.first[e] as usize, from.first[e + 1] as usize);
+            out.first.push(out.cluster.len() as u32);
+            out.unit.push(from.unit[e]);
+            out.cluster.extend_from_slice(&from.cluster[a..b]);
+            out.value.extend_from_slice(&from.value[a..b]);
+        }
+        out.first.push(out.cluster.len() as u32);
+        if left_out.iter().any(|&w| w != 0) {
+            out.left_out = left_out;
+        }
+        out
+    }
+
+    /// Whether any row was left out.
+    pub fn left_out_any(&self) -> bool {
+        self.left_out.iter().any(|&w| w != 0)
+    }
+
     /// Whether entry `e`'s row was left out of the table (not made: `build`'s `only`).
     pub fn left_out(&self, e: u32) -> bool {
         let e = e as usize;
