@@ -584,9 +584,20 @@ pub struct PrmParts {
 }
 
 /// A radiance map that holds every invariant of the format (see [`Prm::new`]).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct Prm {
     parts: PrmParts,
+    /// Its file's checksum once known: read with the file, or made by [`Prm::checksum`] or
+    /// [`Prm::write`] (an update compares the old map's with its cache's, and its new cache
+    /// holds the new map's: each was a pass over the whole file, 382 MB on the 16 chambers).
+    /// Not part of the map's value.
+    checksum: std::sync::OnceLock<u64>,
+}
+
+impl PartialEq for Prm {
+    fn eq(&self, other: &Prm) -> bool {
+        self.parts == other.parts
+    }
 }
 
 /// Where each stored tile's texels are: per atlas tile index, the row-major atlas texels stored
@@ -754,7 +765,7 @@ impl Prm {
     /// and non-negative; finite non-negative energies.
     pub fn new(parts: PrmParts) -> Result<Prm, InvalidPrm> {
         check::invariants(&parts).map_err(InvalidPrm)?;
-        Ok(Prm { parts })
+        Ok(Prm { parts, checksum: std::sync::OnceLock::new() })
     }
 
     /// The parts back, to change and validate again.
@@ -923,6 +934,11 @@ impl Prm {
     /// copy of the file (an update's old map and new cache each asked for one: twice the
     /// file in memory on the 16 chambers, 382 MB each).
     pub fn checksum(&self) -> u64 {
+        *self.checksum.get_or_init(|| self.make_checksum())
+    }
+
+    /// [`Prm::checksum`], made.
+    fn make_checksum(&self) -> u64 {
         /// Keeps the last 8 bytes written.
         struct Tail([u8; 8]);
         impl std::io::Write for Tail {
@@ -1004,7 +1020,14 @@ impl Prm {
             SectionError::Truncated(what) => truncated(&what),
             SectionError::Corrupt(what) => corrupt(what),
         })?;
-        Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))
+        let prm = Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))?;
+        // A file of this version is what writing the map gives (an older one is written anew
+        // in this version, with another checksum): its checksum, checked above, is the map's.
+        if bytes[8..12] == VERSION.to_le_bytes() {
+            let tail = u64::from_le_bytes(bytes[bytes.len() - 8..].try_into().unwrap_or_default());
+            let _ = prm.checksum.set(tail);
+        }
+        Ok(prm)
     }
 
     /// Magic, version, checksum and JSON header: the header, the body (the bytes the checksum
@@ -1166,8 +1189,11 @@ mod tests {
         let back = Prm::from_bytes(Path::new("t.prm"), &bytes).unwrap();
         assert_eq!(back, prm);
         assert_eq!(prm.pane_tiles(0, &prm.layout()).map(|t| t.texels.len()).sum::<usize>(), 16);
-        // The checksum made without the bytes is the file's last 8.
+        // The checksum made without the bytes is the file's last 8; the one a map read keeps
+        // from its file is the one made from it; neither is part of the map's value.
         assert_eq!(prm.checksum().to_le_bytes(), bytes[bytes.len() - 8..]);
+        assert_eq!((back.checksum(), back.make_checksum()), (prm.checksum(), prm.checksum()));
+        assert_eq!(prm, Prm::new(parts()).unwrap());
     }
 
     /// A v3 file (no texel points for the near field) is refused, saying what to do.
