@@ -236,7 +236,19 @@ impl Preset {
 
 fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let start = Instant::now();
-    let (scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
+    // An update reads OLD and its cache while the level loads: both are mostly one thread's
+    // work (1.9 s and 0.9 s on the 16 chambers).
+    let (loaded, old) = std::thread::scope(|s| {
+        let old =
+            a.update.as_deref().filter(|_| !a.prepare).map(|path| s.spawn(|| read_old(path, &a.output)));
+        (a.lightmap.load(&a.scene, a.json), old.map(|h| h.join()))
+    });
+    let (scene, atlas) = loaded?;
+    let old = match old {
+        Some(Ok(read)) => Some(read?),
+        Some(Err(_)) => bail!("reading the old map failed; {} not written", a.output.display()),
+        None => None,
+    };
     p.atlas = atlas;
     let area = scene.total_area();
     p.fit_to_area(&a.preset.density(), area, [a.entries, a.clusters, a.groups]);
@@ -249,10 +261,6 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     if a.prepare {
         return crate::shard::prepare(a, (&scene, &bvh), p, start, &on_progress, &bar);
     }
-    let old = match &a.update {
-        Some(path) => Some(read_old(path, &a.output)?),
-        None => None,
-    };
     let keep_cache = a.cache || a.update.is_some();
     let reuse = match &old {
         Some((prm, cache)) => Reuse::Update { cache, old: prm },

@@ -213,6 +213,8 @@ impl ReachGrid {
 /// (its footprint on the source triangle), for sources within `radius` entry spacings that the
 /// receiver sees in front of it and that see it in front of them (coplanar texels have none).
 /// The runtime applies it twice (second and third bounce) to the near field's own irradiance.
+/// With `reuse` (an update) a settled receiver takes its links from the old bake, as
+/// [`near_links`] does.
 pub fn echo_links(
     scene: &prm::Scene,
     bvh: &Bvh,
@@ -220,6 +222,7 @@ pub fn echo_links(
     entries: &[Entry],
     points: &[NearPoint],
     radius: f32,
+    reuse: Option<EchoReuse<'_>>,
 ) -> Echo {
     let Some(first) = entries.first() else { return Echo::default() };
     if points.is_empty() || !(radius > 0.0) {
@@ -241,6 +244,9 @@ pub fn echo_links(
         .par_iter()
         .enumerate()
         .map(|(y, ty)| {
+            if let Some(links) = reuse.as_ref().and_then(|r| r.links_of(set, points, y)) {
+                return links;
+            }
             let mut out = Vec::new();
             let c = key(ty.position);
             for dz in -1..=1 {
@@ -271,6 +277,41 @@ pub fn echo_links(
         })
         .collect();
     Echo { albedo, links: per_receiver.into_iter().flatten().collect() }
+}
+
+/// What an update's echo takes from the old bake ([`echo_links`]): its echo and near points,
+/// and per covered texel (set order) whether it is settled (`crate::update::Untouched::texel`:
+/// its triangle as it was, in a room the edit did not touch, so are every source it sees
+/// within reach and the rays between them).
+pub struct EchoReuse<'a> {
+    pub old: &'a Echo,
+    pub old_points: &'a [NearPoint],
+    pub settled: &'a [bool],
+}
+
+impl EchoReuse<'_> {
+    /// Receiver `y`'s links (of `points`, this bake's near points) from the old bake, when it
+    /// is settled and the old bake had it and every source it linked to as near points. Both
+    /// bakes' points are in texel order, so the sources stay in order.
+    fn links_of(&self, set: &TexelSet, points: &[NearPoint], y: usize) -> Option<Vec<EchoLink>> {
+        let texel = points.get(y)?.texel;
+        let k = *set.index.get(texel as usize)?;
+        if !self.settled.get(k as usize).copied().unwrap_or(false) {
+            return None;
+        }
+        let was = self.old_points.binary_search_by_key(&texel, |p| p.texel).ok()? as u32;
+        let links = &self.old.links;
+        let from = links.partition_point(|l| l.receiver < was);
+        let to = from + links[from..].partition_point(|l| l.receiver == was);
+        links[from..to]
+            .iter()
+            .map(|l| {
+                let source = self.old_points.get(l.source as usize)?.texel;
+                let x = points.binary_search_by_key(&source, |p| p.texel).ok()?;
+                Some(EchoLink { receiver: y as u32, source: x as u32, factor: l.factor })
+            })
+            .collect()
+    }
 }
 
 /// The world-space square of texel `t`: its square in the lightmap mapped through its owning

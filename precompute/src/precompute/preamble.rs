@@ -18,7 +18,7 @@ use crate::cells::{entry_cells_in_rooms, entry_rooms, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FarReuse, FirstBounce};
-use crate::near::{echo_links, near_links};
+use crate::near::{echo_links, near_links, EchoReuse};
 use crate::parallel::stop_if;
 use crate::transport::{Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
 use crate::update::{TriangleDigest, Untouched, UpdateCache};
@@ -194,18 +194,15 @@ impl Preamble {
                 Far::default()
             }
         });
+        // An update takes a settled texel's near and echo links from the old bake.
+        let settled_texels: Option<Vec<bool>> = untouched
+            .as_ref()
+            .filter(|_| update.is_some())
+            .map(|u| texel_room.iter().zip(&set.texels).map(|(&r, t)| u.texel(t.triangle, r)).collect());
         let (near, near_points) = timed(&mut report.seconds_near, || {
             if params.near_radius > 0.0 {
-                // An update takes a settled texel's links from the old bake.
-                let reuse = match (update, &untouched) {
-                    (Some((old, _)), Some(u)) => Some((
-                        old.near(),
-                        texel_room
-                            .iter()
-                            .zip(&set.texels)
-                            .map(|(&r, t)| u.texel(t.triangle, r))
-                            .collect::<Vec<bool>>(),
-                    )),
+                let reuse = match (update, &settled_texels) {
+                    (Some((old, _)), Some(s)) => Some((old.near(), s.clone())),
                     _ => None,
                 };
                 near_links(
@@ -234,7 +231,13 @@ impl Preamble {
         // The echo links need the near links' points only; made now, so nothing of the walks
         // is held while they are.
         let echo = timed(&mut report.seconds_near, || {
-            echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius)
+            let reuse = match (update, &settled_texels) {
+                (Some((old, _)), Some(settled)) => {
+                    Some(EchoReuse { old: old.echo(), old_points: old.near_points(), settled })
+                }
+                _ => None,
+            };
+            echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius, reuse)
         });
 
         let t = Instant::now();
