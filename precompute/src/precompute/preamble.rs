@@ -202,18 +202,10 @@ impl Preamble {
         let (near, near_points) = timed(&mut report.seconds_near, || {
             if params.near_radius > 0.0 {
                 let reuse = match (update, &settled_texels) {
-                    (Some((old, _)), Some(s)) => Some((old.near(), s.clone())),
+                    (Some((old, _)), Some(s)) => Some((old.near(), &s[..])),
                     _ => None,
                 };
-                near_links(
-                    bvh,
-                    &set,
-                    &entries,
-                    &cells,
-                    params.near_radius,
-                    &far,
-                    reuse.as_ref().map(|(l, s)| (*l, &s[..])),
-                )
+                near_links(bvh, &set, &entries, &cells, params.near_radius, &far, reuse)
             } else {
                 (Vec::new(), Vec::new())
             }
@@ -248,7 +240,7 @@ impl Preamble {
             None => group_clusters(scene, &entries, &clustering.members, &cents, params),
         };
         report.seconds_panes += t.elapsed().as_secs_f64();
-        let pre = Preamble {
+        let mut pre = Preamble {
             set,
             entries,
             cells,
@@ -275,7 +267,6 @@ impl Preamble {
             enclosed,
             area_without_entry: cell_report.area_without_entry / scene.total_area().max(f64::MIN_POSITIVE),
         };
-        let mut pre = pre;
         if next_on && !defer_next {
             timed(&mut report.seconds_far, || pre.make_next(None));
         }
