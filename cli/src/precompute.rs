@@ -262,8 +262,9 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         return crate::shard::prepare(a, (&scene, &bvh), p, start, &on_progress, &bar);
     }
     let keep_cache = a.cache || a.update.is_some();
-    let reuse = match &old {
-        Some((prm, cache)) => Reuse::Update { cache, old: prm },
+    // Given, not lent: the update lets each go once it is done with it.
+    let reuse = match old {
+        Some((prm, cache)) => Reuse::Update { cache: cache.into(), old: prm.into() },
         None => Reuse::Nothing,
     };
     let mut result = precompute_with(&scene, &bvh, p, reuse, keep_cache, &on_progress, cancel);
@@ -279,8 +280,6 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         }
     }
     bar.finish();
-    // OLD's map and cache are done with: not held while the new ones are written.
-    drop(old);
     let Baked { prm, report, cache } = result.map_err(|e| match e {
         PrecomputeError::Cancelled(_) => anyhow!("stopped by Ctrl-C; {} not written", a.output.display()),
         e => anyhow!("{e}; {} not written", a.output.display()),

@@ -12,7 +12,7 @@ use common::{unit_box_faces, v};
 use glam::{Vec2, Vec3};
 use prm::prm_file::Prm;
 use prm::{Bvh, Scene};
-use prm_precompute::precompute::{precompute_with, Baked, PrecomputeError, PrecomputeParams, Reuse};
+use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeError, PrecomputeParams, Reuse};
 use prm_precompute::transport::Estimator;
 use prm_precompute::update::UpdateCache;
 use prm_runtime::cpu;
@@ -152,8 +152,15 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
 
     // The block moves 20 cm in the first room: the second room's walks never meet it.
     let after = two_sealed_rooms(v(0.5, 0.0, 0.4));
-    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let up =
+        run(&after, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, true).unwrap();
     let (twin, twin_cache, twin_bytes) = baked(&after, &p, Reuse::Clusters(&cache), true);
+    // Given rather than lent (as the CLI gives them, to let each go once done with it): the
+    // same map and cache.
+    let given = run(&after, &p, Reuse::Update { cache: cache.clone().into(), old: old.clone().into() }, true)
+        .unwrap();
+    assert_eq!(given.prm.to_bytes(), twin_bytes, "the update given OLD differs from its twin");
+    assert_eq!(given.cache, up.cache);
     // To the byte here (the block's triangles' rounded areas did not cross a rounding step,
     // `prm_precompute::entries::sample_entries`); in general to float noise (module doc of
     // `update`), which the distance holds.
@@ -208,7 +215,9 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
     // before the edit as after it: it is the same walk until it first does), so the update of
     // the update is the original again.
     let up_cache = up.cache.expect("an update keeps a cache");
-    let back = run(&before, &p, Reuse::Update { cache: &up_cache, old: &up.prm }, true).unwrap();
+    let back =
+        run(&before, &p, Reuse::Update { cache: Held::Lent(&up_cache), old: Held::Lent(&up.prm) }, true)
+            .unwrap();
     let d = distance(&back.prm, &old, &covered);
     assert!(d < 1e-4, "moving the block back is {d:.2e} from the original");
     assert_eq!(back.prm.to_bytes(), old_bytes, "moving the block back is not the original");
@@ -226,7 +235,8 @@ fn rooms_keep_an_edit_by_a_shared_wall_out_of_the_next_room() {
     let after = two_large_rooms(gap, v(7.4, 0.0, 3.0));
     let (old, cache, _) = baked(&before, &p, Reuse::Nothing, true);
     assert!(cache.grid.side > 0.3, "the footprint grid is finer than this test needs: {:?}", cache.grid);
-    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let up =
+        run(&after, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, true).unwrap();
     let (_, _, twin_bytes) = baked(&after, &p, Reuse::Clusters(&cache), true);
     assert_eq!(up.prm.to_bytes(), twin_bytes, "the update differs from a full walk with the old clusters");
 
@@ -291,7 +301,9 @@ fn rooms_keep_an_edit_by_a_shared_wall_out_of_the_next_room() {
     let corner = two_large_rooms(gap, v(7.4, 0.0, 0.02));
     assert_ne!(label(&after), label(&corner), "the second room kept its label");
     let (up_cache, up_prm) = (up.cache.expect("an update keeps a cache"), up.prm);
-    let next = run(&corner, &p, Reuse::Update { cache: &up_cache, old: &up_prm }, true).unwrap();
+    let next =
+        run(&corner, &p, Reuse::Update { cache: Held::Lent(&up_cache), old: Held::Lent(&up_prm) }, true)
+            .unwrap();
     let (_, _, twin_bytes) = baked(&corner, &p, Reuse::Clusters(&up_cache), true);
     assert_eq!(next.prm.to_bytes(), twin_bytes, "the second update differs from its full walk");
     assert!(next.report.update_texels_walked <= in_first);
@@ -299,7 +311,9 @@ fn rooms_keep_an_edit_by_a_shared_wall_out_of_the_next_room() {
     // mapped to the new labels (under the old label they would name the block's inside, which
     // this move touches, and be walked again).
     let (next_cache, next_prm) = (next.cache.expect("an update keeps a cache"), next.prm);
-    let third = run(&after, &p, Reuse::Update { cache: &next_cache, old: &next_prm }, true).unwrap();
+    let third =
+        run(&after, &p, Reuse::Update { cache: Held::Lent(&next_cache), old: Held::Lent(&next_prm) }, true)
+            .unwrap();
     let (_, _, twin_bytes) = baked(&after, &p, Reuse::Clusters(&next_cache), true);
     assert_eq!(third.prm.to_bytes(), twin_bytes, "the third update differs from its full walk");
     assert!(third.report.update_texels_walked <= in_first, "{}", third.report.update_texels_walked);
@@ -318,14 +332,20 @@ fn an_update_with_no_edit_writes_the_same_file_and_cache() {
     let (_, twin_cache, twin_bytes) = baked(&level, &p, Reuse::Clusters(&cache), true);
     assert_eq!(twin_bytes, bytes);
     assert_eq!(twin_cache, cache);
-    let up = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let up =
+        run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, true).unwrap();
     assert_eq!(up.report.update_tiles_hit, 0);
     assert_eq!(up.report.update_texels_walked, 0);
     assert_eq!(up.prm.to_bytes(), bytes);
     assert_eq!(up.cache.as_ref(), Some(&cache));
+    // Given, the old map and cache are handed back themselves.
+    let given = run(&level, &p, Reuse::Update { cache: cache.clone().into(), old: old.clone().into() }, true)
+        .unwrap();
+    assert_eq!((given.prm.to_bytes(), given.cache.as_ref()), (bytes.clone(), Some(&cache)));
     level.lights[0].position = v(2.5, 0.2, 0.5);
     level.lights[0].intensity = v(1.0, 0.5, 0.2);
-    let moved = run(&level, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let moved =
+        run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, true).unwrap();
     assert_eq!(moved.report.update_texels_walked, 0);
     // Its report is the old bake's, from the map's header (what `--json` prints).
     let first = run(&level, &p, Reuse::Nothing, false).unwrap().report;
@@ -357,7 +377,8 @@ fn a_material_edit_updates_to_exactly_a_fresh_precompute() {
     let (old, cache, _) = baked(&level, &p, Reuse::Nothing, true);
     let mut recoloured = level.clone();
     recoloured.materials[1].albedo = Vec3::new(0.8, 0.2, 0.1);
-    let up = run(&recoloured, &p, Reuse::Update { cache: &cache, old: &old }, true).unwrap();
+    let up = run(&recoloured, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, true)
+        .unwrap();
     let (_, fresh_cache, fresh) = baked(&recoloured, &p, Reuse::Nothing, true);
     assert_eq!(up.prm.to_bytes(), fresh, "a recolour's update is not the fresh precompute");
     assert_eq!(up.cache.as_ref(), Some(&fresh_cache));
@@ -371,7 +392,8 @@ fn a_moved_block_updates_to_within_seed_noise_of_a_fresh_precompute() {
     let before = two_sealed_rooms(v(0.3, 0.0, 0.3));
     let after = two_sealed_rooms(v(0.55, 0.0, 0.5));
     let (old, cache, _) = baked(&before, &p, Reuse::Nothing, true);
-    let up = run(&after, &p, Reuse::Update { cache: &cache, old: &old }, false).unwrap();
+    let up =
+        run(&after, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) }, false).unwrap();
     let fresh = run(&after, &p, Reuse::Nothing, false).unwrap().prm;
     let other = run(&after, &PrecomputeParams { seed: 7, ..params() }, Reuse::Nothing, false).unwrap().prm;
     let set = prm::TexelSet::build(&after, 160, 160);
@@ -392,7 +414,7 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
     let refused = |scene: &Scene, p: &PrecomputeParams| match run(
         scene,
         p,
-        Reuse::Update { cache: &cache, old: &old },
+        Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old) },
         true,
     ) {
         Err(PrecomputeError::Refused(r)) => r.0,
@@ -408,7 +430,7 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
     assert!(refused(&grown, &p).contains("triangles"));
     // A cache of another map.
     let other = run(&level, &PrecomputeParams { seed: 3, ..params() }, Reuse::Nothing, false).unwrap().prm;
-    let r = run(&level, &p, Reuse::Update { cache: &cache, old: &other }, true);
+    let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&other) }, true);
     assert!(matches!(r, Err(PrecomputeError::Refused(ref r)) if r.0.contains("another .prm")));
     // A cache is kept for the gather estimator only.
     let mis = PrecomputeParams { estimator: Estimator::Mis, ..params() };
@@ -445,7 +467,7 @@ fn a_damaged_cache_is_refused_with_what_is_wrong() {
         Err(e) => assert!(e.contains("not in the map"), "{e}"),
         Ok(misread) => {
             assert_ne!(misread.prm_checksum, other.checksum());
-            let update = Reuse::Update { cache: &misread, old: &other };
+            let update = Reuse::Update { cache: Held::Lent(&misread), old: Held::Lent(&other) };
             assert!(matches!(run(&level, &p, update, true), Err(PrecomputeError::Refused(_))));
         }
     }

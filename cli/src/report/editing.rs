@@ -17,7 +17,7 @@ use anyhow::{anyhow, Context, Result};
 use prm::prm_file::Prm;
 use prm::{Bvh, Light, Scene};
 use prm_precompute::incremental::{Baker, BakerParams, Level as EditLevel};
-use prm_precompute::precompute::{precompute_with, Baked, PrecomputeParams, Reuse};
+use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeParams, Reuse};
 use prm_runtime::cpu::CpuTwin;
 
 use super::measure::{compare, compare_texels, ground_truth, Level};
@@ -188,7 +188,7 @@ pub fn editing(
             &edited.scene,
             &edited.bvh,
             &pp,
-            Reuse::Update { cache: &cache, old: &map },
+            Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&map) },
             true,
         )?;
         let seconds_update = t.elapsed().as_secs_f64();
