@@ -20,7 +20,7 @@ use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FarReuse, FirstBounce};
 use crate::near::{echo_links, near_links, EchoReuse};
 use crate::parallel::stop_if;
-use crate::transport::{Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
+use crate::transport::{CellSamples, Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
 use crate::update::{TriangleDigest, Untouched, UpdateCache};
 
 /// Everything the walks and the panes' encoding take from the level before any walk: the
@@ -54,6 +54,12 @@ pub struct Preamble {
     /// the rooms its walks can reach only.
     #[serde(skip)]
     pub(crate) entry_room: Vec<u32>,
+    /// The texels each row of the table is made of, and the texels the far field lights (found
+    /// once for the rows' digests and each pass that makes rows).
+    #[serde(skip)]
+    pub(crate) samples: CellSamples,
+    #[serde(skip)]
+    pub(crate) lit: Vec<bool>,
     pub(crate) echo: Echo,
     pub(crate) smoothing: Option<Smoothing>,
     /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
@@ -220,6 +226,14 @@ impl Preamble {
         // each band's exact panes as it is encoded (`Preamble::band_exact`). An update makes
         // it after its plan, for the rooms its walks can reach.
         let next_on = params.next_bounce && keep.is_some() && !far.texels.is_empty();
+        let (samples, lit) = if next_on {
+            timed(&mut report.seconds_far, || {
+                let lit = crate::far::far_lit(&set, &far);
+                (CellSamples::new(&set, &owners, &lit, entries.len()), lit)
+            })
+        } else {
+            (CellSamples::default(), Vec::new())
+        };
         // The echo links need the near links' points only; made now, so nothing of the walks
         // is held while they are.
         let echo = timed(&mut report.seconds_near, || {
@@ -255,6 +269,8 @@ impl Preamble {
             next: None,
             next_on,
             entry_room: room,
+            samples,
+            lit,
             echo,
             smoothing,
             frames,
@@ -314,7 +330,6 @@ impl Preamble {
     pub(crate) fn make_next(&mut self, only: Option<&[bool]>) {
         let Some(first) = self.first_bounce() else { return };
         let clusters = self.clustering.members.len();
-        let lit = crate::far::far_lit(&self.set, &self.far);
         let area: Vec<f32> = (0..self.entries.len()).map(|j| self.cells.area(j)).collect();
         let exact = |k: usize| {
             exact_first_bounce(
@@ -336,9 +351,9 @@ impl Preamble {
         });
         let next = NextBounce::build(
             &self.set,
-            &self.owners,
+            &self.samples,
             &exact,
-            &lit,
+            &self.lit,
             &first,
             self.entries.len(),
             clusters,
@@ -359,8 +374,7 @@ impl Preamble {
         if !self.next_on {
             return Vec::new();
         }
-        let lit = crate::far::far_lit(&self.set, &self.far);
-        NextBounce::input_digests(&self.set, &self.owners, &lit, exact, self.entries.len(), self.far.radius)
+        NextBounce::input_digests(&self.samples, exact, self.entries.len(), self.far.radius)
     }
 
     /// Per covered texel (set order), a digest of what [`Preamble::band_exact`] makes its exact

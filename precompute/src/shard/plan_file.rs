@@ -202,6 +202,8 @@ impl Plan {
             next,
             next_on,
             entry_room: Vec::new(),
+            samples: Default::default(),
+            lit: Vec::new(),
             echo: Echo::default(),
             smoothing: None,
             frames: Vec::new(),

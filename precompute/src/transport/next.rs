@@ -69,7 +69,7 @@ impl NextBounce {
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         set: &TexelSet,
-        owners: &CellOwners,
+        samples: &CellSamples,
         links: &(dyn Fn(usize) -> TexelPanes + Sync),
         lit: &[bool],
         first: &crate::far::FirstBounce,
@@ -80,7 +80,6 @@ impl NextBounce {
     ) -> NextBounce {
         let made = |e: usize| only.is_none_or(|o| o.get(e).copied().unwrap_or(false));
         // A row left out is empty: its entry's texels are not sampled.
-        let samples = CellSamples::new(set, owners, lit, entries);
         let sample = |e: usize| samples.of(e).take(if made(e) { CELL_SAMPLES } else { 0 });
         let mut bits = vec![0u64; (set.width as usize * set.height as usize).div_ceil(64)];
         for (t, _) in set.texels.iter().zip(lit).filter(|(_, &w)| w) {
@@ -252,15 +251,7 @@ impl NextBounce {
     /// (`exact`, per covered texel: `Preamble::exact_digests`). An update makes again only
     /// the rows whose inputs differ from the old bake's, to learn which values changed (the
     /// others' are as they were).
-    pub fn input_digests(
-        set: &TexelSet,
-        owners: &CellOwners,
-        lit: &[bool],
-        exact: &[u64],
-        entries: usize,
-        radius: f32,
-    ) -> Vec<u64> {
-        let samples = CellSamples::new(set, owners, lit, entries);
+    pub fn input_digests(samples: &CellSamples, exact: &[u64], entries: usize, radius: f32) -> Vec<u64> {
         (0..entries)
             .into_par_iter()
             .map(|e| {
@@ -275,8 +266,10 @@ impl NextBounce {
 }
 
 /// Per entry cell, the covered texels its row is the mean of: up to [`CELL_SAMPLES`] of the
-/// lit texels its entry owns, evenly spread over them (set order).
-struct CellSamples {
+/// lit texels its entry owns, evenly spread over them (set order). Found once per bake (each
+/// texel's cell) and read by every pass over the rows.
+#[derive(Clone, Debug, Default)]
+pub struct CellSamples {
     /// (entry, texel) pairs, by entry then texel.
     by_cell: Vec<(u32, u32)>,
     /// Per entry, where its pairs start; then their length.
@@ -284,7 +277,8 @@ struct CellSamples {
 }
 
 impl CellSamples {
-    fn new(set: &TexelSet, owners: &CellOwners, lit: &[bool], entries: usize) -> CellSamples {
+    /// The samples of `entries` cells over `set`'s texels that `lit` marks.
+    pub fn new(set: &TexelSet, owners: &CellOwners, lit: &[bool], entries: usize) -> CellSamples {
         let owner: Vec<Option<u32>> = set
             .texels
             .par_iter()
