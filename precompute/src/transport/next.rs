@@ -265,7 +265,7 @@ impl NextBounce {
     }
 }
 
-/// Per entry cell, the covered texels its row is the mean of: up to [`CELL_SAMPLES`] of the
+/// Per entry cell, the covered texels its row is the mean of: up to `CELL_SAMPLES` (4) of the
 /// lit texels its entry owns, evenly spread over them (set order). Found once per bake (each
 /// texel's cell) and read by every pass over the rows.
 #[derive(Clone, Debug, Default)]
