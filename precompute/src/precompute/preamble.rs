@@ -650,34 +650,19 @@ fn group_clusters(
 mod tests {
     use super::*;
     use crate::parallel::Control;
-    use glam::Vec2;
 
-    /// Two sealed unit rooms side by side (the second 2 m along x), each quad its own chart.
+    /// Two sealed unit rooms side by side (the second 2 m along x), grey 0.6, built and loaded
+    /// as the bundled levels are (`crate::scenes::Builder`, lightmap UVs at 128²).
     fn two_rooms() -> Scene {
-        let v = Vec3::new;
-        let faces = [
-            [v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)],
-            [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
-            [v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.)],
-            [v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.)],
-            [v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.)],
-            [v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.)],
-        ];
-        let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-        for (k, q) in faces.iter().flat_map(|f| [*f, f.map(|p| p + v(2.0, 0.0, 0.0))]).enumerate() {
-            let cell = Vec2::new((k % 4) as f32, (k / 4) as f32);
-            let base = pos.len() as u32;
-            for (c, p) in q.iter().enumerate() {
-                pos.push(*p);
-                uv.push(
-                    (cell + Vec2::splat(0.08) + [Vec2::ZERO, Vec2::Y, Vec2::ONE, Vec2::X][c] * 0.84) / 4.0,
-                );
-            }
-            idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+        let mut b = crate::scenes::Builder::default();
+        let grey = b.material("grey", [0.6, 0.6, 0.6]);
+        for x in [0.0, 2.0] {
+            b.boxed(grey, Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0), true, &[]);
         }
-        let mut s = Scene::from_mesh(pos, uv, &idx);
-        s.materials[0].albedo = Vec3::splat(0.6);
-        s
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("two_rooms.glb");
+        std::fs::write(&path, b.finish(128).unwrap().to_glb()).unwrap();
+        prm::gltf_load::load_scene(&path, &Default::default()).unwrap()
     }
 
     /// An update's table with the first room's rows only (`Preamble::make_next` with `only`):
