@@ -3,7 +3,8 @@
 //! - [`scene`]: a glTF level flattened into one world-space triangle soup with Lambertian
 //!   materials, punctual lights and cameras ([`gltf_load`] reads it, [`glb`] writes one).
 //! - [`light`]: the radiometric light model (DESIGN.md §3) used by every stage; [`photometry`]
-//!   reads IES / EULUMDAT emission profiles for it.
+//!   reads IES / EULUMDAT emission profiles for it; [`emitters`] merges emissive surfaces into
+//!   polygon lights.
 //! - [`density`]: the atlas size a texel size in metres gives a level.
 //! - [`zones`]: generated UVs packed zone by zone, so nearby geometry stays together.
 //! - [`uv`]: lightmap-UV checks (range, overlap) and generation when a level has none.
@@ -31,6 +32,7 @@
 #[cfg(feature = "bvh")]
 pub mod bvh;
 pub mod density;
+pub mod emitters;
 #[cfg(feature = "exr")]
 pub mod exr_io;
 pub mod fingerprint;

@@ -285,25 +285,13 @@ impl Scene {
         &self.materials[self.triangles[t].material as usize]
     }
 
-    /// The emissive triangles as polygon area lights for the bakers (paper 001 §3.2): one a
-    /// triangle and emitting face, of the material's radiance (the back face of a
-    /// double-sided material emits too), named `emissive <triangle>` (`<triangle> back`).
-    /// Triangles without area give none. The ground truth does not take these: its paths meet
+    /// The emissive surfaces as polygon area lights for the bakers (paper 001 §3.2): coplanar
+    /// triangles of one node and material merged into convex polygons
+    /// ([`crate::emitters::emitters`]), each of the material's radiance (the back face of a
+    /// double-sided material emits too). The ground truth does not take these: its paths meet
     /// the emitters themselves, which checks the bakers' lights independently.
     pub fn emissive_lights(&self) -> Vec<crate::Light> {
-        let mut out = Vec::new();
-        for t in 0..self.triangles.len() {
-            let m = self.material(t);
-            if m.emissive == Vec3::ZERO || self.face_normal(t) == Vec3::ZERO {
-                continue;
-            }
-            let [a, b, c] = self.corners(t);
-            out.push(crate::Light::polygon(&format!("emissive {t}"), &[a, b, c], m.emissive));
-            if m.double_sided {
-                out.push(crate::Light::polygon(&format!("emissive {t} back"), &[a, c, b], m.emissive));
-            }
-        }
-        out
+        crate::emitters::emitters(self, |_| true).into_iter().map(|e| e.light).collect()
     }
 
     /// Axis-aligned bounds (min, max) of all vertices; zero for an empty scene.

@@ -765,13 +765,13 @@ fn an_emissive_panel_s_light_moves_with_it() {
         scene.triangles[t].material = 1;
     }
     scene.lights = scene.emissive_lights();
-    assert_eq!(scene.lights.len(), 2, "one polygon light per triangle");
+    assert_eq!(scene.lights.len(), 1, "the panel's two triangles merged into one polygon light");
     let tx = texels(&scene);
     let extent = scene.diagonal();
     let mut a = Baker::new(scene.clone(), tx.clone(), params()).unwrap();
     a.converge();
     let r = a.apply(&Edit::Transform { node: 1, matrix: translate(0.3, 0.2) }).unwrap();
-    assert_eq!(r.changes.lights, vec![0, 1], "both of the panel's lights moved");
+    assert_eq!(r.changes.lights, vec![0], "the panel's light moved");
     a.converge();
     let mut moved = a.level().current().scene.as_ref().clone();
     moved.lights = moved.emissive_lights();
@@ -796,7 +796,6 @@ fn an_emissive_panel_s_light_moves_with_it() {
     level.apply(&Edit::SetLight { id: 0, light: brighter }).unwrap();
     level.apply(&Edit::Transform { node: 1, matrix: translate(0.3, 0.2) }).unwrap();
     let now = &level.current().lights;
-    assert_eq!(now[1].light, moved.lights[1], "the other triangle's light, exactly");
     let ratio = now[0].light.intensity / moved.lights[0].intensity;
     assert!((ratio - Vec3::splat(2.0)).abs().max_element() < 1e-5, "{ratio}");
     assert_eq!(now[0].light.aperture, moved.lights[0].aperture, "at the panel's new place");

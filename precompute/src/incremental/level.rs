@@ -177,35 +177,35 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
         .collect()
 }
 
-/// The corners of a triangle or triangle-shaped polygon light as a key, either winding.
-fn corner_key(c: &[Vec3]) -> [[u32; 3]; 3] {
-    let mut k = [[0u32; 3]; 3];
-    for (i, p) in c.iter().take(3).enumerate() {
-        k[i] = p.to_array().map(f32::to_bits);
-    }
+/// The corners of a polygon light as a key, either winding.
+fn corner_key(c: &[Vec3]) -> Vec<[u32; 3]> {
+    let mut k: Vec<[u32; 3]> = c.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
     k.sort_unstable();
     k
 }
 
-/// The emissive triangles of `scene` (of `node` only, if given), by corner key: a polygon light
-/// with exactly such a triangle's corners (either winding) is its emission, as
-/// [`Scene::emissive_lights`] makes them ([`emission_key`]).
-pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<[[u32; 3]; 3], usize> {
-    (0..scene.triangles.len())
-        .filter(|&t| {
-            node.is_none_or(|n| scene.triangles[t].node == n) && scene.material(t).emissive != Vec3::ZERO
-        })
-        .map(|t| (corner_key(&scene.corners(t)), t))
+/// The emissive surfaces of `scene` (of `node` only, if given) as the polygon lights
+/// [`Scene::emissive_lights`] makes of them ([`prm::emitters::emitters`]), by corner key, each
+/// with its first triangle: a polygon light with exactly such corners (either winding) is
+/// that surface's emission ([`emission_key`]).
+pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<Vec<[u32; 3]>, usize> {
+    prm::emitters::emitters(scene, |t| node.is_none_or(|n| scene.triangles[t].node == n))
+        .into_iter()
+        .map(|e| (corner_key(light_corners(&e.light)), e.triangles[0] as usize))
         .collect()
 }
 
-/// The corner key of a light that may be a triangle's emission: a triangle-shaped polygon
-/// without a profile.
-pub(super) fn emission_key(light: &Light) -> Option<[[u32; 3]; 3]> {
+fn light_corners(light: &Light) -> &[Vec3] {
     match &light.aperture {
-        Aperture::Polygon { corners } if corners.len() == 3 && light.profile.is_none() => {
-            Some(corner_key(corners))
-        }
+        Aperture::Polygon { corners } => corners,
+        _ => &[],
+    }
+}
+
+/// The corner key of a light that may be a surface's emission: a polygon without a profile.
+pub(super) fn emission_key(light: &Light) -> Option<Vec<[u32; 3]>> {
+    match &light.aperture {
+        Aperture::Polygon { corners } if light.profile.is_none() => Some(corner_key(corners)),
         _ => None,
     }
 }
