@@ -227,45 +227,98 @@ impl Bvh {
 
 /// Irradiance at surface point `p` (unit normal `n`) from `lights`, with shadow rays (W/m²).
 /// The precompute's evaluation, the runtime's CPU twin and the bakers share it; the ground
-/// truth keeps its own on purpose (DESIGN.md §7).
-///
-/// A point light gets one shadow ray. A sphere or polygon light gets its unshadowed
-/// irradiance ([`crate::Light::irradiance`]) times the share of [`AREA_SHADOW_RAYS`] rays to
-/// points of its aperture that arrive (stratified, rotated by a hash of `p` so neighbouring
-/// texels do not band alike): exact without occluders, soft shadows otherwise.
+/// truth keeps its own on purpose (DESIGN.md §7). Each light as [`shadowed_irradiance`] says.
 pub fn direct_irradiance(bvh: &Bvh, lights: &[crate::Light], p: Vec3, n: Vec3) -> Vec3 {
-    let mut sum = Vec3::ZERO;
-    for l in lights {
-        if l.is_area() {
-            sum += area_irradiance(bvh, l, p, n);
-            continue;
-        }
-        let inc = l.incident(p);
-        let cos = n.dot(inc.to_light);
-        if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
-            continue;
-        }
-        let visible = if l.is_positional() {
-            bvh.visible_point(p, n, l.position)
-        } else {
-            bvh.visible_dir(p, n, inc.to_light)
-        };
-        if visible {
-            sum += inc.irradiance * cos;
-        }
-    }
-    sum
+    lights.iter().map(|l| shadowed_irradiance(l, p, n, |t| bvh.visible_to(p, n, t) as u8 as f32)).sum()
 }
 
-/// Shadow rays per area light and receiver point in [`direct_irradiance`] (a 4 x 4 grid).
+/// Shadow rays per area light and receiver point in [`direct_irradiance`]: a polygon's
+/// 2^[`crate::light::APERTURE_LEVELS`] parts one each, a sphere's a 4 x 4 grid.
 pub const AREA_SHADOW_RAYS: u32 = 16;
 
-fn area_irradiance(bvh: &Bvh, l: &crate::Light, p: Vec3, n: Vec3) -> Vec3 {
-    let e = l.irradiance(p, n);
-    if e == Vec3::ZERO {
-        return e;
+/// A polygon light's aperture parts ([`crate::light::aperture_parts`] at
+/// [`crate::light::APERTURE_LEVELS`]), made once per polygon and thread: a receiver loop asks
+/// for the same few lights again and again. The cache holds the corners it was made for (an
+/// `Arc` it keeps alive), so a new polygon at a freed one's address is never taken for it.
+fn aperture_parts(corners: &std::sync::Arc<[Vec3]>) -> std::sync::Arc<[Vec<Vec3>]> {
+    type Cached = (std::sync::Arc<[Vec3]>, std::sync::Arc<[Vec<Vec3>]>);
+    thread_local! {
+        static PARTS: std::cell::RefCell<Vec<Cached>> = const { std::cell::RefCell::new(Vec::new()) };
     }
-    // Cranley-Patterson rotation from the receiver's bits: deterministic, decorrelated.
+    PARTS.with_borrow_mut(|cache| {
+        if let Some((_, parts)) = cache.iter().find(|(c, _)| std::sync::Arc::ptr_eq(c, corners)) {
+            return parts.clone();
+        }
+        let parts: std::sync::Arc<[Vec<Vec3>]> =
+            crate::light::aperture_parts(corners, crate::light::APERTURE_LEVELS).into();
+        if cache.len() >= 64 {
+            cache.clear();
+        }
+        cache.push((corners.clone(), parts.clone()));
+        parts
+    })
+}
+
+/// Where a light's shadow ray from a receiver ends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ShadowTarget {
+    /// A point in free space (point, spot and sphere lights).
+    Point(Vec3),
+    /// A point of a polygon light with the polygon's normal: it may lie on a surface (an
+    /// emissive face), so the ray ends at its offset.
+    Surface(Vec3, Vec3),
+    /// Infinity along a unit direction (directional lights).
+    Toward(Vec3),
+}
+
+impl ShadowTarget {
+    /// The ray from `p` as a unit direction and a length (infinite for [`ShadowTarget::Toward`]).
+    pub fn segment(&self, p: Vec3) -> (Vec3, f32) {
+        match *self {
+            ShadowTarget::Point(q) | ShadowTarget::Surface(q, _) => {
+                let d = q - p;
+                (d.normalize_or_zero(), d.length())
+            }
+            ShadowTarget::Toward(d) => (d, f32::INFINITY),
+        }
+    }
+}
+
+impl Bvh {
+    /// Visibility from surface point `p` (unit normal `n`) along a light's shadow ray.
+    pub fn visible_to(&self, p: Vec3, n: Vec3, t: ShadowTarget) -> bool {
+        match t {
+            ShadowTarget::Point(q) => self.visible_point(p, n, q),
+            ShadowTarget::Surface(q, nq) => self.visible(p, n, q, nq),
+            ShadowTarget::Toward(d) => self.visible_dir(p, n, d),
+        }
+    }
+}
+
+/// One light's irradiance at surface point `p` (unit normal `n`), each shadow ray weighed by
+/// `visible(target)`: 1 or 0 for an evaluation, or a change of visibility (-1, 0, 1) for the
+/// incremental baker, which then gets the change of irradiance. A ray weighed 0 costs no
+/// irradiance, so `visible` runs before the light's geometry is integrated.
+///
+/// - A point, spot or directional light: one ray, times `I cos / d²` (or `E cos`).
+/// - A polygon light: its aperture split into parts ([`crate::light::aperture_parts`], paper
+///   001 §4.1's direct virtual lights), one ray a part to a point of it (uniform by area,
+///   placed by a hash of `p` so neighbouring texels do not band alike), times the part's own
+///   exact unshadowed irradiance (Lambert's contour integral). Without occluders this is the
+///   polygon's exact irradiance; in a penumbra it weighs each ray by the light its part
+///   gives, where one ray share of the whole light would not: a receiver that sees the near
+///   half of a wide panel and not the far half gets the near half's light, not half the
+///   panel's.
+/// - A sphere light: its exact unshadowed irradiance times the share of 16 stratified rays
+///   (a 4 x 4 grid, rotated by a hash of `p`) that arrive.
+pub fn shadowed_irradiance(
+    l: &crate::Light,
+    p: Vec3,
+    n: Vec3,
+    mut visible: impl FnMut(ShadowTarget) -> f32,
+) -> Vec3 {
+    use crate::light::Aperture;
+    // Cranley-Patterson rotations from the receiver's bits: deterministic, decorrelated.
     let h = |x: u32| {
         let mut v =
             x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
@@ -275,22 +328,79 @@ fn area_irradiance(bvh: &Bvh, l: &crate::Light, p: Vec3, n: Vec3) -> Vec3 {
         v ^= v >> 15;
         (v >> 8) as f32 / (1u32 << 24) as f32
     };
-    let (r0, r1) = (h(1), h(2));
-    let side = (AREA_SHADOW_RAYS as f32).sqrt() as u32;
-    let mut seen = 0u32;
-    for a in 0..side {
-        for b in 0..side {
-            let u = [((a as f32 + r0) / side as f32).fract(), ((b as f32 + r1) / side as f32).fract()];
-            let q = l.aperture_point(p, u);
-            let visible = match l.aperture {
-                // A polygon may lie on a surface (an emissive face): offset both ends.
-                crate::light::Aperture::Polygon { .. } => bvh.visible(p, n, q, l.direction),
-                _ => bvh.visible_point(p, n, q),
+    match &l.aperture {
+        Aperture::Point => {
+            let inc = l.incident(p);
+            let cos = n.dot(inc.to_light);
+            if cos <= 0.0 || inc.irradiance == Vec3::ZERO {
+                return Vec3::ZERO;
+            }
+            let target = if l.is_positional() {
+                ShadowTarget::Point(l.position)
+            } else {
+                ShadowTarget::Toward(inc.to_light)
             };
-            seen += visible as u32;
+            match visible(target) {
+                0.0 => Vec3::ZERO,
+                v => inc.irradiance * (cos * v),
+            }
+        }
+        Aperture::Polygon { corners } => {
+            let area = 0.5 * crate::light::polygon_twice_area(corners).length();
+            if (p - l.position).dot(l.direction) <= 0.0 || !(area > 0.0) || l.intensity == Vec3::ZERO {
+                return Vec3::ZERO;
+            }
+            // Radiance x pi x the range window at the centroid: Light::irradiance's factors.
+            let scale = l.intensity * (std::f32::consts::PI / area * l.window((l.position - p).length()));
+            let parts = aperture_parts(corners);
+            let mut weights = [0.0f32; 1 << crate::light::APERTURE_LEVELS];
+            for (k, part) in parts.iter().enumerate() {
+                // A part wholly behind the receiver's plane gives nothing: no ray for it.
+                if part.iter().all(|c| (*c - p).dot(n) <= 0.0) {
+                    continue;
+                }
+                let k = k as u32;
+                let q = crate::light::polygon_point(part, [h(2 * k + 1), h(2 * k + 2)]);
+                weights[k as usize] = visible(ShadowTarget::Surface(q, l.direction));
+            }
+            let weights = &weights[..parts.len()];
+            let form_factor = |part: &[Vec3]| crate::form_factor::point_to_polygon(p, n, part);
+            // Sum the parts' light over the fewer parts: those weighed, or those not weighed 1
+            // taken from the whole (the parts' form factors sum to its; a lit receiver then
+            // integrates one polygon, not 16).
+            let weighed = weights.iter().filter(|w| **w != 0.0).count();
+            let short = weights.iter().filter(|w| **w != 1.0).count();
+            let f = if short + 1 < weighed {
+                let missing: f32 = parts
+                    .iter()
+                    .zip(weights)
+                    .filter(|(_, w)| **w != 1.0)
+                    .map(|(q, w)| (1.0 - w) * form_factor(q))
+                    .sum();
+                form_factor(corners) - missing
+            } else {
+                parts.iter().zip(weights).filter(|(_, w)| **w != 0.0).map(|(q, w)| w * form_factor(q)).sum()
+            };
+            scale * f
+        }
+        Aperture::Sphere { .. } => {
+            let e = l.irradiance(p, n);
+            if e == Vec3::ZERO {
+                return e;
+            }
+            let (r0, r1) = (h(1), h(2));
+            let side = (AREA_SHADOW_RAYS as f32).sqrt() as u32;
+            let mut seen = 0.0f32;
+            for a in 0..side {
+                for b in 0..side {
+                    let u =
+                        [((a as f32 + r0) / side as f32).fract(), ((b as f32 + r1) / side as f32).fract()];
+                    seen += visible(ShadowTarget::Point(l.aperture_point(p, u)));
+                }
+            }
+            e * (seen / (side * side) as f32)
         }
     }
-    e * (seen as f32 / (side * side) as f32)
 }
 
 /// Power (W) `lights` deliver to the triangles `tris` (an entry's cell,

@@ -339,7 +339,7 @@ impl Light {
     }
 
     /// glTF range window ([`range_window`]); 1 without a range.
-    fn window(&self, dist: f32) -> f32 {
+    pub(crate) fn window(&self, dist: f32) -> f32 {
         self.range.map_or(1.0, |r| range_window(dist, r))
     }
 
@@ -408,6 +408,61 @@ pub fn polygon_twice_area(corners: &[Vec3]) -> Vec3 {
         s += (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]);
     }
     s
+}
+
+/// Levels of the kd-tree that splits a polygon light's aperture for its shadow rays:
+/// 2^4 = 16 parts, one ray each (the [`crate::bvh::AREA_SHADOW_RAYS`] a light gets).
+pub const APERTURE_LEVELS: u32 = 4;
+
+/// A convex polygon split into parts (paper 001 §4.1, direct virtual lights): a kd-tree that
+/// halves each part across the middle of its longest axis-aligned extent, `levels` deep. The
+/// parts are convex, wound as `corners`, and tile the polygon (a cut that would leave one
+/// side without area keeps the part whole), so their form factors sum to the polygon's.
+pub fn aperture_parts(corners: &[Vec3], levels: u32) -> Vec<Vec<Vec3>> {
+    let mut parts = vec![corners.to_vec()];
+    for _ in 0..levels {
+        let mut next = Vec::with_capacity(2 * parts.len());
+        for part in parts {
+            let (lo, hi) = part
+                .iter()
+                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| (lo.min(*c), hi.max(*c)));
+            let axis = (hi - lo).max_position();
+            let mid = 0.5 * (lo[axis] + hi[axis]);
+            let (below, above) = split_polygon(&part, axis, mid);
+            let has_area = |q: &[Vec3]| q.len() >= 3 && polygon_twice_area(q).length_squared() > 0.0;
+            if has_area(&below) && has_area(&above) {
+                next.push(below);
+                next.push(above);
+            } else {
+                next.push(part);
+            }
+        }
+        parts = next;
+    }
+    parts
+}
+
+/// A convex polygon cut by the plane `x[axis] = at` into the parts at or below it and at or
+/// above it (corners on the plane go to both).
+fn split_polygon(poly: &[Vec3], axis: usize, at: f32) -> (Vec<Vec3>, Vec<Vec3>) {
+    let (mut below, mut above) = (Vec::with_capacity(poly.len() + 1), Vec::with_capacity(poly.len() + 1));
+    for k in 0..poly.len() {
+        let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+        let (da, db) = (a[axis] - at, b[axis] - at);
+        if da <= 0.0 {
+            below.push(a);
+        }
+        if da >= 0.0 {
+            above.push(a);
+        }
+        if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
+            let mut q = a + (b - a) * (da / (da - db));
+            q[axis] = at;
+            below.push(q);
+            above.push(q);
+        }
+    }
+    (below, above)
 }
 
 /// A point of a convex polygon, uniform by area, for `u` uniform in [0, 1)²: a triangle of
@@ -675,5 +730,50 @@ mod tests {
 
     fn v3(x: f32, y: f32, z: f32) -> Vec3 {
         Vec3::new(x, y, z)
+    }
+
+    /// A polygon's aperture parts tile it: 2^levels convex parts (a square halves evenly),
+    /// areas summing to its area, and form factors from any receiver, one whose plane cuts
+    /// the polygon included, summing to the whole's (the contour integral is additive), to
+    /// 1e-5 of the whole's.
+    #[test]
+    fn aperture_parts_tile_the_polygon() {
+        let pentagon =
+            [v3(0.0, 0.0, 0.0), v3(0.0, 0.0, 2.0), v3(1.0, 0.0, 2.0), v3(4.0, 0.0, 1.0), v3(4.0, 0.0, 0.0)];
+        let square = [v3(-1.0, 0.0, -1.0), v3(-1.0, 0.0, 1.0), v3(1.0, 0.0, 1.0), v3(1.0, 0.0, -1.0)];
+        let triangle = [v3(0.0, 0.0, 0.0), v3(0.3, 0.0, 2.0), v3(1.0, 0.0, 0.0)];
+        for (name, poly) in
+            [("pentagon", &pentagon[..]), ("square", &square[..]), ("triangle", &triangle[..])]
+        {
+            let whole = polygon_twice_area(poly);
+            assert!(whole.y > 0.0, "{name} faces up");
+            for levels in 0..=APERTURE_LEVELS {
+                let parts = aperture_parts(poly, levels);
+                assert!(parts.len() <= 1 << levels);
+                if name == "square" {
+                    assert_eq!(parts.len(), 1 << levels, "a square halves evenly");
+                }
+                let mut area = 0.0;
+                for part in &parts {
+                    Light::polygon("part", part, Vec3::ONE).check().unwrap();
+                    assert!(polygon_twice_area(part).normalize().dot(whole.normalize()) > 1.0 - 1e-6);
+                    area += 0.5 * polygon_twice_area(part).length();
+                }
+                assert!((area - 0.5 * whole.length()).abs() < 1e-5 * whole.length(), "{name}: {area}");
+                for (p, n) in [
+                    (v3(1.0, 0.7, 0.5), Vec3::NEG_Y),
+                    (v3(-0.5, 0.2, 3.0), v3(0.6, -0.8, 0.0)),
+                    // Its plane cuts the polygon: clipping differs part by part.
+                    (v3(0.5, 0.3, 0.4), v3(1.0, -0.2, 0.3).normalize()),
+                ] {
+                    let want = crate::form_factor::point_to_polygon(p, n, poly);
+                    let sum: f32 = parts.iter().map(|q| crate::form_factor::point_to_polygon(p, n, q)).sum();
+                    assert!(
+                        want > 1e-3 && (sum - want).abs() <= 1e-5 * want.max(1e-2),
+                        "{name} {levels}: {sum} vs {want}"
+                    );
+                }
+            }
+        }
     }
 }

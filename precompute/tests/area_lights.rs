@@ -85,6 +85,90 @@ fn a_square_light_over_a_plane_is_the_analytic_answer() {
     assert!(worst <= 5.0, "ground truth off the analytic answer by {worst} standard errors");
 }
 
+/// In a penumbra each shadow ray is weighed by the light of the aperture part it samples
+/// (paper 001 §4.1's direct virtual lights, [`prm::bvh::shadowed_irradiance`]), not by an
+/// equal share of the whole light. A 2 x 0.5 m panel 0.5 m over a floor, a plate at 0.3 m
+/// hiding the panel's +x end from a line of floor points: against a converged twin (the
+/// panel in 1 x 1 cm cells, each its exact form factor times the visibility of its centre),
+/// the split estimate is within 3 % mean absolute error and 1 % bias; one share of the whole
+/// per arriving ray (the estimate before the split) is several times further off, since it
+/// gives a point that sees the panel's near half and not its far half half the panel.
+#[test]
+fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
+    let (w, d, h) = (1.0f32, 0.25f32, 0.5f32);
+    let mut scene = quads(
+        &[
+            [v(-3., 0., -3.), v(-3., 0., 3.), v(3., 0., 3.), v(3., 0., -3.)],
+            // The plate, facing up, over x >= 0.
+            [v(0., 0.3, -2.), v(0., 0.3, 2.), v(3., 0.3, 2.), v(3., 0.3, -2.)],
+        ],
+        0.5,
+    );
+    let corners = [v(-w, h, -d), v(w, h, -d), v(w, h, d), v(-w, h, d)];
+    let light = Light::polygon("panel", &corners, Vec3::splat(L));
+    assert!((light.direction + Vec3::Y).length() < 1e-6);
+    scene.lights.push(light.clone());
+    let bvh = Bvh::build(&scene);
+    let (nx, nz) = (200, 50);
+    let twin = |p: Vec3| -> f64 {
+        let mut e = 0.0f64;
+        for i in 0..nx {
+            for k in 0..nz {
+                let x0 = -w + 2.0 * w * i as f32 / nx as f32;
+                let x1 = -w + 2.0 * w * (i + 1) as f32 / nx as f32;
+                let z0 = -d + 2.0 * d * k as f32 / nz as f32;
+                let z1 = -d + 2.0 * d * (k + 1) as f32 / nz as f32;
+                let cell = [v(x0, h, z0), v(x1, h, z0), v(x1, h, z1), v(x0, h, z1)];
+                let centre = v(0.5 * (x0 + x1), h, 0.5 * (z0 + z1));
+                if bvh.visible(p, Vec3::Y, centre, -Vec3::Y) {
+                    e += (L * std::f32::consts::PI * prm::form_factor::point_to_polygon(p, Vec3::Y, &cell))
+                        as f64;
+                }
+            }
+        }
+        e
+    };
+    // One share of the whole light per arriving ray of a 4 x 4 grid over the aperture.
+    let whole_share = |p: Vec3| -> f64 {
+        let e = light.irradiance(p, Vec3::Y).x as f64;
+        let mut seen = 0;
+        for a in 0..4 {
+            for b in 0..4 {
+                let u = [(a as f32 + 0.5) / 4.0, (b as f32 + 0.5) / 4.0];
+                seen +=
+                    bvh.visible(p, Vec3::Y, v(-w + 2.0 * w * u[0], h, -d + 2.0 * d * u[1]), -Vec3::Y) as u32;
+            }
+        }
+        e * seen as f64 / 16.0
+    };
+    let (mut truth, mut split, mut share) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut err_split, mut err_share) = (0.0f64, 0.0f64);
+    let mut penumbra = 0;
+    for j in 0..120 {
+        // From under the panel's -x end to the plate's edge, off-centre in z a little.
+        let p = v(-1.2 + 1.2 * j as f32 / 119.0, 0.0, 0.05 * ((j % 5) as f32 - 2.0));
+        let t = twin(p);
+        let unshadowed = light.irradiance(p, Vec3::Y).x as f64;
+        penumbra += (t < 0.98 * unshadowed) as u32;
+        let a = prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::Y).x as f64;
+        let b = whole_share(p);
+        truth += t;
+        split += a;
+        share += b;
+        err_split += (a - t).abs();
+        err_share += (b - t).abs();
+    }
+    let (err_split, err_share) = (err_split / truth, err_share / truth);
+    let (bias_split, bias_share) = (split / truth - 1.0, share / truth - 1.0);
+    eprintln!(
+        "penumbra ({penumbra} of 120 points): split error {err_split:.4} bias {bias_split:+.4}; \
+         whole-light shares error {err_share:.4} bias {bias_share:+.4}"
+    );
+    assert!(penumbra >= 50, "half the line or more lies in the penumbra (the plate takes > 2 %): {penumbra}");
+    assert!(err_split <= 0.03 && bias_split.abs() <= 0.01, "split: {err_split} {bias_split}");
+    assert!(err_share >= 3.0 * err_split, "the split's gain: {err_share} vs {err_split}");
+}
+
 /// The photons of a polygon light carry pi I_n in all, and those that land on the floor
 /// carry the irradiance integrated over it (numerically, 400² cells of the analytic answer),
 /// to 1 % (200k photons: 0.1 % noise).

@@ -128,13 +128,13 @@ fn mean_length(a: &[Vec3]) -> f64 {
     a.iter().map(|x| x.length() as f64).sum::<f64>() / a.len() as f64
 }
 
-#[test]
-fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
-    // Small corrections, so that an edit makes several; two edits before any update, so that
-    // refreshes span versions.
-    let scene = room();
+/// Updates the baker to convergence after two moves of the block (so that refreshes span
+/// versions), checking at every fourth step and the last that its lightmap is its baked
+/// entries evaluated afresh; the kinds of update it made.
+fn afresh_at_every_step(scene: &Scene) -> Vec<UpdateKind> {
+    // Small corrections, so that an edit makes several.
     let p = BakerParams { delta_leaf_vpls: 48, ..params() };
-    let mut b = Baker::new(scene.clone(), texels(&scene), p).unwrap();
+    let mut b = Baker::new(scene.clone(), texels(scene), p).unwrap();
     b.converge();
     b.apply(&Edit::Transform { node: 1, matrix: translate(0.12, 0.05) }).unwrap();
     b.apply(&Edit::Transform { node: 1, matrix: translate(-0.05, 0.1) }).unwrap();
@@ -159,12 +159,38 @@ fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
         }
         k += 1;
     }
+    kinds
+}
+
+#[test]
+fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
+    let kinds = afresh_at_every_step(&room());
     for want in [UpdateKind::Rebuild, UpdateKind::Delta, UpdateKind::Refresh, UpdateKind::Consolidate] {
         assert!(kinds.contains(&want), "no {want:?} among {} updates", kinds.len());
     }
     // Consolidation comes last, after every update that carries invalid light.
     let first = kinds.iter().position(|x| *x == UpdateKind::Consolidate).unwrap();
     assert!(kinds[first..].iter().all(|x| *x == UpdateKind::Consolidate));
+}
+
+/// The direct light's refreshes re-cast only the shadow rays that cross what moved
+/// (`shadow_change`): for a sphere light, a ceiling panel's parts and a spot as for a point
+/// light, the lightmap stays its entries evaluated afresh.
+#[test]
+fn direct_refreshes_of_every_aperture_are_its_entries_evaluated_afresh() {
+    let mut scene = room();
+    let panel = [v(0.6, 0.97, 0.2), v(0.9, 0.97, 0.2), v(0.9, 0.97, 0.5), v(0.6, 0.97, 0.5)];
+    let mut spot = Light::point("spot", v(0.2, 0.7, 0.2), Vec3::splat(0.8));
+    spot.kind = prm::LightKind::Spot { inner: 0.3, outer: 0.9 };
+    spot.direction = (v(0.45, 0.0, 0.5) - spot.position).normalize();
+    scene.lights = vec![
+        Light::sphere("ball", v(0.7, 0.75, 0.75), 0.08, Vec3::splat(0.6)),
+        Light::polygon("panel", &facing(panel, -Vec3::Y), Vec3::splat(2.0)),
+        spot,
+    ];
+    scene.lights.iter().for_each(|l| l.check().unwrap());
+    let kinds = afresh_at_every_step(&scene);
+    assert!(kinds.contains(&UpdateKind::Refresh), "{kinds:?}");
 }
 
 #[test]

@@ -51,6 +51,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, Vec3};
+use prm::bvh::ShadowTarget;
 use prm::{Bvh, Light, Scene, TexelSet};
 use rayon::prelude::*;
 
@@ -1086,9 +1087,9 @@ impl Baker {
                 let deltas: Vec<(DVec3, DVec3)> = picked
                     .par_iter()
                     .map(|&i| {
-                        if !movers.on_moved[i] && !matches!(b.source, Source::Direct(_)) {
+                        if !movers.on_moved[i] {
                             // The texel stayed: only the shadow rays that cross what moved differ.
-                            return (DVec3::ZERO, shadow_change(&was, b, k, i, s, seed, &movers));
+                            return shadow_change(&was, b, k, i, s, seed, &movers);
                         }
                         let (od, oi) = evaluate(&was, k, i, s, seed);
                         let (nd, ni) = evaluate(b, k, i, s, seed);
@@ -1305,11 +1306,12 @@ struct Movers {
 const STREAM_PLUS: u64 = 50;
 const STREAM_MINUS: u64 = 66;
 
-/// How a virtual-light entry's indirect light at a texel that did not move changes from its
-/// version in `was` to the one in `now`: the same shadow rays are drawn (same streams), and
-/// only those that cross a box where geometry moved are traced, in both versions. A ray that
-/// crosses none meets the same triangles in both, so this equals the difference of two full
-/// evaluations exactly, for the cost of the rays the edit can have changed.
+/// How a baked entry's (direct, indirect) light at a texel that did not move changes from its
+/// version in `was` to the one in `now`: the same shadow rays are drawn (same streams; a
+/// direct light's from the texel's position), and only those that cross a box where geometry
+/// moved are traced, in both versions. A ray that crosses none meets the same triangles in
+/// both, so this equals the difference of two full evaluations exactly, for the cost of the
+/// rays the edit can have changed.
 #[allow(clippy::too_many_arguments)]
 fn shadow_change(
     was: &Baked,
@@ -1319,7 +1321,7 @@ fn shadow_change(
     s: u32,
     seed: u64,
     movers: &Movers,
-) -> DVec3 {
+) -> (DVec3, DVec3) {
     let (p, n, eps) = now.version.frames[i];
     let salt = salt(k, i);
     let change = |ls: &[VirtualLight], base: u64| -> DVec3 {
@@ -1355,9 +1357,28 @@ fn shadow_change(
         sum
     };
     match &now.source {
-        Source::Direct(_) => DVec3::ZERO,
-        Source::Lights(ls) => change(ls, STREAM_PLUS),
-        Source::Delta { plus, minus } => change(plus, STREAM_PLUS) - change(minus, STREAM_MINUS),
+        Source::Direct(l) => {
+            let ray_change = |t: ShadowTarget| -> f32 {
+                let (d, len) = t.segment(p);
+                if !movers.boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
+                    return 0.0;
+                }
+                let (blocked_was, blocked_now) =
+                    (!movers.was.visible_to(p, n, t), !movers.now.visible_to(p, n, t));
+                if blocked_was && !blocked_now {
+                    now.version.bvh.visible_to(p, n, t) as u8 as f32
+                } else if blocked_now && !blocked_was {
+                    -(was.version.bvh.visible_to(p, n, t) as u8 as f32)
+                } else {
+                    0.0
+                }
+            };
+            (prm::bvh::shadowed_irradiance(l, p, n, ray_change).as_dvec3(), DVec3::ZERO)
+        }
+        Source::Lights(ls) => (DVec3::ZERO, change(ls, STREAM_PLUS)),
+        Source::Delta { plus, minus } => {
+            (DVec3::ZERO, change(plus, STREAM_PLUS) - change(minus, STREAM_MINUS))
+        }
     }
 }
 
