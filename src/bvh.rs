@@ -241,23 +241,32 @@ pub const AREA_SHADOW_RAYS: u32 = 16;
 /// for the same few lights again and again. The cache holds the corners it was made for (an
 /// `Arc` it keeps alive), so a new polygon at a freed one's address is never taken for it.
 fn aperture_parts(corners: &std::sync::Arc<[Vec3]>) -> std::sync::Arc<[Vec<Vec3>]> {
-    type Cached = (std::sync::Arc<[Vec3]>, std::sync::Arc<[Vec<Vec3>]>);
+    use std::sync::Arc;
+    type Cached = (Arc<[Vec3]>, Arc<[Vec<Vec3>]>);
     thread_local! {
-        static PARTS: std::cell::RefCell<Vec<Cached>> = const { std::cell::RefCell::new(Vec::new()) };
+        static PARTS: std::cell::RefCell<std::collections::HashMap<usize, Cached>> =
+            std::cell::RefCell::new(std::collections::HashMap::new());
     }
+    // The address of a polygon the cache holds cannot be reused while it holds it.
+    let key = Arc::as_ptr(corners) as *const Vec3 as usize;
     PARTS.with_borrow_mut(|cache| {
-        if let Some((_, parts)) = cache.iter().find(|(c, _)| std::sync::Arc::ptr_eq(c, corners)) {
-            return parts.clone();
+        if let Some((c, parts)) = cache.get(&key) {
+            if Arc::ptr_eq(c, corners) {
+                return parts.clone();
+            }
         }
-        let parts: std::sync::Arc<[Vec<Vec3>]> =
+        let parts: Arc<[Vec<Vec3>]> =
             crate::light::aperture_parts(corners, crate::light::APERTURE_LEVELS).into();
-        if cache.len() >= 64 {
+        if cache.len() >= APERTURE_CACHE {
             cache.clear();
         }
-        cache.push((corners.clone(), parts.clone()));
+        cache.insert(key, (corners.clone(), parts.clone()));
         parts
     })
 }
+
+/// Polygons whose parts a thread keeps (a level's area lights; about 1 kB each).
+const APERTURE_CACHE: usize = 1024;
 
 /// Where a light's shadow ray from a receiver ends.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -297,18 +306,11 @@ impl Bvh {
 
 /// One light's irradiance at surface point `p` (unit normal `n`), each shadow ray weighed by
 /// `visible(target)`: 1 or 0 for an evaluation, or a change of visibility (-1, 0, 1) for the
-/// incremental baker, which then gets the change of irradiance. A ray weighed 0 costs no
-/// irradiance, so `visible` runs before the light's geometry is integrated.
+/// incremental baker, which then gets the change of irradiance (to round-off: an evaluation
+/// may sum a polygon's parts another way, below).
 ///
 /// - A point, spot or directional light: one ray, times `I cos / d²` (or `E cos`).
-/// - A polygon light: its aperture split into parts ([`crate::light::aperture_parts`], paper
-///   001 §4.1's direct virtual lights), one ray a part to a point of it (uniform by area,
-///   placed by a hash of `p` so neighbouring texels do not band alike), times the part's own
-///   exact unshadowed irradiance (Lambert's contour integral). Without occluders this is the
-///   polygon's exact irradiance; in a penumbra it weighs each ray by the light its part
-///   gives, where one ray share of the whole light would not: a receiver that sees the near
-///   half of a wide panel and not the far half gets the near half's light, not half the
-///   panel's.
+/// - A polygon light: [`polygon_irradiance`], its aperture in parts.
 /// - A sphere light: its exact unshadowed irradiance times the share of 16 stratified rays
 ///   (a 4 x 4 grid, rotated by a hash of `p`) that arrive.
 pub fn shadowed_irradiance(
@@ -318,16 +320,6 @@ pub fn shadowed_irradiance(
     mut visible: impl FnMut(ShadowTarget) -> f32,
 ) -> Vec3 {
     use crate::light::Aperture;
-    // Cranley-Patterson rotations from the receiver's bits: deterministic, decorrelated.
-    let h = |x: u32| {
-        let mut v =
-            x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
-        v ^= p.z.to_bits().wrapping_mul(0x85EB_CA6B);
-        v ^= v >> 16;
-        v = v.wrapping_mul(0x7FEB_352D);
-        v ^= v >> 15;
-        (v >> 8) as f32 / (1u32 << 24) as f32
-    };
     match &l.aperture {
         Aperture::Point => {
             let inc = l.incident(p);
@@ -345,50 +337,13 @@ pub fn shadowed_irradiance(
                 v => inc.irradiance * (cos * v),
             }
         }
-        Aperture::Polygon { corners } => {
-            let area = 0.5 * crate::light::polygon_twice_area(corners).length();
-            if (p - l.position).dot(l.direction) <= 0.0 || !(area > 0.0) || l.intensity == Vec3::ZERO {
-                return Vec3::ZERO;
-            }
-            // Radiance x pi x the range window at the centroid: Light::irradiance's factors.
-            let scale = l.intensity * (std::f32::consts::PI / area * l.window((l.position - p).length()));
-            let parts = aperture_parts(corners);
-            let mut weights = [0.0f32; 1 << crate::light::APERTURE_LEVELS];
-            for (k, part) in parts.iter().enumerate() {
-                // A part wholly behind the receiver's plane gives nothing: no ray for it.
-                if part.iter().all(|c| (*c - p).dot(n) <= 0.0) {
-                    continue;
-                }
-                let k = k as u32;
-                let q = crate::light::polygon_point(part, [h(2 * k + 1), h(2 * k + 2)]);
-                weights[k as usize] = visible(ShadowTarget::Surface(q, l.direction));
-            }
-            let weights = &weights[..parts.len()];
-            let form_factor = |part: &[Vec3]| crate::form_factor::point_to_polygon(p, n, part);
-            // Sum the parts' light over the fewer parts: those weighed, or those not weighed 1
-            // taken from the whole (the parts' form factors sum to its; a lit receiver then
-            // integrates one polygon, not 16).
-            let weighed = weights.iter().filter(|w| **w != 0.0).count();
-            let short = weights.iter().filter(|w| **w != 1.0).count();
-            let f = if short + 1 < weighed {
-                let missing: f32 = parts
-                    .iter()
-                    .zip(weights)
-                    .filter(|(_, w)| **w != 1.0)
-                    .map(|(q, w)| (1.0 - w) * form_factor(q))
-                    .sum();
-                form_factor(corners) - missing
-            } else {
-                parts.iter().zip(weights).filter(|(_, w)| **w != 0.0).map(|(q, w)| w * form_factor(q)).sum()
-            };
-            scale * f
-        }
+        Aperture::Polygon { corners } => polygon_irradiance(l, corners, p, n, visible),
         Aperture::Sphere { .. } => {
             let e = l.irradiance(p, n);
             if e == Vec3::ZERO {
                 return e;
             }
-            let (r0, r1) = (h(1), h(2));
+            let (r0, r1) = (receiver_hash(p, 1), receiver_hash(p, 2));
             let side = (AREA_SHADOW_RAYS as f32).sqrt() as u32;
             let mut seen = 0.0f32;
             for a in 0..side {
@@ -401,6 +356,90 @@ pub fn shadowed_irradiance(
             e * (seen / (side * side) as f32)
         }
     }
+}
+
+const _: () = assert!(AREA_SHADOW_RAYS == 1 << crate::light::APERTURE_LEVELS, "one ray a part");
+
+/// A number in [0, 1) from the receiver's bits and `x`: Cranley-Patterson rotations and
+/// sample points that are deterministic and decorrelated between neighbouring texels.
+fn receiver_hash(p: Vec3, x: u32) -> f32 {
+    let mut v = x.wrapping_mul(0x9E37_79B9) ^ p.x.to_bits().rotate_left(7) ^ p.y.to_bits().rotate_left(13);
+    v ^= p.z.to_bits().wrapping_mul(0x85EB_CA6B);
+    v ^= v >> 16;
+    v = v.wrapping_mul(0x7FEB_352D);
+    v ^= v >> 15;
+    (v >> 8) as f32 / (1u32 << 24) as f32
+}
+
+/// A polygon light's irradiance at (p, n) (paper 001 §4.1's direct virtual lights): its
+/// aperture split into parts ([`crate::light::aperture_parts`]), one shadow ray a part to a
+/// point of it (uniform by area over the part's side of the receiver's plane, placed by a hash
+/// of `p`), weighed by `visible` and by the part's own exact unshadowed irradiance (Lambert's
+/// contour integral). Without occluders this is the polygon's exact irradiance; in a penumbra
+/// each ray carries the light its part gives, where one share of the whole light would not: a
+/// receiver that sees the near half of a wide panel and not its far half gets the near half's
+/// light, not half the panel's. A part wholly behind the receiver's plane gets no ray, and a
+/// ray weighed 0 costs no contour integral.
+fn polygon_irradiance(
+    l: &crate::Light,
+    corners: &std::sync::Arc<[Vec3]>,
+    p: Vec3,
+    n: Vec3,
+    mut visible: impl FnMut(ShadowTarget) -> f32,
+) -> Vec3 {
+    let area = 0.5 * crate::light::polygon_twice_area(corners).length();
+    if (p - l.position).dot(l.direction) <= 0.0 || !(area > 0.0) || l.intensity == Vec3::ZERO {
+        return Vec3::ZERO;
+    }
+    // Radiance x pi x the range window at the centroid: Light::irradiance's factors.
+    let scale = l.intensity * (std::f32::consts::PI / area * l.window((l.position - p).length()));
+    let parts = aperture_parts(corners);
+    let mut weights = [0.0f32; AREA_SHADOW_RAYS as usize];
+    for (k, part) in parts.iter().enumerate() {
+        let above = part.iter().filter(|c| (**c - p).dot(n) > 0.0).count();
+        if above == 0 {
+            continue;
+        }
+        let k = k as u32;
+        let u = [receiver_hash(p, 2 * k + 1), receiver_hash(p, 2 * k + 2)];
+        let q = if above == part.len() {
+            crate::light::polygon_point(part, u)
+        } else {
+            // The receiver's plane cuts the part: a point of its lit side (a ray to the other
+            // would cross the receiver's own surface).
+            let lit = crate::form_factor::clip_above_plane(part, p, n);
+            if lit.len() < 3 {
+                continue;
+            }
+            crate::light::polygon_point(&lit, u)
+        };
+        weights[k as usize] = visible(ShadowTarget::Surface(q, l.direction));
+    }
+    let weights = &weights[..parts.len()];
+    let form_factor = |part: &[Vec3]| crate::form_factor::point_to_polygon(p, n, part);
+    // Sum the parts' light over the fewer parts: those weighed, or those not weighed 1 taken
+    // from the whole (the parts' form factors sum to its; a lit receiver then integrates one
+    // polygon, not 16).
+    let weighed = weights.iter().filter(|w| **w != 0.0).count();
+    let short = weights.iter().filter(|w| **w != 1.0).count();
+    let f = if short + 1 < weighed {
+        let missing: f32 = parts
+            .iter()
+            .zip(weights)
+            .filter(|(_, w)| **w != 1.0)
+            .map(|(q, w)| (1.0 - w) * form_factor(q))
+            .sum();
+        let f = form_factor(corners) - missing;
+        // Round-off could take an evaluation (weights 0 or 1) below zero; a change may be.
+        if weights.iter().all(|w| *w >= 0.0) {
+            f.max(0.0)
+        } else {
+            f
+        }
+    } else {
+        parts.iter().zip(weights).filter(|(_, w)| **w != 0.0).map(|(q, w)| w * form_factor(q)).sum()
+    };
+    scale * f
 }
 
 /// Power (W) `lights` deliver to the triangles `tris` (an entry's cell,

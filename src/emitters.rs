@@ -2,16 +2,23 @@
 //!
 //! A glTF emissive surface is a mesh: a ceiling panel is two triangles, a light strip or a
 //! window tens. One light a triangle would multiply the bakers' shadow rays and entries by the
-//! triangle count for the same light, so coplanar triangles that share an edge, a node and a
-//! material are merged into convex polygons first: greedily, in triangle order, a triangle
-//! joins a polygon across a shared edge when the union stays flat and convex (at most
-//! [`MAX_CORNERS`] corners). The union of the triangles is the same surface, so the lights'
-//! unshadowed irradiance is the same to round-off (Lambert's contour integral is additive),
-//! and each light is then split back into parts for its shadow rays
+//! triangle count for the same light, so triangles that share an edge, a node, a material and
+//! a plane are merged into convex polygons first. A flat piece whose corners' convex hull has
+//! its triangles' area (a quad, a grid, a disc, a strip) is that hull; any other piece (an L,
+//! a ring) is cut into convex parts greedily: in triangle order, a triangle joins a polygon
+//! across a shared edge while the union stays flat and convex (at most [`MAX_CORNERS`]
+//! corners). Every light passes the bakers' own check of a polygon light
+//! ([`crate::light::Light::check`]); a merged polygon that would not (a piece bent by more
+//! than its tolerance) is given back as its triangles, and a triangle that would not (a sliver
+//! without area) gives no light. The union of the triangles is the same surface, so the
+//! lights' unshadowed irradiance is the same to round-off (Lambert's contour integral is
+//! additive), and each light is then split back into parts for its shadow rays
 //! ([`crate::light::aperture_parts`]) by its own extent, not by how it was modelled.
 //!
 //! Edges are matched by their corners' exact positions (vertex bits), so a mesh whose faces
-//! repeat their vertices (flat-shaded exports) merges as one with shared vertices would.
+//! repeat their vertices (flat-shaded exports) merges as one with shared vertices would. A
+//! light's corners are always corners of its triangles, which is how an edited level finds
+//! the lights of a node that moved.
 
 use std::collections::HashMap;
 
@@ -26,6 +33,7 @@ pub const MAX_CORNERS: usize = 32;
 /// One emissive polygon light and the triangles it was merged from.
 #[derive(Clone, Debug)]
 pub struct Emitter {
+    /// A convex polygon light of the material's radiance.
     pub light: Light,
     /// Its triangles, ascending; the light is named after the first.
     pub triangles: Vec<u32>,
@@ -33,11 +41,14 @@ pub struct Emitter {
 
 /// The emissive triangles `keep` picks, merged into polygon lights of the material's radiance,
 /// named `emissive <first triangle>` (and a `... back` light wound the other way for a
-/// double-sided material). Triangles without area give none. Deterministic: the same scene
-/// gives the same lights in the same order.
+/// double-sided material). Triangles without area (by [`Light::check`]'s measure) give none.
+/// Deterministic: the same scene gives the same lights in the same order.
 pub fn emitters(scene: &Scene, keep: impl Fn(usize) -> bool) -> Vec<Emitter> {
-    let glowing =
-        |t: usize| keep(t) && scene.material(t).emissive != Vec3::ZERO && scene.face_normal(t) != Vec3::ZERO;
+    let glowing = |t: usize| {
+        keep(t)
+            && scene.material(t).emissive != Vec3::ZERO
+            && Light::polygon("", &scene.corners(t), Vec3::ONE).check().is_ok()
+    };
     let key = |p: Vec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
     // Each glowing triangle's directed edges (counter-clockwise from its front).
     let mut edges: HashMap<([u32; 3], [u32; 3]), usize> = HashMap::new();
@@ -88,6 +99,14 @@ pub fn emitters(scene: &Scene, keep: impl Fn(usize) -> bool) -> Vec<Emitter> {
             Some(hull) => vec![(hull, piece.iter().map(|&t| t as u32).collect::<Vec<u32>>())],
             None => grow(scene, &piece, normal, &neighbour),
         };
+        // A polygon the bakers would refuse goes back to its triangles (each passed the check).
+        let polygons = polygons.into_iter().flat_map(|(poly, members)| {
+            if Light::polygon("", &poly, Vec3::ONE).check().is_ok() {
+                vec![(poly, members)]
+            } else {
+                members.iter().map(|&t| (scene.corners(t as usize).to_vec(), vec![t])).collect()
+            }
+        });
         for (poly, members) in polygons {
             let first = members[0];
             out.push(Emitter {
@@ -163,7 +182,8 @@ fn grow(
                 let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
                 // The neighbour of any member across this edge of the polygon.
                 let Some(u) = members.iter().find_map(|&m| neighbour(m as usize, a, b)) else { continue };
-                if used.contains(&u) {
+                // Of this piece only (a mesh that repeats a directed edge could offer another's).
+                if used.contains(&u) || piece.binary_search(&u).is_err() {
                     continue;
                 }
                 let c = scene.corners(u);
@@ -290,12 +310,15 @@ mod tests {
         }
     }
 
+    /// The greedy cut of the L below (a square and a trapezoid).
+    const L_PIECES: usize = 2;
+
     #[test]
     fn an_l_shape_stays_convex_pieces_covering_it() {
         // Three cells in an L: no convex polygon holds all six triangles.
         let s = tiles(&[(0, 0), (1, 0), (0, 1)], true);
         let es = emitters(&s, |_| true);
-        assert!(es.len() >= 2, "{es:?}");
+        assert_eq!(es.len(), L_PIECES, "{es:?}");
         let mut all: Vec<u32> = es.iter().flat_map(|e| e.triangles.clone()).collect();
         all.sort_unstable();
         assert_eq!(all, (0..6).collect::<Vec<u32>>(), "every triangle in exactly one light");
@@ -343,6 +366,68 @@ mod tests {
         // Dark or without area: none.
         let mut s = tiles(&grid, true);
         s.materials[1].emissive = Vec3::ZERO;
+        assert!(emitters(&s, |_| true).is_empty());
+    }
+
+    /// A disc of 40 fan triangles has a hull of 40 corners, over [`MAX_CORNERS`]: it is cut
+    /// into convex polygons of at most that many, covering every triangle once.
+    #[test]
+    fn a_disc_over_the_corner_limit_is_cut_into_convex_parts() {
+        let k = 40;
+        let mut positions = vec![Vec3::ZERO];
+        positions.extend((0..k).map(|i| {
+            let a = std::f32::consts::TAU * i as f32 / k as f32;
+            Vec3::new(a.cos(), 0.0, -a.sin())
+        }));
+        // Counter-clockwise seen from above: centre, then i, then i + 1 going round.
+        let indices: Vec<u32> = (0..k).flat_map(|i| [0, 1 + i, 1 + (i + 1) % k]).collect();
+        let n = positions.len();
+        let mut s = Scene::from_mesh(positions, vec![Vec2::ZERO; n], &indices);
+        assert!(s.face_normal(0).y > 0.99);
+        s.materials.push(Material { emissive: Vec3::ONE, ..Default::default() });
+        s.triangles.iter_mut().for_each(|t| t.material = 1);
+        let es = emitters(&s, |_| true);
+        assert!(es.len() >= 2 && es.len() < k as usize, "{} lights", es.len());
+        let mut all: Vec<u32> = es.iter().flat_map(|e| e.triangles.clone()).collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..k).collect::<Vec<u32>>());
+        for e in &es {
+            e.light.check().unwrap();
+            assert!(corners(&e.light).len() <= MAX_CORNERS);
+        }
+        let area: f32 = (0..k as usize).map(|t| s.area(t)).sum();
+        assert!((power(&es) - std::f32::consts::PI * area).abs() < 1e-5 * area);
+    }
+
+    /// A piece bent by more than a polygon light may be (within the neighbour test's 1e-6 of
+    /// the normals' dot, beyond `Light::check`'s 1e-4 of its size off the plane) goes back to
+    /// its triangles; a sliver without area gives no light; every light passes the check.
+    #[test]
+    fn what_the_bakers_would_refuse_is_not_merged() {
+        // Two cells; one far corner lifted so the second cell's triangles tilt by about 1e-3.
+        let mut s = tiles(&[(0, 0), (1, 0)], true);
+        for p in &mut s.positions {
+            if p.x == 1.0 && p.z == 0.5 {
+                p.y = 7e-4;
+            }
+        }
+        let es = emitters(&s, |_| true);
+        for e in &es {
+            e.light.check().unwrap();
+        }
+        let mut all: Vec<u32> = es.iter().flat_map(|e| e.triangles.clone()).collect();
+        all.sort_unstable();
+        assert_eq!(all, vec![0, 1, 2, 3], "{es:?}");
+        // The flat cell and the tilted triangle next to it pass the neighbour test, but their
+        // hull is off its plane by more than the check allows: four triangles, four lights.
+        assert_eq!(es.len(), 4, "{es:?}");
+        // A sliver: its third corner 1e-12 off the line of the other two (a face normal, no
+        // area by the check's 1e-10 of its size squared).
+        let positions = vec![Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.5, 0.0, 1e-12)];
+        let mut s = Scene::from_mesh(positions, vec![Vec2::ZERO; 3], &[0, 1, 2]);
+        s.materials.push(Material { emissive: Vec3::ONE, ..Default::default() });
+        s.triangles[0].material = 1;
+        assert_ne!(s.face_normal(0), Vec3::ZERO);
         assert!(emitters(&s, |_| true).is_empty());
     }
 }

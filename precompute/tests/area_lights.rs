@@ -85,16 +85,42 @@ fn a_square_light_over_a_plane_is_the_analytic_answer() {
     assert!(worst <= 5.0, "ground truth off the analytic answer by {worst} standard errors");
 }
 
+/// A receiver whose plane cuts a light: a wall at x = 0 under a panel that reaches over it
+/// to x = -0.7. Nothing else is there, so every wall point's direct light is the exact
+/// irradiance of the panel's part in front of the wall (the contour integral clips it). A
+/// part the wall's plane cuts is sampled on the wall's side; a point behind the wall would
+/// be shadowed by the wall itself and lose that part's light.
+#[test]
+fn a_light_cut_by_the_receiver_s_plane_is_sampled_on_its_side() {
+    let mut scene = quads(&[[v(0., 0., -1.), v(0., 0.9, -1.), v(0., 0.9, 1.), v(0., 0., 1.)]], 0.5);
+    assert!(scene.face_normal(0).x > 0.99, "the wall faces +x");
+    let panel = [v(-0.7, 1.0, -0.4), v(1.3, 1.0, -0.4), v(1.3, 1.0, 0.4), v(-0.7, 1.0, 0.4)];
+    let light = Light::polygon("panel", &panel, Vec3::splat(L));
+    assert!((light.direction + Vec3::Y).length() < 1e-6);
+    scene.lights.push(light.clone());
+    let bvh = Bvh::build(&scene);
+    let mut worst = 0.0f32;
+    for j in 0..40 {
+        let p = v(0.0, 0.05 + 0.02 * j as f32, -0.5 + 0.025 * j as f32);
+        let want = light.irradiance(p, Vec3::X).x;
+        let got = prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::X).x;
+        assert!(want > 0.0);
+        worst = worst.max((got - want).abs() / want);
+    }
+    assert!(worst <= 1e-4, "wall points off their exact direct light by {worst}");
+}
+
 /// In a penumbra each shadow ray is weighed by the light of the aperture part it samples
 /// (paper 001 §4.1's direct virtual lights, [`prm::bvh::shadowed_irradiance`]), not by an
 /// equal share of the whole light. A 2 x 0.5 m panel 0.5 m over a floor, a plate at 0.3 m
 /// hiding the panel's +x end from a line of floor points: against a converged twin (the
 /// panel in 1 x 1 cm cells, each its exact form factor times the visibility of its centre),
-/// the split estimate is within 3 % mean absolute error and 1 % bias; one share of the whole
-/// per arriving ray (the estimate before the split) is several times further off, since it
-/// gives a point that sees the panel's near half and not its far half half the panel. The
-/// same against the ground truth with the panel as an emissive surface (measured: split
-/// +0.6 %, equal shares -27 %, the ground truth's noise 0.26 %).
+/// the split estimate is within 3 % mean absolute error and 1 % bias, and against the ground
+/// truth with the panel as an emissive surface within 1 % plus 3 of its standard errors.
+/// Printed beside it, one share of the whole per arriving ray (the estimate before the split,
+/// which gives a point that sees the panel's near half and not its far half half the panel):
+/// measured 27 % error, -27 % bias; split +0.6 % against the ground truth (its noise 0.26 %),
+/// equal shares -27 %.
 #[test]
 fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
     let (w, d, h) = (1.0f32, 0.25f32, 0.5f32);
@@ -168,11 +194,10 @@ fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
     );
     assert!(penumbra >= 50, "half the line or more lies in the penumbra (the plate takes > 2 %): {penumbra}");
     assert!(err_split <= 0.03 && bias_split.abs() <= 0.01, "split: {err_split} {bias_split}");
-    assert!(err_share >= 3.0 * err_split, "the split's gain: {err_share} vs {err_split}");
 
     // The same panel as an emissive surface, which the ground truth finds by its paths (no
     // shared light code): over every third point of the line, the split's mean direct light
-    // is the ground truth's within 1 % plus 3 standard errors; equal shares are not.
+    // is the ground truth's within 1 % plus 3 standard errors.
     let mut glowing = scene.clone();
     let n = glowing.positions.len() as u32;
     glowing.positions.extend_from_slice(&corners);
@@ -208,7 +233,6 @@ fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
     let (off, off_equal) = (ours / gt - 1.0, equal / gt - 1.0);
     eprintln!("penumbra against the ground truth: split {off:+.4}, equal shares {off_equal:+.4} (its noise {se:.4})");
     assert!(off.abs() <= 0.01 + 3.0 * se, "split against the ground truth: {off} (noise {se})");
-    assert!(off_equal.abs() > 0.1, "equal shares against the ground truth: {off_equal}");
 }
 
 /// The photons of a polygon light carry pi I_n in all, and those that land on the floor

@@ -14,7 +14,9 @@ use prm_precompute::incremental::clusters::{
     balance_metric, balanced_cut, cell_lights, key, morton, Member, MAX_DEPTH,
 };
 use prm_precompute::incremental::paths::{luminance, trace_all, PathParams};
-use prm_precompute::incremental::{Aabb, Baker, BakerParams, Edit, EditError, Level, UpdateKind};
+use prm_precompute::incremental::{
+    Aabb, Baker, BakerParams, CellKey, Edit, EditError, Level, StepReport, UpdateKind,
+};
 
 /// Quad `a, b, c, d` wound so that its front faces `out`.
 fn facing(q: [Vec3; 4], out: Vec3) -> [Vec3; 4] {
@@ -130,8 +132,8 @@ fn mean_length(a: &[Vec3]) -> f64 {
 
 /// Updates the baker to convergence after two moves of the block (so that refreshes span
 /// versions), checking at every fourth step and the last that its lightmap is its baked
-/// entries evaluated afresh; the kinds of update it made.
-fn afresh_at_every_step(scene: &Scene) -> Vec<UpdateKind> {
+/// entries evaluated afresh; the updates it made.
+fn afresh_at_every_step(scene: &Scene) -> Vec<StepReport> {
     // Small corrections, so that an edit makes several.
     let p = BakerParams { delta_leaf_vpls: 48, ..params() };
     let mut b = Baker::new(scene.clone(), texels(scene), p).unwrap();
@@ -154,7 +156,7 @@ fn afresh_at_every_step(scene: &Scene) -> Vec<UpdateKind> {
             );
         }
         match b.step() {
-            Some(r) => kinds.push(r.kind),
+            Some(r) => kinds.push(r),
             None => break,
         }
         k += 1;
@@ -164,7 +166,7 @@ fn afresh_at_every_step(scene: &Scene) -> Vec<UpdateKind> {
 
 #[test]
 fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
-    let kinds = afresh_at_every_step(&room());
+    let kinds: Vec<UpdateKind> = afresh_at_every_step(&room()).iter().map(|r| r.kind).collect();
     for want in [UpdateKind::Rebuild, UpdateKind::Delta, UpdateKind::Refresh, UpdateKind::Consolidate] {
         assert!(kinds.contains(&want), "no {want:?} among {} updates", kinds.len());
     }
@@ -174,23 +176,43 @@ fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
 }
 
 /// The direct light's refreshes re-cast only the shadow rays that cross what moved
-/// (`shadow_change`): for a sphere light, a ceiling panel's parts and a spot as for a point
-/// light, the lightmap stays its entries evaluated afresh.
+/// (`shadow_change`): for a sphere light, a ceiling panel's parts, a spot and a directional
+/// light (the ceiling lifted 10 m, so that it comes in above the walls) as for a point light,
+/// the lightmap stays its entries evaluated afresh, and direct entries were refreshed.
 #[test]
 fn direct_refreshes_of_every_aperture_are_its_entries_evaluated_afresh() {
     let mut scene = room();
+    // The ceiling (the second face: triangles 2 and 3, their own four vertices) up 10 m.
+    for t in 2..4 {
+        for v in scene.triangles[t].v {
+            scene.positions[v as usize].y = 11.0;
+        }
+    }
     let panel = [v(0.6, 0.97, 0.2), v(0.9, 0.97, 0.2), v(0.9, 0.97, 0.5), v(0.6, 0.97, 0.5)];
     let mut spot = Light::point("spot", v(0.2, 0.7, 0.2), Vec3::splat(0.8));
     spot.kind = prm::LightKind::Spot { inner: 0.3, outer: 0.9 };
     spot.direction = (v(0.45, 0.0, 0.5) - spot.position).normalize();
+    let mut sun = Light::point("sun", Vec3::ZERO, Vec3::splat(0.5));
+    sun.kind = prm::LightKind::Directional;
+    sun.direction = v(-0.6, -1.0, -0.3).normalize();
     scene.lights = vec![
         Light::sphere("ball", v(0.7, 0.75, 0.75), 0.08, Vec3::splat(0.6)),
         Light::polygon("panel", &facing(panel, -Vec3::Y), Vec3::splat(2.0)),
         spot,
+        sun,
     ];
     scene.lights.iter().for_each(|l| l.check().unwrap());
-    let kinds = afresh_at_every_step(&scene);
-    assert!(kinds.contains(&UpdateKind::Refresh), "{kinds:?}");
+    let steps = afresh_at_every_step(&scene);
+    let direct: Vec<u32> = steps
+        .iter()
+        .filter_map(|r| match (r.kind, r.cell) {
+            (UpdateKind::Refresh, CellKey::Direct(id)) => Some(id),
+            _ => None,
+        })
+        .collect();
+    for id in 0..4 {
+        assert!(direct.contains(&id), "light {id}'s direct light refreshed: {direct:?}");
+    }
 }
 
 #[test]
@@ -825,6 +847,60 @@ fn an_emissive_panel_s_light_moves_with_it() {
     let ratio = now[0].light.intensity / moved.lights[0].intensity;
     assert!((ratio - Vec3::splat(2.0)).abs().max_element() < 1e-5, "{ratio}");
     assert_eq!(now[0].light.aperture, moved.lights[0].aperture, "at the panel's new place");
+}
+
+/// A glowing strip of 40 quads, far from the origin, turned and moved twice: its one merged
+/// light follows the node each time, exactly (its corners the transformed corners, however a
+/// merge of the moved triangles would round its straight corners), and the editor never
+/// offers it as a light of its own.
+#[test]
+fn a_merged_emissive_light_follows_its_node_through_turns_far_from_the_origin() {
+    use prm_precompute::incremental::editor::picks;
+    let far = v(3000.0, 0.0, -2000.0);
+    let mut qs: Vec<[Vec3; 4]> = unit_box_faces().iter().map(|q| q.map(|c| c + far)).collect();
+    for i in 0..40 {
+        let (x0, x1) = (0.1 + 0.02 * i as f32, 0.12 + 0.02 * i as f32);
+        qs.push(facing(
+            [v(x0, 0.9, 0.45), v(x1, 0.9, 0.45), v(x1, 0.9, 0.55), v(x0, 0.9, 0.55)].map(|c| c + far),
+            -Vec3::Y,
+        ));
+    }
+    let mut scene = quads(&qs, 0.5);
+    let mut glow = scene.materials[0].clone();
+    glow.emissive = Vec3::splat(3.0);
+    scene.materials.push(glow);
+    // The strip's quads do not share vertices (`quads` gives each its own): edges match by
+    // position.
+    for t in 12..scene.triangles.len() {
+        scene.triangles[t].node = 1;
+        scene.triangles[t].material = 1;
+    }
+    scene.lights = scene.emissive_lights();
+    assert_eq!(scene.lights.len(), 1, "80 triangles, one strip");
+    let mut level = Level::new(scene.clone(), texels(&scene));
+    let centre = far + v(0.5, 0.9, 0.5);
+    let turn = Mat4::from_translation(centre) * Mat4::from_rotation_y(0.3) * Mat4::from_translation(-centre);
+    for matrix in [turn, Mat4::from_translation(v(0.05, -0.1, 0.03)) * turn] {
+        let before = level.current().lights[0].light.clone();
+        level.apply(&Edit::Transform { node: 1, matrix }).unwrap();
+        let now = &level.current().lights[0].light;
+        let (prm::light::Aperture::Polygon { corners: a }, prm::light::Aperture::Polygon { corners: b }) =
+            (&before.aperture, &now.aperture)
+        else {
+            panic!("a polygon light");
+        };
+        let moved: Vec<Vec3> = a.iter().map(|c| matrix.transform_point3(*c)).collect();
+        assert_eq!(&moved[..], &b[..], "the light's corners, moved with the strip");
+        // Its radiance kept; its area moves with the corners' rounding 3 km out (f32 steps of
+        // 2.4e-4 m on a 0.1 m wide strip).
+        let change = now.flux().x / before.flux().x - 1.0;
+        assert!(change.abs() < 1e-2, "flux changed by {change}");
+        let offered = picks(level.current(), &[]);
+        assert!(
+            offered.iter().all(|p| !matches!(p, prm_precompute::incremental::editor::Pick::Light { .. })),
+            "{offered:?}"
+        );
+    }
 }
 
 #[test]

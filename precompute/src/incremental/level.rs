@@ -177,35 +177,37 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
         .collect()
 }
 
-/// The corners of a polygon light as a key, either winding.
-fn corner_key(c: &[Vec3]) -> Vec<[u32; 3]> {
-    let mut k: Vec<[u32; 3]> = c.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
-    k.sort_unstable();
-    k
-}
-
-/// The emissive surfaces of `scene` (of `node` only, if given) as the polygon lights
-/// [`Scene::emissive_lights`] makes of them ([`prm::emitters::emitters`]), by corner key, each
-/// with its first triangle: a polygon light with exactly such corners (either winding) is
-/// that surface's emission ([`emission_key`]).
-pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<Vec<[u32; 3]>, usize> {
-    prm::emitters::emitters(scene, |t| node.is_none_or(|n| scene.triangles[t].node == n))
-        .into_iter()
-        .map(|e| (corner_key(light_corners(&e.light)), e.triangles[0] as usize))
-        .collect()
-}
-
-fn light_corners(light: &Light) -> &[Vec3] {
-    match &light.aperture {
-        Aperture::Polygon { corners } => corners,
-        _ => &[],
+/// The corners of the emissive triangles of `scene` (of `node` only, if given), by position
+/// bits, each with one of its triangles: a polygon light without a profile whose corners are
+/// all among them is that surface's emission ([`emission_of`]). A merged light's corners are
+/// corners of its triangles ([`prm::emitters`]), so this finds it without merging again
+/// (which, on moved positions rounded anew, could drop another straight corner).
+pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<[u32; 3], usize> {
+    let mut out = std::collections::HashMap::new();
+    for t in 0..scene.triangles.len() {
+        if node.is_none_or(|n| scene.triangles[t].node == n) && scene.material(t).emissive != Vec3::ZERO {
+            for c in scene.corners(t) {
+                out.entry(c.to_array().map(f32::to_bits)).or_insert(t);
+            }
+        }
     }
+    out
 }
 
-/// The corner key of a light that may be a surface's emission: a polygon without a profile.
-pub(super) fn emission_key(light: &Light) -> Option<Vec<[u32; 3]>> {
+/// The emissive triangle (one of them) whose surface `light` is the emission of, if it is one:
+/// a polygon without a profile with every corner a corner of `glowing` ([`emitters`]).
+pub(super) fn emission_of(
+    light: &Light,
+    glowing: &std::collections::HashMap<[u32; 3], usize>,
+) -> Option<usize> {
     match &light.aperture {
-        Aperture::Polygon { corners } if light.profile.is_none() => Some(corner_key(corners)),
+        Aperture::Polygon { corners } if light.profile.is_none() => {
+            let mut found = None;
+            for c in corners.iter() {
+                found = Some(*glowing.get(&c.to_array().map(f32::to_bits))?);
+            }
+            found
+        }
         _ => None,
     }
 }
@@ -293,7 +295,7 @@ impl Level {
                 // An emissive surface's polygon lights (`Scene::emissive_lights`) move with it.
                 let glowing = emitters(&cur.scene, Some(*node));
                 for slot in lights.iter_mut() {
-                    let Some(&t) = emission_key(&slot.light).and_then(|k| glowing.get(&k)) else { continue };
+                    let Some(t) = emission_of(&slot.light, &glowing) else { continue };
                     if let Aperture::Polygon { corners } = &slot.light.aperture {
                         let moved: Vec<Vec3> = corners.iter().map(|c| matrix.transform_point3(*c)).collect();
                         let emission = s.material(t).emissive;
