@@ -310,7 +310,7 @@ impl Bvh {
 /// may sum a polygon's parts another way, below).
 ///
 /// - A point, spot or directional light: one ray, times `I cos / d²` (or `E cos`).
-/// - A polygon light: [`polygon_irradiance`], its aperture in parts.
+/// - A polygon light: its aperture in parts (`polygon_irradiance`, below).
 /// - A sphere light: its exact unshadowed irradiance times the share of 16 stratified rays
 ///   (a 4 x 4 grid, rotated by a hash of `p`) that arrive.
 pub fn shadowed_irradiance(
