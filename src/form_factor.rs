@@ -12,7 +12,15 @@ use glam::Vec3;
 /// in a plane and are wound counter-clockwise seen from its emitting front. Parts of the polygon
 /// below the receiver's plane are clipped away. In [0, 1].
 pub fn point_to_polygon(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
-    let clipped = clip_above_plane(poly, p, n);
+    // Most receivers see the whole polygon above their plane: then the clip would give it back
+    // as it is, and it is used without the copy.
+    let clipped;
+    let clipped = if wholly_above(poly, p, n) {
+        poly
+    } else {
+        clipped = clip_above_plane(poly, p, n);
+        &clipped[..]
+    };
     if clipped.len() < 3 {
         return 0.0;
     }
@@ -38,8 +46,7 @@ pub fn point_to_polygon(p: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
 /// own plane would otherwise leave a round-off sliver whose contour integral is anything
 /// between 0 and 1, and light its own surface.
 pub fn clip_above_plane(poly: &[Vec3], p: Vec3, n: Vec3) -> Vec<Vec3> {
-    let scale = poly.iter().map(|v| (*v - p).length()).fold(0.0f32, f32::max);
-    let tol = 1e-5 * scale;
+    let tol = clip_tolerance(poly, p);
     let mut out = Vec::with_capacity(poly.len() + 1);
     for k in 0..poly.len() {
         let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
@@ -52,4 +59,18 @@ pub fn clip_above_plane(poly: &[Vec3], p: Vec3, n: Vec3) -> Vec<Vec3> {
         }
     }
     out
+}
+
+/// The height above the receiver's plane under which [`clip_above_plane`] takes a corner as
+/// on or below it: 1e-5 of the polygon's furthest corner from `p`.
+fn clip_tolerance(poly: &[Vec3], p: Vec3) -> f32 {
+    let scale = poly.iter().map(|v| (*v - p).length()).fold(0.0f32, f32::max);
+    1e-5 * scale
+}
+
+/// Whether [`clip_above_plane`] keeps every corner of `poly` and adds none (all above its
+/// tolerance): it would return the polygon as it is.
+fn wholly_above(poly: &[Vec3], p: Vec3, n: Vec3) -> bool {
+    let tol = clip_tolerance(poly, p);
+    poly.iter().all(|v| (*v - p).dot(n) - tol > 0.0)
 }

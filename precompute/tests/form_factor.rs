@@ -107,11 +107,7 @@ fn nearly_grazing_receiver() {
 #[test]
 fn receiver_in_the_light_plane_gets_the_epsilon_shift() {
     // A floor light and a wall texel at its edge, in the floor's plane.
-    let light = PolygonLight {
-        vertices: square(Vec3::new(0.5, 0.0, 0.0), 0.5, Vec3::Y),
-        normal: Vec3::Y,
-        power: Vec3::splat(2.0),
-    };
+    let light = PolygonLight::new(square(Vec3::new(0.5, 0.0, 0.0), 0.5, Vec3::Y), Vec3::Y, Vec3::splat(2.0));
     let (p, n) = (Vec3::new(-0.001, 0.0, 0.0), Vec3::X);
     assert_eq!(point_to_polygon(p, n, &light.vertices), 0.0, "in the plane the polygon has no solid angle");
     let eps = 0.01;
@@ -125,7 +121,7 @@ fn receiver_in_the_light_plane_gets_the_epsilon_shift() {
 #[test]
 fn tiny_distant_polygon_falls_back_to_a_point_light_consistently() {
     let poly = square(Vec3::new(0.0, 100.0, 0.0), 0.01, -Vec3::Y);
-    let light = PolygonLight { vertices: poly.clone(), normal: -Vec3::Y, power: Vec3::splat(5.0) };
+    let light = PolygonLight::new(poly.clone(), -Vec3::Y, Vec3::splat(5.0));
     let (p, n) = (Vec3::new(3.0, 0.0, 1.0), Vec3::Y);
     let d = light.centroid() - p;
     let dist = d.length();
@@ -133,11 +129,8 @@ fn tiny_distant_polygon_falls_back_to_a_point_light_consistently() {
     let e = light.irradiance(p, n, 1e-3).x;
     assert!((e - point).abs() <= 1e-4 * point, "fallback {e} vs point light {point}");
     // Just above the threshold the contour formula is used and agrees to O((r/d)^2).
-    let near = PolygonLight {
-        vertices: square(Vec3::new(0.0, 5.0, 0.0), 0.01, -Vec3::Y),
-        normal: -Vec3::Y,
-        power: Vec3::splat(5.0),
-    };
+    let near =
+        PolygonLight::new(square(Vec3::new(0.0, 5.0, 0.0), 0.01, -Vec3::Y), -Vec3::Y, Vec3::splat(5.0));
     let exact = near.irradiance(Vec3::ZERO, Vec3::Y, 1e-3).x;
     let point = 5.0 / (std::f32::consts::PI * 25.0);
     assert!((exact - point).abs() <= 1e-3 * point, "{exact} vs {point}");
@@ -146,11 +139,8 @@ fn tiny_distant_polygon_falls_back_to_a_point_light_consistently() {
 #[test]
 fn polygon_irradiance_is_power_over_area_times_form_factor() {
     // A large square light close above a receiver: E -> L pi = Phi / A as it fills the sky.
-    let light = PolygonLight {
-        vertices: square(Vec3::new(0.0, 0.01, 0.0), 50.0, -Vec3::Y),
-        normal: -Vec3::Y,
-        power: Vec3::splat(1e4),
-    };
+    let light =
+        PolygonLight::new(square(Vec3::new(0.0, 0.01, 0.0), 50.0, -Vec3::Y), -Vec3::Y, Vec3::splat(1e4));
     let e = light.irradiance(Vec3::ZERO, Vec3::Y, 1e-4).x;
     let full = 1e4 / light.area();
     assert!((e - full).abs() <= 1e-3 * full, "{e} vs {full}");

@@ -348,11 +348,7 @@ fn plane_polygon(members: &[Member], g: &[usize], cell: &Aabb) -> Option<Virtual
             return None;
         }
     }
-    let light = PolygonLight {
-        vertices: poly,
-        normal: n,
-        power: g.iter().fold(Vec3::ZERO, |a, &i| a + members[i].power),
-    };
+    let light = PolygonLight::new(poly, n, g.iter().fold(Vec3::ZERO, |a, &i| a + members[i].power));
     if !(light.area() > 0.0) {
         return None;
     }
@@ -450,10 +446,7 @@ fn disks(members: &[Member], rest: &[usize], k: usize, edge: f32) -> Vec<Virtual
                 centre + (u * a.cos() + v * a.sin()) * big
             })
             .collect();
-        out.push(VirtualLight {
-            polygon: PolygonLight { vertices, normal: n, power },
-            samples: samples_of(&ms),
-        });
+        out.push(VirtualLight { polygon: PolygonLight::new(vertices, n, power), samples: samples_of(&ms) });
     }
     out
 }

@@ -170,11 +170,11 @@ pub fn virtual_lights(scene: &Scene, bvh: &Bvh, lights: &[Light], p: &BakeParams
                             (v.position, v.normal)
                         }));
                         polys.push(PolygonCluster {
-                            light: PolygonLight {
-                                vertices: poly.iter().map(|v| seg.lift(*v)).collect(),
-                                normal: seg.normal,
+                            light: PolygonLight::new(
+                                poly.iter().map(|v| seg.lift(*v)).collect(),
+                                seg.normal,
                                 power,
-                            },
+                            ),
                             samples,
                         });
                     }

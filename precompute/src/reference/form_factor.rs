@@ -39,35 +39,42 @@ pub struct PolygonLight {
     pub normal: Vec3,
     /// Emitted power, W per channel.
     pub power: Vec3,
+    /// Its area, centroid and furthest vertex's distance from the centroid, made once: every
+    /// texel's evaluation needs them.
+    shape: (f32, Vec3, f32),
 }
 
 impl PolygonLight {
-    pub fn area(&self) -> f32 {
+    pub fn new(vertices: Vec<Vec3>, normal: Vec3, power: Vec3) -> PolygonLight {
         let mut s = Vec3::ZERO;
-        for k in 1..self.vertices.len().saturating_sub(1) {
-            s += (self.vertices[k] - self.vertices[0]).cross(self.vertices[k + 1] - self.vertices[0]);
+        for k in 1..vertices.len().saturating_sub(1) {
+            s += (vertices[k] - vertices[0]).cross(vertices[k + 1] - vertices[0]);
         }
-        0.5 * s.length()
+        let c = vertices.iter().fold(Vec3::ZERO, |a, b| a + *b) / vertices.len().max(1) as f32;
+        let radius = vertices.iter().map(|v| (*v - c).length()).fold(0.0f32, f32::max);
+        PolygonLight { vertices, normal, power, shape: (0.5 * s.length(), c, radius) }
+    }
+
+    pub fn area(&self) -> f32 {
+        self.shape.0
     }
 
     pub fn centroid(&self) -> Vec3 {
-        self.vertices.iter().fold(Vec3::ZERO, |a, b| a + *b) / self.vertices.len().max(1) as f32
+        self.shape.1
     }
 
     /// Irradiance at (p, n), without visibility, with the epsilon shift of receivers within
     /// `eps` of the light's plane.
     pub fn irradiance(&self, p: Vec3, n: Vec3, eps: f32) -> Vec3 {
-        let area = self.area();
+        let (area, c, radius) = self.shape;
         if !(area > 0.0) || self.vertices.len() < 3 {
             return Vec3::ZERO;
         }
-        let c = self.centroid();
         let p = epsilon_shift(p, n, c, self.normal, eps);
         let h = (p - c).dot(self.normal);
         if h <= 0.0 {
             return Vec3::ZERO; // behind the emitting face
         }
-        let radius = self.vertices.iter().map(|v| (*v - c).length()).fold(0.0f32, f32::max);
         let d = p - c;
         let dist = d.length();
         let f = if radius < POINT_FALLBACK * dist {
