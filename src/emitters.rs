@@ -47,7 +47,7 @@ pub fn emitters(scene: &Scene, keep: impl Fn(usize) -> bool) -> Vec<Emitter> {
     let glowing = |t: usize| {
         keep(t)
             && scene.material(t).emissive != Vec3::ZERO
-            && Light::polygon("", &scene.corners(t), Vec3::ONE).check().is_ok()
+            && crate::light::check_polygon(&scene.corners(t)).is_ok()
     };
     let key = |p: Vec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
     // Each glowing triangle's directed edges (counter-clockwise from its front).
@@ -101,7 +101,7 @@ pub fn emitters(scene: &Scene, keep: impl Fn(usize) -> bool) -> Vec<Emitter> {
         };
         // A polygon the bakers would refuse goes back to its triangles (each passed the check).
         let polygons = polygons.into_iter().flat_map(|(poly, members)| {
-            if Light::polygon("", &poly, Vec3::ONE).check().is_ok() {
+            if crate::light::check_polygon(&poly).is_ok() {
                 vec![(poly, members)]
             } else {
                 members.iter().map(|&t| (scene.corners(t as usize).to_vec(), vec![t])).collect()

@@ -484,7 +484,7 @@ pub fn polygon_point(corners: &[Vec3], u: [f32; 2]) -> Vec3 {
 }
 
 /// Whether `corners` make a flat, convex polygon of positive area, with a reason if not.
-fn check_polygon(corners: &[Vec3]) -> Result<(), String> {
+pub(crate) fn check_polygon(corners: &[Vec3]) -> Result<(), String> {
     if corners.len() < 3 || corners.len() > 64 {
         return Err(format!("a polygon light needs 3 to 64 corners, not {}", corners.len()));
     }

@@ -6,7 +6,7 @@ use glam::{Mat4, Vec3};
 
 use prm::light::Aperture;
 
-use super::level::{emission_of, emitters, Edit, EditError, Version};
+use super::level::{emission_of, glowing_corners, Edit, EditError, Version};
 
 /// A thing the user can pick and move.
 #[derive(Clone, Debug, PartialEq)]
@@ -53,7 +53,7 @@ pub fn picks(v: &Version, node_names: &[Option<String>]) -> Vec<Pick> {
             centre: 0.5 * (lo + hi),
         })
         .collect();
-    let glowing = emitters(&v.scene, None);
+    let glowing = glowing_corners(&v.scene, None);
     let emission = |l: &prm::Light| emission_of(l, &glowing).is_some();
     out.extend(v.lights.iter().filter(|l| !emission(&l.light)).map(|l| Pick::Light {
         id: l.id,

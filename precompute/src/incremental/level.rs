@@ -182,7 +182,10 @@ pub fn receiver_frames(scene: &Scene, texels: &TexelSet) -> Vec<(Vec3, Vec3, f32
 /// all among them is that surface's emission ([`emission_of`]). A merged light's corners are
 /// corners of its triangles ([`prm::emitters`]), so this finds it without merging again
 /// (which, on moved positions rounded anew, could drop another straight corner).
-pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::HashMap<[u32; 3], usize> {
+pub(super) fn glowing_corners(
+    scene: &Scene,
+    node: Option<u32>,
+) -> std::collections::HashMap<[u32; 3], usize> {
     let mut out = std::collections::HashMap::new();
     for t in 0..scene.triangles.len() {
         if node.is_none_or(|n| scene.triangles[t].node == n) && scene.material(t).emissive != Vec3::ZERO {
@@ -195,7 +198,7 @@ pub(super) fn emitters(scene: &Scene, node: Option<u32>) -> std::collections::Ha
 }
 
 /// The emissive triangle (one of them) whose surface `light` is the emission of, if it is one:
-/// a polygon without a profile with every corner a corner of `glowing` ([`emitters`]).
+/// a polygon without a profile with every corner a corner of `glowing` ([`glowing_corners`]).
 pub(super) fn emission_of(
     light: &Light,
     glowing: &std::collections::HashMap<[u32; 3], usize>,
@@ -293,7 +296,7 @@ impl Level {
                 changes.moved_nodes.push(*node);
                 changes.regions = vec![before, after];
                 // An emissive surface's polygon lights (`Scene::emissive_lights`) move with it.
-                let glowing = emitters(&cur.scene, Some(*node));
+                let glowing = glowing_corners(&cur.scene, Some(*node));
                 for slot in lights.iter_mut() {
                     let Some(t) = emission_of(&slot.light, &glowing) else { continue };
                     if let Aperture::Polygon { corners } = &slot.light.aperture {
