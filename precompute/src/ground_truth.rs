@@ -33,7 +33,8 @@
 //! **Area lights** (sphere and polygon apertures, [`prm::light::Aperture`]) get next-event
 //! estimation with a point y drawn uniformly by area over the whole aperture (its own
 //! warps, not the bakers'): `E = L(y) cos_x cos_y A / d² V(x, y)`, L = I / (pi r²) on a
-//! sphere, I_n / A on a polygon, zero from a sphere's far side. No light paths start on them.
+//! sphere (a spot's, times its falloff towards x from the sphere's centre), I_n / A on a
+//! polygon, zero from a sphere's far side. No light paths start on them.
 //! Emissive surfaces of the level are not lights here: paths find them (Le above), which is
 //! how the bakers' polygon lights made from them are checked independently.
 //!
@@ -219,7 +220,14 @@ impl<'a> Tracer<'a> {
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 let ny = Vec3::new(r * phi.cos(), r * phi.sin(), z);
                 let area = 4.0 * PI * radius * radius;
-                (light.position + ny * *radius, ny, light.intensity / (PI * radius * radius), area)
+                // A spot's cone by the direction from the sphere's centre to the receiver.
+                let towards = (p - light.position).normalize_or_zero();
+                (
+                    light.position + ny * *radius,
+                    ny,
+                    light.intensity_towards(towards) / (PI * radius * radius),
+                    area,
+                )
             }
             Aperture::Polygon { corners } => {
                 let tri =

@@ -4,7 +4,9 @@
 //! uniform directions; a spot light `I falloff(w) Omega / n` in uniform directions inside its
 //! outer cone (solid angle Omega); a directional light `E pi R^2 / n` from a disk of the level's
 //! bounding radius R; a sphere light `4 pi I / n` from a uniform point of its surface in a
-//! cosine direction about the normal there (a Lambertian sphere: isotropic intensity I); a
+//! cosine direction about the normal there (a Lambertian sphere: isotropic intensity I), a
+//! spot's like a point spot's, each photon from a uniform point of the sphere's disk across
+//! its direction (the sphere as seen from far along it); a
 //! polygon light `pi I_n / n` from a uniform point of it in a cosine direction; a profiled
 //! point light `I rel(w) / (n pdf(w))` in directions drawn from its profile's table, nearly
 //! equal each. Where a photon meets a front face, it leaves a VPL of its bounce with the
@@ -72,6 +74,23 @@ pub(crate) fn emit(
     let n = photons as f32;
     let at = |origin: Vec3, dir: Vec3, flux: Vec3| Emission { origin, dir, flux, surface: None };
     match (&light.aperture, light.kind) {
+        (Aperture::Sphere { radius }, LightKind::Spot { outer, .. }) => {
+            // A direction in the cone as from a point spot, leaving from a uniform point of the
+            // sphere's disk across it, moved onto the sphere's side facing it: seen from far
+            // along d, a disk of radiance I falloff(d) / (pi R²).
+            let d = cone_direction(light.direction, outer.cos(), rng.random(), rng.random());
+            let (t, b) = d.any_orthonormal_pair();
+            let (r, phi) = (radius * rng.random::<f32>().sqrt(), std::f32::consts::TAU * rng.random::<f32>());
+            let across = t * (r * phi.cos()) + b * (r * phi.sin());
+            let normal = (across + d * (radius * radius - r * r).max(0.0).sqrt()) / *radius;
+            let omega = std::f32::consts::TAU * (1.0 - outer.cos());
+            Emission {
+                origin: light.position + normal * *radius,
+                dir: d,
+                flux: light.intensity_towards(d) * (omega / n),
+                surface: Some(normal),
+            }
+        }
         (Aperture::Sphere { radius }, _) => {
             let normal = uniform_sphere(rng.random(), rng.random());
             let dir = cosine_direction(normal, rng.random(), rng.random());
@@ -95,13 +114,8 @@ pub(crate) fn emit(
             at(light.position, d, light.intensity * (4.0 * std::f32::consts::PI / n))
         }
         (Aperture::Point, LightKind::Spot { outer, .. }) => {
-            let cos_outer = outer.cos();
-            let z = 1.0 - rng.random::<f32>() * (1.0 - cos_outer);
-            let phi = std::f32::consts::TAU * rng.random::<f32>();
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            let (t, b) = light.direction.any_orthonormal_pair();
-            let d = (t * (r * phi.cos()) + b * (r * phi.sin()) + light.direction * z).normalize();
-            let omega = std::f32::consts::TAU * (1.0 - cos_outer);
+            let d = cone_direction(light.direction, outer.cos(), rng.random(), rng.random());
+            let omega = std::f32::consts::TAU * (1.0 - outer.cos());
             at(light.position, d, light.intensity_towards(d) * (omega / n))
         }
         (Aperture::Point, LightKind::Directional) => {
@@ -117,6 +131,15 @@ pub(crate) fn emit(
             at(origin, light.direction, light.intensity * (std::f32::consts::PI * radius * radius / n))
         }
     }
+}
+
+/// A direction uniform in the cone of half-angle cosine `cos_outer` about unit `axis`.
+fn cone_direction(axis: Vec3, cos_outer: f32, u1: f32, u2: f32) -> Vec3 {
+    let z = 1.0 - u1 * (1.0 - cos_outer);
+    let phi = std::f32::consts::TAU * u2;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let (t, b) = axis.any_orthonormal_pair();
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + axis * z).normalize()
 }
 
 fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
