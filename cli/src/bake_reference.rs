@@ -8,7 +8,8 @@ use anyhow::{anyhow, Context, Result};
 use glam::Vec3;
 use prm::exr_io::Channels;
 use prm::{Bvh, TexelSet};
-use prm_precompute::reference::bake::{evaluate, to_obj, virtual_lights, BakeParams};
+use prm_precompute::reference::bake::{evaluate, to_obj, virtual_lights_of_sources, BakeParams};
+use prm_precompute::reference::vpl::emissive_sources;
 
 use crate::common::{cancel_flag, progress_bar, AtlasArgs, RigArgs, SceneArgs};
 
@@ -22,7 +23,7 @@ pub struct Args {
     /// layers direct.*, indirect.*, and mask.
     #[arg(short, long)]
     output: PathBuf,
-    /// Photons (VPL paths) per light.
+    /// Photons (VPL paths) per light, and per glowing mesh (its polygon lights share them by flux).
     #[arg(long, default_value_t = 40_000)]
     vpls: usize,
     /// Bounces traced (the light left beyond the last is reported).
@@ -64,13 +65,15 @@ pub fn run(a: Args) -> Result<()> {
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let start = Instant::now();
     scene.lights = a.rig.lights(&scene)?;
-    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
-    let glow = scene.emissive_lights();
-    scene.lights.extend(glow);
+    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself),
+    // each glowing mesh's lights one photon source.
+    let glow = prm::emitters::emitters(&scene, |_| true);
+    let sources = emissive_sources(&scene, scene.lights.len(), &glow);
+    scene.lights.extend(glow.into_iter().map(|e| e.light));
     let bvh = Bvh::build(&scene);
     let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let t = Instant::now();
-    let vl = virtual_lights(&scene, &bvh, &scene.lights, &p);
+    let vl = virtual_lights_of_sources(&scene, &bvh, &scene.lights, &sources, &p);
     let lights_s = t.elapsed().as_secs_f64();
     let bar = progress_bar(set.len() as u64, "texels");
     if a.json {
@@ -109,6 +112,7 @@ pub fn run(a: Args) -> Result<()> {
         "scene": a.scene.scene.display().to_string(),
         "output": a.output.display().to_string(),
         "vpls": vl.vpl_count,
+        "photon_sources": sources.len(),
         "polygon_lights": vl.polygons.len(),
         "sphere_lights": vl.spheres.len(),
         "vpl_power": vl.vpl_power.to_array(),

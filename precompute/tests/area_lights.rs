@@ -437,6 +437,88 @@ fn a_soft_spot_is_the_same_light_in_the_bakers_and_the_ground_truth() {
     assert!((landed - want).abs() <= 0.01 * want, "landed {landed} W vs {want} W");
 }
 
+/// A glowing mesh that merging cannot make one light (four tilted facets of one node and
+/// material, a metre and more apart) is one photon source: its polygon lights share one light's photons by flux
+/// ([`prm_precompute::reference::vpl::trace_sources`]). A second material's facet is a source
+/// of its own. 200k photons a source: each source emits its lights' flux (1e-3), the photons
+/// that land on the floor carry the lights' direct light integrated over it (400² cells, no
+/// occluder between them) to 1 %, and a source leaves one VPL a photon at the first bounce, not
+/// one a photon and light.
+#[test]
+fn a_glowing_mesh_shares_one_light_s_photons_by_flux() {
+    use prm_precompute::reference::vpl::{emissive_sources, trace_sources};
+    let mut scene = quads(&[[v(-4., 0., -4.), v(-4., 0., 4.), v(4., 0., 4.), v(4., 0., -4.)]], 0.5);
+    scene.lights.clear();
+    let add_material = |scene: &mut Scene, emissive: f32| {
+        scene.materials.push(prm::Material {
+            name: format!("glow {emissive}"),
+            albedo: Vec3::ZERO,
+            emissive: Vec3::splat(emissive),
+            ..Default::default()
+        });
+        scene.materials.len() as u32 - 1
+    };
+    let (warm, cold) = (add_material(&mut scene, 3.0), add_material(&mut scene, 1.0));
+    // Facets facing down, tilted about z, at x = -1.5 .. 1.5, of different sizes: counter-
+    // clockwise seen from below.
+    let facet = |x: f32, z: f32, tilt: f32, half: f32| -> [Vec3; 4] {
+        let (c, s) = (tilt.cos(), tilt.sin());
+        let at = |u: f32, w: f32| v(x + u * c, 0.8 + u * s, z + w);
+        [at(-half, -half), at(half, -half), at(half, half), at(-half, half)]
+    };
+    // Two metres apart, tilted 0.4 rad at most: none lights another.
+    let facets = [
+        (facet(-3.0, 0.0, 0.3, 0.2), warm),
+        (facet(-1.0, 0.0, -0.2, 0.3), warm),
+        (facet(1.0, 0.0, 0.4, 0.15), warm),
+        (facet(3.0, 0.0, -0.4, 0.25), warm),
+        (facet(0.0, 2.5, 0.0, 0.2), cold),
+    ];
+    for (corners, material) in facets {
+        let n = scene.positions.len() as u32;
+        let normal = (corners[1] - corners[0]).cross(corners[2] - corners[0]).normalize();
+        assert!(normal.y < 0.0, "the facet faces down");
+        scene.positions.extend_from_slice(&corners);
+        scene.normals.extend_from_slice(&[normal; 4]);
+        scene.uv1.extend_from_slice(&[glam::Vec2::splat(0.9); 4]);
+        scene.uv_albedo.extend_from_slice(&[glam::Vec2::ZERO; 4]);
+        for tri in [[n, n + 1, n + 2], [n, n + 2, n + 3]] {
+            let index = scene.triangles.len() as u32;
+            scene.triangles.push(prm::Triangle { v: tri, material, index, ..scene.triangles[0] });
+        }
+    }
+    let glow = prm::emitters::emitters(&scene, |_| true);
+    assert_eq!(glow.len(), 5, "no two facets merge");
+    let sources = emissive_sources(&scene, 0, &glow);
+    assert_eq!(sources, vec![vec![0, 1, 2, 3], vec![4]], "one source a node and material");
+    let lights: Vec<Light> = glow.into_iter().map(|e| e.light).collect();
+    let bvh = Bvh::build(&scene);
+    let photons = 200_000;
+    let (vpls, budgets) = trace_sources(&scene, &bvh, &lights, &sources, photons, 1, 7);
+    assert_eq!(budgets.len(), 2);
+    for (k, source) in sources.iter().enumerate() {
+        let flux: f32 = source.iter().map(|&l| lights[l as usize].flux().x).sum();
+        let got = budgets[k].emitted.x;
+        assert!((got - flux).abs() <= 1e-3 * flux, "source {k} emitted {got} W of {flux} W");
+        let from = vpls.iter().filter(|p| p.light == source[0]).count();
+        assert!(from <= photons, "source {k}: {from} VPLs from {photons} photons");
+    }
+    let landed: f64 = vpls.iter().filter(|p| p.position.y.abs() < 1e-4).map(|p| p.incident.x as f64).sum();
+    let n = 400;
+    let cell = 8.0 / n as f64;
+    let mut want = 0.0;
+    for i in 0..n {
+        for k in 0..n {
+            let p = v((-4.0 + (i as f64 + 0.5) * cell) as f32, 0.0, (-4.0 + (k as f64 + 0.5) * cell) as f32);
+            want += lights.iter().map(|l| l.irradiance(p, Vec3::Y).x as f64).sum::<f64>() * cell * cell;
+        }
+    }
+    eprintln!(
+        "glowing mesh photons: landed {landed:.4} W, the lights' direct light over the floor {want:.4} W"
+    );
+    assert!((landed - want).abs() <= 0.01 * want, "landed {landed} W vs {want} W");
+}
+
 /// The photons of a polygon light carry pi I_n in all, and those that land on the floor
 /// carry the irradiance integrated over it (numerically, 400² cells of the analytic answer),
 /// to 1 % (200k photons: 0.1 % noise).

@@ -1,7 +1,9 @@
 //! The reference bake: virtual polygon and sphere lights for one fixed light setup, evaluated
 //! at every texel (paper 000 §5-§6, DESIGN.md §6).
 //!
-//! Per real light and per bounce, separately (paper §7.1: bounces differ in spatial frequency):
+//! Per real light (or photon source: an emissive mesh's polygon lights share one,
+//! [`super::vpl::PhotonSource`]) and per bounce, separately (paper §7.1: bounces differ in
+//! spatial frequency):
 //! the VPLs are split into planar segments (RANSAC) and the rest; planar segments are clustered
 //! with a 2D kd-tree and each cluster becomes a polygon light; the rest a 3D kd-tree and sphere
 //! lights. A virtual light's power is the sum of its VPLs' power, exactly.
@@ -27,7 +29,7 @@ use super::form_factor::{PolygonLight, SphereLight};
 use super::kdtree::cluster;
 use super::planes::detect_planes;
 use super::polygon::light_polygon;
-use super::vpl::{trace_photons, PhotonBudget, Vpl};
+use super::vpl::{one_source_per_light, trace_sources, PhotonBudget, PhotonSource, Vpl};
 use crate::parallel::{par_texels, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
 use prm::sampling::stream;
@@ -119,27 +121,37 @@ pub struct VirtualLights {
     pub budgets: Vec<PhotonBudget>,
 }
 
-/// Photons, VPLs and virtual lights for `lights`.
+/// Photons, VPLs and virtual lights for `lights`, each light its own photon source.
 pub fn virtual_lights(scene: &Scene, bvh: &Bvh, lights: &[Light], p: &BakeParams) -> VirtualLights {
-    let (vpls, budgets) = trace_photons(scene, bvh, lights, p.photons, p.bounces, p.seed);
+    virtual_lights_of_sources(scene, bvh, lights, &one_source_per_light(lights.len()), p)
+}
+
+/// Photons, VPLs and virtual lights for `lights` shooting from `sources`
+/// ([`super::vpl::trace_sources`]): `p.photons` a source, and a source's VPLs clustered
+/// together.
+pub fn virtual_lights_of_sources(
+    scene: &Scene,
+    bvh: &Bvh,
+    lights: &[Light],
+    sources: &[PhotonSource],
+    p: &BakeParams,
+) -> VirtualLights {
+    let (vpls, budgets) = trace_sources(scene, bvh, lights, sources, p.photons, p.bounces, p.seed);
     let mut out = VirtualLights { vpl_count: vpls.len(), budgets, ..Default::default() };
     out.vpl_power = vpls.iter().fold(Vec3::ZERO, |a, v| a + v.power);
     let delta = 1e-4 * scene.diagonal().max(1e-30);
     let positions: Vec<Vec3> = vpls.iter().map(|v| v.position).collect();
     let normals: Vec<Vec3> = vpls.iter().map(|v| v.normal).collect();
-    // Groups of one light and one bounce, in order.
+    // Groups of one source and one bounce, in the order they first appear.
     let mut groups: Vec<((u32, u32), Vec<u32>)> = Vec::new();
+    let mut group_of: std::collections::HashMap<(u32, u32), usize> = std::collections::HashMap::new();
     for (i, v) in vpls.iter().enumerate() {
-        match groups.last_mut() {
-            Some((k, m)) if *k == (v.light, v.bounce) => m.push(i as u32),
-            _ => {
-                if let Some(g) = groups.iter_mut().find(|(k, _)| *k == (v.light, v.bounce)) {
-                    g.1.push(i as u32);
-                } else {
-                    groups.push(((v.light, v.bounce), vec![i as u32]));
-                }
-            }
-        }
+        let key = (v.light, v.bounce);
+        let g = *group_of.entry(key).or_insert_with(|| {
+            groups.push((key, Vec::new()));
+            groups.len() - 1
+        });
+        groups[g].1.push(i as u32);
     }
     let per_group: Vec<(Vec<PolygonCluster>, Vec<SphereCluster>)> = groups
         .par_iter()

@@ -33,6 +33,7 @@ pub struct Vpl {
     pub incident: Vec3,
     /// Flux re-emitted (incident x albedo), W per channel.
     pub power: Vec3,
+    /// The light it came from (the first light of its [`PhotonSource`]).
     pub light: u32,
     /// 1 for a photon's first hit.
     pub bounce: u32,
@@ -149,6 +150,41 @@ fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
     Vec3::new(r * phi.cos(), r * phi.sin(), z)
 }
 
+/// Lights that share one light's photons, by index into the lights; each photon picks one of
+/// them in proportion to its flux. A glTF light is a source of its own; an emissive mesh's
+/// polygon lights, which merging cannot make one (a curved shade, a tessellated sign), are one
+/// source, so a glowing mesh costs one light's photons, not one light's per polygon.
+pub type PhotonSource = Vec<u32>;
+
+/// Every light its own source.
+pub fn one_source_per_light(lights: usize) -> Vec<PhotonSource> {
+    (0..lights as u32).map(|l| vec![l]).collect()
+}
+
+/// The sources of a level's lights: the first `own` (its glTF lights) one each, then `glow`
+/// (`prm::emitters::emitters`, whose lights follow them in that order) one source per glTF
+/// node and material, in the order each first appears.
+pub fn emissive_sources(scene: &Scene, own: usize, glow: &[prm::emitters::Emitter]) -> Vec<PhotonSource> {
+    let mut sources = one_source_per_light(own);
+    let mut by_mesh: std::collections::HashMap<(u32, u32), usize> = std::collections::HashMap::new();
+    for (k, e) in glow.iter().enumerate() {
+        let light = (own + k) as u32;
+        let Some(&t) = e.triangles.first() else {
+            sources.push(vec![light]);
+            continue;
+        };
+        let tri = &scene.triangles[t as usize];
+        match by_mesh.entry((tri.node, tri.material)) {
+            std::collections::hash_map::Entry::Occupied(at) => sources[*at.get()].push(light),
+            std::collections::hash_map::Entry::Vacant(at) => {
+                at.insert(sources.len());
+                sources.push(vec![light]);
+            }
+        }
+    }
+    sources
+}
+
 /// Trace `photons` photons from each light for `bounces` bounces. VPLs come out grouped by
 /// light, then photon, then bounce; the budget is per light.
 pub fn trace_photons(
@@ -159,17 +195,62 @@ pub fn trace_photons(
     bounces: u32,
     seed: u64,
 ) -> (Vec<Vpl>, Vec<PhotonBudget>) {
+    trace_sources(scene, bvh, lights, &one_source_per_light(lights.len()), photons, bounces, seed)
+}
+
+/// Trace `photons` photons from each source for `bounces` bounces. A source of several lights
+/// picks each photon's light by flux, stratified over the photons (photon k at `(k + u) / n` of
+/// the flux's running sum), and divides its flux by that light's probability: unbiased, and
+/// every photon of a source carries about the same flux. A VPL's `light` is its source's first
+/// light; VPLs come out grouped by source, then photon, then bounce, and the budget is per
+/// source. A source of one light draws nothing for the pick, so it traces what
+/// [`trace_photons`] does.
+pub fn trace_sources(
+    scene: &Scene,
+    bvh: &Bvh,
+    lights: &[Light],
+    sources: &[PhotonSource],
+    photons: usize,
+    bounces: u32,
+    seed: u64,
+) -> (Vec<Vpl>, Vec<PhotonBudget>) {
     let mut all = Vec::new();
     let mut budgets = Vec::new();
-    for (li, light) in lights.iter().enumerate() {
+    let weight = |l: &Light| {
+        let f = l.flux().as_dvec3();
+        if f.is_finite() {
+            (f.x + f.y + f.z).max(0.0)
+        } else {
+            0.0
+        }
+    };
+    for source in sources {
+        let first = source[0];
+        // Running sums of the source's flux, for the pick.
+        let running: Vec<f64> = source
+            .iter()
+            .scan(0.0, |sum, &l| {
+                *sum += weight(&lights[l as usize]);
+                Some(*sum)
+            })
+            .collect();
+        let total = running.last().copied().unwrap_or(0.0);
         let per_photon: Vec<(Vec<Vpl>, PhotonBudget)> = (0..photons)
             .into_par_iter()
             .map(|k| {
-                let mut rng = stream(seed, 10 + li as u64, k as u64);
+                let mut rng = stream(seed, 10 + first as u64, k as u64);
+                let (light, prob) = if source.len() == 1 || !(total > 0.0) {
+                    (&lights[first as usize], 1.0)
+                } else {
+                    let at = (k as f64 + rng.random::<f64>()) / photons as f64 * total;
+                    let i = running.partition_point(|&r| r <= at).min(source.len() - 1);
+                    let below = if i == 0 { 0.0 } else { running[i - 1] };
+                    (&lights[source[i] as usize], ((running[i] - below) / total) as f32)
+                };
                 let mut budget = PhotonBudget::default();
                 let mut out = Vec::new();
                 let e = emit(light, scene.bounds(), photons, k, &mut rng);
-                let (mut origin, mut dir, mut flux) = (e.origin, e.dir, e.flux);
+                let (mut origin, mut dir, mut flux) = (e.origin, e.dir, e.flux / prob);
                 budget.emitted = flux;
                 let mut from_surface: Option<Vec3> = e.surface;
                 for bounce in 1..=bounces {
@@ -196,7 +277,7 @@ pub fn trace_photons(
                     }
                     let y = scene.point(t, hit.bary());
                     let power = flux * scene.albedo(t, hit.bary());
-                    out.push(Vpl { position: y, normal: n, incident: flux, power, light: li as u32, bounce });
+                    out.push(Vpl { position: y, normal: n, incident: flux, power, light: first, bounce });
                     if bounce == bounces {
                         budget.beyond_last_bounce = power;
                         break;
@@ -212,15 +293,22 @@ pub fn trace_photons(
                 (out, budget)
             })
             .collect();
-        let mut b = PhotonBudget::default();
+        // Summed in f64: 200,000 photons' flux in f32 drifts by 1e-3.
+        let mut b = [glam::DVec3::ZERO; 4];
         for (v, pb) in per_photon {
             all.extend(v);
-            b.emitted += pb.emitted;
-            b.escaped += pb.escaped;
-            b.absorbed_by_backs += pb.absorbed_by_backs;
-            b.beyond_last_bounce += pb.beyond_last_bounce;
+            for (sum, x) in
+                b.iter_mut().zip([pb.emitted, pb.escaped, pb.absorbed_by_backs, pb.beyond_last_bounce])
+            {
+                *sum += x.as_dvec3();
+            }
         }
-        budgets.push(b);
+        budgets.push(PhotonBudget {
+            emitted: b[0].as_vec3(),
+            escaped: b[1].as_vec3(),
+            absorbed_by_backs: b[2].as_vec3(),
+            beyond_last_bounce: b[3].as_vec3(),
+        });
     }
     (all, budgets)
 }
