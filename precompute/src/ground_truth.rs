@@ -31,10 +31,11 @@
 //! gathered only.
 //!
 //! **Area lights** (sphere and polygon apertures, [`prm::light::Aperture`]) get next-event
-//! estimation with a point y drawn uniformly by area over the whole aperture (its own
-//! warps, not the bakers'): `E = L(y) cos_x cos_y A / d² V(x, y)`, L = I / (pi r²) on a
-//! sphere (a spot's, times its falloff towards x from the sphere's centre), I_n / A on a
-//! polygon, zero from a sphere's far side. No light paths start on them.
+//! estimation (its own warps, not the bakers'). A polygon: a point y drawn uniformly by area,
+//! `E = L(y) cos_x cos_y A / d² V(x, y)`, L = I_n / A. A sphere seen from outside: a direction
+//! uniform in the cone it fills, to its near side, `E = L cos_x Omega V`; from inside, a point of
+//! its whole surface by area, zero from its far side. L = I / (pi r²) on a sphere (a spot's,
+//! times its falloff towards x from the sphere's centre). No light paths start on them.
 //! Emissive surfaces of the level are not lights here: paths find them (Le above), which is
 //! how the bakers' polygon lights made from them are checked independently.
 //!
@@ -212,6 +213,11 @@ impl<'a> Tracer<'a> {
     }
 
     fn area_one(&self, light: &Light, p: Vec3, n: Vec3, rng: &mut Pcg64Mcg) -> Vec3 {
+        if let Aperture::Sphere { radius } = light.aperture {
+            if let Some(e) = self.sphere_cone(light, radius, p, n, rng) {
+                return e;
+            }
+        }
         let (y, ny, radiance, area) = match &light.aperture {
             Aperture::Sphere { radius } => {
                 // Uniform on the sphere: z uniform in [-1, 1] (Archimedes).
@@ -269,6 +275,43 @@ impl<'a> Tracer<'a> {
         }
         let window = light.range.map_or(1.0, |r| prm::light::range_window(d, r));
         radiance * (cos_x * cos_y * area / d2 * window)
+    }
+
+    /// One sample of a sphere light's irradiance at `p` (normal `n`) from outside it: a
+    /// direction uniform in the cone the sphere fills seen from `p` (solid angle
+    /// `2 pi (1 - cos_max)`, `sin_max = R / d`), to the sphere's near side, `E = L cos_x Omega
+    /// V`. Every sample lands on the sphere, where uniform points of its whole surface put
+    /// half of them on its far side. None from on or inside the sphere.
+    fn sphere_cone(&self, light: &Light, radius: f32, p: Vec3, n: Vec3, rng: &mut Pcg64Mcg) -> Option<Vec3> {
+        let to_centre = light.position - p;
+        let (d2, r2) = (to_centre.length_squared(), radius * radius);
+        if !(d2 > 1.0002 * r2) {
+            return None;
+        }
+        let d = d2.sqrt();
+        let w = to_centre / d;
+        // 1 - cos_max without cancellation for a small, far sphere.
+        let sin2 = r2 / d2;
+        let one_minus_cos = sin2 / (1.0 + (1.0 - sin2).sqrt());
+        let z = 1.0 - rng.random::<f32>() * one_minus_cos;
+        let phi = 2.0 * PI * rng.random::<f32>();
+        let s = (1.0 - z * z).max(0.0).sqrt();
+        let (t, b) = w.any_orthonormal_pair();
+        let dir = t * (s * phi.cos()) + b * (s * phi.sin()) + w * z;
+        let cos_x = n.dot(dir);
+        if cos_x <= 0.0 {
+            return Some(Vec3::ZERO);
+        }
+        // The ray's first meeting with the sphere.
+        let along = d * z - (r2 - d2 * (1.0 - z * z)).max(0.0).sqrt();
+        let y = p + dir * along;
+        self.stats.rays.fetch_add(1, Ordering::Relaxed);
+        if !self.bvh.visible_point(p, n, y) {
+            return Some(Vec3::ZERO);
+        }
+        let radiance = light.intensity_towards(-w) / (PI * r2);
+        let window = light.range.map_or(1.0, |r| prm::light::range_window(along, r));
+        Some(radiance * (cos_x * 2.0 * PI * one_minus_cos * window))
     }
 
     /// Irradiance from one punctual light at `p` (normal `n`), with a shadow ray.
