@@ -435,13 +435,14 @@ fn weighed_form_factor(weights: &[f32], part: impl Fn(usize) -> f32, whole: impl
 /// receiver that sees the whole sphere above its plane uses [`crate::light::unit_silhouette`]'s
 /// 16 parts mapped onto the disk, and gets the parts' share of the polygon's form factor times
 /// the exact `I cos / d²`; one whose plane cuts the sphere splits the disk's side above its
-/// plane into 16 parts of its own, and gets their `L pi F`. Without occluders this is
+/// plane into parts of its own (up to 16), and gets their `L pi F`. Without occluders this is
 /// [`crate::Light::irradiance`]. In a penumbra a ray carries its part's light, not a sixteenth
 /// of the whole (a kerb hiding a low bulb's lower half from the floor beyond: -30 % before,
-/// within 1.3 % now; tested). The rays sample their parts by area, not by form factor, so
+/// within 1.3 % now; tested). Each ray ends where it meets the sphere's near side. The rays sample their parts by area, not by form factor, so
 /// the few parts that a shadow edge crosses near the horizon count their blocked side a
 /// little more than its light (-1 to -3 % over such a penumbra, measured). From on or inside
-/// the sphere: one ray, to its centre.
+/// the sphere: one ray, to its centre, times [`crate::Light::irradiance`] there (the ground
+/// truth, which meets the sphere's surface from outside only, gives nothing there).
 fn sphere_irradiance(
     l: &crate::Light,
     radius: f32,
@@ -449,7 +450,9 @@ fn sphere_irradiance(
     n: Vec3,
     mut visible: impl FnMut(ShadowTarget) -> f32,
 ) -> Vec3 {
-    let Some(disk) = crate::light::Silhouette::new(l.position, radius, p) else {
+    // Everything relative to the receiver: a small bulb far from the origin keeps its shape.
+    let centre = l.position - p;
+    let Some(disk) = crate::light::Silhouette::new(centre, radius, Vec3::ZERO) else {
         return match l.irradiance(p, n) {
             e if e == Vec3::ZERO => e,
             e => e * visible(ShadowTarget::Point(l.position)),
@@ -461,11 +464,11 @@ fn sphere_irradiance(
         return Vec3::ZERO;
     }
     // Where the receiver's plane cuts the sphere, the parts are those of the silhouette's side
-    // above the plane (made for this receiver), so that all 16 rays go where light comes from.
+    // above the plane (made for this receiver), so that every ray goes where light comes from.
     let cut = cos < sin;
     let (_, unit_parts) = crate::light::unit_silhouette();
     let parts: Vec<Vec<Vec3>> = if cut {
-        let lit = crate::form_factor::clip_above_plane(&disk.corners(), p, n);
+        let lit = crate::form_factor::clip_above_plane(&disk.corners(), Vec3::ZERO, n);
         if lit.len() < 3 {
             return Vec3::ZERO;
         }
@@ -489,20 +492,35 @@ fn sphere_irradiance(
         } else {
             disk.at(crate::light::polygon_point(&unit_parts[k], u))
         };
-        *w = visible(ShadowTarget::Point(q));
+        // The disk lies inside the sphere: the ray ends where it meets the sphere's near
+        // side, as light leaves it (geometry inside the ball does not shadow).
+        let dir = q.normalize_or_zero();
+        let b = dir.dot(centre);
+        let along = b - (b * b - (centre.length_squared() - radius * radius)).max(0.0).sqrt();
+        *w = visible(ShadowTarget::Point(p + dir * along));
     }
     let weights = &weights[..count];
-    if weights.iter().all(|w| *w == 0.0) {
+    // Every ray weighed alike (all arrive, none, or all changed the same way): the whole
+    // light times that weight, exactly.
+    let same = weights.iter().all(|w| *w == weights[0]).then_some(weights[0]);
+    if same == Some(0.0) {
         return Vec3::ZERO;
     }
-    if !cut && weights.iter().all(|w| *w == 1.0) {
-        return inc.irradiance * cos;
+    if let (false, Some(w)) = (cut, same) {
+        return inc.irradiance * (cos * w);
     }
-    let whole = crate::form_factor::point_to_polygon(p, n, &disk.corners());
+    let whole = crate::form_factor::point_to_polygon(Vec3::ZERO, n, &disk.corners());
     if !(whole > 0.0) {
         return Vec3::ZERO;
     }
-    let f = weighed_form_factor(weights, |k| crate::form_factor::point_to_polygon(p, n, &part(k)), || whole);
+    let f = match same {
+        Some(w) => w * whole,
+        None => weighed_form_factor(
+            weights,
+            |k| crate::form_factor::point_to_polygon(Vec3::ZERO, n, &part(k)),
+            || whole,
+        ),
+    };
     if cut {
         inc.irradiance * (f / (sin * sin))
     } else {

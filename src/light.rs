@@ -245,9 +245,10 @@ impl Light {
             let sin = radius / inc.distance;
             if cos.abs() < sin {
                 // The receiver's plane cuts the sphere: the share of its cap above the plane.
-                if let Some(s) = Silhouette::new(self.position, radius, p) {
-                    return inc.irradiance
-                        * (crate::form_factor::point_to_polygon(p, n, &s.corners()) / (sin * sin));
+                // Relative to the receiver: a small bulb far from the origin keeps its shape.
+                if let Some(s) = Silhouette::new(self.position - p, radius, Vec3::ZERO) {
+                    let f = crate::form_factor::point_to_polygon(Vec3::ZERO, n, &s.corners());
+                    return inc.irradiance * (f / (sin * sin));
                 }
             }
         }

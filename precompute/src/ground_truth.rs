@@ -293,9 +293,11 @@ impl<'a> Tracer<'a> {
         // 1 - cos_max without cancellation for a small, far sphere.
         let sin2 = r2 / d2;
         let one_minus_cos = sin2 / (1.0 + (1.0 - sin2).sqrt());
-        let z = 1.0 - rng.random::<f32>() * one_minus_cos;
+        // 1 - z kept apart, so that the cone of a small, far sphere keeps its width in f32.
+        let v = rng.random::<f32>() * one_minus_cos;
+        let z = 1.0 - v;
         let phi = 2.0 * PI * rng.random::<f32>();
-        let s = (1.0 - z * z).max(0.0).sqrt();
+        let s = (v * (2.0 - v)).max(0.0).sqrt();
         let (t, b) = w.any_orthonormal_pair();
         let dir = t * (s * phi.cos()) + b * (s * phi.sin()) + w * z;
         let cos_x = n.dot(dir);
@@ -303,7 +305,7 @@ impl<'a> Tracer<'a> {
             return Some(Vec3::ZERO);
         }
         // The ray's first meeting with the sphere.
-        let along = d * z - (r2 - d2 * (1.0 - z * z)).max(0.0).sqrt();
+        let along = d * z - (r2 - d2 * (s * s)).max(0.0).sqrt();
         let y = p + dir * along;
         self.stats.rays.fetch_add(1, Ordering::Relaxed);
         if !self.bvh.visible_point(p, n, y) {

@@ -60,7 +60,8 @@ pub fn light_flux(light: &LightSlot, bounds: (Vec3, Vec3)) -> Vec3 {
     let mut rng = stream(0, 0, 0);
     // A spot's photon flux depends on its direction (the falloff); its axis is the most.
     match light.light.kind {
-        prm::LightKind::Spot { outer, .. } if light.light.is_punctual() => {
+        // With a radius too: its photons leave in the cone as a point spot's do.
+        prm::LightKind::Spot { outer, .. } if light.light.profile.is_none() => {
             light.light.intensity * (std::f32::consts::TAU * (1.0 - outer.cos()))
         }
         prm::LightKind::Directional => emit(&light.light, bounds, 1, 0, &mut rng).flux,

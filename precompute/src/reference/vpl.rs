@@ -151,7 +151,7 @@ fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
 }
 
 /// Lights that share one light's photons, by index into the lights; each photon picks one of
-/// them in proportion to its flux. A glTF light is a source of its own; an emissive mesh's
+/// them in proportion to its flux. A glTF light is a source of its own; a glowing mesh's
 /// polygon lights, which merging cannot make one (a curved shade, a tessellated sign), are one
 /// source, so a glowing mesh costs one light's photons, not one light's per polygon.
 pub type PhotonSource = Vec<u32>;
@@ -162,22 +162,43 @@ pub fn one_source_per_light(lights: usize) -> Vec<PhotonSource> {
 }
 
 /// The sources of a level's lights: the first `own` (its glTF lights) one each, then `glow`
-/// (`prm::emitters::emitters`, whose lights follow them in that order) one source per glTF
-/// node and material, in the order each first appears.
+/// (`prm::emitters::emitters`, whose lights follow them in that order) one source per glowing
+/// mesh: emitters of one glTF node and material joined by a shared corner, in the order each
+/// mesh first appears. Fifty lamps of one node and material that do not touch are fifty
+/// sources.
 pub fn emissive_sources(scene: &Scene, own: usize, glow: &[prm::emitters::Emitter]) -> Vec<PhotonSource> {
-    let mut sources = one_source_per_light(own);
-    let mut by_mesh: std::collections::HashMap<(u32, u32), usize> = std::collections::HashMap::new();
+    // Union-find over the emitters, joined where their triangles share a corner.
+    let mut parent: Vec<usize> = (0..glow.len()).collect();
+    fn root(parent: &mut [usize], mut k: usize) -> usize {
+        while parent[k] != k {
+            parent[k] = parent[parent[k]];
+            k = parent[k];
+        }
+        k
+    }
+    let mut first_at: std::collections::HashMap<(u32, u32, [u32; 3]), usize> =
+        std::collections::HashMap::new();
     for (k, e) in glow.iter().enumerate() {
+        for &t in &e.triangles {
+            let tri = &scene.triangles[t as usize];
+            for c in scene.corners(t as usize) {
+                let key = (tri.node, tri.material, [c.x.to_bits(), c.y.to_bits(), c.z.to_bits()]);
+                let other = *first_at.entry(key).or_insert(k);
+                let (a, b) = (root(&mut parent, k), root(&mut parent, other));
+                // The earlier emitter stays the root: sources keep their first appearance.
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+    }
+    let mut sources = one_source_per_light(own);
+    let mut source_of: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
+    for k in 0..glow.len() {
         let light = (own + k) as u32;
-        let Some(&t) = e.triangles.first() else {
-            sources.push(vec![light]);
-            continue;
-        };
-        let tri = &scene.triangles[t as usize];
-        match by_mesh.entry((tri.node, tri.material)) {
-            std::collections::hash_map::Entry::Occupied(at) => sources[*at.get()].push(light),
-            std::collections::hash_map::Entry::Vacant(at) => {
-                at.insert(sources.len());
+        let r = root(&mut parent, k);
+        match source_of.get(&r) {
+            Some(&s) => sources[s].push(light),
+            None => {
+                source_of.insert(r, sources.len());
                 sources.push(vec![light]);
             }
         }
@@ -203,8 +224,8 @@ pub fn trace_photons(
 /// the flux's running sum), and divides its flux by that light's probability: unbiased, and
 /// every photon of a source carries about the same flux. A VPL's `light` is its source's first
 /// light; VPLs come out grouped by source, then photon, then bounce, and the budget is per
-/// source. A source of one light draws nothing for the pick, so it traces what
-/// [`trace_photons`] does.
+/// source (an empty source has none). A source of one light draws nothing for the pick, so it
+/// traces what [`trace_photons`] does.
 pub fn trace_sources(
     scene: &Scene,
     bvh: &Bvh,
@@ -224,7 +245,7 @@ pub fn trace_sources(
             0.0
         }
     };
-    for source in sources {
+    for source in sources.iter().filter(|s| !s.is_empty()) {
         let first = source[0];
         // Running sums of the source's flux, for the pick.
         let running: Vec<f64> = source
@@ -242,7 +263,9 @@ pub fn trace_sources(
                 let (light, prob) = if source.len() == 1 || !(total > 0.0) {
                     (&lights[first as usize], 1.0)
                 } else {
-                    let at = (k as f64 + rng.random::<f64>()) / photons as f64 * total;
+                    // Below the total: the pick never lands past the last light with flux.
+                    let at = ((k as f64 + rng.random::<f64>()) / photons as f64 * total)
+                        .min(total * (1.0 - f64::EPSILON));
                     let i = running.partition_point(|&r| r <= at).min(source.len() - 1);
                     let below = if i == 0 { 0.0 } else { running[i - 1] };
                     (&lights[source[i] as usize], ((running[i] - below) / total) as f32)
