@@ -31,6 +31,33 @@ fn rect_form_factor(x0: f64, x1: f64, z0: f64, z1: f64, h: f64) -> f64 {
     corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0)
 }
 
+/// The integral of `f(x, z)` (W/m²) over the floor square [-half, half]², by the midpoint rule
+/// on 400² cells.
+fn over_floor(half: f64, f: impl Fn(f32, f32) -> f64) -> f64 {
+    let n = 400;
+    let cell = 2.0 * half / n as f64;
+    let mut sum = 0.0;
+    for i in 0..n {
+        for k in 0..n {
+            let (x, z) = (-half + (i as f64 + 0.5) * cell, -half + (k as f64 + 0.5) * cell);
+            sum += f(x as f32, z as f32) * cell * cell;
+        }
+    }
+    sum
+}
+
+/// The estimate before the split: the unshadowed light `e` times the share of a 4 x 4 grid of
+/// rays (`arrives(u)`, u in the unit square) that arrive.
+fn equal_shares(e: f64, arrives: impl Fn([f32; 2]) -> bool) -> f64 {
+    let mut seen = 0;
+    for a in 0..4 {
+        for b in 0..4 {
+            seen += arrives([(a as f32 + 0.5) / 4.0, (b as f32 + 0.5) / 4.0]) as u32;
+        }
+    }
+    e * seen as f64 / 16.0
+}
+
 /// Irradiance under the square light at floor point (x, z): L pi F.
 fn analytic(x: f32, z: f32) -> f64 {
     let (s, h) = (S as f64, H as f64);
@@ -158,19 +185,11 @@ fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
     };
     // One share of the whole light per arriving ray of a 4 x 4 grid over the aperture.
     let whole_share = |p: Vec3| -> f64 {
-        let e = light.irradiance(p, Vec3::Y).x as f64;
-        let mut seen = 0;
-        for a in 0..4 {
-            for b in 0..4 {
-                let u = [(a as f32 + 0.5) / 4.0, (b as f32 + 0.5) / 4.0];
-                seen +=
-                    bvh.visible(p, Vec3::Y, v(-w + 2.0 * w * u[0], h, -d + 2.0 * d * u[1]), -Vec3::Y) as u32;
-            }
-        }
-        e * seen as f64 / 16.0
+        equal_shares(light.irradiance(p, Vec3::Y).x as f64, |u| {
+            bvh.visible(p, Vec3::Y, v(-w + 2.0 * w * u[0], h, -d + 2.0 * d * u[1]), -Vec3::Y)
+        })
     };
-    let (mut truth, mut split, mut share) = (0.0f64, 0.0f64, 0.0f64);
-    let (mut err_split, mut err_share) = (0.0f64, 0.0f64);
+    let mut tally = Tally::default();
     let mut penumbra = 0;
     for j in 0..120 {
         // From under the panel's -x end to the plate's edge, off-centre in z a little.
@@ -179,15 +198,9 @@ fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
         let unshadowed = light.irradiance(p, Vec3::Y).x as f64;
         penumbra += (t < 0.98 * unshadowed) as u32;
         let a = prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::Y).x as f64;
-        let b = whole_share(p);
-        truth += t;
-        split += a;
-        share += b;
-        err_split += (a - t).abs();
-        err_share += (b - t).abs();
+        tally.add(t, a, whole_share(p));
     }
-    let (err_split, err_share) = (err_split / truth, err_share / truth);
-    let (bias_split, bias_share) = (split / truth - 1.0, share / truth - 1.0);
+    let [err_split, bias_split, err_share, bias_share] = tally.relative();
     eprintln!(
         "penumbra ({penumbra} of 120 points): split error {err_split:.4} bias {bias_split:+.4}; \
          whole-light shares error {err_share:.4} bias {bias_share:+.4}"
@@ -235,6 +248,32 @@ fn a_penumbra_weighs_each_shadow_ray_by_its_part_of_the_aperture() {
     assert!(off.abs() <= 0.01 + 3.0 * se, "split against the ground truth: {off} (noise {se})");
 }
 
+/// Sums over receivers of a converged twin and of the estimate with and without the split.
+#[derive(Default)]
+struct Tally {
+    truth: f64,
+    split: f64,
+    share: f64,
+    err_split: f64,
+    err_share: f64,
+}
+
+impl Tally {
+    fn add(&mut self, truth: f64, split: f64, share: f64) {
+        self.truth += truth;
+        self.split += split;
+        self.share += share;
+        self.err_split += (split - truth).abs();
+        self.err_share += (share - truth).abs();
+    }
+
+    /// Mean absolute error and bias of the split, then of the shares, over the twin's sum.
+    fn relative(&self) -> [f64; 4] {
+        let t = self.truth;
+        [self.err_split / t, self.split / t - 1.0, self.err_share / t, self.share / t - 1.0]
+    }
+}
+
 /// One sphere-light penumbra case: the split's and the middle disk's summed direct light
 /// against a converged twin over a line of floor points, and the ground truth's at every
 /// third. Returns (points in the penumbra, split error, split bias, shares error, shares
@@ -246,46 +285,20 @@ fn sphere_penumbra(c: Vec3, radius: f32, occluder: [Vec3; 4], line: (Vec3, Vec3)
     scene.lights.push(light.clone());
     let bvh = Bvh::build(&scene);
     let twin = |p: Vec3| -> f64 {
-        let (na, nphi) = (80, 160);
-        let w = (p - c).normalize();
-        let (t, b) = w.any_orthonormal_pair();
-        let alpha_max = (radius / (p - c).length()).acos();
-        let radiance = intensity as f64 / (std::f64::consts::PI * (radius * radius) as f64);
-        let mut e = 0.0f64;
-        for i in 0..na {
-            let a = alpha_max * (i as f32 + 0.5) / na as f32;
-            let da = alpha_max / na as f32;
-            for j in 0..nphi {
-                let phi = std::f32::consts::TAU * (j as f32 + 0.5) / nphi as f32;
-                let normal = w * a.cos() + (t * phi.cos() + b * phi.sin()) * a.sin();
-                let q = c + normal * radius;
-                let d = p - q;
-                let dir = d.normalize();
-                let (cos_q, cos_p) = (normal.dot(dir), -Vec3::Y.dot(dir));
-                if cos_q > 0.0 && cos_p > 0.0 && bvh.visible_point(p, Vec3::Y, q) {
-                    let area = radius * radius * a.sin() * da * std::f32::consts::TAU / nphi as f32;
-                    e += radiance * (cos_p * cos_q / d.length_squared() * area) as f64;
-                }
-            }
-        }
-        e
+        prm::light::sphere_irradiance_by_cells(c, radius, intensity, p, Vec3::Y, (80, 160), |q| {
+            bvh.visible_point(p, Vec3::Y, q)
+        })
     };
     let middle_disk_share = |p: Vec3| -> f64 {
-        let e = light.irradiance(p, Vec3::Y).x as f64;
-        let mut seen = 0;
-        for a in 0..4 {
-            for b in 0..4 {
-                let u = [(a as f32 + 0.5) / 4.0, (b as f32 + 0.5) / 4.0];
-                seen += bvh.visible_point(p, Vec3::Y, light.aperture_point(p, u)) as u32;
-            }
-        }
-        e * seen as f64 / 16.0
+        equal_shares(light.irradiance(p, Vec3::Y).x as f64, |u| {
+            bvh.visible_point(p, Vec3::Y, light.aperture_point(p, u))
+        })
     };
     // Four rows of 120 points along the line, 0.2 m apart across it.
     let point = |j: usize| {
         line.0 + (line.1 - line.0) * ((j % 120) as f32 / 119.0) + v(0.0, 0.0, 0.2 * (j / 120) as f32 - 0.3)
     };
-    let (mut truth, mut split, mut share, mut err_split, mut err_share) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut tally = Tally::default();
     let mut penumbra = 0;
     for j in 0..480 {
         let p = point(j);
@@ -294,12 +307,7 @@ fn sphere_penumbra(c: Vec3, radius: f32, occluder: [Vec3; 4], line: (Vec3, Vec3)
         assert!(t <= unshadowed * 1.002, "the twin {t} exceeds the unshadowed light {unshadowed} at {p}");
         penumbra += (t < 0.98 * unshadowed && t > 0.02 * unshadowed) as u32;
         let a = prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::Y).x as f64;
-        let b = middle_disk_share(p);
-        truth += t;
-        split += a;
-        share += b;
-        err_split += (a - t).abs();
-        err_share += (b - t).abs();
+        tally.add(t, a, middle_disk_share(p));
     }
     let tracer = Tracer::new(&scene, &bvh, GtParams { spp: 4096, ..Default::default() });
     let (mut gt, mut gt_var, mut ours, mut before) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
@@ -311,12 +319,13 @@ fn sphere_penumbra(c: Vec3, radius: f32, occluder: [Vec3; 4], line: (Vec3, Vec3)
         ours += prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::Y).x as f64;
         before += middle_disk_share(p);
     }
+    let [err_split, bias_split, err_share, bias_share] = tally.relative();
     [
         penumbra as f64,
-        err_split / truth,
-        split / truth - 1.0,
-        err_share / truth,
-        share / truth - 1.0,
+        err_split,
+        bias_split,
+        err_share,
+        bias_share,
         ours / gt - 1.0,
         before / gt - 1.0,
         gt_var.sqrt() / gt,
@@ -432,15 +441,7 @@ fn a_soft_spot_is_the_same_light_in_the_bakers_and_the_ground_truth() {
         prm_precompute::reference::vpl::trace_photons(&scene, &bvh, &scene.lights, 200_000, 1, 7);
     assert!((budgets[0].emitted.x - spot.flux().x).abs() <= 1e-3 * spot.flux().x);
     let landed: f64 = vpls.iter().map(|p| p.incident.x as f64).sum();
-    let n = 400;
-    let cell = 2.0 / n as f64;
-    let mut want = 0.0;
-    for i in 0..n {
-        for k in 0..n {
-            let (x, z) = (-1.0 + (i as f64 + 0.5) * cell, -1.0 + (k as f64 + 0.5) * cell);
-            want += spot.irradiance(v(x as f32, 0.0, z as f32), Vec3::Y).x as f64 * cell * cell;
-        }
-    }
+    let want = over_floor(1.0, |x, z| spot.irradiance(v(x, 0.0, z), Vec3::Y).x as f64);
     eprintln!("soft spot photons: landed {landed:.4} W, direct light over the floor {want:.4} W");
     assert!((landed - want).abs() <= 0.01 * want, "landed {landed} W vs {want} W");
 }
@@ -517,15 +518,8 @@ fn a_glowing_mesh_shares_one_light_s_photons_by_flux() {
         assert!(from <= photons, "source {k}: {from} VPLs from {photons} photons");
     }
     let landed: f64 = vpls.iter().filter(|p| p.position.y.abs() < 1e-4).map(|p| p.incident.x as f64).sum();
-    let n = 400;
-    let cell = 8.0 / n as f64;
-    let mut want = 0.0;
-    for i in 0..n {
-        for k in 0..n {
-            let p = v((-4.0 + (i as f64 + 0.5) * cell) as f32, 0.0, (-4.0 + (k as f64 + 0.5) * cell) as f32);
-            want += lights.iter().map(|l| l.irradiance(p, Vec3::Y).x as f64).sum::<f64>() * cell * cell;
-        }
-    }
+    let want =
+        over_floor(4.0, |x, z| lights.iter().map(|l| l.irradiance(v(x, 0.0, z), Vec3::Y).x as f64).sum());
     eprintln!(
         "glowing mesh photons: landed {landed:.4} W, the lights' direct light over the floor {want:.4} W"
     );
@@ -601,15 +595,7 @@ fn a_polygon_light_s_photons_carry_its_flux_where_it_falls() {
     let flux = std::f32::consts::PI * L * (2.0 * S) * (2.0 * S);
     assert!((b.emitted.x - flux).abs() <= 1e-3 * flux, "{} vs {flux}", b.emitted.x);
     let landed: f64 = vpls.iter().map(|p| p.incident.x as f64).sum();
-    let n = 400;
-    let cell = 4.0 / n as f64;
-    let mut want = 0.0;
-    for i in 0..n {
-        for j in 0..n {
-            let (x, z) = (-2.0 + (i as f64 + 0.5) * cell, -2.0 + (j as f64 + 0.5) * cell);
-            want += analytic(x as f32, z as f32) * cell * cell;
-        }
-    }
+    let want = over_floor(2.0, analytic);
     eprintln!("polygon photons: landed {landed:.4} W, analytic {want:.4} W");
     assert!((landed - want).abs() <= 0.01 * want, "landed {landed} W vs {want} W");
 }
