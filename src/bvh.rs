@@ -268,6 +268,29 @@ fn aperture_parts(corners: &std::sync::Arc<[Vec3]>) -> std::sync::Arc<[Vec<Vec3>
 /// Polygons whose parts a thread keeps (a level's area lights; about 1 kB each).
 const APERTURE_CACHE: usize = 1024;
 
+impl Bvh {
+    /// How close the level's geometry comes to a sphere light's centre, when closer than its
+    /// radius: the sphere then reaches into a surface, and the bakers give the texels inside it
+    /// its surface brightness (`I / R²`), thousands of W/m² for a small, bright bulb, where the
+    /// level designer most likely meant it to touch nothing. None for other lights and for a
+    /// sphere in free space. 64 rays from its centre (a Fibonacci sphere), each as long as the
+    /// radius, so a sliver of geometry between them can go unseen.
+    pub fn geometry_inside_sphere(&self, light: &crate::Light) -> Option<f32> {
+        let crate::light::Aperture::Sphere { radius } = light.aperture else { return None };
+        const RAYS: u32 = 64;
+        let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
+        (0..RAYS)
+            .filter_map(|k| {
+                let z = 1.0 - 2.0 * (k as f32 + 0.5) / RAYS as f32;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let phi = golden * k as f32;
+                let dir = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                self.closest_hit(light.position, dir, radius).map(|h| h.t)
+            })
+            .reduce(f32::min)
+    }
+}
+
 /// Where a light's shadow ray from a receiver ends.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ShadowTarget {

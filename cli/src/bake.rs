@@ -109,6 +109,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     params.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let bvh = Bvh::build(&scene);
+    crate::common::warn_spheres_in_geometry(&scene, &bvh);
     let set = Arc::new(TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height()));
     let start = Instant::now();
     let mut baker = Baker::new(scene, set.clone(), params).map_err(|e| anyhow!("bad parameter: {e}"))?;

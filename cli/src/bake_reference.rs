@@ -71,6 +71,7 @@ pub fn run(a: Args) -> Result<()> {
     let sources = emissive_sources(&scene, scene.lights.len(), &glow);
     scene.lights.extend(glow.into_iter().map(|e| e.light));
     let bvh = Bvh::build(&scene);
+    crate::common::warn_spheres_in_geometry(&scene, &bvh);
     let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let t = Instant::now();
     let vl = virtual_lights_of_sources(&scene, &bvh, &scene.lights, &sources, &p);

@@ -275,3 +275,21 @@ pub fn node_names(level: &std::path::Path) -> Vec<Option<String>> {
         .map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect())
         .unwrap_or_default()
 }
+
+/// Warn (on stderr) of every sphere light that reaches into the level's geometry
+/// ([`prm::Bvh::geometry_inside_sphere`]): the bakers give the surfaces inside it its surface
+/// brightness.
+pub fn warn_spheres_in_geometry(scene: &Scene, bvh: &prm::Bvh) {
+    for l in &scene.lights {
+        if let (Some(t), prm::light::Aperture::Sphere { radius }) =
+            (bvh.geometry_inside_sphere(l), &l.aperture)
+        {
+            eprintln!(
+                "warning: sphere light \"{}\" (radius {radius:.4} m) has geometry {t:.3} m from its centre, inside \
+                 it: the surfaces there get its surface brightness; a smaller radius or a light moved off the \
+                 surface avoids it",
+                l.name
+            );
+        }
+    }
+}

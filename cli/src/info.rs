@@ -65,12 +65,13 @@ pub fn run(a: Args) -> Result<()> {
         _ => a.lightmap.load(&a.scene, a.json)?,
     };
     let start = Instant::now();
-    let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), atlas.width(), atlas.height());
+    let bvh = prm::Bvh::build(&scene);
+    let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let build_seconds = start.elapsed().as_secs_f64();
     let charts = prm::uv::charts(&scene).iter().max().map_or(0, |m| m + 1);
     let atlas_from = if a.lightmap.atlas.is_some() { "--atlas" } else { "--texel-size" };
     let lm = Lightmap { set, atlas, texel_size: a.lightmap.texel_size, atlas_from, charts, build_seconds };
-    let mut summary = summary(&a.scene.scene, &scene, &lm);
+    let mut summary = summary(&a.scene.scene, &scene, &bvh, &lm);
     if let Some(map) = &map {
         let file_bytes = a.prm.as_ref().and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
         summary["gpu_memory"] = gpu_memory(map, &scene, a.shadow_size, file_bytes);
@@ -145,8 +146,9 @@ fn print_gpu_memory(m: &Value) {
     );
 }
 
-/// A light as JSON, its kind in words and the unit of its intensity.
-fn light_json(l: &Light) -> Value {
+/// A light as JSON, its kind and aperture in words, the unit of its intensity, and for a
+/// sphere light that reaches into the level's geometry how close that comes to its centre.
+fn light_json(l: &Light, bvh: &prm::Bvh) -> Value {
     let kind = match l.kind {
         LightKind::Point => "point".to_string(),
         LightKind::Directional => "directional".to_string(),
@@ -154,15 +156,25 @@ fn light_json(l: &Light) -> Value {
             format!("spot {:.1}/{:.1} deg", inner.to_degrees(), outer.to_degrees())
         }
     };
+    let aperture = match &l.aperture {
+        prm::light::Aperture::Point => "point".to_string(),
+        prm::light::Aperture::Sphere { radius } => format!("sphere of radius {radius:.4} m"),
+        prm::light::Aperture::Polygon { corners } => format!(
+            "polygon of {} corners, {:.4} m2",
+            corners.len(),
+            0.5 * prm::light::polygon_twice_area(corners).length()
+        ),
+    };
     json!({
-        "name": l.name, "kind": kind, "position": l.position.to_array(),
+        "name": l.name, "kind": kind, "aperture": aperture, "position": l.position.to_array(),
         "direction": l.direction.to_array(), "intensity": l.intensity.to_array(),
         "unit": if l.is_positional() {"W/sr"} else {"W/m2"},
+        "geometry_inside": bvh.geometry_inside_sphere(l),
     })
 }
 
 /// Every fact, as `--json` prints it.
-fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
+fn summary(path: &Path, scene: &Scene, bvh: &prm::Bvh, lm: &Lightmap) -> Value {
     let (lo, hi) = scene.bounds();
     let (r, set) = (&scene.report, &lm.set);
     json!({
@@ -174,7 +186,7 @@ fn summary(path: &Path, scene: &Scene, lm: &Lightmap) -> Value {
         "non_triangle_primitives": r.non_triangle_primitives,
         "bounds_min": lo.to_array(), "bounds_max": hi.to_array(),
         "surface_area": scene.total_area(),
-        "lights": scene.lights.iter().map(light_json).collect::<Vec<_>>(),
+        "lights": scene.lights.iter().map(|l| light_json(l, bvh)).collect::<Vec<_>>(),
         "cameras": scene.cameras.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
         "uv": {
             "generated": r.uv1_generated,
@@ -240,14 +252,21 @@ fn print_level(path: &Path, scene: &Scene, summary: &Value) {
     println!("  lights      {}", scene.lights.len());
     for l in &summary["lights"].as_array().cloned().unwrap_or_default() {
         println!(
-            "    {} {}: at {} dir {} intensity {} {}",
+            "    {} {}, {}: at {} dir {} intensity {} {}",
             l["kind"].as_str().unwrap_or(""),
             l["name"],
+            l["aperture"].as_str().unwrap_or(""),
             l["position"],
             l["direction"],
             l["intensity"],
             l["unit"].as_str().unwrap_or("")
         );
+        if let Some(t) = l["geometry_inside"].as_f64() {
+            println!(
+                "      warning: geometry {t:.3} m from its centre, inside the sphere: the surfaces there get its \
+                 surface brightness"
+            );
+        }
     }
     println!(
         "  cameras     {}",

@@ -582,6 +582,21 @@ fn a_sphere_light_stays_finite_and_exact_at_any_scale() {
     }
 }
 
+/// A sphere light that reaches into a surface is found ([`Bvh::geometry_inside_sphere`], what
+/// `prm info` and the bakers warn of): a bulb of radius 0.25 m with its centre 0.1 m from a wall
+/// finds the wall 0.100-0.105 m from its centre (64 rays: the nearest may be some 15 degrees
+/// off the wall's normal), the same bulb 1 m away and a point light at the wall nothing.
+#[test]
+fn a_sphere_light_reaching_into_a_wall_is_found() {
+    let scene = quads(&[[v(0., -2., -2.), v(0., 2., -2.), v(0., 2., 2.), v(0., -2., 2.)]], 0.5);
+    let bvh = Bvh::build(&scene);
+    let at = |x: f32| Light::sphere("bulb", v(x, 0.3, 0.2), 0.25, Vec3::ONE);
+    let t = bvh.geometry_inside_sphere(&at(0.1)).expect("the wall is inside the bulb");
+    assert!((0.0999..=0.105).contains(&t), "the wall {t} m from the centre, not 0.1");
+    assert_eq!(bvh.geometry_inside_sphere(&at(1.0)), None);
+    assert_eq!(bvh.geometry_inside_sphere(&Light::point("p", v(0.01, 0.0, 0.0), Vec3::ONE)), None);
+}
+
 /// The photons of a polygon light carry pi I_n in all, and those that land on the floor
 /// carry the irradiance integrated over it (numerically, 400² cells of the analytic answer),
 /// to 1 % (200k photons: 0.1 % noise).
