@@ -1202,17 +1202,50 @@ fn level_at(path: &Path, atlas: u32) -> prm::Scene {
     prm::gltf_load::load_scene(path, &opts).unwrap()
 }
 
-/// The glb at `path` with node `name` translated by `by` (the JSON chunk rewritten).
-fn moved_glb(path: &Path, name: &str, by: [f32; 3]) -> Vec<u8> {
+/// The glb at `path` with its JSON chunk changed by `edit`.
+fn edited_glb(path: &Path, edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
     let b = std::fs::read(path).unwrap();
     let json_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut doc: serde_json::Value = serde_json::from_slice(&b[20..20 + json_len]).unwrap();
     let bin_at = 20 + json_len;
     let bin_len = u32::from_le_bytes(b[bin_at..bin_at + 4].try_into().unwrap()) as usize;
     let bin = &b[bin_at + 8..bin_at + 8 + bin_len];
-    let node = doc["nodes"].as_array_mut().unwrap().iter_mut().find(|n| n["name"] == name).unwrap();
-    node["translation"] = serde_json::json!(by);
+    edit(&mut doc);
     prm::glb::glb_bytes(&doc, bin)
+}
+
+/// The glb at `path` with node `name` translated by `by`.
+fn moved_glb(path: &Path, name: &str, by: [f32; 3]) -> Vec<u8> {
+    edited_glb(path, |doc| {
+        let node = doc["nodes"].as_array_mut().unwrap().iter_mut().find(|n| n["name"] == name).unwrap();
+        node["translation"] = serde_json::json!(by);
+    })
+}
+
+/// `prm info` shows each light's aperture and warns of a sphere light that reaches into the
+/// level: the chamber's spot (0.2 m under the 7 m ceiling) given a 0.25 m radius, its lamp
+/// (5 m up) 0.1 m: the spot has the ceiling 0.20-0.21 m from its centre, the lamp nothing.
+#[test]
+fn info_warns_of_a_sphere_light_inside_geometry() {
+    let tmp = tempfile::tempdir().unwrap();
+    let level = tmp.path().join("bulbs.glb");
+    let bytes = edited_glb(Path::new(&asset("chamber.glb")), |doc| {
+        let lights = doc["extensions"]["KHR_lights_punctual"]["lights"].as_array_mut().unwrap();
+        lights[0]["extras"] = serde_json::json!({"prm_radius": 0.1});
+        lights[1]["extras"] = serde_json::json!({"prm_radius": 0.25});
+    });
+    std::fs::write(&level, bytes).unwrap();
+    let (ok, out, err) = prm(&["info", s(&level), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let lights = v["lights"].as_array().unwrap();
+    assert_eq!(lights[0]["aperture"], "sphere of radius 0.1000 m");
+    assert!(lights[0]["geometry_inside"].is_null(), "{}", lights[0]);
+    let t = lights[1]["geometry_inside"].as_f64().unwrap();
+    assert!((0.199..=0.21).contains(&t), "the ceiling {t} m from the spot's centre");
+    let (ok, out, err) = prm(&["info", s(&level)]);
+    assert!(ok, "{err}");
+    assert_eq!(out.matches("warning: geometry").count(), 1, "{out}");
 }
 
 #[test]
