@@ -329,8 +329,8 @@ impl Bvh {
 
 /// One light's irradiance at surface point `p` (unit normal `n`), each shadow ray weighed by
 /// `visible(target)`: 1 or 0 for an evaluation, or a change of visibility (-1, 0, 1) for the
-/// incremental baker, which then gets the change of irradiance (to round-off: an evaluation
-/// may sum a polygon's parts another way, below).
+/// incremental baker, which then gets the change of irradiance (exactly when every ray of an
+/// area light changed alike; else to round-off: an evaluation may sum the parts another way).
 ///
 /// - A point, spot or directional light: one ray, times `I cos / d²` (or `E cos`).
 /// - A polygon light: its aperture in parts (`polygon_irradiance`, below).
@@ -401,6 +401,7 @@ fn polygon_irradiance(
     let scale = l.intensity * (std::f32::consts::PI / area * l.window((l.position - p).length()));
     let parts = aperture_parts(corners);
     let mut weights = [0.0f32; AREA_SHADOW_RAYS as usize];
+    let mut sampled = [false; AREA_SHADOW_RAYS as usize];
     for (k, part) in parts.iter().enumerate() {
         let above = part.iter().filter(|c| (**c - p).dot(n) > 0.0).count();
         if above == 0 {
@@ -420,6 +421,13 @@ fn polygon_irradiance(
             crate::light::polygon_point(&lit, u)
         };
         weights[k as usize] = visible(ShadowTarget::Surface(q, l.direction));
+        sampled[k as usize] = true;
+    }
+    // A part with nothing above the receiver's plane gets no ray and has no light: when every
+    // ray is weighed alike it takes that weight too, so the whole is taken at once.
+    let first = (0..parts.len()).find(|&k| sampled[k]).map(|k| weights[k]);
+    if let Some(w) = first.filter(|&w| (0..parts.len()).all(|k| !sampled[k] || weights[k] == w)) {
+        weights.iter_mut().zip(sampled).filter(|(_, s)| !s).for_each(|(x, _)| *x = w);
     }
     let weights = &weights[..parts.len()];
     let f = weighed_form_factor(
@@ -433,8 +441,15 @@ fn polygon_irradiance(
 /// `sum_k weights[k] F_k` over an aperture's parts, `part(k)` the form factor `F_k` of part k
 /// and `whole()` the whole aperture's (the sum of the parts'): over the fewer parts, those
 /// weighed or those not weighed 1 taken from the whole, so a lit receiver integrates one
-/// polygon, not 16.
+/// polygon, not 16. Every part weighed alike (all arriving, or all changed the same way in the
+/// incremental baker): that weight times the whole, so a lit-to-blocked change is the exact
+/// negative of the evaluation, not a sum of parts that differs from the whole by round-off.
 fn weighed_form_factor(weights: &[f32], part: impl Fn(usize) -> f32, whole: impl FnOnce() -> f32) -> f32 {
+    match weights.first() {
+        None => return 0.0,
+        Some(&w) if weights.iter().all(|x| *x == w) => return if w == 0.0 { 0.0 } else { w * whole() },
+        Some(_) => {}
+    }
     let weighed = weights.iter().filter(|w| **w != 0.0).count();
     let short = weights.iter().filter(|w| **w != 1.0).count();
     if short + 1 < weighed {
@@ -523,8 +538,8 @@ fn sphere_irradiance(
         *w = visible(ShadowTarget::Point(p + dir * along));
     }
     let weights = &weights[..count];
-    // Every ray weighed alike (all arrive, none, or all changed the same way): the whole
-    // light times that weight, exactly.
+    // Every ray weighed alike (all arrive, none, or all changed the same way): seen whole,
+    // the exact light times that weight without a polygon (cut, `weighed_form_factor` says).
     let same = weights.iter().all(|w| *w == weights[0]).then_some(weights[0]);
     if same == Some(0.0) {
         return Vec3::ZERO;
@@ -536,14 +551,11 @@ fn sphere_irradiance(
     if !(whole > 0.0) {
         return Vec3::ZERO;
     }
-    let f = match same {
-        Some(w) => w * whole,
-        None => weighed_form_factor(
-            weights,
-            |k| crate::form_factor::point_to_polygon(Vec3::ZERO, n, &part(k)),
-            || whole,
-        ),
-    };
+    let f = weighed_form_factor(
+        weights,
+        |k| crate::form_factor::point_to_polygon(Vec3::ZERO, n, &part(k)),
+        || whole,
+    );
     if cut {
         inc.irradiance * (f / (sin * sin))
     } else {

@@ -116,7 +116,8 @@ fn a_square_light_over_a_plane_is_the_analytic_answer() {
 /// to x = -0.7. Nothing else is there, so every wall point's direct light is the exact
 /// irradiance of the panel's part in front of the wall (the contour integral clips it). A
 /// part the wall's plane cuts is sampled on the wall's side; a point behind the wall would
-/// be shadowed by the wall itself and lose that part's light.
+/// be shadowed by the wall itself and lose that part's light. Every ray turned blocked (the
+/// incremental baker's change) gives the exact negative.
 #[test]
 fn a_light_cut_by_the_receiver_s_plane_is_sampled_on_its_side() {
     let mut scene = quads(&[[v(0., 0., -1.), v(0., 0.9, -1.), v(0., 0.9, 1.), v(0., 0., 1.)]], 0.5);
@@ -133,6 +134,9 @@ fn a_light_cut_by_the_receiver_s_plane_is_sampled_on_its_side() {
         let got = prm::bvh::direct_irradiance(&bvh, &scene.lights, p, Vec3::X).x;
         assert!(want > 0.0);
         worst = worst.max((got - want).abs() / want);
+        // Every ray turned blocked, as the incremental baker's change: the exact negative.
+        let all = |w: f32| prm::bvh::shadowed_irradiance(&light, p, Vec3::X, |_| w).x;
+        assert_eq!(all(-1.0), -all(1.0), "at {p}");
     }
     assert!(worst <= 1e-4, "wall points off their exact direct light by {worst}");
 }

@@ -1311,8 +1311,9 @@ const STREAM_MINUS: u64 = 66;
 /// direct light's from the texel's position), and only those that cross a box where geometry
 /// moved are traced, in both versions. A ray that crosses none meets the same triangles in
 /// both, so this equals the difference of two full evaluations (exactly for virtual lights;
-/// to round-off for a polygon light, whose evaluation may sum its parts' light another way,
-/// `prm::bvh::shadowed_irradiance`), for the cost of the rays the edit can have changed.
+/// to round-off for an area light some of whose rays changed and some not, whose evaluation
+/// may sum its parts' light another way, `prm::bvh::shadowed_irradiance`), for the cost of
+/// the rays the edit can have changed.
 #[allow(clippy::too_many_arguments)]
 fn shadow_change(
     was: &Baked,
