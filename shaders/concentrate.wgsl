@@ -1,10 +1,12 @@
 // How a texel sees a hot cell (prm_runtime::cpu::concentrate says why and what; the CPU twin
-// computes the same). concentrate_main, one invocation per texel with near-field links: for
-// each link whose entry's cell is hot (a point or spot light closer to its centroid than
-// HOT_REACH x its size), link_light = (E_j kappa, this update's number), kappa = per channel,
+// computes the same). concentrate_main, one invocation per near-field link: for a link whose
+// entry's cell is hot (a point or spot light closer to its centroid than
+// HOT_REACH x its size, or a mixed triangle in it: a shadow edge across it, irradiance.wgsl),
+// link_light = (E_j kappa, this update's number), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
-// sub-triangles of each cell triangle, each times its triangle's visibility) / (their area
-// mean); SUB = CONCENTRATION_SUB within NEAR_SIZES cell sizes of the centroid, else
+// sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
+// point's bit, else the triangle's visible share) / (their area mean); SUB = CONCENTRATION_SUB
+// within NEAR_SIZES cell sizes of the centroid and on a mixed triangle, else
 // CONCENTRATION_SUB_FAR. Links of cells that are not hot are not written: their number stays old. (u32
 // words: the number kept as bits of a float could be a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
@@ -16,7 +18,20 @@ fn is_hot(h: GpuHotEntry) -> bool {
             return true;
         }
     }
+    for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
+        if (cells[k].fine_hi & CELL_MIXED) != 0u {
+            return true;
+        }
+    }
     return false;
+}
+
+// A fine point's visibility bit (irradiance.wgsl).
+fn fine_bit(t: GpuCellTriangle, q: u32) -> f32 {
+    if q < 32u {
+        return f32((t.fine_lo >> q) & 1u);
+    }
+    return f32((t.fine_hi >> (q - 32u)) & 1u);
 }
 
 // Per channel: the seen mean over the plain mean, 1 where either is undefined.
@@ -32,8 +47,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
     var weight = 0.0;
     var plain = vec3f(0.0);
     var area_sum = 0.0;
-    let sub = select(CONCENTRATION_SUB_FAR, CONCENTRATION_SUB, distance(x, h.centroid) < NEAR_SIZES * h.size);
-    let s = f32(sub);
+    let near = distance(x, h.centroid) < NEAR_SIZES * h.size;
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         let t = cells[k];
         let e1 = t.b - t.a;
@@ -44,7 +58,11 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
             continue;
         }
         let n = c / len;
+        let mixed = (t.fine_hi & CELL_MIXED) != 0u;
+        let sub = select(CONCENTRATION_SUB_FAR, CONCENTRATION_SUB, near || mixed);
+        let s = f32(sub);
         let area = 0.5 * len / (s * s);
+        var q = 0u;
         for (var a = 0u; a < sub; a++) {
             for (var b = 0u; b < sub - a; b++) {
                 for (var up = 0u; up < 2u; up++) {
@@ -60,7 +78,12 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
                         let inc = incident(lights[i], y);
                         e += inc.irradiance * max(dot(n, inc.to_light), 0.0);
                     }
-                    e *= t.visibility * area;
+                    var v = t.visibility;
+                    if mixed {
+                        v = fine_bit(t, q);
+                    }
+                    q++;
+                    e *= v * area;
                     plain += e;
                     area_sum += area;
                     let d = y - x;
@@ -82,20 +105,37 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
     );
 }
 
+// One invocation per link (a texel's links each in their own: a texel by a wall of hot
+// cells has dozens, and one invocation walking them all ran so long that lavapipe stopped it
+// part way, leaving links unwritten), in rows of at most 32768 workgroups; the link's texel is
+// the last whose links start at or before it (links are stored texel by texel).
 @compute @workgroup_size(WG_LINEAR)
-fn concentrate_main(@builtin(global_invocation_id) id: vec3u) {
-    let k = id.x;
-    if k >= params.near_texel_count {
+fn concentrate_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) groups: vec3u) {
+    let i = id.x + id.y * groups.x * WG_LINEAR;
+    let count = params.near_texel_count;
+    if count == 0u {
         return;
     }
-    let t = near_texels[k];
-    for (var i = t.first; i < t.first + t.count; i++) {
-        let j = near_links[i].entry;
-        let h = hot_entries[j];
-        if !is_hot(h) {
-            continue;
-        }
-        let e = entry_irradiance[j].xyz * kappa(t.position, t.normal, h);
-        link_light[i] = vec4u(bitcast<vec3u>(e), params.frame);
+    let last = near_texels[count - 1u];
+    if i >= last.first + last.count {
+        return;
     }
+    var lo = 0u;
+    var hi = count - 1u;
+    while lo < hi {
+        let mid = (lo + hi + 1u) / 2u;
+        if near_texels[mid].first <= i {
+            lo = mid;
+        } else {
+            hi = mid - 1u;
+        }
+    }
+    let t = near_texels[lo];
+    let j = near_links[i].entry;
+    let h = hot_entries[j];
+    if !is_hot(h) {
+        return;
+    }
+    let e = entry_irradiance[j].xyz * kappa(t.position, t.normal, h);
+    link_light[i] = vec4u(bitcast<vec3u>(e), params.frame);
 }

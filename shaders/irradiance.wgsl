@@ -1,10 +1,48 @@
 // Entry irradiance (DESIGN.md §4-5, runtime/src/irradiance.rs): one invocation per entry
 // point, E_j = (sum over its cell's triangles and the lights of the power the light delivers
-// to the triangle, shadow-mapped at the triangle's centroid) / the entry's area. Each cell
-// triangle also keeps the visible share of the power on it (luminance-weighted over the lights;
-// 1 where none arrives) for the near field's concentration (concentrate.wgsl). Structs,
-// constants and bindings: the generated prelude (runtime/src/contract.rs,
-// runtime/src/irradiance.rs); the power: lights.wgsl.
+// to the triangle times its visible share) / the entry's area. The share (prm::cell_light says
+// why and how; the CPU twin runs the same steps with rays): each light's shadow maps at four
+// probe points of the triangle (the fine points at its corners and its centroid); where they
+// agree, what they say; where they differ, the irradiance-weighted mean over the
+// CELL_FINE_SUB² fine points, and the triangle is mixed: per fine point, a bit says whether
+// it receives at least half the light that reaches it unshadowed (fine_lo: points 0-31;
+// fine_hi: points 32-35, and CELL_MIXED for a mixed triangle). Each cell triangle also keeps
+// its visible share (luminance-weighted over the lights; 1 where none arrives). The near
+// field's concentration (concentrate.wgsl) reads both. Structs, constants and bindings: the
+// generated prelude (runtime/src/contract.rs, runtime/src/irradiance.rs); the power:
+// lights.wgsl.
+
+// Fine point (fa, fb) of a triangle, in units of a sub-triangle's side.
+fn fine_point(a: vec3f, e1: vec3f, e2: vec3f, fa: f32, fb: f32) -> vec3f {
+    let s = f32(CELL_FINE_SUB);
+    return a + e1 * (fa / s) + e2 * (fb / s);
+}
+
+// The light's unshadowed irradiance (luminance) at a point of normal n (prm::Light::irradiance).
+fn point_light(l: GpuLight, y: vec3f, n: vec3f) -> f32 {
+    let inc = incident(l, y);
+    return luminance(inc.irradiance) * max(dot(n, inc.to_light), 0.0);
+}
+
+// The probes' verdict for one light: their mean where all lie on one side of one half, or -1
+// where they differ (prm::cell_light::triangle_light).
+fn probes(l: GpuLight, a: vec3f, e1: vec3f, e2: vec3f, n: vec3f) -> f32 {
+    let s = f32(CELL_FINE_SUB);
+    let third = 1.0 / 3.0;
+    let p0 = fine_point(a, e1, e2, third, third);
+    let p1 = fine_point(a, e1, e2, s - 2.0 * third, third);
+    let p2 = fine_point(a, e1, e2, third, s - 2.0 * third);
+    let p3 = a + (e1 + e2) / 3.0;
+    let v0 = visibility(l, p0, n, distance(l.position, p0));
+    let v1 = visibility(l, p1, n, distance(l.position, p1));
+    let v2 = visibility(l, p2, n, distance(l.position, p2));
+    let v3 = visibility(l, p3, n, distance(l.position, p3));
+    let side = v0 >= 0.5;
+    if (v1 >= 0.5) == side && (v2 >= 0.5) == side && (v3 >= 0.5) == side {
+        return 0.25 * (v0 + v1 + v2 + v3);
+    }
+    return -1.0;
+}
 
 @compute @workgroup_size(WG_LINEAR)
 fn entry_main(@builtin(global_invocation_id) id: vec3u) {
@@ -16,30 +54,99 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     var power = vec3f(0.0);
     for (var k = e.first_cell; k < e.first_cell + e.cell_count; k++) {
         let t = cells[k];
-        let twice_area = cross(t.b - t.a, t.c - t.a);
+        let e1 = t.b - t.a;
+        let e2 = t.c - t.a;
+        let twice_area = cross(e1, e2);
         let len = length(twice_area);
         var share = 1.0;
+        var fine_lo = 0u;
+        var fine_hi = 0u;
         if len > 0.0 {
             let n = twice_area / len;
-            let centroid = (t.a + t.b + t.c) / 3.0;
             var total = 0.0;
             var seen = 0.0;
+            var mixed = false;
+            // The lights whose probes agree; the others wait for the fine points.
             for (var i = 0u; i < params.light_count; i++) {
                 let l = lights[i];
                 let p = triangle_power(l, t.a, t.b, t.c);
                 if all(p == vec3f(0.0)) {
                     continue;
                 }
-                let v = visibility(l, centroid, n, distance(l.position, centroid));
+                let v = probes(l, t.a, e1, e2, n);
+                if v < 0.0 {
+                    mixed = true;
+                    continue;
+                }
                 power += p * v;
                 total += luminance(p);
                 seen += luminance(p) * v;
+            }
+            if mixed {
+                // Per fine point, every light's unshadowed light and what arrives.
+                var all_at: array<f32, CELL_FINE_POINTS>;
+                var lit_at: array<f32, CELL_FINE_POINTS>;
+                for (var i = 0u; i < params.light_count; i++) {
+                    let l = lights[i];
+                    let p = triangle_power(l, t.a, t.b, t.c);
+                    if all(p == vec3f(0.0)) {
+                        continue;
+                    }
+                    let uniform = probes(l, t.a, e1, e2, n);
+                    var e_sum = 0.0;
+                    var ev_sum = 0.0;
+                    var v_sum = 0.0;
+                    var q = 0u;
+                    for (var a = 0u; a < CELL_FINE_SUB; a++) {
+                        for (var b = 0u; b < CELL_FINE_SUB - a; b++) {
+                            for (var up = 0u; up < 2u; up++) {
+                                if up == 1u && a + b + 1u == CELL_FINE_SUB {
+                                    continue;
+                                }
+                                let off = select(1.0 / 3.0, 2.0 / 3.0, up == 1u);
+                                let y = fine_point(t.a, e1, e2, f32(a) + off, f32(b) + off);
+                                let ey = point_light(l, y, n);
+                                var v = uniform;
+                                if uniform < 0.0 {
+                                    v = visibility(l, y, n, distance(l.position, y));
+                                }
+                                all_at[q] += ey;
+                                lit_at[q] += ey * v;
+                                e_sum += ey;
+                                ev_sum += ey * v;
+                                v_sum += v;
+                                q++;
+                            }
+                        }
+                    }
+                    if uniform < 0.0 {
+                        var v = v_sum / f32(CELL_FINE_POINTS);
+                        if e_sum > 0.0 {
+                            v = ev_sum / e_sum;
+                        }
+                        power += p * v;
+                        total += luminance(p);
+                        seen += luminance(p) * v;
+                    }
+                }
+                for (var q = 0u; q < CELL_FINE_POINTS; q++) {
+                    if lit_at[q] >= 0.5 * all_at[q] {
+                        if q < 32u {
+                            fine_lo |= 1u << q;
+                        } else {
+                            fine_hi |= 1u << (q - 32u);
+                        }
+                    }
+                }
+                fine_hi |= CELL_MIXED;
             }
             if total > 0.0 {
                 share = seen / total;
             }
         }
         cells[k].visibility = share;
+        cells[k].fine_lo = fine_lo;
+        cells[k].fine_hi = fine_hi;
     }
     entry_irradiance[j] = vec4f(power * e.inv_area, 0.0);
 }

@@ -564,30 +564,27 @@ fn sphere_irradiance(
 }
 
 /// Power (W) `lights` deliver to the triangles `tris` (an entry's cell,
-/// [`crate::prm_file::Cells`]): each light's [`crate::Light::triangle_power`] times one shadow
-/// ray from the triangle's centroid. The runtime's CPU twin of its GPU entry pass.
+/// [`crate::prm_file::Cells`]): [`crate::cell_light::triangle_light`] with ray-traced
+/// visibility. The runtime's CPU twin of its GPU entry pass.
 pub fn cell_power(bvh: &Bvh, lights: &[crate::Light], tris: &[[Vec3; 3]]) -> Vec3 {
-    let mut sum = Vec3::ZERO;
-    for tri in tris {
-        let twice_area = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
-        let Some(n) = twice_area.try_normalize() else { continue };
-        let centroid = (tri[0] + tri[1] + tri[2]) / 3.0;
-        for l in lights {
-            let p = l.triangle_power(tri);
-            if p == Vec3::ZERO {
-                continue;
-            }
-            let visible = if l.is_positional() {
-                bvh.visible_point(centroid, n, l.position)
-            } else {
-                bvh.visible_dir(centroid, n, -l.direction)
-            };
-            if visible {
-                sum += p;
-            }
-        }
-    }
-    sum
+    tris.iter().map(|t| cell_triangle_light(bvh, lights, t).power).sum()
+}
+
+/// The light on one cell triangle ([`crate::cell_light::triangle_light`]), each visibility
+/// test one shadow ray.
+pub fn cell_triangle_light(
+    bvh: &Bvh,
+    lights: &[crate::Light],
+    t: &[Vec3; 3],
+) -> crate::cell_light::TriangleLight {
+    crate::cell_light::triangle_light(t, lights, |y, n, l| {
+        let seen = if l.is_positional() {
+            bvh.visible_point(y, n, l.position)
+        } else {
+            bvh.visible_dir(y, n, -l.direction)
+        };
+        seen as u8 as f32
+    })
 }
 
 /// Möller-Trumbore ray/triangle test, both faces: `(t, u, v)` when `tmin < t < tmax`.

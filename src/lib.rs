@@ -10,6 +10,7 @@
 //! - [`uv`]: lightmap-UV checks (range, overlap) and generation when a level has none.
 //! - [`texels`]: the lightmap texel set: exit points with exact conservative coverage.
 //! - [`bvh`]: closest-hit and occlusion queries with a scale-independent offset scheme.
+//! - [`cell_light`]: the light on an entry cell's triangle, its visibility filtered over it.
 //! - [`exr_io`]: named-channel EXR files in the DESIGN.md §8 layouts, written atomically.
 //! - [`prm_file`]: the `.prm` format; [`fingerprint`]: what a map was baked for.
 //! - [`sampling`]: seeded streams and sample warps for the bakers.
@@ -31,6 +32,7 @@
 
 #[cfg(feature = "bvh")]
 pub mod bvh;
+pub mod cell_light;
 pub mod density;
 pub mod emitters;
 #[cfg(feature = "exr")]

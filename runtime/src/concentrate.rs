@@ -61,6 +61,7 @@ pub struct ConcentratePass {
     concentrate_group: wgpu::BindGroup,
     energy_group: wgpu::BindGroup,
     texels: u32,
+    links: u32,
     entries: u32,
     /// Per link: `vec4u` (bits of E_j kappa, update number).
     pub link_light: wgpu::Buffer,
@@ -185,6 +186,7 @@ impl ConcentratePass {
             concentrate_group,
             energy_group,
             texels: near.texel_count,
+            links: prm.near().len() as u32,
             entries: n as u32,
             link_light,
             hot_energy,
@@ -204,7 +206,10 @@ impl ConcentratePass {
         pass.set_pipeline(&self.concentrate);
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.concentrate_group, &[]);
-        pass.dispatch_workgroups(self.texels.div_ceil(WG_LINEAR), 1, 1);
+        // A link an invocation, in rows of at most 32768 workgroups (the limit is 65535).
+        let groups = self.links.div_ceil(WG_LINEAR);
+        let x = groups.clamp(1, 32768);
+        pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
         pass.set_pipeline(&self.energy);
         pass.set_bind_group(0, &self.energy_group, &[]);
         pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);

@@ -43,6 +43,11 @@ pub const KIND_SPOT: u32 = 1;
 /// [`crate::layout::GpuLight::kind`] of a directional light.
 pub const KIND_DIRECTIONAL: u32 = 2;
 
+/// Set in [`crate::layout::GpuCellTriangle::fine_hi`] when a shadow edge crosses the triangle
+/// (`prm::cell_light::TriangleLight::mixed`); the fine points' bits take the low 4 bits.
+pub const CELL_MIXED: u32 = 1 << 31;
+const _: () = assert!(prm::cell_light::FINE_POINTS <= 32 + 31, "the fine bits must fit beside CELL_MIXED");
+
 /// The WGSL `u32` constants of the prelude, by name.
 pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
@@ -55,6 +60,9 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("KIND_SPOT", KIND_SPOT),
     ("KIND_DIRECTIONAL", KIND_DIRECTIONAL),
     ("CONCENTRATION_SUB", crate::cpu::concentrate::SUB),
+    ("CELL_FINE_SUB", prm::cell_light::FINE_SUB),
+    ("CELL_FINE_POINTS", prm::cell_light::FINE_POINTS as u32),
+    ("CELL_MIXED", CELL_MIXED),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),

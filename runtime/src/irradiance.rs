@@ -80,11 +80,12 @@ impl EntryPass {
         if triangles.is_empty() {
             triangles.push(GpuCellTriangle::default());
         }
+        // Read back by the tests that hold the visibility bits to the CPU twin's.
         let cells = gpu::storage_buffer(
             device,
             "entry cells",
             bytemuck::cast_slice(&triangles),
-            wgpu::BufferUsages::empty(),
+            wgpu::BufferUsages::COPY_SRC,
         );
         let output = gpu::storage_buffer(
             device,

@@ -192,12 +192,15 @@ gpu_struct! {
     pub struct GpuCellTriangle {
         pub a: [f32; 3],
         /// The visible share of the lights' power on it, written by the entry pass
-        /// (`prm_runtime::cpu::concentrate::triangle_visibility`).
+        /// (`prm::cell_light::TriangleLight::share`).
         pub visibility: f32,
         pub b: [f32; 3],
-        pub _pad1: u32,
+        /// Fine points 0-31's visibility bits on a mixed triangle, written by the entry pass
+        /// (`prm::cell_light::TriangleLight::fine`).
+        pub fine_lo: u32,
         pub c: [f32; 3],
-        pub _pad2: u32,
+        /// Fine points 32-35's bits, and [`crate::contract::CELL_MIXED`] on a mixed triangle.
+        pub fine_hi: u32,
     }
 }
 

@@ -99,10 +99,8 @@ pub struct Runtime {
     composes: u64,
     /// Updates that ran the indirect passes (`IndirectParams::frame`).
     frame: u32,
-    /// The cell centroid and size of each entry with near-field links, to tell whether a
-    /// light makes any linked cell hot.
-    cells: Vec<(glam::Vec3, f32)>,
-    /// Whether the last update's lights made any cell hot.
+    /// Whether the last update's lights may make a cell hot (any light may: a shadow edge
+    /// across a cell is found on the GPU).
     any_hot: bool,
 }
 
@@ -196,14 +194,6 @@ impl Runtime {
             stale: true,
             composes: 0,
             frame: 0,
-            cells: {
-                let t = &tables;
-                let mut linked = vec![false; t.size.len()];
-                for l in prm.near() {
-                    linked[l.entry as usize] = true;
-                }
-                (0..t.size.len()).filter(|&j| linked[j]).map(|j| (t.centroid[j], t.size[j])).collect()
-            },
             any_hot: false,
         })
     }
@@ -227,8 +217,10 @@ impl Runtime {
         }
         // From 1, and never 0 again: buffers start zeroed, so 0 would read as this update's.
         self.frame = self.frame.checked_add(1).unwrap_or(1);
-        // The concentration only matters (and only runs) where a light makes a cell hot.
-        self.any_hot = self.cells.iter().any(|&(c, s)| crate::cpu::concentrate::is_hot(c, s, lights));
+        // The concentration only matters (and only runs) where a cell may be hot: a light near
+        // it, or a shadow edge across it, which only the entry pass finds (any light may cast
+        // one).
+        self.any_hot = !lights.is_empty();
         self.write_params();
         let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
         let mut enc =

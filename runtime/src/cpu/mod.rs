@@ -37,4 +37,4 @@ pub use compose::{
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]
-pub use twin::{entry_irradiance, link_light, CpuTwin};
+pub use twin::{cell_lights, entry_irradiance, entry_irradiance_from, link_light, CpuTwin};

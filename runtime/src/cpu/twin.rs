@@ -2,39 +2,50 @@
 //! lightmap with the unchanged-frame cache.
 
 use glam::Vec3;
+use prm::cell_light::TriangleLight;
 use prm::prm_file::Prm;
 use prm::{Bvh, Light};
 
 use crate::Budget;
 use rayon::prelude::*;
 
-use super::concentrate::triangle_visibility;
 use super::{
     add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
     select_top_k, LinkLight, NearTables, TileBudget,
 };
 
+/// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
+/// visibility test a shadow ray ([`prm::bvh::cell_triangle_light`]), as the GPU's entry pass
+/// computes it with shadow maps.
+pub fn cell_lights(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<TriangleLight> {
+    prm.cells().triangles.par_iter().map(|t| prm::bvh::cell_triangle_light(bvh, lights, t)).collect()
+}
+
 /// Irradiance of every entry point from `lights`: the power its cell receives (ray-traced
-/// visibility, [`prm::bvh::cell_power`]) over the entry's area, as the GPU pass computes it.
+/// visibility, [`cell_lights`]) over the entry's area, as the GPU pass computes it.
 pub fn entry_irradiance(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> Vec<Vec3> {
+    entry_irradiance_from(prm, &cell_lights(prm, bvh, lights))
+}
+
+/// The entries' irradiance from their cell triangles' light.
+pub fn entry_irradiance_from(prm: &Prm, cell_lights: &[TriangleLight]) -> Vec<Vec3> {
     let cells = prm.cells();
     prm.entries()
-        .par_iter()
+        .iter()
         .enumerate()
-        .map(
-            |(j, e)| {
-                if e.area > 0.0 {
-                    prm::bvh::cell_power(bvh, lights, cells.of(j)) / e.area
-                } else {
-                    Vec3::ZERO
-                }
-            },
-        )
+        .map(|(j, e)| {
+            if e.area > 0.0 {
+                let of = &cell_lights[cells.first[j] as usize..cells.first[j + 1] as usize];
+                of.iter().map(|t| t.power).sum::<Vec3>() / e.area
+            } else {
+                Vec3::ZERO
+            }
+        })
         .collect()
 }
 
 /// The light on the near-field links of hot cells ([`LinkLight`]), each cell triangle's
-/// visibility ray-traced from its centroid as for the entries' irradiance.
+/// light ray-traced as for the entries' irradiance ([`cell_lights`]).
 pub fn link_light(
     prm: &Prm,
     bvh: &Bvh,
@@ -42,14 +53,7 @@ pub fn link_light(
     entry_irradiance: &[Vec3],
     lights: &[Light],
 ) -> LinkLight {
-    let visible = |c: Vec3, n: Vec3, l: &Light| {
-        if l.is_positional() {
-            bvh.visible_point(c, n, l.position)
-        } else {
-            bvh.visible_dir(c, n, -l.direction)
-        }
-    };
-    LinkLight::new(prm, tables, entry_irradiance, |t| triangle_visibility(t, lights, visible), lights)
+    LinkLight::new(prm, tables, entry_irradiance, &cell_lights(prm, bvh, lights), lights)
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
@@ -109,8 +113,9 @@ impl<'a> CpuTwin<'a> {
         if self.last_lights.as_deref() == Some(lights) {
             return &self.lightmap;
         }
-        let e = entry_irradiance(self.prm, self.bvh, lights);
-        let link_light = link_light(self.prm, self.bvh, &self.near, &e, lights);
+        let cell_lights = cell_lights(self.prm, self.bvh, lights);
+        let e = entry_irradiance_from(self.prm, &cell_lights);
+        let link_light = LinkLight::new(self.prm, &self.near, &e, &cell_lights, lights);
         let moments = dipole_moments(self.prm, &self.near, &e);
         let lin = dipole_offsets(self.prm, &self.near, &moments);
         let (w, near) = pane_weights_with(self.prm, &self.near, &link_light, &e, &lin);
