@@ -2,7 +2,8 @@
 // computes the same). concentrate_main, one invocation per near-field link: for a link whose
 // entry's cell is hot (a point or spot light closer to its centroid than
 // HOT_REACH x its size, or a mixed triangle in it: a shadow edge across it, irradiance.wgsl),
-// link_light = (E_j kappa, this update's number), kappa = per channel,
+// link_light = (E_j kappa, this update's number; kappa 1 for a texel beyond NEAR_SIZES of a
+// cell hot only by a shadow edge), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
 // sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
 // point's bit, else the triangle's visible share) / (their area mean); SUB = CONCENTRATION_SUB
@@ -11,13 +12,19 @@
 // words: the number kept as bits of a float could be a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
 
-fn is_hot(h: GpuHotEntry) -> bool {
+// A point or spot light closer to the cell's centroid than HOT_REACH x its size.
+fn near_light(h: GpuHotEntry) -> bool {
     for (var i = 0u; i < params.light_count; i++) {
         let l = lights[i];
         if l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size {
             return true;
         }
     }
+    return false;
+}
+
+// A shadow edge across one of the cell's triangles (irradiance.wgsl).
+fn mixed_cell(h: GpuHotEntry) -> bool {
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         if (cells[k].fine_hi & CELL_MIXED) != 0u {
             return true;
@@ -133,9 +140,15 @@ fn concentrate_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workg
     let t = near_texels[lo];
     let j = near_links[i].entry;
     let h = hot_entries[j];
-    if !is_hot(h) {
+    let lit_near = near_light(h);
+    if !lit_near && !mixed_cell(h) {
         return;
     }
-    let e = entry_irradiance[j].xyz * kappa(t.position, t.normal, h);
+    // A cell hot only by a shadow edge: a texel beyond NEAR_SIZES sees it under a kernel that
+    // varies little, so at its mean (kappa 1).
+    var e = entry_irradiance[j].xyz;
+    if lit_near || distance(t.position, h.centroid) < NEAR_SIZES * h.size {
+        e *= kappa(t.position, t.normal, h);
+    }
     link_light[i] = vec4u(bitcast<vec3u>(e), params.frame);
 }

@@ -133,9 +133,9 @@ impl LinkLight {
         let n = prm.entries().len();
         let cells = prm.cells();
         let of = |j: usize| &cell_lights[cells.first[j] as usize..cells.first[j + 1] as usize];
-        let hot: Vec<bool> = (0..n)
-            .map(|j| is_hot(tables.centroid[j], tables.size[j], lights) || of(j).iter().any(|t| t.mixed))
-            .collect();
+        let near_light: Vec<bool> =
+            (0..n).map(|j| is_hot(tables.centroid[j], tables.size[j], lights)).collect();
+        let hot: Vec<bool> = (0..n).map(|j| near_light[j] || of(j).iter().any(|t| t.mixed)).collect();
         let mut value = vec![Vec3::ZERO; prm.near().len()];
         let mut energy = vec![Vec3::ZERO; n];
         if hot.iter().any(|&h| h) {
@@ -146,7 +146,14 @@ impl LinkLight {
                     let j = l.entry as usize;
                     if hot[j] {
                         let cell = (tables.centroid[j], tables.size[j]);
-                        let kappa = concentration(p.position, p.normal, cell, cells.of(j), of(j), lights);
+                        // A cell hot only by a shadow edge: texels beyond NEAR_SIZES see it
+                        // under a kernel that varies little, so its mean (kappa 1).
+                        let seen = near_light[j] || p.position.distance(cell.0) < NEAR_SIZES * cell.1;
+                        let kappa = if seen {
+                            concentration(p.position, p.normal, cell, cells.of(j), of(j), lights)
+                        } else {
+                            Vec3::ONE
+                        };
                         value[k] = entry_irradiance[j] * kappa;
                         energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor * gain);
                     }
