@@ -43,19 +43,7 @@ fn point_cells(points: &[(Vec3, Vec3)]) -> (prm::prm_file::Cells, Vec<f32>) {
 /// runtime's own shadow maps and pass.
 fn gpu_irradiance(g: &Gpu, scene: &Scene, lights: &[Light], points: &[(Vec3, Vec3)], size: u32) -> Vec<Vec3> {
     let (cells, areas) = point_cells(points);
-    gpu_cell_irradiance(g, scene, lights, &cells, &areas, size)
-}
-
-/// GPU entry irradiance of entries with these cells and areas.
-fn gpu_cell_irradiance(
-    g: &Gpu,
-    scene: &Scene,
-    lights: &[Light],
-    cells: &prm::prm_file::Cells,
-    areas: &[f32],
-    size: u32,
-) -> Vec<Vec3> {
-    gpu_entry_pass(g, scene, lights, cells, areas, size).0
+    gpu_entry_pass(g, scene, lights, &cells, &areas, size).0
 }
 
 /// The entry pass run on entries with these cells and areas: their irradiance, and the cell
@@ -816,7 +804,7 @@ fn entry_weights_deliver_the_power_a_plane_receives_at_any_light_height() {
         let want = 5.0 * omega;
         let power = |e: &[Vec3]| e.iter().zip(&areas).map(|(e, a)| e.x as f64 * *a as f64).sum::<f64>();
         let lights = std::slice::from_ref(&light);
-        let gpu = power(&gpu_cell_irradiance(&g, &scene, lights, &cells, &areas, 1024));
+        let gpu = power(&gpu_entry_pass(&g, &scene, lights, &cells, &areas, 1024).0);
         let cpu: Vec<Vec3> =
             (0..entries.len()).map(|j| prm::bvh::cell_power(&bvh, lights, cells.of(j)) / areas[j]).collect();
         let cpu = power(&cpu);
