@@ -7,8 +7,8 @@
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
 // sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
 // point's bit, else the triangle's visible share) / (their area mean); SUB = CONCENTRATION_SUB
-// within NEAR_SIZES cell sizes of the centroid and on a mixed triangle, else
-// CONCENTRATION_SUB_FAR. Links of cells that are not hot are not written: their number stays old. (u32
+// on a mixed triangle and within NEAR_SIZES cell sizes of the centroid of a cell a light is
+// near, else CONCENTRATION_SUB_FAR. Links of cells that are not hot are not written: their number stays old. (u32
 // words: the number kept as bits of a float could be a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
 
@@ -54,7 +54,9 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
     var weight = 0.0;
     var plain = vec3f(0.0);
     var area_sum = 0.0;
-    let near = distance(x, h.centroid) < NEAR_SIZES * h.size;
+    // Every triangle fine near a cell a light is near; near one hot only by a shadow edge, its
+    // mixed triangles (prm_runtime::cpu::concentrate::concentration).
+    let near = distance(x, h.centroid) < NEAR_SIZES * h.size && near_light(h);
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         let t = cells[k];
         let e1 = t.b - t.a;

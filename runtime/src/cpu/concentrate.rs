@@ -61,7 +61,8 @@ pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light]) -> bool {
 /// has them): 1 in a channel with no light or no view of the cell. A point's visibility is its
 /// triangle's visible share, or on a mixed triangle (a shadow edge across it) its own
 /// ([`TriangleLight::at_fine`]); a mixed triangle always takes the [`SUB`] quadrature, whose
-/// points are the entry pass's fine points.
+/// points are the entry pass's fine points, and the others within [`NEAR_SIZES`] of a cell a
+/// light is near ([`is_hot`]).
 pub fn concentration(
     x: Vec3,
     nx: Vec3,
@@ -71,7 +72,10 @@ pub fn concentration(
     lights: &[Light],
 ) -> Vec3 {
     let (mut seen, mut weight, mut plain, mut area_sum) = (Vec3::ZERO, 0.0f32, Vec3::ZERO, 0.0f32);
-    let near = x.distance(centroid) < NEAR_SIZES * size;
+    // Near a cell a light is near, every triangle takes the fine quadrature; near one hot only by
+    // a shadow edge, its mixed triangles (their light is smooth elsewhere, and the fine points
+    // of every triangle made the concentration most of a moving light's frame on lavapipe).
+    let near = x.distance(centroid) < NEAR_SIZES * size && is_hot(centroid, size, lights);
     for (t, v) in tris.iter().zip(vis) {
         let cross = (t[1] - t[0]).cross(t[2] - t[0]);
         let Some(n) = cross.try_normalize() else { continue };
