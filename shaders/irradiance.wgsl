@@ -66,14 +66,19 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
             var total = 0.0;
             var seen = 0.0;
             var mixed = false;
-            // The lights whose probes agree; the others wait for the fine points.
+            // Per light, the probes' verdict (-1: they differ; -2: no light reaches the
+            // triangle), kept for the fine points. The lights whose probes agree are summed
+            // here; the others wait for the fine points.
+            var verdict: array<f32, MAX_LIGHTS>;
             for (var i = 0u; i < params.light_count; i++) {
                 let l = lights[i];
                 let p = triangle_power(l, t.a, t.b, t.c);
+                verdict[i] = -2.0;
                 if all(p == vec3f(0.0)) {
                     continue;
                 }
                 let v = probes(l, t.a, e1, e2, n);
+                verdict[i] = v;
                 if v < 0.0 {
                     mixed = true;
                     continue;
@@ -88,11 +93,10 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                 var lit_at: array<f32, CELL_FINE_POINTS>;
                 for (var i = 0u; i < params.light_count; i++) {
                     let l = lights[i];
-                    let p = triangle_power(l, t.a, t.b, t.c);
-                    if all(p == vec3f(0.0)) {
+                    let uniform = verdict[i];
+                    if uniform == -2.0 {
                         continue;
                     }
-                    let uniform = probes(l, t.a, e1, e2, n);
                     var e_sum = 0.0;
                     var ev_sum = 0.0;
                     var v_sum = 0.0;
@@ -120,6 +124,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                         }
                     }
                     if uniform < 0.0 {
+                        let p = triangle_power(l, t.a, t.b, t.c);
                         var v = v_sum / f32(CELL_FINE_POINTS);
                         if e_sum > 0.0 {
                             v = ev_sum / e_sum;

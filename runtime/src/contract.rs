@@ -63,6 +63,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CELL_FINE_SUB", prm::cell_light::FINE_SUB),
     ("CELL_FINE_POINTS", prm::cell_light::FINE_POINTS as u32),
     ("CELL_MIXED", CELL_MIXED),
+    ("MAX_LIGHTS", prm::rig::MAX_LIGHTS as u32),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
