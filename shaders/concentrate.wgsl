@@ -1,12 +1,13 @@
 // How a texel sees a hot cell (prm_runtime::cpu::concentrate says why and what; the CPU twin
-// computes the same). concentrate_main, one invocation per near-field link: for a link whose
-// entry's cell is hot (a point or spot light closer to its centroid than
+// computes the same). concentrate_main, one workgroup per work item (up to WG_LINEAR links of
+// one entry): for each near-field link whose entry's cell is hot (a point or spot light closer to its centroid than
 // HOT_REACH x its size, or a mixed triangle in it: a shadow edge across it, irradiance.wgsl),
 // link_light = (E_j kappa, this update's number; kappa 1 for a texel beyond NEAR_SIZES of a
 // cell hot only by a shadow edge), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
 // sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
-// point's bit, else the triangle's visible share) / (their area mean); SUB = CONCENTRATION_SUB
+// point's bit, else the triangle's visible share) / (their area mean), the unshadowed
+// irradiance on a cell no light is near being each triangle's level (irradiance.wgsl); SUB = CONCENTRATION_SUB
 // on a mixed triangle and within NEAR_SIZES cell sizes of the centroid of a cell a light is
 // near, else CONCENTRATION_SUB_FAR. Links of cells that are not hot are not written: their number stays old. (u32
 // words: the number kept as bits of a float could be a denormal, which a GPU may flush.)
@@ -17,16 +18,6 @@ fn near_light(h: GpuHotEntry) -> bool {
     for (var i = 0u; i < params.light_count; i++) {
         let l = lights[i];
         if l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size {
-            return true;
-        }
-    }
-    return false;
-}
-
-// A shadow edge across one of the cell's triangles (irradiance.wgsl).
-fn mixed_cell(h: GpuHotEntry) -> bool {
-    for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
-        if (cells[k].fine_hi & CELL_MIXED) != 0u {
             return true;
         }
     }
@@ -49,14 +40,15 @@ fn ratio(seen: f32, plain: f32, weight: f32, area: f32) -> f32 {
     return 1.0;
 }
 
-fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
+// lit_near: near_light(h).
+fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
     var seen = vec3f(0.0);
     var weight = 0.0;
     var plain = vec3f(0.0);
     var area_sum = 0.0;
     // Every triangle fine near a cell a light is near; near one hot only by a shadow edge, its
     // mixed triangles (prm_runtime::cpu::concentrate::concentration).
-    let near = distance(x, h.centroid) < NEAR_SIZES * h.size && near_light(h);
+    let near = lit_near && distance(x, h.centroid) < NEAR_SIZES * h.size;
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         let t = cells[k];
         let e1 = t.b - t.a;
@@ -82,10 +74,15 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
                         continue;
                     }
                     let y = t.a + e1 * (fa / s) + e2 * (fb / s);
-                    var e = vec3f(0.0);
-                    for (var i = 0u; i < params.light_count; i++) {
-                        let inc = incident(lights[i], y);
-                        e += inc.irradiance * max(dot(n, inc.to_light), 0.0);
+                    // Lights farther than HOT_REACH cell sizes: the triangle's unshadowed
+                    // level (irradiance.wgsl) stands for them.
+                    var e = t.level;
+                    if lit_near {
+                        e = vec3f(0.0);
+                        for (var i = 0u; i < params.light_count; i++) {
+                            let inc = incident(lights[i], y);
+                            e += inc.irradiance * max(dot(n, inc.to_light), 0.0);
+                        }
                     }
                     var v = t.visibility;
                     if mixed {
@@ -114,23 +111,11 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry) -> vec3f {
     );
 }
 
-// One invocation per link (a texel's links each in their own: a texel by a wall of hot
-// cells has dozens, and one invocation walking them all ran so long that lavapipe stopped it
-// part way, leaving links unwritten), in rows of at most 32768 workgroups; the link's texel is
-// the last whose links start at or before it (links are stored texel by texel).
-@compute @workgroup_size(WG_LINEAR)
-fn concentrate_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) groups: vec3u) {
-    let i = id.x + id.y * groups.x * WG_LINEAR;
-    let count = params.near_texel_count;
-    if count == 0u {
-        return;
-    }
-    let last = near_texels[count - 1u];
-    if i >= last.first + last.count {
-        return;
-    }
+// The texel of link i: the last whose links start at or before it (links are stored texel by
+// texel).
+fn texel_of(i: u32) -> u32 {
     var lo = 0u;
-    var hi = count - 1u;
+    var hi = params.near_texel_count - 1u;
     while lo < hi {
         let mid = (lo + hi + 1u) / 2u;
         if near_texels[mid].first <= i {
@@ -139,18 +124,60 @@ fn concentrate_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workg
             hi = mid - 1u;
         }
     }
-    let t = near_texels[lo];
-    let j = near_links[i].entry;
-    let h = hot_entries[j];
-    let lit_near = near_light(h);
-    if !lit_near && !mixed_cell(h) {
+    return lo;
+}
+
+// The links of this work item that take kappa: (link, texel).
+var<workgroup> seen_links: array<vec2u, WG_LINEAR>;
+var<workgroup> seen_count: atomic<u32>;
+
+// One workgroup per work item (at most WG_LINEAR links of one entry: runtime/src/concentrate.rs,
+// link_ids), in rows of at most 32768 workgroups: a cell that is not hot leaves at once, whole;
+// a hot one's links that take kappa are gathered first so that the group's invocations
+// compute one each side by side (they cost alike: one cell). Per link (the old way) most
+// invocations of a group found cold cells and waited on the one that found a hot cell.
+@compute @workgroup_size(WG_LINEAR)
+fn concentrate_main(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) groups: vec3u,
+) {
+    let item = wg.x + wg.y * groups.x;
+    let at = params.link_count;
+    if item >= link_ids[at] || params.near_texel_count == 0u {
         return;
     }
-    // A cell hot only by a shadow edge: a texel beyond NEAR_SIZES sees it under a kernel that
-    // varies little, so at its mean (kappa 1).
-    var e = entry_irradiance[j].xyz;
-    if lit_near || distance(t.position, h.centroid) < NEAR_SIZES * h.size {
-        e *= kappa(t.position, t.normal, h);
+    let j = link_ids[at + 1u + 2u * item];
+    let first = link_ids[at + 2u + 2u * item];
+    let h = hot_entries[j];
+    // A shadow edge across the cell: the entry pass's mark (irradiance.wgsl).
+    let lit_near = near_light(h);
+    let e = entry_irradiance[j];
+    if !lit_near && e.w == 0.0 {
+        return;
     }
-    link_light[i] = vec4u(bitcast<vec3u>(e), params.frame);
+    if lid == 0u {
+        atomicStore(&seen_count, 0u);
+    }
+    workgroupBarrier();
+    let k = first + lid;
+    if k < h.link_count {
+        let i = link_ids[h.first_link + k];
+        let t = texel_of(i);
+        // A cell hot only by a shadow edge: a texel beyond NEAR_SIZES sees it under a kernel
+        // that varies little, so at its mean (kappa 1).
+        if lit_near || distance(near_texels[t].position, h.centroid) < NEAR_SIZES * h.size {
+            seen_links[atomicAdd(&seen_count, 1u)] = vec2u(i, t);
+        } else {
+            link_light[i] = vec4u(bitcast<vec3u>(e.xyz), params.frame);
+        }
+    }
+    workgroupBarrier();
+    let n = atomicLoad(&seen_count);
+    if lid < n {
+        let p = seen_links[lid];
+        let t = near_texels[p.y];
+        let light = e.xyz * kappa(t.position, t.normal, h, lit_near);
+        link_light[p.x] = vec4u(bitcast<vec3u>(light), params.frame);
+    }
 }

@@ -2,6 +2,9 @@
 // far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sum of
 // their luminances, and the entries whose |phi| luminance is at least sum / FAR_SOURCES,
 // ascending, into source_index / source_flux (their number at source_index[FAR_SOURCES]).
+// sees_main, one invocation per (source, block of 32 entries): which entries of the block see
+// the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
+// sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the texel's near_sum slot (written
 // when the slot is past the near field's own texels). Structs, bindings, WG_LINEAR,
@@ -82,20 +85,43 @@ fn blocks() -> u32 {
     return (params.entry_count + 31u) / 32u;
 }
 
-// Whether entry i (in block bi, whose run of pairs has reached `at`) sees entry j: `at` is the
-// first pair of the run naming a block >= j's, so over ascending j each run is walked once.
-fn sees_at(i: u32, j: u32, at: u32) -> f32 {
-    if i == j {
-        return 1.0;
-    }
+// One invocation per (source, block), in rows of at most 32768 workgroups: FAR_SOURCES rows of
+// blocks() words, those past the sources listed left alone (far_main never reads them).
+@compute @workgroup_size(WG_LINEAR)
+fn sees_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) groups: vec3u) {
+    let i = id.x + id.y * groups.x * WG_LINEAR;
     let b = blocks();
-    let pairs = far_visible[b];
-    let end = far_visible[i / 32u + 1u];
-    if at >= end || far_visible[b + 1u + at] != j / 32u {
-        return 0.0;
+    let s = i / b;
+    if s >= source_index[FAR_SOURCES] {
+        return;
     }
-    let w = far_visible[b + 1u + pairs + at * 32u + i % 32u];
-    return f32((w >> (j % 32u)) & 1u);
+    let a = i % b;
+    let j = source_index[s];
+    let other = j / 32u;
+    // The pair (a, other) in block a's run of pairs, whose other blocks ascend.
+    let end = far_visible[a + 1u];
+    var lo = far_visible[a];
+    var hi = end;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if far_visible[b + 1u + mid] < other {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    var word = 0u;
+    if lo < end && far_visible[b + 1u + lo] == other {
+        let pairs = far_visible[b];
+        for (var r = 0u; r < 32u; r++) {
+            word |= ((far_visible[b + 1u + pairs + lo * 32u + r] >> (j % 32u)) & 1u) << r;
+        }
+    }
+    // An entry sees itself.
+    if other == a {
+        word |= 1u << (j % 32u);
+    }
+    source_sees[i] = word;
 }
 
 @compute @workgroup_size(WG_LINEAR)
@@ -110,38 +136,33 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
     // their own surface hides: prm_runtime::cpu's far-field vote).
     var at: array<vec3f, 4>;
     var facing: array<vec3f, 4>;
-    // Each neighbour's place in its block's run of pairs (the sources ascend).
-    var run: array<u32, 4>;
     let b = blocks();
     for (var q = 0u; q < 4u; q++) {
         let m = far_entries[t.entries[q]];
         at[q] = m.centroid;
         facing[q] = m.normal;
-        run[q] = far_visible[t.entries[q] / 32u];
     }
     var sum = vec3f(0.0);
     for (var s = 0u; s < count; s++) {
         let j = source_index[s];
-        for (var q = 0u; q < 4u; q++) {
-            let end = far_visible[t.entries[q] / 32u + 1u];
-            while run[q] < end && far_visible[b + 1u + run[q]] < j / 32u {
-                run[q] += 1u;
-            }
-        }
         let e = far_entries[j];
-        let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
         let d = e.centroid - t.position;
-        let r2 = dot(d, d);
         let cx = dot(t.normal, d);
         let cy = -dot(e.normal, d);
-        if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
+        if cx <= 0.0 || cy <= 0.0 {
             continue;
         }
+        let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
+        if share <= 0.0 {
+            continue;
+        }
+        let r2 = dot(d, d);
         var seen = 0.0;
         var total = 0.0;
         var every = 0.0;
         for (var q = 0u; q < 4u; q++) {
-            let vote = t.weights[q] * sees_at(t.entries[q], j, run[q]);
+            let m = t.entries[q];
+            let vote = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
             every += vote;
             if dot(facing[q], e.centroid - at[q]) > 0.0 {
                 seen += vote;

@@ -7,8 +7,9 @@
 // CELL_FINE_SUB² fine points, and the triangle is mixed: per fine point, a bit says whether
 // it receives at least half the light that reaches it unshadowed (fine_lo: points 0-31;
 // fine_hi: points 32-35, and CELL_MIXED for a mixed triangle). Each cell triangle also keeps
-// its visible share (luminance-weighted over the lights; 1 where none arrives). The near
-// field's concentration (concentrate.wgsl) reads both. Structs, constants and bindings: the
+// its visible share (luminance-weighted over the lights; 1 where none arrives) and its
+// unshadowed level (its power over that share and its area). The near field's concentration
+// (concentrate.wgsl) reads them, and the w of E_j: 1 where one of the cell's triangles is mixed. Structs, constants and bindings: the
 // generated prelude (runtime/src/contract.rs, runtime/src/irradiance.rs); the power:
 // lights.wgsl.
 
@@ -52,6 +53,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let e = entries[j];
     var power = vec3f(0.0);
+    var any_mixed = 0.0;
     for (var k = e.first_cell; k < e.first_cell + e.cell_count; k++) {
         let t = cells[k];
         let e1 = t.b - t.a;
@@ -59,6 +61,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
         let twice_area = cross(e1, e2);
         let len = length(twice_area);
         var share = 1.0;
+        var tri_power = vec3f(0.0);
         var fine_lo = 0u;
         var fine_hi = 0u;
         if len > 0.0 {
@@ -83,7 +86,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                     mixed = true;
                     continue;
                 }
-                power += p * v;
+                tri_power += p * v;
                 total += luminance(p);
                 seen += luminance(p) * v;
             }
@@ -129,7 +132,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                         if e_sum > 0.0 {
                             v = ev_sum / e_sum;
                         }
-                        power += p * v;
+                        tri_power += p * v;
                         total += luminance(p);
                         seen += luminance(p) * v;
                     }
@@ -144,14 +147,24 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                     }
                 }
                 fine_hi |= CELL_MIXED;
+                any_mixed = 1.0;
             }
             if total > 0.0 {
                 share = seen / total;
             }
         }
+        power += tri_power;
+        // The unshadowed level the concentration spreads by the visibility where no light is
+        // near (prm_runtime::cpu::concentrate::unshadowed_level).
+        var level = vec3f(0.0);
+        if len > 0.0 && share > 0.0 {
+            level = tri_power / (share * 0.5 * len);
+        }
         cells[k].visibility = share;
+        cells[k].level = level;
         cells[k].fine_lo = fine_lo;
         cells[k].fine_hi = fine_hi;
     }
-    entry_irradiance[j] = vec4f(power * e.inv_area, 0.0);
+    // w: 1 where a shadow edge crosses the cell (a mixed triangle), for the concentration.
+    entry_irradiance[j] = vec4f(power * e.inv_area, any_mixed);
 }

@@ -111,6 +111,11 @@ struct PassTimes {
     weights_selection: f64,
     compose: f64,
     shading: f64,
+    /// Where cells are hot (the near field's concentration; 0 when no cell is).
+    concentration: f64,
+    /// The near field and its echo.
+    near_field: f64,
+    far_field: f64,
 }
 
 #[derive(Serialize)]
@@ -331,6 +336,9 @@ fn pass_medians(passes: &[Vec<f64>]) -> Option<PassTimes> {
         weights_selection: pass_median(1),
         compose: pass_median(2),
         shading: pass_median(3),
+        concentration: pass_median(4),
+        near_field: pass_median(5),
+        far_field: pass_median(6),
     })
 }
 
@@ -364,9 +372,15 @@ fn print_text(r: &Report) {
     println!("ratio (medians):   {:.3} (target <= 1.10)", r.ratio_median);
     if let Some(p) = &r.gpu_pass_ms {
         println!(
-            "GPU passes (median): entry irradiance {:.3} ms, weights+selection {:.3} ms, compose {:.3} \
-            ms, shading {:.3} ms",
-            p.entry_irradiance, p.weights_selection, p.compose, p.shading
+            "GPU passes (median): entry irradiance {:.3} ms, concentration {:.3} ms, weights+selection \
+            {:.3} ms, near field {:.3} ms, far field {:.3} ms, compose {:.3} ms, shading {:.3} ms",
+            p.entry_irradiance,
+            p.concentration,
+            p.weights_selection,
+            p.near_field,
+            p.far_field,
+            p.compose,
+            p.shading
         );
     } else {
         println!("GPU passes: this adapter has no timestamp queries");

@@ -2,7 +2,8 @@
 //! `shaders/link_energy.wgsl`; [`crate::cpu::concentrate`] says what and why, and is the twin).
 //!
 //! After the entry pass: `concentrate_main` gives each near-field link of a hot cell its own
-//! light (`E_j kappa`, stamped with the update's number), then `link_energy_main` sums each hot
+//! light (`E_j kappa`, stamped with the update's number; a workgroup per entry, whose links
+//! that take kappa are gathered so that the group computes them side by side), then `link_energy_main` sums each hot
 //! entry's links into the energy the weight pass balances against. The near pass reads a link's
 //! light only when its stamp is this update's.
 
@@ -14,11 +15,41 @@ use crate::gpu;
 use crate::layout::{GpuHotEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
 
+/// The near-field links grouped by entry, then the concentration's work items, in one buffer
+/// (the pass has no storage binding to spare): the links' indices entry by entry; the number
+/// of items; then per item (entry, first of its links within the entry's run), each at most
+/// [`WG_LINEAR`] links of one entry. Also each entry's run (first index, count). A workgroup
+/// takes an item, so no invocation computes more than one kappa: lavapipe cuts an invocation
+/// short once its loops have run long enough (a workgroup an entry, looping over a large
+/// cell's links, left a fifth of them stale on the CLI's budget test).
+pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
+    let n = prm.entries().len();
+    let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (k, l) in prm.near().iter().enumerate() {
+        per_entry[l.entry as usize].push(k as u32);
+    }
+    let mut ids: Vec<u32> = Vec::with_capacity(prm.near().len() + 1);
+    let mut runs = Vec::with_capacity(n);
+    let mut items = Vec::new();
+    for (j, links) in per_entry.iter().enumerate() {
+        runs.push((ids.len() as u32, links.len() as u32));
+        ids.extend_from_slice(links);
+        for first in (0..links.len()).step_by(WG_LINEAR as usize) {
+            items.extend_from_slice(&[j as u32, first as u32]);
+        }
+    }
+    ids.push((items.len() / 2) as u32);
+    ids.extend_from_slice(&items);
+    (ids, runs)
+}
+
 pub const CONCENTRATE_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
-    b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
     b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
+    // [`link_ids`]: the links by entry (each entry's run: `GpuHotEntry::first_link`,
+    // `link_count`), then the work items.
+    b("link_ids", Res::Read("array<u32>"), COMPUTE),
     // The entry pass's cell triangles, with their visibility.
     b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
@@ -61,8 +92,11 @@ pub struct ConcentratePass {
     concentrate_group: wgpu::BindGroup,
     energy_group: wgpu::BindGroup,
     texels: u32,
-    links: u32,
     entries: u32,
+    /// Near-field links (`IndirectParams::link_count`).
+    pub links: u32,
+    /// Work items of `concentrate_main` ([`link_ids`]).
+    items: u32,
     /// Per link: `vec4u` (bits of E_j kappa, update number).
     pub link_light: wgpu::Buffer,
     /// Per entry: `vec4u` (bits of its hot links' energy, update number).
@@ -72,7 +106,6 @@ pub struct ConcentratePass {
 /// The buffers the near pass already holds, shared here.
 pub struct NearBuffers<'a> {
     pub texels: &'a wgpu::Buffer,
-    pub links: &'a wgpu::Buffer,
     pub texel_count: u32,
 }
 
@@ -89,33 +122,22 @@ impl ConcentratePass {
         near: NearBuffers,
     ) -> ConcentratePass {
         let n = prm.entries().len();
-        // Link indices grouped by entry.
-        let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for (k, l) in prm.near().iter().enumerate() {
-            per_entry[l.entry as usize].push(k as u32);
-        }
+        let (link_ids, runs) = link_ids(prm);
         let cells_of = &prm.cells().first;
-        let mut link_ids: Vec<u32> = Vec::with_capacity(prm.near().len());
         let mut hot: Vec<GpuHotEntry> = (0..n)
-            .map(|j| {
-                let first_link = link_ids.len() as u32;
-                link_ids.extend_from_slice(&per_entry[j]);
-                GpuHotEntry {
-                    centroid: tables.centroid[j].to_array(),
-                    size: tables.size[j],
-                    first_cell: cells_of[j],
-                    cell_count: cells_of[j + 1] - cells_of[j],
-                    first_link,
-                    link_count: per_entry[j].len() as u32,
-                }
+            .map(|j| GpuHotEntry {
+                centroid: tables.centroid[j].to_array(),
+                size: tables.size[j],
+                first_cell: cells_of[j],
+                cell_count: cells_of[j + 1] - cells_of[j],
+                first_link: runs[j].0,
+                link_count: runs[j].1,
             })
             .collect();
+        let items = ((link_ids.len() - prm.near().len() - 1) / 2) as u32;
         // Storage bindings cannot be empty.
         if hot.is_empty() {
             hot.push(GpuHotEntry::default());
-        }
-        if link_ids.is_empty() {
-            link_ids.push(0);
         }
         let none = wgpu::BufferUsages::empty();
         let hot_buf = gpu::storage_buffer(device, "hot entries", bytemuck::cast_slice(&hot), none);
@@ -144,8 +166,8 @@ impl ConcentratePass {
             &[
                 ("params", params.as_entire_binding()),
                 ("near_texels", near.texels.as_entire_binding()),
-                ("near_links", near.links.as_entire_binding()),
                 ("hot_entries", hot_buf.as_entire_binding()),
+                ("link_ids", ids_buf.as_entire_binding()),
                 ("cells", cells.as_entire_binding()),
                 ("entry_irradiance", entry_irradiance.as_entire_binding()),
                 ("link_light", link_light.as_entire_binding()),
@@ -186,8 +208,9 @@ impl ConcentratePass {
             concentrate_group,
             energy_group,
             texels: near.texel_count,
-            links: prm.near().len() as u32,
             entries: n as u32,
+            links: prm.near().len() as u32,
+            items,
             link_light,
             hot_energy,
         }
@@ -195,21 +218,25 @@ impl ConcentratePass {
 
     /// Records both passes (after the entry pass, before the weights); `shadows` is the lights
     /// group.
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, shadows: &wgpu::BindGroup) {
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        shadows: &wgpu::BindGroup,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
         if self.texels == 0 {
             return;
         }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("concentrate"),
-            timestamp_writes: None,
+            timestamp_writes: timestamps,
         });
         pass.set_pipeline(&self.concentrate);
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.concentrate_group, &[]);
-        // A link an invocation, in rows of at most 32768 workgroups (the limit is 65535).
-        let groups = self.links.div_ceil(WG_LINEAR);
-        let x = groups.clamp(1, 32768);
-        pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
+        // A workgroup a work item, in rows of at most 32768 (the limit is 65535).
+        let x = self.items.clamp(1, 32768);
+        pass.dispatch_workgroups(x, self.items.div_ceil(x).max(1), 1);
         pass.set_pipeline(&self.energy);
         pass.set_bind_group(0, &self.energy_group, &[]);
         pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);

@@ -36,6 +36,8 @@ pub const BINDINGS: &[Binding] = &[
     b("source_flux", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // The near field's per-texel sums (crate::near), where the compose reads both fields.
     b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Per source, which entries see it: a bit an entry ([`source_sees_words`]).
+    b("source_sees", Res::ReadWrite("array<u32>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -45,6 +47,7 @@ pub const SHADER: Shader = Shader {
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "sources_main", workgroup: [WG_FAR_SOURCES, 1, 1] },
+        Compute { entry: "sees_main", workgroup: LINEAR },
         Compute { entry: "far_main", workgroup: LINEAR },
     ],
 };
@@ -52,6 +55,9 @@ pub const SHADER: Shader = Shader {
 /// The far field's pipelines and tables; none when the map has no far field.
 pub struct FarPass {
     sources: wgpu::ComputePipeline,
+    sees: wgpu::ComputePipeline,
+    /// Invocations of `sees_main`: [`source_sees_words`].
+    sees_count: u32,
     texels: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
     /// Texels the far field lights.
@@ -106,6 +112,8 @@ impl FarPass {
         let texel_buf = gpu::storage_buffer(device, "far texels", bytemuck::cast_slice(&texels), none);
         let index = gpu::storage_buffer(device, "far sources", &vec![0u8; (FAR_SOURCES + 1) * 4], none);
         let flux = gpu::storage_buffer(device, "far source flux", &vec![0u8; FAR_SOURCES * 16], none);
+        let sees_words = source_sees_words(prm.entries().len());
+        let source_sees = gpu::storage_buffer(device, SOURCE_SEES, &vec![0u8; sees_words * 4], none);
         let layout = SHADER.layout(device, 0);
         let group = bind(
             device,
@@ -121,13 +129,17 @@ impl FarPass {
                 ("source_index", index.as_entire_binding()),
                 ("source_flux", flux.as_entire_binding()),
                 ("near_sum", sums.as_entire_binding()),
+                ("source_sees", source_sees.as_entire_binding()),
             ],
         );
         let source = SHADER.source();
         let sources = gpu::compute_pipeline(device, "far.wgsl", &source, "sources_main", &[&layout]);
+        let sees = gpu::compute_pipeline(device, "far.wgsl", &source, "sees_main", &[&layout]);
         let texels_pipeline = gpu::compute_pipeline(device, "far.wgsl", &source, "far_main", &[&layout]);
         Some(FarPass {
             sources,
+            sees,
+            sees_count: sees_words as u32,
             texels: texels_pipeline,
             group,
             count: texels.len() as u32,
@@ -135,14 +147,31 @@ impl FarPass {
         })
     }
 
-    /// Records the two dispatches into an open compute pass (after the near field's).
+    /// Records the three dispatches into an open compute pass (after the near field's).
     pub fn encode(&self, pass: &mut wgpu::ComputePass) {
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.sources);
         pass.dispatch_workgroups(1, 1, 1);
+        // A (source, block) an invocation, in rows of at most 32768 workgroups (the limit is
+        // 65535).
+        pass.set_pipeline(&self.sees);
+        let groups = self.sees_count.div_ceil(WG_LINEAR);
+        let x = groups.clamp(1, 32768);
+        pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
         pass.set_pipeline(&self.texels);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
     }
+}
+
+/// The per-frame table of which entries see each far-field source (`shaders/far.wgsl`'s
+/// `sees_main`), as the GPU memory estimate names it.
+pub const SOURCE_SEES: &str = "far source visibility";
+
+/// Words of that table for `entries` entries: [`FAR_SOURCES`] rows of a bit an entry. Made
+/// once a frame from the pairs' bits, it spares the far field's texels the search for their
+/// neighbours' pairs at every source (on lavapipe, most of the far field's time).
+pub fn source_sees_words(entries: usize) -> usize {
+    FAR_SOURCES * entries.div_ceil(32)
 }
 
 /// The far field's visibility as the shader reads it, in one buffer (a stage has few storage

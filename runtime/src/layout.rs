@@ -201,6 +201,12 @@ gpu_struct! {
         pub c: [f32; 3],
         /// Fine points 32-35's bits, and [`crate::contract::CELL_MIXED`] on a mixed triangle.
         pub fine_hi: u32,
+        /// The unshadowed irradiance on it as the light that arrives tells it (W/m²: its power
+        /// over its visible share and area, 0 where none arrives), written by the entry pass
+        /// for the concentration of cells no light is near
+        /// (`prm_runtime::cpu::concentrate::concentration`).
+        pub level: [f32; 3],
+        pub _pad0: u32,
     }
 }
 
@@ -227,7 +233,9 @@ gpu_struct! {
         pub far_texel_count: u32,
         /// `prm::prm_file::Far::reach`.
         pub far_reach: f32,
-        pub _pad0: u32,
+        /// Near-field links: where the concentration's work items start in its `link_ids`
+        /// (`crate::concentrate::link_ids`).
+        pub link_count: u32,
     }
 }
 

@@ -259,13 +259,14 @@ impl NearPass {
     }
 
     /// Records the pass (after the weights, before the compose).
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder) {
+    /// With `timer`, the near field and its echo are pass 5 and the far field pass 6.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timer::PassTimer>) {
         if self.count == 0 && self.far.is_none() {
             return;
         }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("near field"),
-            timestamp_writes: None,
+            timestamp_writes: timer.map(|t| t.writes(5)),
         });
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.deviation_pipeline);
@@ -282,7 +283,12 @@ impl NearPass {
             pass.set_pipeline(&echo.second);
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
         }
+        drop(pass);
         if let Some(far) = &self.far {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("far field"),
+                timestamp_writes: timer.map(|t| t.writes(6)),
+            });
             far.encode(&mut pass);
         }
     }

@@ -142,7 +142,7 @@ impl Runtime {
             &params_buf,
             &entries.cells,
             &entries.output,
-            NearBuffers { texels: &near_data.texels, links: &near_data.links, texel_count: near_data.count },
+            NearBuffers { texels: &near_data.texels, texel_count: near_data.count },
         );
         let weights =
             WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
@@ -204,7 +204,8 @@ impl Runtime {
     }
 
     /// [`Runtime::update`], writing GPU timestamps around each pass when `timer` is given
-    /// (passes 0, 1, 2: irradiance, weights + selection, compose;
+    /// (passes 0, 1, 2, 4, 5, 6: irradiance, weights + selection, compose, concentration, near
+    /// field and echo, far field;
     /// see [`crate::timer::PassTimer`]).
     pub fn update_timed(
         &mut self,
@@ -227,10 +228,10 @@ impl Runtime {
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("indirect") });
         self.entries.encode(&mut enc, shadows, timer.map(|t| t.writes(0)));
         if self.any_hot {
-            self.concentrate.encode(&mut enc, shadows);
+            self.concentrate.encode(&mut enc, shadows, timer.map(|t| t.writes(4)));
         }
         self.weights.encode_weights(&mut enc, timer.map(|t| t.writes(1)));
-        self.near.encode(&mut enc);
+        self.near.encode(&mut enc, timer);
         if let Some(lift) = &self.lift {
             lift.encode(&mut enc);
         }
@@ -311,7 +312,7 @@ impl Runtime {
             any_hot: self.any_hot as u32,
             far_texel_count: self.near.far.as_ref().map_or(0, |f| f.count),
             far_reach: self.near.far.as_ref().map_or(0.0, |f| f.reach),
-            ..Default::default()
+            link_count: self.concentrate.links,
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }

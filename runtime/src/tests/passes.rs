@@ -200,6 +200,17 @@ fn shadow_edges_across_cell_triangles_are_found_as_the_twin_finds_them() {
     let sum_cpu: Vec3 = cpu.iter().zip(&areas).map(|(c, a)| c.power / *a).sum();
     let sum_gpu: Vec3 = gpu_e.iter().sum();
     assert!((sum_gpu.x / sum_cpu.x - 1.0).abs() < 0.02, "power: twin {sum_cpu}, GPU {sum_gpu}");
+    // Each triangle's unshadowed level, which stands for the lights on cells none is near: the
+    // twin's from its power and share, within 2 % of the brightest where both see light.
+    let level_cpu: Vec<f32> =
+        cpu.iter().zip(&areas).map(|(c, a)| crate::cpu::concentrate::unshadowed_level(c, *a).x).collect();
+    let top = level_cpu.iter().fold(0.0f32, |m, &l| m.max(l));
+    assert!(top > 0.0);
+    for ((l, t), c) in level_cpu.iter().zip(&gpu_cells).zip(&cpu) {
+        if c.share > 0.05 && t.visibility > 0.05 {
+            assert!((l - t.level[0]).abs() < 0.02 * top, "level: twin {l}, GPU {}", t.level[0]);
+        }
+    }
 }
 
 #[test]
