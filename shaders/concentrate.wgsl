@@ -1,16 +1,17 @@
 // How a texel sees a hot cell (prm_runtime::cpu::concentrate says why and what; the CPU twin
 // computes the same). concentrate_main, one workgroup per work item (up to WG_LINEAR links of
-// one entry): for each near-field link whose entry's cell is hot (a point or spot light closer to its centroid than
-// HOT_REACH x its size, or a mixed triangle in it: a shadow edge across it, irradiance.wgsl),
-// link_light = (E_j kappa, this update's number; kappa 1 for a texel beyond NEAR_SIZES of a
-// cell hot only by a shadow edge), kappa = per channel,
+// one entry): for each near-field link whose entry's cell is hot (a point or spot light closer
+// to its centroid than HOT_REACH x its size, or a mixed triangle in it: a shadow edge across
+// it, irradiance.wgsl), link_light = (E_j kappa, this update's number; kappa 1 for a texel
+// beyond NEAR_SIZES of a cell hot only by a shadow edge), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
 // sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
 // point's bit, else the triangle's visible share) / (their area mean), the unshadowed
-// irradiance on a cell no light is near being each triangle's level (irradiance.wgsl); SUB = CONCENTRATION_SUB
-// on a mixed triangle and within NEAR_SIZES cell sizes of the centroid of a cell a light is
-// near, else CONCENTRATION_SUB_FAR. Links of cells that are not hot are not written: their number stays old. (u32
-// words: the number kept as bits of a float could be a denormal, which a GPU may flush.)
+// irradiance on a cell no light is near being each triangle's level (irradiance.wgsl);
+// SUB = CONCENTRATION_SUB on a mixed triangle and within NEAR_SIZES cell sizes of the centroid
+// of a cell a light is near, else CONCENTRATION_SUB_FAR. Links of cells that are not hot are
+// not written: their number stays old. (u32 words: the number kept as bits of a float could be
+// a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
 
 // A point or spot light closer to the cell's centroid than HOT_REACH x its size.
@@ -150,8 +151,8 @@ fn concentrate_main(
     let j = link_ids[at + 1u + 2u * item];
     let first = link_ids[at + 2u + 2u * item];
     let h = hot_entries[j];
-    // A shadow edge across the cell: the entry pass's mark (irradiance.wgsl).
     let lit_near = near_light(h);
+    // w: a shadow edge across the cell, the entry pass's mark (irradiance.wgsl).
     let e = entry_irradiance[j];
     if !lit_near && e.w == 0.0 {
         return;

@@ -9,9 +9,9 @@
 // fine_hi: points 32-35, and CELL_MIXED for a mixed triangle). Each cell triangle also keeps
 // its visible share (luminance-weighted over the lights; 1 where none arrives) and its
 // unshadowed level (its power over that share and its area). The near field's concentration
-// (concentrate.wgsl) reads them, and the w of E_j: 1 where one of the cell's triangles is mixed. Structs, constants and bindings: the
-// generated prelude (runtime/src/contract.rs, runtime/src/irradiance.rs); the power:
-// lights.wgsl.
+// (concentrate.wgsl) reads them, and the w of E_j: 1 where one of the cell's triangles is
+// mixed. Structs, constants and bindings: the generated prelude (runtime/src/contract.rs,
+// runtime/src/irradiance.rs); the power: lights.wgsl.
 
 // Fine point (fa, fb) of a triangle, in units of a sub-triangle's side.
 fn fine_point(a: vec3f, e1: vec3f, e2: vec3f, fa: f32, fb: f32) -> vec3f {
