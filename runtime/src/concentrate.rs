@@ -43,6 +43,16 @@ pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
     (ids, runs)
 }
 
+/// The length of [`link_ids`]'s buffer, without making it.
+pub fn link_ids_len(prm: &Prm) -> usize {
+    let mut per_entry = vec![0usize; prm.entries().len()];
+    for l in prm.near() {
+        per_entry[l.entry as usize] += 1;
+    }
+    let items: usize = per_entry.iter().map(|&c| c.div_ceil(WG_LINEAR as usize)).sum();
+    prm.near().len() + 1 + 2 * items
+}
+
 pub const CONCENTRATE_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),

@@ -69,7 +69,7 @@ impl GpuMemory {
             ("texel slots", storage(atlas.texels() * 8)),
             (LIGHTMAP, atlas.texels() * 16),
             ("link weights", size(near, 4)),
-            ("link ids by entry", size(crate::concentrate::link_ids(prm).0.len(), 4)),
+            ("link ids by entry", size(crate::concentrate::link_ids_len(prm), 4)),
             ("entry cells", size(prm.cells().triangles.len(), std::mem::size_of::<GpuCellTriangle>())),
             ("near links", size(near, std::mem::size_of::<GpuNearLink>())),
             ("link light", size(near, 16)),
