@@ -1,7 +1,7 @@
 // Compose (DESIGN.md §5 step 4, runtime/src/compose.rs): the indirect lightmap is
 // sum over selected clusters c of selected[c] x pane_c, read only from stored tiles.
 //
-// The stored tiles covering atlas tile t are records tile_ranges[t].x .. +tile_ranges[t].y
+// The stored tiles covering atlas tile t are records tile_range(t).x .. +tile_range(t).y
 // (each names its pane). A record's texels are 8-bit intensity codes (four per u32, decoded by
 // the prelude's intensity) at data_offset + slot, where slot is the texel's place among its
 // atlas tile's stored texels (row-major), times the record's RGB scale.
@@ -38,6 +38,25 @@
 // of the pane if the record stands for it there (TileRecord::owner; 1: not kept, 2: kept), and
 // the bits of the pane's weight at the vertex (3 words). Other records read their pane's
 // owner's words.
+
+// Atlas tile t's run of records (first, count): after the texel slots in `slots`.
+fn tile_range(t: u32) -> vec2u {
+    return slots[params.atlas_width * params.atlas_height + t];
+}
+
+// Code i (a byte) of the pane data, which lies in two buffers (runtime/src/compose.rs,
+// split_words).
+fn code_at(i: u32) -> u32 {
+    let w = i / 4u;
+    var word = 0u;
+    if w < params.data_split {
+        word = data[w];
+    } else {
+        word = data_hi[w - params.data_split];
+    }
+    return (word >> (8u * (i & 3u))) & 0xffu;
+}
+
 fn word_at(owner: u32) -> u32 {
     return params.tile_count + owner * CORNER_WORDS;
 }
@@ -59,7 +78,7 @@ fn around(v: u32, slot: u32) -> vec2u {
     if x == 0u || y == 0u || x > params.tiles_x || y > tiles_y {
         return vec2u(0u, 0u);
     }
-    return tile_ranges[(y - 1u) * params.tiles_x + x - 1u];
+    return tile_range((y - 1u) * params.tiles_x + x - 1u);
 }
 
 // The record of `pane` in range r, or NO_SLOT (records are in pane order).
@@ -271,7 +290,7 @@ fn corner_weight(k: u32, corner: u32) -> vec3f {
 }
 
 fn gather_local(t: u32) {
-    let r = tile_ranges[t];
+    let r = tile_range(t);
     var n = 0u;
     for (var k = r.x; k < r.x + r.y; k++) {
         let s = records[k].scale;
@@ -300,7 +319,7 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
         gather_local(t);
         return;
     }
-    let r = tile_ranges[t];
+    let r = tile_range(t);
     var n = 0u;
     for (var k = r.x; k < r.x + r.y; k++) {
         let w = selected[records[k].cluster].xyz;
@@ -340,12 +359,12 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
                 let b = params.dipole_block;
                 let q = ((id.y % ts) / b) * params.dipole_side + (id.x % ts) / b;
                 let i = (data_offset & ~DIPOLE_RECORD) + q;
-                let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
+                let code = code_at(i);
                 let v = max(f32(bitcast<i32>(code << 24u) >> 24u), -127.0) / 127.0;
                 sum += weighted_scale * v;
             } else {
                 let i = data_offset + slot;
-                let code = (data[i / 4u] >> (8u * (i & 3u))) & 0xffu;
+                let code = code_at(i);
                 sum += weighted_scale * intensity(code);
             }
         }

@@ -2,7 +2,7 @@
 //! `sum_c selected_c x pane_c`, read from stored tiles only.
 //!
 //! The `.prm`'s tiles are regrouped once, at load, by the atlas tile they cover
-//! (`tile_ranges[t]` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
+//! (`tile_range(t)` = a run of [`TileRecord`]s), and every atlas texel gets its slot among its
 //! atlas tile's stored texels (or `NO_SLOT`). The 8-bit texel codes are uploaded as is, four
 //! to a `u32`. Per compose, one invocation per atlas tile lists the stored tiles of selected
 //! panes with their weight at the tile's four corners already applied to the tile's colour
@@ -28,19 +28,35 @@ use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 use crate::near::NearPass;
 
+/// The two buffers of the pane and dipole codes ([`split_words`]), as the GPU memory estimate
+/// names them.
+pub const PANE_DATA: [&str; 2] = ["pane data", "pane data, second half"];
+
+/// The texel slots and tile ranges' buffer, as the GPU memory estimate names it.
+pub const SLOTS_AND_RANGES: &str = "texel slots and tile ranges";
+
+/// Of `words` words of codes, how many the first of the two buffers holds (the rest go in the
+/// second): half, rounded up. A device binds at most `max_storage_buffer_binding_size` bytes
+/// a buffer (128 MiB on lavapipe and WebGPU's default), and the 4 x 4 halls' codes are 144 MB:
+/// in two halves a map may have twice that.
+pub fn split_words(words: usize) -> usize {
+    words.div_ceil(2)
+}
+
 /// The pass's one bind group.
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(ComposeParams::NAME), COMPUTE),
     // The weight pass's output: C clusters, then G groups.
     b("selected", Res::Read("array<vec4f>"), COMPUTE),
-    // Per atlas tile: (first record, record count).
-    b("tile_ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("records", Res::Read("array<TileRecord>"), COMPUTE),
     // Per atlas texel: its slot among its atlas tile's stored texels, or NO_SLOT; and its index
-    // in near_sum, or NO_SLOT.
+    // in near_sum, or NO_SLOT. Then per atlas tile: (first record, record count). One buffer,
+    // for the stage's 8 storage buffers.
     b("slots", Res::Read("array<vec2u>"), COMPUTE),
-    // f16 intensities, two per u32.
+    // The pane and dipole codes, four a word: the first `ComposeParams::data_split` words, then
+    // the rest ([`split_words`]).
     b("data", Res::Read("array<u32>"), COMPUTE),
+    b("data_hi", Res::Read("array<u32>"), COMPUTE),
     b("lightmap", Res::WriteTexture2dArray(wgpu::TextureFormat::Rgba32Float), COMPUTE),
     b("active_records", Res::ReadWrite("array<ActiveRecord>"), COMPUTE),
     // Per atlas tile, the records gathered; then, under a local budget, per record and corner
@@ -233,6 +249,7 @@ impl ComposePass {
         let mut data: Vec<u8> = prm.data().to_vec();
         data.extend_from_slice(&prm.dipoles().data);
         data.resize(data.len().next_multiple_of(4).max(4), 0);
+        let split = split_words(data.len() / 4) * 4;
         let block = prm.dipoles().block.max(1);
         let params = ComposeParams {
             dipole_block: block,
@@ -248,6 +265,7 @@ impl ComposePass {
             group_count: prm.groups().len() as u32,
             residual: 0,
             page_rows: h / pages,
+            data_split: (split / 4) as u32,
             ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
@@ -260,10 +278,12 @@ impl ComposePass {
             })
         };
         let none = wgpu::BufferUsages::empty();
-        let ranges_buf = gpu::storage_buffer(device, "tile ranges", bytemuck::cast_slice(&ranges), none);
         let records_buf = gpu::storage_buffer(device, "tile records", bytemuck::cast_slice(&records), none);
-        let slots_buf = gpu::storage_buffer(device, "texel slots", bytemuck::cast_slice(&texel_slots), none);
-        let data_buf = gpu::storage_buffer(device, "pane data", &data, none);
+        let slots_and_ranges: Vec<[u32; 2]> = texel_slots.into_iter().chain(ranges.iter().copied()).collect();
+        let slots_buf =
+            gpu::storage_buffer(device, SLOTS_AND_RANGES, bytemuck::cast_slice(&slots_and_ranges), none);
+        let data_buf = gpu::storage_buffer(device, PANE_DATA[0], &data[..split], none);
+        let data_hi_buf = gpu::storage_buffer(device, PANE_DATA[1], &data[split..], none);
         let active_buf = gpu::storage_buffer(
             device,
             "active records",
@@ -288,10 +308,10 @@ impl ComposePass {
             &[
                 ("params", params_buf.as_entire_binding()),
                 ("selected", selected.as_entire_binding()),
-                ("tile_ranges", ranges_buf.as_entire_binding()),
                 ("records", records_buf.as_entire_binding()),
                 ("slots", slots_buf.as_entire_binding()),
                 ("data", data_buf.as_entire_binding()),
+                ("data_hi", data_hi_buf.as_entire_binding()),
                 ("lightmap", wgpu::BindingResource::TextureView(&view)),
                 ("active_records", active_buf.as_entire_binding()),
                 ("counts", count_buf.as_entire_binding()),

@@ -290,7 +290,8 @@ gpu_struct! {
         pub residual: u32,
         /// Rows of a lightmap page: atlas row y is row `y % page_rows` of layer `y / page_rows`.
         pub page_rows: u32,
-        pub _pad0: u32,
+        /// Words of pane data in `data`; the rest are in `data_hi` (`crate::compose::split_words`).
+        pub data_split: u32,
         pub _pad1: u32,
         pub _pad2: u32,
     }

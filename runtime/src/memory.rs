@@ -13,6 +13,7 @@ use std::cell::RefCell;
 
 use prm::prm_file::Prm;
 
+use crate::compose::{split_words, PANE_DATA, SLOTS_AND_RANGES};
 use crate::layout::{
     ActiveRecord, FarEntry, GpuCellTriangle, GpuEchoLink, GpuFarTexel, GpuHotEntry, GpuNearLink, NearTexel,
     TileRecord,
@@ -54,19 +55,18 @@ impl GpuMemory {
         // The near sums hold the near points, then the far field's texels that are not one.
         let linked = |texel: u32| prm.near_points().binary_search_by_key(&texel, |p| p.texel).is_ok();
         let far_only = prm.far().texels.iter().filter(|t| !linked(t.texel)).count();
+        let words = (prm.data().len() + prm.dipoles().data.len()).div_ceil(4).max(1);
+        let split = split_words(words);
         let items = [
-            (
-                "pane data",
-                storage((prm.data().len() + prm.dipoles().data.len()).next_multiple_of(4).max(4) as u64),
-            ),
+            (PANE_DATA[0], storage(4 * split as u64)),
+            (PANE_DATA[1], storage(4 * (words - split) as u64)),
             ("tile records", size(records, std::mem::size_of::<TileRecord>())),
-            ("tile ranges", size(per_tile.len(), 8)),
             ("active records", size(per_tile.len() * stride, std::mem::size_of::<ActiveRecord>())),
             (
                 "active counts and corner weights",
                 size(per_tile.len() + records * 4 * crate::contract::CORNER_WORDS as usize, 4),
             ),
-            ("texel slots", storage(atlas.texels() * 8)),
+            (SLOTS_AND_RANGES, storage(atlas.texels() * 8 + per_tile.len() as u64 * 8)),
             (LIGHTMAP, atlas.texels() * 16),
             ("link weights", size(near, 4)),
             ("link ids by entry", size(crate::concentrate::link_ids_len(prm), 4)),
