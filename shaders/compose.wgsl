@@ -7,7 +7,7 @@
 // atlas tile's stored texels (row-major), times the record's RGB scale.
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
-// active_records[t * active_stride ..] as (weight x scale at the tile's four corners, data
+// active_records[tile_range(t).x ..] (the places of its own records) as (weight x scale at the tile's four corners, data
 // offset), their number in counts[t]; compose_main (one invocation per atlas texel) sums only
 // those, one entry (its four corners blended at the texel, or the first alone when they are
 // equal) and one byte each, plus the near field's sum where the texel has one, then clamped at
@@ -301,7 +301,7 @@ fn gather_local(t: u32) {
         if any(w0 != vec3f(0.0)) || any(w1 != vec3f(0.0)) || any(w2 != vec3f(0.0)) || any(w3 != vec3f(0.0)) {
             let same = all(w0 == w1) && all(w0 == w2) && all(w0 == w3);
             let blend = select(1u, 0u, same);
-            active_records[t * params.active_stride + n] =
+            active_records[r.x + n] =
                 ActiveRecord(w0 * s, records[k].data_offset, w1 * s, blend, w2 * s, 0u, w3 * s, 0u);
             n++;
         }
@@ -325,7 +325,7 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
         let w = selected[records[k].cluster].xyz;
         if any(w != vec3f(0.0)) {
             let ws = w * records[k].scale;
-            active_records[t * params.active_stride + n] = ActiveRecord(ws, records[k].data_offset, ws, 0u, ws, 0u, ws, 0u);
+            active_records[r.x + n] = ActiveRecord(ws, records[k].data_offset, ws, 0u, ws, 0u, ws, 0u);
             n++;
         }
     }
@@ -343,7 +343,7 @@ fn compose_main(@builtin(global_invocation_id) id: vec3u) {
     if slot != NO_SLOT {
         let t = (id.y / params.tile_size) * params.tiles_x + id.x / params.tile_size;
         let n = counts[t];
-        let base = t * params.active_stride;
+        let base = tile_range(t).x;
         let ts = params.tile_size;
         // The texel's place in its tile, for the blend of each record's corner weights.
         let f = (vec2f(id.xy % vec2u(ts)) + 0.5) / f32(ts);

@@ -107,8 +107,6 @@ struct Tables {
     ranges: Vec<[u32; 2]>,
     /// Stored tiles grouped by atlas tile, panes in order within each.
     records: Vec<TileRecord>,
-    /// The most records any atlas tile has (at least 1).
-    stride: u32,
 }
 
 impl Tables {
@@ -156,8 +154,7 @@ impl Tables {
             records.extend_from_slice(list);
         }
         link_corners(prm, &ranges, &mut records);
-        let stride = by_tile.iter().map(Vec::len).max().unwrap_or(0).max(1) as u32;
-        Tables { slots, ranges, records, stride }
+        Tables { slots, ranges, records }
     }
 }
 
@@ -245,7 +242,7 @@ impl ComposePass {
         let ts = prm.header().tile_size;
         let tiles_x = prm.tiles_x();
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
-        let Tables { slots, ranges, records, stride } = Tables::new(prm, atlas_tiles);
+        let Tables { slots, ranges, records } = Tables::new(prm, atlas_tiles);
         let mut data: Vec<u8> = prm.data().to_vec();
         data.extend_from_slice(&prm.dipoles().data);
         data.resize(data.len().next_multiple_of(4).max(4), 0);
@@ -259,7 +256,6 @@ impl ComposePass {
             tile_size: ts,
             tiles_x,
             tile_count: atlas_tiles as u32,
-            active_stride: stride,
             local_k: 0,
             cluster_count: prm.clusters().len() as u32,
             group_count: prm.groups().len() as u32,
@@ -287,7 +283,8 @@ impl ComposePass {
         let active_buf = gpu::storage_buffer(
             device,
             "active records",
-            &vec![0u8; atlas_tiles * stride as usize * std::mem::size_of::<ActiveRecord>()],
+            // An atlas tile's active records take the places of its own records (at most all).
+            &vec![0u8; records.len() * std::mem::size_of::<ActiveRecord>()],
             none,
         );
         // Per atlas tile a count, then per record and corner of its tile CORNER_WORDS words.

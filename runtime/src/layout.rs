@@ -275,8 +275,7 @@ gpu_struct! {
         pub tiles_x: u32,
         /// Atlas tiles.
         pub tile_count: u32,
-        /// Most stored tiles covering one atlas tile (the stride of the active lists).
-        pub active_stride: u32,
+        pub _pad0: u32,
         /// Texels per side of a dipole code's block (`prm::prm_file::Dipoles`; 1 without).
         pub dipole_block: u32,
         /// Dipole codes per row of a dipole tile.

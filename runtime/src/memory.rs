@@ -45,7 +45,6 @@ impl GpuMemory {
         let size = |n: usize, each: usize| storage(n as u64 * each as u64);
         let atlas = prm.header().atlas();
         let per_tile = tiles_per_atlas_tile(prm);
-        let stride = per_tile.iter().copied().max().unwrap_or(0).max(1) as usize;
         let records = prm.tiles().len() + prm.dipoles().tiles.len();
         let (n, c, g) = (prm.entries().len(), prm.clusters().len(), prm.groups().len());
         let near = prm.near().len();
@@ -61,7 +60,7 @@ impl GpuMemory {
             (PANE_DATA[0], storage(4 * split as u64)),
             (PANE_DATA[1], storage(4 * (words - split) as u64)),
             ("tile records", size(records, std::mem::size_of::<TileRecord>())),
-            ("active records", size(per_tile.len() * stride, std::mem::size_of::<ActiveRecord>())),
+            ("active records", size(records, std::mem::size_of::<ActiveRecord>())),
             (
                 "active counts and corner weights",
                 size(per_tile.len() + records * 4 * crate::contract::CORNER_WORDS as usize, 4),
