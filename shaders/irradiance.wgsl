@@ -45,6 +45,81 @@ fn probes(l: GpuLight, a: vec3f, e1: vec3f, e2: vec3f, n: vec3f) -> f32 {
     return -1.0;
 }
 
+// Whether every point of v lies strictly inside the pyramid of cube face `face` (0..5 = +X -X
+// +Y -Y +Z -Z), so that cube_face picks that face for it.
+fn strictly_in_face(v: vec3f, face: u32) -> bool {
+    let a = abs(v);
+    let axis = face / 2u;
+    let along = v[axis] * select(1.0, -1.0, (face & 1u) == 1u);
+    let margin = 1.0 - 1e-4;
+    return along > 0.0 && a[(axis + 1u) % 3u] < along * margin && a[(axis + 2u) % 3u] < along * margin;
+}
+
+// Whether light l's shadow maps hide the whole sphere (c, r) (an entry's cell, its corners
+// inside): every comparison a probe of any point within it could make (normal offset and 3x3
+// PCF of bilinear taps, lights.wgsl) finds an occluder nearer the light, so each probe reads 0.
+// Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
+// offset): all its corners in front of one layer and inside its map; the largest depth any
+// point of it has (reverse-Z depth falls with the distance along the layer's axis, least at a
+// corner) below the farthest occluder of every block its lookups could read, 2 texels around
+// the corners' rectangle. Point and spot lights; a directional one is never culled.
+fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
+    if params.cull_hidden == 0u || l.kind == KIND_DIRECTIONAL {
+        return false;
+    }
+    let d = c - l.position;
+    let dist = length(d);
+    let reach = (r + 1.5 * l.texel * (dist + r)) * 1.001 + 1e-6 * dist;
+    var layer = l.first_layer;
+    var face = 0u;
+    if l.layers == CUBE_LAYERS {
+        face = cube_face(d);
+        layer += face;
+    }
+    let m = shadow_mats[layer];
+    var lo = vec2f(2.0);
+    var hi = vec2f(-1.0);
+    var depth = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let s = vec3f(f32(k & 1u), f32((k >> 1u) & 1u), f32((k >> 2u) & 1u)) * 2.0 - 1.0;
+        let corner = c + reach * s;
+        if l.layers == CUBE_LAYERS && !strictly_in_face(corner - l.position, face) {
+            return false;
+        }
+        let clip = m * vec4f(corner, 1.0);
+        if !(clip.w > 0.0) {
+            return false;
+        }
+        let ndc = clip.xyz / clip.w;
+        let uv = ndc.xy * vec2f(0.5, -0.5) + vec2f(0.5);
+        lo = min(lo, uv);
+        hi = max(hi, uv);
+        depth = max(depth, ndc.z);
+    }
+    if any(lo < vec2f(0.0)) || any(hi > vec2f(1.0)) {
+        // Part of it is off the map, where a lookup reads lit.
+        return false;
+    }
+    let size = textureDimensions(shadow_tex).x;
+    let last = i32(size) - 1;
+    let t_lo = clamp(vec2i(floor(lo * f32(size) - 2.0)), vec2i(0), vec2i(last));
+    let t_hi = clamp(vec2i(floor(hi * f32(size) + 2.0)), vec2i(0), vec2i(last));
+    let b_lo = vec2u(t_lo) * SHADOW_BLOCKS / size;
+    let b_hi = vec2u(t_hi) * SHADOW_BLOCKS / size;
+    let span = b_hi - b_lo + vec2u(1u);
+    if span.x * span.y > 64u {
+        return false;
+    }
+    var farthest = 1.0;
+    for (var by = b_lo.y; by <= b_hi.y; by++) {
+        for (var bx = b_lo.x; bx <= b_hi.x; bx++) {
+            farthest = min(farthest, textureLoad(shadow_blocks, vec2u(bx, by), layer, 0).x);
+        }
+    }
+    // A margin for the rounding of the probes' own depths.
+    return depth * (1.0 + 1e-4) + 1e-7 < farthest;
+}
+
 @compute @workgroup_size(WG_LINEAR)
 fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     let j = id.x;
@@ -54,6 +129,20 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     let e = entries[j];
     var power = vec3f(0.0);
     var any_mixed = 0.0;
+    // Bit i: light i hidden from the whole cell.
+    var hid = vec2u(0u);
+    var hid_count = 0u;
+    if e.cell_count > 0u {
+        for (var i = 0u; i < params.light_count; i++) {
+            if hidden(lights[i], e.bound_centre, e.bound_radius) {
+                hid[i / 32u] |= 1u << (i % 32u);
+                hid_count++;
+            }
+        }
+    }
+    if hid_count > 0u {
+        atomicAdd(&entry_stats[0], hid_count);
+    }
     for (var k = e.first_cell; k < e.first_cell + e.cell_count; k++) {
         let t = cells[k];
         let e1 = t.b - t.a;
@@ -80,7 +169,11 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                 if all(p == vec3f(0.0)) {
                     continue;
                 }
-                let v = probes(l, t.a, e1, e2, n);
+                // What the probes would read for a hidden light: 0 at each.
+                var v = 0.0;
+                if ((hid[i / 32u] >> (i % 32u)) & 1u) == 0u {
+                    v = probes(l, t.a, e1, e2, n);
+                }
                 verdict[i] = v;
                 if v < 0.0 {
                     mixed = true;

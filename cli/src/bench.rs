@@ -103,6 +103,11 @@ struct Report {
     compose_bytes_detail: ComposeBytesJson,
     copy_bandwidth_gb_s: f64,
     compose_at_bandwidth_ms: f64,
+    /// Whether the entry pass skipped lights their shadow maps hide from a whole cell.
+    light_culling: bool,
+    /// The last update's (entry, light) pairs, and those not probed (the light hidden).
+    entry_light_pairs: u64,
+    hidden_light_pairs: u64,
 }
 
 #[derive(Serialize)]
@@ -145,7 +150,8 @@ pub fn run(a: Args) -> Result<()> {
     let times = bench.frame_times(a.rounds)?;
     let compose = bench.compose_alone()?;
     let bandwidth = copy_bandwidth(&bench.g);
-    let report = bench.report(&a, times, compose, bandwidth);
+    let hidden = bench.rt.hidden_pairs()?;
+    let report = bench.report(&a, times, compose, bandwidth, hidden);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
@@ -296,7 +302,15 @@ impl Bench {
     }
 
     /// Every figure, with what was measured; `bandwidth` in bytes per second.
-    fn report(&self, a: &Args, times: FrameTimes, compose: ComposeAlone, bandwidth: f64) -> Report {
+    /// `hidden`: the last update's (entry, light) pairs not probed.
+    fn report(
+        &self,
+        a: &Args,
+        times: FrameTimes,
+        compose: ComposeAlone,
+        bandwidth: f64,
+        hidden: u64,
+    ) -> Report {
         let b = &compose.bytes;
         let total_bytes = b.pane_data + b.headers + b.tables + b.written;
         let gpu_pass_ms = pass_medians(&times.passes);
@@ -324,6 +338,10 @@ impl Bench {
             compose_bytes_detail: compose.bytes,
             copy_bandwidth_gb_s: bandwidth / 1e9,
             compose_at_bandwidth_ms: total_bytes as f64 / bandwidth * 1e3,
+            light_culling: self.params.cull_hidden_lights,
+            entry_light_pairs: self.prm_file.entries().len() as u64
+                * self.lights_at(self.frames - 1).len() as u64,
+            hidden_light_pairs: hidden,
         }
     }
 }
@@ -385,6 +403,12 @@ fn print_text(r: &Report) {
     } else {
         println!("GPU passes: this adapter has no timestamp queries");
     }
+    println!(
+        "entry pass: {} of {} (entry, light) pairs not probed, the light's shadow maps hiding the whole cell{}",
+        r.hidden_light_pairs,
+        r.entry_light_pairs,
+        if r.light_culling { "" } else { " (culling off: --no-light-culling)" }
+    );
     println!(
         "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} stored tiles summed, at most {} per \
             atlas tile: pane data {:.2} MB, headers {:.2} MB, tables {:.2} MB, lightmap written {:.2} MB)",

@@ -243,6 +243,11 @@ pub struct ComposeArgs {
     /// halve, then tiles in view; what went is printed (default: no limit).
     #[arg(long)]
     pub gpu_budget: Option<f64>,
+    /// Probe every light's shadow maps at every entry cell, even where the maps' blocks show
+    /// the light hidden from the whole cell (a side-by-side measure of that culling: the
+    /// lightmap is the same).
+    #[arg(long)]
+    pub no_light_culling: bool,
 }
 
 impl ComposeArgs {
@@ -256,6 +261,7 @@ impl ComposeArgs {
             budget: self.budget.into(),
             shadow_size,
             residual: !self.no_residual,
+            cull_hidden_lights: !self.no_light_culling,
         })
     }
 }

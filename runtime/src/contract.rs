@@ -36,6 +36,9 @@ pub const DIPOLE_RECORD: u32 = 1 << 31;
 pub const CORNER_WORDS: u32 = 4;
 /// Shadow-map layers of a cube (a point light or a wide spot): +X -X +Y -Y +Z -Z.
 pub const CUBE_LAYERS: u32 = 6;
+/// Blocks per side of each shadow-map layer in [`crate::shadow`]'s block minima (the farthest
+/// occluder over each block, which tells the entry pass a light is hidden from a whole cell).
+pub const SHADOW_BLOCKS: u32 = 32;
 /// [`crate::layout::GpuLight::kind`] of a point light.
 pub const KIND_POINT: u32 = 0;
 /// [`crate::layout::GpuLight::kind`] of a spot light.
@@ -56,6 +59,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("DIPOLE_RECORD", DIPOLE_RECORD),
     ("CORNER_WORDS", CORNER_WORDS),
     ("CUBE_LAYERS", CUBE_LAYERS),
+    ("SHADOW_BLOCKS", SHADOW_BLOCKS),
     ("KIND_POINT", KIND_POINT),
     ("KIND_SPOT", KIND_SPOT),
     ("KIND_DIRECTIONAL", KIND_DIRECTIONAL),
@@ -197,8 +201,9 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 15] = [
+pub const SHADERS: [&Shader; 16] = [
     &crate::shadow::SHADER,
+    &crate::shadow::BLOCKS,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
     &crate::concentrate::LINK_ENERGY,

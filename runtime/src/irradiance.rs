@@ -4,6 +4,10 @@
 //! the shadow maps at its centroid (normal offset + 3x3 PCF, `shaders/lights.wgsl`), and
 //! divides by the entry's area: the mean irradiance its cell stands for, however close the
 //! light. Output: one `vec4f` per entry, W/m².
+//!
+//! A light the shadow maps' block minima show hidden from an entry's whole cell (its bounding
+//! sphere: [`crate::shadow`]) is not probed there (`RuntimeParams::cull_hidden_lights`); the
+//! pass counts those (entry, light) pairs in [`EntryPass::hidden`].
 
 use prm::prm_file::Cells;
 
@@ -20,6 +24,8 @@ pub const BINDINGS: &[Binding] = &[
     // Read-write: the pass writes each triangle's visible share (`GpuCellTriangle::visibility`).
     b("cells", Res::ReadWrite("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // [0]: (entry, light) pairs whose probes were skipped this update (the light hidden).
+    b("entry_stats", Res::ReadWrite("array<atomic<u32>>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -38,6 +44,18 @@ pub struct EntryPass {
     pub output: wgpu::Buffer,
     /// The cells' triangles, with this frame's visibility (`GpuCellTriangle`).
     pub cells: wgpu::Buffer,
+    /// `entry_stats` (`u32` counters, cleared each update).
+    pub stats: wgpu::Buffer,
+}
+
+/// The centre of the box around `triangles` and the distance from it to the farthest corner
+/// (0 and 0 for none).
+fn bounding_sphere(triangles: &[[glam::Vec3; 3]]) -> (glam::Vec3, f32) {
+    let corners = || triangles.iter().flatten();
+    let Some(&first) = corners().next() else { return (glam::Vec3::ZERO, 0.0) };
+    let (lo, hi) = corners().fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)));
+    let centre = (lo + hi) * 0.5;
+    (centre, corners().map(|&p| p.distance(centre)).fold(0.0, f32::max))
 }
 
 impl EntryPass {
@@ -53,11 +71,18 @@ impl EntryPass {
         let entries: Vec<GpuEntry> = areas
             .iter()
             .enumerate()
-            .map(|(j, &area)| GpuEntry {
-                first_cell: cells.first[j],
-                cell_count: cells.first[j + 1] - cells.first[j],
-                inv_area: if area > 0.0 { 1.0 / area } else { 0.0 },
-                ..Default::default()
+            .map(|(j, &area)| {
+                let (first, end) = (cells.first[j], cells.first[j + 1]);
+                let (centre, radius) = bounding_sphere(&cells.triangles[first as usize..end as usize]);
+                GpuEntry {
+                    first_cell: first,
+                    cell_count: end - first,
+                    inv_area: if area > 0.0 { 1.0 / area } else { 0.0 },
+                    // Rounding outward: every corner inside.
+                    bound_centre: centre.to_array(),
+                    bound_radius: radius * (1.0 + 1e-5) + 1e-7 * centre.abs().max_element(),
+                    ..Default::default()
+                }
             })
             .collect();
         let entries = gpu::storage_buffer(
@@ -93,6 +118,12 @@ impl EntryPass {
             &vec![0u8; areas.len().max(1) * 16],
             wgpu::BufferUsages::COPY_SRC,
         );
+        let stats = gpu::storage_buffer(
+            device,
+            "entry stats",
+            &[0u8; 16],
+            wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        );
         let layout = SHADER.layout(device, 1);
         let group = bind(
             device,
@@ -104,6 +135,7 @@ impl EntryPass {
                 ("entries", entries.as_entire_binding()),
                 ("cells", cells.as_entire_binding()),
                 ("entry_irradiance", output.as_entire_binding()),
+                ("entry_stats", stats.as_entire_binding()),
             ],
         );
         let pipeline = gpu::compute_pipeline(
@@ -113,7 +145,7 @@ impl EntryPass {
             "entry_main",
             &[shadow_layout, &layout],
         );
-        EntryPass { pipeline, group, count: areas.len() as u32, output, cells }
+        EntryPass { pipeline, group, count: areas.len() as u32, output, cells, stats }
     }
 
     /// Records the pass; `shadows` is the lights + shadow maps group.
@@ -123,6 +155,7 @@ impl EntryPass {
         shadows: &wgpu::BindGroup,
         timestamps: Option<wgpu::ComputePassTimestampWrites>,
     ) {
+        enc.clear_buffer(&self.stats, 0, None);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("entry irradiance"),
             timestamp_writes: timestamps,
@@ -131,5 +164,14 @@ impl EntryPass {
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.group, &[]);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+    }
+}
+
+impl EntryPass {
+    /// The (entry, light) pairs the last update did not probe, the light's shadow maps hiding
+    /// the entry's whole cell (waits for the GPU).
+    pub fn hidden(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<u64, gpu::GpuError> {
+        let bytes = gpu::read_buffer(device, queue, &self.stats)?;
+        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64)
     }
 }

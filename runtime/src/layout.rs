@@ -131,12 +131,15 @@ impl GpuLight {
 
 gpu_struct! {
     /// An entry point of the irradiance pass (`shaders/irradiance.wgsl`): its cell, the
-    /// triangles `first_cell .. first_cell + cell_count` of the cell buffer, and 1 / its area.
+    /// triangles `first_cell .. first_cell + cell_count` of the cell buffer, 1 / its area, and
+    /// a sphere holding the cell's triangles (what the shadow maps' blocks are asked about).
     pub struct GpuEntry {
         pub first_cell: u32,
         pub cell_count: u32,
         pub inv_area: f32,
         pub _pad0: u32,
+        pub bound_centre: [f32; 3],
+        pub bound_radius: f32,
     }
 }
 
@@ -236,6 +239,12 @@ gpu_struct! {
         /// Near-field links: where the concentration's work items start in its `link_ids`
         /// (`crate::concentrate::link_ids`).
         pub link_count: u32,
+        /// 1: the entry pass skips the shadow probes of a light whose shadow maps' blocks hide
+        /// the whole cell (`crate::RuntimeParams::cull_hidden_lights`).
+        pub cull_hidden: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 

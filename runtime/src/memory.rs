@@ -99,9 +99,10 @@ pub fn shadow_bytes(lights: &[prm::Light], size: u32) -> u64 {
     lights.iter().map(|l| crate::lights::layers(l) as u64).sum::<u64>() * shadow_bytes_per_layer(size)
 }
 
-/// Bytes of one shadow-map layer of `size`^2 (32-bit depth).
+/// Bytes of one shadow-map layer of `size`^2 (32-bit depth) with its block minima
+/// (`crate::shadow`).
 pub fn shadow_bytes_per_layer(size: u32) -> u64 {
-    size as u64 * size as u64 * 4
+    size as u64 * size as u64 * 4 + crate::shadow::BLOCK_BYTES_PER_LAYER
 }
 
 /// What [`crate::gpu::storage_buffer`] allocates for `bytes` of data (at least 256, a whole

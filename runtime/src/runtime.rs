@@ -49,11 +49,22 @@ pub struct RuntimeParams {
     /// Compose each group's pane for the light of its clusters left out of the top K
     /// (default true; `prm::prm_file` module doc). No effect on a `.prm` without groups.
     pub residual: bool,
+    /// Skip the entry pass's shadow probes of a light whose shadow maps hide an entry's whole
+    /// cell (default true): the cell's blocks of the light's maps (`crate::shadow`) hold
+    /// occluders nearer the light than any point of the cell. The lightmap is the same either
+    /// way (the probes would read 0); only the work differs.
+    pub cull_hidden_lights: bool,
 }
 
 impl Default for RuntimeParams {
     fn default() -> Self {
-        RuntimeParams { top_k: 32, budget: Budget::Local, shadow_size: 1024, residual: true }
+        RuntimeParams {
+            top_k: 32,
+            budget: Budget::Local,
+            shadow_size: 1024,
+            residual: true,
+            cull_hidden_lights: true,
+        }
     }
 }
 
@@ -313,6 +324,8 @@ impl Runtime {
             far_texel_count: self.near.far.as_ref().map_or(0, |f| f.count),
             far_reach: self.near.far.as_ref().map_or(0.0, |f| f.reach),
             link_count: self.concentrate.links,
+            cull_hidden: self.params.cull_hidden_lights as u32,
+            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }
@@ -320,6 +333,13 @@ impl Runtime {
     /// The indirect lightmap (`Rgba32Float`, atlas-sized, W/m²).
     pub fn lightmap(&self) -> &wgpu::Texture {
         &self.compose.lightmap
+    }
+
+    /// The (entry, light) pairs the last update's entry pass did not probe because the
+    /// light's shadow maps hide the entry's whole cell (`RuntimeParams::cull_hidden_lights`;
+    /// waits for the GPU: for reports, not every frame).
+    pub fn hidden_pairs(&self) -> Result<u64, RuntimeError> {
+        Ok(self.entries.hidden(&self.device, &self.queue)?)
     }
 
     /// The shadow maps and light buffer (shared with the shading pass).

@@ -6,15 +6,20 @@
 //! [`ShadowMaps::layers_rendered`] counts layer renders so tests can check that.
 //!
 //! The bind group this module owns ([`SHADOW_GROUP`], group 0 of `irradiance.wgsl` and
-//! `shade.wgsl`): lights, layer matrices, the depth array and a comparison sampler
-//! (GreaterEqual, linear: each tap of the PCF is itself a bilinear blend of four comparisons).
+//! `shade.wgsl`): lights, layer matrices, the depth array, a comparison sampler
+//! (GreaterEqual, linear: each tap of the PCF is itself a bilinear blend of four comparisons)
+//! and the layers' *block minima*: each layer cut into [`SHADOW_BLOCKS`]² blocks, the least
+//! depth of each (its farthest occluder; `shaders/shadow_blocks.wgsl`, made again for the
+//! layers drawn). A receiver whose depth is below every block its lookups could read is in
+//! shadow at every one of them, so the entry pass can skip a light hidden from a whole cell
+//! after a few block reads instead of probing each triangle (`shaders/irradiance.wgsl`).
 
 use glam::Vec3;
 use prm::{Light, Scene};
 use wgpu::util::DeviceExt;
 
-use crate::bindings::{b, bind, Binding, Res, LIT, VERTEX};
-use crate::contract::{Shader, CUBE_LAYERS};
+use crate::bindings::{b, bind, Binding, Res, COMPUTE, LIT, VERTEX};
+use crate::contract::{Compute, Shader, CUBE_LAYERS, LINEAR, SHADOW_BLOCKS, WG_LINEAR};
 use crate::layout::{mat, GpuLight};
 use crate::lights::{self, Bounds, LightError};
 
@@ -26,6 +31,9 @@ pub const SHADOW_GROUP: &[Binding] = &[
     b("shadow_mats", Res::Read("array<mat4x4f>"), LIT),
     b("shadow_tex", Res::DepthArray, LIT),
     b("shadow_sampler", Res::ComparisonSampler, LIT),
+    // Per layer, SHADOW_BLOCKS² block minima (R32Float; a texture, since a pass that lights
+    // surfaces may already bind the 8 storage buffers WebGPU allows a stage).
+    b("shadow_blocks", Res::Texture2dArray, LIT),
 ];
 
 /// The bind group of `shaders/shadow.wgsl`.
@@ -41,7 +49,28 @@ pub const SHADER: Shader = Shader {
     groups: &[BINDINGS],
     compute: &[],
 };
+
+/// The bind group of `shaders/shadow_blocks.wgsl`.
+pub const BLOCK_BINDINGS: &[Binding] = &[
+    b("shadow_depth", Res::DepthArray, COMPUTE),
+    // The layers whose block minima are made, one invocation row each.
+    b("block_layers", Res::Read("array<u32>"), COMPUTE),
+    b("block_minima", Res::WriteTexture2dArray(BLOCK_FORMAT), COMPUTE),
+];
+
+pub const BLOCKS: Shader = Shader {
+    stem: "shadow_blocks",
+    body: include_str!("../../shaders/shadow_blocks.wgsl"),
+    lights: false,
+    groups: &[BLOCK_BINDINGS],
+    compute: &[Compute { entry: "blocks_main", workgroup: LINEAR }],
+};
+
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+const BLOCK_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+
+/// Bytes of one layer's block minima.
+pub(crate) const BLOCK_BYTES_PER_LAYER: u64 = SHADOW_BLOCKS as u64 * SHADOW_BLOCKS as u64 * 4;
 
 /// The sphere the directional lights' frusta cover.
 fn scene_bounds(scene: &Scene) -> Bounds {
@@ -70,6 +99,12 @@ pub struct ShadowMaps {
     mats_group: wgpu::BindGroup,
     texture: Option<(wgpu::Texture, u32)>,
     sampler: wgpu::Sampler,
+    blocks_pipeline: wgpu::ComputePipeline,
+    blocks_layout: wgpu::BindGroupLayout,
+    /// The layers drawn in an update, for the block pass.
+    block_layers: wgpu::Buffer,
+    /// The block minima (made with the depth array) and the block pass's group.
+    blocks: Option<(wgpu::Texture, wgpu::BindGroup)>,
     /// Group 0 of the lighting shaders.
     layout: wgpu::BindGroupLayout,
     group: Option<wgpu::BindGroup>,
@@ -157,6 +192,20 @@ impl ShadowMaps {
             compare: Some(wgpu::CompareFunction::GreaterEqual),
             ..Default::default()
         });
+        let blocks_layout = BLOCKS.layout(device, 0);
+        let blocks_pipeline = crate::gpu::compute_pipeline(
+            device,
+            &BLOCKS.label(),
+            &BLOCKS.source(),
+            "blocks_main",
+            &[&blocks_layout],
+        );
+        let block_layers = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shadow block layers"),
+            size: (max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) as u64) * 4,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         ShadowMaps {
             device: device.clone(),
             queue: queue.clone(),
@@ -171,6 +220,10 @@ impl ShadowMaps {
             mats_group,
             texture: None,
             sampler,
+            blocks_pipeline,
+            blocks_layout,
+            block_layers,
+            blocks: None,
             layout,
             group: None,
             last: None,
@@ -240,7 +293,7 @@ impl ShadowMaps {
         true
     }
 
-    /// Bytes of the shadow-map layers allocated now.
+    /// Bytes of the shadow-map layers allocated now (with their block minima).
     pub fn bytes(&self) -> u64 {
         self.texture
             .as_ref()
@@ -255,10 +308,33 @@ impl ShadowMaps {
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            // Copied out by the test that holds the block minima to the texels.
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
         let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let blocks = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow block minima"),
+            size: wgpu::Extent3d {
+                width: SHADOW_BLOCKS,
+                height: SHADOW_BLOCKS,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: BLOCK_FORMAT,
+            usage: wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let blocks_view = blocks.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
@@ -272,8 +348,21 @@ impl ShadowMaps {
                 ("shadow_mats", self.mats_buf.as_entire_binding()),
                 ("shadow_tex", wgpu::BindingResource::TextureView(&view)),
                 ("shadow_sampler", wgpu::BindingResource::Sampler(&self.sampler)),
+                ("shadow_blocks", wgpu::BindingResource::TextureView(&blocks_view)),
             ],
         ));
+        let blocks_group = bind(
+            &self.device,
+            "shadow block minima",
+            &self.blocks_layout,
+            BLOCK_BINDINGS,
+            &[
+                ("shadow_depth", wgpu::BindingResource::TextureView(&view)),
+                ("block_layers", self.block_layers.as_entire_binding()),
+                ("block_minima", wgpu::BindingResource::TextureView(&blocks_view)),
+            ],
+        );
+        self.blocks = Some((blocks, blocks_group));
         self.texture = Some((texture, layers));
     }
 
@@ -312,8 +401,28 @@ impl ShadowMaps {
                 pass.draw(0..self.vertex_count, layer..layer + 1);
             }
         }
+        if let Some((_, group)) = &self.blocks {
+            self.queue.write_buffer(&self.block_layers, 0, bytemuck::cast_slice(layers));
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("shadow block minima"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.blocks_pipeline);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(
+                (SHADOW_BLOCKS * SHADOW_BLOCKS).div_ceil(WG_LINEAR),
+                layers.len() as u32,
+                1,
+            );
+        }
         self.queue.submit([enc.finish()]);
         self.layers_rendered += layers.len() as u64;
+    }
+
+    /// The depth array and the block minima (tests).
+    #[cfg(test)]
+    pub(crate) fn texture_and_blocks(&self) -> Option<(&wgpu::Texture, &wgpu::Texture)> {
+        Some((&self.texture.as_ref()?.0, &self.blocks.as_ref()?.0))
     }
 
     /// The layout of [`ShadowMaps::group`].
