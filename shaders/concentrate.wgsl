@@ -81,6 +81,11 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
                     if lit_near {
                         e = vec3f(0.0);
                         for (var i = 0u; i < params.light_count; i++) {
+                            // Only the lights that reach the triangle (irradiance.wgsl).
+                            let bits = select(t.reach_lo, t.reach_hi, i >= 32u);
+                            if ((bits >> (i % 32u)) & 1u) == 0u {
+                                continue;
+                            }
                             let inc = incident(lights[i], y);
                             e += inc.irradiance * max(dot(n, inc.to_light), 0.0);
                         }

@@ -153,28 +153,33 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
         var tri_power = vec3f(0.0);
         var fine_lo = 0u;
         var fine_hi = 0u;
+        var reach = vec2u(0u);
         if len > 0.0 {
             let n = twice_area / len;
             var total = 0.0;
             var seen = 0.0;
             var mixed = false;
-            // Per light, the probes' verdict (-1: they differ; -2: no light reaches the
-            // triangle), kept for the fine points. The lights whose probes agree are summed
-            // here; the others wait for the fine points.
+            // Per light, the probes' verdict (-1: they differ; -2: the light does not reach the
+            // triangle: no unshadowed power, or no probe sees it), kept for the fine points. The
+            // lights whose probes agree are summed here; the others wait for the fine points.
             var verdict: array<f32, MAX_LIGHTS>;
             for (var i = 0u; i < params.light_count; i++) {
+                verdict[i] = -2.0;
+                // Hidden from the whole cell: every probe would read 0.
+                if ((hid[i / 32u] >> (i % 32u)) & 1u) != 0u {
+                    continue;
+                }
                 let l = lights[i];
                 let p = triangle_power(l, t.a, t.b, t.c);
-                verdict[i] = -2.0;
                 if all(p == vec3f(0.0)) {
                     continue;
                 }
-                // What the probes would read for a hidden light: 0 at each.
-                var v = 0.0;
-                if ((hid[i / 32u] >> (i % 32u)) & 1u) == 0u {
-                    v = probes(l, t.a, e1, e2, n);
+                let v = probes(l, t.a, e1, e2, n);
+                if v == 0.0 {
+                    continue;
                 }
                 verdict[i] = v;
+                reach[i / 32u] |= 1u << (i % 32u);
                 if v < 0.0 {
                     mixed = true;
                     continue;
@@ -257,6 +262,8 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
         cells[k].level = level;
         cells[k].fine_lo = fine_lo;
         cells[k].fine_hi = fine_hi;
+        cells[k].reach_lo = reach.x;
+        cells[k].reach_hi = reach.y;
     }
     // w: 1 where a shadow edge crosses the cell (a mixed triangle), for the concentration.
     entry_irradiance[j] = vec4f(power * e.inv_area, any_mixed);

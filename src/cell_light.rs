@@ -18,6 +18,14 @@
 //! per fine point, whether that point is lit ([`TriangleLight::fine`]), so that the near field's
 //! concentration (`prm_runtime::cpu::concentrate`) sees where on the triangle the light lands,
 //! not only how much of it does.
+//!
+//! A light all four probes see nothing of (behind a wall, in another room) does not *reach*
+//! the triangle ([`TriangleLight::reach`]): it is left out of the share, of the fine points'
+//! test and of the concentration's sum of the lights' irradiance. Were it in, a lamp in the
+//! next room would dilute the share of the torch that does light the triangle, and on a
+//! mixed triangle its unshadowed light would outweigh the torch's at every fine point, leaving
+//! no bit set where the torch lands. (The runtime's entry pass also skips, without probing, a
+//! light its shadow maps hide from the whole cell: the same answer.)
 
 use glam::Vec3;
 
@@ -71,12 +79,15 @@ pub struct TriangleLight {
     /// The power that arrives (W): each light's unshadowed power on the triangle times its
     /// visible share.
     pub power: Vec3,
-    /// The visible share of the lights' power on it, luminance-weighted over the lights; 1
-    /// where none arrives.
+    /// The visible share of the power of the lights that reach it, luminance-weighted over
+    /// them; 1 where none does.
     pub share: f32,
     /// For a mixed triangle, bit k: fine point k ([`sub_centroids`] at [`FINE_SUB`]) receives
-    /// at least half of the light that reaches it unshadowed (luminance over the lights).
+    /// at least half of the light the lights that reach the triangle would bring it
+    /// unshadowed (luminance over them).
     pub fine: u64,
+    /// Bit i: light i reaches the triangle (some unshadowed power, and some probe sees it).
+    pub reach: u64,
     /// True when some light's probes disagreed: its share was filtered over the fine points,
     /// and [`Self::fine`] says where the light lands.
     pub mixed: bool,
@@ -103,19 +114,25 @@ pub fn triangle_light(
     visible: impl Fn(Vec3, Vec3, &Light) -> f32,
 ) -> TriangleLight {
     let Some(n) = (t[1] - t[0]).cross(t[2] - t[0]).try_normalize() else {
-        return TriangleLight { power: Vec3::ZERO, share: 1.0, fine: 0, mixed: false };
+        return TriangleLight { power: Vec3::ZERO, share: 1.0, fine: 0, reach: 0, mixed: false };
     };
     let probes = probe_points(t);
     // Per light that reaches the triangle: its unshadowed power and its probes' verdict
     // (`None`: they disagree).
+    let mut mask = 0u64;
     let reach: Vec<(&Light, Vec3, Option<f32>)> = lights
         .iter()
-        .filter_map(|l| {
+        .enumerate()
+        .filter_map(|(i, l)| {
             let p = l.triangle_power(t);
             if p == Vec3::ZERO {
                 return None;
             }
             let v = probes.map(|y| visible(y, n, l));
+            if v == [0.0; 4] {
+                return None;
+            }
+            mask |= 1 << i;
             // Agreeing is on which side of one half each probe lies (a filtered shadow map's
             // fractions near an edge or at a grazing angle are not a shadow edge), and a
             // uniform triangle takes their mean.
@@ -153,7 +170,7 @@ pub fn triangle_light(
         seen += crate::luminance(p) * share;
     }
     let share = if total > 0.0 { seen / total } else { 1.0 };
-    TriangleLight { power, share, fine, mixed }
+    TriangleLight { power, share, fine, reach: mask, mixed }
 }
 
 #[cfg(test)]
@@ -196,8 +213,28 @@ mod tests {
         let got = triangle_light(&tri(), std::slice::from_ref(&lamp), |_, _, _| 1.0);
         assert_eq!(got.power, lamp.triangle_power(&tri()));
         assert_eq!((got.share, got.mixed), (1.0, false));
+        assert_eq!(got.reach, 1);
+        // A hidden light does not reach it: no light, and the share of none is 1.
         let hidden = triangle_light(&tri(), std::slice::from_ref(&lamp), |_, _, _| 0.0);
-        assert_eq!((hidden.power, hidden.share, hidden.mixed), (Vec3::ZERO, 0.0, false));
+        assert_eq!((hidden.power, hidden.share, hidden.mixed, hidden.reach), (Vec3::ZERO, 1.0, false, 0));
+    }
+
+    /// A lamp in the next room, hidden from the whole triangle and a hundred times brighter
+    /// than the torch whose shadow edge crosses it, changes nothing: the share and the bits
+    /// are the torch's alone.
+    #[test]
+    fn a_hidden_light_leaves_the_share_and_the_bits_alone() {
+        let torch = Light::point("torch", Vec3::new(0.5, 0.6, 0.2), Vec3::ONE);
+        let lamp = Light::point("lamp", Vec3::new(0.3, 0.4, 0.6), Vec3::splat(100.0));
+        let edge = 0.45;
+        let vis =
+            |y: Vec3, _: Vec3, l: &Light| if l.name == "lamp" { 0.0 } else { (y.x < edge) as u8 as f32 };
+        let alone = triangle_light(&tri(), std::slice::from_ref(&torch), vis);
+        let both = triangle_light(&tri(), &[lamp, torch], vis);
+        assert!(alone.mixed && both.mixed);
+        assert_eq!((both.power, both.share, both.fine), (alone.power, alone.share, alone.fine));
+        assert_eq!((alone.reach, both.reach), (1, 2));
+        assert!(both.fine != 0 && both.share > 0.3);
     }
 
     /// A shadow edge across the triangle: the share is the lit part's irradiance over the

@@ -209,7 +209,14 @@ gpu_struct! {
         /// for the concentration of cells no light is near
         /// (`prm_runtime::cpu::concentrate::concentration`).
         pub level: [f32; 3],
+        /// Lights 0-31 that reach it (`prm::cell_light::TriangleLight::reach`), written by the
+        /// entry pass; the concentration sums only those.
+        pub reach_lo: u32,
+        /// Lights 32-63 that reach it.
+        pub reach_hi: u32,
         pub _pad0: u32,
+        pub _pad1: u32,
+        pub _pad2: u32,
     }
 }
 

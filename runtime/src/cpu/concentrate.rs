@@ -88,7 +88,17 @@ pub fn concentration(
         for (k, y) in sub_centroids(t, sub).enumerate() {
             // Lights farther than HOT_REACH cell sizes vary little over one triangle: the
             // level the entry pass found stands for them (a shadow edge is what varies).
-            let e = if lit_near { lights.iter().map(|l| l.irradiance(y, n)).sum() } else { level };
+            // Only the lights that reach the triangle (`TriangleLight::reach`), as its share.
+            let e = if lit_near {
+                lights
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| (v.reach >> i) & 1 == 1)
+                    .map(|(_, l)| l.irradiance(y, n))
+                    .sum()
+            } else {
+                level
+            };
             let e = e * v.at_fine(k) * area;
             plain += e;
             area_sum += area;
@@ -197,9 +207,9 @@ mod tests {
         vec![[a, b, c], [a, c, d]]
     }
 
-    /// A triangle's light with visible share `share` everywhere on it.
+    /// A triangle's light with visible share `share` everywhere on it, every light reaching it.
     fn even(share: f32) -> TriangleLight {
-        TriangleLight { power: Vec3::ZERO, share, fine: 0, mixed: false }
+        TriangleLight { power: Vec3::ZERO, share, fine: 0, reach: u64::MAX, mixed: false }
     }
 
     /// kappa by brute force: a 400 x 400 grid of the cell's square, the same two means.
@@ -337,7 +347,7 @@ mod tests {
         let area = 0.5;
         let level = unshadowed_level(&vis[0], area);
         assert!((level * vis[0].share * area - vis[0].power).abs().max_element() < 1e-6);
-        let dark = TriangleLight { power: Vec3::ZERO, share: 0.0, fine: 0, mixed: false };
+        let dark = TriangleLight { power: Vec3::ZERO, share: 1.0, fine: 0, reach: 0, mixed: false };
         assert_eq!(unshadowed_level(&dark, area), Vec3::ZERO);
     }
 

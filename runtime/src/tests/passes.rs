@@ -344,6 +344,13 @@ fn shadow_edges_across_cell_triangles_are_found_as_the_twin_finds_them() {
     }
     // Measured on lavapipe: 37 of 128 triangles mixed, all 128 alike, 1309 of 1332 bits.
     assert!(bits_alike * 10 >= bits * 9, "{bits_alike} of {bits} fine points alike");
+    // The lights that reach each triangle (some probe sees them): alike, and the occluder's
+    // shadow hides a light from some triangles.
+    let reach_gpu = |t: &crate::layout::GpuCellTriangle| t.reach_lo as u64 | (t.reach_hi as u64) << 32;
+    let reach_alike = cpu.iter().zip(&gpu_cells).filter(|(c, t)| c.reach == reach_gpu(t)).count();
+    let not_all = cpu.iter().filter(|c| c.reach != 0b11).count();
+    assert!(reach_alike * 20 >= n * 19, "lights reaching alike on {reach_alike} of {n} triangles");
+    assert!(not_all >= 4, "{not_all} triangles with a light hidden from them");
     // One triangle a cell: its power over its area.
     let sum_cpu: Vec3 = cpu.iter().zip(&areas).map(|(c, a)| c.power / *a).sum();
     let sum_gpu: Vec3 = gpu_e.iter().sum();
