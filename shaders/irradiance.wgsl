@@ -7,8 +7,9 @@
 // CELL_FINE_SUB² fine points, and the triangle is mixed: per fine point, a bit says whether
 // it receives at least half the light that reaches it unshadowed (fine_lo: points 0-31;
 // fine_hi: points 32-35, and CELL_MIXED for a mixed triangle). Each cell triangle also keeps
-// its visible share (luminance-weighted over the lights; 1 where none arrives) and its
-// unshadowed level (its power over that share and its area). The near field's concentration
+// its visible share (luminance-weighted over the lights that reach it; 1 where none does), its
+// unshadowed level (its power over that share and its area) and those lights' bits (reach_lo,
+// reach_hi). The near field's concentration
 // (concentrate.wgsl) reads them, and the w of E_j: 1 where one of the cell's triangles is
 // mixed. Structs, constants and bindings: the generated prelude (runtime/src/contract.rs,
 // runtime/src/irradiance.rs); the power: lights.wgsl.
