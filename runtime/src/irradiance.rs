@@ -1,8 +1,8 @@
 //! Entry irradiance on the GPU (DESIGN.md §4-5; `shaders/irradiance.wgsl`): one invocation
 //! per entry point sums, over the triangles of its cell and every light, the power the light
-//! delivers to the triangle (`prm::Light::triangle_power`) times the triangle's visibility from
-//! the shadow maps at its centroid (normal offset + 3x3 PCF, `shaders/lights.wgsl`), and
-//! divides by the entry's area: the mean irradiance its cell stands for, however close the
+//! delivers to the triangle (`prm::Light::triangle_power`) times its visible share from the
+//! shadow maps (four probes, and 36 fine points where they disagree: `prm::cell_light`; normal
+//! offset + 3x3 PCF, `shaders/lights.wgsl`), and divides by the entry's area: the mean irradiance its cell stands for, however close the
 //! light. Output: one `vec4f` per entry, W/m².
 //!
 //! A light the shadow maps' block minima show hidden from an entry's whole cell (its bounding

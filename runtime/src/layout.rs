@@ -194,7 +194,7 @@ gpu_struct! {
     /// (`prm::prm_file::Cells`).
     pub struct GpuCellTriangle {
         pub a: [f32; 3],
-        /// The visible share of the lights' power on it, written by the entry pass
+        /// The visible share of the power of the lights that reach it, written by the entry pass
         /// (`prm::cell_light::TriangleLight::share`).
         pub visibility: f32,
         pub b: [f32; 3],
