@@ -87,6 +87,8 @@ pub struct TriangleLight {
     /// unshadowed (luminance over them).
     pub fine: u64,
     /// Bit i: light i reaches the triangle (some unshadowed power, and some probe sees it).
+    /// Only the first 64 lights have bits (the runtime takes at most 64); a reader takes a
+    /// light past them as reaching.
     pub reach: u64,
     /// True when some light's probes disagreed: its share was filtered over the fine points,
     /// and [`Self::fine`] says where the light lands.
@@ -132,7 +134,8 @@ pub fn triangle_light(
             if v == [0.0; 4] {
                 return None;
             }
-            mask |= 1 << i;
+            // Lights past the 64th (more than the runtime takes) have no bit: see `reach`.
+            mask |= 1u64.checked_shl(i as u32).unwrap_or(0);
             // Agreeing is on which side of one half each probe lies (a filtered shadow map's
             // fractions near an edge or at a grazing angle are not a shadow edge), and a
             // uniform triangle takes their mean.
@@ -235,6 +238,18 @@ mod tests {
         assert_eq!((both.power, both.share, both.fine), (alone.power, alone.share, alone.fine));
         assert_eq!((alone.reach, both.reach), (1, 2));
         assert!(both.fine != 0 && both.share > 0.3);
+    }
+
+    /// Forty lights, only the 38th seen: its bit alone, past the first word the GPU keeps.
+    #[test]
+    fn the_reach_bits_name_the_lights_seen() {
+        let lights: Vec<Light> = (0..40)
+            .map(|i| Light::point(&format!("l{i}"), Vec3::new(0.3, 0.5 + i as f32 * 0.01, 0.3), Vec3::ONE))
+            .collect();
+        let got = triangle_light(&tri(), &lights, |_, _, l| (l.name == "l37") as u8 as f32);
+        assert_eq!(got.reach, 1 << 37);
+        assert_eq!(got.power, lights[37].triangle_power(&tri()));
+        assert_eq!(got.share, 1.0);
     }
 
     /// A shadow edge across the triangle: the share is the lit part's irradiance over the

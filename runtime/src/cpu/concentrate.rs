@@ -93,7 +93,8 @@ pub fn concentration(
                 lights
                     .iter()
                     .enumerate()
-                    .filter(|(i, _)| (v.reach >> i) & 1 == 1)
+                    // A light past the 64th has no bit (`TriangleLight::reach`): taken as reaching.
+                    .filter(|&(i, _)| i >= 64 || (v.reach >> i) & 1 == 1)
                     .map(|(_, l)| l.irradiance(y, n))
                     .sum()
             } else {

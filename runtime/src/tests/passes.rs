@@ -199,6 +199,47 @@ fn read_r32_layers(g: &Gpu, texture: &wgpu::Texture, side: u32, layers: u32) -> 
     out
 }
 
+/// Thirty-four lights, one beyond the wall: the reach bits of lights past the 32nd (the
+/// second GPU word) are the twin's, and the wall's side decides which lights reach a cell.
+#[test]
+fn reach_bits_past_the_first_word_follow_the_twin() {
+    let g = gpu();
+    let (scene, cells, areas) = floor_cut_by_a_wall();
+    let bvh = Bvh::build(&scene);
+    let mut lights: Vec<Light> = (0..33)
+        .map(|i| point(v(-2.5 + 0.07 * i as f32, 1.0 + 0.03 * i as f32, -1.5 + 0.09 * i as f32), 1.0))
+        .collect();
+    lights.push(point(v(1.5, 2.0, 0.3), 5.0));
+    let (_, gpu_cells) = gpu_entry_pass(&g, &scene, &lights, &cells, &areas, 256);
+    let cpu: Vec<_> =
+        cells.triangles.iter().map(|t| prm::bvh::cell_triangle_light(&bvh, &lights, t)).collect();
+    let reach_gpu = |t: &crate::layout::GpuCellTriangle| t.reach_lo as u64 | (t.reach_hi as u64) << 32;
+    let n = cpu.len();
+    // Per (triangle, light) bit, away from the wall's foot: the two columns of cells against it
+    // (triangles 80-111) see a little light under it through the shadow maps (PCF taps across
+    // the contact), which rays do not.
+    let away = |k: &usize| !(80..112).contains(k);
+    let differ: u32 = cpu
+        .iter()
+        .zip(&gpu_cells)
+        .enumerate()
+        .filter(|(k, _)| away(k))
+        .map(|(_, (c, t))| (c.reach ^ reach_gpu(t)).count_ones())
+        .sum();
+    let pairs = (n - 32) * lights.len();
+    assert!(differ as usize * 100 <= pairs, "{differ} of {pairs} reach bits differ");
+    // Beyond the wall only the 34th light reaches; before it, lights of both words. Measured on
+    // lavapipe: 0 of 5,440 bits differ; 80 and 80 triangles.
+    let beyond = (112..n).filter(|&k| reach_gpu(&gpu_cells[k]) == 1 << 33).count();
+    let before = (0..80).filter(|&k| gpu_cells[k].reach_lo != 0 && gpu_cells[k].reach_hi & 1 == 1).count();
+    assert!(
+        beyond * 10 >= (n - 112) * 9,
+        "{beyond} of {} triangles beyond the wall: the 34th light alone",
+        n - 112
+    );
+    assert!(before * 10 >= 80 * 9, "{before} of 80 triangles before it reached by lights of both words");
+}
+
 #[test]
 fn the_shadow_block_minima_are_the_least_depth_of_their_texels() {
     let g = gpu();
