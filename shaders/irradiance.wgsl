@@ -61,9 +61,9 @@ fn strictly_in_face(v: vec3f, face: u32) -> bool {
 // PCF of bilinear taps, lights.wgsl) finds an occluder nearer the light, so each probe reads 0.
 // Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
 // offset): all its corners in front of one layer and inside its map; the largest depth any
-// point of it has (reverse-Z depth falls with the distance along the layer's axis, least at a
-// corner) below the farthest occluder of every block its lookups could read, 2 texels around
-// the corners' rectangle. Point and spot lights; a directional one is never culled.
+// point of it has (reverse-Z depth falls with the distance along the layer's axis, so it is
+// largest at the corner nearest the light) below the farthest occluder of every block its
+// lookups could read, 2 texels around the corners' rectangle. Point and spot lights; a directional one is never culled.
 fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
     if params.cull_hidden == 0u || l.kind == KIND_DIRECTIONAL {
         return false;
