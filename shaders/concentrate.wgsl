@@ -1,7 +1,7 @@
 // How a texel sees a hot cell (prm_runtime::cpu::concentrate says why and what; the CPU twin
 // computes the same). concentrate_main, one workgroup per work item (up to WG_LINEAR links of
-// one entry): for each near-field link whose entry's cell is hot (a point or spot light closer
-// to its centroid than HOT_REACH x its size, or a mixed triangle in it: a shadow edge across
+// one entry): for each near-field link whose entry's cell is hot (a point or spot light that
+// reaches it closer to its centroid than HOT_REACH x its size, or a mixed triangle in it: a shadow edge across
 // it, irradiance.wgsl), link_light = (E_j kappa, this update's number; kappa 1 for a texel
 // beyond NEAR_SIZES of a cell hot only by a shadow edge), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
@@ -14,11 +14,18 @@
 // a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
 
-// A point or spot light closer to the cell's centroid than HOT_REACH x its size.
+// A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
+// past the 64th has none and is taken as reaching) closer to its centroid than HOT_REACH x
+// its size.
 fn near_light(h: GpuHotEntry) -> bool {
+    var reach = vec2u(0u);
+    for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
+        reach |= vec2u(cells[k].reach_lo, cells[k].reach_hi);
+    }
     for (var i = 0u; i < params.light_count; i++) {
         let l = lights[i];
-        if l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size {
+        let reaches = i >= 64u || ((reach[i / 32u] >> (i % 32u)) & 1u) != 0u;
+        if reaches && l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size {
             return true;
         }
     }

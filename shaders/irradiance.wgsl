@@ -4,9 +4,10 @@
 // why and how; the CPU twin runs the same steps with rays): each light's shadow maps at four
 // probe points of the triangle (the fine points at its corners and its centroid); where they
 // agree, what they say; where they differ, the irradiance-weighted mean over the
-// CELL_FINE_SUB² fine points, and the triangle is mixed: per fine point, a bit says whether
-// it receives at least half the light that reaches it unshadowed (fine_lo: points 0-31;
-// fine_hi: points 32-35, and CELL_MIXED for a mixed triangle). Each cell triangle also keeps
+// CELL_FINE_SUB² fine points, and per fine point a bit says whether it receives at least half
+// the light that reaches it unshadowed; where those bits differ the triangle is mixed (a
+// shadow edge crosses it) and keeps them (fine_lo: points 0-31; fine_hi: points 32-35, and
+// CELL_MIXED), else they are 0. Each cell triangle also keeps
 // its visible share (luminance-weighted over the lights that reach it; 1 where none does), its
 // unshadowed level (its power over that share and its area) and those lights' bits (reach_lo,
 // reach_hi). The near field's concentration
@@ -236,17 +237,20 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                         seen += luminance(p) * v;
                     }
                 }
+                var bits = vec2u(0u);
                 for (var q = 0u; q < CELL_FINE_POINTS; q++) {
                     if lit_at[q] >= 0.5 * all_at[q] {
-                        if q < 32u {
-                            fine_lo |= 1u << q;
-                        } else {
-                            fine_hi |= 1u << (q - 32u);
-                        }
+                        bits[q / 32u] |= 1u << (q % 32u);
                     }
                 }
-                fine_hi |= CELL_MIXED;
-                any_mixed = 1.0;
+                // A shadow edge is where the bits differ; all alike, the triangle takes its
+                // share everywhere (prm::cell_light::triangle_light).
+                let all_set = vec2u(~0u, (1u << (CELL_FINE_POINTS - 32u)) - 1u);
+                if any(bits != vec2u(0u)) && any(bits != all_set) {
+                    fine_lo = bits.x;
+                    fine_hi = bits.y | CELL_MIXED;
+                    any_mixed = 1.0;
+                }
             }
             if total > 0.0 {
                 share = seen / total;

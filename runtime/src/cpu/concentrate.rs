@@ -7,7 +7,7 @@
 //! chamber's corner torch, 15 cm from three surfaces: the three texels at the corner read 67
 //! W/m² against the ground truth's 200-231.
 //!
-//! So when entry j's cell is *hot* (a point or spot light closer to its centroid than
+//! So when entry j's cell is *hot* (a point or spot light that reaches it closer to its centroid than
 //! [`HOT_REACH`] times the cell's size, the square root of its area, or a shadow edge across
 //! one of its triangles: [`prm::cell_light::TriangleLight::mixed`]), its links use `E_j kappa`
 //! instead of `E_j`. A shadow makes a cell's light as uneven as a near lamp does: a pillar's
@@ -52,10 +52,22 @@ pub const NEAR_SIZES: f32 = 2.0;
 /// A cell is hot for a point or spot light closer to its centroid than this many cell sizes.
 pub const HOT_REACH: f32 = 2.0;
 
-/// True when a point or spot light is closer to the cell (centroid, size) than
-/// [`HOT_REACH`] sizes: its irradiance may then vary over the cell by more than a few times.
-pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light]) -> bool {
-    lights.iter().any(|l| l.is_positional() && l.position.distance(centroid) < HOT_REACH * size)
+/// True when a point or spot light that reaches the cell (some probe of one of its triangles
+/// sees it: a bit of `reach`, the union of its triangles' [`TriangleLight::reach`]; a light
+/// past the 64th is taken as reaching) is closer to the cell (centroid, size) than
+/// [`HOT_REACH`] sizes: its irradiance may then vary over the cell by more than a few times. A
+/// torch behind the wall the cell lies on brings it nothing to concentrate.
+pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light], reach: u64) -> bool {
+    lights.iter().enumerate().any(|(i, l)| {
+        (i >= 64 || (reach >> i) & 1 == 1)
+            && l.is_positional()
+            && l.position.distance(centroid) < HOT_REACH * size
+    })
+}
+
+/// The lights that reach any of a cell's triangles (bits as [`TriangleLight::reach`]).
+pub fn cell_reach(vis: &[TriangleLight]) -> u64 {
+    vis.iter().fold(0, |a, t| a | t.reach)
 }
 
 /// kappa of the module doc for the texel at `x` (unit normal `nx`) and the cell `tris` (with
@@ -77,7 +89,7 @@ pub fn concentration(
     // Near a cell a light is near, every triangle takes the fine quadrature; near one hot only by
     // a shadow edge, its mixed triangles (their light is smooth elsewhere, and the fine points
     // of every triangle made the concentration most of a moving light's frame on lavapipe).
-    let lit_near = is_hot(centroid, size, lights);
+    let lit_near = is_hot(centroid, size, lights, cell_reach(vis));
     let near = lit_near && x.distance(centroid) < NEAR_SIZES * size;
     for (t, v) in tris.iter().zip(vis) {
         let cross = (t[1] - t[0]).cross(t[2] - t[0]);
@@ -165,7 +177,7 @@ impl LinkLight {
         let cells = prm.cells();
         let of = |j: usize| &cell_lights[cells.first[j] as usize..cells.first[j + 1] as usize];
         let near_light: Vec<bool> =
-            (0..n).map(|j| is_hot(tables.centroid[j], tables.size[j], lights)).collect();
+            (0..n).map(|j| is_hot(tables.centroid[j], tables.size[j], lights, cell_reach(of(j)))).collect();
         let hot: Vec<bool> = (0..n).map(|j| near_light[j] || of(j).iter().any(|t| t.mixed)).collect();
         let mut value = vec![Vec3::ZERO; prm.near().len()];
         let mut energy = vec![Vec3::ZERO; n];
@@ -342,7 +354,7 @@ mod tests {
     #[test]
     fn a_cell_no_light_is_near_takes_each_triangles_level() {
         let lamp = Light::point("lamp", Vec3::new(0.5, 2.5, 0.5), Vec3::ONE);
-        assert!(!is_hot(GEOM.0, GEOM.1, std::slice::from_ref(&lamp)));
+        assert!(!is_hot(GEOM.0, GEOM.1, std::slice::from_ref(&lamp), 1));
         let (vis, _) = shadow_across_the_cell(&lamp);
         // The level: the triangle's power over its share and area.
         let area = 0.5;
@@ -356,10 +368,20 @@ mod tests {
     fn a_cell_is_hot_only_for_a_point_or_spot_light_within_reach() {
         let lamp = Light::point("lamp", Vec3::new(0.0, 1.0, 0.0), Vec3::ONE);
         // 1 m away: hot for a cell of 0.6 m (1 < 2 x 0.6), not for one of 0.4 m.
-        assert!(is_hot(Vec3::ZERO, 0.6, std::slice::from_ref(&lamp)));
-        assert!(!is_hot(Vec3::ZERO, 0.4, std::slice::from_ref(&lamp)));
+        assert!(is_hot(Vec3::ZERO, 0.6, std::slice::from_ref(&lamp), 1));
+        assert!(!is_hot(Vec3::ZERO, 0.4, std::slice::from_ref(&lamp), 1));
         let mut sun = lamp.clone();
         sun.kind = prm::LightKind::Directional;
-        assert!(!is_hot(Vec3::ZERO, 10.0, &[sun]));
+        assert!(!is_hot(Vec3::ZERO, 10.0, &[sun], 1));
+        // Near but reaching no triangle of the cell (a torch behind its wall): not hot; as the
+        // second light, only its own bit counts.
+        assert!(!is_hot(Vec3::ZERO, 0.6, std::slice::from_ref(&lamp), 0));
+        let far = Light::point("far", Vec3::new(0.0, 9.0, 0.0), Vec3::ONE);
+        assert!(!is_hot(Vec3::ZERO, 0.6, &[far.clone(), lamp.clone()], 0b01));
+        assert!(is_hot(Vec3::ZERO, 0.6, &[far, lamp], 0b10));
+        // A light past the 64th has no bit and is taken as reaching.
+        let mut many = vec![Light::point("far", Vec3::new(0.0, 9.0, 0.0), Vec3::ONE); 64];
+        many.push(Light::point("lamp", Vec3::new(0.0, 1.0, 0.0), Vec3::ONE));
+        assert!(is_hot(Vec3::ZERO, 0.6, &many, 0));
     }
 }

@@ -350,19 +350,7 @@ fn shadow_edges_across_cell_triangles_are_found_as_the_twin_finds_them() {
     let g = gpu();
     let scene = floor_and_occluder();
     let bvh = Bvh::build(&scene);
-    // The floor in 8 x 8 squares of two triangles, each triangle a cell of its own.
-    let mut lists = Vec::new();
-    let step = 0.5f32;
-    for i in 0..8 {
-        for k in 0..8 {
-            let (x0, z0) = (-2.0 + step * i as f32, -2.0 + step * k as f32);
-            let (x1, z1) = (x0 + step, z0 + step);
-            lists.push(vec![[v(x0, 0., z0), v(x0, 0., z1), v(x1, 0., z1)]]);
-            lists.push(vec![[v(x0, 0., z0), v(x1, 0., z1), v(x1, 0., z0)]]);
-        }
-    }
-    let cells = prm::prm_file::Cells::from_lists(lists);
-    let areas: Vec<f32> = (0..cells.first.len() - 1).map(|j| cells.area(j)).collect();
+    let (cells, areas) = floor_cells();
     let lights = [point(v(0.2, 2.0, 0.1), 10.0), point(v(-1.5, 3.0, 1.0), 4.0)];
     let (gpu_e, gpu_cells) = gpu_entry_pass(&g, &scene, &lights, &cells, &areas, 1024);
     let cpu: Vec<_> =
@@ -405,6 +393,65 @@ fn shadow_edges_across_cell_triangles_are_found_as_the_twin_finds_them() {
     for ((l, t), c) in level_cpu.iter().zip(&gpu_cells).zip(&cpu) {
         if c.share > 0.05 && t.visibility > 0.05 {
             assert!((l - t.level[0]).abs() < 0.02 * top, "level: twin {l}, GPU {}", t.level[0]);
+        }
+    }
+}
+
+/// [`floor_and_occluder`]'s floor in 8 x 8 squares of two triangles, each triangle a cell of
+/// its own, and their areas.
+fn floor_cells() -> (prm::prm_file::Cells, Vec<f32>) {
+    let mut lists = Vec::new();
+    let step = 0.5f32;
+    for i in 0..8 {
+        for k in 0..8 {
+            let (x0, z0) = (-2.0 + step * i as f32, -2.0 + step * k as f32);
+            let (x1, z1) = (x0 + step, z0 + step);
+            lists.push(vec![[v(x0, 0., z0), v(x0, 0., z1), v(x1, 0., z1)]]);
+            lists.push(vec![[v(x0, 0., z0), v(x1, 0., z1), v(x1, 0., z0)]]);
+        }
+    }
+    let cells = prm::prm_file::Cells::from_lists(lists);
+    let areas = (0..cells.first.len() - 1).map(|j| cells.area(j)).collect();
+    (cells, areas)
+}
+
+/// A weak lamp's shadow edges where a lamp 200 times stronger lights the floor evenly: every
+/// fine point there gets at least half of the light, so no bit differs and no shadow edge is
+/// marked. The GPU leaves those triangles unmixed as the twin does, and keeps the strong
+/// lamp's own edges mixed.
+#[test]
+fn an_edge_outweighed_everywhere_is_no_shadow_edge_on_the_gpu_either() {
+    let g = gpu();
+    let scene = floor_and_occluder();
+    let bvh = Bvh::build(&scene);
+    let (cells, areas) = floor_cells();
+    let weak = point(v(0.2, 2.0, 0.1), 0.5);
+    let lights = [weak.clone(), point(v(-1.5, 3.0, 1.0), 100.0)];
+    let twin = |lights: &[prm::Light]| -> Vec<prm::cell_light::TriangleLight> {
+        cells.triangles.iter().map(|t| prm::bvh::cell_triangle_light(&bvh, lights, t)).collect()
+    };
+    let (alone, both) = (twin(std::slice::from_ref(&weak)), twin(&lights));
+    // The weak lamp's edges that the strong lamp outweighs.
+    let outweighed: Vec<usize> = (0..alone.len()).filter(|&k| alone[k].mixed && !both[k].mixed).collect();
+    assert!(outweighed.len() >= 6, "{} of the weak lamp's edges outweighed", outweighed.len());
+    assert!(both.iter().any(|c| c.mixed), "the strong lamp's own edges stay");
+    let (_, gpu_cells) = gpu_entry_pass(&g, &scene, &lights, &cells, &areas, 1024);
+    let mixed_gpu = |t: &crate::layout::GpuCellTriangle| t.fine_hi & crate::contract::CELL_MIXED != 0;
+    let n = both.len();
+    let agree = both.iter().zip(&gpu_cells).filter(|(c, t)| c.mixed == mixed_gpu(t)).count();
+    assert!(agree * 20 >= n * 19, "mixed on {agree} of {n} triangles alike");
+    let unmixed = outweighed.iter().filter(|&&k| !mixed_gpu(&gpu_cells[k])).count();
+    // Measured on lavapipe: 21 outweighed, all 21 unmixed; 16 of the strong lamp's edges; 128
+    // of 128 alike.
+    assert!(
+        unmixed * 10 >= outweighed.len() * 9,
+        "GPU: {unmixed} of {} outweighed edges unmixed",
+        outweighed.len()
+    );
+    for &k in &outweighed {
+        let t = &gpu_cells[k];
+        if !mixed_gpu(t) {
+            assert_eq!((t.fine_lo, t.fine_hi), (0, 0), "an unmixed triangle keeps no bits");
         }
     }
 }
