@@ -169,7 +169,7 @@ impl<'f> Scratch<'f> {
         Scratch {
             dense: vec![Vec3A::ZERO; clusters],
             dipole: vec![[Vec3::ZERO; 3]; dipoles],
-            touched: Vec::new(),
+            touched: Vec::with_capacity(clusters),
             visits: Vec::new(),
             visited: Vec::new(),
             frames,
@@ -271,10 +271,7 @@ impl<'f> Scratch<'f> {
             let w = std::mem::take(&mut self.visits[e as usize]);
             let Some(row) = next.row(e) else { continue };
             // The row's step folded into the throughput once: each element is then whole steps.
-            let w = Vec3A::from(w * row.unit);
-            for (&c, &q) in row.cluster.iter().zip(row.value) {
-                self.accumulate_a(u32::from(c), w * Vec3A::from(next::steps(q)));
-            }
+            add_row(&mut self.dense, &mut self.touched, &row, Vec3A::from(w * row.unit));
         }
         visited.clear();
         self.visited = visited;
@@ -296,6 +293,25 @@ impl<'f> Scratch<'f> {
         }
         self.touched.clear();
         (out, dipoles)
+    }
+}
+
+/// Adds `w` times each element of `row` to `dense`, listing in `touched` each cluster it finds
+/// at zero ([`Scratch::accumulate_a`]'s sums, a third of a chamber's precompute). Neither `w`
+/// nor a row's steps have a negative lane, so a listed sum cannot come back to zero and only
+/// the first addition to a cluster needs the zero test; and with `dense` and `touched` apart
+/// from the rest of the scratch, the loop keeps their addresses in registers.
+#[inline]
+fn add_row(dense: &mut [Vec3A], touched: &mut Vec<u32>, row: &next::Row<'_>, w: Vec3A) {
+    for (&c, &q) in row.cluster.iter().zip(row.value) {
+        let v = w * Vec3A::from(next::steps(q));
+        let d = &mut dense[usize::from(c)];
+        if *d == Vec3A::ZERO {
+            touched.push(u32::from(c));
+            *d = if v == Vec3A::ZERO { Vec3A::splat(f32::MIN_POSITIVE) } else { v };
+        } else {
+            *d += v;
+        }
     }
 }
 
