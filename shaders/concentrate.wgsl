@@ -164,9 +164,20 @@ fn concentrate_main(
     let first = link_ids[at + 2u + 2u * item];
     let h = hot_entries[j];
     let lit_near = near_light(h);
-    // w: a shadow edge across the cell, the entry pass's mark (irradiance.wgsl).
+    // w: the entry pass's flags (irradiance.wgsl): a shadow edge across the cell; the entry
+    // unchanged since the last update.
     let e = entry_irradiance[j];
-    if !lit_near && e.w == 0.0 {
+    let flags = u32(e.w);
+    if !lit_near && (flags & ENTRY_EDGE) == 0u {
+        return;
+    }
+    if (flags & ENTRY_UNCHANGED) != 0u {
+        // Hot now and then, with the same light: each link's light is what it was, made this
+        // update's.
+        let k = first + lid;
+        if k < h.link_count {
+            link_light[link_ids[h.first_link + k]].w = params.frame;
+        }
         return;
     }
     if lid == 0u {

@@ -11,8 +11,10 @@
 // its visible share (luminance-weighted over the lights that reach it; 1 where none does), its
 // unshadowed level (its power over that share and its area) and those lights' bits (reach_lo,
 // reach_hi). The near field's concentration
-// (concentrate.wgsl) reads them, and the w of E_j: 1 where one of the cell's triangles is
-// mixed. Structs, constants and bindings: the generated prelude (runtime/src/contract.rs,
+// (concentrate.wgsl) reads them, and the w of E_j: flags, ENTRY_EDGE where one of the cell's
+// triangles is mixed, ENTRY_UNCHANGED where the entry kept last update's light. A light that
+// changed since the last update, hidden from the whole cell then and now, cannot change it:
+// such an entry is not run again (entry_hidden keeps the lights hidden at its last run). Structs, constants and bindings: the generated prelude (runtime/src/contract.rs,
 // runtime/src/irradiance.rs); the power: lights.wgsl.
 
 // Fine point (fa, fb) of a triangle, in units of a sub-triangle's side.
@@ -130,11 +132,33 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let e = entries[j];
     var power = vec3f(0.0);
-    var any_mixed = 0.0;
+    var any_mixed = false;
     // Bit i: light i hidden from the whole cell.
     var hid = vec2u(0u);
     var hid_count = 0u;
     if e.cell_count > 0u {
+        // Unchanged: every light that changed since the last update is hidden from the whole
+        // cell now and was at the last update that ran this entry (the others cast the same
+        // shadow maps as then), so its triangles' light and its irradiance are what they were;
+        // the concentration keeps its links' light (w + 2).
+        if params.keep_unchanged != 0u {
+            let changed = vec2u(params.changed_lo, params.changed_hi);
+            let before = entry_hidden[j];
+            var same = true;
+            for (var i = 0u; i < params.light_count && same; i++) {
+                let w = i / 32u;
+                let bit = 1u << (i % 32u);
+                if (changed[w] & bit) != 0u {
+                    same = (before[w] & bit) != 0u && hidden(lights[i], e.bound_centre, e.bound_radius);
+                }
+            }
+            if same {
+                atomicAdd(&entry_stats[1], 1u);
+                let old = entry_irradiance[j];
+                entry_irradiance[j] = vec4f(old.xyz, f32(u32(old.w) | ENTRY_UNCHANGED));
+                return;
+            }
+        }
         for (var i = 0u; i < params.light_count; i++) {
             if hidden(lights[i], e.bound_centre, e.bound_radius) {
                 hid[i / 32u] |= 1u << (i % 32u);
@@ -142,6 +166,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
             }
         }
     }
+    entry_hidden[j] = hid;
     if hid_count > 0u {
         atomicAdd(&entry_stats[0], hid_count);
     }
@@ -249,7 +274,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                 if any(bits != vec2u(0u)) && any(bits != all_set) {
                     fine_lo = bits.x;
                     fine_hi = bits.y | CELL_MIXED;
-                    any_mixed = 1.0;
+                    any_mixed = true;
                 }
             }
             if total > 0.0 {
@@ -270,6 +295,7 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
         cells[k].reach_lo = reach.x;
         cells[k].reach_hi = reach.y;
     }
-    // w: 1 where a shadow edge crosses the cell (a mixed triangle), for the concentration.
-    entry_irradiance[j] = vec4f(power * e.inv_area, any_mixed);
+    // w: ENTRY_EDGE where a shadow edge crosses the cell (a mixed triangle), for the
+    // concentration.
+    entry_irradiance[j] = vec4f(power * e.inv_area, f32(select(0u, ENTRY_EDGE, any_mixed)));
 }

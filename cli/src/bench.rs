@@ -108,6 +108,10 @@ struct Report {
     /// The last update's (entry, light) pairs, and those not probed (the light hidden).
     entry_light_pairs: u64,
     hidden_light_pairs: u64,
+    /// The last update's entries, and those it did not run again (every light that changed
+    /// since the update before hidden from their whole cells).
+    entries: u64,
+    unchanged_entries: u64,
 }
 
 #[derive(Serialize)]
@@ -150,7 +154,7 @@ pub fn run(a: Args) -> Result<()> {
     let times = bench.frame_times(a.rounds)?;
     let compose = bench.compose_alone()?;
     let bandwidth = copy_bandwidth(&bench.g);
-    let hidden = bench.rt.hidden_pairs()?;
+    let hidden = (bench.rt.hidden_pairs()?, bench.rt.unchanged_entries()?);
     let report = bench.report(&a, times, compose, bandwidth, hidden);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -302,14 +306,14 @@ impl Bench {
     }
 
     /// Every figure, with what was measured; `bandwidth` in bytes per second.
-    /// `hidden`: the last update's (entry, light) pairs not probed.
+    /// `hidden`: the last update's (entry, light) pairs not probed, and its entries not run.
     fn report(
         &self,
         a: &Args,
         times: FrameTimes,
         compose: ComposeAlone,
         bandwidth: f64,
-        hidden: u64,
+        (hidden, unchanged): (u64, u64),
     ) -> Report {
         let b = &compose.bytes;
         let total_bytes = b.pane_data + b.headers + b.tables + b.written;
@@ -342,6 +346,8 @@ impl Bench {
             entry_light_pairs: self.prm_file.entries().len() as u64
                 * self.lights_at(self.frames - 1).len() as u64,
             hidden_light_pairs: hidden,
+            entries: self.prm_file.entries().len() as u64,
+            unchanged_entries: unchanged,
         }
     }
 }
@@ -408,6 +414,10 @@ fn print_text(r: &Report) {
         r.hidden_light_pairs,
         r.entry_light_pairs,
         if r.light_culling { "" } else { " (culling off: --no-light-culling)" }
+    );
+    println!(
+        "entry pass: {} of {} entries kept their light, every light that moved hidden from their cells",
+        r.unchanged_entries, r.entries
     );
     println!(
         "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} stored tiles summed, at most {} per \

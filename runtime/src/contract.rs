@@ -51,6 +51,13 @@ pub const KIND_DIRECTIONAL: u32 = 2;
 pub const CELL_MIXED: u32 = 1 << 31;
 const _: () = assert!(prm::cell_light::FINE_POINTS <= 32 + 31, "the fine bits must fit beside CELL_MIXED");
 
+/// A flag of the entry irradiance's w (`shaders/irradiance.wgsl`, as a float): a shadow edge
+/// crosses one of the entry's cell triangles.
+pub const ENTRY_EDGE: u32 = 1;
+/// A flag of the entry irradiance's w: the entry kept last update's light (no light that
+/// changed reaches its cell), and the concentration keeps its links' light.
+pub const ENTRY_UNCHANGED: u32 = 2;
+
 /// The WGSL `u32` constants of the prelude, by name.
 pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
@@ -67,6 +74,8 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CELL_FINE_SUB", prm::cell_light::FINE_SUB),
     ("CELL_FINE_POINTS", prm::cell_light::FINE_POINTS as u32),
     ("CELL_MIXED", CELL_MIXED),
+    ("ENTRY_EDGE", ENTRY_EDGE),
+    ("ENTRY_UNCHANGED", ENTRY_UNCHANGED),
     ("MAX_LIGHTS", prm::rig::MAX_LIGHTS as u32),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),

@@ -7,7 +7,12 @@
 //!
 //! A light the shadow maps' block minima show hidden from an entry's whole cell (its bounding
 //! sphere: [`crate::shadow`]) is not probed there (`RuntimeParams::cull_hidden_lights`); the
-//! pass counts those (entry, light) pairs in [`EntryPass::hidden`].
+//! pass counts those (entry, light) pairs in [`EntryPass::stats`].
+//!
+//! An entry every light that changed since the last update is hidden from (its whole cell,
+//! now and at the last update that ran it) keeps its light: the other lights' shadow maps are
+//! as they were, so the pass would find what it found then. With a few lights moving in a
+//! level of many rooms, most entries are such (`IndirectParams::keep_unchanged`).
 
 use prm::prm_file::Cells;
 
@@ -24,8 +29,11 @@ pub const BINDINGS: &[Binding] = &[
     // Read-write: the pass writes each triangle's visible share (`GpuCellTriangle::visibility`).
     b("cells", Res::ReadWrite("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // [0]: (entry, light) pairs whose probes were skipped this update (the light hidden).
+    // [0]: (entry, light) pairs whose probes were skipped this update (the light hidden);
+    // [1]: entries that kept last update's light.
     b("entry_stats", Res::ReadWrite("array<atomic<u32>>"), COMPUTE),
+    // Per entry, bits of the lights hidden from its whole cell at the last update that ran it.
+    b("entry_hidden", Res::ReadWrite("array<vec2u>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -46,7 +54,12 @@ pub struct EntryPass {
     pub cells: wgpu::Buffer,
     /// `entry_stats` (`u32` counters, cleared each update).
     pub stats: wgpu::Buffer,
+    /// `entry_hidden` (bound, never read on the CPU).
+    _hidden: wgpu::Buffer,
 }
+
+/// The name of the entries' hidden-light bits ([`crate::memory::GpuMemory`]).
+pub const ENTRY_HIDDEN: &str = "hidden lights by entry";
 
 /// The centre of the box around `triangles` and the distance from it to the farthest corner
 /// (0 and 0 for none).
@@ -124,6 +137,12 @@ impl EntryPass {
             &[0u8; 16],
             wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
         );
+        let hidden = gpu::storage_buffer(
+            device,
+            ENTRY_HIDDEN,
+            &vec![0u8; areas.len().max(1) * 8],
+            wgpu::BufferUsages::empty(),
+        );
         let layout = SHADER.layout(device, 1);
         let group = bind(
             device,
@@ -136,6 +155,7 @@ impl EntryPass {
                 ("cells", cells.as_entire_binding()),
                 ("entry_irradiance", output.as_entire_binding()),
                 ("entry_stats", stats.as_entire_binding()),
+                ("entry_hidden", hidden.as_entire_binding()),
             ],
         );
         let pipeline = gpu::compute_pipeline(
@@ -145,7 +165,7 @@ impl EntryPass {
             "entry_main",
             &[shadow_layout, &layout],
         );
-        EntryPass { pipeline, group, count: areas.len() as u32, output, cells, stats }
+        EntryPass { pipeline, group, count: areas.len() as u32, output, cells, stats, _hidden: hidden }
     }
 
     /// Records the pass; `shadows` is the lights + shadow maps group.
@@ -168,10 +188,14 @@ impl EntryPass {
 }
 
 impl EntryPass {
-    /// The (entry, light) pairs the last update did not probe, the light's shadow maps hiding
-    /// the entry's whole cell (waits for the GPU).
-    pub fn hidden(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<u64, gpu::GpuError> {
+    /// The last update's counts (waits for the GPU): the (entry, light) pairs it did not
+    /// probe, the light's shadow maps hiding the entry's whole cell; and the entries that kept
+    /// their light, no light that changed reaching them.
+    pub fn stats(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(u64, u64), gpu::GpuError> {
         let bytes = gpu::read_buffer(device, queue, &self.stats)?;
-        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64)
+        let word = |k: usize| {
+            u32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]])
+        };
+        Ok((word(0) as u64, word(1) as u64))
     }
 }

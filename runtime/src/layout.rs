@@ -249,9 +249,13 @@ gpu_struct! {
         /// 1: the entry pass skips the shadow probes of a light whose shadow maps' blocks hide
         /// the whole cell (`crate::RuntimeParams::cull_hidden_lights`).
         pub cull_hidden: u32,
-        pub _pad0: u32,
-        pub _pad1: u32,
-        pub _pad2: u32,
+        /// Bits of the lights that changed since the last update's entry pass (any field),
+        /// lights 0-31 and 32-63.
+        pub changed_lo: u32,
+        pub changed_hi: u32,
+        /// 1: an entry every changed light is hidden from, now and at the last update that ran
+        /// it, keeps its light (`shaders/irradiance.wgsl`); 0: the entry pass runs every entry.
+        pub keep_unchanged: u32,
     }
 }
 

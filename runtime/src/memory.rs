@@ -80,6 +80,7 @@ impl GpuMemory {
             ),
             ("far texels", size(far_texels, std::mem::size_of::<GpuFarTexel>())),
             ("hot entries", size(n, std::mem::size_of::<GpuHotEntry>())),
+            (crate::irradiance::ENTRY_HIDDEN, size(n, 8)),
             ("far entries", size(n, std::mem::size_of::<FarEntry>())),
             ("near sums", size(points + far_only, 16)),
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),

@@ -113,6 +113,13 @@ pub struct Runtime {
     /// Whether the last update's lights may make a cell hot (any light may: a shadow edge
     /// across a cell is found on the GPU).
     any_hot: bool,
+    /// The lights of the last update's entry pass (`None`: none yet, or it must run every
+    /// entry again).
+    entry_lights: Option<Vec<Light>>,
+    /// This update's [`IndirectParams`] `changed_lo` and `changed_hi`, and whether it runs
+    /// every entry (`keep_unchanged` 0).
+    changed: [u32; 2],
+    redo_entries: bool,
 }
 
 impl Runtime {
@@ -206,6 +213,9 @@ impl Runtime {
             composes: 0,
             frame: 0,
             any_hot: false,
+            entry_lights: None,
+            changed: [0; 2],
+            redo_entries: true,
         })
     }
 
@@ -233,6 +243,7 @@ impl Runtime {
         // it, or a shadow edge across it, which only the entry pass finds (any light may cast
         // one).
         self.any_hot = !lights.is_empty();
+        self.note_changed_lights(lights);
         self.write_params();
         let Some(shadows) = self.shadows.group() else { return Ok(Update { composed: false }) };
         let mut enc =
@@ -254,10 +265,35 @@ impl Runtime {
         Ok(Update { composed: true })
     }
 
-    /// Makes the next [`Runtime::update`] recompose even if no light moved (a benchmark's
-    /// worst case: every frame pays for the indirect light).
+    /// Makes the next [`Runtime::update`] recompose even if no light moved, running every
+    /// entry again (a benchmark's worst case: every frame pays for the indirect light).
     pub fn invalidate(&mut self) {
         self.stale = true;
+        self.entry_lights = None;
+    }
+
+    /// Which lights changed since the last update's entry pass (`changed`), or that it must
+    /// run every entry (`redo_entries`, which `keep_unchanged` 0 tells the pass): the first update, after [`Runtime::invalidate`],
+    /// without the culling (which is what tells an entry a light is hidden from it), when the
+    /// lights are not the same list (count, or a light's kind: its shadow maps move to other
+    /// layers), or past the 64 lights the bits name. Then remembers `lights`.
+    fn note_changed_lights(&mut self, lights: &[Light]) {
+        let same_list = |old: &[Light]| {
+            old.len() == lights.len() && old.iter().zip(lights).all(|(a, b)| a.kind == b.kind)
+        };
+        self.changed = [0; 2];
+        self.redo_entries = match &self.entry_lights {
+            Some(old) if same_list(old) && self.params.cull_hidden_lights && lights.len() <= 64 => {
+                for (i, (a, b)) in old.iter().zip(lights).enumerate() {
+                    if a != b {
+                        self.changed[i / 32] |= 1 << (i % 32);
+                    }
+                }
+                false
+            }
+            _ => true,
+        };
+        self.entry_lights = Some(lights.to_vec());
     }
 
     /// Updates only the shadow maps and light buffer: what a direct-only frame needs. The next
@@ -325,7 +361,9 @@ impl Runtime {
             far_reach: self.near.far.as_ref().map_or(0.0, |f| f.reach),
             link_count: self.concentrate.links,
             cull_hidden: self.params.cull_hidden_lights as u32,
-            ..Default::default()
+            changed_lo: self.changed[0],
+            changed_hi: self.changed[1],
+            keep_unchanged: !self.redo_entries as u32,
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }
@@ -339,7 +377,14 @@ impl Runtime {
     /// light's shadow maps hide the entry's whole cell (`RuntimeParams::cull_hidden_lights`;
     /// waits for the GPU: for reports, not every frame).
     pub fn hidden_pairs(&self) -> Result<u64, RuntimeError> {
-        Ok(self.entries.hidden(&self.device, &self.queue)?)
+        Ok(self.entries.stats(&self.device, &self.queue)?.0)
+    }
+
+    /// The entries the last update's entry pass did not run again: every light that changed
+    /// since the update before is hidden from their whole cells, then and now, so they kept
+    /// their light (waits for the GPU: for reports, not every frame).
+    pub fn unchanged_entries(&self) -> Result<u64, RuntimeError> {
+        Ok(self.entries.stats(&self.device, &self.queue)?.1)
     }
 
     /// The shadow maps and light buffer (shared with the shading pass).
