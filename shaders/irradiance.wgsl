@@ -49,48 +49,22 @@ fn probes(l: GpuLight, a: vec3f, e1: vec3f, e2: vec3f, n: vec3f) -> f32 {
     return -1.0;
 }
 
-// Whether every point of v lies strictly inside the pyramid of cube face `face` (0..5 = +X -X
-// +Y -Y +Z -Z), so that cube_face picks that face for it.
-fn strictly_in_face(v: vec3f, face: u32) -> bool {
-    let a = abs(v);
-    let axis = face / 2u;
-    let along = v[axis] * select(1.0, -1.0, (face & 1u) == 1u);
-    let margin = 1.0 - 1e-4;
-    return along > 0.0 && a[(axis + 1u) % 3u] < along * margin && a[(axis + 2u) % 3u] < along * margin;
-}
-
-// Whether light l's shadow maps hide the whole sphere (c, r) (an entry's cell, its corners
-// inside): every comparison a probe of any point within it could make (normal offset and 3x3
-// PCF of bilinear taps, lights.wgsl) finds an occluder nearer the light, so each probe reads 0.
-// Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
-// offset): all its corners in front of one layer and inside its map; the largest depth any
-// point of it has (reverse-Z depth falls with the distance along the layer's axis, so it is
-// largest at the corner nearest the light) below the farthest occluder of every block its
-// lookups could read, 2 texels around the corners' rectangle. Point and spot lights; a directional one is never culled.
-fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
-    if params.cull_hidden == 0u || l.kind == KIND_DIRECTIONAL {
-        return false;
-    }
-    let d = c - l.position;
-    let dist = length(d);
-    let reach = (r + 1.5 * l.texel * (dist + r)) * 1.001 + 1e-6 * dist;
-    var layer = l.first_layer;
-    var face = 0u;
-    if l.layers == CUBE_LAYERS {
-        face = cube_face(d);
-        layer += face;
-    }
+// Whether the cube of half-side `reach` around c is hidden in shadow layer `layer`: every
+// corner in front of the layer's camera, and the largest depth any point of the cube has
+// (reverse-Z depth falls with the distance along the layer's axis, so it is largest at the
+// corner nearest the light) below the farthest occluder of every block its lookups could read,
+// 2 texels around the corners' rectangle. On a cube face (`on_cube`) a lookup comes only from
+// a point inside the face's pyramid, which projects inside its map: the rectangle is clamped
+// to the map, and a cube wholly off it has no lookup there. A spot light's map must hold it all
+// (off the map a lookup reads lit).
+fn hidden_in_layer(layer: u32, c: vec3f, reach: f32, on_cube: bool) -> bool {
     let m = shadow_mats[layer];
-    var lo = vec2f(2.0);
-    var hi = vec2f(-1.0);
+    var lo = vec2f(3.0e38);
+    var hi = vec2f(-3.0e38);
     var depth = 0.0;
     for (var k = 0u; k < 8u; k++) {
         let s = vec3f(f32(k & 1u), f32((k >> 1u) & 1u), f32((k >> 2u) & 1u)) * 2.0 - 1.0;
-        let corner = c + reach * s;
-        if l.layers == CUBE_LAYERS && !strictly_in_face(corner - l.position, face) {
-            return false;
-        }
-        let clip = m * vec4f(corner, 1.0);
+        let clip = m * vec4f(c + reach * s, 1.0);
         if !(clip.w > 0.0) {
             return false;
         }
@@ -100,8 +74,13 @@ fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
         hi = max(hi, uv);
         depth = max(depth, ndc.z);
     }
-    if any(lo < vec2f(0.0)) || any(hi > vec2f(1.0)) {
-        // Part of it is off the map, where a lookup reads lit.
+    if on_cube {
+        if any(hi < vec2f(0.0)) || any(lo > vec2f(1.0)) {
+            return true;
+        }
+        lo = max(lo, vec2f(0.0));
+        hi = min(hi, vec2f(1.0));
+    } else if any(lo < vec2f(0.0)) || any(hi > vec2f(1.0)) {
         return false;
     }
     let size = textureDimensions(shadow_tex).x;
@@ -122,6 +101,41 @@ fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
     }
     // A margin for the rounding of the probes' own depths.
     return depth * (1.0 + 1e-4) + 1e-7 < farthest;
+}
+
+// Whether light l's shadow maps hide the whole sphere (c, r) (an entry's cell, its corners
+// inside): every comparison a probe of any point within it could make (normal offset and 3x3
+// PCF of bilinear taps, lights.wgsl) finds an occluder nearer the light, so each probe reads 0.
+// Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
+// offset), in every layer one of its points could look up: a spot light's one map, or each
+// face of a point light's cube whose pyramid the cube may meet (a cube across two faces is
+// hidden when it is in both). Point and spot lights; a directional one is never culled.
+fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
+    if params.cull_hidden == 0u || l.kind == KIND_DIRECTIONAL {
+        return false;
+    }
+    let d = c - l.position;
+    let dist = length(d);
+    let reach = (r + 1.5 * l.texel * (dist + r)) * 1.001 + 1e-6 * dist;
+    if l.layers != CUBE_LAYERS {
+        return hidden_in_layer(l.first_layer, c, reach, false);
+    }
+    // The least |coordinate| over the cube, per axis.
+    let least = max(abs(d) - vec3f(reach), vec3f(0.0));
+    for (var face = 0u; face < 6u; face++) {
+        let axis = face / 2u;
+        // The cube's farthest reach along the face's axis; a point in its pyramid lies at
+        // least as far along it as across both other axes.
+        let along = select(d[axis], -d[axis], (face & 1u) == 1u) + reach;
+        let across = max(least[(axis + 1u) % 3u], least[(axis + 2u) % 3u]);
+        if along * (1.0 + 1e-4) + 1e-6 * dist < across {
+            continue;
+        }
+        if !hidden_in_layer(l.first_layer + face, c, reach, true) {
+            return false;
+        }
+    }
+    return true;
 }
 
 @compute @workgroup_size(WG_LINEAR)

@@ -130,10 +130,12 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
     // in the second's; one just over the wall's top sees the near side and is hidden from the
     // far side by the wall's top, close to its line of sight.
     let cases = [
-        // Measured on lavapipe (256², 1024²): 38, 39; 62, 71; 23, 24 pairs culled.
+        // Measured on lavapipe (256², 1024²): 38, 39; 62, 71; 39, 40 pairs culled. The third
+        // light looks down on the far side across two faces of its cube; with cells there
+        // tested in each face they lie in, 39, 40 (23, 24 when a cell had to lie in one).
         (vec![point(v(-2.0, 1.0, 0.3), 10.0)], 32, 48),
         (vec![point(v(-2.0, 1.0, 0.3), 10.0), point(v(1.5, 2.0, -0.2), 4.0)], 56, 96),
-        (vec![point(v(-0.3, 3.2, 0.1), 10.0)], 16, 48),
+        (vec![point(v(-0.3, 3.2, 0.1), 10.0)], 32, 48),
     ];
     for (lights, at_least, at_most) in cases {
         for size in [256, 1024] {
@@ -143,7 +145,7 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
                 gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, size, false);
             assert_eq!(none, 0, "nothing is culled when culling is off");
             // At most the cells in shadow; most of them (not those next to the wall, or whose
-            // sphere crosses a cube face's edge).
+            // grown cube crosses the plane of a face it may meet).
             assert!(
                 (at_least..=at_most).contains(&hidden),
                 "{hidden} pairs culled at {size}² ({} lights)",
@@ -1130,8 +1132,9 @@ fn entries_no_changed_light_reaches_keep_their_light() {
             // The first update runs every entry; the still light's colour reaches its room.
             0 | 3 => assert_eq!(unchanged, 0, "frame {frame}"),
             // The moving light is hidden from most cells of the other room, then and now
-            // (measured on lavapipe: 222, 187 and 138 of 256 as it nears the wall; the rest
-            // straddle two faces of its cube map, which the culling leaves alone).
+            // (measured on lavapipe: 222, 187 and 152 of 256 as it nears the wall; the rest
+            // have corners behind the plane of a face they may meet, or lie as far as the
+            // first room's ceiling in its upward face).
             _ => assert!(unchanged * 2 >= second, "frame {frame}: {unchanged} of {second} kept"),
         }
         // Never an entry of the moving light's room.
