@@ -1082,18 +1082,10 @@ fn entry_weights_deliver_the_power_a_plane_receives_at_any_light_height() {
 /// Two closed rooms side by side, 0.5 m apart, a light in each.
 fn two_closed_rooms() -> Scene {
     let size = v(2.0, 1.5, 2.0);
-    let room = |x0: f32| {
-        let q = |c: [[f32; 3]; 4]| c.map(|p| Vec3::from(p) * size + v(x0, 0.0, 0.0));
-        [
-            q([[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]]),
-            q([[0., 1., 0.], [1., 1., 0.], [1., 1., 1.], [0., 1., 1.]]),
-            q([[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]]),
-            q([[0., 0., 1.], [0., 1., 1.], [1., 1., 1.], [1., 0., 1.]]),
-            q([[0., 0., 1.], [0., 0., 0.], [0., 1., 0.], [0., 1., 1.]]),
-            q([[1., 0., 0.], [1., 0., 1.], [1., 1., 1.], [1., 1., 0.]]),
-        ]
-    };
-    let quads_of_both: Vec<[Vec3; 4]> = room(0.0).into_iter().chain(room(2.5)).collect();
+    let quads_of_both: Vec<[Vec3; 4]> = common::box_quads(Vec3::ZERO, size)
+        .into_iter()
+        .chain(common::box_quads(v(2.5, 0.0, 0.0), size))
+        .collect();
     let mut s = quads_in_grid(&quads_of_both, 4);
     s.lights.push(Light::point("a", v(1.0, 0.1, 1.0), Vec3::splat(2.0)));
     s.lights.push(Light::point("b", v(4.4, 0.75, 1.0), Vec3::splat(2.0)));

@@ -40,20 +40,23 @@ pub fn quads_in_grid(qs: &[[Vec3; 4]], columns: usize) -> Scene {
 /// A box from the origin to `size`, closed on all six sides (UV cells 3 x 2), a 2 W/sr point
 /// light inside: a room, where light bounces until the walls absorb it.
 pub fn closed_box(size: Vec3) -> Scene {
-    let q = |c: [[f32; 3]; 4]| c.map(|p| Vec3::from(p) * size);
-    let mut s = quads_in_grid(
-        &[
-            q([[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]]),
-            q([[0., 1., 0.], [1., 1., 0.], [1., 1., 1.], [0., 1., 1.]]),
-            q([[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]]),
-            q([[0., 0., 1.], [0., 1., 1.], [1., 1., 1.], [1., 0., 1.]]),
-            q([[0., 0., 1.], [0., 0., 0.], [0., 1., 0.], [0., 1., 1.]]),
-            q([[1., 0., 0.], [1., 0., 1.], [1., 1., 1.], [1., 1., 0.]]),
-        ],
-        3,
-    );
+    let mut s = quads_in_grid(&box_quads(Vec3::ZERO, size), 3);
     s.lights.push(point(v(0.6, 0.8, 0.6), 2.0));
     s
+}
+
+/// The six sides of the box from `origin` to `origin + size`, facing in (floor, ceiling, the
+/// walls at z = 0, z = 1, x = 0, x = 1 of the unit box).
+pub fn box_quads(origin: Vec3, size: Vec3) -> [[Vec3; 4]; 6] {
+    let q = |c: [[f32; 3]; 4]| c.map(|p| origin + Vec3::from(p) * size);
+    [
+        q([[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]]),
+        q([[0., 1., 0.], [1., 1., 0.], [1., 1., 1.], [0., 1., 1.]]),
+        q([[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]]),
+        q([[0., 0., 1.], [0., 1., 1.], [1., 1., 1.], [1., 0., 1.]]),
+        q([[0., 0., 1.], [0., 0., 0.], [0., 1., 0.], [0., 1., 1.]]),
+        q([[1., 0., 0.], [1., 0., 1.], [1., 1., 1.], [1., 1., 0.]]),
+    ]
 }
 
 /// Floor and two walls of the unit cube, open on three sides, a 2 W/sr point light inside.
