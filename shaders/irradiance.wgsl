@@ -52,11 +52,12 @@ fn probes(l: GpuLight, a: vec3f, e1: vec3f, e2: vec3f, n: vec3f) -> f32 {
 // Whether the cube of half-side `reach` around c is hidden in shadow layer `layer`: every
 // corner in front of the layer's camera, and the largest depth any point of the cube has
 // (reverse-Z depth falls with the distance along the layer's axis, so it is largest at the
-// corner nearest the light) below the farthest occluder of every block its lookups could read,
+// corner nearest the light; an orthographic depth is linear, largest at a corner too) below the
+// farthest occluder of every block its lookups could read,
 // 2 texels around the corners' rectangle. On a cube face (`on_cube`) a lookup comes only from
 // a point inside the face's pyramid, which projects inside its map: the rectangle is clamped
-// to the map, and a cube wholly off it has no lookup there. A spot light's map must hold it all
-// (off the map a lookup reads lit).
+// to the map, and a cube wholly off it has no lookup there. A spot or directional light's map
+// must hold it all (off the map a lookup reads lit).
 fn hidden_in_layer(layer: u32, c: vec3f, reach: f32, on_cube: bool) -> bool {
     let m = shadow_mats[layer];
     var lo = vec2f(3.0e38);
@@ -109,10 +110,15 @@ fn hidden_in_layer(layer: u32, c: vec3f, reach: f32, on_cube: bool) -> bool {
 // Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
 // offset), in every layer one of its points could look up: a spot light's one map, or each
 // face of a point light's cube whose pyramid the cube may meet (a cube across two faces is
-// hidden when it is in both). Point and spot lights; a directional one is never culled.
+// hidden when it is in both), or a directional light's one orthographic map, whose normal
+// offset is 1.5 texels of a fixed world size.
 fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
-    if params.cull_hidden == 0u || l.kind == KIND_DIRECTIONAL {
+    if params.cull_hidden == 0u {
         return false;
+    }
+    if l.kind == KIND_DIRECTIONAL {
+        let reach = (r + 1.5 * l.texel) * 1.001 + 1e-6 * (length(c) + r);
+        return hidden_in_layer(l.first_layer, c, reach, false);
     }
     let d = c - l.position;
     let dist = length(d);

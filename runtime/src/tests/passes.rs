@@ -136,6 +136,10 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
         (vec![point(v(-2.0, 1.0, 0.3), 10.0)], 32, 48),
         (vec![point(v(-2.0, 1.0, 0.3), 10.0), point(v(1.5, 2.0, -0.2), 4.0)], 56, 96),
         (vec![point(v(-0.3, 3.2, 0.1), 10.0)], 32, 48),
+        // A low sun from -x: the wall's shadow covers the whole far side (measured: 29, 36;
+        // not the cells at the wall's foot, nor those whose blocks reach past the floor's end,
+        // where nothing was drawn).
+        (vec![sun(v(1.0, -0.6, 0.1))], 16, 48),
     ];
     for (lights, at_least, at_most) in cases {
         for size in [256, 1024] {
@@ -156,6 +160,20 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
             assert!(bytes(&t_on) == bytes(&t_off), "cell triangles' shares, levels and bits differ");
             assert!(e_on.iter().any(|e| e.x > 0.0), "some light arrives");
         }
+    }
+}
+
+/// A directional light of 3 W/m² shining along `direction`.
+fn sun(direction: Vec3) -> Light {
+    Light {
+        name: "sun".into(),
+        kind: LightKind::Directional,
+        position: Vec3::ZERO,
+        direction: direction.normalize(),
+        intensity: Vec3::splat(3.0),
+        range: None,
+        aperture: Default::default(),
+        profile: None,
     }
 }
 
