@@ -144,11 +144,50 @@ fn texel_of(i: u32) -> u32 {
 var<workgroup> seen_links: array<vec2u, WG_LINEAR>;
 var<workgroup> seen_count: atomic<u32>;
 
-// One workgroup per work item (at most WG_LINEAR links of one entry: runtime/src/concentrate.rs,
-// link_ids), in rows of at most 32768 workgroups: a cell that is not hot leaves at once, whole;
-// a hot one's links that take kappa are gathered first so that the group's invocations
-// compute one each side by side (they cost alike: one cell). Per link (the old way) most
-// invocations of a group found cold cells and waited on the one that found a hot cell.
+// The work items of the hot cells, in link_ids after the links (at params.link_count: their
+// count, the concentration's dispatch in three words, then per item the entry and the first
+// of its links within the entry's run, at most WG_LINEAR links an item), listed anew each
+// update in any order: one invocation per entry with links. So the concentration's
+// workgroups are those of hot cells, not one for every WG_LINEAR links of the level.
+@compute @workgroup_size(WG_LINEAR)
+fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
+    let j = id.x;
+    if j >= params.entry_count || params.near_texel_count == 0u {
+        return;
+    }
+    let h = hot_entries[j];
+    if h.link_count == 0u {
+        return;
+    }
+    // w: the entry pass's flags (irradiance.wgsl).
+    if (u32(entry_irradiance[j].w) & ENTRY_EDGE) == 0u && !near_light(h) {
+        return;
+    }
+    let n = (h.link_count + WG_LINEAR - 1u) / WG_LINEAR;
+    let list = params.link_count;
+    let at = atomicAdd(&link_ids[list], n);
+    for (var k = 0u; k < n; k++) {
+        atomicStore(&link_ids[list + 4u + 2u * (at + k)], j);
+        atomicStore(&link_ids[list + 5u + 2u * (at + k)], k * WG_LINEAR);
+    }
+}
+
+// The concentration's dispatch for the items listed: rows of at most 32768 workgroups (the
+// limit is 65535), none when no cell is hot.
+@compute @workgroup_size(1)
+fn hot_args_main() {
+    let list = params.link_count;
+    let n = atomicLoad(&link_ids[list]);
+    atomicStore(&link_ids[list + 1u], min(n, 32768u));
+    atomicStore(&link_ids[list + 2u], (n + 32767u) / 32768u);
+    atomicStore(&link_ids[list + 3u], 1u);
+}
+
+// One workgroup per work item of a hot cell (hot_items_main), in rows of at most 32768
+// workgroups: a hot cell's links that take kappa are gathered first so that the group's
+// invocations compute one each side by side (they cost alike: one cell). Per link (the old
+// way) most invocations of a group found cold cells and waited on the one that found a hot
+// cell.
 @compute @workgroup_size(WG_LINEAR)
 fn concentrate_main(
     @builtin(local_invocation_index) lid: u32,
@@ -156,27 +195,24 @@ fn concentrate_main(
     @builtin(num_workgroups) groups: vec3u,
 ) {
     let item = wg.x + wg.y * groups.x;
-    let at = params.link_count;
-    if item >= link_ids[at] || params.near_texel_count == 0u {
+    let list = params.link_count;
+    if item >= atomicLoad(&link_ids[list]) {
         return;
     }
-    let j = link_ids[at + 1u + 2u * item];
-    let first = link_ids[at + 2u + 2u * item];
+    let j = atomicLoad(&link_ids[list + 4u + 2u * item]);
+    let first = atomicLoad(&link_ids[list + 5u + 2u * item]);
     let h = hot_entries[j];
     let lit_near = near_light(h);
     // w: the entry pass's flags (irradiance.wgsl): a shadow edge across the cell; the entry
     // unchanged since the last update.
     let e = entry_irradiance[j];
     let flags = u32(e.w);
-    if !lit_near && (flags & ENTRY_EDGE) == 0u {
-        return;
-    }
     if (flags & ENTRY_UNCHANGED) != 0u {
         // Hot now and then, with the same light: each link's light is what it was, made this
         // update's.
         let k = first + lid;
         if k < h.link_count {
-            link_light[link_ids[h.first_link + k]].w = params.frame;
+            link_light[atomicLoad(&link_ids[h.first_link + k])].w = params.frame;
         }
         return;
     }
@@ -186,7 +222,7 @@ fn concentrate_main(
     workgroupBarrier();
     let k = first + lid;
     if k < h.link_count {
-        let i = link_ids[h.first_link + k];
+        let i = atomicLoad(&link_ids[h.first_link + k]);
         let t = texel_of(i);
         // A cell hot only by a shadow edge: a texel beyond NEAR_SIZES sees it under a kernel
         // that varies little, so at its mean (kappa 1).

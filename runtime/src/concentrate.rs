@@ -1,7 +1,8 @@
 //! The near field where a light is close, on the GPU (`shaders/concentrate.wgsl`,
 //! `shaders/link_energy.wgsl`; [`crate::cpu::concentrate`] says what and why, and is the twin).
 //!
-//! After the entry pass: `concentrate_main` gives each near-field link of a hot cell its own
+//! After the entry pass: `hot_items_main` lists the hot cells' work items, and
+//! `concentrate_main`, dispatched on that list, gives each near-field link of a hot cell its own
 //! light (`E_j kappa`, stamped with the update's number; a workgroup per entry, whose links
 //! that take kappa are gathered so that the group computes them side by side), then `link_energy_main` sums each hot
 //! entry's links into the energy the weight pass balances against. The near pass reads a link's
@@ -15,42 +16,43 @@ use crate::gpu;
 use crate::layout::{GpuHotEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
 
-/// The near-field links grouped by entry, then the concentration's work items, in one buffer
-/// (the pass has no storage binding to spare): the links' indices entry by entry; the number
-/// of items; then per item (entry, first of its links within the entry's run), each at most
-/// [`WG_LINEAR`] links of one entry. Also each entry's run (first index, count). A workgroup
-/// takes an item, so no invocation computes more than one kappa: lavapipe cuts an invocation
-/// short once its loops have run long enough (a workgroup an entry, looping over a large
-/// cell's links, left a fifth of them stale on the CLI's budget test).
+/// The near-field links' indices grouped by entry, then the hot cells' work list (zeros:
+/// [`hot_items_len`] words, filled each update), in one buffer (the concentration has no
+/// storage binding to spare); and each entry's run of links (first index, count).
 pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
     let n = prm.entries().len();
     let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];
     for (k, l) in prm.near().iter().enumerate() {
         per_entry[l.entry as usize].push(k as u32);
     }
-    let mut ids: Vec<u32> = Vec::with_capacity(prm.near().len() + 1);
+    let mut ids: Vec<u32> = Vec::with_capacity(link_ids_len(prm));
     let mut runs = Vec::with_capacity(n);
-    let mut items = Vec::new();
-    for (j, links) in per_entry.iter().enumerate() {
+    for links in &per_entry {
         runs.push((ids.len() as u32, links.len() as u32));
         ids.extend_from_slice(links);
-        for first in (0..links.len()).step_by(WG_LINEAR as usize) {
-            items.extend_from_slice(&[j as u32, first as u32]);
-        }
     }
-    ids.push((items.len() / 2) as u32);
-    ids.extend_from_slice(&items);
+    ids.resize(link_ids_len(prm), 0);
     (ids, runs)
 }
 
 /// The length of [`link_ids`]'s buffer, without making it.
 pub fn link_ids_len(prm: &Prm) -> usize {
+    prm.near().len() + hot_items_len(prm)
+}
+
+/// Words of the hot cells' work list (after the links in [`link_ids`]): their count, the
+/// concentration's dispatch (three words), then two an item (the entry, the first of its
+/// links within its run), an item at most [`WG_LINEAR`] links of one entry, as many as when
+/// every cell is hot. A workgroup takes an item, so no invocation computes more than one
+/// kappa: lavapipe cuts an invocation short once its loops have run long enough (a workgroup
+/// an entry, looping over a large cell's links, left a fifth of them stale on the CLI's
+/// budget test).
+pub fn hot_items_len(prm: &Prm) -> usize {
     let mut per_entry = vec![0usize; prm.entries().len()];
     for l in prm.near() {
         per_entry[l.entry as usize] += 1;
     }
-    let items: usize = per_entry.iter().map(|&c| c.div_ceil(WG_LINEAR as usize)).sum();
-    prm.near().len() + 1 + 2 * items
+    4 + 2 * per_entry.iter().map(|&c| c.div_ceil(WG_LINEAR as usize)).sum::<usize>()
 }
 
 pub const CONCENTRATE_BINDINGS: &[Binding] = &[
@@ -58,8 +60,8 @@ pub const CONCENTRATE_BINDINGS: &[Binding] = &[
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
     b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
     // [`link_ids`]: the links by entry (each entry's run: `GpuHotEntry::first_link`,
-    // `link_count`), then the work items.
-    b("link_ids", Res::Read("array<u32>"), COMPUTE),
+    // `link_count`), then the hot cells' work list, made each update.
+    b("link_ids", Res::ReadWrite("array<atomic<u32>>"), COMPUTE),
     // The entry pass's cell triangles, with their visibility.
     b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
@@ -72,7 +74,11 @@ pub const CONCENTRATE: Shader = Shader {
     body: include_str!("../../shaders/concentrate.wgsl"),
     lights: true,
     groups: &[SHADOW_GROUP, CONCENTRATE_BINDINGS],
-    compute: &[Compute { entry: "concentrate_main", workgroup: LINEAR }],
+    compute: &[
+        Compute { entry: "hot_items_main", workgroup: LINEAR },
+        Compute { entry: "hot_args_main", workgroup: [1, 1, 1] },
+        Compute { entry: "concentrate_main", workgroup: LINEAR },
+    ],
 };
 
 pub const ENERGY_BINDINGS: &[Binding] = &[
@@ -97,6 +103,8 @@ pub const LINK_ENERGY: Shader = Shader {
 
 /// The two passes and the per-link and per-entry tables they fill.
 pub struct ConcentratePass {
+    items: wgpu::ComputePipeline,
+    args: wgpu::ComputePipeline,
     concentrate: wgpu::ComputePipeline,
     energy: wgpu::ComputePipeline,
     concentrate_group: wgpu::BindGroup,
@@ -105,8 +113,10 @@ pub struct ConcentratePass {
     entries: u32,
     /// Near-field links (`IndirectParams::link_count`).
     pub links: u32,
-    /// Work items of `concentrate_main` ([`link_ids`]).
-    items: u32,
+    /// [`link_ids`]'s buffer, and the concentration's dispatch copied out of its work list (a
+    /// buffer read as a dispatch's arguments cannot be bound for writing in that dispatch).
+    link_ids: wgpu::Buffer,
+    hot_args: wgpu::Buffer,
     /// Per link: `vec4u` (bits of E_j kappa, update number).
     pub link_light: wgpu::Buffer,
     /// Per entry: `vec4u` (bits of its hot links' energy, update number).
@@ -144,14 +154,18 @@ impl ConcentratePass {
                 link_count: runs[j].1,
             })
             .collect();
-        let items = ((link_ids.len() - prm.near().len() - 1) / 2) as u32;
         // Storage bindings cannot be empty.
         if hot.is_empty() {
             hot.push(GpuHotEntry::default());
         }
         let none = wgpu::BufferUsages::empty();
         let hot_buf = gpu::storage_buffer(device, "hot entries", bytemuck::cast_slice(&hot), none);
-        let ids_buf = gpu::storage_buffer(device, "link ids by entry", bytemuck::cast_slice(&link_ids), none);
+        let ids_buf = gpu::storage_buffer(
+            device,
+            "link ids by entry",
+            bytemuck::cast_slice(&link_ids),
+            wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        );
         let mut link_weight: Vec<f32> = Vec::with_capacity(prm.near().len().max(1));
         for (links, gain) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(&tables.echo_gain) {
             for l in links {
@@ -166,6 +180,12 @@ impl ConcentratePass {
         let link_light =
             gpu::storage_buffer(device, "link light", &vec![0u8; prm.near().len().max(1) * 16], none);
         let hot_energy = gpu::storage_buffer(device, "hot link energy", &vec![0u8; n.max(1) * 16], none);
+        let hot_args = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("hot work dispatch"),
+            size: 12,
+            usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
 
         let layout = CONCENTRATE.layout(device, 1);
         let concentrate_group = bind(
@@ -183,13 +203,12 @@ impl ConcentratePass {
                 ("link_light", link_light.as_entire_binding()),
             ],
         );
-        let concentrate = gpu::compute_pipeline(
-            device,
-            "concentrate.wgsl",
-            &CONCENTRATE.source(),
-            "concentrate_main",
-            &[shadow_layout, &layout],
-        );
+        let source = CONCENTRATE.source();
+        let pipeline = |entry: &str| {
+            gpu::compute_pipeline(device, "concentrate.wgsl", &source, entry, &[shadow_layout, &layout])
+        };
+        let (items, args, concentrate) =
+            (pipeline("hot_items_main"), pipeline("hot_args_main"), pipeline("concentrate_main"));
         let energy_layout = LINK_ENERGY.layout(device, 0);
         let energy_group = bind(
             device,
@@ -213,6 +232,8 @@ impl ConcentratePass {
             &[&energy_layout],
         );
         ConcentratePass {
+            items,
+            args,
             concentrate,
             energy,
             concentrate_group,
@@ -220,7 +241,8 @@ impl ConcentratePass {
             texels: near.texel_count,
             entries: n as u32,
             links: prm.near().len() as u32,
-            items,
+            link_ids: ids_buf,
+            hot_args,
             link_light,
             hot_energy,
         }
@@ -237,6 +259,22 @@ impl ConcentratePass {
         if self.texels == 0 {
             return;
         }
+        // The work list starts after the links.
+        let list = self.links as u64 * 4;
+        enc.clear_buffer(&self.link_ids, list, Some(16));
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("hot work items"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, shadows, &[]);
+            pass.set_bind_group(1, &self.concentrate_group, &[]);
+            pass.set_pipeline(&self.items);
+            pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
+            pass.set_pipeline(&self.args);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        enc.copy_buffer_to_buffer(&self.link_ids, list + 4, &self.hot_args, 0, 12);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("concentrate"),
             timestamp_writes: timestamps,
@@ -244,9 +282,8 @@ impl ConcentratePass {
         pass.set_pipeline(&self.concentrate);
         pass.set_bind_group(0, shadows, &[]);
         pass.set_bind_group(1, &self.concentrate_group, &[]);
-        // A workgroup a work item, in rows of at most 32768 (the limit is 65535).
-        let x = self.items.clamp(1, 32768);
-        pass.dispatch_workgroups(x, self.items.div_ceil(x).max(1), 1);
+        // A workgroup a hot cell's work item, in rows of at most 32768 (`hot_args_main`).
+        pass.dispatch_workgroups_indirect(&self.hot_args, 0);
         pass.set_pipeline(&self.energy);
         pass.set_bind_group(0, &self.energy_group, &[]);
         pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);

@@ -50,6 +50,8 @@ pub const KIND_DIRECTIONAL: u32 = 2;
 /// (`prm::cell_light::TriangleLight::mixed`); the fine points' bits take the low 4 bits.
 pub const CELL_MIXED: u32 = 1 << 31;
 const _: () = assert!(prm::cell_light::FINE_POINTS <= 32 + 31, "the fine bits must fit beside CELL_MIXED");
+// irradiance.wgsl's "every bit set" takes the second word's bits as FINE_POINTS - 32.
+const _: () = assert!(prm::cell_light::FINE_POINTS > 32, "the fine bits must fill the first word");
 
 /// A flag of the entry irradiance's w (`shaders/irradiance.wgsl`, as a float): a shadow edge
 /// crosses one of the entry's cell triangles.
