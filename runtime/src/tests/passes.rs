@@ -1120,7 +1120,7 @@ fn entries_no_changed_light_reaches_keep_their_light() {
     let scene = two_closed_rooms();
     let prm = bake(&scene, 512, 32, 64);
     let params = RuntimeParams { shadow_size: 256, ..Default::default() };
-    let mut kept = Runtime::new(&g.device, &g.queue, &scene, &prm, params.clone()).unwrap();
+    let mut kept = Runtime::new(&g.device, &g.queue, &scene, &prm, params).unwrap();
     let mut every = Runtime::new(&g.device, &g.queue, &scene, &prm, params).unwrap();
     // Entries of the second room (x > 2.25).
     let second = prm.entries().iter().filter(|e| e.position.x > 2.25).count() as u64;
