@@ -8,11 +8,15 @@
 //
 // gather_main (one invocation per atlas tile) lists the stored tiles of selected panes in
 // active_records[tile_range(t).x ..] (the places of its own records) as (weight x scale at the tile's four corners, data
-// offset), their number in counts[t]; compose_main (one invocation per atlas texel) sums only
+// offset), their number in counts[t]; compose_main (one invocation per listed tile's texel) sums only
 // those, one entry (its four corners blended at the texel, or the first alone when they are
 // equal) and one byte each, plus the near field's sum where the texel has one, then clamped at
 // 0 (runtime/src/near.rs; the far field's light is in the same sums, runtime/src/far.rs).
 // Texels with neither a stored tile nor a sum are written 0.
+//
+// Only what may have changed since the last compose is worked again (runtime/src/tile_changes.rs
+// marks it): select_main at the vertices beside a tile with CHANGED_WEIGHT, gather_main at the
+// tiles with REGATHER, compose_main at the listed tiles; the rest keeps what it holds.
 //
 // Under a local budget (params.local_k > 0; runtime/src/cpu/budget.rs is the twin) selected
 // holds every cluster's weight and no group's, and each pane's weight is chosen at the
@@ -37,7 +41,8 @@
 // record and corner of its tile ((0,0), (1,0), (0,1), (1,1)), for the vertex there: the state
 // of the pane if the record stands for it there (TileRecord::owner; 1: not kept, 2: kept), and
 // the bits of the pane's weight at the vertex (3 words). Other records read their pane's
-// owner's words.
+// owner's words. From params.state_offset: each atlas tile's state, then the list of tiles to
+// compose (runtime/src/tile_changes.rs).
 
 // Atlas tile t's run of records (first, count): after the texel slots in `slots`.
 fn tile_range(t: u32) -> vec2u {
@@ -66,19 +71,38 @@ var<workgroup> wg_total: u32;
 var<workgroup> wg_hist: array<atomic<u32>, 256>;
 var<workgroup> wg_prefix: u32;
 var<workgroup> wg_need: u32;
+var<workgroup> wg_changed: u32;
 
 // The tiles around vertex v, in the order (x-1, y-1), (x, y-1), (x-1, y), (x, y); off the grid
 // an empty range. The vertex is corner 3 - slot of the tile in slot `slot`.
-fn around(v: u32, slot: u32) -> vec2u {
+fn tile_around(v: u32, slot: u32) -> u32 {
     let vx = v % (params.tiles_x + 1u);
     let vy = v / (params.tiles_x + 1u);
     let tiles_y = params.tile_count / params.tiles_x;
     let x = vx + (slot & 1u);
     let y = vy + (slot >> 1u);
     if x == 0u || y == 0u || x > params.tiles_x || y > tiles_y {
+        return NO_SLOT;
+    }
+    return (y - 1u) * params.tiles_x + x - 1u;
+}
+
+fn around(v: u32, slot: u32) -> vec2u {
+    let t = tile_around(v, slot);
+    if t == NO_SLOT {
         return vec2u(0u, 0u);
     }
-    return tile_range((y - 1u) * params.tiles_x + x - 1u);
+    return tile_range(t);
+}
+
+// An atlas tile's state (runtime/src/tile_changes.rs): CHANGED_WEIGHT, CHANGED_SUM, REGATHER.
+fn tile_state(t: u32) -> u32 {
+    return counts[params.state_offset + t];
+}
+
+// The list of tiles to compose: its length, the dispatch's three words, then the tiles.
+fn tile_list() -> u32 {
+    return params.state_offset + params.tile_count;
 }
 
 // The record of `pane` in range r, or NO_SLOT (records are in pane order).
@@ -153,6 +177,21 @@ fn select_main(
     let v = wid.y * groups.x + wid.x;
     let tiles_y = params.tile_count / params.tiles_x;
     if v >= (params.tiles_x + 1u) * (tiles_y + 1u) {
+        return;
+    }
+    // The picks at v read only the records of the four tiles around it: when none is of a
+    // changed pane, they are what the last compose found, and so are the words they fill.
+    if li == 0u {
+        var changed = 0u;
+        for (var slot = 0u; slot < 4u; slot++) {
+            let t = tile_around(v, slot);
+            if t != NO_SLOT {
+                changed |= tile_state(t) & CHANGED_WEIGHT;
+            }
+        }
+        wg_changed = changed;
+    }
+    if workgroupUniformLoad(&wg_changed) == 0u {
         return;
     }
     for (var slot = 0u; slot < 4u; slot++) {
@@ -312,7 +351,7 @@ fn gather_local(t: u32) {
 @compute @workgroup_size(WG_LINEAR)
 fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     let t = id.x;
-    if t >= params.tile_count {
+    if t >= params.tile_count || (tile_state(t) & REGATHER) == 0u {
         return;
     }
     if params.local_k > 0u {
@@ -332,9 +371,22 @@ fn gather_main(@builtin(global_invocation_id) id: vec3u) {
     counts[t] = n;
 }
 
+// Dispatched over the listed tiles (runtime/src/tile_changes.rs): workgroup x is a block of
+// WG_TILE x WG_TILE texels of the tile, y + 32768 z the tile's place in the list. A texel of a
+// tile not listed keeps what the last compose wrote.
 @compute @workgroup_size(WG_TILE, WG_TILE)
-fn compose_main(@builtin(global_invocation_id) id: vec3u) {
-    if id.x >= params.atlas_width || id.y >= params.atlas_height {
+fn compose_main(@builtin(workgroup_id) wid: vec3u, @builtin(local_invocation_id) lid: vec3u) {
+    let list = tile_list();
+    let i = wid.y + wid.z * 32768u;
+    if i >= counts[list] {
+        return;
+    }
+    let t = counts[list + 4u + i];
+    let blocks = (params.tile_size + WG_TILE - 1u) / WG_TILE;
+    let inner = vec2u(wid.x % blocks, wid.x / blocks) * WG_TILE + lid.xy;
+    let id = vec2u(t % params.tiles_x, t / params.tiles_x) * params.tile_size + inner;
+    if inner.x >= params.tile_size || inner.y >= params.tile_size || id.x >= params.atlas_width
+        || id.y >= params.atlas_height {
         return;
     }
     let texel = slots[id.y * params.atlas_width + id.x];

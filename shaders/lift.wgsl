@@ -1,10 +1,12 @@
 // The near field's later bounces (runtime/src/lift.rs; twin: prm_runtime::cpu::lift_weights).
 // After the near pass (near links, echo, far field into near_sum) and before the selection:
 // lift_main, one invocation per cluster: u_c = sum over its members with a slot of
-// t_j near_sum(slot_j) / sum t_j, into lifted[c]. lambda_main, one workgroup: per channel
-// lambda = sum_c u_c energy_c / sum_c w_c energy_c (0 where the second sum is 0), into
-// lifted[C]. apply_main, one per cluster: w_c = w_c (1 - lambda) + u_c, signed (the twin's doc
-// says why), and its score |luminance(w_c)| x energy_c.
+// t_j near_sum(slot_j) / sum t_j, into lifted[c]. lambda_main, one workgroup per room: per
+// channel lambda = sum_c u_c energy_c / sum_c w_c energy_c over the room's clusters (0 where the
+// second sum is 0), into lifted[C + room]. apply_main, one per cluster: w_c = w_c (1 - lambda of
+// its room) + u_c, signed (the twin's doc says why), and its score |luminance(w_c)| x energy_c.
+// rooms holds R, then each cluster's room (C), then where each room's clusters start in the list
+// (R + 1), then the list (C, ascending within a room; prm_runtime::cpu::rooms).
 // Bindings, IndirectParams, NO_SLOT, luminance and WG_LINEAR: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -34,11 +36,31 @@ fn lift_main(@builtin(global_invocation_id) id: vec3u) {
 var<workgroup> part_lifted: array<vec3f, WG_LINEAR>;
 var<workgroup> part_kept: array<vec3f, WG_LINEAR>;
 
+fn room_of(c: u32) -> u32 {
+    return rooms[1u + c];
+}
+
+// In rows of at most 32768 workgroups; those past the rooms sum nothing and write nothing.
 @compute @workgroup_size(WG_LINEAR)
-fn lambda_main(@builtin(local_invocation_index) lid: u32) {
+fn lambda_main(
+    @builtin(workgroup_id) wid: vec3u,
+    @builtin(num_workgroups) groups: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let room = wid.x + wid.y * groups.x;
+    let room_count = rooms[0];
+    let starts = 1u + params.cluster_count;
+    let list = starts + room_count + 1u;
+    var first = 0u;
+    var end = 0u;
+    if room < room_count {
+        first = rooms[starts + room];
+        end = rooms[starts + room + 1u];
+    }
     var l = vec3f(0.0);
     var k = vec3f(0.0);
-    for (var c = lid; c < params.cluster_count; c += WG_LINEAR) {
+    for (var i = first + lid; i < end; i += WG_LINEAR) {
+        let c = rooms[list + i];
         l += lifted[c].xyz * energy[c];
         k += weights[c].xyz * energy[c];
     }
@@ -52,10 +74,10 @@ fn lambda_main(@builtin(local_invocation_index) lid: u32) {
         }
         workgroupBarrier();
     }
-    if lid == 0u {
+    if lid == 0u && room < room_count {
         let kept = part_kept[0];
         let ratio = part_lifted[0] / max(kept, vec3f(1e-30));
-        lifted[params.cluster_count] = vec4f(select(vec3f(0.0), ratio, kept > vec3f(0.0)), 0.0);
+        lifted[params.cluster_count + room] = vec4f(select(vec3f(0.0), ratio, kept > vec3f(0.0)), 0.0);
     }
 }
 
@@ -65,7 +87,7 @@ fn apply_main(@builtin(global_invocation_id) id: vec3u) {
     if c >= params.cluster_count {
         return;
     }
-    let lambda = lifted[params.cluster_count].xyz;
+    let lambda = lifted[params.cluster_count + room_of(c)].xyz;
     let w = weights[c].xyz * (vec3f(1.0) - lambda) + lifted[c].xyz;
     weights[c] = vec4f(w, 0.0);
     scores[c] = abs(luminance(w)) * energy[c];

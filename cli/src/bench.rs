@@ -112,6 +112,13 @@ struct Report {
     /// since the update before hidden from their whole cells).
     entries: u64,
     unchanged_entries: u64,
+    /// Whether a compose works only the atlas tiles whose light may have changed, and the
+    /// share of its magnitude a weight or sum may move and count as unchanged.
+    recompose_changed_only: bool,
+    recompose_tolerance: f32,
+    /// The atlas tiles the last full frame's compose wrote, of all the atlas tiles.
+    composed_tiles: u32,
+    atlas_tiles: u32,
 }
 
 #[derive(Serialize)]
@@ -125,6 +132,8 @@ struct PassTimes {
     /// The near field and its echo.
     near_field: f64,
     far_field: f64,
+    /// Which atlas tiles the compose works (`compose` is the rest of it).
+    tile_changes: f64,
 }
 
 #[derive(Serialize)]
@@ -152,10 +161,11 @@ pub fn run(a: Args) -> Result<()> {
     let mut bench = Bench::new(&a, params)?;
     bench.warm_up()?;
     let times = bench.frame_times(a.rounds)?;
+    let tiles = bench.rt.composed_tiles()?;
     let compose = bench.compose_alone()?;
     let bandwidth = copy_bandwidth(&bench.g);
     let hidden = (bench.rt.hidden_pairs()?, bench.rt.unchanged_entries()?);
-    let report = bench.report(&a, times, compose, bandwidth, hidden);
+    let report = bench.report(&a, times, compose, bandwidth, hidden, tiles);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
@@ -280,7 +290,7 @@ impl Bench {
         }
     }
 
-    /// The weights of the last frame, composed again and again.
+    /// The weights of the last frame, composed again and again, every atlas tile each time.
     fn compose_alone(&mut self) -> Result<ComposeAlone> {
         let bytes = self.rt.compose_bytes()?;
         let weights: Vec<glam::Vec3> = {
@@ -290,6 +300,7 @@ impl Bench {
         let reps = 20;
         let t = Instant::now();
         for _ in 0..reps {
+            self.rt.invalidate();
             self.rt.compose_weights(&weights)?;
         }
         self.renderer.wait();
@@ -306,7 +317,8 @@ impl Bench {
     }
 
     /// Every figure, with what was measured; `bandwidth` in bytes per second.
-    /// `hidden`: the last update's (entry, light) pairs not probed, and its entries not run.
+    /// `hidden`: the last update's (entry, light) pairs not probed, and its entries not run;
+    /// `tiles`: the atlas tiles its compose wrote, of all.
     fn report(
         &self,
         a: &Args,
@@ -314,6 +326,7 @@ impl Bench {
         compose: ComposeAlone,
         bandwidth: f64,
         (hidden, unchanged): (u64, u64),
+        (composed_tiles, atlas_tiles): (u32, u32),
     ) -> Report {
         let b = &compose.bytes;
         let total_bytes = b.pane_data + b.headers + b.tables + b.written;
@@ -348,6 +361,10 @@ impl Bench {
             hidden_light_pairs: hidden,
             entries: self.prm_file.entries().len() as u64,
             unchanged_entries: unchanged,
+            recompose_changed_only: self.params.recompose_changed_only,
+            recompose_tolerance: self.params.recompose_tolerance,
+            composed_tiles,
+            atlas_tiles,
         }
     }
 }
@@ -363,6 +380,7 @@ fn pass_medians(passes: &[Vec<f64>]) -> Option<PassTimes> {
         concentration: pass_median(4),
         near_field: pass_median(5),
         far_field: pass_median(6),
+        tile_changes: pass_median(7),
     })
 }
 
@@ -397,12 +415,14 @@ fn print_text(r: &Report) {
     if let Some(p) = &r.gpu_pass_ms {
         println!(
             "GPU passes (median): entry irradiance {:.3} ms, concentration {:.3} ms, weights+selection \
-            {:.3} ms, near field {:.3} ms, far field {:.3} ms, compose {:.3} ms, shading {:.3} ms",
+            {:.3} ms, near field {:.3} ms, far field {:.3} ms, tile changes {:.3} ms, compose {:.3} ms, \
+            shading {:.3} ms",
             p.entry_irradiance,
             p.concentration,
             p.weights_selection,
             p.near_field,
             p.far_field,
+            p.tile_changes,
             p.compose,
             p.shading
         );
@@ -418,6 +438,12 @@ fn print_text(r: &Report) {
     println!(
         "entry pass: {} of {} entries kept their light, every light that moved hidden from their cells",
         r.unchanged_entries, r.entries
+    );
+    println!(
+        "compose: the last frame wrote {} of {} atlas tiles{}",
+        r.composed_tiles,
+        r.atlas_tiles,
+        if r.recompose_changed_only { ", the rest unchanged" } else { " (every tile: --recompose-all)" }
     );
     println!(
         "compose: {:.3} ms wall (submit + wait), {:.2} MB moved ({} stored tiles summed, at most {} per \

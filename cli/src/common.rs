@@ -248,6 +248,15 @@ pub struct ComposeArgs {
     /// lightmap is the same).
     #[arg(long)]
     pub no_light_culling: bool,
+    /// Compose every atlas tile at every update, even those no changed pane or near-field sum
+    /// reaches (a side-by-side measure of composing only the changed tiles: the lightmap is
+    /// the same).
+    #[arg(long)]
+    pub recompose_all: bool,
+    /// How far a pane's weight or a near-field sum may move (a share of its magnitude) and
+    /// still leave the tiles that read it as they are (0: only the same bits do).
+    #[arg(long, default_value_t = 0.0)]
+    pub recompose_tolerance: f32,
 }
 
 impl ComposeArgs {
@@ -262,6 +271,8 @@ impl ComposeArgs {
             shadow_size,
             residual: !self.no_residual,
             cull_hidden_lights: !self.no_light_culling,
+            recompose_changed_only: !self.recompose_all,
+            recompose_tolerance: self.recompose_tolerance,
         })
     }
 }

@@ -75,6 +75,8 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(map) = &map {
         let file_bytes = a.prm.as_ref().and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
         summary["gpu_memory"] = gpu_memory(map, &scene, a.shadow_size, file_bytes);
+        // The rooms the runtime keeps the near field's energy in (prm_runtime::cpu::rooms).
+        summary["runtime_rooms"] = Value::from(prm_runtime::cpu::NearTables::new(map).rooms);
         if let Some(mb) = a.gpu_budget {
             let camera = crate::render::camera(&scene, None)?;
             let aspect = camera.aspect.unwrap_or(1.0);
@@ -98,6 +100,11 @@ pub fn run(a: Args) -> Result<()> {
     print_level(&a.scene.scene, &scene, &summary);
     print_lightmap(&scene, &lm, &summary);
     if map.is_some() {
+        println!(
+            "runtime rooms: {} (clusters joined by entries that see each other; the near field's \
+            energy is kept room by room)",
+            summary["runtime_rooms"]
+        );
         print_gpu_memory(&summary["gpu_memory"]);
         if let Some(text) = summary["gpu_memory"]["budget"]["text"].as_str() {
             println!("  {text}");

@@ -21,12 +21,11 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{
-    Compute, Shader, CORNER_WORDS, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR, WG_TILE,
-};
+use crate::contract::{Compute, Shader, CORNER_WORDS, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR};
 use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 use crate::near::NearPass;
+use crate::tile_changes::{self, ComposeBuffers, TileChanges};
 
 /// The two buffers of the pane and dipole codes ([`split_words`]), as the GPU memory estimate
 /// names them.
@@ -97,6 +96,10 @@ pub struct ComposePass {
     /// Per atlas tile, the records the last compose summed (`gather_main`'s count).
     counts: wgpu::Buffer,
     texels: u64,
+    /// The tiles to compose again (`crate::tile_changes`).
+    changes: TileChanges,
+    /// Whether the next compose works every tile (the first, or the budget changed).
+    all_next: bool,
 }
 
 /// What the compose reads, built on the CPU once per map.
@@ -248,6 +251,9 @@ impl ComposePass {
         data.resize(data.len().next_multiple_of(4).max(4), 0);
         let split = split_words(data.len() / 4) * 4;
         let block = prm.dipoles().block.max(1);
+        // After the per-tile counts and the records' corner words: the tiles' states and list.
+        let state_offset = atlas_tiles + records.len() * 4 * CORNER_WORDS as usize;
+        let sum_tiles = tile_changes::sum_tiles(&near.index, w, ts, tiles_x);
         let params = ComposeParams {
             dipole_block: block,
             dipole_side: ts.div_ceil(block),
@@ -262,6 +268,9 @@ impl ComposePass {
             residual: 0,
             page_rows: h / pages,
             data_split: (split / 4) as u32,
+            sum_count: sum_tiles.len() as u32,
+            state_offset: state_offset as u32,
+            recompose_all: 1,
             ..Default::default()
         };
         let texel_slots: Vec<[u32; 2]> = slots.iter().zip(&near.index).map(|(&s, &n)| [s, n]).collect();
@@ -287,11 +296,12 @@ impl ComposePass {
             &vec![0u8; records.len() * std::mem::size_of::<ActiveRecord>()],
             none,
         );
-        // Per atlas tile a count, then per record and corner of its tile CORNER_WORDS words.
+        // Per atlas tile a count, then per record and corner of its tile CORNER_WORDS words,
+        // then the tiles' states and the list of those to compose.
         let count_buf = gpu::storage_buffer(
             device,
             "active counts and corner weights",
-            &vec![0u8; (atlas_tiles + records.len() * 4 * CORNER_WORDS as usize) * 4],
+            &vec![0u8; (state_offset + tile_changes::state_words(atlas_tiles as u32) as usize) * 4],
             wgpu::BufferUsages::COPY_SRC,
         );
         let lightmap = lightmap_texture(device, w, h / pages, pages);
@@ -315,6 +325,20 @@ impl ComposePass {
                 ("near_sum", near.sums.as_entire_binding()),
             ],
         );
+        let changes = TileChanges::new(
+            device,
+            ComposeBuffers {
+                params: &params_buf,
+                selected,
+                records: &records_buf,
+                slots: &slots_buf,
+                near_sum: &near.sums,
+                counts: &count_buf,
+            },
+            &sum_tiles,
+            atlas_tiles as u32,
+            state_offset as u32,
+        );
         let source = SHADER.source();
         let pipeline = gpu::compute_pipeline(device, "compose.wgsl", &source, "compose_main", &[&bgl]);
         let gather = gpu::compute_pipeline(device, "compose.wgsl", &source, "gather_main", &[&bgl]);
@@ -333,29 +357,45 @@ impl ComposePass {
             texels_per_tile: prm.layout().texels.iter().map(|t| t.len() as u64).collect(),
             counts: count_buf,
             texels: slots.iter().filter(|s| **s != NO_SLOT).count() as u64,
+            changes,
+            all_next: true,
         }
     }
 
     /// The budget the next composes apply: `local_k` panes picked at each vertex of the tile
     /// grid (0: the weight pass's global selection as it is), with `residual` groups for the
-    /// others.
-    pub fn set_budget(&mut self, queue: &wgpu::Queue, local_k: u32, residual: bool) {
-        let next = ComposeParams { local_k, residual: residual as u32, ..self.params };
+    /// others; and the change below which a weight or sum counts as unchanged (`tolerance`,
+    /// `crate::tile_changes`).
+    pub fn set_budget(&mut self, queue: &wgpu::Queue, local_k: u32, residual: bool, tolerance: f32) {
+        let next = ComposeParams { local_k, residual: residual as u32, tolerance, ..self.params };
         if next != self.params {
+            // The picks change without any pane's weight changing.
+            self.all_next = true;
             self.params = next;
             queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         }
     }
 
-    /// Records the compose.
+    /// Records the compose of the tiles whose light may have changed since the last one
+    /// (`crate::tile_changes`), or of every tile when `all` (or the budget changed); `timer`
+    /// times the compose as pass 2, the tile changes as pass 7.
     pub fn encode(
-        &self,
+        &mut self,
+        queue: &wgpu::Queue,
         enc: &mut wgpu::CommandEncoder,
-        timestamps: Option<wgpu::ComputePassTimestampWrites>,
+        all: bool,
+        timer: Option<&crate::timer::PassTimer>,
     ) {
+        let all = (all || self.all_next) as u32;
+        self.all_next = false;
+        if all != self.params.recompose_all {
+            self.params.recompose_all = all;
+            queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        }
+        self.changes.encode(enc, &self.counts, timer.map(|t| t.writes(7)));
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("compose"),
-            timestamp_writes: timestamps,
+            timestamp_writes: timer.map(|t| t.writes(2)),
         });
         pass.set_bind_group(0, &self.group, &[]);
         if self.params.local_k > 0 {
@@ -370,7 +410,19 @@ impl ComposePass {
         pass.set_pipeline(&self.gather);
         pass.dispatch_workgroups(self.tiles.div_ceil(WG_LINEAR), 1, 1);
         pass.set_pipeline(&self.pipeline);
-        pass.dispatch_workgroups(self.size.0.div_ceil(WG_TILE), self.size.1.div_ceil(WG_TILE), 1);
+        pass.dispatch_workgroups_indirect(&self.changes.dispatch, 0);
+    }
+
+    /// The atlas tiles the last compose wrote (read back; waits for the GPU).
+    pub fn composed_tiles(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<u32, gpu::GpuError> {
+        let bytes = gpu::read_buffer(device, queue, &self.counts)?;
+        let at = self.changes.list_bytes() as usize;
+        Ok(u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]))
+    }
+
+    /// Atlas tiles.
+    pub fn tile_count(&self) -> u32 {
+        self.tiles
     }
 
     /// The records each atlas tile's last compose summed (read back; waits for the GPU).

@@ -60,6 +60,15 @@ pub const ENTRY_EDGE: u32 = 1;
 /// changed reaches its cell), and the concentration keeps its links' light.
 pub const ENTRY_UNCHANGED: u32 = 2;
 
+/// A bit of an atlas tile's state (`shaders/tile_changes.wgsl`): one of the tile's records is of
+/// a pane whose weight changed since the last compose.
+pub const CHANGED_WEIGHT: u32 = 1;
+/// A bit of an atlas tile's state: one of its texels' near-field sums changed.
+pub const CHANGED_SUM: u32 = 2;
+/// A bit of an atlas tile's state: a tile of the 3 x 3 around it has `CHANGED_WEIGHT`, so its
+/// records are gathered again (the compose's `gather_main`).
+pub const REGATHER: u32 = 4;
+
 /// The WGSL `u32` constants of the prelude, by name.
 pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
@@ -78,6 +87,9 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CELL_MIXED", CELL_MIXED),
     ("ENTRY_EDGE", ENTRY_EDGE),
     ("ENTRY_UNCHANGED", ENTRY_UNCHANGED),
+    ("CHANGED_WEIGHT", CHANGED_WEIGHT),
+    ("CHANGED_SUM", CHANGED_SUM),
+    ("REGATHER", REGATHER),
     ("MAX_LIGHTS", prm::rig::MAX_LIGHTS as u32),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
@@ -212,7 +224,7 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 16] = [
+pub const SHADERS: [&Shader; 17] = [
     &crate::shadow::SHADER,
     &crate::shadow::BLOCKS,
     &crate::irradiance::SHADER,
@@ -224,6 +236,7 @@ pub const SHADERS: [&Shader; 16] = [
     &crate::near::ECHO,
     &crate::far::SHADER,
     &crate::lift::SHADER,
+    &crate::tile_changes::SHADER,
     &crate::compose::SHADER,
     &crate::shade::SHADER,
     &crate::tonemap::SHADER,

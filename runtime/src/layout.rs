@@ -295,7 +295,8 @@ gpu_struct! {
         pub tiles_x: u32,
         /// Atlas tiles.
         pub tile_count: u32,
-        pub _pad0: u32,
+        /// 1: every tile is composed again, changed or not (`crate::tile_changes`).
+        pub recompose_all: u32,
         /// Texels per side of a dipole code's block (`prm::prm_file::Dipoles`; 1 without).
         pub dipole_block: u32,
         /// Dipole codes per row of a dipole tile.
@@ -311,6 +312,15 @@ gpu_struct! {
         pub page_rows: u32,
         /// Words of pane data in `data`; the rest are in `data_hi` (`crate::compose::split_words`).
         pub data_split: u32,
+        /// Near-field sums (`crate::near::NearData::total`).
+        pub sum_count: u32,
+        /// Where, in the compose's `counts`, the atlas tiles' states start, followed by the list
+        /// of tiles to compose (`crate::tile_changes`).
+        pub state_offset: u32,
+        /// A pane's weight or a near-field sum counts as changed when a channel moved by more
+        /// than this share of its magnitude since it last did (`RuntimeParams::recompose_tolerance`).
+        pub tolerance: f32,
+        pub _pad0: u32,
         pub _pad1: u32,
         pub _pad2: u32,
     }

@@ -70,6 +70,7 @@ pub mod radiosity;
 mod runtime;
 mod shade;
 mod shadow;
+mod tile_changes;
 mod timer;
 mod tonemap;
 mod weights;

@@ -2,7 +2,7 @@
 //! [`crate::cpu::lift_weights`], whose doc says why). Three dispatches between the near pass
 //! and the selection: each cluster's mean of the near field over its cells (read at each
 //! member's texel, [`crate::cpu::NearTables::entry_texel`]), the share `lambda` that keeps the
-//! panes' energy, and the lifted weights with their scores.
+//! panes' energy in each room (`crate::cpu::rooms`), and the lifted weights with their scores.
 
 use prm::prm_file::Prm;
 
@@ -25,8 +25,10 @@ pub const BINDINGS: &[Binding] = &[
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
-    // Per cluster u_c, then lambda (C + 1).
+    // Per cluster u_c, then each room's lambda (C + R).
     b("lifted", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // The rooms ([`room_words`]).
+    b("rooms", Res::Read("array<u32>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -57,6 +59,30 @@ pub struct LiftPass {
     apply: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
     clusters: u32,
+    rooms: u32,
+}
+
+/// The lift's `rooms` buffer: R, each cluster's room (`NearTables::cluster_room`), where each
+/// room's clusters start in the list (R + 1), and the list (ascending within each room).
+pub fn room_words(tables: &NearTables) -> Vec<u32> {
+    let (rooms, c) = (tables.rooms, tables.cluster_room.len());
+    let mut words = Vec::with_capacity(2 + 2 * c + rooms);
+    words.push(rooms as u32);
+    words.extend_from_slice(&tables.cluster_room);
+    let mut count = vec![0u32; rooms];
+    for &r in &tables.cluster_room {
+        count[r as usize] += 1;
+    }
+    let mut start = 0;
+    for n in &count {
+        words.push(start);
+        start += n;
+    }
+    words.push(start);
+    let mut list: Vec<u32> = (0..c as u32).collect();
+    list.sort_by_key(|&k| tables.cluster_room[k as usize]);
+    words.extend(list);
+    words
 }
 
 impl LiftPass {
@@ -85,7 +111,9 @@ impl LiftPass {
         let clusters = prm.clusters().len();
         let none = wgpu::BufferUsages::empty();
         let members = gpu::storage_buffer(device, "lift members", bytemuck::cast_slice(&members), none);
-        let lifted = gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + 1) * 16], none);
+        let lifted =
+            gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + tables.rooms) * 16], none);
+        let rooms = gpu::storage_buffer(device, "rooms", bytemuck::cast_slice(&room_words(tables)), none);
         let layout = SHADER.layout(device, 0);
         let group = bind(
             device,
@@ -101,6 +129,7 @@ impl LiftPass {
                 ("weights", buffers.weights.as_entire_binding()),
                 ("scores", buffers.scores.as_entire_binding()),
                 ("lifted", lifted.as_entire_binding()),
+                ("rooms", rooms.as_entire_binding()),
             ],
         );
         let source = SHADER.source();
@@ -111,6 +140,7 @@ impl LiftPass {
             apply: pipeline("apply_main"),
             group,
             clusters: clusters as u32,
+            rooms: tables.rooms as u32,
         })
     }
 
@@ -122,7 +152,9 @@ impl LiftPass {
         pass.set_pipeline(&self.lift);
         pass.dispatch_workgroups(self.clusters.div_ceil(WG_LINEAR), 1, 1);
         pass.set_pipeline(&self.lambda);
-        pass.dispatch_workgroups(1, 1, 1);
+        // A workgroup per room, in rows of at most 32768.
+        let x = self.rooms.min(32768);
+        pass.dispatch_workgroups(x, self.rooms.div_ceil(x), 1);
         pass.set_pipeline(&self.apply);
         pass.dispatch_workgroups(self.clusters.div_ceil(WG_LINEAR), 1, 1);
     }

@@ -63,7 +63,12 @@ impl GpuMemory {
             ("active records", size(records, std::mem::size_of::<ActiveRecord>())),
             (
                 "active counts and corner weights",
-                size(per_tile.len() + records * 4 * crate::contract::CORNER_WORDS as usize, 4),
+                size(
+                    per_tile.len()
+                        + records * 4 * crate::contract::CORNER_WORDS as usize
+                        + crate::tile_changes::state_words(per_tile.len() as u32) as usize,
+                    4,
+                ),
             ),
             (SLOTS_AND_RANGES, storage(atlas.texels() * 8 + per_tile.len() as u64 * 8)),
             (LIGHTMAP, atlas.texels() * 16),
@@ -83,11 +88,14 @@ impl GpuMemory {
             (crate::irradiance::ENTRY_HIDDEN, size(n, 8)),
             ("far entries", size(n, std::mem::size_of::<FarEntry>())),
             ("near sums", size(points + far_only, 16)),
+            ("last composed near sums", size((points + far_only).max(1), 16)),
+            ("near sums' tiles", size(points + far_only, 4)),
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
             ("echo runs", size(points, 8)),
             ("echo sums", size(points, 16)),
             ("cluster weights", size(4 * c.max(1), 16)),
             ("selected weights", size((4 * c + g).max(1), 16)),
+            ("last composed weights", size((4 * c + g).max(1), 16)),
             // Without a far field there is no lift (`crate::lift`).
             ("lift members", if far_texels > 0 { size(members.max(1), 8) } else { 0 }),
         ];

@@ -54,6 +54,19 @@ pub struct RuntimeParams {
     /// occluders nearer the light than any point of the cell. The lightmap is the same either
     /// way (the probes would read 0); only the work differs.
     pub cull_hidden_lights: bool,
+    /// Compose again only the atlas tiles whose light may have changed since the last compose
+    /// (default true; `crate::tile_changes`): the lightmap is the same bits either way, only
+    /// the work differs.
+    pub recompose_changed_only: bool,
+    /// How far a pane's weight or a texel's near-field sum may move, as a share of its
+    /// magnitude in each channel, and still count as unchanged for the compose (default 0:
+    /// only the same bits do). A tile keeps its light until what it reads has moved by more
+    /// than this since the compose last counted it changed, so each pane's share of a kept
+    /// tile is within twice this of its weight now. Meant for levels whose rooms are joined,
+    /// where one moving lamp moves every weight a little through the lift's level-wide share
+    /// `lambda` (`cpu::lift_weights`); measured on the 4 x 4 halls, 1e-3 (1/18 of the panes'
+    /// own 8-bit rounding) left as many tiles composed as 0, so it is off by default.
+    pub recompose_tolerance: f32,
 }
 
 impl Default for RuntimeParams {
@@ -64,6 +77,8 @@ impl Default for RuntimeParams {
             shadow_size: 1024,
             residual: true,
             cull_hidden_lights: true,
+            recompose_changed_only: true,
+            recompose_tolerance: 0.0,
         }
     }
 }
@@ -120,6 +135,8 @@ pub struct Runtime {
     /// every entry (`keep_unchanged` 0).
     changed: [u32; 2],
     redo_entries: bool,
+    /// Whether the next compose works every atlas tile (after [`Runtime::invalidate`]).
+    recompose_all: bool,
 }
 
 impl Runtime {
@@ -134,6 +151,12 @@ impl Runtime {
         prm.check_scene(Path::new("the .prm"), scene)?;
         if params.top_k == 0 {
             return Err(RuntimeError::Params("top_k must be at least 1".into()));
+        }
+        if !(0.0..=1.0).contains(&params.recompose_tolerance) {
+            return Err(RuntimeError::Params(format!(
+                "the recompose tolerance {} must be in 0..=1",
+                params.recompose_tolerance
+            )));
         }
         let max_2d = device.limits().max_texture_dimension_2d;
         if !(16..=max_2d).contains(&params.shadow_size) {
@@ -216,6 +239,7 @@ impl Runtime {
             entry_lights: None,
             changed: [0; 2],
             redo_entries: true,
+            recompose_all: true,
         })
     }
 
@@ -225,8 +249,8 @@ impl Runtime {
     }
 
     /// [`Runtime::update`], writing GPU timestamps around each pass when `timer` is given
-    /// (passes 0, 1, 2, 4, 5, 6: irradiance, weights + selection, compose, concentration, near
-    /// field and echo, far field;
+    /// (passes 0, 1, 2, 4, 5, 6, 7: irradiance, weights + selection, compose, concentration, near
+    /// field and echo, far field, the compose's tile changes;
     /// see [`crate::timer::PassTimer`]).
     pub fn update_timed(
         &mut self,
@@ -258,7 +282,8 @@ impl Runtime {
             lift.encode(&mut enc);
         }
         self.weights.encode_selection(&mut enc);
-        self.compose.encode(&mut enc, timer.map(|t| t.writes(2)));
+        let all = self.take_recompose_all();
+        self.compose.encode(&self.queue, &mut enc, all, timer);
         self.queue.submit([enc.finish()]);
         self.composes += 1;
         self.stale = false;
@@ -270,6 +295,14 @@ impl Runtime {
     pub fn invalidate(&mut self) {
         self.stale = true;
         self.entry_lights = None;
+        self.recompose_all = true;
+    }
+
+    /// Whether this compose works every atlas tile, and from now on only the changed ones.
+    fn take_recompose_all(&mut self) -> bool {
+        let all = self.recompose_all || !self.params.recompose_changed_only;
+        self.recompose_all = false;
+        all
     }
 
     /// Which lights changed since the last update's entry pass (`changed`), or that it must
@@ -321,7 +354,8 @@ impl Runtime {
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("compose") });
         self.weights.encode_selection(&mut enc);
         self.near.clear(&mut enc);
-        self.compose.encode(&mut enc, None);
+        let all = self.take_recompose_all();
+        self.compose.encode(&self.queue, &mut enc, all, None);
         self.queue.submit([enc.finish()]);
         self.composes += 1;
         // The next update must recompose from lights even if they did not change.
@@ -346,7 +380,7 @@ impl Runtime {
             Budget::Local => (u32::MAX, k),
             Budget::Global => (k, 0),
         };
-        self.compose.set_budget(&self.queue, local_k, self.params.residual);
+        self.compose.set_budget(&self.queue, local_k, self.params.residual, self.params.recompose_tolerance);
         let p = IndirectParams {
             entry_count: self.entry_count,
             light_count: self.shadows.light_count(),
@@ -440,6 +474,12 @@ impl Runtime {
     /// waits for the GPU).
     pub fn compose_bytes(&self) -> Result<ComposeBytes, RuntimeError> {
         Ok(self.compose.bytes(&self.compose.read_active_counts(&self.device, &self.queue)?))
+    }
+
+    /// The atlas tiles the last compose wrote, of all the atlas tiles (`crate::tile_changes`;
+    /// read back: waits for the GPU).
+    pub fn composed_tiles(&self) -> Result<(u32, u32), RuntimeError> {
+        Ok((self.compose.composed_tiles(&self.device, &self.queue)?, self.compose.tile_count()))
     }
 
     /// The records each atlas tile's last compose summed: panes, groups and dipole tiles

@@ -10,7 +10,7 @@ pub struct PassTimer {
 }
 
 impl PassTimer {
-    pub const PASSES: u32 = 7;
+    pub const PASSES: u32 = 8;
 
     /// A timer, or `None` when the device cannot write timestamps.
     pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Option<PassTimer> {

@@ -109,6 +109,11 @@ pub struct NearTables {
     /// the far texels whose nearest entry it is, the closest ([`NO_TEXEL`] for none, and for
     /// every entry of a map without a far field).
     pub entry_texel: Vec<u32>,
+    /// Per cluster, its room ([`super::rooms`]): [`lift_weights`] keeps the energy room by
+    /// room.
+    pub cluster_room: Vec<u32>,
+    /// Rooms (at least 1).
+    pub rooms: usize,
 }
 
 /// [`NearTables::entry_texel`] of an entry no texel stands for.
@@ -158,6 +163,7 @@ impl NearTables {
         let centroid: Vec<Vec3> =
             (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
+        let cluster_room = super::rooms::cluster_rooms(prm);
         let (mut dipole_offset, mut dipole_coef) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
         for (d, cl) in prm.dipoles().clusters.iter().zip(prm.clusters()) {
             for &m in &cl.members {
@@ -180,6 +186,8 @@ impl NearTables {
             dipole_offset,
             dipole_coef,
             entry_texel: entry_texels(prm),
+            rooms: cluster_room.iter().max().map_or(1, |&r| r as usize + 1),
+            cluster_room,
         }
     }
 }
@@ -567,7 +575,9 @@ pub fn near_field(
 ///
 /// The balance already kept each cluster's energy with the near field's, so the later bounces
 /// must not add any: `lambda = sum_c u_c energy_c / sum_c w_c energy_c` (per channel) takes
-/// it back from every pane in proportion.
+/// it back from every pane in proportion, room by room (the sums over the clusters of one
+/// room, [`NearTables::cluster_room`]): the near field's light stays in its room, and a light
+/// in one sealed room does not change another's.
 ///
 /// A lifted weight may be negative, and is kept so. u_c < 0 where the near field over c's
 /// cells is negative: there the first bounce of a hot cluster's dimmer cells (below its mean)
@@ -581,7 +591,7 @@ pub fn near_field(
 /// Without a far field (no texel stands for an entry) the weights are returned unchanged.
 pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Vec3]) -> Vec<Vec3> {
     let mut lift = vec![Vec3::ZERO; weights.len()];
-    let (mut lifted, mut kept) = (Vec3::ZERO, Vec3::ZERO);
+    let (mut lifted, mut kept) = (vec![Vec3::ZERO; tables.rooms], vec![Vec3::ZERO; tables.rooms]);
     for (c, cl) in prm.clusters().iter().enumerate() {
         let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
         for &m in &cl.members {
@@ -594,9 +604,19 @@ pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Ve
         if t_sum > 0.0 {
             lift[c] = sum / t_sum;
         }
-        lifted += lift[c] * cl.energy;
-        kept += weights[c] * cl.energy;
+        let room = tables.cluster_room[c] as usize;
+        lifted[room] += lift[c] * cl.energy;
+        kept[room] += weights[c] * cl.energy;
     }
-    let lambda = Vec3::select(kept.cmpgt(Vec3::ZERO), lifted / kept, Vec3::ZERO);
-    weights.iter().zip(lift).map(|(w, u)| *w * (Vec3::ONE - lambda) + u).collect()
+    let lambda: Vec<Vec3> = lifted
+        .iter()
+        .zip(&kept)
+        .map(|(l, k)| Vec3::select(k.cmpgt(Vec3::ZERO), *l / *k, Vec3::ZERO))
+        .collect();
+    weights
+        .iter()
+        .zip(lift)
+        .zip(&tables.cluster_room)
+        .map(|((w, u), &room)| *w * (Vec3::ONE - lambda[room as usize]) + u)
+        .collect()
 }

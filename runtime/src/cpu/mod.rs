@@ -22,6 +22,7 @@ mod compose;
 pub mod concentrate;
 #[cfg(feature = "cpu-twin")]
 pub mod radiosity;
+pub mod rooms;
 #[cfg(feature = "cpu-twin")]
 mod twin;
 
