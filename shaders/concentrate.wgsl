@@ -160,7 +160,17 @@ fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
         return;
     }
     // w: the entry pass's flags (irradiance.wgsl).
-    if (u32(entry_irradiance[j].w) & ENTRY_EDGE) == 0u && !near_light(h) {
+    let flags = u32(entry_irradiance[j].w);
+    if (flags & ENTRY_EDGE) == 0u && !near_light(h) {
+        return;
+    }
+    if (flags & ENTRY_UNCHANGED) != 0u {
+        // Hot now and at its last run, with the same light: each link's light is what it was,
+        // made this update's here, with no work items (a workgroup for every WG_LINEAR links
+        // of every kept hot cell of the level was most of the pass on the 16 chambers).
+        for (var k = 0u; k < h.link_count; k++) {
+            link_light[atomicLoad(&link_ids[h.first_link + k])].w = params.frame;
+        }
         return;
     }
     let n = (h.link_count + WG_LINEAR - 1u) / WG_LINEAR;
@@ -203,19 +213,8 @@ fn concentrate_main(
     let first = atomicLoad(&link_ids[list + 5u + 2u * item]);
     let h = hot_entries[j];
     let lit_near = near_light(h);
-    // w: the entry pass's flags (irradiance.wgsl): a shadow edge across the cell; the entry
-    // unchanged since the last update.
+    // Entries kept since their last run are not listed (hot_items_main).
     let e = entry_irradiance[j];
-    let flags = u32(e.w);
-    if (flags & ENTRY_UNCHANGED) != 0u {
-        // Hot now and then, with the same light: each link's light is what it was, made this
-        // update's.
-        let k = first + lid;
-        if k < h.link_count {
-            link_light[atomicLoad(&link_ids[h.first_link + k])].w = params.frame;
-        }
-        return;
-    }
     if lid == 0u {
         atomicStore(&seen_count, 0u);
     }

@@ -15,6 +15,12 @@ fn link_energy_main(@builtin(global_invocation_id) id: vec3u) {
     if h.link_count == 0u || link_light[link_ids[h.first_link]].w != params.frame {
         return;
     }
+    // Kept since its last run, when it was hot too (the same lights reach it, so it is hot for
+    // the same reasons): its links hold the light they held, and the sum is what it was.
+    if (u32(entry_irradiance[j].w) & ENTRY_UNCHANGED) != 0u && hot_energy[j].w != 0u {
+        hot_energy[j].w = params.frame;
+        return;
+    }
     var sum = vec3f(0.0);
     for (var k = h.first_link; k < h.first_link + h.link_count; k++) {
         let i = link_ids[k];

@@ -6,7 +6,9 @@
 //! light (`E_j kappa`, stamped with the update's number; a workgroup per entry, whose links
 //! that take kappa are gathered so that the group computes them side by side), then `link_energy_main` sums each hot
 //! entry's links into the energy the weight pass balances against. The near pass reads a link's
-//! light only when its stamp is this update's.
+//! light only when its stamp is this update's. A hot entry kept since its last run (no changed
+//! light reaches its cell: `ENTRY_UNCHANGED`) is not listed: `hot_items_main` stamps its links'
+//! light, and `link_energy_main` its energy, as this update's, both as they were.
 
 use prm::prm_file::Prm;
 
@@ -91,6 +93,8 @@ pub const ENERGY_BINDINGS: &[Binding] = &[
     b("link_light", Res::Read("array<vec4u>"), COMPUTE),
     // Per entry: (bits of its hot links' energy, update number).
     b("hot_energy", Res::ReadWrite("array<vec4u>"), COMPUTE),
+    // The entry pass's output: its flags in w (irradiance.wgsl).
+    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
 ];
 
 pub const LINK_ENERGY: Shader = Shader {
@@ -222,6 +226,7 @@ impl ConcentratePass {
                 ("link_weight", weight_buf.as_entire_binding()),
                 ("link_light", link_light.as_entire_binding()),
                 ("hot_energy", hot_energy.as_entire_binding()),
+                ("entry_irradiance", entry_irradiance.as_entire_binding()),
             ],
         );
         let energy = gpu::compute_pipeline(
