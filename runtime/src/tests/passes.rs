@@ -1203,6 +1203,27 @@ fn a_light_moving_in_one_sealed_room_recomposes_only_what_it_reaches() {
         assert!(cl.members.iter().all(|&m| (prm.entries()[m as usize].position.x > 2.25) == second[c]));
         assert_eq!(tables.cluster_room[c], second[c] as u32, "cluster {c}");
     }
+    // The twin's lift: the near field read in the first room changes its weights, and not
+    // one bit of the second's.
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let w: Vec<Vec3> =
+        (0..second.len()).map(|_| Vec3::new(rng.random(), rng.random(), rng.random())).collect();
+    let near: Vec<Vec3> = (0..prm.texel_count()).map(|_| Vec3::splat(rng.random::<f32>() - 0.3)).collect();
+    let mut brighter = near.clone();
+    for (j, &t) in tables.entry_texel.iter().enumerate() {
+        if t != cpu::NO_TEXEL && !second[tables.cluster[j] as usize] {
+            brighter[t as usize] += Vec3::splat(0.5);
+        }
+    }
+    let (a, b) =
+        (cpu::lift_weights(&prm, &tables, &w, &near), cpu::lift_weights(&prm, &tables, &w, &brighter));
+    for c in 0..second.len() {
+        if second[c] {
+            assert_eq!(a[c], b[c], "the twin's cluster {c} of the second room");
+        } else {
+            assert_ne!(a[c], b[c], "the twin's cluster {c} of the first room");
+        }
+    }
     for budget in [Budget::Local, Budget::Global] {
         let params =
             RuntimeParams { shadow_size: 256, budget, recompose_tolerance: 0.0, ..Default::default() };
