@@ -18,9 +18,12 @@
 // the state bits and TileRecord: the generated prelude.
 
 // Whether a channel of v moved from `last` (what it was when it last counted as changed) by more
-// than params.tolerance of its magnitude; with tolerance 0, whether the bits differ (but -0 and
-// +0). A NaN counts as moved, every time.
+// than params.tolerance of its magnitude (a NaN, every time); with tolerance 0, whether the bits
+// differ (-0 and +0, and two denormals a GPU may flush, are changes then).
 fn moved(v: vec3f, last: vec3f) -> bool {
+    if params.tolerance == 0.0 {
+        return any(bitcast<vec3u>(v) != bitcast<vec3u>(last));
+    }
     return any(!(abs(v - last) <= params.tolerance * max(abs(v), abs(last))));
 }
 
@@ -79,7 +82,7 @@ fn sums_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) 
         return;
     }
     let v = near_sum[s].xyz;
-    if moved(v, last_sum[s].xyz) {
+    if params.recompose_all != 0u || moved(v, last_sum[s].xyz) {
         atomicOr(&state[state_at(sum_tiles[s])], CHANGED_SUM);
         last_sum[s] = vec4f(v, 0.0);
     }

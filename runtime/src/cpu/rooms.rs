@@ -42,6 +42,10 @@ impl Sets {
 /// Per cluster, its room, numbered in the order of each room's first cluster (a map of one room:
 /// all 0).
 pub fn cluster_rooms(prm: &Prm) -> Vec<u32> {
+    if prm.far().block_first.is_empty() {
+        // No far field: nothing says which entries see each other (and there is no lift).
+        return vec![0; prm.clusters().len()];
+    }
     let n = prm.entries().len();
     let mut sets = Sets::new(n);
     join_seen(prm.far(), n, &mut sets);

@@ -1303,3 +1303,25 @@ fn weights_moving_within_the_tolerance_leave_the_tiles_as_they_are() {
     rt.compose_weights(&drift).unwrap();
     assert_eq!(rt.composed_tiles().unwrap().0, tiles, "a budget change composed {:?}", rt.composed_tiles());
 }
+
+/// Without a far field nothing says which entries see each other: the map is one room (and
+/// has no lift), not a room per cluster.
+#[test]
+fn a_map_without_a_far_field_is_one_room() {
+    let scene = two_closed_rooms();
+    let bvh = Bvh::build(&scene);
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 256,
+        paths: 8,
+        clusters: 16,
+        atlas: prm::density::Atlas::single(64),
+        far_field: false,
+        ..Default::default()
+    };
+    let prm =
+        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
+            .unwrap()
+            .0;
+    assert!(prm.far().block_first.is_empty());
+    assert_eq!(cpu::rooms::cluster_rooms(&prm), vec![0; prm.clusters().len()]);
+}
