@@ -514,16 +514,22 @@ fn bad_lights_are_refused_with_the_reason() {
 }
 
 fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
+    bake_with(
+        scene,
+        prm_precompute::precompute::PrecomputeParams {
+            entries,
+            paths: 16,
+            clusters,
+            atlas: prm::density::Atlas::single(atlas),
+            // The dipole panes are off by default; the GPU is held to the twin with them on.
+            dipole_block: 2,
+            ..Default::default()
+        },
+    )
+}
+
+fn bake_with(scene: &Scene, p: prm_precompute::precompute::PrecomputeParams) -> Prm {
     let bvh = Bvh::build(scene);
-    let p = prm_precompute::precompute::PrecomputeParams {
-        entries,
-        paths: 16,
-        clusters,
-        atlas: prm::density::Atlas::single(atlas),
-        // The dipole panes are off by default; the GPU is held to the twin with them on.
-        dipole_block: 2,
-        ..Default::default()
-    };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
@@ -1308,8 +1314,6 @@ fn weights_moving_within_the_tolerance_leave_the_tiles_as_they_are() {
 /// has no lift), not a room per cluster.
 #[test]
 fn a_map_without_a_far_field_is_one_room() {
-    let scene = two_closed_rooms();
-    let bvh = Bvh::build(&scene);
     let p = prm_precompute::precompute::PrecomputeParams {
         entries: 256,
         paths: 8,
@@ -1318,10 +1322,7 @@ fn a_map_without_a_far_field_is_one_room() {
         far_field: false,
         ..Default::default()
     };
-    let prm =
-        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
-            .unwrap()
-            .0;
+    let prm = bake_with(&two_closed_rooms(), p);
     assert!(prm.far().block_first.is_empty());
     assert_eq!(cpu::rooms::cluster_rooms(&prm), vec![0; prm.clusters().len()]);
 }
