@@ -1,18 +1,21 @@
 // Far field (runtime/src/far.rs; prm_precompute::far; twin: prm_runtime::cpu::far_sources and
-// far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sum of
-// their luminances, and the entries whose |phi| luminance is at least sum / FAR_SOURCES,
-// ascending, into source_index / source_flux (their number at source_index[FAR_SOURCES]).
+// far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sums of
+// |phi| luminances and of the light the surfaces reflect (luminance(flux_j) x deviation_j.w,
+// the near pass's luminance(E_j)), the count over the stable threshold, the threshold
+// (far_threshold), and the entries over it, ascending, into source_index / source_flux (their
+// number at source_index[FAR_SOURCES]).
 // sees_main, one invocation per (source, block of 32 entries): which entries of the block see
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the texel's near_sum slot (written
 // when the slot is past the near field's own texels). Structs, bindings, WG_LINEAR,
-// WG_FAR_SOURCES, FAR_SOURCES, luminance, far_share: the generated prelude.
+// WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, luminance, far_share: the generated prelude.
 
 const PI: f32 = 3.14159265358979;
 
 var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
+var<workgroup> reflected: array<f32, WG_FAR_SOURCES>;
 var<workgroup> scan: array<u32, WG_FAR_SOURCES>;
 var<workgroup> listed: u32;
 
@@ -24,10 +27,13 @@ fn flux_of(j: u32) -> vec3f {
 fn sources_main(@builtin(local_invocation_index) lid: u32) {
     let n = params.entry_count;
     var s = 0.0;
+    var r = 0.0;
     for (var j = lid; j < n; j += WG_FAR_SOURCES) {
         s += luminance(abs(flux_of(j)));
+        r += luminance(far_entries[j].flux) * deviation[j].w;
     }
     partial[lid] = s;
+    reflected[lid] = r;
     if lid == 0u {
         listed = 0u;
     }
@@ -35,20 +41,36 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
         if lid < stride {
             partial[lid] += partial[lid + stride];
+            reflected[lid] += reflected[lid + stride];
         }
         workgroupBarrier();
     }
-    let threshold = partial[0] / f32(FAR_SOURCES);
+    // prm_runtime::cpu::far_threshold: the stable threshold unless too many are over it.
+    let stable = reflected[0] / FAR_SOURCE_SCALE;
+    var over = 0u;
+    for (var j = lid; j < n; j += WG_FAR_SOURCES) {
+        over += u32(luminance(abs(flux_of(j))) > stable);
+    }
+    scan[lid] = over;
+    workgroupBarrier();
+    for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
+        if lid < stride {
+            scan[lid] += scan[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    var threshold = stable;
+    if scan[0] > FAR_SOURCES {
+        threshold = max(stable, partial[0] / f32(FAR_SOURCES));
+    }
+    workgroupBarrier();
     for (var start = 0u; start < n; start += WG_FAR_SOURCES) {
         let j = start + lid;
         var keep = 0u;
         var phi = vec3f(0.0);
         if j < n {
             phi = flux_of(j);
-            let l = luminance(abs(phi));
-            if l > 0.0 && l >= threshold {
-                keep = 1u;
-            }
+            keep = u32(luminance(abs(phi)) > threshold);
         }
         scan[lid] = keep;
         workgroupBarrier();

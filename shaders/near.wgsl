@@ -4,7 +4,8 @@
 // left in `deviation` this update. near_main, one per texel with links: near_sum = sum over its
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
 // read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
-// in place of the entry's. Structs, bindings, WG_LINEAR: the generated prelude.
+// in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads.
+// Structs, bindings, WG_LINEAR, luminance: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
 fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
@@ -14,7 +15,8 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let ec = entry_cluster[j];
     let fit = weights[ec.x].xyz + deviation[j].xyz;
-    deviation[j] = vec4f(entry_irradiance[j].xyz - fit * bitcast<f32>(ec.y), 0.0);
+    let e = entry_irradiance[j].xyz;
+    deviation[j] = vec4f(e - fit * bitcast<f32>(ec.y), luminance(e));
 }
 
 @compute @workgroup_size(WG_LINEAR)

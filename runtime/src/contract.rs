@@ -119,9 +119,12 @@ pub fn prelude() -> &'static str {
             "// A cell is hot within this many cell sizes of a light (prm_runtime::cpu::concentrate).\n\
              const HOT_REACH: f32 = {:?}f;\n\
              // Nearer than this many cell sizes, the quadrature is the fine one.\n\
-             const NEAR_SIZES: f32 = {:?}f;\n",
+             const NEAR_SIZES: f32 = {:?}f;\n\
+             // The far field's sources against the light the surfaces reflect (prm_runtime::cpu::far_threshold).\n\
+             const FAR_SOURCE_SCALE: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
-            crate::cpu::concentrate::NEAR_SIZES
+            crate::cpu::concentrate::NEAR_SIZES,
+            crate::cpu::FAR_SOURCE_SCALE
         );
         let _ = writeln!(
             s,

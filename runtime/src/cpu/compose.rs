@@ -359,11 +359,36 @@ pub fn compose_selected(
 /// Most entries the far field sends in one frame ([`far_sources`]).
 pub const FAR_SOURCES: usize = 1024;
 
+/// The far field's threshold against the light the level's surfaces reflect
+/// ([`far_threshold`]): a source's luminance over `R / FAR_SOURCE_SCALE`.
+pub const FAR_SOURCE_SCALE: f32 = 4.0 * FAR_SOURCES as f32;
+
+/// The threshold a far-field source's luminance |phi_j| must exceed ([`far_sources`]), from
+/// `reflected` (`R = sum_j luminance(albedo_j A/N) luminance(E_j)`, about the light the
+/// level's surfaces reflect), `total` (the sum of every |phi_j|) and `over` (how many entries
+/// have |phi_j| above `R / FAR_SOURCE_SCALE`).
+///
+/// `R` hardly moves when a light moves (it is about the power the surfaces receive, times
+/// their albedo), so an entry whose own light did not change stays a source or not, as it was.
+/// The threshold was a share of the sum of the deviations, which moves with the one light that
+/// moves, and sources all over a level of many rooms came and went with it (the 4 x 4 halls'
+/// rig: 36 of 123 sources changed between two frames, and 905 of 1,648 atlas tiles moved by
+/// more than 1 % of their light, 389 with the sources held). Where more than [`FAR_SOURCES`]
+/// entries are over it, the threshold is `total / FAR_SOURCES`, which no more than that many
+/// can exceed.
+pub fn far_threshold(reflected: f32, total: f32, over: usize) -> f32 {
+    let stable = reflected / FAR_SOURCE_SCALE;
+    if over > FAR_SOURCES {
+        stable.max(total / FAR_SOURCES as f32)
+    } else {
+        stable
+    }
+}
+
 /// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending, with their
 /// deviation flux `phi_j = albedo_j (A/N) (E_j - t_j (w_c + lin_j))` (W): those whose
-/// luminance |phi_j| is at least 1/[`FAR_SOURCES`] of the sum over all entries, so there are never
-/// more than that and each one left out carries under 0.1 % of the deviation. Empty without a
-/// far field.
+/// luminance |phi_j| exceeds the threshold ([`far_threshold`]), never more than
+/// [`FAR_SOURCES`]. Empty without a far field.
 pub fn far_sources(
     prm: &Prm,
     tables: &NearTables,
@@ -384,13 +409,18 @@ pub fn far_sources(
         })
         .collect();
     let total: f32 = phi.iter().map(|p| luminance(p.abs())).sum();
-    let threshold = total / FAR_SOURCES as f32;
+    let reflected: f32 = prm
+        .entries()
+        .iter()
+        .zip(entry_irradiance)
+        .map(|(e, irr)| luminance(e.albedo * e.area) * luminance(*irr))
+        .sum();
+    let stable = reflected / FAR_SOURCE_SCALE;
+    let over = phi.iter().filter(|p| luminance(p.abs()) > stable).count();
+    let threshold = far_threshold(reflected, total, over);
     phi.iter()
         .enumerate()
-        .filter(|(_, p)| {
-            let l = luminance(p.abs());
-            l > 0.0 && l >= threshold
-        })
+        .filter(|(_, p)| luminance(p.abs()) > threshold)
         .take(FAR_SOURCES)
         .map(|(j, p)| (j as u32, *p))
         .collect()
