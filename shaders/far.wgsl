@@ -166,6 +166,18 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
     }
     var sum = vec3f(0.0);
     for (var s = 0u; s < count; s++) {
+        // The neighbours' votes first: a source none of them sees (most of a level of many
+        // rooms) sends nothing, and is passed over before its entry is read.
+        var votes: array<f32, 4>;
+        var every = 0.0;
+        for (var q = 0u; q < 4u; q++) {
+            let m = t.entries[q];
+            votes[q] = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
+            every += votes[q];
+        }
+        if every == 0.0 {
+            continue;
+        }
         let j = source_index[s];
         let e = far_entries[j];
         let d = e.centroid - t.position;
@@ -181,13 +193,9 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
         let r2 = dot(d, d);
         var seen = 0.0;
         var total = 0.0;
-        var every = 0.0;
         for (var q = 0u; q < 4u; q++) {
-            let m = t.entries[q];
-            let vote = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
-            every += vote;
             if dot(facing[q], e.centroid - at[q]) > 0.0 {
-                seen += vote;
+                seen += votes[q];
                 total += t.weights[q];
             }
         }
