@@ -1,30 +1,33 @@
 // The atlas tiles whose light may have changed since the last compose (runtime/src/tile_changes.rs
 // says why and what it keeps): only they are composed again.
 //
-// panes_main, one invocation per pane (clusters, groups, dipole axes): whether the pane's weight
-// in `selected` moved from what it was when it last counted as changed (last_selected.xyz; by
-// more than params.tolerance of its magnitude), marked in last_selected.w (1: changed), keeping
-// the new weight when it did.
-// tiles_main, one invocation per atlas tile: CHANGED_WEIGHT in the tile's state when one of its
-// records is of a changed pane.
+// tiles_main, one invocation per atlas tile: CHANGED_WEIGHT in the tile's state when the weights
+// in `selected` of its records' panes moved from those it was last gathered with
+// (last_records): with no tolerance when a bit differs; with params.tolerance, when the light
+// they move, sum over its records of luminance(|w - last|) x the pane's energy there, is more
+// than that share of the light they gave, sum of luminance(|last|) x energy (a dipole record,
+// which has no energy, when its own weight moved by more than that share of itself). The
+// tile's mean light per texel goes after the list, for sums_main.
 // sums_main, one invocation per near-field sum: CHANGED_SUM in its tile's state when the sum
-// moved likewise, keeping the new sum when it did.
+// moved from what it was when it last counted as changed (by more than params.tolerance of its
+// tile's mean light plus its own magnitude), keeping the new sum when it did.
 // list_main, one invocation per atlas tile: REGATHER when a tile of the 3 x 3 around it has
-// CHANGED_WEIGHT (a local budget's picks at the tile's four corners read the tiles around each);
-// listed for the compose when so or when it has CHANGED_SUM itself.
+// CHANGED_WEIGHT (a local budget's picks at the tile's four corners read the tiles around each),
+// and then its records' weights kept in last_records; listed for the compose when so or when it
+// has CHANGED_SUM itself.
 // args_main, one invocation: the compose's indirect dispatch over the list.
 //
-// Under params.recompose_all every pane and tile counts as changed. ComposeParams, the bindings,
-// the state bits and TileRecord: the generated prelude.
+// Under params.recompose_all every tile counts as changed. ComposeParams, the bindings, the
+// state bits and TileRecord: the generated prelude.
 
-// Whether a channel of v moved from `last` (what it was when it last counted as changed) by more
-// than params.tolerance of its magnitude (a NaN, every time); with tolerance 0, whether the bits
-// differ (-0 and +0, and two denormals a GPU may flush, are changes then).
-fn moved(v: vec3f, last: vec3f) -> bool {
+// Whether a channel of v moved from `last` by more than `share` of `scale` (a NaN, every time);
+// with no tolerance, whether the bits differ (-0 and +0, and two denormals a GPU may flush, are
+// changes then).
+fn moved_by(v: vec3f, last: vec3f, scale: vec3f) -> bool {
     if params.tolerance == 0.0 {
         return any(bitcast<vec3u>(v) != bitcast<vec3u>(last));
     }
-    return any(!(abs(v - last) <= params.tolerance * max(abs(v), abs(last))));
+    return any(!(abs(v - last) <= params.tolerance * scale));
 }
 
 fn state_at(t: u32) -> u32 {
@@ -36,43 +39,46 @@ fn list_at() -> u32 {
     return params.state_offset + params.tile_count;
 }
 
-@compute @workgroup_size(WG_LINEAR)
-fn panes_main(@builtin(global_invocation_id) id: vec3u) {
-    let i = id.x;
-    if i >= arrayLength(&selected) {
-        return;
-    }
-    let w = selected[i].xyz;
-    let changed = params.recompose_all != 0u || moved(w, last_selected[i].xyz);
-    if changed {
-        last_selected[i] = vec4f(w, 1.0);
-    } else {
-        last_selected[i].w = 0.0;
-    }
-    if i == 0u {
-        atomicStore(&state[list_at()], 0u);
-    }
+// Per tile, its mean light per texel (f32 bits), after the list.
+fn light_at(t: u32) -> u32 {
+    return params.state_offset + 2u * params.tile_count + 4u + t;
 }
 
 @compute @workgroup_size(WG_LINEAR)
 fn tiles_main(@builtin(global_invocation_id) id: vec3u) {
     let t = id.x;
+    if t == 0u {
+        atomicStore(&state[list_at()], 0u);
+    }
     if t >= params.tile_count {
         return;
     }
     var s = 0u;
-    if params.recompose_all != 0u {
-        s = CHANGED_WEIGHT | CHANGED_SUM;
-    } else {
-        let r = slots[params.atlas_width * params.atlas_height + t];
-        for (var k = r.x; k < r.x + r.y; k++) {
-            if last_selected[records[k].cluster].w != 0.0 {
-                s = CHANGED_WEIGHT;
-                break;
+    let r = slots[params.atlas_width * params.atlas_height + t];
+    var moved = 0.0;
+    var light = 0.0;
+    var record_moved = false;
+    for (var k = r.x; k < r.x + r.y; k++) {
+        let w = selected[records[k].cluster].xyz;
+        let last = last_records[k].xyz;
+        let e = records[k].energy;
+        if params.tolerance == 0.0 || e <= 0.0 {
+            if moved_by(w, last, max(abs(w), abs(last))) {
+                record_moved = true;
             }
+        } else {
+            moved += luminance(abs(w - last)) * e;
+            light += luminance(abs(last)) * e;
         }
     }
+    if params.recompose_all != 0u || record_moved || !(moved <= params.tolerance * light) {
+        s = CHANGED_WEIGHT;
+    }
+    if params.recompose_all != 0u {
+        s |= CHANGED_SUM;
+    }
     atomicStore(&state[state_at(t)], s);
+    atomicStore(&state[light_at(t)], bitcast<u32>(light / f32(params.tile_size * params.tile_size)));
 }
 
 @compute @workgroup_size(WG_LINEAR)
@@ -82,7 +88,9 @@ fn sums_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) 
         return;
     }
     let v = near_sum[s].xyz;
-    if params.recompose_all != 0u || moved(v, last_sum[s].xyz) {
+    let last = last_sum[s].xyz;
+    let tile_light = bitcast<f32>(atomicLoad(&state[light_at(sum_tiles[s])]));
+    if params.recompose_all != 0u || moved_by(v, last, vec3f(tile_light) + max(abs(v), abs(last))) {
         atomicOr(&state[state_at(sum_tiles[s])], CHANGED_SUM);
         last_sum[s] = vec4f(v, 0.0);
     }
@@ -111,6 +119,11 @@ fn list_main(@builtin(global_invocation_id) id: vec3u) {
     let sums = (atomicLoad(&state[state_at(t)]) & CHANGED_SUM) != 0u;
     if weights {
         atomicOr(&state[state_at(t)], REGATHER);
+        // The gather reads these weights now.
+        let r = slots[params.atlas_width * params.atlas_height + t];
+        for (var k = r.x; k < r.x + r.y; k++) {
+            last_records[k] = selected[records[k].cluster];
+        }
     }
     if weights || sums {
         let at = atomicAdd(&state[list_at()], 1u);

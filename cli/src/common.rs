@@ -253,8 +253,8 @@ pub struct ComposeArgs {
     /// the same).
     #[arg(long)]
     pub recompose_all: bool,
-    /// How far a pane's weight or a near-field sum may move (a share of its magnitude) and
-    /// still leave the tiles that read it as they are (0: only the same bits do).
+    /// How far an atlas tile's light from its panes, or a near-field sum in it, may move (a
+    /// share of the tile's light) and still leave the tile as it is (0: only the same bits do).
     #[arg(long, default_value_t = 0.0)]
     pub recompose_tolerance: f32,
 }

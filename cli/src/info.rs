@@ -76,7 +76,8 @@ pub fn run(a: Args) -> Result<()> {
         let file_bytes = a.prm.as_ref().and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
         summary["gpu_memory"] = gpu_memory(map, &scene, a.shadow_size, file_bytes);
         // The rooms the runtime keeps the near field's energy in (prm_runtime::cpu::rooms).
-        summary["runtime_rooms"] = Value::from(prm_runtime::cpu::NearTables::new(map).rooms);
+        let rooms = prm_runtime::cpu::rooms::room_count(&prm_runtime::cpu::rooms::cluster_rooms(map));
+        summary["runtime_rooms"] = Value::from(rooms);
         if let Some(mb) = a.gpu_budget {
             let camera = crate::render::camera(&scene, None)?;
             let aspect = camera.aspect.unwrap_or(1.0);

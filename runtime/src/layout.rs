@@ -315,10 +315,11 @@ gpu_struct! {
         /// Near-field sums (`crate::near::NearData::total`).
         pub sum_count: u32,
         /// Where, in the compose's `counts`, the atlas tiles' states start, followed by the list
-        /// of tiles to compose (`crate::tile_changes`).
+        /// of tiles to compose and the tiles' mean light (`crate::tile_changes`).
         pub state_offset: u32,
-        /// A pane's weight or a near-field sum counts as changed when a channel moved by more
-        /// than this share of its magnitude since it last did (`RuntimeParams::recompose_tolerance`).
+        /// A tile's weights or a near-field sum count as changed when they moved by more than
+        /// this share of the tile's light (`RuntimeParams::recompose_tolerance`;
+        /// `crate::tile_changes`).
         pub tolerance: f32,
         pub _pad0: u32,
         pub _pad1: u32,

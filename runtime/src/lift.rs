@@ -62,11 +62,16 @@ pub struct LiftPass {
     rooms: u32,
 }
 
+/// The length of [`room_words`] for `clusters` clusters in `rooms` rooms.
+pub fn room_words_len(clusters: usize, rooms: usize) -> usize {
+    2 + 2 * clusters + rooms
+}
+
 /// The lift's `rooms` buffer: R, each cluster's room (`NearTables::cluster_room`), where each
 /// room's clusters start in the list (R + 1), and the list (ascending within each room).
 pub fn room_words(tables: &NearTables) -> Vec<u32> {
     let (rooms, c) = (tables.rooms, tables.cluster_room.len());
-    let mut words = Vec::with_capacity(2 + 2 * c + rooms);
+    let mut words = Vec::with_capacity(room_words_len(c, rooms));
     words.push(rooms as u32);
     words.extend_from_slice(&tables.cluster_room);
     let mut count = vec![0u32; rooms];

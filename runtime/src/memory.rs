@@ -51,6 +51,7 @@ impl GpuMemory {
         let points = prm.near_points().len();
         let far_texels = prm.far().texels.len();
         let members: usize = prm.clusters().iter().map(|c| c.members.len()).sum();
+        let rooms = crate::cpu::rooms::room_count(&crate::cpu::rooms::cluster_rooms(prm));
         // The near sums hold the near points, then the far field's texels that are not one.
         let linked = |texel: u32| prm.near_points().binary_search_by_key(&texel, |p| p.texel).is_ok();
         let far_only = prm.far().texels.iter().filter(|t| !linked(t.texel)).count();
@@ -95,9 +96,11 @@ impl GpuMemory {
             ("echo sums", size(points, 16)),
             ("cluster weights", size(4 * c.max(1), 16)),
             ("selected weights", size((4 * c + g).max(1), 16)),
-            ("last composed weights", size((4 * c + g).max(1), 16)),
+            (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),
             // Without a far field there is no lift (`crate::lift`).
             ("lift members", if far_texels > 0 { size(members.max(1), 8) } else { 0 }),
+            ("lifted weights", if far_texels > 0 { size(c + rooms, 16) } else { 0 }),
+            ("rooms", if far_texels > 0 { size(crate::lift::room_words_len(c, rooms), 4) } else { 0 }),
         ];
         GpuMemory { items: items.iter().map(|(n, b)| (n.to_string(), *b)).collect() }
     }

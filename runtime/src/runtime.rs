@@ -58,14 +58,12 @@ pub struct RuntimeParams {
     /// (default true; `crate::tile_changes`): the lightmap is the same bits either way, only
     /// the work differs.
     pub recompose_changed_only: bool,
-    /// How far a pane's weight or a texel's near-field sum may move, as a share of its
-    /// magnitude in each channel, and still count as unchanged for the compose (default 0:
-    /// only the same bits do). A tile keeps its light until what it reads has moved by more
-    /// than this since the compose last counted it changed, so each pane's share of a kept
-    /// tile is within twice this of its weight now. Meant for levels whose rooms are joined,
-    /// where one moving lamp moves every weight a little through the lift's level-wide share
-    /// `lambda` (`cpu::lift_weights`); measured on the 4 x 4 halls, 1e-3 (1/18 of the panes'
-    /// own 8-bit rounding) left as many tiles composed as 0, so it is off by default.
+    /// How far the light an atlas tile's panes give it, or one of its texels' near-field sums,
+    /// may move, as a share of the tile's light, and still leave the tile as it is (default 0:
+    /// only the same bits do; `crate::tile_changes`). A kept tile stays within about twice this
+    /// of the light it would get now. Meant for levels whose rooms are joined, where one
+    /// moving lamp moves every weight of the level a little through the lift's `lambda`
+    /// (`cpu::lift_weights`, kept per room).
     pub recompose_tolerance: f32,
 }
 

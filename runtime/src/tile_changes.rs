@@ -8,44 +8,58 @@
 //! around that vertex; under a global budget only its own), and (b) its texels' near-field sums
 //! (`crate::near`, the far field's included). So before the compose:
 //!
-//! 1. each pane's weight is compared with what it was when it last counted as changed; it
-//!    counts as changed when a channel moved by more than `RuntimeParams::recompose_tolerance`
-//!    of its magnitude (0: when the bits differ), and is then kept;
-//! 2. each atlas tile is marked `CHANGED_WEIGHT` when one of its records is of a changed pane;
-//! 3. each near-field sum is compared likewise, its tile marked `CHANGED_SUM` when it moved;
-//! 4. a tile is marked `REGATHER` when a tile of the 3 x 3 around it has `CHANGED_WEIGHT`, and
-//!    listed when so or when it has `CHANGED_SUM`;
-//! 5. the compose's indirect dispatch is made from the list's length.
+//! 1. each atlas tile is marked `CHANGED_WEIGHT` when the weights of its records' panes moved
+//!    from those the tile was last gathered with (kept per record): with no tolerance
+//!    (`RuntimeParams::recompose_tolerance` 0, the default) when a bit differs; with one, when
+//!    the light the moves make in the tile (the sum over its records of the luminance of the
+//!    weight's move times the pane's energy there) is more than that share of the light the
+//!    records gave it;
+//! 2. each near-field sum is compared with what it was when it last counted as changed (with a
+//!    tolerance: that share of its tile's mean light plus its own magnitude), its tile marked
+//!    `CHANGED_SUM` when it moved;
+//! 3. a tile is marked `REGATHER` when a tile of the 3 x 3 around it has `CHANGED_WEIGHT` (its
+//!    records' weights are then kept as those it is gathered with), and listed when so or when
+//!    it has `CHANGED_SUM`;
+//! 4. the compose's indirect dispatch is made from the list's length.
 //!
 //! The compose then picks at the vertices beside a `CHANGED_WEIGHT` tile, gathers the
 //! `REGATHER` tiles, and writes the listed tiles' texels; everything else (the words the picks
 //! fill, the gathered records, the lightmap's texels) keeps what the last compose wrote. With
 //! no tolerance that is what it would write again, every input it reads being the same to the
 //! bit: the lightmap is the same bits as composing every tile (tested), and a frame where one
-//! lamp moves pays for the tiles its light reaches. With a tolerance, each pane's share of a
-//! kept tile is within twice the tolerance of its weight now (the moves add up against the
-//! value last counted, never frame by frame), and a local budget's picks there are the top K
-//! of scores that close to today's. It is off by default: meant for levels whose rooms are
-//! joined, where the lift's level-wide `lambda` (`crate::cpu::lift_weights`) moves every
-//! weight a little when one lamp moves, it did not help on the 4 x 4 halls at 1e-3.
+//! lamp moves pays for the tiles its light reaches.
+//!
+//! A tolerance is for levels whose rooms are joined (through doors), where one lamp moving
+//! moves every weight of the level a little (the lift's `lambda`, `crate::cpu::lift_weights`,
+//! is kept per room). It is measured against the tile's light, not each weight's own size: a
+//! dim cluster's weight moves by much of itself and adds next to nothing to a tile (a share of
+//! each weight, as first built, left the 4 x 4 halls composing 1,736 of 1,849 tiles at 1e-2).
+//! A kept tile's panes then give it within about twice the tolerance of the light they would
+//! give now (the moves add up against the weights it was gathered with, never frame by frame;
+//! a near-field sum against the value last counted), and a local budget's picks there are the
+//! top K of scores about that close to today's.
 //!
 //! Everything counts as changed (`ComposeParams::recompose_all`) on the first compose, when the
 //! budget or the tolerance changes (picks are not a pane's weight), after `Runtime::invalidate`, and with
-//! `RuntimeParams::recompose_changed_only` off. Kept: a copy of `selected` (16 bytes a pane)
-//! and of the near-field sums (16 bytes a texel with one), and per atlas tile its slot tile
-//! (4 bytes), its state and its place in the list (8 bytes, in the compose's `counts`).
+//! `RuntimeParams::recompose_changed_only` off. Kept: the weights each record was last gathered
+//! with (16 bytes a record), a copy of the near-field sums (16 bytes a texel with one), and per
+//! atlas tile its slot tile (4 bytes), its state, its place in the list and its mean light (12
+//! bytes, in the compose's `counts`).
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
 use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
 use crate::gpu;
-use crate::layout::{ComposeParams, GpuStruct};
+use crate::layout::{ComposeParams, GpuStruct, TileRecord};
+
+/// The weights each tile record was last gathered with, as the GPU memory estimate names them.
+pub const LAST_RECORDS: &str = "last gathered weights";
 
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(ComposeParams::NAME), COMPUTE),
     // The weights the compose reads (`crate::weights::WeightPass::selected`).
     b("selected", Res::Read("array<vec4f>"), COMPUTE),
-    // What the last compose read of them (xyz), and whether they changed since (w: 1).
-    b("last_selected", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Per tile record, the weight its tile was last gathered with.
+    b("last_records", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("records", Res::Read("array<TileRecord>"), COMPUTE),
     // The compose's texel slots, then its tiles' ranges of records.
     b("slots", Res::Read("array<vec2u>"), COMPUTE),
@@ -64,7 +78,6 @@ pub const SHADER: Shader = Shader {
     lights: false,
     groups: &[BINDINGS],
     compute: &[
-        Compute { entry: "panes_main", workgroup: LINEAR },
         Compute { entry: "tiles_main", workgroup: LINEAR },
         Compute { entry: "sums_main", workgroup: LINEAR },
         Compute { entry: "list_main", workgroup: LINEAR },
@@ -73,9 +86,10 @@ pub const SHADER: Shader = Shader {
 };
 
 /// Words of the compose's `counts` this pass uses from `ComposeParams::state_offset`: a state
-/// per atlas tile, the list's length, the dispatch's three words, and the list.
+/// per atlas tile, the list's length, the dispatch's three words, the list, and a mean light
+/// per atlas tile.
 pub fn state_words(tiles: u32) -> u32 {
-    2 * tiles + 4
+    3 * tiles + 4
 }
 
 /// The buffers the pass reads from the compose and the near field.
@@ -89,7 +103,6 @@ pub struct ComposeBuffers<'a> {
 }
 
 pub struct TileChanges {
-    panes: wgpu::ComputePipeline,
     tiles: wgpu::ComputePipeline,
     sums: wgpu::ComputePipeline,
     list: wgpu::ComputePipeline,
@@ -97,7 +110,6 @@ pub struct TileChanges {
     group: wgpu::BindGroup,
     /// The compose's indirect dispatch, copied from `counts`.
     pub dispatch: wgpu::Buffer,
-    pane_count: u32,
     tile_count: u32,
     sum_count: u32,
     /// Where the list starts in `counts`, in bytes.
@@ -115,13 +127,9 @@ impl TileChanges {
         state_offset: u32,
     ) -> TileChanges {
         let none = wgpu::BufferUsages::empty();
-        let panes = (buffers.selected.size() / 16) as u32;
-        let last_selected = gpu::storage_buffer(
-            device,
-            "last composed weights",
-            &vec![0u8; buffers.selected.size() as usize],
-            none,
-        );
+        let records = buffers.records.size() / std::mem::size_of::<TileRecord>() as u64;
+        let last_records =
+            gpu::storage_buffer(device, LAST_RECORDS, &vec![0u8; (records.max(1) * 16) as usize], none);
         let last_sum = gpu::storage_buffer(
             device,
             "last composed near sums",
@@ -145,7 +153,7 @@ impl TileChanges {
             &[
                 ("params", buffers.params.as_entire_binding()),
                 ("selected", buffers.selected.as_entire_binding()),
-                ("last_selected", last_selected.as_entire_binding()),
+                ("last_records", last_records.as_entire_binding()),
                 ("records", buffers.records.as_entire_binding()),
                 ("slots", buffers.slots.as_entire_binding()),
                 ("near_sum", buffers.near_sum.as_entire_binding()),
@@ -158,14 +166,12 @@ impl TileChanges {
         let pipeline =
             |entry: &str| gpu::compute_pipeline(device, "tile_changes.wgsl", &source, entry, &[&layout]);
         TileChanges {
-            panes: pipeline("panes_main"),
             tiles: pipeline("tiles_main"),
             sums: pipeline("sums_main"),
             list: pipeline("list_main"),
             args: pipeline("args_main"),
             group,
             dispatch,
-            pane_count: panes,
             tile_count,
             sum_count: sum_tiles.len() as u32,
             list_bytes: (state_offset as u64 + tile_count as u64) * 4,
@@ -186,8 +192,6 @@ impl TileChanges {
                 timestamp_writes: timestamps,
             });
             pass.set_bind_group(0, &self.group, &[]);
-            pass.set_pipeline(&self.panes);
-            pass.dispatch_workgroups(self.pane_count.div_ceil(WG_LINEAR), 1, 1);
             pass.set_pipeline(&self.tiles);
             pass.dispatch_workgroups(self.tile_count.div_ceil(WG_LINEAR), 1, 1);
             if self.sum_count > 0 {

@@ -186,7 +186,7 @@ impl NearTables {
             dipole_offset,
             dipole_coef,
             entry_texel: entry_texels(prm),
-            rooms: cluster_room.iter().max().map_or(1, |&r| r as usize + 1),
+            rooms: super::rooms::room_count(&cluster_room),
             cluster_room,
         }
     }

@@ -39,6 +39,11 @@ impl Sets {
     }
 }
 
+/// How many rooms a [`cluster_rooms`] map has (at least 1).
+pub fn room_count(cluster_room: &[u32]) -> usize {
+    cluster_room.iter().max().map_or(1, |&r| r as usize + 1)
+}
+
 /// Per cluster, its room, numbered in the order of each room's first cluster (a map of one room:
 /// all 0).
 pub fn cluster_rooms(prm: &Prm) -> Vec<u32> {
