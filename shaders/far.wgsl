@@ -8,8 +8,10 @@
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
 // far_main, one invocation per far texel: sum over the sources of
-// phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the texel's near_sum slot (written
-// when the slot is past the near field's own texels). Structs, bindings, WG_LINEAR,
+// phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
+// texel's near_sum slot (written when the slot is past the near field's own texels); its
+// workgroup first lists the sources any of its texels' neighbours sees (group_words), and the
+// sum runs over those, in the same order. Structs, bindings, WG_LINEAR,
 // WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, luminance, far_share: the generated prelude.
 
 const PI: f32 = 3.14159265358979;
@@ -146,14 +148,45 @@ fn sees_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) 
     source_sees[i] = word;
 }
 
-@compute @workgroup_size(WG_LINEAR)
-fn far_main(@builtin(global_invocation_id) id: vec3u) {
-    let k = id.x;
-    if k >= params.far_texel_count {
-        return;
+var<workgroup> wg_count: u32;
+var<workgroup> wg_flags: array<u32, WG_LINEAR>;
+var<workgroup> wg_list: array<u32, WG_LINEAR>;
+var<workgroup> wg_listed: u32;
+
+// Where far_visible's per-workgroup table (runtime/src/far.rs group_words) starts: after the
+// blocks' offsets, the pair count, the pairs' other blocks and their 32 words each.
+fn group_table() -> u32 {
+    let b = blocks();
+    return b + 1u + 33u * far_visible[b];
+}
+
+// Whether any neighbour of the workgroup's texels sees source s (group_words).
+fn group_sees(s: u32, group: u32) -> bool {
+    let table = group_table();
+    let groups = (params.far_texel_count + WG_LINEAR - 1u) / WG_LINEAR;
+    let pairs = table + groups + 1u;
+    let b = blocks();
+    for (var p = far_visible[table + group]; p < far_visible[table + group + 1u]; p++) {
+        if (source_sees[s * b + far_visible[pairs + 2u * p]] & far_visible[pairs + 2u * p + 1u]) != 0u {
+            return true;
+        }
     }
-    let t = far_texels[k];
-    let count = source_index[FAR_SOURCES];
+    return false;
+}
+
+@compute @workgroup_size(WG_LINEAR)
+fn far_main(
+    @builtin(global_invocation_id) id: vec3u,
+    @builtin(workgroup_id) wid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let k = id.x;
+    let live = k < params.far_texel_count;
+    let t = far_texels[min(k, params.far_texel_count - 1u)];
+    if lid == 0u {
+        wg_count = source_index[FAR_SOURCES];
+    }
+    let count = workgroupUniformLoad(&wg_count);
     // The neighbours' cells, for which of them face a source (their bits say nothing of one
     // their own surface hides: prm_runtime::cpu's far-field vote).
     var at: array<vec3f, 4>;
@@ -165,45 +198,74 @@ fn far_main(@builtin(global_invocation_id) id: vec3u) {
         facing[q] = m.normal;
     }
     var sum = vec3f(0.0);
-    for (var s = 0u; s < count; s++) {
-        // The neighbours' votes first: a source none of them sees (most of a level of many
-        // rooms) sends nothing, and is passed over before its entry is read.
-        var votes: array<f32, 4>;
-        var every = 0.0;
-        for (var q = 0u; q < 4u; q++) {
-            let m = t.entries[q];
-            votes[q] = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
-            every += votes[q];
-        }
-        if every == 0.0 {
-            continue;
-        }
-        let j = source_index[s];
-        let e = far_entries[j];
-        let d = e.centroid - t.position;
-        let cx = dot(t.normal, d);
-        let cy = -dot(e.normal, d);
-        if cx <= 0.0 || cy <= 0.0 {
-            continue;
-        }
-        let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
-        if share <= 0.0 {
-            continue;
-        }
-        let r2 = dot(d, d);
-        var seen = 0.0;
-        var total = 0.0;
-        for (var q = 0u; q < 4u; q++) {
-            if dot(facing[q], e.centroid - at[q]) > 0.0 {
-                seen += votes[q];
-                total += t.weights[q];
+    for (var start = 0u; start < count; start += WG_LINEAR) {
+        // The workgroup lists, in order, the sources of this run that some neighbour of its
+        // texels sees (a prefix sum over the run), and each texel sums over those alone.
+        let s0 = start + lid;
+        let seen0 = u32(s0 < count && group_sees(s0, wid.x));
+        wg_flags[lid] = seen0;
+        workgroupBarrier();
+        for (var off = 1u; off < WG_LINEAR; off *= 2u) {
+            var v = wg_flags[lid];
+            if lid >= off {
+                v += wg_flags[lid - off];
             }
+            workgroupBarrier();
+            wg_flags[lid] = v;
+            workgroupBarrier();
         }
-        var v = every;
-        if total > 0.0 {
-            v = seen / total;
+        if seen0 == 1u {
+            wg_list[wg_flags[lid] - 1u] = s0;
         }
-        sum += source_flux[s].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+        if lid == WG_LINEAR - 1u {
+            wg_listed = wg_flags[lid];
+        }
+        let n = workgroupUniformLoad(&wg_listed);
+        for (var i = 0u; i < n && live; i++) {
+            let s = wg_list[i];
+            // The neighbours' votes first: a source none of them sees sends nothing, and is
+            // passed over before its entry is read.
+            var votes: array<f32, 4>;
+            var every = 0.0;
+            for (var q = 0u; q < 4u; q++) {
+                let m = t.entries[q];
+                votes[q] = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
+                every += votes[q];
+            }
+            if every == 0.0 {
+                continue;
+            }
+            let j = source_index[s];
+            let e = far_entries[j];
+            let d = e.centroid - t.position;
+            let cx = dot(t.normal, d);
+            let cy = -dot(e.normal, d);
+            if cx <= 0.0 || cy <= 0.0 {
+                continue;
+            }
+            let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
+            if share <= 0.0 {
+                continue;
+            }
+            let r2 = dot(d, d);
+            var seen = 0.0;
+            var total = 0.0;
+            for (var q = 0u; q < 4u; q++) {
+                if dot(facing[q], e.centroid - at[q]) > 0.0 {
+                    seen += votes[q];
+                    total += t.weights[q];
+                }
+            }
+            var v = every;
+            if total > 0.0 {
+                v = seen / total;
+            }
+            sum += source_flux[s].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+        }
+        workgroupBarrier();
+    }
+    if !live {
+        return;
     }
     if t.slot < params.near_texel_count {
         near_sum[t.slot] += vec4f(sum, 0.0);

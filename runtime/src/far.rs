@@ -176,12 +176,42 @@ pub fn source_sees_words(entries: usize) -> usize {
 }
 
 /// The far field's visibility as the shader reads it, in one buffer (a stage has few storage
-/// bindings): the blocks' offsets, the pairs' other blocks, then the pairs' bits.
+/// bindings): the blocks' offsets, the pairs' other blocks, the pairs' bits, then
+/// [`group_words`].
 pub fn far_words(far: &prm::prm_file::Far) -> Vec<u32> {
-    [&far.block_first[..], &far.pair_block, &far.visible].concat()
+    [&far.block_first[..], &far.pair_block, &far.visible, &group_words(far)].concat()
 }
 
 /// The length of [`far_words`].
 pub fn far_words_len(far: &prm::prm_file::Far) -> usize {
-    far.block_first.len() + far.pair_block.len() + far.visible.len()
+    far.block_first.len() + far.pair_block.len() + far.visible.len() + group_words(far).len()
+}
+
+/// Per workgroup of `far_main` (`WG_LINEAR` consecutive far texels), the blocks of entries its
+/// texels' neighbours (those with a weight) are in, each with a bit per such neighbour: G + 1
+/// offsets (in pairs), then the pairs (block, bits). The workgroup passes over a source none of
+/// them sees (in a level of many rooms, most) together, testing a word a pair. Empty without a
+/// far field.
+pub fn group_words(far: &prm::prm_file::Far) -> Vec<u32> {
+    if far.texels.is_empty() {
+        return Vec::new();
+    }
+    let mut offsets = Vec::new();
+    let mut pairs = Vec::new();
+    for group in far.texels.chunks(WG_LINEAR as usize) {
+        offsets.push((pairs.len() / 2) as u32);
+        let mut bits = std::collections::BTreeMap::<u32, u32>::new();
+        for t in group {
+            for (&m, &w) in t.entries.iter().zip(&t.weights) {
+                if w > 0.0 {
+                    *bits.entry(m / 32).or_default() |= 1 << (m % 32);
+                }
+            }
+        }
+        for (block, mask) in bits {
+            pairs.extend([block, mask]);
+        }
+    }
+    offsets.push((pairs.len() / 2) as u32);
+    [offsets, pairs].concat()
 }

@@ -765,6 +765,43 @@ fn far_field_alone(g: &Gpu, scene: &Scene, prm: &Prm, lights: &[Light]) -> (Vec<
     (minus(&gpu, &gpu_without), minus(&cpu, &cpu_without))
 }
 
+/// Two sealed rooms, a light in a corner of each: the far field's workgroups pass over the
+/// sources none of their texels' neighbours sees (the other room's, `crate::far::group_words`)
+/// and come to the twin's light.
+#[test]
+fn gpu_far_field_matches_the_twin_across_sealed_rooms() {
+    let g = gpu();
+    let scene = two_closed_rooms();
+    let prm = bake(&scene, 512, 32, 128);
+    let mut lights = scene.lights.clone();
+    lights[0].position = v(0.05, 0.05, 0.05);
+    lights[1].position = v(4.45, 1.45, 1.95);
+    let (gpu_far, cpu_far) = far_field_alone(&g, &scene, &prm, &lights);
+    assert!(cpu_far.iter().any(|v| v.max_element() > 0.0), "no far field to compare");
+    let m = prm::metric::compare(&gpu_far, &cpu_far, None);
+    assert!(m.error < 0.05, "corner lamps in two rooms: GPU vs CPU far field: normalised RMSE {}", m.error);
+    // Every workgroup's table names the blocks and bits of its texels' weighted neighbours.
+    let far = prm.far();
+    let words = crate::far::group_words(far);
+    let groups = far.texels.len().div_ceil(crate::contract::WG_LINEAR as usize);
+    for (g, texels) in far.texels.chunks(crate::contract::WG_LINEAR as usize).enumerate() {
+        let (first, last) = (words[g] as usize, words[g + 1] as usize);
+        let pairs = &words[groups + 1 + 2 * first..groups + 1 + 2 * last];
+        let mut weighted = std::collections::BTreeSet::new();
+        for t in texels {
+            for (&m, &w) in t.entries.iter().zip(&t.weights) {
+                if w > 0.0 {
+                    weighted.insert(m);
+                    let has = pairs.chunks(2).any(|p| p[0] == m / 32 && p[1] >> (m % 32) & 1 == 1);
+                    assert!(has, "group {g}: neighbour {m} missing");
+                }
+            }
+        }
+        let bits: u32 = pairs.chunks(2).map(|p| p[1].count_ones()).sum();
+        assert_eq!(bits as usize, weighted.len(), "group {g}: bits for neighbours it does not have");
+    }
+}
+
 /// A far radius shorter than the box: the far field keeps the pairs of blocks near each other
 /// only, and the GPU walks each neighbour's run of pairs (skipping blocks it does not keep) to
 /// the same light as the twin's lookups.
