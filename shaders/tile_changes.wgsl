@@ -13,8 +13,8 @@
 // tile's mean light plus its own magnitude), keeping the new sum when it did.
 // list_main, one invocation per atlas tile: REGATHER when a tile of the 3 x 3 around it has
 // CHANGED_WEIGHT (a local budget's picks at the tile's four corners read the tiles around each),
-// and then its records' weights kept in last_records; listed for the compose when so or when it
-// has CHANGED_SUM itself.
+// and then its records' weights kept in last_records (under a local budget only when it has
+// CHANGED_WEIGHT itself); listed for the compose when so or when it has CHANGED_SUM itself.
 // args_main, one invocation: the compose's indirect dispatch over the list.
 //
 // Under params.recompose_all every tile counts as changed. ComposeParams, the bindings, the
@@ -117,9 +117,16 @@ fn list_main(@builtin(global_invocation_id) id: vec3u) {
         }
     }
     let sums = (atomicLoad(&state[state_at(t)]) & CHANGED_SUM) != 0u;
+    let own = (atomicLoad(&state[state_at(t)]) & CHANGED_WEIGHT) != 0u;
     if weights {
         atomicOr(&state[state_at(t)], REGATHER);
-        // The gather reads these weights now.
+    }
+    // The weights the gather reads now, kept: under a global budget those in `selected`; under
+    // a local one the words picked at the tile's four corners, which are picked again only
+    // beside a tile with CHANGED_WEIGHT, so all four only when the tile has it itself (a tile
+    // regathered for a neighbour keeps its older weights, and the words at its other corners
+    // are within the tolerance of those).
+    if (weights && params.local_k == 0u) || own {
         let r = slots[params.atlas_width * params.atlas_height + t];
         for (var k = r.x; k < r.x + r.y; k++) {
             last_records[k] = selected[records[k].cluster];

@@ -18,8 +18,9 @@
 //!    tolerance: that share of its tile's mean light plus its own magnitude), its tile marked
 //!    `CHANGED_SUM` when it moved;
 //! 3. a tile is marked `REGATHER` when a tile of the 3 x 3 around it has `CHANGED_WEIGHT` (its
-//!    records' weights are then kept as those it is gathered with), and listed when so or when
-//!    it has `CHANGED_SUM`;
+//!    records' weights are then kept as those it is gathered with; under a local budget only
+//!    when it has `CHANGED_WEIGHT` itself, since only then are all four of its corners picked
+//!    again), and listed when so or when it has `CHANGED_SUM`;
 //! 4. the compose's indirect dispatch is made from the list's length.
 //!
 //! The compose then picks at the vertices beside a `CHANGED_WEIGHT` tile, gathers the
