@@ -284,3 +284,36 @@ fn the_balance_counts_what_the_near_and_far_fields_deliver() {
     println!("the balance counts {ratio:.4} of what the near and far fields deliver");
     assert!((ratio - 1.0).abs() < 0.04, "the balance counts {ratio} of what the near and far fields deliver");
 }
+
+/// The far field's threshold never lets more than `FAR_SOURCES` entries through, whatever the
+/// deviations and the reflected light: where more than that are over `R / FAR_SOURCE_SCALE`,
+/// `total / FAR_SOURCES` is the threshold, which no more than that many can exceed (their sum
+/// would pass the total). And where few are over it, it is `R / FAR_SOURCE_SCALE` alone, the
+/// deviations' sum playing no part. Random luminances spread over six decades, R from 1e-3 to
+/// 1e3 times their sum.
+#[test]
+fn the_far_threshold_lists_at_most_far_sources_and_is_the_stable_one_where_it_can_be() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let mut fallbacks = 0;
+    for round in 0..200 {
+        let n = rng.random_range(10..20_000);
+        let l: Vec<f32> = (0..n).map(|_| 10f32.powf(rng.random_range(-3.0..3.0))).collect();
+        let total: f32 = l.iter().sum();
+        let reflected = total * 10f32.powf(rng.random_range(-3.0..3.0));
+        let stable = reflected / cpu::FAR_SOURCE_SCALE;
+        let over = l.iter().filter(|&&x| x > stable).count();
+        let t = cpu::far_threshold(reflected, total, over);
+        let listed = l.iter().filter(|&&x| x > t).count();
+        assert!(
+            listed <= cpu::FAR_SOURCES,
+            "round {round}: {listed} listed of {n} ({over} over the stable threshold)"
+        );
+        if over <= cpu::FAR_SOURCES {
+            assert_eq!(t, stable, "round {round}: {over} over the stable threshold");
+        } else {
+            fallbacks += 1;
+        }
+    }
+    assert!((10..190).contains(&fallbacks), "{fallbacks} of 200 rounds fell back: one branch barely tried");
+}
