@@ -182,9 +182,14 @@ pub fn far_words(far: &prm::prm_file::Far) -> Vec<u32> {
     [&far.block_first[..], &far.pair_block, &far.visible, &group_words(far)].concat()
 }
 
-/// The length of [`far_words`].
+/// The length of [`far_words`], counted without building [`group_words`].
 pub fn far_words_len(far: &prm::prm_file::Far) -> usize {
-    far.block_first.len() + far.pair_block.len() + far.visible.len() + group_words(far).len()
+    let groups: usize = if far.texels.is_empty() {
+        0
+    } else {
+        group_blocks(far).map(|bits| 1 + 2 * bits.len()).sum::<usize>() + 1
+    };
+    far.block_first.len() + far.pair_block.len() + far.visible.len() + groups
 }
 
 /// Per workgroup of `far_main` (`WG_LINEAR` consecutive far texels), the blocks of entries its
@@ -198,8 +203,20 @@ pub fn group_words(far: &prm::prm_file::Far) -> Vec<u32> {
     }
     let mut offsets = Vec::new();
     let mut pairs = Vec::new();
-    for group in far.texels.chunks(WG_LINEAR as usize) {
+    for bits in group_blocks(far) {
         offsets.push((pairs.len() / 2) as u32);
+        for (block, mask) in bits {
+            pairs.extend([block, mask]);
+        }
+    }
+    offsets.push((pairs.len() / 2) as u32);
+    [offsets, pairs].concat()
+}
+
+/// Per workgroup of far texels, the blocks its texels' weighted neighbours are in, with a bit
+/// per neighbour.
+fn group_blocks(far: &prm::prm_file::Far) -> impl Iterator<Item = std::collections::BTreeMap<u32, u32>> + '_ {
+    far.texels.chunks(WG_LINEAR as usize).map(|group| {
         let mut bits = std::collections::BTreeMap::<u32, u32>::new();
         for t in group {
             for (&m, &w) in t.entries.iter().zip(&t.weights) {
@@ -208,10 +225,6 @@ pub fn group_words(far: &prm::prm_file::Far) -> Vec<u32> {
                 }
             }
         }
-        for (block, mask) in bits {
-            pairs.extend([block, mask]);
-        }
-    }
-    offsets.push((pairs.len() / 2) as u32);
-    [offsets, pairs].concat()
+        bits
+    })
 }

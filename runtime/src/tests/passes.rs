@@ -800,6 +800,8 @@ fn gpu_far_field_matches_the_twin_across_sealed_rooms() {
         let bits: u32 = pairs.chunks(2).map(|p| p[1].count_ones()).sum();
         assert_eq!(bits as usize, weighted.len(), "group {g}: bits for neighbours it does not have");
     }
+    // The memory estimate counts the buffer without building it.
+    assert_eq!(crate::far::far_words_len(far), crate::far::far_words(far).len());
 }
 
 /// A far radius shorter than the box: the far field keeps the pairs of blocks near each other
