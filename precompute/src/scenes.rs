@@ -568,6 +568,64 @@ fn two_rooms_shell(b: &mut Builder) {
     );
 }
 
+/// The window of [`sunroom`]: its opening in the south wall (x, then y), and the wall's depth.
+pub const SUNROOM_WINDOW: ([f32; 2], [f32; 2], f32) = ([-0.8, 0.8], [0.9, 2.3], 0.25);
+
+/// A 6 x 3 x 5 m room lit by the sun through one window (the sunlit room of a game level,
+/// which a time-of-day system moves): the opening 1.6 x 1.4 m in the south wall (z = -2.5,
+/// 25 cm deep, with its reveals), a table and a cabinet, the sun from the south-west at 35
+/// degrees and nothing outside. No sky: only the sun's light comes in.
+pub fn sunroom() -> Result<GlbScene, String> {
+    let mut b = Builder::default();
+    let wall = b.material("plaster", [0.8, 0.77, 0.72]);
+    let floor = b.material("floorboards", [0.5, 0.36, 0.24]);
+    let ceiling = b.material("ceiling", [0.85, 0.85, 0.83]);
+    let wood = b.material("table", [0.42, 0.3, 0.2]);
+    let paint = b.material("cabinet", [0.3, 0.45, 0.6]);
+    let (hx, h, hz) = (3.0f32, 3.0f32, 2.5f32);
+    let ([x0, x1], [y0, y1], depth) = SUNROOM_WINDOW;
+    let v = Vec3::new;
+    b.quad(floor, v(-hx, 0.0, -hz), v(-hx, 0.0, hz), v(hx, 0.0, hz), v(hx, 0.0, -hz));
+    b.quad(ceiling, v(-hx, h, -hz), v(hx, h, -hz), v(hx, h, hz), v(-hx, h, hz));
+    b.quad(wall, v(-hx, 0.0, hz), v(-hx, 0.0, -hz), v(-hx, h, -hz), v(-hx, h, hz));
+    b.quad(wall, v(hx, 0.0, -hz), v(hx, 0.0, hz), v(hx, h, hz), v(hx, h, -hz));
+    b.quad(wall, v(hx, 0.0, hz), v(-hx, 0.0, hz), v(-hx, h, hz), v(hx, h, hz));
+    // The south wall around the opening, facing +z.
+    let south = |b: &mut Builder, xa: f32, xb: f32, ya: f32, yb: f32| {
+        b.quad(wall, v(xa, ya, -hz), v(xb, ya, -hz), v(xb, yb, -hz), v(xa, yb, -hz));
+    };
+    south(&mut b, -hx, x0, 0.0, h);
+    south(&mut b, x1, hx, 0.0, h);
+    south(&mut b, x0, x1, 0.0, y0);
+    south(&mut b, x0, x1, y1, h);
+    // The reveals: sill, head and jambs, each facing into the opening.
+    let zo = -hz - depth;
+    b.quad(wall, v(x0, y0, zo), v(x0, y0, -hz), v(x1, y0, -hz), v(x1, y0, zo));
+    b.quad(wall, v(x0, y1, zo), v(x1, y1, zo), v(x1, y1, -hz), v(x0, y1, -hz));
+    b.quad(wall, v(x0, y0, zo), v(x0, y1, zo), v(x0, y1, -hz), v(x0, y0, -hz));
+    b.quad(wall, v(x1, y0, zo), v(x1, y0, -hz), v(x1, y1, -hz), v(x1, y1, zo));
+    // The outer face, so the wall is solid to the sun from outside too.
+    let outer = |b: &mut Builder, xa: f32, xb: f32, ya: f32, yb: f32| {
+        b.quad(wall, v(xa, ya, zo), v(xa, yb, zo), v(xb, yb, zo), v(xb, ya, zo));
+    };
+    outer(&mut b, -hx, x0, 0.0, h);
+    outer(&mut b, x1, hx, 0.0, h);
+    outer(&mut b, x0, x1, 0.0, y0);
+    outer(&mut b, x0, x1, y1, h);
+    // A table top on four legs in the sun's way, and a cabinet against the west wall.
+    b.boxed(wood, v(-0.2, 0.72, -0.4), v(1.2, 0.76, 0.4), false, &[]);
+    for (lx, lz) in [(-0.15, -0.35), (1.1, -0.35), (-0.15, 0.3), (1.1, 0.3)] {
+        b.boxed(wood, v(lx, 0.0, lz), v(lx + 0.05, 0.72, lz + 0.05), false, &[2, 3]);
+    }
+    b.boxed(paint, v(-hx, 0.0, 0.6), v(-hx + 0.45, 1.9, 1.8), false, &[0, 2]);
+    let mut scene = b.finish(256)?;
+    let sun = GlbLight { kind: "directional", ..point_light("sun", [1.0, 0.93, 0.82], 12.0) };
+    let toward = v(-0.35, 0.574, -0.74).normalize();
+    scene.add_light(sun, v(0.0, 6.0, -8.0), -toward);
+    camera(&mut scene, "camera", v(2.6, 1.7, 2.2), v(-0.6, 0.6, -1.2), 1.1);
+    Ok(scene)
+}
+
 /// Room interior (x and z) and height, corridor length (the gap between rooms) and its cross
 /// section, for [`halls`].
 const HALL: f32 = 10.0;
@@ -759,5 +817,6 @@ pub fn all() -> Vec<(&'static str, SceneBuilder)> {
         ("two_rooms.glb", two_rooms),
         ("doorway.glb", doorway),
         ("halls.glb", halls_large),
+        ("sunroom.glb", sunroom),
     ]
 }

@@ -147,3 +147,29 @@ fn torch_rigs_visit_the_places_games_put_lights() {
         );
     }
 }
+
+/// The sunroom's day (`assets/sunroom_sun.json`) keeps the sun in the sky south of the window:
+/// at every keyframe a ray from the opening's middle back towards the sun leaves the level,
+/// and one along the sunlight lands inside the room; from a low morning sun to a low evening
+/// one, through noon.
+#[test]
+fn the_sunroom_day_sends_the_sun_through_its_window() {
+    let scene = load("sunroom.glb");
+    let bvh = Bvh::build(&scene);
+    let rig = prm::rig::Rig::load(&asset("sunroom_sun.json"), &scene.lights).unwrap();
+    let sun = rig.lights.iter().find(|l| l.base.name == "sun").expect("a light named sun");
+    assert!(matches!(sun.base.kind, LightKind::Directional));
+    let ([x0, x1], [y0, y1], depth) = prm_precompute::scenes::SUNROOM_WINDOW;
+    let opening = Vec3::new(0.5 * (x0 + x1), 0.5 * (y0 + y1), -2.5 - 0.5 * depth);
+    let mut lowest = f32::INFINITY;
+    for k in &sun.keys {
+        let d = k.2.normalize();
+        lowest = lowest.min(-d.y);
+        assert!(d.y < 0.0 && d.z > 0.0, "sun direction {d}: not from above the south");
+        assert!(bvh.closest_hit(opening, -d, f32::INFINITY).is_none(), "sun direction {d}: the sky is blocked");
+        let hit = bvh.closest_hit(opening, d, f32::INFINITY).expect("the sunlight lands somewhere");
+        let p = opening + d * hit.t;
+        assert!(p.z > -2.5 - depth && p.y >= -1e-4, "sun direction {d} lands outside the room at {p}");
+    }
+    assert!(lowest < 0.25, "no low sun: the lowest is {} over the horizon", lowest.asin().to_degrees());
+}
