@@ -166,7 +166,10 @@ fn the_sunroom_day_sends_the_sun_through_its_window() {
         let d = k.2.normalize();
         lowest = lowest.min(-d.y);
         assert!(d.y < 0.0 && d.z > 0.0, "sun direction {d}: not from above the south");
-        assert!(bvh.closest_hit(opening, -d, f32::INFINITY).is_none(), "sun direction {d}: the sky is blocked");
+        assert!(
+            bvh.closest_hit(opening, -d, f32::INFINITY).is_none(),
+            "sun direction {d}: the sky is blocked"
+        );
         let hit = bvh.closest_hit(opening, d, f32::INFINITY).expect("the sunlight lands somewhere");
         let p = opening + d * hit.t;
         assert!(p.z > -2.5 - depth && p.y >= -1e-4, "sun direction {d} lands outside the room at {p}");
