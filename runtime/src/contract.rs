@@ -121,10 +121,13 @@ pub fn prelude() -> &'static str {
              // Nearer than this many cell sizes, the quadrature is the fine one.\n\
              const NEAR_SIZES: f32 = {:?}f;\n\
              // The far field's sources against the light the surfaces reflect (prm_runtime::cpu::far_threshold).\n\
-             const FAR_SOURCE_SCALE: f32 = {:?}f;\n",
+             const FAR_SOURCE_SCALE: f32 = {:?}f;\n\
+             // Shadow texels within which an entry's lookup near a triangle's edge looks again, pulled in (crate::shadow).\n\
+             const FOOTPRINT_TEXELS: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
-            crate::cpu::FAR_SOURCE_SCALE
+            crate::cpu::FAR_SOURCE_SCALE,
+            crate::shadow::FOOTPRINT_TEXELS
         );
         let _ = writeln!(
             s,

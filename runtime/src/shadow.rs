@@ -23,6 +23,15 @@ use crate::contract::{Compute, Shader, CUBE_LAYERS, LINEAR, SHADOW_BLOCKS, WG_LI
 use crate::layout::{mat, GpuLight};
 use crate::lights::{self, Bounds, LightError};
 
+/// How far, in shadow texels (at the receiver's distance from a point or spot light), the entry
+/// pass's shadow lookups near a cell triangle's edge are pulled into it for a second lookup
+/// (`shaders/irradiance.wgsl` `entry_visibility`, which keeps the lesser): 3 x 3 PCF of bilinear
+/// taps reaches 2 texels across the map, and the normal offset moves the lookup up to 1.5 more.
+/// Near a receiver's edge the footprint reads what the map holds beyond it, and an occluder
+/// meeting the receiver there at a grazing angle to the light is drawn pushed away by the
+/// slope-scaled depth bias (a ceiling over a wall under a low sun): both let light in.
+pub const FOOTPRINT_TEXELS: f32 = 3.5;
+
 /// Lights and shadow maps: group 0 of every shader that lights surfaces (with
 /// `shaders/lights.wgsl`).
 pub const SHADOW_GROUP: &[Binding] = &[
