@@ -33,11 +33,11 @@ fn point_light(l: GpuLight, y: vec3f, n: vec3f) -> f32 {
 // entry pass: lights.wgsl's visibility, and where y lies within FOOTPRINT_TEXELS shadow texels
 // of an edge, the least of that and the visibility at y pulled towards the centroid until it is
 // that far from every edge (to the centroid on a triangle too small for that). Near its edge a
-// receiver's lookup reads what the map holds beyond it, and an occluder that meets the receiver
-// there at a grazing angle to the light is drawn pushed away from it by the slope-scaled depth
-// bias: a ceiling over a wall under a low sun let a band of light onto the wall's top (a room lit
-// through a window: the entries took 1.9 % more power than the rays give, the lightmap 12-21 %
-// more than the twin's). The least keeps a shadow, never adds light.
+// receiver's lookup reads what the map holds beyond it: past a wall's top edge, under a ceiling
+// that shades it from a low sun, nothing, and the band under the ceiling read "lit" (a room lit
+// through a window: with the slope bias the sun's map had then, the entries took 1.9 % more
+// power than the rays give, the lightmap 12-21 % more than the twin's). The least keeps a
+// shadow, never adds light.
 fn entry_visibility(l: GpuLight, y: vec3f, a: vec3f, e1: vec3f, e2: vec3f, n: vec3f) -> f32 {
     let here = visibility(l, y, n, distance(l.position, y));
     if here == 0.0 {
@@ -153,13 +153,13 @@ fn hidden_in_layer(layer: u32, c: vec3f, reach: f32, on_cube: bool) -> bool {
 // offset), in every layer one of its points could look up: a spot light's one map, or each
 // face of a point light's cube whose pyramid the cube may meet (a cube across two faces is
 // hidden when it is in both), or a directional light's one orthographic map, whose normal
-// offset is 1.5 texels of a fixed world size.
+// offset is SUN_NORMAL_OFFSET texels of a fixed world size.
 fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
     if params.cull_hidden == 0u {
         return false;
     }
     if l.kind == KIND_DIRECTIONAL {
-        let reach = (r + 1.5 * l.texel) * 1.001 + 1e-6 * (length(c) + r);
+        let reach = (r + SUN_NORMAL_OFFSET * l.texel) * 1.001 + 1e-6 * (length(c) + r);
         return hidden_in_layer(l.first_layer, c, reach, false);
     }
     let d = c - l.position;

@@ -45,13 +45,16 @@ fn cube_face(d: vec3f) -> u32 {
 }
 
 // Fraction of light l reaching the surface point p with unit normal n (toward the light side):
-// normal-offset receiver (1.5 shadow texels along n), 3x3 PCF of bilinear comparisons.
+// normal-offset receiver (1.5 shadow texels along n; SUN_NORMAL_OFFSET for a directional
+// light, whose map has no depth bias), 3x3 PCF of bilinear comparisons.
 fn visibility(l: GpuLight, p: vec3f, n: vec3f, dist: f32) -> f32 {
     var texel_world = l.texel;
+    var offset = SUN_NORMAL_OFFSET;
     if l.kind != KIND_DIRECTIONAL {
         texel_world = l.texel * dist;
+        offset = 1.5;
     }
-    let q = p + n * (1.5 * texel_world);
+    let q = p + n * (offset * texel_world);
     var layer = l.first_layer;
     if l.layers == CUBE_LAYERS {
         layer += cube_face(q - l.position);

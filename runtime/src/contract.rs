@@ -123,11 +123,14 @@ pub fn prelude() -> &'static str {
              // The far field's sources against the light the surfaces reflect (prm_runtime::cpu::far_threshold).\n\
              const FAR_SOURCE_SCALE: f32 = {:?}f;\n\
              // Shadow texels within which an entry's lookup near a triangle's edge looks again, pulled in (crate::shadow).\n\
-             const FOOTPRINT_TEXELS: f32 = {:?}f;\n",
+             const FOOTPRINT_TEXELS: f32 = {:?}f;\n\
+             // Shadow texels a directional light's lookup stands off its receiver (crate::shadow).\n\
+             const SUN_NORMAL_OFFSET: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
             crate::cpu::FAR_SOURCE_SCALE,
-            crate::shadow::FOOTPRINT_TEXELS
+            crate::shadow::FOOTPRINT_TEXELS,
+            crate::shadow::SUN_NORMAL_OFFSET
         );
         let _ = writeln!(
             s,

@@ -15,7 +15,7 @@
 //! after a few block reads instead of probing each triangle (`shaders/irradiance.wgsl`).
 
 use glam::Vec3;
-use prm::{Light, Scene};
+use prm::{Light, LightKind, Scene};
 use wgpu::util::DeviceExt;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE, LIT, VERTEX};
@@ -27,10 +27,56 @@ use crate::lights::{self, Bounds, LightError};
 /// pass's shadow lookups near a cell triangle's edge are pulled into it for a second lookup
 /// (`shaders/irradiance.wgsl` `entry_visibility`, which keeps the lesser): 3 x 3 PCF of bilinear
 /// taps reaches 2 texels across the map, and the normal offset moves the lookup up to 1.5 more.
-/// Near a receiver's edge the footprint reads what the map holds beyond it, and an occluder
-/// meeting the receiver there at a grazing angle to the light is drawn pushed away by the
-/// slope-scaled depth bias (a ceiling over a wall under a low sun): both let light in.
+/// Near a receiver's edge the footprint reads what the map holds beyond it (past a wall's top
+/// edge under a ceiling, nothing), and a slope-scaled depth bias draws an occluder that meets
+/// the receiver there at a grazing angle pushed away (a ceiling under a low sun; the reason a
+/// directional light's map has none, [`SUN_NORMAL_OFFSET`]): both let light in.
 pub const FOOTPRINT_TEXELS: f32 = 3.5;
+
+/// How many shadow texels a lookup of a directional light's map stands off its receiver along
+/// the normal (`shaders/lights.wgsl` `visibility`; other lights: 1.5 with a slope-scaled depth
+/// bias). The map is drawn without a depth bias: a low sun grazes a ceiling, and the slope bias
+/// drew it pushed away by several texels (23 cm at the 3.3 cm texels of a 256² map over a
+/// 6 x 5 m room), lighting the walls' tops under it. Without the bias, a receiver at angle t to
+/// the light is clear of its own depth at every tap of the footprint (2.5 texels across the
+/// map) when the offset exceeds 2.5 sin t.
+pub const SUN_NORMAL_OFFSET: f32 = 3.0;
+
+/// A shadow-map pipeline: depth only, both faces, reverse-Z, with a slope-scaled depth bias
+/// `slope` (negative pushes occluders away from the light).
+fn shadow_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    module: &wgpu::ShaderModule,
+    slope: f32,
+) -> wgpu::RenderPipeline {
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("shadow"),
+        layout: Some(layout),
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+            })],
+        },
+        primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: Default::default(),
+            bias: wgpu::DepthBiasState { constant: 0, slope_scale: slope, clamp: 0.0 },
+        }),
+        multisample: Default::default(),
+        fragment: None,
+        multiview_mask: None,
+        cache: None,
+    })
+}
 
 /// Lights and shadow maps: group 0 of every shader that lights surfaces (with
 /// `shaders/lights.wgsl`).
@@ -98,6 +144,10 @@ pub struct ShadowMaps {
     device: wgpu::Device,
     queue: wgpu::Queue,
     pipeline: wgpu::RenderPipeline,
+    /// The same without a depth bias, for directional lights' layers.
+    unbiased: wgpu::RenderPipeline,
+    /// Per layer: a directional light's (drawn by `unbiased`).
+    directional: Vec<bool>,
     vertices: wgpu::Buffer,
     vertex_count: u32,
     size: u32,
@@ -147,34 +197,11 @@ impl ShadowMaps {
             bind_group_layouts: &[Some(&mats_group_layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shadow"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: 12,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                })],
-            },
-            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                // Reverse-Z: a negative slope bias pushes occluders away from the light, so a
-                // lit surface at a slant does not shadow itself (the normal offset does the rest).
-                bias: wgpu::DepthBiasState { constant: 0, slope_scale: -1.5, clamp: 0.0 },
-            }),
-            multisample: Default::default(),
-            fragment: None,
-            multiview_mask: None,
-            cache: None,
-        });
+        // Reverse-Z: a negative slope bias pushes occluders away from the light, so a lit
+        // surface at a slant does not shadow itself (the normal offset does the rest). Not for
+        // a directional light: see SUN_NORMAL_OFFSET.
+        let pipeline = shadow_pipeline(device, &pipeline_layout, &module, -1.5);
+        let unbiased = shadow_pipeline(device, &pipeline_layout, &module, 0.0);
         let lights_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lights"),
             size: (prm::rig::MAX_LIGHTS * std::mem::size_of::<GpuLight>()) as u64,
@@ -219,6 +246,8 @@ impl ShadowMaps {
             device: device.clone(),
             queue: queue.clone(),
             pipeline,
+            unbiased,
+            directional: Vec::new(),
             vertex_count: positions.len() as u32,
             vertices,
             size,
@@ -278,6 +307,12 @@ impl ShadowMaps {
             let m: Vec<[[f32; 4]; 4]> = mats.iter().map(|m| mat(*m)).collect();
             self.queue.write_buffer(&self.mats_buf, 0, bytemuck::cast_slice(&m));
         }
+        self.directional = lights
+            .iter()
+            .flat_map(|l| {
+                std::iter::repeat_n(matches!(l.kind, LightKind::Directional), lights::layers(l) as usize)
+            })
+            .collect();
         self.render(&dirty);
         self.light_count = lights.len() as u32;
         self.last = Some(lights.to_vec());
@@ -404,7 +439,8 @@ impl ShadowMaps {
                 ..Default::default()
             });
             if self.vertex_count > 0 {
-                pass.set_pipeline(&self.pipeline);
+                let directional = self.directional.get(layer as usize).copied().unwrap_or(false);
+                pass.set_pipeline(if directional { &self.unbiased } else { &self.pipeline });
                 pass.set_bind_group(0, &self.mats_group, &[]);
                 pass.set_vertex_buffer(0, self.vertices.slice(..));
                 pass.draw(0..self.vertex_count, layer..layer + 1);

@@ -220,11 +220,12 @@ fn read_r32_layers(g: &Gpu, texture: &wgpu::Texture, side: u32, layers: u32) -> 
 }
 
 /// A wall (x = 1, facing -x, 2 m wide) under a wider ceiling (y = 1, facing down) that shades
-/// all but its lowest third from a low sun (17 degrees over the ceiling's plane). The map draws
-/// the grazing ceiling pushed away from the sun by the slope-scaled depth bias, so lookups near
-/// the wall's top read "lit" (a sunlit room's walls took 1.9 % too much power, its lightmap
-/// 12-21 %). Cells as a precompute makes them: squares, and fans from entries close
-/// under the edge, whose triangles are thinner than the footprint. The cells the rays
+/// all but its lowest third from a low sun (17 degrees over the ceiling's plane). A slope-scaled
+/// depth bias drew the grazing ceiling pushed away from the sun, and lookups near the wall's top
+/// read "lit" (a sunlit room's walls took 1.9 % too much power, its lightmap 12-21 %); so do
+/// lookups whose footprint reaches past the wall's edge, where the map holds nothing. Cells as
+/// a precompute makes them: squares, and fans from entries close under the edge, whose
+/// triangles are thinner than the footprint. The cells the rays
 /// (`prm::bvh::cell_triangle_light`) find wholly in the shade must take no light.
 #[test]
 fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
@@ -270,13 +271,14 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
         }
     }
     assert!(lit > 0.0, "the sun reaches the wall's foot");
-    // Measured on lavapipe: 0.024 W in the shade (0.148 W before the pull), the worst cell 2.5 %
-    // of full sun (15 %), 1.83 W in all (2.05 W) against the rays' 1.86 W.
-    assert!(shaded_gpu <= 0.02 * lit, "{shaded_gpu} W in the ceiling's shade, of {lit} W that arrive");
-    assert!(worst.0 <= 0.04, "cell {} in the shade takes {} of full sun", worst.1, worst.0);
+    // Measured on lavapipe: 0.010 W in the shade (0.148 W with the slope bias and no pull; 0.024
+    // W with the bias and the pull), the worst cell 1.2 % of full sun (15 %), 1.868 W in all
+    // (2.05 W) against the rays' 1.857 W.
+    assert!(shaded_gpu <= 0.01 * lit, "{shaded_gpu} W in the ceiling's shade, of {lit} W that arrive");
+    assert!(worst.0 <= 0.025, "cell {} in the shade takes {} of full sun", worst.1, worst.0);
     // The shadow's edge across the wall (y = 1/3) is where it was: the least of two lookups
     // takes no light from a lit cell away.
-    assert!((lit_gpu - lit).abs() <= 0.03 * lit, "GPU {lit_gpu} W vs rays {lit} W");
+    assert!((lit_gpu - lit).abs() <= 0.02 * lit, "GPU {lit_gpu} W vs rays {lit} W");
 }
 
 /// Thirty-four lights, one beyond the wall: the reach bits of lights past the 32nd (the
