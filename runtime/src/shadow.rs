@@ -26,7 +26,9 @@ use crate::lights::{self, Bounds, LightError};
 /// How far, in shadow texels (at the receiver's distance from a point or spot light), the entry
 /// pass's shadow lookups near a cell triangle's edge are pulled into it for a second lookup
 /// (`shaders/irradiance.wgsl` `entry_visibility`, which keeps the lesser): 3 x 3 PCF of bilinear
-/// taps reaches 2 texels across the map, and the normal offset moves the lookup up to 1.5 more.
+/// taps reaches 2 texels along an axis of the map (2.8 on the diagonal), and the normal offset
+/// moves the lookup up to 1.5 more. A directional light's offset is [`SUN_NORMAL_OFFSET`], so
+/// for it the pulled lookup may not wholly clear the footprint; the sunlit room was measured so.
 /// Near a receiver's edge the footprint reads what the map holds beyond it (past a wall's top
 /// edge under a ceiling, nothing), and a slope-scaled depth bias draws an occluder that meets
 /// the receiver there at a grazing angle pushed away (a ceiling under a low sun; the reason a
@@ -38,8 +40,8 @@ pub const FOOTPRINT_TEXELS: f32 = 3.5;
 /// bias). The map is drawn without a depth bias: a low sun grazes a ceiling, and the slope bias
 /// drew it pushed away by several texels (23 cm at the 3.3 cm texels of a 256² map over a
 /// 6 x 5 m room), lighting the walls' tops under it. Without the bias, a receiver at angle t to
-/// the light is clear of its own depth at every tap of the footprint (2.5 texels across the
-/// map) when the offset exceeds 2.5 sin t.
+/// the light is clear of its own depth at every tap of the footprint (2 texels along an axis of
+/// the map, 2.8 on the diagonal) when the offset exceeds 2.8 sin t.
 pub const SUN_NORMAL_OFFSET: f32 = 3.0;
 
 /// A shadow-map pipeline: depth only, both faces, reverse-Z, with a slope-scaled depth bias
