@@ -152,15 +152,36 @@ fn hidden_in_layer(layer: u32, c: vec3f, reach: f32, on_cube: bool) -> bool {
 // Checked on the cube of side 2 x reach around it (the sphere grown by the largest normal
 // offset), in every layer one of its points could look up: a spot light's one map, or each
 // face of a point light's cube whose pyramid the cube may meet (a cube across two faces is
-// hidden when it is in both), or a directional light's one orthographic map, whose normal
-// offset is SUN_NORMAL_OFFSET texels of a fixed world size.
+// hidden when it is in both), or each tile of a directional light's orthographic map that a
+// point of the cube may pick (hidden in all; at most 2 x 2), whose normal offset is
+// SUN_NORMAL_OFFSET texels of a fixed world size.
 fn hidden(l: GpuLight, c: vec3f, r: f32) -> bool {
     if params.cull_hidden == 0u {
         return false;
     }
     if l.kind == KIND_DIRECTIONAL {
         let reach = (r + SUN_NORMAL_OFFSET * l.texel) * 1.001 + 1e-6 * (length(c) + r);
-        return hidden_in_layer(l.first_layer, c, reach, false);
+        // Every tile a point of the cube may pick: those its corners pick, and between.
+        var t_lo = sun_tile(l, c - vec3f(reach));
+        var t_hi = t_lo;
+        for (var k = 1u; k < 8u; k++) {
+            let s = vec3f(f32(k & 1u), f32((k >> 1u) & 1u), f32((k >> 2u) & 1u)) * 2.0 - 1.0;
+            let t = sun_tile(l, c + reach * s);
+            t_lo = min(t_lo, t);
+            t_hi = max(t_hi, t);
+        }
+        if any(t_hi - t_lo > vec2u(1u)) {
+            return false;
+        }
+        let n = u32(round(sqrt(f32(l.layers))));
+        for (var ty = t_lo.y; ty <= t_hi.y; ty++) {
+            for (var tx = t_lo.x; tx <= t_hi.x; tx++) {
+                if !hidden_in_layer(l.first_layer + ty * n + tx, c, reach, false) {
+                    return false;
+                }
+            }
+        }
+        return true;
     }
     let d = c - l.position;
     let dist = length(d);

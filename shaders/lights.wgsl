@@ -44,6 +44,27 @@ fn cube_face(d: vec3f) -> u32 {
     return select(5u, 4u, d.z >= 0.0);
 }
 
+// The tile (x, y) of directional light l's n x n tiles (n^2 = l.layers) that a lookup at q
+// reads: from where q falls in the first tile's map, whose tile-sized steps (the map less its
+// SUN_TILE_MARGIN texels on each side) lead to the others (crate::lights::sun_tile).
+fn sun_tile(l: GpuLight, q: vec3f) -> vec2u {
+    let n = u32(round(sqrt(f32(l.layers))));
+    let clip = shadow_mats[l.first_layer] * vec4f(q, 1.0);
+    let uv = clip.xy * vec2f(0.5, -0.5) + vec2f(0.5);
+    let size = f32(textureDimensions(shadow_tex).x);
+    let t = floor((uv * size - SUN_TILE_MARGIN) / (size - 2.0 * SUN_TILE_MARGIN));
+    return vec2u(clamp(t, vec2f(0.0), vec2f(f32(n - 1u))));
+}
+
+// The layer of directional light l's map that a lookup at q reads.
+fn sun_layer(l: GpuLight, q: vec3f) -> u32 {
+    if l.layers <= 1u {
+        return l.first_layer;
+    }
+    let t = sun_tile(l, q);
+    return l.first_layer + t.y * u32(round(sqrt(f32(l.layers)))) + t.x;
+}
+
 // Fraction of light l reaching the surface point p with unit normal n (toward the light side):
 // normal-offset receiver (1.5 shadow texels along n; SUN_NORMAL_OFFSET for a directional
 // light, whose map has no depth bias), 3x3 PCF of bilinear comparisons.
@@ -56,7 +77,9 @@ fn visibility(l: GpuLight, p: vec3f, n: vec3f, dist: f32) -> f32 {
     }
     let q = p + n * (offset * texel_world);
     var layer = l.first_layer;
-    if l.layers == CUBE_LAYERS {
+    if l.kind == KIND_DIRECTIONAL {
+        layer = sun_layer(l, q);
+    } else if l.layers == CUBE_LAYERS {
         layer += cube_face(q - l.position);
     }
     let clip = shadow_mats[layer] * vec4f(q, 1.0);

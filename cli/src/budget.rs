@@ -97,11 +97,13 @@ pub fn fit_for_camera(
     aspect: f32,
     lights: &[Light],
     shadow_size: u32,
+    sun_tiles_max: u32,
     budget_mb: f64,
 ) -> Result<(Prm, Outcome)> {
     let budget = budget_bytes(budget_mb)?;
     let places = tile_places(scene, &prm, camera, aspect);
-    let f: Fit = fit(&prm, &places, lights, shadow_size, budget)?;
+    let sun_tiles = prm_runtime::memory::sun_tiles(scene, sun_tiles_max);
+    let f: Fit = fit(&prm, &places, lights, shadow_size, sun_tiles, budget)?;
     let mut outcome = Outcome {
         budget_bytes: budget,
         before_bytes: f.before,
@@ -142,7 +144,8 @@ pub fn fit_params(
     params: &mut prm_runtime::RuntimeParams,
 ) -> Result<Prm> {
     let Some(mb) = budget_mb else { return Ok(prm) };
-    let (map, outcome) = fit_for_camera(scene, prm, camera, aspect, lights, params.shadow_size, mb)?;
+    let (map, outcome) =
+        fit_for_camera(scene, prm, camera, aspect, lights, params.shadow_size, params.sun_tiles, mb)?;
     println!("{}", describe(&outcome));
     params.shadow_size = outcome.shadow_size;
     Ok(map)

@@ -257,6 +257,11 @@ pub struct ComposeArgs {
     /// share of the tile's light) and still leave the tile as it is (0: only the same bits do).
     #[arg(long, default_value_t = 0.0)]
     pub recompose_tolerance: f32,
+    /// Tiles per side of a directional light's shadow map at most (1 to 16; 1: one map over
+    /// the whole level). A tile covers at most 10 m of the level, so one room gets one map and
+    /// a level of many rooms keeps a room's shadow texel.
+    #[arg(long, default_value_t = prm_runtime::memory::SUN_TILES_MAX)]
+    pub sun_tiles: u32,
 }
 
 impl ComposeArgs {
@@ -273,6 +278,7 @@ impl ComposeArgs {
             cull_hidden_lights: !self.no_light_culling,
             recompose_changed_only: !self.recompose_all,
             recompose_tolerance: self.recompose_tolerance,
+            sun_tiles: self.sun_tiles,
         })
     }
 }

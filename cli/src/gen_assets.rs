@@ -20,6 +20,10 @@ pub struct Args {
     /// chambers_NXxNZ.glb (issue 13's scale target: 16 chambers).
     #[arg(long, value_name = "NXxNZ", conflicts_with_all = ["check", "halls"])]
     chambers: Option<String>,
+    /// Write only NX x NZ copies of the bundled sunroom under its one sun, without lightmap
+    /// UVs, as sunrooms_NXxNZ.glb (a sunlit level wider than one shadow map resolves).
+    #[arg(long, value_name = "NXxNZ", conflicts_with_all = ["check", "halls", "chambers"])]
+    sunrooms: Option<String>,
 }
 
 /// `NXxNZ` with each 1 to 16.
@@ -33,17 +37,22 @@ fn grid(flag: &str, grid: &str) -> Result<(u32, u32)> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let one = match (&a.halls, &a.chambers) {
-        (Some(g), _) => {
+    let one = match (&a.halls, &a.chambers, &a.sunrooms) {
+        (Some(g), _, _) => {
             let (nx, nz) = grid("halls", g)?;
             Some((prm_precompute::scenes::halls(nx, nz, 32, 8), format!("halls_{nx}x{nz}.glb")))
         }
-        (None, Some(g)) => {
+        (None, Some(g), _) => {
             let (nx, nz) = grid("chambers", g)?;
             let scene = prm_precompute::scenes::chambers(nx, nz).map_err(|e| anyhow!("generating: {e}"))?;
             Some((scene, format!("chambers_{nx}x{nz}.glb")))
         }
-        (None, None) => None,
+        (None, None, Some(g)) => {
+            let (nx, nz) = grid("sunrooms", g)?;
+            let scene = prm_precompute::scenes::sunrooms(nx, nz).map_err(|e| anyhow!("generating: {e}"))?;
+            Some((scene, format!("sunrooms_{nx}x{nz}.glb")))
+        }
+        (None, None, None) => None,
     };
     if let Some((scene, name)) = one {
         let bytes = scene.to_glb();

@@ -88,6 +88,7 @@ pub fn run(a: Args) -> Result<()> {
                 aspect,
                 &scene.lights,
                 a.shadow_size,
+                prm_runtime::memory::SUN_TILES_MAX,
                 mb,
             )?;
             summary["gpu_memory"]["budget"] = serde_json::to_value(&outcome)?;
@@ -118,7 +119,8 @@ pub fn run(a: Args) -> Result<()> {
 /// shadow maps of the level's own lights at `shadow_size`.
 fn gpu_memory(map: &Prm, scene: &Scene, shadow_size: u32, file_bytes: u64) -> Value {
     let tables = prm_runtime::GpuMemory::estimate(map);
-    let shadows = prm_runtime::memory::shadow_bytes(&scene.lights, shadow_size);
+    let sun_tiles = prm_runtime::memory::sun_tiles(scene, prm_runtime::memory::SUN_TILES_MAX);
+    let shadows = prm_runtime::memory::shadow_bytes(&scene.lights, shadow_size, sun_tiles);
     let mut items = tables.items.clone();
     items.sort_by_key(|(_, b)| std::cmp::Reverse(*b));
     json!({

@@ -771,20 +771,41 @@ pub const CHAMBER_PITCH: (f32, f32) = (13.0, 21.0);
 /// and light copied with its place moved and its name suffixed `_I_J`; the first copy's camera
 /// only. Each copy is a closed room: light does not pass between them.
 pub fn chambers(nx: u32, nz: u32) -> Result<GlbScene, String> {
-    let one = chamber()?;
+    grid_of(&chamber()?, "chamber", nx, nz, CHAMBER_PITCH)
+}
+
+/// Spacing of [`sunrooms`]' copies (x, z): the sunroom is 6 x 5 m (its south wall 25 cm
+/// deep), so the rows stand 3.75 m apart and a 3 m row shades the windows of the one behind it
+/// when the sun is below about 29 degrees (all of them below 11), as a street of houses does.
+pub const SUNROOM_PITCH: (f32, f32) = (8.0, 9.0);
+
+/// `nx` x `nz` copies of the sunroom under one sun (a sunlit level larger than one shadow map
+/// resolves, for the runtime's tiled sun maps), laid out as [`chambers`] lays its copies.
+pub fn sunrooms(nx: u32, nz: u32) -> Result<GlbScene, String> {
+    grid_of(&sunroom()?, "sunroom", nx, nz, SUNROOM_PITCH)
+}
+
+/// `nx` x `nz` copies of `one` at `pitch` (x, z) apart, without lightmap UVs, every node, mesh
+/// and light copied with its place moved and its name suffixed `_I_J`. The first copy's camera
+/// only, and a directional light (the same sun over every copy) once, under its own name.
+fn grid_of(one: &GlbScene, what: &str, nx: u32, nz: u32, pitch: (f32, f32)) -> Result<GlbScene, String> {
     let mut scene = GlbScene { materials: one.materials.clone(), ..Default::default() };
     for j in 0..nz {
         for i in 0..nx {
-            let o = Vec3::new(i as f32 * CHAMBER_PITCH.0, 0.0, j as f32 * CHAMBER_PITCH.1);
+            let o = Vec3::new(i as f32 * pitch.0, 0.0, j as f32 * pitch.1);
+            let first = (i, j) == (0, 0);
             for n in &one.nodes {
                 if n.matrix.is_some() || !n.children.is_empty() {
-                    return Err(format!("chamber node '{}' has a matrix or children", n.name));
+                    return Err(format!("{what} node '{}' has a matrix or children", n.name));
                 }
-                if n.camera.is_some() && (i, j) != (0, 0) {
+                let sun = n.light.is_some_and(|l| one.lights[l].kind == "directional");
+                if (n.camera.is_some() || sun) && !first {
                     continue;
                 }
                 let mut c = n.clone();
-                c.name = format!("{}_{i}_{j}", n.name);
+                if !sun {
+                    c.name = format!("{}_{i}_{j}", n.name);
+                }
                 c.translation = Some((Vec3::from_array(n.translation.unwrap_or_default()) + o).to_array());
                 if let Some(m) = n.mesh {
                     let mut mesh = one.meshes[m].clone();
@@ -795,7 +816,9 @@ pub fn chambers(nx: u32, nz: u32) -> Result<GlbScene, String> {
                 }
                 if let Some(l) = n.light {
                     let mut light = one.lights[l].clone();
-                    light.name = format!("{}_{i}_{j}", light.name);
+                    if !sun {
+                        light.name = format!("{}_{i}_{j}", light.name);
+                    }
                     scene.lights.push(light);
                     c.light = Some(scene.lights.len() - 1);
                 }

@@ -213,6 +213,40 @@ fn chambers_are_closed_copies_of_the_chamber() {
     assert!(rays > 100, "{rays} rays");
 }
 
+/// `prm gen-assets --sunrooms`: copies of the sunroom under one sun. The sun is not copied (it
+/// keeps its name, so the sunroom's day rig drives it), the rooms are, each row shading the
+/// next at a low sun and none at noon.
+#[test]
+fn sunrooms_are_copies_under_one_sun() {
+    use prm_precompute::scenes::{sunroom, sunrooms, SUNROOM_PITCH};
+    let dir = tempfile::tempdir().unwrap();
+    let (one, grid) = (dir.path().join("one.glb"), dir.path().join("grid.glb"));
+    std::fs::write(&one, sunroom().unwrap().to_glb()).unwrap();
+    std::fs::write(&grid, sunrooms(2, 2).unwrap().to_glb()).unwrap();
+    let one = load_scene(&one, &LoadOptions::default()).unwrap();
+    let opts = LoadOptions { unwrap_resolution: None, texel_size: 0.3, ..Default::default() };
+    let grid = load_scene(&grid, &opts).unwrap();
+    assert!(grid.report.generated_atlas.is_some(), "the copies have no lightmap UVs");
+    assert_eq!(grid.triangles.len(), 4 * one.triangles.len());
+    assert_eq!(grid.lights, one.lights, "one sun, as it was");
+    let rig = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/sunroom_sun.json");
+    prm::rig::Rig::load(&rig, &grid.lights).unwrap();
+    let (lo1, hi1) = one.bounds();
+    let (lo4, hi4) = grid.bounds();
+    assert!((lo4 - lo1).length() < 1e-4);
+    assert!((hi4 - (hi1 + glam::Vec3::new(SUNROOM_PITCH.0, 0.0, SUNROOM_PITCH.1))).length() < 1e-4);
+    // The back row's window sill (z = 9 - 2.5, 0.9 m up) looks back at a low sun over the front
+    // row's roof: shaded at 12 degrees, in the sun at noon (52 degrees).
+    let bvh = prm::Bvh::build(&grid);
+    let sill = glam::Vec3::new(0.0, 0.95, SUNROOM_PITCH.1 - 2.5 - 0.3);
+    let to_sun = |elevation: f32| {
+        let e = elevation.to_radians();
+        glam::Vec3::new(0.0, e.sin(), -e.cos())
+    };
+    assert!(bvh.occluded(sill, to_sun(12.0), f32::INFINITY), "the front row shades a low sun");
+    assert!(!bvh.occluded(sill, to_sun(52.0), f32::INFINITY), "the noon sun reaches the back row");
+}
+
 /// Generated UVs follow an edit in one room only: three closed chambers in pages, the first
 /// one's carpet (the 5 x 19 m dais) turned 17 degrees about its node's origin, still inside its
 /// chamber. uvunwrap packs the first chamber's charts again (its UVs change), but each room

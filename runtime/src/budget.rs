@@ -83,8 +83,10 @@ pub fn fit(
     places: &[TilePlace],
     lights: &[prm::Light],
     shadow_size: u32,
+    sun_tiles: u32,
     budget: u64,
 ) -> Result<Fit, BudgetError> {
+    let shadow_bytes = |lights: &[prm::Light], size: u32| shadow_bytes(lights, size, sun_tiles);
     let grid = (prm.tiles_x() * prm.tiles_y()) as usize;
     if places.len() != grid {
         return Err(BudgetError::Places { place: places.len(), grid });

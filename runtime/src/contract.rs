@@ -125,12 +125,15 @@ pub fn prelude() -> &'static str {
              // Shadow texels within which an entry's lookup near a triangle's edge looks again, pulled in (crate::shadow).\n\
              const FOOTPRINT_TEXELS: f32 = {:?}f;\n\
              // Shadow texels a directional light's lookup stands off its receiver (crate::shadow).\n\
-             const SUN_NORMAL_OFFSET: f32 = {:?}f;\n",
+             const SUN_NORMAL_OFFSET: f32 = {:?}f;\n\
+             // Texels a directional light's tile reaches past its part of the grid (crate::lights).\n\
+             const SUN_TILE_MARGIN: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
             crate::cpu::FAR_SOURCE_SCALE,
             crate::shadow::FOOTPRINT_TEXELS,
-            crate::shadow::SUN_NORMAL_OFFSET
+            crate::shadow::SUN_NORMAL_OFFSET,
+            crate::lights::SUN_TILE_MARGIN as f32
         );
         let _ = writeln!(
             s,

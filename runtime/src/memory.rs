@@ -106,9 +106,19 @@ impl GpuMemory {
     }
 }
 
-/// Bytes of the shadow maps of `lights` at `size`^2 a layer.
-pub fn shadow_bytes(lights: &[prm::Light], size: u32) -> u64 {
-    lights.iter().map(|l| crate::lights::layers(l) as u64).sum::<u64>() * shadow_bytes_per_layer(size)
+/// Bytes of the shadow maps of `lights` at `size`^2 a layer, a directional light's map in
+/// `sun_tiles` x `sun_tiles` tiles ([`crate::lights::sun_tiles`]).
+pub fn shadow_bytes(lights: &[prm::Light], size: u32, sun_tiles: u32) -> u64 {
+    lights.iter().map(|l| crate::lights::layers(l, sun_tiles) as u64).sum::<u64>()
+        * shadow_bytes_per_layer(size)
+}
+
+pub use crate::lights::SUN_TILES_MAX;
+
+/// Tiles per side of a directional light's shadow map over `scene`, at most `max`
+/// ([`crate::RuntimeParams::sun_tiles`]): what [`shadow_bytes`] is given.
+pub fn sun_tiles(scene: &prm::Scene, max: u32) -> u32 {
+    crate::lights::sun_tiles(crate::shadow::scene_bounds(scene), max)
 }
 
 /// Bytes of one shadow-map layer of `size`^2 (32-bit depth) with its block minima

@@ -445,7 +445,8 @@ mod pass {
             posed: &prm::Scene,
             size: u32,
         ) -> TexelLight {
-            let shadows = ShadowMaps::new(device, queue, posed, size);
+            let shadows =
+                ShadowMaps::with_sun_tiles(device, queue, posed, size, crate::lights::SUN_TILES_MAX);
             let params = gpu::uniform_buffer::<DirectParams>(device, "texel direct params");
             let layout = DIRECT.layout(device, 1);
             let group = bind(

@@ -46,6 +46,10 @@ pub struct RuntimeParams {
     pub budget: Budget,
     /// Texels per side of each shadow-map layer (default 1024).
     pub shadow_size: u32,
+    /// Tiles per side of a directional light's shadow map at most (default
+    /// [`crate::lights::SUN_TILES_MAX`]; 1: one map over the whole level). A tile covers at
+    /// most [`crate::lights::SUN_TILE_SPAN`] of the level, so a level of one room gets one.
+    pub sun_tiles: u32,
     /// Compose each group's pane for the light of its clusters left out of the top K
     /// (default true; `prm::prm_file` module doc). No effect on a `.prm` without groups.
     pub residual: bool,
@@ -73,6 +77,7 @@ impl Default for RuntimeParams {
             top_k: 32,
             budget: Budget::Local,
             shadow_size: 1024,
+            sun_tiles: crate::lights::SUN_TILES_MAX,
             residual: true,
             cull_hidden_lights: true,
             recompose_changed_only: true,
@@ -167,7 +172,13 @@ impl Runtime {
         // Every table the map needs, its allocations recorded (`gpu_memory`).
         let recording = crate::memory::Recording::start();
         let params_buf = crate::gpu::uniform_buffer::<IndirectParams>(device, "indirect params");
-        let shadows = ShadowMaps::new(device, queue, scene, params.shadow_size);
+        if !(1..=16).contains(&params.sun_tiles) {
+            return Err(RuntimeError::Params(format!(
+                "{} tiles a side for a directional light's shadow map: give 1 to 16",
+                params.sun_tiles
+            )));
+        }
+        let shadows = ShadowMaps::with_sun_tiles(device, queue, scene, params.shadow_size, params.sun_tiles);
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
         let near_data = NearData::new(device, prm);

@@ -14,7 +14,6 @@
 //! shadow at every one of them, so the entry pass can skip a light hidden from a whole cell
 //! after a few block reads instead of probing each triangle (`shaders/irradiance.wgsl`).
 
-use glam::Vec3;
 use prm::{Light, LightKind, Scene};
 use wgpu::util::DeviceExt;
 
@@ -129,14 +128,10 @@ const BLOCK_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 /// Bytes of one layer's block minima.
 pub(crate) const BLOCK_BYTES_PER_LAYER: u64 = SHADOW_BLOCKS as u64 * SHADOW_BLOCKS as u64 * 4;
 
-/// The sphere the directional lights' frusta cover.
-fn scene_bounds(scene: &Scene) -> Bounds {
+/// The box and sphere the directional lights' frusta cover.
+pub fn scene_bounds(scene: &Scene) -> Bounds {
     let (lo, hi) = scene.bounds();
-    if lo.is_finite() && hi.is_finite() {
-        Bounds { centre: (lo + hi) * 0.5, radius: ((hi - lo) * 0.5).length() }
-    } else {
-        Bounds { centre: Vec3::ZERO, radius: 1.0 }
-    }
+    Bounds::of_box(lo, hi)
 }
 
 /// The lights' shadow maps in one depth array, with the light buffer: bind group 0 of the
@@ -154,6 +149,9 @@ pub struct ShadowMaps {
     vertex_count: u32,
     size: u32,
     bounds: Bounds,
+    /// Tiles per side of each directional light's map, and the most allowed.
+    sun_tiles: u32,
+    sun_tiles_max: u32,
     max_layers: u32,
     lights_buf: wgpu::Buffer,
     mats_buf: wgpu::Buffer,
@@ -176,8 +174,22 @@ pub struct ShadowMaps {
 }
 
 impl ShadowMaps {
-    /// Shadow maps of `size` x `size` texels per layer for the level's triangles.
+    /// Shadow maps of `size` x `size` texels per layer for the level's triangles, a directional
+    /// light's in at most [`lights::SUN_TILES_MAX`] tiles a side.
+    #[cfg_attr(not(test), allow(dead_code, reason = "the runtime and radiosity pass give the tiles"))]
     pub(crate) fn new(device: &wgpu::Device, queue: &wgpu::Queue, scene: &Scene, size: u32) -> ShadowMaps {
+        ShadowMaps::with_sun_tiles(device, queue, scene, size, lights::SUN_TILES_MAX)
+    }
+
+    /// The same with at most `sun_tiles_max` tiles a side for a directional light's map
+    /// ([`lights::sun_tiles`]).
+    pub(crate) fn with_sun_tiles(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        scene: &Scene,
+        size: u32,
+        sun_tiles_max: u32,
+    ) -> ShadowMaps {
         let positions: Vec<[f32; 3]> =
             (0..scene.triangles.len()).flat_map(|t| scene.corners(t)).map(|p| p.to_array()).collect();
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -254,6 +266,8 @@ impl ShadowMaps {
             vertices,
             size,
             bounds,
+            sun_tiles: lights::sun_tiles(bounds, sun_tiles_max),
+            sun_tiles_max,
             max_layers,
             lights_buf,
             mats_buf,
@@ -279,11 +293,13 @@ impl ShadowMaps {
         if self.last.as_deref() == Some(lights) {
             return Ok(false);
         }
-        let needed: u32 = lights.iter().map(lights::layers).sum();
+        let n = self.sun_tiles;
+        let layers = |l: &Light| lights::layers(l, n);
+        let needed: u32 = lights.iter().map(layers).sum();
         if needed > self.max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) {
             return Err(LightError::TooManyLayers { needed, max: self.max_layers });
         }
-        let (gpu, mats) = lights::pack(lights, self.size, self.bounds);
+        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n);
         let realloc = self.texture.as_ref().is_none_or(|(_, n)| *n != needed.max(1));
         if realloc {
             self.allocate(needed.max(1));
@@ -293,10 +309,9 @@ impl ShadowMaps {
         let mut dirty = Vec::new();
         for (i, l) in lights.iter().enumerate() {
             let old = self.last.as_ref().and_then(|v| v.get(i));
-            let old_first =
-                self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(lights::layers).sum::<u32>());
+            let old_first = self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(layers).sum::<u32>());
             let same = !realloc
-                && old.is_some_and(|o| lights::same_shadow(o, l) && lights::layers(o) == gpu[i].layers)
+                && old.is_some_and(|o| lights::same_shadow(o, l) && layers(o) == gpu[i].layers)
                 && old_first == Some(gpu[i].first_layer);
             if !same {
                 dirty.extend(gpu[i].first_layer..gpu[i].first_layer + gpu[i].layers);
@@ -311,9 +326,7 @@ impl ShadowMaps {
         }
         self.directional = lights
             .iter()
-            .flat_map(|l| {
-                std::iter::repeat_n(matches!(l.kind, LightKind::Directional), lights::layers(l) as usize)
-            })
+            .flat_map(|l| std::iter::repeat_n(matches!(l.kind, LightKind::Directional), layers(l) as usize))
             .collect();
         self.render(&dirty);
         self.light_count = lights.len() as u32;
@@ -335,6 +348,7 @@ impl ShadowMaps {
             self.queue.write_buffer(&self.vertices, 0, bytemuck::cast_slice(&positions));
         }
         self.bounds = scene_bounds(posed);
+        self.sun_tiles = lights::sun_tiles(self.bounds, self.sun_tiles_max);
         self.last = None;
         true
     }

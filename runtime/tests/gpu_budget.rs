@@ -166,16 +166,16 @@ fn a_budget_leaves_out_the_fewest_farthest_tiles_out_of_view_first_then_shrinks_
     let places = places(&scene, &prm, eye);
     let lights = scene.lights.clone();
     let tables = GpuMemory::estimate(&prm).total();
-    let shadows = |size| shadow_bytes(&lights, size);
+    let shadows = |size| shadow_bytes(&lights, size, 1);
 
     // Enough for everything: nothing goes.
-    let f = fit(&prm, &places, &lights, 256, tables + shadows(256)).unwrap();
+    let f = fit(&prm, &places, &lights, 256, 1, tables + shadows(256)).unwrap();
     assert!(f.reduced.is_none() && f.shadow_size == 256 && f.after == tables + shadows(256));
 
     // A quarter of the tables less: tiles out of view go, the farthest first, and no more than
     // needed (one tile fewer would not fit).
     let budget = tables * 3 / 4 + shadows(256);
-    let f = fit(&prm, &places, &lights, 256, budget).unwrap();
+    let f = fit(&prm, &places, &lights, 256, 1, budget).unwrap();
     let r = f.reduced.as_ref().expect("tiles left out");
     assert!(f.after <= budget && f.shadow_size == 256 && f.in_view == 0, "{}", brief(&f));
     assert_eq!(f.after, GpuMemory::estimate(&r.prm).total() + shadows(256));
@@ -207,26 +207,26 @@ fn a_budget_leaves_out_the_fewest_farthest_tiles_out_of_view_first_then_shrinks_
     let stored = prm.layout().texels.iter().map(|t| !t.is_empty()).collect::<Vec<_>>();
     let out_of_view: Vec<bool> = places.iter().zip(&stored).map(|(p, &s)| !p.in_view && s).collect();
     let floor = GpuMemory::estimate(&prm.without_atlas_tiles(&out_of_view).unwrap().prm).total();
-    let f = fit(&prm, &places, &lights, 1024, floor + shadows(512)).unwrap();
+    let f = fit(&prm, &places, &lights, 1024, 1, floor + shadows(512)).unwrap();
     assert_eq!((f.shadow_size, f.in_view), (512, 0), "{}", brief(&f));
-    let f = fit(&prm, &places, &lights, 1024, floor - 1 + shadows(MIN_SHADOW_SIZE)).unwrap();
+    let f = fit(&prm, &places, &lights, 1024, 1, floor - 1 + shadows(MIN_SHADOW_SIZE)).unwrap();
     assert_eq!(f.shadow_size, MIN_SHADOW_SIZE);
     assert!(f.in_view > 0 && f.after <= floor - 1 + shadows(MIN_SHADOW_SIZE), "{}", brief(&f));
 
     // A size that is not a power of two still reaches the smallest; with no lights there is
     // nothing to halve.
-    let f = fit(&prm, &places, &lights, 1000, floor - 1 + shadows(MIN_SHADOW_SIZE)).unwrap();
+    let f = fit(&prm, &places, &lights, 1000, 1, floor - 1 + shadows(MIN_SHADOW_SIZE)).unwrap();
     assert_eq!(f.shadow_size, MIN_SHADOW_SIZE, "{}", brief(&f));
-    let f = fit(&prm, &places, &[], 1000, tables * 3 / 4).unwrap();
+    let f = fit(&prm, &places, &[], 1000, 1, tables * 3 / 4).unwrap();
     assert_eq!((f.shadow_size, f.in_view), (1000, 0), "{}", brief(&f));
 
     // Less than the fixed tables and the smallest shadow maps: refused, saying what it needs.
-    let err = fit(&prm, &places, &lights, 1024, shadows(MIN_SHADOW_SIZE)).unwrap_err();
+    let err = fit(&prm, &places, &lights, 1024, 1, shadows(MIN_SHADOW_SIZE)).unwrap_err();
     let BudgetError::TooSmall { tables: fixed, shadows: s, size, .. } = &err else { unreachable!() };
     assert_eq!((*s, *size), (shadows(MIN_SHADOW_SIZE), MIN_SHADOW_SIZE));
     let all: Vec<bool> = stored.clone();
     assert_eq!(*fixed, GpuMemory::estimate(&prm.without_atlas_tiles(&all).unwrap().prm).total());
     assert!(err.to_string().contains("give at least"), "{err}");
     // Places for another grid: refused.
-    assert!(fit(&prm, &places[1..], &lights, 1024, 1).is_err());
+    assert!(fit(&prm, &places[1..], &lights, 1024, 1, 1).is_err());
 }

@@ -57,11 +57,14 @@ fn gpu_entry_pass(
     areas: &[f32],
     size: u32,
 ) -> (Vec<Vec3>, Vec<crate::layout::GpuCellTriangle>) {
-    let (irradiance, triangles, _) = gpu_entry_pass_culling(g, scene, lights, cells, areas, size, true);
+    let (irradiance, triangles, _) =
+        gpu_entry_pass_culling(g, scene, lights, cells, areas, size, crate::lights::SUN_TILES_MAX, true);
     (irradiance, triangles)
 }
 
-/// [`gpu_entry_pass`], culling hidden lights or not, with the (entry, light) pairs culled.
+/// [`gpu_entry_pass`], a directional light's map in at most `sun_tiles` tiles a side, culling
+/// hidden lights or not, with the (entry, light) pairs culled.
+#[allow(clippy::too_many_arguments, reason = "a test harness's knobs")]
 fn gpu_entry_pass_culling(
     g: &Gpu,
     scene: &Scene,
@@ -69,10 +72,11 @@ fn gpu_entry_pass_culling(
     cells: &prm::prm_file::Cells,
     areas: &[f32],
     size: u32,
+    sun_tiles: u32,
     cull: bool,
 ) -> (Vec<Vec3>, Vec<crate::layout::GpuCellTriangle>, u64) {
     let points = areas;
-    let mut shadows = ShadowMaps::new(&g.device, &g.queue, scene, size);
+    let mut shadows = ShadowMaps::with_sun_tiles(&g.device, &g.queue, scene, size, sun_tiles);
     shadows.update(lights).unwrap();
     let params = crate::gpu::uniform_buffer::<crate::layout::IndirectParams>(&g.device, "params");
     let p = crate::layout::IndirectParams {
@@ -98,14 +102,16 @@ fn gpu_entry_pass_culling(
 }
 
 /// A 6 x 4 floor (y = 0, x from -3 to 3) cut by a wall at x = 0, 3 high and 8 wide, in cells of
-/// two triangles 0.5 m square.
-fn floor_cut_by_a_wall() -> (Scene, prm::prm_file::Cells, Vec<f32>) {
-    let scene = quads(&[
+/// two triangles 0.5 m square, and `extra` quads.
+fn floor_cut_by_a_wall(extra: &[[Vec3; 4]]) -> (Scene, prm::prm_file::Cells, Vec<f32>) {
+    let mut faces = vec![
         [v(-3., 0., -2.), v(-3., 0., 2.), v(3., 0., 2.), v(3., 0., -2.)],
         // Both faces of the wall.
         [v(0., 0., -4.), v(0., 3., -4.), v(0., 3., 4.), v(0., 0., 4.)],
         [v(0., 0., -4.), v(0., 0., 4.), v(0., 3., 4.), v(0., 3., -4.)],
-    ]);
+    ];
+    faces.extend_from_slice(extra);
+    let scene = quads(&faces);
     let mut lists = Vec::new();
     for i in 0..12 {
         for k in 0..8 {
@@ -125,7 +131,7 @@ fn floor_cut_by_a_wall() -> (Scene, prm::prm_file::Cells, Vec<f32>) {
 #[test]
 fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
     let g = gpu();
-    let (scene, cells, areas) = floor_cut_by_a_wall();
+    let (scene, cells, areas) = floor_cut_by_a_wall(&[]);
     // The 48 cells beyond the wall (x > 0) are in the first light's shadow, the 48 before it
     // in the second's; one just over the wall's top sees the near side and is hidden from the
     // far side by the wall's top, close to its line of sight.
@@ -138,15 +144,18 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
         (vec![point(v(-0.3, 3.2, 0.1), 10.0)], 32, 48),
         // A low sun from -x: the wall's shadow covers the whole far side (measured: 29, 36;
         // not the cells at the wall's foot, nor those whose blocks reach past the floor's end,
-        // where nothing was drawn).
+        // where nothing was drawn). One map: in 2 x 2 tiles (the default for this 10.4 m level)
+        // the maps' texels are finer, and a 0.5 m cell's cube spans more than the 64 blocks
+        // `hidden_in_layer` reads; tiles are tested with small cells in
+        // `a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles`.
         (vec![sun(v(1.0, -0.6, 0.1))], 16, 48),
     ];
     for (lights, at_least, at_most) in cases {
         for size in [256, 1024] {
             let (e_on, t_on, hidden) =
-                gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, size, true);
+                gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, size, 1, true);
             let (e_off, t_off, none) =
-                gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, size, false);
+                gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, size, 1, false);
             assert_eq!(none, 0, "nothing is culled when culling is off");
             // At most the cells in shadow; most of them (not those next to the wall, or whose
             // grown cube crosses the plane of a face it may meet).
@@ -220,21 +229,16 @@ fn read_r32_layers(g: &Gpu, texture: &wgpu::Texture, side: u32, layers: u32) -> 
 }
 
 /// A wall (x = 1, facing -x, 2 m wide) under a wider ceiling (y = 1, facing down) that shades
-/// all but its lowest third from a low sun (17 degrees over the ceiling's plane). A slope-scaled
-/// depth bias drew the grazing ceiling pushed away from the sun, and lookups near the wall's top
-/// read "lit" (a sunlit room's walls took 1.9 % too much power, its lightmap 12-21 %); so do
-/// lookups whose footprint reaches past the wall's edge, where the map holds nothing. Cells as
-/// a precompute makes them: squares, and fans from entries close under the edge, whose
-/// triangles are thinner than the footprint. The cells the rays
-/// (`prm::bvh::cell_triangle_light`) find wholly in the shade must take no light.
-#[test]
-fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
-    let g = gpu();
-    let scene = quads(&[
+/// all but its lowest third from a low sun (17 degrees over the ceiling's plane), with `extra`
+/// quads, and the wall's cells as a precompute makes them: squares, and fans from entries close
+/// under the edge, whose triangles are thinner than the shadow lookups' footprint.
+fn wall_under_a_ceiling(extra: &[[Vec3; 4]]) -> (Scene, prm::prm_file::Cells, Vec<f32>) {
+    let mut faces = vec![
         [v(1., 0., -1.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., -1.)],
         [v(-1., 1., -1.5), v(1., 1., -1.5), v(1., 1., 1.5), v(-1., 1., 1.5)],
-    ]);
-    let bvh = Bvh::build(&scene);
+    ];
+    faces.extend_from_slice(extra);
+    let scene = quads(&faces);
     let mut lists = Vec::new();
     for i in 0..10 {
         let (z0, z1) = (-1.0 + 0.2 * i as f32, -0.8 + 0.2 * i as f32);
@@ -252,10 +256,19 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
     }
     let cells = prm::prm_file::Cells::from_lists(lists);
     let areas: Vec<f32> = (0..cells.first.len() - 1).map(|j| cells.area(j)).collect();
+    (scene, cells, areas)
+}
+
+/// What the entry pass gives [`wall_under_a_ceiling`]'s cells under its low sun, against the
+/// rays (`prm::bvh::cell_triangle_light`): the sun's power in the cells the rays find wholly in
+/// the ceiling's shade, the largest share of full sun such a cell takes, the GPU's power and
+/// the rays' (W).
+fn ceiling_shade(g: &Gpu, extra: &[[Vec3; 4]], size: u32, sun_tiles: u32) -> (f32, f32, f32, f32) {
+    let (scene, cells, areas) = wall_under_a_ceiling(extra);
+    let bvh = Bvh::build(&scene);
     let lights = [sun(v(0.9, -0.3, 0.2))];
-    // Texels of 1.2 cm, the share of a cell the sunlit room's were.
-    let (gpu_e, _) = gpu_entry_pass(&g, &scene, &lights, &cells, &areas, 256);
-    let (mut lit, mut lit_gpu, mut shaded_gpu, mut worst) = (0.0f32, 0.0f32, 0.0f32, (0.0f32, 0usize));
+    let (gpu_e, _, _) = gpu_entry_pass_culling(g, &scene, &lights, &cells, &areas, size, sun_tiles, true);
+    let (mut lit, mut lit_gpu, mut shaded_gpu, mut worst) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for (j, e) in gpu_e.iter().enumerate() {
         let tris = &cells.triangles[cells.first[j] as usize..cells.first[j + 1] as usize];
         let cpu: Vec3 = tris.iter().map(|t| prm::bvh::cell_triangle_light(&bvh, &lights, t).power).sum();
@@ -263,22 +276,71 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
         lit_gpu += e.x * areas[j];
         if cpu.x == 0.0 {
             // Wholly in the ceiling's shade: a share of full sun (3 W/m² x 0.9) that arrives.
-            let share = e.x / (3.0 * 0.9);
             shaded_gpu += e.x * areas[j];
-            if share > worst.0 {
-                worst = (share, j);
-            }
+            worst = worst.max(e.x / (3.0 * 0.9));
         }
     }
     assert!(lit > 0.0, "the sun reaches the wall's foot");
+    (shaded_gpu, worst, lit_gpu, lit)
+}
+
+/// [`wall_under_a_ceiling`]: a slope-scaled depth bias drew the grazing ceiling pushed away
+/// from the sun, and lookups near the wall's top read "lit" (a sunlit room's walls took 1.9 %
+/// too much power, its lightmap 12-21 %); so do lookups whose footprint reaches past the wall's
+/// edge, where the map holds nothing. The cells the rays find wholly in the shade must take no
+/// light.
+#[test]
+fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
+    let g = gpu();
+    // Texels of 1.2 cm, the share of a cell the sunlit room's were.
+    let (shaded, worst, lit_gpu, lit) = ceiling_shade(&g, &[], 256, 4);
     // Measured on lavapipe: 0.010 W in the shade (0.148 W with the slope bias and no pull; 0.024
     // W with the bias and the pull), the worst cell 1.2 % of full sun (15 %), 1.868 W in all
     // (2.05 W) against the rays' 1.857 W.
-    assert!(shaded_gpu <= 0.01 * lit, "{shaded_gpu} W in the ceiling's shade, of {lit} W that arrive");
-    assert!(worst.0 <= 0.025, "cell {} in the shade takes {} of full sun", worst.1, worst.0);
+    assert!(shaded <= 0.01 * lit, "{shaded} W in the ceiling's shade, of {lit} W that arrive");
+    assert!(worst <= 0.025, "a cell in the shade takes {worst} of full sun");
     // The shadow's edge across the wall (y = 1/3) is where it was: the least of two lookups
     // takes no light from a lit cell away.
     assert!((lit_gpu - lit).abs() <= 0.02 * lit, "GPU {lit_gpu} W vs rays {lit} W");
+}
+
+/// The same wall and ceiling at the edge of a level 60 m across (a floor beside them, out of
+/// the sun's way to the wall). One 1024² map over it has texels of 6 cm, and its lookups stand
+/// 3 texels (18 cm) off the wall; the sun's map in tiles of at most 10 m of the level (4 x 4
+/// here) keeps about a centimetre, and the wall's light is what the small level's is.
+#[test]
+fn a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles() {
+    let g = gpu();
+    let floor = [[v(-45., -0.5, -20.), v(-45., -0.5, 20.), v(-2., -0.5, 20.), v(-2., -0.5, -20.)]];
+    let (scene, _, _) = wall_under_a_ceiling(&floor);
+    let bounds = crate::shadow::scene_bounds(&scene);
+    assert_eq!(crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX), 4);
+    let (shaded, worst, lit_gpu, lit) = ceiling_shade(&g, &floor, 1024, 4);
+    // Measured on lavapipe: 4 x 4 tiles 0.006 W in the shade, the worst cell 0.6 % of full sun,
+    // 1.874 W in all against the rays' 1.857 W; one map 0.011 W, 1.2 %, 2.109 W (+13.6 %).
+    assert!(shaded <= 0.01 * lit, "{shaded} W in the ceiling's shade, of {lit} W that arrive");
+    assert!(worst <= 0.025, "a cell in the shade takes {worst} of full sun");
+    assert!((lit_gpu - lit).abs() <= 0.02 * lit, "GPU {lit_gpu} W vs rays {lit} W");
+    // A cell whose cube the blocks of every tile it may pick show in the shade is skipped, and
+    // the entry pass is the same: the wall's far side under a low sun, the level made wide.
+    let far = [[v(-45., -0.5, -20.), v(-45., -0.5, 20.), v(-5., -0.5, 20.), v(-5., -0.5, -20.)]];
+    let (scene, cells, areas) = floor_cut_by_a_wall(&far);
+    let lights = [sun(v(1.0, -0.6, 0.1))];
+    let bounds = crate::shadow::scene_bounds(&scene);
+    assert_eq!(crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX), 4);
+    let (e_on, _, hidden) = gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, 256, 4, true);
+    let (e_off, _, none) = gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, 256, 4, false);
+    assert_eq!(none, 0);
+    assert_eq!(e_on, e_off, "entry irradiance with and without culling");
+    // Measured on lavapipe: 28 of the 48 cells beyond the wall (the level without the far
+    // floor, one map: 29).
+    assert!((20..=48).contains(&hidden), "{hidden} cells culled");
+    // What the tiles are for: one map is far off here.
+    let (_, _, lit_one, _) = ceiling_shade(&g, &floor, 1024, 1);
+    assert!(
+        (lit_one - lit).abs() > 0.05 * lit,
+        "one map {lit_one} W vs rays {lit} W: the level is not wide enough"
+    );
 }
 
 /// Thirty-four lights, one beyond the wall: the reach bits of lights past the 32nd (the
@@ -286,7 +348,7 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
 #[test]
 fn reach_bits_past_the_first_word_follow_the_twin() {
     let g = gpu();
-    let (scene, cells, areas) = floor_cut_by_a_wall();
+    let (scene, cells, areas) = floor_cut_by_a_wall(&[]);
     let bvh = Bvh::build(&scene);
     let mut lights: Vec<Light> = (0..33)
         .map(|i| point(v(-2.5 + 0.07 * i as f32, 1.0 + 0.03 * i as f32, -1.5 + 0.09 * i as f32), 1.0))
