@@ -88,21 +88,22 @@ pub struct Outcome {
     pub nearest_in_view_m: Option<f32>,
 }
 
-/// Fit `prm` for `lights` at `shadow_size` into `budget_mb` seen from `camera` (an image
-/// `aspect` wide over high): the map to run (the whole one when it fits), and what was done.
+/// Fit `prm` for `lights` with the shadow maps `runtime` asks for (its size, a sun's tiles)
+/// into `budget_mb` seen from `camera` (an image `aspect` wide over high): the map to run (the
+/// whole one when it fits), and what was done.
 pub fn fit_for_camera(
     scene: &Scene,
     prm: Prm,
     camera: &Camera,
     aspect: f32,
     lights: &[Light],
-    shadow_size: u32,
-    sun_tiles_max: u32,
+    runtime: &prm_runtime::RuntimeParams,
     budget_mb: f64,
 ) -> Result<(Prm, Outcome)> {
     let budget = budget_bytes(budget_mb)?;
     let places = tile_places(scene, &prm, camera, aspect);
-    let sun_tiles = prm_runtime::memory::sun_tiles(scene, sun_tiles_max);
+    let shadow_size = runtime.shadow_size;
+    let sun_tiles = prm_runtime::memory::sun_tiles(scene, runtime.sun_tiles);
     let f: Fit = fit(&prm, &places, lights, shadow_size, sun_tiles, budget)?;
     let mut outcome = Outcome {
         budget_bytes: budget,
@@ -144,8 +145,7 @@ pub fn fit_params(
     params: &mut prm_runtime::RuntimeParams,
 ) -> Result<Prm> {
     let Some(mb) = budget_mb else { return Ok(prm) };
-    let (map, outcome) =
-        fit_for_camera(scene, prm, camera, aspect, lights, params.shadow_size, params.sun_tiles, mb)?;
+    let (map, outcome) = fit_for_camera(scene, prm, camera, aspect, lights, params, mb)?;
     println!("{}", describe(&outcome));
     params.shadow_size = outcome.shadow_size;
     Ok(map)

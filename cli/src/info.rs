@@ -87,8 +87,7 @@ pub fn run(a: Args) -> Result<()> {
                 &camera,
                 aspect,
                 &scene.lights,
-                a.shadow_size,
-                prm_runtime::memory::SUN_TILES_MAX,
+                &prm_runtime::RuntimeParams { shadow_size: a.shadow_size, ..Default::default() },
                 mb,
             )?;
             summary["gpu_memory"]["budget"] = serde_json::to_value(&outcome)?;
@@ -128,6 +127,8 @@ fn gpu_memory(map: &Prm, scene: &Scene, shadow_size: u32, file_bytes: u64) -> Va
         "tables": items.iter().map(|(n, b)| json!({"name": n, "bytes": b})).collect::<Vec<_>>(),
         "shadow_maps_bytes": shadows,
         "shadow_size": shadow_size,
+        // Tiles per side of a directional light's map over this level (the runtime's default).
+        "sun_tiles": sun_tiles,
         "total_bytes": tables.total() + shadows,
         "file_bytes": file_bytes,
     })
@@ -144,14 +145,16 @@ fn print_gpu_memory(m: &Value) {
                 .collect()
         })
         .unwrap_or_default();
+    let tiles = m["sun_tiles"].as_u64().unwrap_or(1);
     println!(
         "  gpu memory  {:.1} MB: the map's tables {:.1} MB (largest: {} MB), the level's lights' shadow maps \
-            {:.1} MB at {}^2 (the .prm file is {:.1} MB)",
+            {:.1} MB at {}^2{} (the .prm file is {:.1} MB)",
         mb(&m["total_bytes"]),
         mb(&m["tables_bytes"]),
         largest.join(", "),
         mb(&m["shadow_maps_bytes"]),
         m["shadow_size"],
+        if tiles > 1 { format!(", a sun's in {tiles} x {tiles} tiles") } else { String::new() },
         mb(&m["file_bytes"])
     );
 }
