@@ -47,8 +47,8 @@ pub struct RuntimeParams {
     /// Texels per side of each shadow-map layer (default 1024).
     pub shadow_size: u32,
     /// Tiles per side of a directional light's shadow map at most (default
-    /// [`crate::lights::SUN_TILES_MAX`]; 1: one map over the whole level). A tile covers at
-    /// most [`crate::lights::SUN_TILE_SPAN`] of the level, so a level of one room gets one.
+    /// [`crate::memory::SUN_TILES_MAX`]; 1: one map over the whole level). A tile covers at
+    /// most 10 m of the level (`SUN_TILE_SPAN`), so a level of one room gets one.
     pub sun_tiles: u32,
     /// Compose each group's pane for the light of its clusters left out of the top K
     /// (default true; `prm::prm_file` module doc). No effect on a `.prm` without groups.
