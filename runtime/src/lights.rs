@@ -267,24 +267,12 @@ pub fn same_shadow(a: &Light, b: &Light) -> bool {
 #[cfg(test)]
 mod sun_tests {
     use super::*;
-
-    fn sun(direction: Vec3) -> Light {
-        Light {
-            name: "sun".into(),
-            kind: LightKind::Directional,
-            position: Vec3::ZERO,
-            direction: direction.normalize(),
-            intensity: Vec3::ONE,
-            range: None,
-            aperture: Default::default(),
-            profile: None,
-        }
-    }
+    use crate::tests::passes::sun;
 
     /// Every point of a level 40 x 6 x 30 m picks, from the first tile's map, a tile whose map
     /// holds it at least SUN_TILE_MARGIN texels in from every edge (so its 3 x 3 PCF stays in
-    /// the tile) and within the depth range; the tiles' texels are square and of one size, and
-    /// the tiles together are 4 x 4 where one 10 m tile would not do.
+    /// the tile) and within the depth range; every tile has the same texels, no larger than one
+    /// map's over the bounding sphere would be a tile, and every tile holds some of the level.
     #[test]
     fn each_point_of_the_level_reads_a_tile_that_holds_its_lookup() {
         let bounds = Bounds::of_box(Vec3::new(-3.0, 0.0, -2.75), Vec3::new(37.0, 6.0, 27.0));

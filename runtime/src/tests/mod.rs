@@ -3,4 +3,4 @@
 //! alone are in `runtime/tests/`.
 
 mod contract;
-mod passes;
+pub(crate) mod passes;

@@ -173,7 +173,7 @@ fn lights_hidden_from_whole_cells_are_skipped_and_the_entry_pass_is_the_same() {
 }
 
 /// A directional light of 3 W/m² shining along `direction`.
-fn sun(direction: Vec3) -> Light {
+pub(crate) fn sun(direction: Vec3) -> Light {
     Light {
         name: "sun".into(),
         kind: LightKind::Directional,
