@@ -111,8 +111,14 @@ impl Preamble {
             let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
             prm::rooms::Rooms::new(&corners)
         });
-        let (entries, found, (cells, owners, cell_report), enclosed) =
+        let (entries, found, (cut, owners, cell_report), enclosed) =
             timed(&mut report.seconds_entries, || lit_entries(scene, bvh, &rooms, params));
+        // The map keeps the cells in triangles no longer than an entry spacing, so that the
+        // runtime's fine points lie close enough together ([`Cells::split_long`]); the near
+        // links integrate the same surface over the cells as cut, which is as exact and half
+        // the shadow rays.
+        let cells =
+            cut.split_long(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
@@ -211,7 +217,7 @@ impl Preamble {
                     (Some((old, _)), Some(s)) => Some((old.near(), &s[..])),
                     _ => None,
                 };
-                near_links(bvh, &set, &entries, &cells, params.near_radius, &far, reuse)
+                near_links(bvh, &set, &entries, &cut, params.near_radius, &far, reuse)
             } else {
                 (Vec::new(), Vec::new())
             }
@@ -620,6 +626,14 @@ fn lit_entries(scene: &Scene, bvh: &Bvh, rooms: &prm::rooms::Rooms, params: &Pre
 
 /// What share of an entry's area a face no entry reached must have to get an entry of its own.
 const LEFT_OUT_SHARE: f32 = 0.25;
+
+/// The longest edge a cell triangle keeps in the map, in entry spacings
+/// ([`Cells::split_long`]). Measured on the chamber (one seed, all panes, 512-sample ground
+/// truths, noise removed): the torch 15 cm from a corner 7.2 -> 5.4 %, the other torch frames
+/// the same to 0.1 point; its cells 23,418 -> 46,070 triangles, its file 23.8 -> 24.7 MB. On 16
+/// sunlit rooms at a low sun: 31.4 -> 22.4 %. Half a spacing cut the chamber's triangles six
+/// times over for nothing more.
+const CELL_EDGE_SPACINGS: f32 = 1.0;
 
 /// An entry for each face the cells left out ([`CellOwners::owner`] none): a triangle of at
 /// least [`LEFT_OUT_SHARE`] of an entry's area (`area`), at its centroid, largest first, unless
