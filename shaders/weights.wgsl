@@ -1,6 +1,7 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
-// weights_main: w_c = the power on cluster c's cells over their area, less the near field's
+// weights_main: w_c = the power on cluster c's cells over their area, each entry's counted by
+// its stay share (energy[4 C + G + k] for the member at indices[k]), less the near field's
 // share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
@@ -26,12 +27,18 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     var near_sum = vec3f(0.0);
     var near_total = 0.0;
     var t_total = 0.0;
+    var stay_sum = vec3f(0.0);
+    var stay_t = 0.0;
+    let stays = 4u * params.cluster_count + params.group_count;
     for (var k = r.x; k < r.x + r.y; k++) {
         let m = indices[k];
         let e = entry_irradiance[m.x].xyz;
         let near = bitcast<f32>(m.y);
         let t = bitcast<f32>(m.z);
+        let s = energy[stays + k];
         sum += e;
+        stay_sum += e * s;
+        stay_t += t * s;
         var linked = e * near;
         if params.any_hot != 0u {
             // A hot entry's links deliver what their own light says (concentrate.wgsl); its far
@@ -46,7 +53,9 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         t_total += t;
     }
     var w = vec3f(0.0);
-    if t_total > 0.0 {
+    if stay_t > 0.0 {
+        w = stay_sum / stay_t;
+    } else if t_total > 0.0 {
         w = sum / t_total;
     }
     let energy_c = energy[c];

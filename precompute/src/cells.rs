@@ -499,3 +499,55 @@ fn clip(poly: &[DVec2], m: DVec2, dir: DVec2) -> Vec<DVec2> {
     }
     out
 }
+
+/// Cosine rays per entry in [`stay_shares`].
+pub const STAY_RAYS: u32 = 64;
+
+/// Per entry, the share of the light its cell reflects that lands on the level: of
+/// [`STAY_RAYS`] cosine-distributed rays from points spread over the cell by area (a stratified
+/// 8 x 8 grid of directions, points by the entry's own stream), those that hit any surface. The
+/// rest leave through an opening to the sky. 1 for a cell of no area. The runtime weighs each
+/// entry's light in its cluster's mean by it (`prm::prm_file` module doc, *Stay shares*).
+pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
+    use rand::Rng;
+    let n = cells.first.len().saturating_sub(1);
+    (0..n)
+        .into_par_iter()
+        .map(|j| {
+            let tris = cells.of(j);
+            let areas: Vec<f32> =
+                tris.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
+            let total: f32 = areas.iter().sum();
+            if !(total > 0.0) {
+                return 1.0;
+            }
+            let mut rng = prm::sampling::stream(seed, 8, j as u64);
+            let side = (STAY_RAYS as f32).sqrt() as u32;
+            let mut stays = 0u32;
+            for k in 0..STAY_RAYS {
+                let mut pick = rng.random::<f32>() * total;
+                let mut t = 0;
+                while t + 1 < tris.len() && pick > areas[t] {
+                    pick -= areas[t];
+                    t += 1;
+                }
+                let [a, b, c] = tris[t];
+                let (mut u, mut v): (f32, f32) = (rng.random(), rng.random());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let p = a + (b - a) * u + (c - a) * v;
+                let normal = (b - a).cross(c - a).normalize();
+                let (u1, u2) = (
+                    ((k % side) as f32 + rng.random::<f32>()) / side as f32,
+                    ((k / side) as f32 + rng.random::<f32>()) / side as f32,
+                );
+                let dir = prm::sampling::cosine_direction(normal, u1.min(0.999_999), u2.min(0.999_999));
+                if bvh.trace_from_surface(p, normal, dir).is_some() {
+                    stays += 1;
+                }
+            }
+            stays as f32 / STAY_RAYS as f32
+        })
+        .collect()
+}

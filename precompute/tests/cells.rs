@@ -208,3 +208,31 @@ fn a_triangle_without_an_entry_joins_only_a_cell_of_its_own_room() {
     // And the first room's own floor still belongs to its entry.
     assert_eq!(owners.owner(0, centroid(0)), Some(0));
 }
+
+/// Stay shares (`cells::stay_shares`): a closed box keeps a floor cell's light; with its top
+/// open, the floor loses its form factor to the opening, 0.1998 for parallel unit squares one
+/// apart (0.800 stays); a lone floor keeps none. 32 copies of the floor's cell, each with its
+/// own rays.
+#[test]
+fn a_cell_s_stay_share_is_the_light_that_lands_on_the_level() {
+    use prm::prm_file::Cells;
+    use prm_precompute::cells::stay_shares;
+    let faces = unit_box_faces();
+    let f = faces[0];
+    let cells = Cells::from_lists(vec![vec![[f[0], f[1], f[2]], [f[0], f[2], f[3]]]; 32]);
+    let shares = |qs: &[[Vec3; 4]]| stay_shares(&prm::Bvh::build(&quads(qs, 0.5)), &cells, 3);
+    let mean = |s: &[f32]| s.iter().sum::<f32>() / s.len() as f32;
+
+    let closed = shares(&faces);
+    assert!(mean(&closed) >= 0.999 && closed.iter().all(|&s| s >= 0.98), "closed: {closed:?}");
+    let open: Vec<[Vec3; 4]> = faces.iter().enumerate().filter(|&(k, _)| k != 1).map(|(_, q)| *q).collect();
+    let open = shares(&open);
+    assert!((mean(&open) - 0.8002).abs() <= 0.02, "open: mean {} of {open:?}", mean(&open));
+    assert!(open.iter().all(|&s| (s - 0.8002).abs() <= 0.15), "open: {open:?}");
+    let lone = shares(&faces[..1]);
+    assert!(lone.iter().all(|&s| s == 0.0), "a lone floor: {lone:?}");
+    // A cell of no area stays whole; the same seed gives the same shares.
+    let none = Cells::from_lists(vec![Vec::new()]);
+    assert_eq!(stay_shares(&prm::Bvh::build(&quads(&faces[..1], 0.5)), &none, 3), vec![1.0]);
+    assert_eq!(shares(&faces[..1]), lone);
+}

@@ -26,7 +26,8 @@ pub const BINDINGS: &[Binding] = &[
     // children).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
-    // Pane energy: C clusters, then G groups.
+    // Pane energy: C clusters, then G groups; then the balance's dipole terms (3 C); then each
+    // cluster member's stay share, in `indices` order (`prm::prm_file::Prm::stay`).
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
@@ -97,7 +98,8 @@ pub struct WeightPass {
     pub selected: wgpu::Buffer,
     /// Per cluster, then per group: (first, count) into the members (`vec2u`).
     pub ranges: wgpu::Buffer,
-    /// Pane energy: clusters, groups, then the balance's dipole terms (`f32`).
+    /// Pane energy: clusters, groups, then the balance's dipole terms, then the members' stay
+    /// shares (`f32`).
     pub energy: wgpu::Buffer,
 }
 
@@ -152,6 +154,8 @@ impl WeightPass {
             }
         }
         energy.extend(balance);
+        // The members' stay shares, by their slot in `indices` (clusters' members come first).
+        energy.extend(prm.clusters().iter().flat_map(|c| c.members.iter().map(|&m| near.stay[m as usize])));
         let mut entry_dipole: Vec<[f32; 4]> = near
             .dipole_offset
             .iter()

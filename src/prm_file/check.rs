@@ -100,6 +100,12 @@ fn entries(p: &PrmParts) -> Result<(), String> {
     if let Some(k) = p.entries.iter().position(|e| !ok(e)) {
         return Err(format!("entry {k} has non-finite or negative values"));
     }
+    if !p.stays.is_empty() && p.stays.len() != p.entries.len() {
+        return Err(format!("{} stay shares for {} entries", p.stays.len(), p.entries.len()));
+    }
+    if let Some(k) = p.stays.iter().position(|s| !(0.0..=1.0).contains(s)) {
+        return Err(format!("entry {k} has a stay share of {} (not in 0 to 1)", p.stays[k]));
+    }
     let n = p.entries.len();
     let cells = &p.cells;
     if cells.first.len() != n + 1

@@ -1,14 +1,15 @@
-//! The `.prm` file, format v11 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v12 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 11 (10 is read too)
+//! 8   u32    version = 12 (10 and 11 are read too)
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, pages, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
-//!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, pad u32
+//!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, stay
+//!           share f32 (v12; v10 and v11 wrote 0 there and are read as every share 1)
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
 //!     NEAR  u32 R runs, u32 L links, u32 entry width W (2, 3 or 4); the box of the runs'
@@ -91,6 +92,13 @@
 //! how many pages there are and the texel size the UVs were packed at, so the level loads again
 //! with the same UVs. The runtime's lightmap is a texture array of the pages.
 //!
+//! **Stay shares** (v12): per entry, the share of the light its cell reflects that lands on the
+//! level (its cosine rays that hit a surface; the rest leaves through an opening). A pane
+//! answers even light over its cluster, so a cluster's weight is a mean of its entries' light;
+//! the runtime weighs each entry's light in that mean by its stay share, so a sunlit window
+//! jamb (half of whose light leaves) in a cluster with the wall inside does not light the
+//! room as the wall would. A closed level's shares are all 1 and change nothing.
+//!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
 //! weighted by the light of its clusters left out (the runtime's residual weights), so the light
@@ -124,9 +132,10 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 11;
+pub const VERSION: u32 = 12;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
-/// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries).
+/// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
+/// a v11 file a v12 one without stay shares (every entry's light taken to stay).
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -600,6 +609,9 @@ impl Header {
 pub struct PrmParts {
     pub header: Header,
     pub entries: Vec<Entry>,
+    /// Per entry, the share of its cell's reflected light that lands on the level, in [0, 1]
+    /// (module doc); empty: every share 1 (a v10 or v11 file).
+    pub stays: Vec<f32>,
     /// The surface each entry stands for.
     pub cells: Cells,
     /// Near-field links, sorted by texel then entry (may be empty).
@@ -776,7 +788,7 @@ impl PrmParts {
         let header = serde_json::to_vec(&self.header).unwrap_or_default();
         w.put(&(header.len() as u32).to_le_bytes());
         w.put(&header);
-        w.entries(&self.entries);
+        w.entries(&self.entries, &self.stays);
         w.cells(&self.cells);
         w.near(&self.near, &self.near_points);
         w.echo(&self.echo);
@@ -820,6 +832,12 @@ impl Prm {
 
     pub fn entries(&self) -> &[Entry] {
         &self.parts.entries
+    }
+
+    /// Entry `j`'s stay share: the share of its cell's reflected light that lands on the
+    /// level (1 in a file without them).
+    pub fn stay(&self, j: usize) -> f32 {
+        self.parts.stays.get(j).copied().unwrap_or(1.0)
     }
 
     /// The surface each entry stands for.
@@ -1026,9 +1044,11 @@ impl Prm {
         let truncated = |what: &str| PrmError::Truncated { path: path.into(), size, what: what.into() };
         let corrupt = |what: String| PrmError::Corrupt { path: path.into(), what };
         let (header, body, at) = Self::frame(path, bytes)?;
+        // `frame` has checked the version and that the file holds it.
+        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
         let mut r = Reader::new(body, at);
         let parts = (|| -> Result<PrmParts, SectionError> {
-            let entries = r.entries(&header)?;
+            let (entries, stays) = r.entries(&header, version)?;
             let cells = r.cells(entries.len())?;
             let (near, near_points) = r.near()?;
             let echo = r.echo(near_points.len())?;
@@ -1043,6 +1063,7 @@ impl Prm {
             Ok(PrmParts {
                 header,
                 entries,
+                stays,
                 cells,
                 near,
                 near_points,
@@ -1135,6 +1156,7 @@ mod tests {
                 ..Default::default()
             },
             entries: vec![entry(0.0), entry(1.0)],
+            stays: vec![1.0, 0.5],
             cells: Cells::from_lists(vec![
                 vec![[Vec3::ZERO, Vec3::Z, Vec3::X]],
                 vec![[Vec3::X, Vec3::Z, Vec3::X + Vec3::Z], [Vec3::X, Vec3::X + Vec3::Z, Vec3::X * 2.0]],
@@ -1269,6 +1291,19 @@ mod tests {
         assert_eq!(prm, Prm::new(parts()).unwrap());
     }
 
+    /// Stay shares round-trip, and a share outside [0, 1] or a count other than the entries'
+    /// is refused, naming it.
+    #[test]
+    fn stay_shares_round_trip_and_bad_ones_are_refused() {
+        let prm = Prm::new(parts()).unwrap();
+        let back = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()).unwrap();
+        assert_eq!((back.stay(0), back.stay(1)), (1.0, 0.5));
+        for bad in [vec![1.0, 1.5], vec![-0.1, 1.0], vec![f32::NAN, 1.0], vec![1.0]] {
+            let err = Prm::new(PrmParts { stays: bad.clone(), ..parts() }).unwrap_err().0;
+            assert!(err.contains("stay share"), "{bad:?}: {err}");
+        }
+    }
+
     /// A v3 file (no texel points for the near field) is refused, saying what to do.
     #[test]
     fn an_older_version_is_refused_with_a_rebake_message() {
@@ -1284,16 +1319,23 @@ mod tests {
         bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
         assert!(err.contains("version 9 keeps the far field's visibility for every pair"), "{err}");
-        // A v10 file is read: it differs only in what v11 added (the near links' run bases).
-        bytes[8..12].copy_from_slice(&10u32.to_le_bytes());
-        let body = bytes.len() - 8;
-        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes[..body]);
-        bytes[body..].copy_from_slice(&sum.to_le_bytes());
-        assert_eq!(Prm::from_bytes(Path::new("v10.prm"), &bytes).unwrap(), Prm::new(parts()).unwrap());
+        // A v10 or v11 file is read: it differs only in what v11 added (the near links' run
+        // bases) and v12 (the stay shares, whose slot was padding: every share is then 1).
+        let no_stays = Prm::new(PrmParts { stays: Vec::new(), ..parts() }).unwrap();
+        for old in [10u32, 11] {
+            let mut bytes = no_stays.to_bytes();
+            bytes[8..12].copy_from_slice(&old.to_le_bytes());
+            let body = bytes.len() - 8;
+            let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes[..body]);
+            bytes[body..].copy_from_slice(&sum.to_le_bytes());
+            let read = Prm::from_bytes(Path::new("v11.prm"), &bytes).unwrap();
+            assert_eq!(read, no_stays, "v{old}");
+            assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
+        }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&12u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&13u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 12") && err.contains("versions 10 to 11"), "{err}");
+        assert!(err.contains("version 13") && err.contains("versions 10 to 12"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back

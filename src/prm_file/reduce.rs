@@ -108,6 +108,7 @@ impl Prm {
         let parts = PrmParts {
             header,
             entries: p.entries.clone(),
+            stays: p.stays.clone(),
             cells: p.cells.clone(),
             near,
             near_points,

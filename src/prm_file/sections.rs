@@ -57,15 +57,15 @@ impl<'a> Writer<'a> {
         self.put(payload);
     }
 
-    pub(super) fn entries(&mut self, entries: &[Entry]) {
+    pub(super) fn entries(&mut self, entries: &[Entry], stays: &[f32]) {
         let mut e = Vec::with_capacity(entries.len() * ENTRY_BYTES);
-        for en in entries {
+        for (j, en) in entries.iter().enumerate() {
             for v in [en.position, en.normal, en.albedo] {
                 e.extend_from_slice(bytemuck::bytes_of(&v.to_array()));
             }
             e.extend_from_slice(&en.area.to_le_bytes());
             e.extend_from_slice(&en.triangle.to_le_bytes());
-            e.extend_from_slice(&0u32.to_le_bytes());
+            e.extend_from_slice(&stays.get(j).copied().unwrap_or(1.0).to_le_bytes());
         }
         self.section(b"ENTR", &e);
     }
@@ -358,7 +358,12 @@ impl<'a> Reader<'a> {
         }
     }
 
-    pub(super) fn entries(&mut self, header: &Header) -> Result<Vec<Entry>, SectionError> {
+    /// `ENTR`: the entries and their stay shares (none before v12, whose slot was padding).
+    pub(super) fn entries(
+        &mut self,
+        header: &Header,
+        version: u32,
+    ) -> Result<(Vec<Entry>, Vec<f32>), SectionError> {
         let e = self.next(b"ENTR")?;
         if !holds(e.len(), header.entries as u64, ENTRY_BYTES) {
             return Err(Corrupt(format!(
@@ -367,7 +372,8 @@ impl<'a> Reader<'a> {
                 e.len()
             )));
         }
-        Ok(e.chunks_exact(ENTRY_BYTES)
+        let entries = e
+            .chunks_exact(ENTRY_BYTES)
             .map(|b| Entry {
                 position: v3(b, 0),
                 normal: v3(b, 12),
@@ -375,7 +381,13 @@ impl<'a> Reader<'a> {
                 area: f32_at(b, 36),
                 triangle: u32_at(b, 40),
             })
-            .collect())
+            .collect();
+        let stays = if version >= 12 {
+            e.chunks_exact(ENTRY_BYTES).map(|b| f32_at(b, 44)).collect()
+        } else {
+            Vec::new()
+        };
+        Ok((entries, stays))
     }
 
     /// `CLUS` and `MEMB`. Members must be entries, and together the clusters may claim at most

@@ -34,6 +34,9 @@ pub struct Preamble {
     pub(crate) set: TexelSet,
     pub(crate) entries: Vec<Entry>,
     pub(crate) cells: Cells,
+    /// Per entry, the share of its cell's reflected light that lands on the level
+    /// ([`crate::cells::stay_shares`]).
+    pub(crate) stays: Vec<f32>,
     pub(crate) owners: CellOwners,
     pub(crate) clustering: Clustering,
     pub(crate) centroids: Vec<Vec3>,
@@ -119,6 +122,7 @@ impl Preamble {
         // the shadow rays.
         let cells =
             cut.split_long(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
+        let stays = timed(&mut report.seconds_entries, || crate::cells::stay_shares(bvh, &cut, params.seed));
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
@@ -264,6 +268,7 @@ impl Preamble {
             set,
             entries,
             cells,
+            stays,
             owners,
             clustering,
             centroids: cents,

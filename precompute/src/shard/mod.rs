@@ -60,8 +60,9 @@ use part_file::{check_parts, Hashing, PartWalks};
 
 const PLAN_MAGIC: [u8; 8] = *b"PRMPLAN\n";
 const PART_MAGIC: [u8; 8] = *b"PRMPART\n";
-/// Plan and part file version (4: the next-bounce table may leave rows out).
-const VERSION: u32 = 4;
+/// Plan and part file version (4: the next-bounce table may leave rows out; 5: the entries'
+/// stay shares).
+const VERSION: u32 = 5;
 /// Texels walked and written at a time: a shard holds one chunk's walks.
 const CHUNK_TEXELS: usize = 4096;
 /// Most shards a precompute is cut into.

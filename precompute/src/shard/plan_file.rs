@@ -56,6 +56,7 @@ type Rest = (
     usize,
     f64,
     Cells,
+    Vec<f32>,
     Vec<glam::Vec3>,
     Option<Clustering>,
     Far,
@@ -69,6 +70,7 @@ type RestRef<'a> = (
     usize,
     f64,
     &'a Cells,
+    &'a [f32],
     &'a [glam::Vec3],
     &'a Option<Clustering>,
     &'a Far,
@@ -111,6 +113,7 @@ impl Plan {
             pre.enclosed,
             pre.area_without_entry,
             &pre.cells,
+            &pre.stays,
             &pre.centroids,
             &pre.grouping,
             &pre.far,
@@ -191,6 +194,7 @@ impl Plan {
             set,
             entries,
             cells: Cells::default(),
+            stays: Vec::new(),
             owners,
             clustering,
             centroids: Vec::new(),
@@ -236,10 +240,11 @@ impl Plan {
         let pre = &mut plan.preamble;
         (pre.fingerprint, pre.page_texel_size, pre.enclosed, pre.area_without_entry) =
             (rest.0, rest.1, rest.2, rest.3);
-        (pre.cells, pre.centroids, pre.grouping, pre.far) = (rest.4, rest.5, rest.6, rest.7);
-        (pre.near_points, pre.echo, pre.smoothing) = (rest.8, rest.9, rest.10);
+        (pre.cells, pre.stays, pre.centroids, pre.grouping, pre.far) =
+            (rest.4, rest.5, rest.6, rest.7, rest.8);
+        (pre.near_points, pre.echo, pre.smoothing) = (rest.9, rest.10, rest.11);
         let clusters = pre.clustering.members.len();
-        if pre.centroids.len() != clusters {
+        if pre.centroids.len() != clusters || pre.stays.len() != pre.entries.len() {
             return Err("damaged (its sections do not agree)".into());
         }
         Ok(plan)
