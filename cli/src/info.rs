@@ -78,6 +78,7 @@ pub fn run(a: Args) -> Result<()> {
         // The rooms the runtime keeps the near field's energy in (prm_runtime::cpu::rooms).
         let rooms = prm_runtime::cpu::rooms::room_count(&prm_runtime::cpu::rooms::cluster_rooms(map));
         summary["runtime_rooms"] = Value::from(rooms);
+        summary["stay_shares"] = stay_shares(map);
         if let Some(mb) = a.gpu_budget {
             let camera = crate::render::camera(&scene, None)?;
             let aspect = camera.aspect.unwrap_or(1.0);
@@ -106,12 +107,40 @@ pub fn run(a: Args) -> Result<()> {
             energy is kept room by room)",
             summary["runtime_rooms"]
         );
+        let st = &summary["stay_shares"];
+        println!(
+            "stay shares: {} of {} entries lose more than {:.0} % of their light through openings (mean share {:.3}, \
+            lowest {:.2})",
+            st["losing"],
+            st["entries"],
+            100.0 * (1.0 - LOSING_SHARE),
+            st["mean"].as_f64().unwrap_or(1.0),
+            st["lowest"].as_f64().unwrap_or(1.0)
+        );
         print_gpu_memory(&summary["gpu_memory"]);
         if let Some(text) = summary["gpu_memory"]["budget"]["text"].as_str() {
             println!("  {text}");
         }
     }
     Ok(())
+}
+
+/// An entry whose stay share is under this loses light through an opening (`prm info --prm`).
+const LOSING_SHARE: f32 = 0.95;
+
+/// The map's stay shares (`prm::prm_file::Prm::stay`): how many entries lose light through an
+/// opening (a share under [`LOSING_SHARE`]), their mean and the lowest. A closed level's are
+/// all 1; a window's reveals and a façade's show here.
+fn stay_shares(map: &Prm) -> Value {
+    let n = map.entries().len();
+    let shares: Vec<f32> = (0..n).map(|j| map.stay(j)).collect();
+    let mean = if n > 0 { shares.iter().map(|&s| s as f64).sum::<f64>() / n as f64 } else { 1.0 };
+    json!({
+        "entries": n,
+        "losing": shares.iter().filter(|&&s| s < LOSING_SHARE).count(),
+        "mean": mean,
+        "lowest": shares.iter().copied().fold(1.0f32, f32::min),
+    })
 }
 
 /// The device memory the runtime needs for `map` (`prm_runtime::GpuMemory::estimate`), and the

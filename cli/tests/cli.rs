@@ -1015,7 +1015,14 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(info["texels"]["pages"], pages);
     let m = &info["gpu_memory"];
-    let stated = prm_runtime::GpuMemory::estimate(&prm::prm_file::Prm::read(&map, None).unwrap()).total();
+    let read = prm::prm_file::Prm::read(&map, None).unwrap();
+    let stated = prm_runtime::GpuMemory::estimate(&read).total();
+    // And the stay shares, as the map holds them.
+    let shares: Vec<f32> = (0..read.entries().len()).map(|j| read.stay(j)).collect();
+    let st = &info["stay_shares"];
+    assert_eq!(st["entries"], shares.len());
+    assert_eq!(st["losing"], shares.iter().filter(|&&s| s < 0.95).count());
+    assert_eq!(st["lowest"].as_f64().unwrap() as f32, shares.iter().copied().fold(1.0, f32::min));
     assert_eq!(m["tables_bytes"], stated);
     assert_eq!(m["total_bytes"].as_u64().unwrap(), stated + m["shadow_maps_bytes"].as_u64().unwrap());
     assert!(m["shadow_maps_bytes"].as_u64().unwrap() > 0, "{m}");
