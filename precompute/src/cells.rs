@@ -500,8 +500,10 @@ fn clip(poly: &[DVec2], m: DVec2, dir: DVec2) -> Vec<DVec2> {
     out
 }
 
-/// Cosine rays per entry in [`stay_shares`].
-pub const STAY_RAYS: u32 = 64;
+/// Side of [`stay_shares`]' stratified grid of directions.
+const STAY_SIDE: u32 = 8;
+/// Cosine rays per entry in [`stay_shares`]: one per cell of the grid.
+pub const STAY_RAYS: u32 = STAY_SIDE * STAY_SIDE;
 
 /// Per entry, the share of the light its cell reflects that lands on the level: of
 /// [`STAY_RAYS`] cosine-distributed rays from points spread over the cell by area (a stratified
@@ -522,7 +524,6 @@ pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
                 return 1.0;
             }
             let mut rng = prm::sampling::stream(seed, 8, j as u64);
-            let side = (STAY_RAYS as f32).sqrt() as u32;
             let mut stays = 0u32;
             for k in 0..STAY_RAYS {
                 let mut pick = rng.random::<f32>() * total;
@@ -539,8 +540,8 @@ pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
                 let p = a + (b - a) * u + (c - a) * v;
                 let normal = (b - a).cross(c - a).normalize();
                 let (u1, u2) = (
-                    ((k % side) as f32 + rng.random::<f32>()) / side as f32,
-                    ((k / side) as f32 + rng.random::<f32>()) / side as f32,
+                    ((k % STAY_SIDE) as f32 + rng.random::<f32>()) / STAY_SIDE as f32,
+                    ((k / STAY_SIDE) as f32 + rng.random::<f32>()) / STAY_SIDE as f32,
                 );
                 let dir = prm::sampling::cosine_direction(normal, u1.min(0.999_999), u2.min(0.999_999));
                 if bvh.trace_from_surface(p, normal, dir).is_some() {

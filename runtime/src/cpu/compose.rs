@@ -60,12 +60,13 @@ pub fn cluster_weights_with(
                 return Vec3::ZERO;
             }
             let (mut sum, mut near_sum, mut near_total) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
-            let (mut stay_sum, mut stay_t) = (Vec3::ZERO, 0.0f32);
+            let (mut stay_sum, mut stay_t, mut t_sum) = (Vec3::ZERO, 0.0f32, 0.0f32);
             for &m in &c.members {
                 let (e, m) = (entry_irradiance[m as usize], m as usize);
                 sum += e;
                 stay_sum += e * tables.stay[m];
                 stay_t += tables.area_ratio[m] * tables.stay[m];
+                t_sum += tables.area_ratio[m];
                 near_sum += if link_light.hot[m] {
                     link_light.energy[m] + e * tables.far_energy[m]
                 } else {
@@ -76,7 +77,6 @@ pub fn cluster_weights_with(
                 }
                 near_total += tables.energy[m] * tables.area_ratio[m];
             }
-            let t_sum: f32 = c.members.iter().map(|&m| tables.area_ratio[m as usize]).sum();
             let w = if stay_t > 0.0 {
                 stay_sum / stay_t
             } else if t_sum > 0.0 {
