@@ -1,9 +1,9 @@
 // Far field (runtime/src/far.rs; prm_precompute::far; twin: prm_runtime::cpu::far_sources and
 // far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sums of
-// |phi| luminances and of the light the surfaces reflect (luminance(flux_j) x deviation_j.w,
-// the near pass's luminance(E_j)), the count over the stable threshold, the threshold
-// (far_threshold), and the entries over it, ascending, into source_index / source_flux (their
-// number at source_index[FAR_SOURCES]).
+// |phi| luminances and of the light the surfaces reflect onto the level (luminance(flux_j) x
+// deviation_j.w x stay_j, deviation_j.w the near pass's luminance(E_j)), the count over the
+// stable threshold, the threshold (far_threshold), and the entries over it, ascending, into
+// source_index / source_flux (their number at source_index[FAR_SOURCES]).
 // sees_main, one invocation per (source, block of 32 entries): which entries of the block see
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
@@ -32,7 +32,7 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     var r = 0.0;
     for (var j = lid; j < n; j += WG_FAR_SOURCES) {
         s += luminance(abs(flux_of(j)));
-        r += luminance(far_entries[j].flux) * deviation[j].w;
+        r += luminance(far_entries[j].flux) * deviation[j].w * far_entries[j].stay;
     }
     partial[lid] = s;
     reflected[lid] = r;

@@ -4,7 +4,7 @@
 //!
 //! 1. `sources_main`, one workgroup: each entry's deviation flux `albedo_j (A/N) deviation_j`
 //!    (the near pass's `deviation`, `E_j - (w_c + lin_j) t_j`), the sums of their luminances and
-//!    of the light the surfaces reflect, the threshold (`crate::cpu::far_threshold`), and the
+//!    of the light the surfaces reflect onto the level (by stay share), the threshold (`crate::cpu::far_threshold`), and the
 //!    entries over it, ascending, listed by a prefix sum over the workgroup (the same list every
 //!    time; the CPU twin's up to the rounding of the sums, which it adds in another order, at
 //!    the threshold).
@@ -91,6 +91,7 @@ impl FarPass {
                 normal: e.normal.to_array(),
                 centroid: tables.centroid[j].to_array(),
                 flux: (e.albedo * e.area).to_array(),
+                stay: tables.stay[j],
                 ..Default::default()
             })
             .collect();

@@ -261,15 +261,16 @@ gpu_struct! {
 
 gpu_struct! {
     /// An entry as the far field sees it (`shaders/far.wgsl`): its cell's centroid and size
-    /// (the square root of its area), its normal, and albedo x A/N (what turns its deviation
-    /// into flux).
+    /// (the square root of its area), its normal, albedo x A/N (what turns its deviation into
+    /// flux) and its stay share (how much of its light counts in the threshold's reflected
+    /// light: `crate::cpu::far_threshold`).
     pub struct FarEntry {
         pub centroid: [f32; 3],
         pub size: f32,
         pub normal: [f32; 3],
         pub _pad0: u32,
         pub flux: [f32; 3],
-        pub _pad1: u32,
+        pub stay: f32,
     }
 }
 
