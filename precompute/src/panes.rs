@@ -451,6 +451,7 @@ fn transpose<T: Copy + Default>(
 
 /// The entries of `tp` (ascending by pane) for the panes in `panes`.
 fn span(tp: &[(u32, Vec3)], panes: Range<usize>) -> Range<usize> {
+    debug_assert!(tp.windows(2).all(|w| w[0].0 < w[1].0), "a texel's pane list must ascend");
     tp.partition_point(|&(c, _)| (c as usize) < panes.start)
         ..tp.partition_point(|&(c, _)| (c as usize) < panes.end)
 }

@@ -998,7 +998,12 @@ pub(crate) fn walk_and_encode(
     }
     Ok(out)
 }
-/// Each texel's contributions summed by group.
+/// Each texel's contributions summed by group, its list ascending by group as every pane list
+/// is: the encoder transposes a band a run of panes at a time and finds a run's part of each
+/// list by bisection (`panes::span`). The groups were listed in the order first met, so a
+/// level with enough groups for the band to be split into runs (the chamber with a cluster per
+/// entry: 256 groups) took the wrong part of a list, and the precompute stopped on an index out
+/// of bounds (or, had the indices fallen in range, left a group's light out).
 fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
     panes
         .par_iter()
@@ -1011,9 +1016,47 @@ fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
                     None => out.push((g, v)),
                 }
             }
+            out.sort_unstable_by_key(|&(g, _)| g);
             out
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// Groups met in descending order (cluster c in group 9 - c % 10) come out ascending, each
+    /// the sum of its clusters' contributions.
+    #[test]
+    fn a_texel_s_group_list_ascends() {
+        let grouping = Clustering {
+            assignment: (0..40u32).map(|c| 9 - c % 10).collect(),
+            members: (0..10u32).map(|g| (0..40).filter(|c| 9 - c % 10 == g).collect()).collect(),
+        };
+        let panes: Vec<TexelPanes> = (0..5u32)
+            .map(|t| {
+                (0..40u32)
+                    .filter(|c| (c + t) % 3 != 0)
+                    .map(|c| (c, Vec3::splat((c * 7 + t) as f32)))
+                    .collect()
+            })
+            .collect();
+        for (tp, grouped) in panes.iter().zip(by_group(&panes, &grouping)) {
+            assert!(
+                grouped.windows(2).all(|w| w[0].0 < w[1].0),
+                "{:?}",
+                grouped.iter().map(|g| g.0).collect::<Vec<_>>()
+            );
+            for &(g, v) in &grouped {
+                let sum = tp.iter().filter(|(c, _)| 9 - c % 10 == g).fold(Vec3::ZERO, |a, (_, x)| a + *x);
+                assert_eq!(v, sum, "group {g}");
+            }
+            let named = tp.iter().map(|(c, _)| 9 - c % 10).collect::<std::collections::BTreeSet<_>>();
+            assert_eq!(grouped.len(), named.len());
+        }
+    }
 }
 
 /// The file header: what the map was baked for, its counts, and the parameters and counters
