@@ -1022,6 +1022,42 @@ fn by_group(panes: &[TexelPanes], grouping: &Clustering) -> Vec<TexelPanes> {
         .collect()
 }
 
+/// The file header: what the map was baked for, its counts, and the parameters and counters
+/// the inputs fix (timings would break byte-for-byte determinism, so none go in).
+fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Tiled) -> Header {
+    Header {
+        fingerprint: pre.fingerprint.clone(),
+        atlas_width: params.atlas.width(),
+        atlas_height: params.atlas.height(),
+        pages: params.atlas.pages,
+        page_texel_size: pre.page_texel_size,
+        tile_size: params.tile_size,
+        entries: pre.entries.len() as u32,
+        clusters: tiled.clusters.len() as u32,
+        groups: tiled.groups.len() as u32,
+        tiles: tiled.tiles.len() as u32,
+        tiles_dropped: tiled.tiles_dropped,
+        dropped_energy: tiled.dropped_energy,
+        drop_threshold: params.drop_threshold,
+        provenance: serde_json::json!({
+            "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
+            "clusters": params.clusters, "atlas": params.atlas.side, "pages": params.atlas.pages,
+            "seed": params.seed,
+            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
+            "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
+            "near_links": report.near_links, "echo_radius": params.echo_radius,
+            "echo_links": report.echo_links, "dipole_block": params.dipole_block,
+            "far_field": params.far_field, "next_bounce": params.next_bounce, "far_texels": report.far_texels, "far_pairs": report.far_pairs,
+            "dipole_tiles": report.dipole_tiles,
+            "groups": params.groups,
+            "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
+            "texels": report.texels,
+            "entries_enclosed": report.entries_enclosed,
+            "cell_triangles": report.cell_triangles, "area_without_entry": report.area_without_entry,
+        }),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1056,41 +1092,5 @@ mod tests {
             let named = tp.iter().map(|(c, _)| 9 - c % 10).collect::<std::collections::BTreeSet<_>>();
             assert_eq!(grouped.len(), named.len());
         }
-    }
-}
-
-/// The file header: what the map was baked for, its counts, and the parameters and counters
-/// the inputs fix (timings would break byte-for-byte determinism, so none go in).
-fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Tiled) -> Header {
-    Header {
-        fingerprint: pre.fingerprint.clone(),
-        atlas_width: params.atlas.width(),
-        atlas_height: params.atlas.height(),
-        pages: params.atlas.pages,
-        page_texel_size: pre.page_texel_size,
-        tile_size: params.tile_size,
-        entries: pre.entries.len() as u32,
-        clusters: tiled.clusters.len() as u32,
-        groups: tiled.groups.len() as u32,
-        tiles: tiled.tiles.len() as u32,
-        tiles_dropped: tiled.tiles_dropped,
-        dropped_energy: tiled.dropped_energy,
-        drop_threshold: params.drop_threshold,
-        provenance: serde_json::json!({
-            "estimator": report.estimator, "entries": params.entries, "paths": params.paths,
-            "clusters": params.clusters, "atlas": params.atlas.side, "pages": params.atlas.pages,
-            "seed": params.seed,
-            "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
-            "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
-            "near_links": report.near_links, "echo_radius": params.echo_radius,
-            "echo_links": report.echo_links, "dipole_block": params.dipole_block,
-            "far_field": params.far_field, "next_bounce": params.next_bounce, "far_texels": report.far_texels, "far_pairs": report.far_pairs,
-            "dipole_tiles": report.dipole_tiles,
-            "groups": params.groups,
-            "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
-            "texels": report.texels,
-            "entries_enclosed": report.entries_enclosed,
-            "cell_triangles": report.cell_triangles, "area_without_entry": report.area_without_entry,
-        }),
     }
 }
