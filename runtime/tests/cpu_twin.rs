@@ -2,7 +2,7 @@
 //! does no compose work.
 
 mod common;
-use common::{box_quads, closed_box, open_box, v};
+use common::{closed_box, open_box};
 use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
@@ -316,54 +316,4 @@ fn the_far_threshold_lists_at_most_far_sources_and_is_the_stable_one_where_it_ca
         }
     }
     assert!((10..190).contains(&fallbacks), "{fallbacks} of 200 rounds fell back: one branch barely tried");
-}
-
-/// The far field's sources for `lights`, the twin's way (`cpu::far_sources` after the balance).
-fn far_sources_for(prm: &prm::prm_file::Prm, bvh: &Bvh, lights: &[prm::Light]) -> Vec<(u32, Vec3)> {
-    let tables = cpu::NearTables::new(prm);
-    let cells = cpu::cell_lights(prm, bvh, lights);
-    let e = cpu::entry_irradiance_from(prm, &cells);
-    let link = cpu::LinkLight::new(prm, &tables, &e, &cells, lights);
-    let lin = cpu::dipole_offsets(prm, &tables, &cpu::dipole_moments(prm, &tables, &e));
-    let balanced = cpu::cluster_weights_with(prm, &tables, &link, &e, &lin);
-    cpu::far_sources(prm, &tables, &e, &balanced, &lin)
-}
-
-/// Light the level's surfaces send out of it sets no bar for the far field. A closed room lit
-/// by its lamp, and below it a plate facing down, away from everything (its stay share 0), lit
-/// by a lamp a thousand times stronger: the room's far-field sources are the same, entry for
-/// entry and flux for flux, with the plate's lamp on or off. The threshold was the light every
-/// surface reflects over `FAR_SOURCE_SCALE`, so the plate's light raised it and the room lost
-/// its sources (measured: 1 of its 143 were left); 16 sunlit rooms, whose reflected light was mostly their
-/// sunlit façades', sent 117 sources at noon where they now send 348.
-#[test]
-fn light_that_leaves_the_level_does_not_raise_the_far_fields_threshold() {
-    let mut qs = box_quads(Vec3::ZERO, Vec3::ONE).to_vec();
-    qs.push([v(-0.5, -0.5, -0.5), v(1.5, -0.5, -0.5), v(1.5, -0.5, 1.5), v(-0.5, -0.5, 1.5)]);
-    let mut scene = common::quads_in_grid(&qs, 3);
-    scene.lights.push(common::point(v(0.6, 0.8, 0.6), 2.0));
-    let bvh = Bvh::build(&scene);
-    let prm = bake_at(&scene, 64);
-    let plate = |j: u32| prm.entries()[j as usize].position.y < -0.25;
-    let plate_stays: Vec<f32> =
-        (0..prm.entries().len()).filter(|&j| plate(j as u32)).map(|j| prm.stay(j)).collect();
-    assert!(
-        !plate_stays.is_empty() && plate_stays.iter().all(|&s| s == 0.0),
-        "the plate's stays {plate_stays:?}"
-    );
-    let inside = |s: Vec<(u32, Vec3)>| s.into_iter().filter(|(j, _)| !plate(*j)).collect::<Vec<_>>();
-    let alone = inside(far_sources_for(&prm, &bvh, &scene.lights));
-    assert!(alone.len() >= 8, "{} sources in the room", alone.len());
-    let mut lights = scene.lights.clone();
-    lights.push(common::point(v(0.5, -1.5, 0.5), 2000.0));
-    let both = far_sources_for(&prm, &bvh, &lights);
-    assert!(both.iter().any(|(j, _)| plate(*j)), "the plate's lamp made no source on the plate");
-    let with_plate = inside(both);
-    assert!(
-        with_plate == alone,
-        "the room's sources with the plate's lamp on: {} of {}, the same {}",
-        with_plate.len(),
-        alone.len(),
-        with_plate.iter().filter(|s| alone.contains(s)).count()
-    );
 }

@@ -1483,6 +1483,45 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
     (sources, light)
 }
 
+/// Light the level's surfaces send out of it sets no bar for the far field. A closed room lit
+/// by its lamp, and below it a plate facing down, away from everything (its stay share 0), lit
+/// by a lamp a thousand times stronger: the room's far-field sources are the same, entry for
+/// entry and flux for flux, with the plate's lamp on or off. The threshold was the light every
+/// surface reflects over `FAR_SOURCE_SCALE`, so the plate's light raised it and the room lost
+/// its sources (measured: none of its 102 was left); 16 sunlit rooms, whose reflected light was mostly their
+/// sunlit façades', sent 117 sources at noon where they now send 348.
+#[test]
+fn light_that_leaves_the_level_does_not_raise_the_far_fields_threshold() {
+    let mut qs = common::box_quads(Vec3::ZERO, Vec3::ONE).to_vec();
+    qs.push([v(-0.5, -0.5, -0.5), v(1.5, -0.5, -0.5), v(1.5, -0.5, 1.5), v(-0.5, -0.5, 1.5)]);
+    let mut scene = quads_in_grid(&qs, 3);
+    scene.lights.push(point(v(0.6, 0.8, 0.6), 2.0));
+    let bvh = Bvh::build(&scene);
+    let prm = bake(&scene, 256, 24, 64);
+    let plate = |j: u32| prm.entries()[j as usize].position.y < -0.25;
+    let plate_stays: Vec<f32> =
+        (0..prm.entries().len()).filter(|&j| plate(j as u32)).map(|j| prm.stay(j)).collect();
+    assert!(
+        !plate_stays.is_empty() && plate_stays.iter().all(|&s| s == 0.0),
+        "the plate's stays {plate_stays:?}"
+    );
+    let inside = |s: Vec<(u32, Vec3)>| s.into_iter().filter(|(j, _)| !plate(*j)).collect::<Vec<_>>();
+    let alone = inside(twin_far_field(&prm, &bvh, &scene.lights).0);
+    assert!(alone.len() >= 8, "{} sources in the room", alone.len());
+    let mut lights = scene.lights.clone();
+    lights.push(point(v(0.5, -1.5, 0.5), 2000.0));
+    let (both, _) = twin_far_field(&prm, &bvh, &lights);
+    assert!(both.iter().any(|(j, _)| plate(*j)), "the plate's lamp made no source on the plate");
+    let with_plate = inside(both);
+    assert!(
+        with_plate == alone,
+        "the room's sources with the plate's lamp on: {} of {}, the same {}",
+        with_plate.len(),
+        alone.len(),
+        with_plate.iter().filter(|s| alone.contains(s)).count()
+    );
+}
+
 /// A light in one sealed room of two moves from mid-room to 2 cm above its floor, then into a
 /// corner: its deviation grows many times over. The far field's threshold is taken from the
 /// light the surfaces reflect, which the move hardly changes, so the still room's sources stay
