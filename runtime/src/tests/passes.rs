@@ -1488,8 +1488,8 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
 /// by a lamp a thousand times stronger: the room's far-field sources are the same, entry for
 /// entry and flux for flux, with the plate's lamp on or off. The threshold was the light every
 /// surface reflects over `FAR_SOURCE_SCALE`, so the plate's light raised it and the room lost
-/// its sources (measured: none of its 102 was left); 16 sunlit rooms, whose reflected light was mostly their
-/// sunlit façades', sent 117 sources at noon where they now send 348.
+/// its sources (measured: none of its 102 was left); 16 sunlit rooms, whose reflected light
+/// was mostly their sunlit façades', sent 117 sources at noon where they now send 348.
 #[test]
 fn light_that_leaves_the_level_does_not_raise_the_far_fields_threshold() {
     let mut qs = common::box_quads(Vec3::ZERO, Vec3::ONE).to_vec();
