@@ -228,18 +228,14 @@ pub fn echo_links(
     if points.is_empty() || !(radius > 0.0) {
         return Echo::default();
     }
-    let reach = radius * first.area.sqrt();
     let texels: Vec<&prm::Texel> =
         points.iter().map(|p| &set.texels[set.index[p.texel as usize] as usize]).collect();
     let albedo: Vec<Vec3> =
         texels.iter().map(|t| round_albedo(scene.albedo(t.triangle as usize, t.bary))).collect();
     let squares: Vec<Option<[Vec3; 4]>> = texels.iter().map(|t| texel_square(scene, set, t)).collect();
-    // A grid of `reach`-sized cells: each receiver looks at its own and the 26 around it.
+    let positions: Vec<Vec3> = texels.iter().map(|t| t.position).collect();
+    let (reach, grid) = echo_grid(&positions, radius * first.area.sqrt());
     let key = |p: Vec3| (p / reach).floor().as_ivec3();
-    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
-    for (k, t) in texels.iter().enumerate() {
-        grid.entry(key(t.position)).or_default().push(k as u32);
-    }
     let per_receiver: Vec<Vec<EchoLink>> = texels
         .par_iter()
         .enumerate()
@@ -278,6 +274,55 @@ pub fn echo_links(
         .collect();
     Echo { albedo, links: per_receiver.into_iter().flatten().collect() }
 }
+
+/// Most points a receiver of the echo looks at, on average ([`echo_grid`]).
+pub const ECHO_CANDIDATES: usize = 2048;
+
+/// The echo's reach and its grid of `reach`-sized cells over `points` (each receiver looks at
+/// its own cell and the 26 around it). The reach is `wanted` (the echo radius in entry
+/// spacings) unless a receiver would then look at more than [`ECHO_CANDIDATES`] points on
+/// average: a map of very few entries has a spacing as large as the level, and every point
+/// would echo every other (the Cornell box with 2 entries: 32 M links, 321 MB and 112 s). Then
+/// the reach shrinks by the square root of the excess (the points lie on surfaces) until it
+/// holds. The bundled levels look at 20-200 points and keep the reach they had.
+fn echo_grid(points: &[Vec3], wanted: f32) -> (f32, std::collections::HashMap<glam::IVec3, Vec<u32>>) {
+    let mut reach = wanted;
+    // Each pass shrinks the reach by at least the square root of the excess; points piled on
+    // one spot cannot be spread by any reach, and the last pass's grid is kept.
+    for _ in 0..ECHO_SHRINKS {
+        let key = |p: Vec3| (p / reach).floor().as_ivec3();
+        let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
+        for (k, &p) in points.iter().enumerate() {
+            grid.entry(key(p)).or_default().push(k as u32);
+        }
+        let looked: usize = grid
+            .keys()
+            .map(|c| {
+                let around: usize = (-1..=1)
+                    .flat_map(|z| {
+                        (-1..=1).flat_map(move |y| (-1..=1).map(move |x| glam::IVec3::new(x, y, z)))
+                    })
+                    .map(|d| grid.get(&(*c + d)).map_or(0, Vec::len))
+                    .sum();
+                around * grid[c].len()
+            })
+            .sum();
+        let mean = looked as f32 / points.len().max(1) as f32;
+        if mean <= ECHO_CANDIDATES as f32 || !(reach > 0.0) {
+            return (reach, grid);
+        }
+        reach *= (ECHO_CANDIDATES as f32 / mean).sqrt();
+    }
+    let key = |p: Vec3| (p / reach).floor().as_ivec3();
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
+    for (k, &p) in points.iter().enumerate() {
+        grid.entry(key(p)).or_default().push(k as u32);
+    }
+    (reach, grid)
+}
+
+/// Passes [`echo_grid`] may shrink the reach in.
+const ECHO_SHRINKS: usize = 16;
 
 /// What an update's echo takes from the old bake ([`echo_links`]): its echo and near points,
 /// and per covered texel (set order) whether it is settled (`crate::update::Untouched::texel`:
@@ -404,6 +449,34 @@ mod tests {
             assert!((got - above).abs() < 1e-6, "{got} against {above} at scale {scale}");
         }
         assert_eq!(seen_form_factor(&floor, x, n, &upright, Vec3::Z, 1.0), 0.0, "facing away");
+    }
+
+    /// The echo's reach is the one asked for where a receiver looks at few points, and shrinks
+    /// until it looks at no more than [`ECHO_CANDIDATES`] on average where it would look at
+    /// all of them (a reach as large as the level: a map of two entries). The 27 cells around
+    /// a receiver hold every point within one reach of it (in each axis) and none past two.
+    #[test]
+    fn the_echo_reach_shrinks_only_where_it_would_look_at_too_many_points() {
+        let points: Vec<Vec3> =
+            (0..10_000).map(|k| Vec3::new((k % 100) as f32 * 0.01, 0.0, (k / 100) as f32 * 0.01)).collect();
+        // The mean number of points within `h` of a point in each axis.
+        let within = |h: f32| {
+            let n: usize = points
+                .iter()
+                .map(|p| points.iter().filter(|q| (**q - *p).abs().max_element() < h).count())
+                .sum();
+            n as f32 / points.len() as f32
+        };
+        let (kept, grid) = echo_grid(&points, 0.03);
+        assert_eq!(kept, 0.03);
+        assert_eq!(grid.values().map(Vec::len).sum::<usize>(), points.len());
+        let (cut, grid) = echo_grid(&points, 10.0);
+        assert_eq!(grid.values().map(Vec::len).sum::<usize>(), points.len());
+        let (near, far) = (within(cut), within(2.0 * cut));
+        assert!(near <= ECHO_CANDIDATES as f32, "reach {cut}: {near} points within it");
+        assert!(far >= ECHO_CANDIDATES as f32 / 2.0, "reach {cut} cut too far: {far} points within twice it");
+        let (piled, _) = echo_grid(&vec![Vec3::ONE; 5000], 1.0);
+        assert!(piled.is_finite() && piled > 0.0, "points on one spot: reach {piled}");
     }
 
     #[test]
