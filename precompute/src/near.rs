@@ -284,39 +284,37 @@ pub const ECHO_CANDIDATES: usize = 2048;
 /// average: a map of very few entries has a spacing as large as the level, and every point
 /// would echo every other (the Cornell box with 2 entries: 32 M links, 321 MB and 112 s). Then
 /// the reach shrinks by the square root of the excess (the points lie on surfaces) until it
-/// holds. The bundled levels look at 20-200 points and keep the reach they had.
+/// holds. The bundled levels and the 16 sunrooms keep the reach they had (the same bytes).
 fn echo_grid(points: &[Vec3], wanted: f32) -> (f32, std::collections::HashMap<glam::IVec3, Vec<u32>>) {
-    let mut reach = wanted;
-    // Each pass shrinks the reach by at least the square root of the excess; points piled on
-    // one spot cannot be spread by any reach, and the last pass's grid is kept.
-    for _ in 0..ECHO_SHRINKS {
-        let key = |p: Vec3| (p / reach).floor().as_ivec3();
+    let grid_of = |reach: f32| {
         let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
         for (k, &p) in points.iter().enumerate() {
-            grid.entry(key(p)).or_default().push(k as u32);
+            grid.entry((p / reach).floor().as_ivec3()).or_default().push(k as u32);
         }
+        grid
+    };
+    let (mut reach, mut grid) = (wanted, grid_of(wanted));
+    // Each pass shrinks the reach by the square root of the excess; points piled on one spot
+    // cannot be spread by any reach, and the last pass's grid is kept.
+    for _ in 0..ECHO_SHRINKS {
         let looked: usize = grid
-            .keys()
-            .map(|c| {
+            .iter()
+            .map(|(c, here)| {
                 let around: usize = (-1..=1)
                     .flat_map(|z| {
                         (-1..=1).flat_map(move |y| (-1..=1).map(move |x| glam::IVec3::new(x, y, z)))
                     })
                     .map(|d| grid.get(&(*c + d)).map_or(0, Vec::len))
                     .sum();
-                around * grid[c].len()
+                around * here.len()
             })
             .sum();
         let mean = looked as f32 / points.len().max(1) as f32;
         if mean <= ECHO_CANDIDATES as f32 || !(reach > 0.0) {
-            return (reach, grid);
+            break;
         }
         reach *= (ECHO_CANDIDATES as f32 / mean).sqrt();
-    }
-    let key = |p: Vec3| (p / reach).floor().as_ivec3();
-    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
-    for (k, &p) in points.iter().enumerate() {
-        grid.entry(key(p)).or_default().push(k as u32);
+        grid = grid_of(reach);
     }
     (reach, grid)
 }
