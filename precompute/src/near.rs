@@ -276,7 +276,7 @@ pub fn echo_links(
 }
 
 /// Most points a receiver of the echo looks at, on average ([`echo_grid`]).
-pub const ECHO_CANDIDATES: usize = 2048;
+const ECHO_CANDIDATES: usize = 2048;
 
 /// The echo's reach and its grid of `reach`-sized cells over `points` (each receiver looks at
 /// its own cell and the 26 around it). The reach is `wanted` (the echo radius in entry
