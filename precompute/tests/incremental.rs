@@ -31,6 +31,11 @@ fn facing(q: [Vec3; 4], out: Vec3) -> [Vec3; 4] {
 /// A closed unit room (node 0; the +x wall has its own material 1) with a block on the floor
 /// (node 1) and a point light.
 fn room() -> Scene {
+    room_with(&[])
+}
+
+/// [`room`] with more quads in the block's node.
+fn room_with(more: &[[Vec3; 4]]) -> Scene {
     let (lo, hi) = (v(0.3, 0.0, 0.35), v(0.55, 0.3, 0.6));
     let c = 0.5 * (lo + hi);
     let mut qs = unit_box_faces();
@@ -47,6 +52,7 @@ fn room() -> Scene {
         assert!(n.dot(mid - c) > 0.0, "block faces point out");
     }
     qs.extend(block);
+    qs.extend_from_slice(more);
     let mut s = quads(&qs, 0.6);
     for (t, tri) in s.triangles.iter_mut().enumerate() {
         if t >= 12 {
@@ -173,6 +179,19 @@ fn the_lightmap_is_its_baked_entries_evaluated_afresh_at_every_step() {
     // Consolidation comes last, after every update that carries invalid light.
     let first = kinds.iter().position(|x| *x == UpdateKind::Consolidate).unwrap();
     assert!(kinds[first..].iter().all(|x| *x == UpdateKind::Consolidate));
+}
+
+/// A moved object of two pieces apart, like the chamber's carpet (a runner along the floor
+/// and a dais at its end): the refreshes test shadow rays against each piece's box, not the
+/// one box around both (`parts_of` in the baker), and stay exact.
+#[test]
+fn a_moved_object_in_pieces_apart_is_refreshed_exactly() {
+    // A runner 2 cm above the floor along the -z wall, part of the block's node.
+    let runner =
+        facing([v(0.1, 0.02, 0.08), v(0.9, 0.02, 0.08), v(0.9, 0.02, 0.18), v(0.1, 0.02, 0.18)], Vec3::Y);
+    let scene = room_with(&[runner]);
+    let steps = afresh_at_every_step(&scene);
+    assert!(steps.iter().filter(|r| r.kind == UpdateKind::Refresh).count() > 3, "refreshes were made");
 }
 
 /// The direct light's refreshes re-cast only the shadow rays that cross what moved

@@ -1061,17 +1061,24 @@ impl Baker {
                     Source::Direct(l) if !l.is_positional() => Some(-l.direction),
                     _ => None,
                 };
-                let boxes = &movers.boxes;
-                let shadowed = |p: Vec3| -> bool {
+                let crosses = |bx: &Aabb, p: Vec3, grow: f32| -> bool {
                     match directional {
-                        Some(d) => boxes.iter().any(|bx| bx.meets_segment(p, d, f32::INFINITY)),
-                        None => boxes.iter().any(|bx| bx.meets_cone(p, c, r, 0.0)),
+                        Some(d) => bx.grown(grow).meets_segment(p, d, f32::INFINITY),
+                        None => bx.meets_cone(p, c, r, grow),
                     }
                 };
-                let picked: Vec<usize> = (0..texels.texels.len())
-                    .into_par_iter()
-                    .filter(|&i| movers.on_moved[i] || shadowed(v.frames[i].0))
-                    .collect();
+                // A segment from within `grow` of p to the ball is within `grow` of one from
+                // p at every point (the same argument as a refresh's per-light test): a part
+                // no segment from a group's ball crosses is crossed by none of its texels'.
+                let picked = movers.groups.pick(
+                    |g, grow| movers.parts_meeting(|bx| crosses(bx, g, grow)),
+                    &movers.on_moved,
+                    |i, parts| {
+                        let p = v.frames[i].0;
+                        movers.boxes.iter().any(|bx| crosses(bx, p, 0.0))
+                            && parts.iter().any(|bx| crosses(bx, p, 0.0))
+                    },
+                );
                 let was = Baked {
                     version: old,
                     source: b.source.clone(),
@@ -1084,12 +1091,13 @@ impl Baker {
                 };
                 b.version = v.clone();
                 let b = &*b;
+                let balls = Balls::of(&b.source);
                 let deltas: Vec<(DVec3, DVec3)> = picked
                     .par_iter()
                     .map(|&i| {
                         if !movers.on_moved[i] {
                             // The texel stayed: only the shadow rays that cross what moved differ.
-                            return shadow_change(&was, b, k, i, s, seed, &movers);
+                            return shadow_change(&was, b, k, i, s, seed, &movers, &balls);
                         }
                         let (od, oi) = evaluate(&was, k, i, s, seed);
                         let (nd, ni) = evaluate(b, k, i, s, seed);
@@ -1114,6 +1122,7 @@ impl Baker {
         let texels = self.level.texels();
         // Shadow rays leave a texel a little off its surface: a margin covers it.
         let margin = 1e-3 * (self.frame.root.hi - self.frame.root.lo).length();
+        let root = self.frame.root;
         self.movers
             .entry((was.id, now.id))
             .or_insert_with(|| {
@@ -1127,7 +1136,11 @@ impl Baker {
                     || Bvh::build_subset(&was.scene, &tris, extent),
                     || Bvh::build_subset(&now.scene, &tris, extent),
                 );
-                Arc::new(Movers { was: w, now: n, boxes, on_moved })
+                let groups = TexelGroups::new(&now.frames, &root);
+                let mut parts = parts_of(&was.scene, &tris);
+                parts.extend(parts_of(&now.scene, &tris));
+                let parts = parts.into_iter().map(|x| x.grown(margin)).collect();
+                Arc::new(Movers { was: w, now: n, boxes, parts, on_moved, groups })
             })
             .clone()
     }
@@ -1299,7 +1312,151 @@ struct Movers {
     was: Bvh,
     now: Bvh,
     boxes: Vec<Aabb>,
+    /// The moved triangles' boxes in both versions, a few triangles each (grown like `boxes`):
+    /// the carpet of the chamber is a runner along the floor and a dais at its end, whose
+    /// one box is a slab of the floor that most shadow rays near the floor cross.
+    parts: Vec<Aabb>,
     on_moved: Vec<bool>,
+    groups: TexelGroups,
+}
+
+impl Movers {
+    /// Whether `test` holds for a box where moved geometry was or is: tried on the whole
+    /// boxes first (most tests fail there), then on the parts, which hold the moved
+    /// triangles tighter. A test that holds for a box holds for any box holding it.
+    fn meets(&self, test: impl Fn(&Aabb) -> bool) -> bool {
+        self.boxes.iter().any(&test) && self.parts.iter().any(&test)
+    }
+
+    /// The parts `test` holds for (none when it holds for no whole box).
+    fn parts_meeting(&self, test: impl Fn(&Aabb) -> bool) -> Vec<&Aabb> {
+        if !self.boxes.iter().any(&test) {
+            return Vec::new();
+        }
+        self.parts.iter().filter(|bx| test(bx)).collect()
+    }
+}
+
+/// Splits of a moved object's box a refresh tests against: at most 2^this parts a version.
+const PART_DEPTH: u32 = 4;
+
+/// The boxes of `tris` in `scene`, split while splitting tightens them: a box is cut in two
+/// (its triangles in centroid order along an axis) where the halves' surfaces (what a random
+/// ray meets in proportion to) sum least, when that is under 4/5 of the whole's. A block stays one
+/// box (its halves are about as large as it); the chamber's carpet, a runner along the floor
+/// and a dais at its end, whose one box is a slab of the floor, splits into its pieces.
+fn parts_of(scene: &Scene, tris: &[u32]) -> Vec<Aabb> {
+    let mut items: Vec<(Vec3, Aabb)> = tris
+        .iter()
+        .map(|&t| {
+            let c = scene.corners(t as usize);
+            ((c[0] + c[1] + c[2]) / 3.0, Aabb::of(c))
+        })
+        .collect();
+    let mut out = Vec::new();
+    split_parts(&mut items, PART_DEPTH, &mut out);
+    out
+}
+
+fn split_parts(items: &mut [(Vec3, Aabb)], depth: u32, out: &mut Vec<Aabb>) {
+    let whole = |xs: &[(Vec3, Aabb)]| Aabb::of(xs.iter().flat_map(|(_, b)| [b.lo, b.hi]));
+    let area = |b: &Aabb| {
+        let e = (b.hi - b.lo).max(Vec3::ZERO);
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    };
+    let all = whole(items);
+    if items.is_empty() {
+        return;
+    }
+    if depth > 0 && items.len() > 1 {
+        // The split (along an axis, in centroid order) whose halves' surfaces sum least.
+        let mut best: Option<(f32, usize, usize)> = None;
+        for axis in 0..3 {
+            items.sort_by(|a, b| a.0[axis].total_cmp(&b.0[axis]));
+            let mut before = vec![0.0f32; items.len()];
+            let mut b = Aabb::of(std::iter::empty());
+            for (k, (_, x)) in items.iter().enumerate() {
+                b = Aabb { lo: b.lo.min(x.lo), hi: b.hi.max(x.hi) };
+                before[k] = area(&b);
+            }
+            let mut b = Aabb::of(std::iter::empty());
+            for k in (1..items.len()).rev() {
+                b = Aabb { lo: b.lo.min(items[k].1.lo), hi: b.hi.max(items[k].1.hi) };
+                let sum = before[k - 1] + area(&b);
+                if best.is_none_or(|(s, _, _)| sum < s) {
+                    best = Some((sum, axis, k));
+                }
+            }
+        }
+        if let Some((sum, axis, k)) = best.filter(|(sum, _, _)| *sum < 0.8 * area(&all)) {
+            let _ = sum;
+            items.sort_by(|a, b| a.0[axis].total_cmp(&b.0[axis]));
+            let (l, r) = items.split_at_mut(k);
+            split_parts(l, depth - 1, out);
+            split_parts(r, depth - 1, out);
+            return;
+        }
+    }
+    out.push(all);
+}
+
+/// Texels gathered in small groups of neighbours (in the Morton order of their positions in
+/// the newer version), each with a ball holding its texels' positions: a refresh tests a
+/// group's ball against the moved boxes before its texels (most groups lie nowhere near what
+/// an entry's light crosses to reach them).
+struct TexelGroups {
+    order: Vec<u32>,
+    /// Centre, radius and the group's range of `order`.
+    groups: Vec<(Vec3, f32, std::ops::Range<usize>)>,
+}
+
+/// Texels a group holds at most.
+const GROUP_TEXELS: usize = 64;
+
+impl TexelGroups {
+    fn new(frames: &[(Vec3, Vec3, f32)], root: &Aabb) -> TexelGroups {
+        let mut order: Vec<u32> = (0..frames.len() as u32).collect();
+        order.sort_by_key(|&i| (morton(root, frames[i as usize].0, MAX_DEPTH), i));
+        let groups = (0..order.len())
+            .step_by(GROUP_TEXELS)
+            .map(|start| {
+                let range = start..(start + GROUP_TEXELS).min(order.len());
+                let pts = || order[range.clone()].iter().map(|&i| frames[i as usize].0);
+                let (lo, hi) =
+                    pts().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p), hi.max(p)));
+                let c = 0.5 * (lo + hi);
+                (c, pts().map(|p| (p - c).length()).fold(0.0, f32::max), range)
+            })
+            .collect();
+        TexelGroups { order, groups }
+    }
+
+    /// The texels in `always` or for which `pick` holds, ascending. `near` gives, for a
+    /// group's ball (centre, radius), the boxes its texels may meet, and `pick` tests a
+    /// texel against those: `near` must list every box for which `pick` can hold at a point
+    /// of the ball. A group with none is passed over whole.
+    fn pick<'a>(
+        &self,
+        near: impl Fn(Vec3, f32) -> Vec<&'a Aabb> + Sync,
+        always: &[bool],
+        pick: impl Fn(usize, &[&'a Aabb]) -> bool + Sync,
+    ) -> Vec<usize> {
+        let (near, pick) = (&near, &pick);
+        let mut picked: Vec<usize> = self
+            .groups
+            .par_iter()
+            .flat_map_iter(|(c, r, range)| {
+                let parts = near(*c, *r);
+                self.order[range.clone()]
+                    .iter()
+                    .map(|&i| i as usize)
+                    .filter(|&i| always[i] || (!parts.is_empty() && pick(i, &parts)))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        picked.sort_unstable();
+        picked
+    }
 }
 
 /// Stream bases of a cell's virtual lights and of a correction's subtracted ones.
@@ -1323,12 +1480,21 @@ fn shadow_change(
     s: u32,
     seed: u64,
     movers: &Movers,
+    balls: &Balls,
 ) -> (DVec3, DVec3) {
     let (p, n, eps) = now.version.frames[i];
     let salt = salt(k, i);
-    let change = |ls: &[VirtualLight], base: u64| -> DVec3 {
+    let change = |ls: &[VirtualLight], balls: &[(Vec3, f32)], base: u64| -> DVec3 {
         let mut sum = DVec3::ZERO;
-        for (li, l) in ls.iter().enumerate() {
+        for ((li, l), &(c, r)) in ls.iter().enumerate().zip(balls) {
+            // A shadow ray ends at one of the light's samples, inside its ball: at any point
+            // along it, it is within r of the same point of the segment to the ball's centre.
+            // So when that segment misses every box grown by r, no draw can cross one, and
+            // the light's draws (its own stream, nothing shared) need not be made at all.
+            let (d, len) = ((c - p).normalize_or_zero(), (c - p).length());
+            if !movers.meets(|bx| bx.grown(r).meets_segment(p, d, len)) {
+                continue;
+            }
             // The draws do not depend on the irradiance (each light has its own stream), so
             // the costly form factor waits until a ray is known to differ.
             let mut rng = stream(seed, base + li as u64, salt);
@@ -1337,7 +1503,7 @@ fn shadow_change(
             visibility_draws(p, n, &l.samples, r2_min, s, &mut rng, |j| {
                 let (q, nq) = l.samples[j];
                 let (d, len) = ((q - p).normalize_or_zero(), (q - p).length());
-                if !movers.boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
+                if !movers.meets(|bx| bx.meets_segment(p, d, len)) {
                     return;
                 }
                 // Visibility is the product of the moved triangles' and the rest's (same
@@ -1362,7 +1528,7 @@ fn shadow_change(
         Source::Direct(l) => {
             let ray_change = |t: ShadowTarget| -> f32 {
                 let (d, len) = t.segment(p);
-                if !movers.boxes.iter().any(|bx| bx.meets_segment(p, d, len)) {
+                if !movers.meets(|bx| bx.meets_segment(p, d, len)) {
                     return 0.0;
                 }
                 let (blocked_was, blocked_now) =
@@ -1377,9 +1543,27 @@ fn shadow_change(
             };
             (prm::bvh::shadowed_irradiance(l, p, n, ray_change).as_dvec3(), DVec3::ZERO)
         }
-        Source::Lights(ls) => (DVec3::ZERO, change(ls, STREAM_PLUS)),
+        Source::Lights(ls) => (DVec3::ZERO, change(ls, &balls.plus, STREAM_PLUS)),
         Source::Delta { plus, minus } => {
-            (DVec3::ZERO, change(plus, STREAM_PLUS) - change(minus, STREAM_MINUS))
+            (DVec3::ZERO, change(plus, &balls.plus, STREAM_PLUS) - change(minus, &balls.minus, STREAM_MINUS))
+        }
+    }
+}
+
+/// Each virtual light's ball (centre, radius) holding its samples, for a refresh's tests; the
+/// lights added by a source and those it takes away.
+struct Balls {
+    plus: Vec<(Vec3, f32)>,
+    minus: Vec<(Vec3, f32)>,
+}
+
+impl Balls {
+    fn of(source: &Source) -> Balls {
+        let each = |ls: &[VirtualLight]| ls.iter().map(|l| bound(std::slice::from_ref(l))).collect();
+        match source {
+            Source::Direct(_) => Balls { plus: Vec::new(), minus: Vec::new() },
+            Source::Lights(ls) => Balls { plus: each(ls), minus: Vec::new() },
+            Source::Delta { plus, minus } => Balls { plus: each(plus), minus: each(minus) },
         }
     }
 }
@@ -1408,5 +1592,162 @@ fn evaluate(b: &Baked, k: CellKey, i: usize, s: u32, seed: u64) -> (DVec3, DVec3
         ),
         Source::Lights(ls) => (DVec3::ZERO, sum(ls, STREAM_PLUS)),
         Source::Delta { plus, minus } => (DVec3::ZERO, sum(plus, STREAM_PLUS) - sum(minus, STREAM_MINUS)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::Rng;
+
+    fn random_box(rng: &mut impl Rng) -> Aabb {
+        let lo = Vec3::new(rng.random(), rng.random(), rng.random());
+        let size = Vec3::new(rng.random(), rng.random(), rng.random()) * 0.3;
+        Aabb { lo, hi: lo + size }
+    }
+
+    /// The pieces of `Aabb::meets_cone` without its one-test shortcut: the twin it must agree
+    /// with.
+    fn meets_cone_in_pieces(bx: &Aabb, apex: Vec3, centre: Vec3, radius: f32) -> bool {
+        let axis = centre - apex;
+        let len = axis.length();
+        if !(len > radius) {
+            return bx.meets_cone(apex, centre, radius, 0.0);
+        }
+        let d = axis / len;
+        let slope = radius / (len * len - radius * radius).sqrt();
+        let mut t0 = 0.0f32;
+        for t1 in [len / 16.0, len / 8.0, len / 4.0, len / 2.0, len] {
+            if bx.grown(t1 * slope).meets_segment(apex + d * t0, d, t1 - t0) {
+                return true;
+            }
+            t0 = t1;
+        }
+        bx.grown(radius).meets_segment(centre, d, radius)
+    }
+
+    #[test]
+    fn a_cone_test_agrees_with_its_pieces_and_misses_no_segment() {
+        let mut rng = stream(7, 0, 0);
+        let mut hits = 0;
+        for _ in 0..4000 {
+            let bx = random_box(&mut rng);
+            let apex = Vec3::new(rng.random(), rng.random(), rng.random()) * 1.6 - Vec3::splat(0.3);
+            let centre = Vec3::new(rng.random(), rng.random(), rng.random()) * 1.6 - Vec3::splat(0.3);
+            let radius = 0.2 * rng.random::<f32>();
+            let fast = bx.meets_cone(apex, centre, radius, 0.0);
+            assert_eq!(
+                fast,
+                meets_cone_in_pieces(&bx, apex, centre, radius),
+                "{bx:?} {apex} {centre} {radius}"
+            );
+            hits += fast as u32;
+            // Segments to points of the ball: none may meet the box when the cone misses it.
+            for _ in 0..32 {
+                let q =
+                    centre + radius * (Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0) / 1.8;
+                let (d, l) = ((q - apex).normalize_or_zero(), (q - apex).length());
+                assert!(fast || !bx.meets_segment(apex, d, l), "{bx:?} {apex} {q}");
+            }
+        }
+        assert!((200..3800).contains(&hits), "both outcomes are tried: {hits} hits");
+    }
+
+    /// A group's test and its texels' are both conservative, not nested: a texel the plain
+    /// test takes only because it is conservative may be passed over. So the groups must pick
+    /// within what the plain test picks, and every texel a segment to the ball really leaves
+    /// for a box from (sampled).
+    #[test]
+    fn texel_groups_pick_every_texel_whose_segments_meet_a_box() {
+        let mut rng = stream(11, 0, 0);
+        let frames: Vec<(Vec3, Vec3, f32)> =
+            (0..3000).map(|_| (Vec3::new(rng.random(), rng.random(), rng.random()), Vec3::Y, 0.01)).collect();
+        let always: Vec<bool> = (0..frames.len()).map(|_| rng.random::<f32>() < 0.01).collect();
+        let root = Aabb { lo: Vec3::ZERO, hi: Vec3::ONE };
+        let groups = TexelGroups::new(&frames, &root);
+        assert!(groups.groups.len() >= frames.len() / GROUP_TEXELS);
+        let (mut sizes, mut kept) = (Vec::new(), 0usize);
+        for _ in 0..40 {
+            let boxes: Vec<Aabb> = (0..3).map(|_| random_box(&mut rng)).collect();
+            let centre = Vec3::new(rng.random(), rng.random(), rng.random());
+            let radius = 0.1 * rng.random::<f32>();
+            let plain: Vec<usize> = (0..frames.len())
+                .filter(|&i| {
+                    always[i] || boxes.iter().any(|b| b.meets_cone(frames[i].0, centre, radius, 0.0))
+                })
+                .collect();
+            let picked = groups.pick(
+                |g, grow| boxes.iter().filter(|b| b.meets_cone(g, centre, radius, grow)).collect(),
+                &always,
+                |i, parts| parts.iter().any(|b| b.meets_cone(frames[i].0, centre, radius, 0.0)),
+            );
+            assert!(picked.windows(2).all(|w| w[0] < w[1]), "ascending, once each");
+            assert!(picked.iter().all(|i| plain.binary_search(i).is_ok()), "within the plain test's");
+            for (i, (p, _, _)) in frames.iter().enumerate() {
+                let q =
+                    centre + radius * (Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0) / 1.8;
+                let (d, l) = ((q - *p).normalize_or_zero(), (q - *p).length());
+                if always[i] || boxes.iter().any(|b| b.meets_segment(*p, d, l)) {
+                    assert!(picked.binary_search(&i).is_ok(), "texel {i} at {p} meets a box towards {q}");
+                }
+            }
+            sizes.push(plain.len());
+            kept += picked.len();
+        }
+        let all: usize = sizes.iter().sum();
+        assert!(sizes.iter().any(|&n| n > 300) && sizes.iter().any(|&n| n < 100), "{sizes:?}");
+        assert!(kept as f64 >= 0.95 * all as f64, "the groups lose few of the plain picks: {kept} of {all}");
+    }
+
+    fn scene_of(tris: &[[Vec3; 3]]) -> Scene {
+        let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
+        let idx: Vec<u32> = (0..positions.len() as u32).collect();
+        let uv = vec![glam::Vec2::ZERO; positions.len()];
+        Scene::from_mesh(positions, uv, &idx)
+    }
+
+    fn quad(a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> [[Vec3; 3]; 2] {
+        [[a, b, c], [a, c, d]]
+    }
+
+    #[test]
+    fn a_moved_object_splits_into_boxes_only_where_its_pieces_lie_apart() {
+        let v = Vec3::new;
+        // A cube's faces: every split leaves halves about as large as the cube.
+        let (lo, hi) = (v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0));
+        let cube: Vec<[Vec3; 3]> = [
+            quad(v(lo.x, lo.y, lo.z), v(hi.x, lo.y, lo.z), v(hi.x, lo.y, hi.z), v(lo.x, lo.y, hi.z)),
+            quad(v(lo.x, hi.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)),
+            quad(v(lo.x, lo.y, lo.z), v(lo.x, hi.y, lo.z), v(lo.x, hi.y, hi.z), v(lo.x, lo.y, hi.z)),
+            quad(v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(hi.x, hi.y, hi.z), v(hi.x, lo.y, hi.z)),
+            quad(v(lo.x, lo.y, lo.z), v(hi.x, lo.y, lo.z), v(hi.x, hi.y, lo.z), v(lo.x, hi.y, lo.z)),
+            quad(v(lo.x, lo.y, hi.z), v(hi.x, lo.y, hi.z), v(hi.x, hi.y, hi.z), v(lo.x, hi.y, hi.z)),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        let s = scene_of(&cube);
+        let all: Vec<u32> = (0..s.triangles.len() as u32).collect();
+        assert_eq!(parts_of(&s, &all).len(), 1);
+        // The carpet: a runner 15 m along the floor and the cube, as a dais, at its end.
+        let mut carpet = cube.clone();
+        carpet.extend(quad(v(0.3, 0.0, -15.0), v(0.7, 0.0, -15.0), v(0.7, 0.0, -0.1), v(0.3, 0.0, -0.1)));
+        let s = scene_of(&carpet);
+        let all: Vec<u32> = (0..s.triangles.len() as u32).collect();
+        let parts = parts_of(&s, &all);
+        assert!(parts.len() >= 2, "{parts:?}");
+        let whole = Aabb::of(carpet.iter().flatten().copied());
+        let area = |b: &Aabb| {
+            let e = b.hi - b.lo;
+            e.x * e.y + e.y * e.z + e.z * e.x
+        };
+        assert!(parts.iter().map(area).sum::<f32>() < 0.5 * area(&whole), "{parts:?}");
+        // Every triangle lies in a part.
+        for t in &carpet {
+            assert!(
+                parts.iter().any(|p| t.iter().all(|c| c.cmpge(p.lo).all() && c.cmple(p.hi).all())),
+                "{t:?} outside {parts:?}"
+            );
+        }
     }
 }

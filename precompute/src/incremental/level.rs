@@ -83,6 +83,14 @@ impl Aabb {
         // at most t * radius / sqrt(len² - radius²) along the axis, and the ball's far half is
         // within `radius` of the centre.
         let slope = radius / (len * len - radius * radius).sqrt();
+        // Every piece's test below is within this one (its segment a part of the axis, its
+        // box grown by no more), and most cones miss: one test settles those.
+        let far_half = self.grown(radius + margin);
+        if !self.grown(len * slope + margin).meets_segment(apex, d, len)
+            && !far_half.meets_segment(centre, d, radius)
+        {
+            return false;
+        }
         let mut t0 = 0.0f32;
         for t1 in [len / 16.0, len / 8.0, len / 4.0, len / 2.0, len] {
             if self.grown(t1 * slope + margin).meets_segment(apex + d * t0, d, t1 - t0) {
@@ -90,7 +98,7 @@ impl Aabb {
             }
             t0 = t1;
         }
-        self.grown(radius + margin).meets_segment(centre, d, radius)
+        far_half.meets_segment(centre, d, radius)
     }
 }
 
