@@ -53,6 +53,10 @@ pub struct Args {
     /// Changed VPLs a correction holds at most (corrections are clustered coarser than cells).
     #[arg(long, default_value_t = 4096)]
     delta_leaf_vpls: usize,
+    /// A region whose changed VPLs carry more than this share of its power is baked again
+    /// whole; below it, the changes go in as corrections (consolidated last).
+    #[arg(long, default_value_t = BakerParams::default().rebuild_share)]
+    rebuild_share: f32,
     /// Leave out consolidation: after an edit, stop once no invalid light is left (the
     /// lightmap then holds corrections; a fresh bake's clusters differ, within noise).
     #[arg(long)]
@@ -68,6 +72,12 @@ pub struct Args {
     /// noise: compare two seeds' bakes to choose it).
     #[arg(long, default_value_t = 0.01)]
     tolerance: f64,
+    /// After each edit, also bake the edited level afresh twice (this seed and the next, with
+    /// the same energy per path and octree box) and report when the updates came within one
+    /// fresh bake's own noise of the first (the two bakes' distance over sqrt 2): converged
+    /// as a re-bake is, rather than to --tolerance of the updates' own end.
+    #[arg(long)]
+    fresh: bool,
     /// Print a JSON summary on stdout.
     #[arg(long)]
     json: bool,
@@ -102,6 +112,7 @@ pub fn run(a: Args) -> Result<()> {
         max_bounces: a.max_bounces,
         cells: a.cells,
         delta_leaf_vpls: a.delta_leaf_vpls,
+        rebuild_share: a.rebuild_share,
         consolidate: !a.no_consolidate,
         visibility_samples: a.visibility_samples,
         seed: a.seed,
@@ -112,7 +123,8 @@ pub fn run(a: Args) -> Result<()> {
     crate::common::warn_spheres_in_geometry(&scene, &bvh);
     let set = Arc::new(TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height()));
     let start = Instant::now();
-    let mut baker = Baker::new(scene, set.clone(), params).map_err(|e| anyhow!("bad parameter: {e}"))?;
+    let mut baker =
+        Baker::new(scene, set.clone(), params.clone()).map_err(|e| anyhow!("bad parameter: {e}"))?;
     let updates = baker.converge();
     let full = start.elapsed().as_secs_f64();
     let (cells, lights) = baker.counts();
@@ -142,16 +154,13 @@ pub fn run(a: Args) -> Result<()> {
         let (kinds, kind_texels) = (f.kinds, f.kind_texels);
         let last = summed(&baker);
         let mean = last.iter().map(|x| x.length() as f64).sum::<f64>() / last.len().max(1) as f64;
-        let dist = |x: &[Vec3]| {
-            (x.iter().zip(&last).map(|(a, b)| (*a - *b).length_squared() as f64).sum::<f64>()
-                / last.len().max(1) as f64)
-                .sqrt()
-                / mean.max(1e-30)
-        };
+        let dist = |x: &[Vec3]| relative_rms(x, &last, mean);
         let before = dist(&shots[0].1);
         let within = shots.iter().find(|(_, x)| dist(x) <= a.tolerance).map_or(converge_s, |(t, _)| *t);
         let worst = shots.iter().map(|(_, x)| dist(x)).fold(0.0, f64::max);
         let (valid_s, valid_d) = valid.as_ref().map_or((0.0, 0.0), |(t, x)| (*t, dist(x)));
+        shots.push((converge_s, last.clone()));
+        let fresh = if a.fresh { Some(fresh_noise(&baker, &set, &params, &shots, mean)?) } else { None };
         let row = serde_json::json!({
             "edit": label,
             "paths_changed": r.paths_changed,
@@ -171,6 +180,9 @@ pub fn run(a: Args) -> Result<()> {
             "updates_by_kind": {"rebuild": kinds[0], "delta": kinds[1], "refresh": kinds[2], "consolidate": kinds[3], "balance": kinds[4]},
             "seconds_by_kind": {"rebuild": f.kind_seconds[0], "delta": f.kind_seconds[1], "refresh": f.kind_seconds[2], "consolidate": f.kind_seconds[3], "balance": f.kind_seconds[4]},
             "texels_by_kind": {"rebuild": kind_texels[0], "delta": kind_texels[1], "refresh": kind_texels[2], "consolidate": kind_texels[3], "balance": kind_texels[4]},
+            "fresh_noise": fresh.map(|f| f.noise),
+            "seconds_within_fresh_noise": fresh.map(|f| f.seconds),
+            "seconds_fresh_bake": fresh.map(|f| f.bake_seconds),
         });
         if !a.json {
             println!(
@@ -192,6 +204,16 @@ pub fn run(a: Args) -> Result<()> {
                 kinds[1],
                 kinds[2],
                 kinds[3]
+            );
+        }
+        if let (Some(f), false) = (fresh, a.json) {
+            println!(
+                "  against a fresh bake of the edited level ({:.2} s): within its own noise ({:.1} %) after \
+                 {:.2} s = {:.0} % of that bake",
+                f.bake_seconds,
+                100.0 * f.noise,
+                f.seconds,
+                100.0 * f.seconds / f.bake_seconds.max(1e-9)
             );
         }
         rows.push(row);
@@ -413,6 +435,51 @@ fn summary(edits: &[Edit]) -> String {
     } else {
         parts.join(", ")
     }
+}
+
+/// How an edit's updates compare with a fresh bake of the edited level.
+#[derive(Clone, Copy)]
+struct Fresh {
+    /// One fresh bake's own noise: two seeds' distance over sqrt 2 (relative, as `dist`).
+    noise: f64,
+    /// When a snapshot first came within that of the fresh bake of this seed.
+    seconds: f64,
+    /// The fresh bake's time.
+    bake_seconds: f64,
+}
+
+/// Bake the baker's current level afresh with its seed and the next one (its frame and
+/// extent, so that its updates converge to the first), and find the first of `shots` within
+/// one bake's noise of the first. Distances are RMS over texels relative to `mean`.
+fn fresh_noise(
+    baker: &Baker,
+    set: &Arc<TexelSet>,
+    params: &BakerParams,
+    shots: &[(f64, Vec<Vec3>)],
+    mean: f64,
+) -> Result<Fresh> {
+    let v = baker.level().current();
+    let mut scene = v.scene.as_ref().clone();
+    scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
+    let bake = |seed: u64| -> Result<(Vec<Vec3>, f64)> {
+        let t = Instant::now();
+        let p = BakerParams { seed, ..params.clone() };
+        let mut b = Baker::with_frame(scene.clone(), set.clone(), p, baker.frame(), baker.level().extent())
+            .map_err(|e| anyhow!("bad parameter: {e}"))?;
+        b.converge();
+        Ok((summed(&b), t.elapsed().as_secs_f64()))
+    };
+    let ((f0, bake_seconds), (f1, _)) = (bake(params.seed)?, bake(params.seed.wrapping_add(1))?);
+    let noise = relative_rms(&f0, &f1, mean) / std::f64::consts::SQRT_2;
+    let seconds =
+        shots.iter().find(|(_, x)| relative_rms(x, &f0, mean) <= noise).map_or(f64::NAN, |(t, _)| *t);
+    Ok(Fresh { noise, seconds, bake_seconds })
+}
+
+/// RMS over texels of `x - y`, over `mean`.
+fn relative_rms(x: &[Vec3], y: &[Vec3], mean: f64) -> f64 {
+    let sum: f64 = x.iter().zip(y).map(|(a, b)| (*a - *b).length_squared() as f64).sum();
+    (sum / x.len().max(1) as f64).sqrt() / mean.max(1e-30)
 }
 
 fn summed(b: &Baker) -> Vec<Vec3> {
