@@ -253,9 +253,12 @@ pub struct Followed {
     pub kind_texels: [usize; 5],
 }
 
+/// The ratio of one look's time to the last's in [`follow`].
+const LOOK_SPACING: f64 = 1.04;
+
 /// Run `baker`'s updates after an edit applied at `since` that left `invalid` flux, until none
-/// is left. `look(seconds, baker, first_valid)` sees the lightmap at times spaced about 10 %
-/// apart (and 20 ms at least), and once more, with `first_valid`, when no invalid light is left
+/// is left. `look(seconds, baker, first_valid)` sees the lightmap at times spaced about 4 %
+/// apart (and 20 ms at least; a time read off the looks is late by as much), and once more, with `first_valid`, when no invalid light is left
 /// for the first time; the time it takes is not counted.
 pub fn follow(
     baker: &mut Baker,
@@ -274,7 +277,7 @@ pub fn follow(
     };
     let (mut resolved, mut busy) = (0.0f32, 0.0f64);
     let now = |busy: f64| since.elapsed().as_secs_f64() - busy;
-    let mut next_look = now(busy) * 1.1 + 0.02;
+    let mut next_look = now(busy) * LOOK_SPACING + 0.02;
     let mut last = Instant::now();
     while let Some(s) = baker.step() {
         let k = s.kind as usize;
@@ -295,7 +298,7 @@ pub fn follow(
             }
             look(at, baker, first_valid);
             busy += c.elapsed().as_secs_f64();
-            next_look = at * 1.1 + 0.02;
+            next_look = at * LOOK_SPACING + 0.02;
         }
         last = Instant::now();
     }
