@@ -480,12 +480,13 @@ fn fresh_noise(
 }
 
 /// RMS over texels of `x - y`, over `mean`.
-fn relative_rms(x: &[Vec3], y: &[Vec3], mean: f64) -> f64 {
+pub fn relative_rms(x: &[Vec3], y: &[Vec3], mean: f64) -> f64 {
     let sum: f64 = x.iter().zip(y).map(|(a, b)| (*a - *b).length_squared() as f64).sum();
     (sum / x.len().max(1) as f64).sqrt() / mean.max(1e-30)
 }
 
-fn summed(b: &Baker) -> Vec<Vec3> {
+/// The baker's lightmap, direct + indirect.
+pub fn summed(b: &Baker) -> Vec<Vec3> {
     let (d, i) = b.lightmap();
     d.iter().zip(&i).map(|(a, b)| *a + *b).collect()
 }

@@ -832,7 +832,13 @@ fn report_writes_figures_and_plots() {
     let after = |c: &str| percent(c.rsplit(": ").next().unwrap());
     for r in &edits {
         assert!(error_ok(&r[2]) && percent(&r[3]).is_finite() && percent(&r[3]) >= 0.0, "{r:?}");
-        assert!((after(&r[6]) - after(&r[8])).abs() <= 0.011, "converged vs re-bake: {r:?}");
+        assert!((after(&r[7]) - after(&r[9])).abs() <= 0.011, "converged vs re-bake: {r:?}");
+        // Within a re-bake's noise no later than every update is done (then it is the
+        // re-bake, to 1e-4), and that noise is a bake's: above zero, a few percent.
+        let seconds = |c: &str| c.split(" s").next().unwrap().parse::<f64>().unwrap();
+        assert!(seconds(&r[6]) <= seconds(&r[7]) + 0.005, "{r:?}");
+        let noise = percent(r[6].rsplit('(').next().unwrap().trim_end_matches(')'));
+        assert!(noise > 0.0 && noise < 30.0, "{r:?}");
         assert!(error_ok(r[5].rsplit(": ").next().unwrap()), "{r:?}");
     }
     // The PRM's updates: the moved wall reaches some tiles; a light edit none, since the map

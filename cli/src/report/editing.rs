@@ -21,7 +21,7 @@ use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeParams,
 use prm_runtime::cpu::CpuTwin;
 
 use super::measure::{compare, compare_texels, ground_truth, Level};
-use crate::bake::{follow, parse_script};
+use crate::bake::{follow, parse_script, relative_rms, summed};
 
 /// What the editing part spends.
 pub struct EditBudget {
@@ -61,6 +61,11 @@ pub struct EditRow {
     pub error_worst: f64,
     pub rebake_seconds: f64,
     pub rebake_error: f64,
+    /// One fresh bake's own noise (two seeds' relative RMS distance over sqrt 2, direct +
+    /// indirect), and when the updates first came within it of the fresh bake: issue 14's
+    /// "converged" (NaN: never, which consolidation rules out).
+    pub fresh_noise: f64,
+    pub seconds_within_noise: f64,
     pub update: UpdateRow,
 }
 
@@ -169,35 +174,51 @@ pub fn editing(
         let error = |b: &Baker| compare_texels(&b.lightmap().1, &gt).0;
         let error_before = error(&baker);
 
+        // The fresh re-bake an editor would start instead (the same energy per path, octree
+        // box and ray offsets as the baker: the state the incremental one converges to), and
+        // one of the next seed: their distance over sqrt 2 is one bake's own noise.
+        let mut fresh_scene = v.scene.as_ref().clone();
+        fresh_scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
+        let extent = baker.level().extent();
+        let rebake = |seed: u64| -> Result<(Baker, f64)> {
+            let t = Instant::now();
+            let p = BakerParams { seed, ..params.clone() };
+            let mut b = Baker::with_frame(fresh_scene.clone(), texels.clone(), p, baker.frame(), extent)
+                .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
+            b.converge();
+            Ok((b, t.elapsed().as_secs_f64()))
+        };
+        let (fresh, rebake_seconds) = rebake(seed)?;
+        let rebake_error = error(&fresh);
+        let fresh_map = summed(&fresh);
+        drop(fresh);
+        let mean = fresh_map.iter().map(|x| x.length() as f64).sum::<f64>() / fresh_map.len().max(1) as f64;
+        let fresh_noise = relative_rms(&fresh_map, &summed(&rebake(seed.wrapping_add(1))?.0), mean)
+            / std::f64::consts::SQRT_2;
+
         let t = Instant::now();
         let r = baker.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;
         // Applying an edit plans its updates; the lightmap is the one before it until the first.
         let curve_start = t.elapsed().as_secs_f64();
         let mut curve = vec![(0.0, error_before), (curve_start, error_before)];
         let mut error_valid = f64::NAN;
+        let mut seconds_within_noise = f64::NAN;
         let f = follow(&mut baker, t, r.invalid_flux, |at, b, first_valid| {
             let e = error(b);
             if first_valid {
                 error_valid = e;
             }
+            if seconds_within_noise.is_nan() && relative_rms(&summed(b), &fresh_map, mean) <= fresh_noise {
+                seconds_within_noise = at;
+            }
             curve.push((at, e));
         });
         let error_converged = error(&baker);
         curve.push((f.seconds_converged, error_converged));
+        if seconds_within_noise.is_nan() && relative_rms(&summed(&baker), &fresh_map, mean) <= fresh_noise {
+            seconds_within_noise = f.seconds_converged;
+        }
         let error_worst = curve.iter().map(|p| p.1).fold(0.0, f64::max);
-
-        let mut fresh_scene = v.scene.as_ref().clone();
-        fresh_scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
-        let t = Instant::now();
-        // The same energy per path, octree box and ray offsets as the baker: the bake an
-        // editor would start again, which the incremental one converges to.
-        let extent = baker.level().extent();
-        let mut fresh = Baker::with_frame(fresh_scene, texels.clone(), params.clone(), baker.frame(), extent)
-            .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
-        fresh.converge();
-        let rebake_seconds = t.elapsed().as_secs_f64();
-        let rebake_error = error(&fresh);
-        drop(fresh);
 
         let t = Instant::now();
         let updated = run_precompute(
@@ -246,6 +267,8 @@ pub fn editing(
             error_worst,
             rebake_seconds,
             rebake_error,
+            fresh_noise,
+            seconds_within_noise,
             update,
         });
     }
