@@ -17,7 +17,7 @@ use anyhow::{anyhow, Context, Result};
 use prm::prm_file::Prm;
 use prm::{Bvh, Light, Scene};
 use prm_precompute::incremental::{Baker, BakerParams, Level as EditLevel};
-use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeParams, Reuse};
+use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeError, PrecomputeParams, Reuse};
 use prm_runtime::cpu::CpuTwin;
 
 use super::measure::{compare, compare_texels, ground_truth, Level};
@@ -76,6 +76,9 @@ pub struct UpdateRow {
     /// The full precompute keeping its update cache (`--cache`: its walks traced), what an
     /// editing loop that goes on updating runs instead.
     pub seconds_full_cached: f64,
+    /// Why the update could not reuse the last map (it then ran a full precompute, timed
+    /// with the attempt), as `prm precompute --update` says.
+    pub refused: Option<String>,
     pub tiles_hit: usize,
     pub tiles: usize,
     pub texels_walked: usize,
@@ -221,13 +224,18 @@ pub fn editing(
         let error_worst = curve.iter().map(|p| p.1).fold(0.0, f64::max);
 
         let t = Instant::now();
-        let updated = run_precompute(
-            &edited.scene,
-            &edited.bvh,
-            &pp,
-            Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&map) },
-            true,
-        )?;
+        let cancel = AtomicBool::new(false);
+        let reuse = Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&map) };
+        let (updated, refused) =
+            match precompute_with(&edited.scene, &edited.bvh, &pp, reuse, true, &|_, _, _| {}, &cancel) {
+                Ok(b) => (b, None),
+                // As `prm precompute --update` does: say why, and bake it whole.
+                Err(PrecomputeError::Refused(r)) => (
+                    run_precompute(&edited.scene, &edited.bvh, &pp, Reuse::Nothing, true)?,
+                    Some(r.to_string()),
+                ),
+                Err(e) => return Err(anyhow!("precompute: {e}")),
+            };
         let seconds_update = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let full = run_precompute(&edited.scene, &edited.bvh, &pp, Reuse::Nothing, false)?;
@@ -244,6 +252,7 @@ pub fn editing(
             seconds_update,
             seconds_full,
             seconds_full_cached,
+            refused,
             tiles_hit: updated.report.update_tiles_hit,
             tiles: (pp.atlas.width().div_ceil(ts) * pp.atlas.height().div_ceil(ts)) as usize,
             texels_walked: updated.report.update_texels_walked,

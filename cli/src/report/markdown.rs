@@ -459,11 +459,13 @@ fn editing_section(s: &mut String, b: &Budget, e: Option<&Editing>, plots: bool)
         let u = &r.update;
         let _ = writeln!(
             s,
-            "| {} | {} of {} | {} of {} | {:.2} s | {:.2} s | {:.0} % | {:.2} s | {:.0} % | {} | {} |",
+            "| {} | {} | {} of {} | {:.2} s | {:.2} s | {:.0} % | {:.2} s | {:.0} % | {} | {} |",
             r.label,
-            u.tiles_hit,
-            u.tiles,
-            u.texels_walked,
+            match &u.refused {
+                Some(why) => format!("refused ({why}): a full precompute"),
+                None => format!("{} of {}", u.tiles_hit, u.tiles),
+            },
+            if u.refused.is_some() { e.texels } else { u.texels_walked },
             e.texels,
             u.seconds_update,
             u.seconds_full,
