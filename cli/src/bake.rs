@@ -258,8 +258,9 @@ const LOOK_SPACING: f64 = 1.04;
 
 /// Run `baker`'s updates after an edit applied at `since` that left `invalid` flux, until none
 /// is left. `look(seconds, baker, first_valid)` sees the lightmap at times spaced about 4 %
-/// apart (and 20 ms at least; a time read off the looks is late by as much), and once more, with `first_valid`, when no invalid light is left
-/// for the first time; the time it takes is not counted.
+/// apart (and 20 ms at least; a time read off the looks is late by up to as much), and once
+/// more, with `first_valid`, when no invalid light is left for the first time; the time it
+/// takes is not counted.
 pub fn follow(
     baker: &mut Baker,
     since: Instant,
@@ -464,19 +465,31 @@ fn fresh_noise(
     let v = baker.level().current();
     let mut scene = v.scene.as_ref().clone();
     scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
-    let bake = |seed: u64| -> Result<(Vec<Vec3>, f64)> {
-        let t = Instant::now();
-        let p = BakerParams { seed, ..params.clone() };
-        let mut b = Baker::with_frame(scene.clone(), set.clone(), p, baker.frame(), baker.level().extent())
-            .map_err(|e| anyhow!("bad parameter: {e}"))?;
-        b.converge();
-        Ok((summed(&b), t.elapsed().as_secs_f64()))
-    };
-    let ((f0, bake_seconds), (f1, _)) = (bake(params.seed)?, bake(params.seed.wrapping_add(1))?);
+    let (f0, bake_seconds) = rebake(&scene, baker, set, params, params.seed)?;
+    let f1 = rebake(&scene, baker, set, params, params.seed.wrapping_add(1))?.0;
+    let (f0, f1) = (summed(&f0), summed(&f1));
     let noise = relative_rms(&f0, &f1, mean) / std::f64::consts::SQRT_2;
     let seconds =
         shots.iter().find(|(_, x)| relative_rms(x, &f0, mean) <= noise).map_or(f64::NAN, |(t, _)| *t);
     Ok(Fresh { noise, seconds, bake_seconds })
+}
+
+/// `scene` baked afresh with `like`'s frame and ray-offset extent (so that `like`'s updates,
+/// once at `scene`, converge to it with the same seed) and `params` but for the seed, and
+/// the time it took: the re-bake an editor would start instead.
+pub fn rebake(
+    scene: &Scene,
+    like: &Baker,
+    set: &Arc<TexelSet>,
+    params: &BakerParams,
+    seed: u64,
+) -> Result<(Baker, f64)> {
+    let t = Instant::now();
+    let p = BakerParams { seed, ..params.clone() };
+    let mut b = Baker::with_frame(scene.clone(), set.clone(), p, like.frame(), like.level().extent())
+        .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
+    b.converge();
+    Ok((b, t.elapsed().as_secs_f64()))
 }
 
 /// RMS over texels of `x - y`, over `mean`.

@@ -21,7 +21,7 @@ use prm_precompute::precompute::{precompute_with, Baked, Held, PrecomputeError, 
 use prm_runtime::cpu::CpuTwin;
 
 use super::measure::{compare, compare_texels, ground_truth, Level};
-use crate::bake::{follow, parse_script, relative_rms, summed};
+use crate::bake::{follow, parse_script, rebake, relative_rms, summed};
 
 /// What the editing part spends.
 pub struct EditBudget {
@@ -182,22 +182,13 @@ pub fn editing(
         // one of the next seed: their distance over sqrt 2 is one bake's own noise.
         let mut fresh_scene = v.scene.as_ref().clone();
         fresh_scene.lights = v.lights.iter().map(|s| s.light.clone()).collect();
-        let extent = baker.level().extent();
-        let rebake = |seed: u64| -> Result<(Baker, f64)> {
-            let t = Instant::now();
-            let p = BakerParams { seed, ..params.clone() };
-            let mut b = Baker::with_frame(fresh_scene.clone(), texels.clone(), p, baker.frame(), extent)
-                .map_err(|e| anyhow!("bad baker parameter: {e}"))?;
-            b.converge();
-            Ok((b, t.elapsed().as_secs_f64()))
-        };
-        let (fresh, rebake_seconds) = rebake(seed)?;
+        let (fresh, rebake_seconds) = rebake(&fresh_scene, &baker, &texels, &params, seed)?;
         let rebake_error = error(&fresh);
         let fresh_map = summed(&fresh);
         drop(fresh);
         let mean = fresh_map.iter().map(|x| x.length() as f64).sum::<f64>() / fresh_map.len().max(1) as f64;
-        let fresh_noise = relative_rms(&fresh_map, &summed(&rebake(seed.wrapping_add(1))?.0), mean)
-            / std::f64::consts::SQRT_2;
+        let next = summed(&rebake(&fresh_scene, &baker, &texels, &params, seed.wrapping_add(1))?.0);
+        let fresh_noise = relative_rms(&fresh_map, &next, mean) / std::f64::consts::SQRT_2;
 
         let t = Instant::now();
         let r = baker.apply(edit).with_context(|| format!("edit {} ({label})", k + 1))?;

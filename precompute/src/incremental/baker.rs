@@ -1079,6 +1079,7 @@ impl Baker {
                     |g, grow| movers.parts_meeting(|bx| crosses(bx, g, grow)),
                     &movers.on_moved,
                     |i, parts| {
+                        // The whole boxes first, as in `Movers::meets`: most texels fail there.
                         let p = v.frames[i].0;
                         movers.boxes.iter().any(|bx| crosses(bx, p, 0.0))
                             && parts.iter().any(|bx| crosses(bx, p, 0.0))
@@ -1369,10 +1370,10 @@ fn split_parts(items: &mut [(Vec3, Aabb)], depth: u32, out: &mut Vec<Aabb>) {
         let e = (b.hi - b.lo).max(Vec3::ZERO);
         2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
     };
-    let all = whole(items);
     if items.is_empty() {
         return;
     }
+    let all = whole(items);
     if depth > 0 && items.len() > 1 {
         // The split (along an axis, in centroid order) whose halves' surfaces sum least.
         let mut best: Option<(f32, usize, usize)> = None;
@@ -1393,8 +1394,7 @@ fn split_parts(items: &mut [(Vec3, Aabb)], depth: u32, out: &mut Vec<Aabb>) {
                 }
             }
         }
-        if let Some((sum, axis, k)) = best.filter(|(sum, _, _)| *sum < 0.8 * area(&all)) {
-            let _ = sum;
+        if let Some((_, axis, k)) = best.filter(|(sum, _, _)| *sum < 0.8 * area(&all)) {
             items.sort_by(|a, b| a.0[axis].total_cmp(&b.0[axis]));
             let (l, r) = items.split_at_mut(k);
             split_parts(l, depth - 1, out);
