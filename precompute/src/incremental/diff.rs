@@ -106,9 +106,11 @@ pub fn match_lights(old: &[Light], new: &[Light]) -> (Vec<Option<usize>>, Vec<us
     let mut taken = vec![false; old.len()];
     for (j, l) in new.iter().enumerate() {
         if unique(new, &l.name) && unique(old, &l.name) {
-            let i = old.iter().position(|o| o.name == l.name).expect("unique name present");
-            matched[j] = Some(i);
-            taken[i] = true;
+            // The name is in `old` (once), so the position is found.
+            if let Some(i) = old.iter().position(|o| o.name == l.name) {
+                matched[j] = Some(i);
+                taken[i] = true;
+            }
         }
     }
     let mut rest = (0..old.len()).filter(|&i| !taken[i] && !unique(old, &old[i].name));

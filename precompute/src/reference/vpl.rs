@@ -74,8 +74,8 @@ pub(crate) fn emit(
 ) -> Emission {
     let n = photons as f32;
     let at = |origin: Vec3, dir: Vec3, flux: Vec3| Emission { origin, dir, flux, surface: None };
-    match (&light.aperture, light.kind) {
-        (Aperture::Sphere { radius }, LightKind::Spot { outer, .. }) => {
+    match (&light.aperture, light.kind, light.profile.as_ref()) {
+        (Aperture::Sphere { radius }, LightKind::Spot { outer, .. }, _) => {
             // A direction in the cone as from a point spot, leaving from a uniform point of the
             // sphere's disk across it, moved onto the sphere's side facing it: seen from far
             // along d, a disk of radiance I falloff(d) / (pi R²).
@@ -92,34 +92,33 @@ pub(crate) fn emit(
                 surface: Some(normal),
             }
         }
-        (Aperture::Sphere { radius }, _) => {
+        (Aperture::Sphere { radius }, _, _) => {
             let normal = uniform_sphere(rng.random(), rng.random());
             let dir = cosine_direction(normal, rng.random(), rng.random());
             let origin = light.position + normal * *radius;
             Emission { origin, dir, flux: light.flux() / n, surface: Some(normal) }
         }
-        (Aperture::Polygon { corners }, _) => {
+        (Aperture::Polygon { corners }, _, _) => {
             let origin = prm::light::polygon_point(corners, [rng.random(), rng.random()]);
             let dir = cosine_direction(light.direction, rng.random(), rng.random());
             Emission { origin, dir, flux: light.flux() / n, surface: Some(light.direction) }
         }
-        (Aperture::Point, _) if light.profile.is_some() => {
-            let pr = light.profile.as_ref().expect("checked");
+        (Aperture::Point, _, Some(pr)) => {
             let (d, pdf) =
                 pr.table.sample(light.direction, pr.c0, [rng.random(), rng.random(), rng.random()]);
             let flux = if pdf > 0.0 { light.intensity_towards(d) / (pdf * n) } else { Vec3::ZERO };
             at(light.position, d, flux)
         }
-        (Aperture::Point, LightKind::Point) => {
+        (Aperture::Point, LightKind::Point, None) => {
             let d = uniform_sphere(rng.random(), rng.random());
             at(light.position, d, light.intensity * (4.0 * std::f32::consts::PI / n))
         }
-        (Aperture::Point, LightKind::Spot { outer, .. }) => {
+        (Aperture::Point, LightKind::Spot { outer, .. }, None) => {
             let d = cone_direction(light.direction, outer.cos(), rng.random(), rng.random());
             let omega = std::f32::consts::TAU * (1.0 - outer.cos());
             at(light.position, d, light.intensity_towards(d) * (omega / n))
         }
-        (Aperture::Point, LightKind::Directional) => {
+        (Aperture::Point, LightKind::Directional, None) => {
             let (lo, hi) = bounds;
             let centre = 0.5 * (lo + hi);
             let radius = 0.5 * (hi - lo).length() * 1.01 + 1e-6;
