@@ -162,8 +162,10 @@ impl<'a> Encoder<'a> {
         // chunk, not once more whole (with the walks' next bounce a texel names every
         // cluster of its room: on the 4 x 4 chambers that copy was 230 MB).
         for chunk in cluster_chunks(&[panes, exact], acc.len(), TRANSPOSE_ITEMS) {
-            let (start, list) = transpose(panes, first, chunk.clone(), |k, i| panes[k][i].1);
-            let (exact_start, exact_list) = transpose(exact, first, chunk.clone(), |k, i| exact[k][i].1);
+            let ((start, list), (exact_start, exact_list)) = rayon::join(
+                || transpose(panes, first, chunk.clone(), |k, i| panes[k][i].1),
+                || transpose(exact, first, chunk.clone(), |k, i| exact[k][i].1),
+            );
             let size = self.grid.w * band.window.len();
             let out: Vec<Option<PaneBand>> = chunk
                 .clone()

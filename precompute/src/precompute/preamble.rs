@@ -105,15 +105,26 @@ impl Preamble {
         progress: &(dyn Fn(Phase, usize, usize) + Sync),
         cancel: &AtomicBool,
     ) -> Result<Preamble, PrecomputeError> {
-        let set = timed(&mut report.seconds_texels, || {
-            TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
-        });
+        // The texels, and beside them the level's rooms (`prm::rooms`: cells, clusters and
+        // the far field keep to them), whose flood fill runs on one thread.
+        let (mut texels_s, mut rooms_s) = (0.0, 0.0);
+        let (set, rooms) = rayon::join(
+            || {
+                timed(&mut texels_s, || {
+                    TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
+                })
+            },
+            || {
+                timed(&mut rooms_s, || {
+                    let corners: Vec<[Vec3; 3]> =
+                        (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+                    prm::rooms::Rooms::new(&corners)
+                })
+            },
+        );
+        report.seconds_texels += texels_s;
+        report.seconds_clustering += rooms_s;
         progress(Phase::Texels, 1, 1);
-        // The level's rooms (`prm::rooms`): cells, clusters and the far field keep to them.
-        let rooms = timed(&mut report.seconds_clustering, || {
-            let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-            prm::rooms::Rooms::new(&corners)
-        });
         let (entries, found, (cut, owners, cell_report), enclosed) =
             timed(&mut report.seconds_entries, || lit_entries(scene, bvh, &rooms, params));
         // The map keeps the cells in triangles no longer than an entry spacing, so that the
