@@ -34,8 +34,9 @@ pub struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Gather only: no light paths for the first bounce of point and spot lights (slower to
-    /// converge near lights; kept to cross-check the two estimators).
+    /// Gather only: no light paths for the first bounce of point and spot lights and suns
+    /// (slower to converge near lights and under a sun through a window; kept to cross-check
+    /// the two estimators).
     #[arg(long)]
     no_light_paths: bool,
     /// Render this glTF camera's view (linear radiance) instead of the lightmap.

@@ -27,8 +27,15 @@
 //! combined by the balance heuristic over the surface point y, with
 //! `p_gather(y) = cos_x cos_y / (pi r²)` and `p_light(y) = p(w) cos_y,light / d²`: each adds
 //! `f(y) / (p_gather + p_light)`, `f = rho(y)/pi E_punctual(y) cos_x cos_y / r²`, so the sum is
-//! unbiased and bounded wherever either density is large. Directional lights and emitters are
-//! gathered only.
+//! unbiased and bounded wherever either density is large.
+//!
+//! **Light paths for suns.** A sun through a window lights a patch of floor that gathering
+//! also finds only by chance (the sunroom's low sun: 41 % noise at 128 samples). A sun's
+//! paths start on a square across its rays outside the level, focused by a pilot on the
+//! cells whose rays land on a lit surface that can send light on (`SunPlane`); a path's first
+//! hit y has density `p_square(y) cos_y` and joins the balance heuristic as above. On the
+//! sunroom at 128 samples: 41 -> 14 % noise at the low sun and 32 -> 11 % at noon, for 1.5-1.7x
+//! the time. Emitters are gathered only.
 //!
 //! **Area lights** (sphere and polygon apertures, [`prm::light::Aperture`]) get next-event
 //! estimation (its own warps, not the bakers'). A polygon: a point y drawn uniformly by area,
@@ -68,8 +75,8 @@ pub struct GtParams {
     pub rr_depth: u32,
     /// Seed of every per-texel random stream.
     pub seed: u64,
-    /// Add light paths for the first bounce of point and spot lights (module doc); off, the
-    /// plain gathering estimator.
+    /// Add light paths for the first bounce of point and spot lights and suns (module doc);
+    /// off, the plain gathering estimator.
     pub light_paths: bool,
 }
 
@@ -135,6 +142,140 @@ pub struct Tracer<'a> {
     pub bvh: &'a Bvh,
     pub params: GtParams,
     pub stats: GtStats,
+    /// Per light of the scene, where a directional light's paths start ([`SunPlane`]; None
+    /// for other lights, or without light paths).
+    suns: Vec<Option<SunPlane>>,
+}
+
+/// Whether a lit point y (normal `ny`) can send light on: one of a few cosine rays from it
+/// meets a surface facing it (the sun's patch on a floor, not an outer wall facing the sky).
+fn sends_light(scene: &Scene, bvh: &Bvh, y: Vec3, ny: Vec3) -> bool {
+    const SIDE: usize = 3;
+    (0..SIDE * SIDE).any(|s| {
+        let (u1, u2) = (((s % SIDE) as f32 + 0.5) / SIDE as f32, ((s / SIDE) as f32 + 0.5) / SIDE as f32);
+        let d = cosine_direction(ny, u1, u2);
+        bvh.trace_from_surface(y, ny, d)
+            .is_some_and(|hit| scene.facing_normal(hit.triangle as usize, d).is_some())
+    })
+}
+
+/// Where a directional light's paths start: a square across the sun's rays, outside the
+/// level's bounding sphere, covering all of it. Most of that square sends rays onto roofs
+/// and outer walls that no texel inside sees; a pilot (a few rays per cell of a
+/// [`SunPlane::CELLS`]² grid) finds the cells whose rays land on a lit front face that can
+/// send its light on to another surface ([`sends_light`]), and paths
+/// start in those cells (grown by one) with probability [`SunPlane::FOCUS`], anywhere in the
+/// square otherwise. The mixture's density is positive everywhere, so the estimate stays
+/// unbiased whatever the pilot missed; what it found (a window's patch of sunlit floor) is
+/// drawn far more often than gathering finds it.
+struct SunPlane {
+    /// Direction of travel (unit), and two unit axes across it.
+    w: Vec3,
+    axes: (Vec3, Vec3),
+    /// The square's centre (on the plane through the bounds' centre) and half side.
+    centre: Vec3,
+    half: f32,
+    /// The cells paths are focused on (row-major over [`SunPlane::CELLS`]²).
+    focus: Vec<u32>,
+    focused: Vec<bool>,
+}
+
+impl SunPlane {
+    /// Cells across the square, and pilot rays per cell (a side of a stratified grid).
+    const CELLS: usize = 64;
+    const PILOT_SIDE: usize = 2;
+    /// Share of paths started in the focused cells.
+    const FOCUS: f32 = 0.9;
+
+    fn new(scene: &Scene, bvh: &Bvh, w: Vec3) -> Option<SunPlane> {
+        let w = w.normalize_or_zero();
+        let (lo, hi) = scene.bounds();
+        let half = 0.5 * (hi - lo).length();
+        if w == Vec3::ZERO || !(half > 0.0 && half.is_finite()) {
+            return None;
+        }
+        let mut plane = SunPlane {
+            w,
+            axes: w.any_orthonormal_pair(),
+            centre: 0.5 * (lo + hi),
+            half,
+            focus: Vec::new(),
+            focused: vec![false; Self::CELLS * Self::CELLS],
+        };
+        let (n, k) = (Self::CELLS, Self::PILOT_SIDE);
+        let lit: Vec<bool> = (0..n * n)
+            .map(|cell| {
+                (0..k * k).any(|s| {
+                    let u = ((cell % n) as f32 + ((s % k) as f32 + 0.5) / k as f32) / n as f32;
+                    let v = ((cell / n) as f32 + ((s / k) as f32 + 0.5) / k as f32) / n as f32;
+                    plane
+                        .first_hit(scene, bvh, u, v)
+                        .is_some_and(|(_, y, ny, _)| sends_light(scene, bvh, y, ny))
+                })
+            })
+            .collect();
+        // Grown by one cell: a lit patch the pilot's rays just missed lies next to one it hit.
+        for cell in 0..n * n {
+            let (x, y) = ((cell % n) as i64, (cell / n) as i64);
+            let near = (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (x + dx, y + dy)));
+            if near
+                .filter(|&(a, b)| a >= 0 && b >= 0 && a < n as i64 && b < n as i64)
+                .any(|(a, b)| lit[(b * n as i64 + a) as usize])
+            {
+                plane.focused[cell] = true;
+                plane.focus.push(cell as u32);
+            }
+        }
+        Some(plane)
+    }
+
+    /// The ray from the square's point (u, v) in [0, 1)²: its origin, outside the bounds.
+    fn origin(&self, u: f32, v: f32) -> Vec3 {
+        let (a, b) = self.axes;
+        self.centre + a * ((2.0 * u - 1.0) * self.half) + b * ((2.0 * v - 1.0) * self.half)
+            - self.w * (2.0 * self.half)
+    }
+
+    /// The first surface the sun's ray from (u, v) meets, if it is a front face: (triangle,
+    /// point, normal).
+    fn first_hit(&self, scene: &Scene, bvh: &Bvh, u: f32, v: f32) -> Option<(usize, Vec3, Vec3, Vec3)> {
+        let hit = bvh.closest_hit(self.origin(u, v), self.w, f32::INFINITY)?;
+        let t = hit.triangle as usize;
+        let ny = scene.facing_normal(t, self.w)?;
+        Some((t, scene.point(t, hit.bary()), ny, hit.bary()))
+    }
+
+    /// A point of the square (u, v) in [0, 1)², drawn by the mixture (`r`: three uniforms).
+    fn draw(&self, r: [f32; 3]) -> (f32, f32) {
+        let n = Self::CELLS;
+        if r[0] < Self::FOCUS && !self.focus.is_empty() {
+            // Reuse the first uniform's remainder to pick the cell.
+            let pick = ((r[0] / Self::FOCUS) * self.focus.len() as f32) as usize;
+            let cell = self.focus[pick.min(self.focus.len() - 1)] as usize;
+            (((cell % n) as f32 + r[1]) / n as f32, ((cell / n) as f32 + r[2]) / n as f32)
+        } else {
+            (r[1], r[2])
+        }
+    }
+
+    /// Density per unit area of the square at the projection of `y`.
+    fn density(&self, y: Vec3) -> f32 {
+        let side = 2.0 * self.half;
+        let area = side * side;
+        let d = y - self.centre;
+        let (u, v) = (0.5 + self.axes.0.dot(d) / side, 0.5 + self.axes.1.dot(d) / side);
+        if !(0.0..1.0).contains(&u) || !(0.0..1.0).contains(&v) {
+            return 0.0;
+        }
+        let n = Self::CELLS;
+        let cell = ((v * n as f32) as usize).min(n - 1) * n + ((u * n as f32) as usize).min(n - 1);
+        let spread = if self.focus.is_empty() { 1.0 } else { 1.0 - Self::FOCUS };
+        let mut p = spread / area;
+        if self.focused[cell] {
+            p += Self::FOCUS / (self.focus.len() as f32 * area / (n * n) as f32);
+        }
+        p
+    }
 }
 
 /// A cosine-distributed unit direction around unit `n` (the judge's own copy: see the module
@@ -194,7 +335,15 @@ fn light_path_pdf(light: &Light, y: Vec3, ny: Vec3) -> f32 {
 
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene, bvh: &'a Bvh, params: GtParams) -> Self {
-        Tracer { scene, bvh, params, stats: GtStats::default() }
+        let suns = scene
+            .lights
+            .iter()
+            .map(|l| match l.kind {
+                LightKind::Directional if params.light_paths => SunPlane::new(scene, bvh, l.direction),
+                _ => None,
+            })
+            .collect();
+        Tracer { scene, bvh, params, stats: GtStats::default(), suns }
     }
 
     /// Irradiance from the punctual lights at `p` (normal `n`), with shadow rays (area lights
@@ -336,9 +485,19 @@ impl<'a> Tracer<'a> {
         }
     }
 
-    /// Whether the first bounce of `light` also gets light paths.
-    fn traces_from(&self, light: &Light) -> bool {
-        self.params.light_paths && light.is_positional() && !light.is_area()
+    /// Whether the first bounce of light `k` also gets light paths.
+    fn traces_from(&self, k: usize, light: &Light) -> bool {
+        self.params.light_paths
+            && ((light.is_positional() && !light.is_area()) || self.suns.get(k).is_some_and(Option::is_some))
+    }
+
+    /// Area density at a lit surface point y (unit normal `ny`) of light `k`'s paths' first
+    /// hit: [`light_path_pdf`], or for a sun its plane's density times `cos_y`.
+    fn light_path_density(&self, k: usize, light: &Light, y: Vec3, ny: Vec3) -> f32 {
+        match self.suns.get(k) {
+            Some(Some(sun)) => sun.density(y) * ny.dot(-sun.w).max(0.0),
+            _ => light_path_pdf(light, y, ny),
+        }
     }
 
     /// Next-event estimation at y (normal `ny`), reached by a cosine direction from x0 (normal
@@ -349,13 +508,13 @@ impl<'a> Tracer<'a> {
         let r2 = v.length_squared();
         let p_gather = n0.dot(v).max(0.0) * ny.dot(-v).max(0.0) / (PI * r2 * r2);
         let mut e = self.area(y, ny, rng);
-        for light in self.scene.lights.iter().filter(|l| !l.is_area()) {
+        for (k, light) in self.scene.lights.iter().enumerate().filter(|(_, l)| !l.is_area()) {
             let ed = self.punctual_one(light, y, ny);
             if ed == Vec3::ZERO {
                 continue;
             }
-            let weight = if self.traces_from(light) {
-                let p_light = light_path_pdf(light, y, ny);
+            let weight = if self.traces_from(k, light) {
+                let p_light = self.light_path_density(k, light, y, ny);
                 if p_gather + p_light > 0.0 {
                     p_gather / (p_gather + p_light)
                 } else {
@@ -369,21 +528,31 @@ impl<'a> Tracer<'a> {
         e
     }
 
-    /// One light path from each point and spot light, connected to x0 (normal `n0`): its
-    /// share of the light reflected once on the way to x0 (module doc).
+    /// One light path from each point and spot light and each sun, connected to x0 (normal
+    /// `n0`): its share of the light reflected once on the way to x0 (module doc).
     fn connect_light_paths(&self, x0: Vec3, n0: Vec3, rng: &mut Pcg64Mcg) -> Vec3 {
         let mut e = Vec3::ZERO;
-        for light in &self.scene.lights {
-            if !self.traces_from(light) {
+        for (k, light) in self.scene.lights.iter().enumerate() {
+            if !self.traces_from(k, light) {
                 continue;
             }
-            let w = emission_direction(light, rng.random(), rng.random());
             self.stats.rays.fetch_add(1, Ordering::Relaxed);
-            let Some(hit) = self.bvh.closest_hit(light.position, w, f32::INFINITY) else { continue };
-            let t = hit.triangle as usize;
-            // A back face of a one-sided surface absorbs.
-            let Some(ny) = self.scene.facing_normal(t, w) else { continue };
-            let y = self.scene.point(t, hit.bary());
+            // The path's first hit, a front face (a back face of a one-sided surface absorbs).
+            let first = match self.suns.get(k) {
+                Some(Some(sun)) => {
+                    let (u, v) = sun.draw([rng.random(), rng.random(), rng.random()]);
+                    sun.first_hit(self.scene, self.bvh, u, v)
+                }
+                _ => {
+                    let w = emission_direction(light, rng.random(), rng.random());
+                    self.bvh.closest_hit(light.position, w, f32::INFINITY).and_then(|hit| {
+                        let t = hit.triangle as usize;
+                        let ny = self.scene.facing_normal(t, w)?;
+                        Some((t, self.scene.point(t, hit.bary()), ny, hit.bary()))
+                    })
+                }
+            };
+            let Some((t, y, ny, bary)) = first else { continue };
             let v = y - x0;
             let r2 = v.length_squared();
             let (cos_x, cos_y) = (n0.dot(v), ny.dot(-v));
@@ -401,8 +570,8 @@ impl<'a> Tracer<'a> {
             }
             let g = cos_x * cos_y / (r2 * r2);
             let p_gather = g / PI;
-            let p_light = light_path_pdf(light, y, ny);
-            let rho = self.scene.albedo(t, hit.bary());
+            let p_light = self.light_path_density(k, light, y, ny);
+            let rho = self.scene.albedo(t, bary);
             e += rho / PI * ed * g / (p_gather + p_light);
         }
         e
