@@ -60,6 +60,7 @@ use prm::light::Aperture;
 use prm::{Bvh, Light, LightKind, Scene, Texel};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
 
 use crate::parallel::{par_texels, Cancelled, Control};
 use crate::params::{require, ParamError};
@@ -204,6 +205,7 @@ impl SunPlane {
         };
         let (n, k) = (Self::CELLS, Self::PILOT_SIDE);
         let lit: Vec<bool> = (0..n * n)
+            .into_par_iter()
             .map(|cell| {
                 (0..k * k).any(|s| {
                     let u = ((cell % n) as f32 + ((s % k) as f32 + 0.5) / k as f32) / n as f32;
