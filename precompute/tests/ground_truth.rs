@@ -7,7 +7,7 @@ mod common;
 
 use glam::Vec3;
 use prm::{Bvh, Light, LightKind, Material, Scene, TexelSet};
-use prm_precompute::ground_truth::{GtParams, Tracer};
+use prm_precompute::ground_truth::{GtParams, Irradiance, Tracer};
 
 fn floor_quad(half: f32) -> [Vec3; 4] {
     [
@@ -250,23 +250,7 @@ fn light_paths_agree_with_gathering_and_cut_the_noise_near_a_lamp() {
         let mis = run(512, true, 3);
         let other = if near { run(512, true, 4) } else { run(16384, false, 3) };
         let what = format!("{} at {} m", lamp.name, lamp.position.y);
-        let (mut z2, mut bias, mut var) = (0.0f64, 0.0f64, 0.0f64);
-        for (k, (a, b)) in mis.iter().zip(&other).enumerate() {
-            let (ya, yb) = (prm::luminance(a.indirect) as f64, prm::luminance(b.indirect) as f64);
-            let se2 = (prm::luminance(a.indirect_stderr) as f64).powi(2)
-                + (prm::luminance(b.indirect_stderr) as f64).powi(2);
-            let z = (ya - yb) / se2.sqrt();
-            assert!(z.abs() <= 5.0, "{what}: texel {k}: {ya} vs {yb} ({z} sigma)");
-            z2 += z * z;
-            bias += ya - yb;
-            var += se2;
-        }
-        let m = mis.len() as f64;
-        assert!(m >= 100.0, "{m} texels");
-        // Mean z^2 is 1 with honest errors; sqrt(2/m) is its spread.
-        let mean_z2 = z2 / m;
-        assert!((mean_z2 - 1.0).abs() <= 4.0 * (2.0 / m).sqrt(), "{what}: mean z^2 {mean_z2}");
-        assert!((bias / var.sqrt()).abs() <= 4.0, "{what}: pooled bias {} sigma", bias / var.sqrt());
+        assert_agree_within_their_errors(&mis, &other, &what);
         if near {
             let (noise_mis, noise_gather) = (
                 prm_precompute::ground_truth::indirect_noise(&mis),
@@ -278,6 +262,28 @@ fn light_paths_agree_with_gathering_and_cut_the_noise_near_a_lamp() {
             );
         }
     }
+}
+
+/// Two independent ground truths of the same texels (at least 100) agree within their stated
+/// errors: every texel within 5 sigma of the other, the mean z² within 4 of its spread
+/// (sqrt(2/m) about 1, which honest errors give), and the pooled difference within 4 sigma.
+fn assert_agree_within_their_errors(a: &[Irradiance], b: &[Irradiance], what: &str) {
+    let (mut z2, mut bias, mut var) = (0.0f64, 0.0f64, 0.0f64);
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        let (yx, yy) = (prm::luminance(x.indirect) as f64, prm::luminance(y.indirect) as f64);
+        let se2 = (prm::luminance(x.indirect_stderr) as f64).powi(2)
+            + (prm::luminance(y.indirect_stderr) as f64).powi(2);
+        let z = (yx - yy) / se2.sqrt();
+        assert!(z.abs() <= 5.0, "{what}: texel {k}: {yx} vs {yy} ({z} sigma)");
+        z2 += z * z;
+        bias += yx - yy;
+        var += se2;
+    }
+    let m = a.len() as f64;
+    assert!(m >= 100.0 && b.len() == a.len(), "{what}: {m} texels against {}", b.len());
+    let mean_z2 = z2 / m;
+    assert!((mean_z2 - 1.0).abs() <= 4.0 * (2.0 / m).sqrt(), "{what}: mean z^2 {mean_z2}");
+    assert!((bias / var.sqrt()).abs() <= 4.0, "{what}: pooled bias {} sigma", bias / var.sqrt());
 }
 
 /// A sun through a small skylight lights a patch of floor that gathering finds by chance
@@ -318,22 +324,7 @@ fn a_suns_light_paths_agree_with_gathering_and_cut_the_noise_through_a_skylight(
     };
     let paths = run(256, true, 3);
     let gathered = run(8192, false, 4);
-    let (mut z2, mut bias, mut var) = (0.0f64, 0.0f64, 0.0f64);
-    for (k, (x, y)) in paths.iter().zip(&gathered).enumerate() {
-        let (yx, yy) = (prm::luminance(x.indirect) as f64, prm::luminance(y.indirect) as f64);
-        let se2 = (prm::luminance(x.indirect_stderr) as f64).powi(2)
-            + (prm::luminance(y.indirect_stderr) as f64).powi(2);
-        let z = (yx - yy) / se2.sqrt();
-        assert!(z.abs() <= 5.0, "texel {k}: {yx} vs {yy} ({z} sigma)");
-        z2 += z * z;
-        bias += yx - yy;
-        var += se2;
-    }
-    let m = paths.len() as f64;
-    assert!(m >= 100.0, "{m} texels");
-    let mean_z2 = z2 / m;
-    assert!((mean_z2 - 1.0).abs() <= 4.0 * (2.0 / m).sqrt(), "mean z^2 {mean_z2}");
-    assert!((bias / var.sqrt()).abs() <= 4.0, "pooled bias {} sigma", bias / var.sqrt());
+    assert_agree_within_their_errors(&paths, &gathered, "a sun through a skylight");
     let (noise_paths, noise_gathered) = (
         prm_precompute::ground_truth::indirect_noise(&paths),
         prm_precompute::ground_truth::indirect_noise(&run(256, false, 3)),
