@@ -241,7 +241,7 @@ impl SunPlane {
     }
 
     /// The first surface the sun's ray from (u, v) meets, if it is a front face: (triangle,
-    /// point, normal).
+    /// point, normal facing the sun, barycentrics).
     fn first_hit(&self, scene: &Scene, bvh: &Bvh, u: f32, v: f32) -> Option<(usize, Vec3, Vec3, Vec3)> {
         let hit = bvh.closest_hit(self.origin(u, v), self.w, f32::INFINITY)?;
         let t = hit.triangle as usize;

@@ -290,6 +290,8 @@ pub struct Report {
     /// Surface area no entry's cell covers (triangles too small for an entry, with none near
     /// enough facing the same way), as a fraction of the level's area.
     pub area_without_entry: f64,
+    /// Phase times. The rooms' flood fill, counted in `seconds_clustering`, runs beside the
+    /// texels, so the phases can sum to a little more than `seconds_total`.
     pub seconds_texels: f64,
     pub seconds_entries: f64,
     pub seconds_clustering: f64,
