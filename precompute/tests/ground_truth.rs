@@ -239,14 +239,9 @@ fn light_paths_agree_with_gathering_and_cut_the_noise_near_a_lamp() {
         let near = lamp.position.y < 0.05;
         let mut scene = common::quads(&common::unit_box_faces(), 0.5);
         scene.lights.push(lamp.clone());
-        let bvh = Bvh::build(&scene);
-        let set = TexelSet::build(&scene, 32, 32);
         // Wall and ceiling texels (the floor's own first bounce from the lamp is zero).
-        let picks: Vec<_> = set.texels.iter().filter(|t| t.normal.y < 0.5).step_by(2).copied().collect();
-        let run = |spp, light_paths, seed| {
-            let tracer = Tracer::new(&scene, &bvh, GtParams { spp, light_paths, seed, ..Default::default() });
-            tracer.texels(&picks, 32, prm_precompute::parallel::Control::none()).unwrap()
-        };
+        let walls = WallTexels::of(scene);
+        let run = |spp, light_paths, seed| walls.run(spp, light_paths, seed);
         let mis = run(512, true, 3);
         let other = if near { run(512, true, 4) } else { run(16384, false, 3) };
         let what = format!("{} at {} m", lamp.name, lamp.position.y);
@@ -261,6 +256,29 @@ fn light_paths_agree_with_gathering_and_cut_the_noise_near_a_lamp() {
                 "{what}: noise {noise_mis} vs gathering's {noise_gather}"
             );
         }
+    }
+}
+
+/// Every other texel facing sideways or down (walls and ceiling) of a 32² map of `scene`,
+/// traced by the ground truth.
+struct WallTexels {
+    scene: Scene,
+    bvh: Bvh,
+    picks: Vec<prm::Texel>,
+}
+
+impl WallTexels {
+    fn of(scene: Scene) -> WallTexels {
+        let bvh = Bvh::build(&scene);
+        let set = TexelSet::build(&scene, 32, 32);
+        let picks = set.texels.iter().filter(|t| t.normal.y < 0.5).step_by(2).copied().collect();
+        WallTexels { scene, bvh, picks }
+    }
+
+    fn run(&self, spp: u32, light_paths: bool, seed: u64) -> Vec<Irradiance> {
+        let tracer =
+            Tracer::new(&self.scene, &self.bvh, GtParams { spp, light_paths, seed, ..Default::default() });
+        tracer.texels(&self.picks, 32, prm_precompute::parallel::Control::none()).unwrap()
     }
 }
 
@@ -314,14 +332,9 @@ fn a_suns_light_paths_agree_with_gathering_and_cut_the_noise_through_a_skylight(
         ..Light::point("sun", Vec3::ZERO, Vec3::splat(3.0))
     };
     scene.lights.push(sun);
-    let bvh = Bvh::build(&scene);
-    let set = TexelSet::build(&scene, 32, 32);
     // Wall and ceiling texels, lit only by the floor's patch and what it lights.
-    let picks: Vec<_> = set.texels.iter().filter(|t| t.normal.y < 0.5).step_by(2).copied().collect();
-    let run = |spp, light_paths, seed| {
-        let tracer = Tracer::new(&scene, &bvh, GtParams { spp, light_paths, seed, ..Default::default() });
-        tracer.texels(&picks, 32, prm_precompute::parallel::Control::none()).unwrap()
-    };
+    let walls = WallTexels::of(scene);
+    let run = |spp, light_paths, seed| walls.run(spp, light_paths, seed);
     let paths = run(256, true, 3);
     let gathered = run(8192, false, 4);
     assert_agree_within_their_errors(&paths, &gathered, "a sun through a skylight");
