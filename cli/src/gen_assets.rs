@@ -54,6 +54,10 @@ pub fn run(a: Args) -> Result<()> {
         }
         (None, None, None) => None,
     };
+    if !a.check {
+        std::fs::create_dir_all(&a.output)
+            .with_context(|| format!("making the folder {}", a.output.display()))?;
+    }
     if let Some((scene, name)) = one {
         let bytes = scene.to_glb();
         let path = a.output.join(name);

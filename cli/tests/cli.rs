@@ -242,6 +242,18 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
 }
 
 #[test]
+fn gen_assets_makes_a_folder_it_is_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = dir.path().join("levels/large");
+    let (ok, out, err) = prm(&["gen-assets", "--chambers", "1x1", "-o", s(&folder)]);
+    assert!(ok, "{err}");
+    assert!(out.contains("chambers_1x1.glb"), "{out}");
+    let opts = prm::gltf_load::LoadOptions { unwrap_resolution: Some(256), ..Default::default() };
+    let level = prm::gltf_load::load_scene(folder.join("chambers_1x1.glb"), &opts).unwrap();
+    assert!(level.triangles.len() > 1000, "{} triangles", level.triangles.len());
+}
+
+#[test]
 fn info_reports_the_chamber() {
     let (ok, out, err) = prm(&["info", &asset("chamber.glb"), "--json"]);
     assert!(ok, "{err}");
