@@ -46,6 +46,11 @@ pub struct Rooms {
     side: f32,
     dims: [usize; 3],
     label: Vec<u32>,
+    /// The labels again, one byte each (0 solid, else the room + 1), when there are under
+    /// 255 rooms: [`Rooms::rooms_on_segment`] looks up three voxels of every walk segment a
+    /// precompute records for updates, scattered over the grid, and a quarter of the bytes
+    /// stays in cache better (a chamber's `--cache` walks 4.96 -> 4.63 s, medians of 7).
+    bytes: Option<Vec<u8>>,
     count: u32,
 }
 
@@ -62,7 +67,14 @@ impl Rooms {
             }
         }
         if !(lo.cmple(hi).all()) {
-            return Rooms { lo: Vec3::ZERO, side: 1.0, dims: [1, 1, 1], label: vec![0], count: 1 };
+            return Rooms {
+                lo: Vec3::ZERO,
+                side: 1.0,
+                dims: [1, 1, 1],
+                label: vec![0],
+                bytes: None,
+                count: 1,
+            };
         }
         let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
         let diagonal = extent.length().max(f32::MIN_POSITIVE);
@@ -74,11 +86,16 @@ impl Rooms {
         let lo = lo - Vec3::splat(side);
         let dims = ((extent + Vec3::splat(2.0 * side)) / side).ceil().as_uvec3().max(glam::UVec3::ONE);
         let dims = [dims.x as usize + 1, dims.y as usize + 1, dims.z as usize + 1];
-        let mut rooms = Rooms { lo, side, dims, label: vec![0; dims[0] * dims[1] * dims[2]], count: 0 };
+        let label = vec![0; dims[0] * dims[1] * dims[2]];
+        let mut rooms = Rooms { lo, side, dims, label, bytes: None, count: 0 };
         for t in triangles {
             rooms.mark(t);
         }
         rooms.flood();
+        if rooms.count < u32::from(u8::MAX) {
+            rooms.bytes =
+                Some(rooms.label.iter().map(|&l| if l == SOLID { 0 } else { l as u8 + 1 }).collect());
+        }
         rooms
     }
 
@@ -119,8 +136,15 @@ impl Rooms {
             return;
         }
         let f = (0.5 * self.side / len.max(f32::MIN_POSITIVE)).min(0.5);
-        for t in [f, 0.5, 1.0 - f] {
-            if let Some(r) = self.free_at(a.lerp(b, t)) {
+        // A segment under a voxel long has its three points at its middle.
+        let points: &[f32] = if f < 0.5 { &[f, 0.5, 1.0 - f] } else { &[0.5] };
+        for &t in points {
+            let p = a.lerp(b, t);
+            let room = match &self.bytes {
+                Some(bytes) => self.voxel(p).and_then(|v| bytes[v].checked_sub(1)).map(u32::from),
+                None => self.free_at(p),
+            };
+            if let Some(r) = room {
                 found(r);
             }
         }
@@ -429,5 +453,50 @@ pub(crate) mod tests {
         assert_eq!(Rooms::new(&[]).count(), 1);
         let nan = [[Vec3::NAN, Vec3::ZERO, Vec3::X]];
         assert!(Rooms::new(&nan).count() >= 1);
+    }
+
+    /// The rooms a segment's three points fall in, from the full labels (the byte table's twin).
+    fn rooms_by_labels(rooms: &Rooms, a: Vec3, b: Vec3) -> Vec<u32> {
+        let f = (0.5 * rooms.side / a.distance(b).max(f32::MIN_POSITIVE)).min(0.5);
+        let mut out: Vec<u32> =
+            [f, 0.5, 1.0 - f].iter().filter_map(|&t| rooms.free_at(a.lerp(b, t))).collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// Segments' rooms from the one-byte labels are those of the full labels, with under 255
+    /// rooms (the byte table) and with more (the full labels alone), segments through walls,
+    /// within a voxel and outside the grid included.
+    #[test]
+    fn segments_find_the_same_rooms_with_byte_labels_as_with_full_ones() {
+        use rand::{Rng, SeedableRng};
+        // Two rooms, and 300 closed cells (301 rooms with the outside).
+        let mut two = closed_box(Vec3::ZERO, Vec3::new(4.0, 3.0, 4.0), 0.0);
+        two.extend(closed_box(Vec3::new(4.5, 0.0, 0.0), Vec3::new(8.5, 3.0, 4.0), 0.0));
+        let mut many = Vec::new();
+        for k in 0..300 {
+            let lo = Vec3::new((k % 20) as f32 * 0.8, 0.0, (k / 20) as f32 * 0.8);
+            many.extend(closed_box(lo, lo + Vec3::splat(0.6), 0.0));
+        }
+        for (level, small) in [(two, true), (many, false)] {
+            let rooms = Rooms::new(&level);
+            assert_eq!(rooms.bytes.is_some(), small, "{} rooms", rooms.count());
+            let (lo, hi) = (rooms.lo, rooms.lo + Vec3::from_array(rooms.dims.map(|d| d as f32)) * rooms.side);
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+            let mut point = || lo - 1.0 + (hi - lo + 2.0) * Vec3::from(rng.random::<[f32; 3]>());
+            let mut seen = 0;
+            for k in 0..4000 {
+                let a = point();
+                let b = if k % 4 == 0 { a + 0.3 * rooms.side * Vec3::ONE } else { point() };
+                let mut found = Vec::new();
+                rooms.rooms_on_segment(a, b, |r| found.push(r));
+                found.sort_unstable();
+                found.dedup();
+                assert_eq!(found, rooms_by_labels(&rooms, a, b), "segment {a} .. {b}");
+                seen += found.len();
+            }
+            assert!(seen > 500, "the segments found {seen} rooms");
+        }
     }
 }
