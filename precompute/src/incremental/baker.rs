@@ -606,20 +606,41 @@ impl Baker {
             );
         }
         // The VPLs that differ: what the baked cells and corrections hold against the paths.
-        // A count > 0 is baked but gone (to take away); < 0 is new (to add).
-        let mut net: HashMap<VplKey, (i32, Member)> = HashMap::new();
-        for b in self.baked.values() {
-            for m in b.plus.iter() {
-                net.entry(vpl_key(m)).or_insert((0, *m)).0 += 1;
+        // A count > 0 is baked but gone (to take away); < 0 is new (to add). Each VPL is
+        // represented by its first listing (baked cells in key order, then the paths): its
+        // onward flux and reach may differ between listings. Counted in one sort: a hash map
+        // over every VPL took 0.18 s of an edit's plan (0.29-0.36 s, the chamber at 40,000
+        // paths), the sort 0.05-0.08 s.
+        let baked = self
+            .baked
+            .values()
+            .flat_map(|b| b.plus.iter().map(|m| (1, m)).chain(b.minus.iter().map(|m| (-1, m))));
+        let mut listed: Vec<(u32, u32, u32, u32, i32, &Member)> = baked
+            .chain(members.iter().map(|m| (-1, m)))
+            .enumerate()
+            .map(|(order, (count, m))| (m.light, m.path, m.vertex, order as u32, count, m))
+            .collect();
+        listed.sort_unstable_by_key(|x| (x.0, x.1, x.2, x.3));
+        // A path vertex is listed a few times (baked, corrected, traced again): its VPLs are
+        // told apart by their whole keys, each counted at its first listing.
+        let mut diffs: Vec<(i32, Member)> = Vec::new();
+        for run in listed.chunk_by(|a, b| (a.0, a.1, a.2) == (b.0, b.1, b.2)) {
+            if let [x] = run {
+                diffs.push((x.4, *x.5));
+                continue;
             }
-            for m in b.minus.iter() {
-                net.entry(vpl_key(m)).or_insert((0, *m)).0 -= 1;
+            let keys: Vec<VplKey> = run.iter().map(|x| vpl_key(x.5)).collect();
+            for (i, x) in run.iter().enumerate() {
+                if keys[..i].contains(&keys[i]) {
+                    continue;
+                }
+                let c: i32 =
+                    run.iter().zip(&keys).skip(i).filter(|(_, k)| **k == keys[i]).map(|(y, _)| y.4).sum();
+                if c != 0 {
+                    diffs.push((c, *x.5));
+                }
             }
         }
-        for m in &members {
-            net.entry(vpl_key(m)).or_insert((0, *m)).0 -= 1;
-        }
-        let mut diffs: Vec<(i32, Member)> = net.into_values().filter(|(c, _)| *c != 0).collect();
         diffs.sort_unstable_by_key(|(c, m)| (m.code, vpl_key(m), *c));
         self.vpls_changed = diffs.iter().map(|(c, _)| c.unsigned_abs() as usize).sum();
 
