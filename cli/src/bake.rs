@@ -95,6 +95,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
     let glow = scene.emissive_lights();

@@ -51,6 +51,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     let p = BakeParams {
         photons: a.vpls,

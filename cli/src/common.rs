@@ -19,6 +19,20 @@ pub struct SceneArgs {
     pub allow_overlap: bool,
 }
 
+/// Check, before any work, that an output file can be made where it is asked for: its folder
+/// exists and it is not itself a folder (a long bake must not end in "No such file").
+pub fn check_output_file(path: &std::path::Path) -> Result<()> {
+    if path.is_dir() {
+        bail!("{} is a folder: give the output a file name", path.display());
+    }
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(folder) if !folder.is_dir() => {
+            bail!("the folder {} does not exist (for the output {})", folder.display(), path.display())
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Largest accepted atlas side: 16384^2 texels is already a 4 GiB texel set.
 pub const MAX_ATLAS: u32 = 16384;
 

@@ -32,6 +32,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     let (scene, bytes_prm) = a.map.load()?;
     let bvh = Bvh::build(&scene);
     let lights = a.rig.lights(&scene)?;

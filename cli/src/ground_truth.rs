@@ -54,6 +54,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     let params = GtParams {
         spp: a.spp,
         max_bounces: a.max_bounces,

@@ -138,6 +138,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     if let Some(shard) = &a.shard {
         let given = [
             ("--entries", a.entries.is_some()),

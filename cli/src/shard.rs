@@ -123,6 +123,7 @@ pub struct MergeArgs {
 
 /// `prm merge`.
 pub fn merge(a: MergeArgs) -> Result<()> {
+    crate::common::check_output_file(&a.output)?;
     with_threads(a.threads, || {
         let start = Instant::now();
         let plan = Plan::read(&a.plan).map_err(|e| failed(e, &a.output))?;

@@ -241,6 +241,34 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     );
 }
 
+/// An output whose folder does not exist, or that names a folder, is refused before any work,
+/// with the folder named, and nothing is written.
+#[test]
+fn an_output_with_no_folder_is_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no/such");
+    let cornell = asset("cornell.glb");
+    let file = |name: &str| missing.join(name).display().to_string();
+    let runs: [Vec<String>; 5] = [
+        vec!["precompute".into(), cornell.clone(), "-o".into(), file("c.prm")],
+        vec!["ground-truth".into(), cornell.clone(), "--spp".into(), "1".into(), "-o".into(), file("gt.exr")],
+        vec!["texels".into(), cornell.clone(), "-o".into(), file("t.exr")],
+        vec!["bake-reference".into(), cornell.clone(), "-o".into(), file("r.exr")],
+        vec!["bake".into(), cornell.clone(), "--atlas".into(), "64".into(), "-o".into(), file("b.exr")],
+    ];
+    for args in &runs {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (ok, _, err) = prm(&args);
+        assert!(
+            !ok && err.contains("does not exist") && err.contains(&missing.display().to_string()),
+            "{args:?}: {err}"
+        );
+    }
+    let (ok, _, err) = prm(&["texels", &cornell, "-o", s(dir.path())]);
+    assert!(!ok && err.contains("is a folder"), "{err}");
+    assert!(!missing.exists() && std::fs::read_dir(dir.path()).unwrap().count() == 0, "nothing written");
+}
+
 #[test]
 fn gen_assets_makes_a_folder_it_is_given() {
     let dir = tempfile::tempdir().unwrap();
