@@ -95,6 +95,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if !(a.tolerance.is_finite() && a.tolerance >= 0.0) {
+        bail!("--tolerance {} must be a finite distance, at least 0", a.tolerance);
+    }
     crate::common::check_output_file(&a.output)?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).

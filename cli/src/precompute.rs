@@ -192,10 +192,10 @@ pub fn run(a: Args) -> Result<()> {
 
 /// `f` on a pool of `threads` worker threads (None: all cores).
 pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
-    let threads = threads.unwrap_or(0);
-    if threads > 1024 {
-        bail!("--threads {threads} is out of range (1 to 1024)");
+    if let Some(t @ (0 | 1025..)) = threads {
+        bail!("--threads {t} is out of range (1 to 1024; leave it out for all cores)");
     }
+    let threads = threads.unwrap_or(0);
     let pool =
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting worker threads")?;
     pool.install(f)

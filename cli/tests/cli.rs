@@ -234,6 +234,11 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     }
     let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--texel-size", "0", "-o", s(&out)]);
     assert!(!ok && err.contains("texel size 0"), "{err}");
+    let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--threads", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("--threads 0 is out of range"), "{err}");
+    let (ok, _, err) =
+        prm(&["bake", &asset("cornell.glb"), "--atlas", "64", "--tolerance", "NaN", "-o", s(&out)]);
+    assert!(!ok && err.contains("--tolerance NaN"), "{err}");
     assert_eq!(
         std::fs::read_dir(dir.path()).unwrap().count(),
         1,
