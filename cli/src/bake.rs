@@ -315,7 +315,12 @@ pub fn follow(
 }
 
 fn write_lightmap(baker: &Baker, set: &TexelSet, output: &Path) -> Result<()> {
+    // Light taken out leaves round-off where it was added (-1e-14 W/m² on the Cornell box once
+    // its lamp has left the level), and a correction's removed polygons are not exactly the
+    // cell's they correct: a lightmap holds no negative light.
+    let clamp = |v: Vec<Vec3>| -> Vec<Vec3> { v.into_iter().map(|x| x.max(Vec3::ZERO)).collect() };
     let (direct, indirect) = baker.lightmap();
+    let (direct, indirect) = (clamp(direct), clamp(indirect));
     let total: Vec<Vec3> = direct.iter().zip(&indirect).map(|(d, i)| *d + *i).collect();
     let mut ch = Channels::new(set.width as usize, set.height as usize);
     ch.insert_rgb("", &set.to_image(&total, Vec3::ZERO));

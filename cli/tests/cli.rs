@@ -1229,6 +1229,27 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
     // The direct layer is the direct light of the edited level: the wall moved 2 cm.
     let ch = Channels::read(&out).unwrap();
     assert!(ch.rgb("indirect").unwrap().iter().any(|x| x.x > 0.0));
+    // The lamp sent far out of the level: all its light is taken out again, and what is left
+    // (round-off) is written as no light, not as a negative one.
+    std::fs::write(&script, r#"[{"light": {"id": 0, "position": [1e38, 0.0, 0.0]}}]"#).unwrap();
+    let (ok, _, stderr) = prm(&[
+        "bake",
+        &asset("cornell.glb"),
+        "--atlas",
+        "32",
+        "--paths",
+        "2000",
+        "--edits",
+        s(&script),
+        "-o",
+        s(&out),
+    ]);
+    assert!(ok, "{stderr}");
+    let ch = Channels::read(&out).unwrap();
+    for layer in ["direct", "indirect"] {
+        let v = ch.rgb(layer).unwrap();
+        assert!(v.iter().all(|x| x.min_element() >= 0.0 && x.max_element() < 1e-6), "{layer}");
+    }
     for (bad, says) in [
         (r#"[{"move": {"node": "no_such_node", "by": [1, 0, 0]}}]"#, "no node named"),
         (r#"[{"teleport": {}}]"#, "unknown edit"),
