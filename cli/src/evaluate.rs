@@ -32,6 +32,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if a.top_k == Some(0) {
+        anyhow::bail!("--top-k must be at least 1 (leave it out for every pane)");
+    }
     crate::common::check_output_file(&a.output)?;
     let (scene, bytes_prm) = a.map.load()?;
     let bvh = Bvh::build(&scene);

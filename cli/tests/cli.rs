@@ -234,6 +234,9 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     }
     let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--texel-size", "0", "-o", s(&out)]);
     assert!(!ok && err.contains("texel size 0"), "{err}");
+    let (ok, _, err) =
+        prm(&["evaluate", &asset("cornell.glb"), "--prm", s(&junk), "--top-k", "0", "-o", s(&out)]);
+    assert!(!ok && err.contains("--top-k must be at least 1"), "{err}");
     let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--threads", "0", "-o", s(&out)]);
     assert!(!ok && err.contains("--threads 0 is out of range"), "{err}");
     let (ok, _, err) =
