@@ -49,7 +49,7 @@ pub struct Rooms {
     /// The labels again, one byte each (0 solid, else the room + 1), when there are under
     /// 255 rooms: [`Rooms::rooms_on_segment`] looks up three voxels of every walk segment a
     /// precompute records for updates, scattered over the grid, and a quarter of the bytes
-    /// stays in cache better (a chamber's `--cache` walks 4.96 -> 4.63 s, medians of 7).
+    /// stay in cache better (a chamber's `--cache` walks 4.96 -> 4.63 s, medians of 7).
     bytes: Option<Vec<u8>>,
     count: u32,
 }
