@@ -1210,21 +1210,27 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
     let dir = tmp.path();
     let out = dir.join("b.exr");
     let script = dir.join("edits.json");
-    std::fs::write(&script, r#"[{"move": {"node": "red", "by": [0.02, 0.0, 0.0]}}, {"albedo": {"material": 0, "rgb": [0.5, 0.5, 0.5]}}]"#)
-        .unwrap();
-    let (ok, stdout, stderr) = prm(&[
-        "bake",
-        &asset("cornell.glb"),
-        "--atlas",
-        "32",
-        "--paths",
-        "2000",
-        "--edits",
-        s(&script),
-        "-o",
-        s(&out),
-        "--json",
-    ]);
+    // The Cornell box baked with `edits` as its script into `out`, at `atlas` and `paths`.
+    let bake = |edits: &str, out: &Path, atlas: &str, paths: &str| {
+        std::fs::write(&script, edits).unwrap();
+        let cornell = asset("cornell.glb");
+        let args = [
+            "bake",
+            &cornell,
+            "--atlas",
+            atlas,
+            "--paths",
+            paths,
+            "--edits",
+            s(&script),
+            "-o",
+            s(out),
+            "--json",
+        ];
+        prm(&args)
+    };
+    let edits = r#"[{"move": {"node": "red", "by": [0.02, 0.0, 0.0]}}, {"albedo": {"material": 0, "rgb": [0.5, 0.5, 0.5]}}]"#;
+    let (ok, stdout, stderr) = bake(edits, &out, "32", "2000");
     assert!(ok, "{stderr}");
     let j: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(j["edits"].as_array().unwrap().len(), 2);
@@ -1234,19 +1240,7 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
     assert!(ch.rgb("indirect").unwrap().iter().any(|x| x.x > 0.0));
     // The lamp sent far out of the level: all its light is taken out again, and what is left
     // (round-off) is written as no light, not as a negative one.
-    std::fs::write(&script, r#"[{"light": {"id": 0, "position": [1e38, 0.0, 0.0]}}]"#).unwrap();
-    let (ok, _, stderr) = prm(&[
-        "bake",
-        &asset("cornell.glb"),
-        "--atlas",
-        "32",
-        "--paths",
-        "2000",
-        "--edits",
-        s(&script),
-        "-o",
-        s(&out),
-    ]);
+    let (ok, _, stderr) = bake(r#"[{"light": {"id": 0, "position": [1e38, 0.0, 0.0]}}]"#, &out, "32", "2000");
     assert!(ok, "{stderr}");
     let ch = Channels::read(&out).unwrap();
     for layer in ["direct", "indirect"] {
@@ -1260,19 +1254,7 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
         (r#"{"move": 1}"#, "a JSON list"),
     ] {
         let out = dir.join("bad.exr");
-        std::fs::write(&script, bad).unwrap();
-        let (ok, _, stderr) = prm(&[
-            "bake",
-            &asset("cornell.glb"),
-            "--atlas",
-            "16",
-            "--paths",
-            "100",
-            "--edits",
-            s(&script),
-            "-o",
-            s(&out),
-        ]);
+        let (ok, _, stderr) = bake(bad, &out, "16", "100");
         assert!(!ok && stderr.contains(says), "{bad}: {stderr}");
         assert!(!out.exists(), "{bad}: no output on error");
     }
