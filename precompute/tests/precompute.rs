@@ -94,6 +94,32 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
 }
 
 #[test]
+fn the_tables_cutoff_keeps_the_furnace_at_a_over_one_minus_a() {
+    // The next-bounce table's weak elements played out (`transport::Cutoff`) at a reach where
+    // most of the closed box's elements are weak (a cluster's first bounce at a cell is about
+    // 0.02-0.05 here; the cutoff of a 21-entry cluster at 12 spacings is 0.046): each is
+    // unbiased, so the box's mean irradiance stays a/(1-a). The draws are shared by every
+    // texel, so the mean's tolerance is theirs (about 1 % here), not the walks'.
+    let a = 0.5f32;
+    let scene = closed_box(a);
+    let set = TexelSet::build(&scene, 24, 24);
+    let mean_of = |cutoff: f32| {
+        let p = PrecomputeParams { smooth_radius: 0.0, next_cutoff: cutoff, ..params(512, 64, 24, 24) };
+        let prm = bake(&scene, &p);
+        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
+        (vals.iter().map(|v| v.x).sum::<f32>() / vals.len() as f32, vals)
+    };
+    let want = a / (1.0 - a);
+    let (whole, all) = mean_of(0.0);
+    let (played, cut) = mean_of(12.0);
+    assert!((played - want).abs() <= 0.04 * want, "with the cutoff: mean {played} vs {want}");
+    assert!((whole - want).abs() <= 0.02 * want, "without: mean {whole} vs {want}");
+    // The cutoff did play elements out: the same walks give another lightmap.
+    let moved = all.iter().zip(&cut).filter(|(x, y)| (x.x - y.x).abs() > 1e-3 * want).count();
+    assert!(moved > all.len() / 2, "only {moved} of {} texels changed", all.len());
+}
+
+#[test]
 fn superposition_and_clustering_invariance() {
     // An open box (floor and three walls) lit unevenly.
     let scene = open_box();
@@ -445,6 +471,9 @@ fn absurd_parameters_are_refused_naming_the_parameter() {
         (PrecomputeParams { near_radius: -1.0, ..preview() }, "near radius", "-1"),
         (PrecomputeParams { near_radius: 100.0, ..preview() }, "near radius", "100"),
         (PrecomputeParams { band_tile_rows: 0, ..preview() }, "band tile rows", "0"),
+        (PrecomputeParams { next_cutoff: f32::NAN, ..preview() }, "next cutoff", "NaN"),
+        (PrecomputeParams { next_cutoff: 0.5, ..preview() }, "next cutoff", "0.5"),
+        (PrecomputeParams { next_cutoff: -32.0, ..preview() }, "next cutoff", "-32"),
     ] {
         let e = p.validate().unwrap_err();
         assert_eq!((e.name, e.value.as_str()), (name, value), "{e}");

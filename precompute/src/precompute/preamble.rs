@@ -20,7 +20,9 @@ use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FarReuse, FirstBounce};
 use crate::near::{echo_links, near_links, EchoReuse};
 use crate::parallel::stop_if;
-use crate::transport::{CellSamples, Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport};
+use crate::transport::{
+    CellSamples, Cutoff, Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport,
+};
 use crate::update::{TriangleDigest, Untouched, UpdateCache};
 
 /// Everything the walks and the panes' encoding take from the level before any walk: the
@@ -63,6 +65,9 @@ pub struct Preamble {
     pub(crate) samples: CellSamples,
     #[serde(skip)]
     pub(crate) lit: Vec<bool>,
+    /// The table's cutoff of weak elements (`PrecomputeParams::next_cutoff`).
+    #[serde(skip)]
+    pub(crate) cutoff: Cutoff,
     pub(crate) echo: Echo,
     pub(crate) smoothing: Option<Smoothing>,
     /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
@@ -275,6 +280,7 @@ impl Preamble {
             None => group_clusters(scene, &entries, &clustering.members, &cents, params),
         };
         report.seconds_panes += t.elapsed().as_secs_f64();
+        let cutoff = Cutoff::new(clustering.members.iter().map(Vec::len), params.next_cutoff, params.seed);
         let mut pre = Preamble {
             set,
             entries,
@@ -293,6 +299,7 @@ impl Preamble {
             entry_room: room,
             samples,
             lit,
+            cutoff,
             echo,
             smoothing,
             frames,
@@ -381,6 +388,7 @@ impl Preamble {
             clusters,
             self.far.radius,
             wanted.as_deref().or(only),
+            &self.cutoff,
         );
         drop(first);
         self.next = Some(match self.next.take() {
@@ -396,7 +404,7 @@ impl Preamble {
         if !self.next_on {
             return Vec::new();
         }
-        NextBounce::input_digests(&self.samples, exact, self.entries.len(), self.far.radius)
+        NextBounce::input_digests(&self.samples, exact, self.entries.len(), self.far.radius, &self.cutoff)
     }
 
     /// Per covered texel (set order), a digest of what [`Preamble::band_exact`] makes its exact

@@ -208,6 +208,8 @@ impl Plan {
             entry_room: Vec::new(),
             samples: Default::default(),
             lit: Vec::new(),
+            // The table is the plan's: a shard makes no row.
+            cutoff: Default::default(),
             echo: Echo::default(),
             smoothing: None,
             frames: Vec::new(),

@@ -56,7 +56,7 @@ use crate::cells::CellOwners;
 use crate::parallel::{par_texels, Cancelled, Control};
 use crate::update::{Recorder, VoxelGrid};
 pub use gather::MisTables;
-pub use next::{CellSamples, NextBounce};
+pub use next::{CellSamples, Cutoff, NextBounce};
 use prm::rooms::Rooms;
 
 /// How pane contents are estimated.

@@ -20,10 +20,25 @@
 //! the far field does not light (its first hits are credited as before), and a hit farther
 //! from its vertex than the far field's radius (neither the far field nor the table reaches
 //! it).
+//!
+//! **Weak elements** ([`Cutoff`]). Every vertex adds its whole row, so the rows' length is
+//! what the walks cost: in one room every cell sees every cluster (164 elements a row on the
+//! chamber), most of them weakly. An element whose first bounce is under a cluster's cutoff
+//! `t_c` is kept with probability `F / t_c` and then carries `t_c` (Russian roulette, made
+//! once when the row is made): each element's expectation is unchanged, the rows are 2.7x
+//! shorter on the chamber and its walks 0.5-0.6 s faster. The cutoff is the first bounce an
+//! albedo-1 cluster facing a cell head-on gives at `reach` entry spacings: its area over
+//! `pi (reach s)^2` with s² = A / N the entry's area, so `t_c = |c| / (pi reach²)`, the same
+//! at any density and scale. The noise it adds is the walks' kind (a weak cluster's light at
+//! a vertex sometimes counted larger, mostly not), small against theirs: at the default reach
+//! of 32 it moved the chamber's torch frames by 0.2-1.2 % RMS against the same walks with
+//! every element (module tests hold the expectation).
 
 use glam::Vec3;
 use prm::fingerprint::{fnv1a, FNV_START};
+use prm::sampling::stream;
 use prm::TexelSet;
+use rand::Rng;
 use rayon::prelude::*;
 
 use super::TexelPanes;
@@ -34,6 +49,53 @@ pub const CELL_SAMPLES: usize = 4;
 /// Cells whose rows are made at a time (what the sampled texels' first bounce holds).
 const CELL_CHUNK: usize = 2048;
 use crate::cells::CellOwners;
+
+/// The random streams' tag of the rows' roulette ([`Cutoff`]).
+const CUTOFF_STREAM: u64 = 1 << 40;
+
+/// Per cluster, the first bounce under which a row element is kept by Russian roulette only
+/// (module doc, *Weak elements*), and the seed of its draws. Empty: every element is kept.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Cutoff {
+    below: Vec<f32>,
+    seed: u64,
+}
+
+impl Cutoff {
+    /// The cutoffs of clusters of `members` entries each at `reach` entry spacings (0: none).
+    pub fn new(members: impl IntoIterator<Item = usize>, reach: f32, seed: u64) -> Cutoff {
+        if !(reach > 0.0) {
+            return Cutoff { below: Vec::new(), seed };
+        }
+        let per_entry = 1.0 / (std::f32::consts::PI * reach * reach);
+        Cutoff { below: members.into_iter().map(|m| m as f32 * per_entry).collect(), seed }
+    }
+
+    /// Entry `e`'s row with its weak elements played out: each element under its cluster's
+    /// cutoff (in its largest channel) is dropped, or kept at the cutoff with probability
+    /// value / cutoff. The draws are entry `e`'s own stream, in the row's order.
+    fn apply(&self, e: usize, row: TexelPanes) -> TexelPanes {
+        if self.below.is_empty() {
+            return row;
+        }
+        let mut rng = stream(self.seed, CUTOFF_STREAM, e as u64);
+        row.into_iter()
+            .filter_map(|(c, v)| {
+                let (m, t) = (v.max_element(), self.below.get(c as usize).copied().unwrap_or(0.0));
+                if m >= t {
+                    return Some((c, v));
+                }
+                (rng.random::<f32>() * t < m).then(|| (c, v * (t / m)))
+            })
+            .collect()
+    }
+
+    /// A digest of the cutoffs and seed (every row's inputs include it).
+    fn digest(&self) -> u64 {
+        let h = self.below.iter().fold(FNV_START, |h, t| fnv1a(h, &t.to_le_bytes()));
+        fnv1a(h, &self.seed.to_le_bytes())
+    }
+}
 
 /// Per entry cell, the first bounce per unit irradiance of each cluster at its texels (their
 /// mean), and which texels have their own first bounce given (module doc).
@@ -65,7 +127,8 @@ impl NextBounce {
     /// `CELL_SAMPLES` (4) of its cell's texels spread over it (a cell holds a texel when its
     /// entry owns the texel's point), the links' (`links(k)`, covered texel k's) plus the far
     /// field's (`first`). `lit`: the covered texels whose whole first bounce that is. With
-    /// `only`, the rows of the entries it marks alone are made; the others are left out.
+    /// `only`, the rows of the entries it marks alone are made; the others are left out. Weak
+    /// elements are played out by `cutoff`.
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         set: &TexelSet,
@@ -77,6 +140,7 @@ impl NextBounce {
         clusters: usize,
         radius: f32,
         only: Option<&[bool]>,
+        cutoff: &Cutoff,
     ) -> NextBounce {
         let made = |e: usize| only.is_none_or(|o| o.get(e).copied().unwrap_or(false));
         // A row left out is empty: its entry's texels are not sampled.
@@ -125,7 +189,7 @@ impl NextBounce {
                             .map(|&c| (c, std::mem::take(&mut acc[c as usize]) * scale))
                             .collect();
                         touched.clear();
-                        quantise(&row)
+                        quantise(&cutoff.apply(cells[i], row))
                     },
                 )
                 .collect();
@@ -247,15 +311,23 @@ impl NextBounce {
     }
 
     /// Per entry, a digest of what [`NextBounce::build`] makes its row of: which of its
-    /// cell's texels it samples, and each one's digest of its exact first bounce's inputs
-    /// (`exact`, per covered texel: `Preamble::exact_digests`). An update makes again only
+    /// cell's texels it samples, each one's digest of its exact first bounce's inputs
+    /// (`exact`, per covered texel: `Preamble::exact_digests`), and the cutoff with the entry
+    /// whose draws play out its weak elements. An update makes again only
     /// the rows whose inputs differ from the old bake's, to learn which values changed (the
     /// others' are as they were).
-    pub fn input_digests(samples: &CellSamples, exact: &[u64], entries: usize, radius: f32) -> Vec<u64> {
+    pub fn input_digests(
+        samples: &CellSamples,
+        exact: &[u64],
+        entries: usize,
+        radius: f32,
+        cutoff: &Cutoff,
+    ) -> Vec<u64> {
+        let start = fnv1a(cutoff.digest(), &radius.to_le_bytes());
         (0..entries)
             .into_par_iter()
             .map(|e| {
-                let mut h = fnv1a(FNV_START, &radius.to_le_bytes());
+                let mut h = fnv1a(start, &e.to_le_bytes());
                 for k in samples.of(e) {
                     h = fnv1a(h, &exact.get(k).copied().unwrap_or(0).to_le_bytes());
                 }
@@ -370,5 +442,48 @@ mod tests {
         // A row of nothing stays nothing, with a zero step rather than a division by zero.
         let (unit, q) = quantise(&vec![(1, Vec3::ZERO)]);
         assert_eq!((unit, q.len()), (Vec3::ZERO, 0));
+    }
+
+    #[test]
+    fn the_cutoff_keeps_strong_elements_and_each_weak_one_in_expectation() {
+        // Clusters of 16, 16, 4 and 4 entries at a reach of 4 spacings: cutoffs 16 / (16 pi)
+        // and 4 / (16 pi).
+        let cutoff = Cutoff::new([16, 16, 4, 4], 4.0, 7);
+        let (t0, t1) = (1.0 / std::f32::consts::PI, 0.25 / std::f32::consts::PI);
+        let row: TexelPanes = vec![
+            (0, Vec3::new(0.5, 0.2, 0.1)),    // above t0: kept as it is
+            (1, Vec3::new(0.02, 0.05, 0.01)), // a sixth of t0
+            (2, Vec3::new(0.03, 0.0, 0.015)), // under half of t1
+            (3, Vec3::new(0.2, 0.1, 0.0)),    // above t1
+        ];
+        let runs = 20_000;
+        let mut sum = [Vec3::ZERO; 4];
+        for e in 0..runs {
+            let out = cutoff.apply(e, row.clone());
+            assert_eq!(out, cutoff.apply(e, row.clone()), "the draws are the entry's own");
+            // The strong elements come back whole, and each weak one kept carries its
+            // cluster's cutoff in its largest channel, its channels in proportion.
+            assert_eq!(out.first(), row.first());
+            assert_eq!(out.last(), row.last());
+            for &(c, v) in &out {
+                let (t, was) = (if c < 2 { t0 } else { t1 }, row[c as usize].1);
+                if c == 1 || c == 2 {
+                    assert!((v.max_element() - t).abs() < 1e-6 * t, "cluster {c} kept at {v}");
+                    assert!((v * was.max_element() - was * t).abs().max_element() < 1e-6, "{v} for {was}");
+                }
+                sum[c as usize] += v;
+            }
+        }
+        // The mean over 20,000 entries' draws is each element's value: within 4 standard errors
+        // of a keep-or-drop draw (p = 1/6 and 0.38: a relative error under 3 % and 2 %).
+        for (c, &(_, v)) in row.iter().enumerate() {
+            let mean = sum[c] / runs as f32;
+            assert!((mean - v).abs().cmple(v * 0.04 + 1e-9).all(), "cluster {c}: mean {mean} for {v}");
+        }
+        // No cutoff, no change; the cutoff and its seed are in the rows' input digests.
+        let none = Cutoff::new([16, 16, 4, 4], 0.0, 7);
+        assert_eq!(none.apply(3, row.clone()), row);
+        assert_ne!(none.digest(), cutoff.digest());
+        assert_ne!(Cutoff::new([16, 16, 4, 4], 4.0, 8).digest(), cutoff.digest());
     }
 }
