@@ -1,19 +1,20 @@
 //! `prm bench-rays`: closest-hit and occlusion throughput on a level, in rays per second.
 //!
-//! The rays are the ones the bakers trace: closest-hit rays leave texel points in
-//! cosine-distributed directions; occlusion rays join two random texel points.
+//! The rays are the ones the bakers trace: closest-hit rays leave surface points in
+//! cosine-distributed directions; occlusion rays join two random surface points. Points are
+//! uniform over the surfaces' area (as texels are), so no lightmap UVs are needed.
 
 use std::time::Instant;
 
 use anyhow::{bail, Result};
 use glam::Vec3;
-use prm::{Bvh, TexelSet};
+use prm::{Bvh, Scene};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde_json::json;
 
-use crate::common::{load, SceneArgs};
+use crate::common::{load_for_rays, SceneArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -31,24 +32,25 @@ pub fn run(a: Args) -> Result<()> {
     if a.rays == 0 || a.rays > 1_000_000_000 {
         bail!("--rays {} is out of range (1 to 1e9)", a.rays);
     }
-    let scene = load(&a.scene, 256, a.json)?;
+    // The rays need points on the surfaces, not lightmap texels: the level's lightmap UVs are
+    // neither generated nor checked (a level that needs several pages is measured as it is).
+    let scene = load_for_rays(&a.scene, a.json)?;
     let start = Instant::now();
     let bvh = Bvh::build(&scene);
     let build = start.elapsed().as_secs_f64();
-    let set = TexelSet::build(&scene, 256, 256);
-    if set.is_empty() {
-        bail!("the level has no lightmap texels to start rays from");
-    }
+    let Some(points) = SurfacePoints::new(&scene) else {
+        bail!("the level has no surface to start rays from");
+    };
     let mut rng = Pcg64Mcg::seed_from_u64(7);
-    let rays: Vec<(Vec3, Vec3, Vec3, Vec3)> = (0..a.rays)
+    // Each ray: start point and normal, a cosine direction, and another point and its normal.
+    let rays: Vec<(Vec3, Vec3, Vec3, Vec3, Vec3)> = (0..a.rays)
         .map(|_| {
-            let t = &set.texels[rng.random_range(0..set.len())];
-            let o = &set.texels[rng.random_range(0..set.len())];
-            let d = prm::sampling::cosine_direction(t.normal, rng.random(), rng.random());
-            (t.position, t.normal, d, o.position + o.normal * 0.0)
+            let (p, n) = points.sample(&mut rng);
+            let (q, nq) = points.sample(&mut rng);
+            let d = prm::sampling::cosine_direction(n, rng.random(), rng.random());
+            (p, n, d, q, nq)
         })
         .collect();
-    let normals: Vec<Vec3> = (0..a.rays).map(|k| set.texels[(k * 7919) % set.len()].normal).collect();
 
     let time = |f: &dyn Fn() -> usize| {
         let s = Instant::now();
@@ -59,10 +61,8 @@ pub fn run(a: Args) -> Result<()> {
         time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
     let (closest_n, _) =
         time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
-    let (occl_1, visible) =
-        time(&|| rays.iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
-    let (occl_n, _) =
-        time(&|| rays.par_iter().zip(&normals).filter(|(r, n)| bvh.visible(r.0, r.1, r.3, **n)).count());
+    let (occl_1, visible) = time(&|| rays.iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
+    let (occl_n, _) = time(&|| rays.par_iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
 
     let threads = rayon::current_num_threads();
     let out = json!({
@@ -101,4 +101,36 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Uniform points on a level's surfaces: a triangle in proportion to its area, then a point
+/// uniform on it, with the triangle's front normal.
+struct SurfacePoints<'a> {
+    scene: &'a Scene,
+    /// Running sum of the triangles' areas.
+    cdf: Vec<f64>,
+}
+
+impl<'a> SurfacePoints<'a> {
+    /// None when the level has no area.
+    fn new(scene: &'a Scene) -> Option<Self> {
+        let mut total = 0.0f64;
+        let cdf: Vec<f64> = (0..scene.triangles.len())
+            .map(|t| {
+                total += f64::from(scene.area(t));
+                total
+            })
+            .collect();
+        (total > 0.0).then_some(SurfacePoints { scene, cdf })
+    }
+
+    fn sample(&self, rng: &mut impl Rng) -> (Vec3, Vec3) {
+        let total = self.cdf.last().copied().unwrap_or(0.0);
+        let u = rng.random::<f64>() * total;
+        let t = self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1);
+        let [a, b, c] = self.scene.corners(t);
+        let (r1, r2): (f32, f32) = (rng.random::<f32>().sqrt(), rng.random());
+        let p = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2);
+        (p, self.scene.face_normal(t))
+    }
 }

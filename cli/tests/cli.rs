@@ -290,6 +290,31 @@ fn gen_assets_makes_a_folder_it_is_given() {
 }
 
 #[test]
+fn bench_rays_measures_a_level_whose_charts_need_pages() {
+    // 16 closed chambers without lightmap UVs: their charts need 3 pages at 256^2, which the
+    // rays do not need (it refused the level before).
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, _, err) = prm(&["gen-assets", "--chambers", "4x4", "-o", s(dir.path())]);
+    assert!(ok, "{err}");
+    let level = dir.path().join("chambers_4x4.glb");
+    let (ok, out, err) = prm(&["bench-rays", s(&level), "--rays", "4000", "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (ok, info, err) = prm(&["info", &asset("chamber.glb"), "--json"]);
+    assert!(ok, "{err}");
+    let chamber: serde_json::Value = serde_json::from_str(&info).unwrap();
+    assert_eq!(v["triangles"].as_u64(), chamber["triangles"].as_u64().map(|t| 16 * t), "{v}");
+    assert_eq!(v["rays"], 4000);
+    // Rays leave the chambers' inner surfaces: every one hits. Two points join only within a
+    // chamber (1/16 of the pairs, equal rooms), and not every such pair sees the other:
+    // 4,000 pairs put the visible share under 1/16 plus 2 standard errors (0.8 points).
+    assert_eq!(v["closest_hit_fraction_hit"], 1.0, "{v}");
+    let visible = v["occlusion_fraction_visible"].as_f64().unwrap();
+    assert!(visible > 0.0 && visible < 1.0 / 16.0 + 0.008, "{visible}");
+    assert!(v["closest_hit_rays_per_s"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
 fn info_reports_the_chamber() {
     let (ok, out, err) = prm(&["info", &asset("chamber.glb"), "--json"]);
     assert!(ok, "{err}");
