@@ -448,14 +448,24 @@ pub fn far_lit(set: &TexelSet, far: &Far) -> Vec<bool> {
 /// It is a few hundred clusters at every texel, so it is made where it is used (a band of
 /// texels at a time, or a few texels per cell for the walks' table), never held for the
 /// whole level: on the sixteen chambers that was 2.5 GB.
+/// One far-field source as [`FirstBounce::add`] reads it.
+struct Source {
+    centroid: Vec3,
+    normal: Vec3,
+    flux: Vec3,
+    size: f32,
+    cluster: u32,
+    /// Squared distances from the centroid past which its far share is 1, and under which 0.
+    whole: f32,
+    none: f32,
+}
+
 pub struct FirstBounce<'a> {
     set: &'a TexelSet,
     entries: &'a [Entry],
-    /// Each cell's centroid.
-    centroid: Vec<Vec3>,
-    /// Each cell's size (square root of its area) and the flux it sends per unit irradiance.
-    size: Vec<f32>,
-    flux: Vec<Vec3>,
+    /// Per entry, what is read of its cell: in one record, as the inner loop of
+    /// [`FirstBounce::add`] reads them (apart, they cost a cache line each).
+    sources: Vec<Source>,
     far: &'a Far,
     assignment: &'a [u32],
     clusters: usize,
@@ -471,16 +481,26 @@ impl<'a> FirstBounce<'a> {
         assignment: &'a [u32],
         clusters: usize,
     ) -> Self {
-        FirstBounce {
-            set,
-            entries,
-            centroid: cell.iter().map(|c| c.0).collect(),
-            size: cell.iter().map(|c| c.1.max(0.0).sqrt()).collect(),
-            flux: entries.iter().zip(cell).map(|(e, c)| e.albedo * c.1).collect(),
-            far,
-            assignment,
-            clusters,
-        }
+        let sources = entries
+            .iter()
+            .zip(cell)
+            .zip(assignment)
+            .map(|((e, &(centroid, area)), &cluster)| {
+                let size = area.max(0.0).sqrt();
+                Source {
+                    centroid,
+                    normal: e.normal,
+                    flux: e.albedo * area,
+                    size,
+                    cluster,
+                    // With a margin for the square root's rounding: past `whole` the share
+                    // computed is exactly 1, under `none` exactly 0.
+                    whole: ((far.reach + size.max(1e-6)) * (1.0 + 1e-5)).powi(2),
+                    none: (far.reach * (1.0 - 1e-5)).max(0.0).powi(2),
+                }
+            })
+            .collect();
+        FirstBounce { set, entries, sources, far, assignment, clusters }
     }
 
     /// Per covered texel (set order), a digest of everything [`FirstBounce::add`] reads for it
@@ -500,10 +520,10 @@ impl<'a> FirstBounce<'a> {
         let source: Vec<u64> = (0..entries.len())
             .into_par_iter()
             .map(|j| {
-                let h = mix_floats(mix_word(0, j as u64), &self.centroid[j].to_array());
+                let h = mix_floats(mix_word(0, j as u64), &self.sources[j].centroid.to_array());
                 let h = mix_floats(h, &entries[j].normal.to_array());
-                let h = mix_floats(h, &[self.size[j]]);
-                let h = mix_floats(h, &self.flux[j].to_array());
+                let h = mix_floats(h, &[self.sources[j].size]);
+                let h = mix_floats(h, &self.sources[j].flux.to_array());
                 mix_word(h, u64::from(self.assignment[j]))
             })
             .collect();
@@ -519,7 +539,7 @@ impl<'a> FirstBounce<'a> {
                     _ => 0..0,
                 };
                 let mut h = mix_floats(mix_word(0, q as u64), &entries[q].normal.to_array());
-                h = mix_floats(h, &self.centroid[q].to_array());
+                h = mix_floats(h, &self.sources[q].centroid.to_array());
                 h = mix_word(h, source[q]);
                 for a in run {
                     let (other, mut word) = (far.pair_block[a] as usize, far.visible[a * B + q % B]);
@@ -558,8 +578,8 @@ impl<'a> FirstBounce<'a> {
     /// far field does not light get nothing.
     pub fn add(&self, texels: &[usize], out: &mut [crate::transport::TexelPanes]) {
         const B: usize = Far::BLOCK;
-        let (set, entries, far, assignment) = (self.set, self.entries, self.far, self.assignment);
-        let (cell, size, flux) = (&self.centroid, &self.size, &self.flux);
+        let (set, entries, far) = (self.set, self.entries, self.far);
+        let sources = &self.sources;
         if far.texels.is_empty() {
             return;
         }
@@ -604,9 +624,11 @@ impl<'a> FirstBounce<'a> {
                     }
                 }
                 // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
-                let planes: [(Vec3, f32); NEIGHBOURS] =
-                    std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(cell[q[k]])));
+                let planes: [(Vec3, f32); NEIGHBOURS] = std::array::from_fn(|k| {
+                    (entries[q[k]].normal, entries[q[k]].normal.dot(sources[q[k]].centroid))
+                });
                 let mut at = runs.clone().map(|r| r.start);
+                let (p, n) = (t.position, t.normal);
                 for &b in blocks.iter() {
                     let b = b as usize;
                     let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
@@ -624,23 +646,33 @@ impl<'a> FirstBounce<'a> {
                     });
                     // An entry no neighbour sees gets no light from the vote.
                     let mut any = bits.iter().fold(0, |a, w| a | w);
+                    let every = bits.iter().fold(u32::MAX, |a, w| a & w);
                     while any != 0 {
                         let r = any.trailing_zeros() as usize;
                         any &= any - 1;
                         let j = b * B + r;
-                        let centroid = cell[j];
-                        let d = centroid - t.position;
-                        let (cx, cy) = (t.normal.dot(d), -entries[j].normal.dot(d));
+                        let Some(src) = sources.get(j) else { continue };
+                        let centroid = src.centroid;
+                        let d = centroid - p;
+                        let (cx, cy) = (n.dot(d), -src.normal.dot(d));
                         if cx <= 0.0 || cy <= 0.0 {
                             continue;
                         }
                         let r2 = d.length_squared();
-                        let share = far_share(r2.sqrt(), far.reach, size[j]);
+                        // The far share without its square root and division where it is 0 or 1
+                        // (most sources: the same values).
+                        let share = if r2 >= src.whole {
+                            1.0
+                        } else if r2 <= src.none {
+                            0.0
+                        } else {
+                            far_share(r2.sqrt(), far.reach, src.size)
+                        };
                         if share <= 0.0 {
                             continue;
                         }
                         // Every neighbour sees it: the vote is 1 whichever of them face it.
-                        let v = if bits.iter().all(|w| w >> r & 1 == 1) {
+                        let v = if every >> r & 1 == 1 {
                             1.0
                         } else {
                             far_vote(
@@ -652,12 +684,12 @@ impl<'a> FirstBounce<'a> {
                         if v <= 0.0 {
                             continue;
                         }
-                        let s2 = size[j] * size[j];
-                        let c = assignment[j] as usize;
+                        let s2 = src.size * src.size;
+                        let c = src.cluster as usize;
                         if acc[c] == Vec3::ZERO {
                             touched.push(c as u32);
                         }
-                        acc[c] += flux[j] * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
+                        acc[c] += src.flux * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
                     }
                 }
                 for &(c, v) in out.iter() {
