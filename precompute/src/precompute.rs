@@ -86,7 +86,7 @@ pub struct PrecomputeParams {
     pub next_bounce: bool,
     /// The table's weak elements are kept by Russian roulette (`crate::transport::Cutoff`):
     /// those under the first bounce an albedo-1 cluster facing a cell head-on gives at this
-    /// many entry spacings (default 32: rows 2.7x shorter, walks 20 % faster on the chamber;
+    /// many entry spacings (default 32: rows 2.6x shorter, walks 17 % faster on the chamber;
     /// 0: every element kept).
     #[serde(default)]
     pub next_cutoff: f32,
