@@ -272,8 +272,8 @@ pub struct ComposeArgs {
     #[arg(long, default_value_t = 0.0)]
     pub recompose_tolerance: f32,
     /// Tiles per side of a directional light's shadow map at most (1 to 16; 1: one map over
-    /// the whole level). A tile covers at most 10 m of the level, so one room gets one map and
-    /// a level of many rooms keeps a room's shadow texel.
+    /// the whole level). A tile covers at most 4 m of the level (a room 8 m across gets 3 x 3),
+    /// up to this many a side; a wider level's tiles are wider.
     #[arg(long, default_value_t = prm_runtime::memory::SUN_TILES_MAX)]
     pub sun_tiles: u32,
 }

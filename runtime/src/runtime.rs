@@ -48,7 +48,7 @@ pub struct RuntimeParams {
     pub shadow_size: u32,
     /// Tiles per side of a directional light's shadow map at most (default
     /// [`crate::memory::SUN_TILES_MAX`]; 1: one map over the whole level). A tile covers at
-    /// most 10 m of the level (`SUN_TILE_SPAN`), so a level of one room gets one.
+    /// most 4 m of the level (`SUN_TILE_SPAN`), so a room of 8 m gets 3 x 3.
     pub sun_tiles: u32,
     /// Compose each group's pane for the light of its clusters left out of the top K
     /// (default true; `prm::prm_file` module doc). No effect on a `.prm` without groups.

@@ -306,8 +306,8 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
 
 /// The same wall and ceiling at the edge of a level 60 m across (a floor beside them, out of
 /// the sun's way to the wall). One 1024² map over it has texels of 6 cm, and its lookups stand
-/// 3 texels (18 cm) off the wall; the sun's map in tiles of at most 10 m of the level (4 x 4
-/// here) keeps about a centimetre, and the wall's light is what the small level's is.
+/// 3 texels (18 cm) off the wall; the sun's map in tiles of at most 4 m of the level (4 x 4
+/// here, the most) keeps about a centimetre, and the wall's light is what the small level's is.
 #[test]
 fn a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles() {
     let g = gpu();
@@ -340,6 +340,30 @@ fn a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles() {
     assert!(
         (lit_one - lit).abs() > 0.05 * lit,
         "one map {lit_one} W vs rays {lit} W: the level is not wide enough"
+    );
+}
+
+/// The wall and ceiling in a level a room's size (a floor beside them, out of the sun's way to
+/// the wall: 7.6 m across, the sunlit room's 8.4). One 1024² map has 7.5 mm texels there; the
+/// default tiles of at most `SUN_TILE_SPAN` (4 m) make it 2 x 2 and halve them, and the wall
+/// takes the rays' light closer.
+#[test]
+fn a_room_sized_level_gets_sun_tiles_and_the_wall_its_light() {
+    let g = gpu();
+    let floor = [[v(-5., -0.5, -2.), v(-5., -0.5, 2.), v(-2., -0.5, 2.), v(-2., -0.5, -2.)]];
+    let (scene, _, _) = wall_under_a_ceiling(&floor);
+    let bounds = crate::shadow::scene_bounds(&scene);
+    let n = crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX);
+    let (shaded, worst, lit_gpu, lit) = ceiling_shade(&g, &floor, 1024, crate::lights::SUN_TILES_MAX);
+    let (shaded_one, worst_one, lit_one, _) = ceiling_shade(&g, &floor, 1024, 1);
+    assert_eq!(n, 2, "a level 7.6 m across in tiles of at most 4 m");
+    // Measured on lavapipe: 2 x 2 tiles 1.8564 W against the rays' 1.8566 W, nothing in the
+    // shade; one map 1.8681 W (+0.6 %), 0.0038 W in the shade, its worst cell 0.6 % of full sun.
+    assert!(shaded <= 1e-3 * lit && worst <= 0.005, "tiles: {shaded} W in the shade, worst {worst}");
+    assert!((lit_gpu - lit).abs() <= 0.003 * lit, "tiles: GPU {lit_gpu} W vs rays {lit} W");
+    assert!(
+        (lit_one - lit).abs() > 2.0 * (lit_gpu - lit).abs() && shaded_one > shaded,
+        "one map {lit_one} W ({shaded_one} W in the shade, worst {worst_one}) is not further off than the tiles"
     );
 }
 
