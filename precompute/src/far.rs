@@ -434,6 +434,18 @@ pub fn far_lit(set: &TexelSet, far: &Far) -> Vec<bool> {
     lit
 }
 
+/// One far-field source as [`FirstBounce::add`] reads it.
+struct Source {
+    centroid: Vec3,
+    normal: Vec3,
+    flux: Vec3,
+    size: f32,
+    cluster: u32,
+    /// Squared distances from the centroid past which its far share is 1, and under which 0.
+    whole: f32,
+    none: f32,
+}
+
 /// The far field's part of every cluster's first bounce at a texel (the links carry the rest,
 /// `precompute::exact_first_bounce`).
 ///
@@ -448,18 +460,6 @@ pub fn far_lit(set: &TexelSet, far: &Far) -> Vec<bool> {
 /// It is a few hundred clusters at every texel, so it is made where it is used (a band of
 /// texels at a time, or a few texels per cell for the walks' table), never held for the
 /// whole level: on the sixteen chambers that was 2.5 GB.
-/// One far-field source as [`FirstBounce::add`] reads it.
-struct Source {
-    centroid: Vec3,
-    normal: Vec3,
-    flux: Vec3,
-    size: f32,
-    cluster: u32,
-    /// Squared distances from the centroid past which its far share is 1, and under which 0.
-    whole: f32,
-    none: f32,
-}
-
 pub struct FirstBounce<'a> {
     set: &'a TexelSet,
     entries: &'a [Entry],
