@@ -81,9 +81,44 @@ enum Command {
     Evaluate(evaluate::Args),
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    match cli.command {
+    match run(cli.command) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("{}", error_report(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// An error and its causes as the user reads them: the message, then each cause its parent's
+/// message does not already end with. Most of the project's errors name their cause in their
+/// own message ("chamber.glb: not a valid glTF 2.0 file: expected value at line 1"), and the
+/// plain chain said it twice.
+fn error_report(e: &anyhow::Error) -> String {
+    let messages: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+    let causes: Vec<&String> = messages
+        .windows(2)
+        .filter(|pair| !pair[0].ends_with(pair[1].as_str()))
+        .map(|pair| &pair[1])
+        .collect();
+    let mut out = format!("Error: {}", messages[0]);
+    match causes.as_slice() {
+        [] => {}
+        [one] => out += &format!("\n\nCaused by:\n    {one}"),
+        many => {
+            out += "\n\nCaused by:";
+            for (i, c) in many.iter().enumerate() {
+                out += &format!("\n    {i}: {c}");
+            }
+        }
+    }
+    out
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
         Command::Info(a) => info::run(a),
         Command::Texels(a) => texels::run(a),
         Command::GenAssets(a) => gen_assets::run(a),
@@ -102,5 +137,50 @@ fn main() -> Result<()> {
         Command::Report(a) => report::run(a),
         #[cfg(feature = "view")]
         Command::View(a) => view::run(a),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use anyhow::Context;
+
+    /// An error that names its cause in its message and gives it as its source too.
+    #[derive(Debug)]
+    struct Named {
+        source: std::io::Error,
+    }
+
+    impl std::fmt::Display for Named {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "level.glb: cannot read file: {}", self.source)
+        }
+    }
+
+    impl std::error::Error for Named {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.source)
+        }
+    }
+
+    #[test]
+    fn an_error_report_says_each_cause_once() {
+        let io = || std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory");
+        // A cause the message already ends with is not said again.
+        let e = anyhow::Error::new(Named { source: io() }).context("loading the level failed");
+        assert_eq!(
+            error_report(&e),
+            "Error: loading the level failed\n\nCaused by:\n    level.glb: cannot read file: No such file or directory"
+        );
+        // Causes the message does not name are all kept, numbered.
+        let e = Err::<(), _>(io()).context("reading the rig").context("rendering").unwrap_err();
+        assert_eq!(
+            error_report(&e),
+            "Error: rendering\n\nCaused by:\n    0: reading the rig\n    1: No such file or directory"
+        );
+        assert_eq!(
+            error_report(&anyhow::anyhow!("--rays 0 is out of range")),
+            "Error: --rays 0 is out of range"
+        );
     }
 }
