@@ -328,7 +328,7 @@ impl NextBounce {
         (0..entries)
             .into_par_iter()
             .map(|e| {
-                let mut h = fnv1a(start, &e.to_le_bytes());
+                let mut h = fnv1a(start, &(e as u64).to_le_bytes());
                 for k in samples.of(e) {
                     h = fnv1a(h, &exact.get(k).copied().unwrap_or(0).to_le_bytes());
                 }
