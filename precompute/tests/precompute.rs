@@ -106,6 +106,8 @@ fn the_tables_cutoff_keeps_the_furnace_at_a_over_one_minus_a() {
     let mean_of = |cutoff: f32| {
         let p = PrecomputeParams { smooth_radius: 0.0, next_cutoff: cutoff, ..params(512, 64, 24, 24) };
         let prm = bake(&scene, &p);
+        // The map says which cutoff made it.
+        assert_eq!(prm.header().provenance["next_cutoff"].as_f64(), Some(f64::from(cutoff)));
         let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
         (vals.iter().map(|v| v.x).sum::<f32>() / vals.len() as f32, vals)
     };
