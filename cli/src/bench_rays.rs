@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use glam::Vec3;
-use prm::{Bvh, Scene};
+use prm::Bvh;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
@@ -38,17 +38,20 @@ pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let bvh = Bvh::build(&scene);
     let build = start.elapsed().as_secs_f64();
-    let Some(points) = SurfacePoints::new(&scene) else {
+    // Start points stratified by area, as the precompute samples its entries; each ray's other
+    // point is a start point picked at random.
+    let points = prm_precompute::entries::sample_entries(&scene, a.rays, 7);
+    if points.is_empty() {
         bail!("the level has no surface to start rays from");
-    };
+    }
     let mut rng = Pcg64Mcg::seed_from_u64(7);
     // Each ray: start point and normal, a cosine direction, and another point and its normal.
-    let rays: Vec<(Vec3, Vec3, Vec3, Vec3, Vec3)> = (0..a.rays)
-        .map(|_| {
-            let (p, n) = points.sample(&mut rng);
-            let (q, nq) = points.sample(&mut rng);
-            let d = prm::sampling::cosine_direction(n, rng.random(), rng.random());
-            (p, n, d, q, nq)
+    let rays: Vec<(Vec3, Vec3, Vec3, Vec3, Vec3)> = points
+        .iter()
+        .map(|p| {
+            let q = &points[rng.random_range(0..points.len())];
+            let d = prm::sampling::cosine_direction(p.normal, rng.random(), rng.random());
+            (p.position, p.normal, d, q.position, q.normal)
         })
         .collect();
 
@@ -101,36 +104,4 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// Uniform points on a level's surfaces: a triangle in proportion to its area, then a point
-/// uniform on it, with the triangle's front normal.
-struct SurfacePoints<'a> {
-    scene: &'a Scene,
-    /// Running sum of the triangles' areas.
-    cdf: Vec<f64>,
-}
-
-impl<'a> SurfacePoints<'a> {
-    /// None when the level has no area.
-    fn new(scene: &'a Scene) -> Option<Self> {
-        let mut total = 0.0f64;
-        let cdf: Vec<f64> = (0..scene.triangles.len())
-            .map(|t| {
-                total += f64::from(scene.area(t));
-                total
-            })
-            .collect();
-        (total > 0.0).then_some(SurfacePoints { scene, cdf })
-    }
-
-    fn sample(&self, rng: &mut impl Rng) -> (Vec3, Vec3) {
-        let total = self.cdf.last().copied().unwrap_or(0.0);
-        let u = rng.random::<f64>() * total;
-        let t = self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1);
-        let [a, b, c] = self.scene.corners(t);
-        let (r1, r2): (f32, f32) = (rng.random::<f32>().sqrt(), rng.random());
-        let p = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2);
-        (p, self.scene.face_normal(t))
-    }
 }
