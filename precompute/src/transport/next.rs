@@ -56,7 +56,7 @@ const CUTOFF_STREAM: u64 = 1 << 40;
 
 /// Per cluster, the first bounce under which a row element is kept by Russian roulette only
 /// (module doc, *Weak elements*), and the seed of its draws. Empty: every element is kept.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Cutoff {
     below: Vec<f32>,
     seed: u64,

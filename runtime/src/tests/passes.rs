@@ -304,6 +304,11 @@ fn a_ceiling_shades_the_top_of_a_wall_as_the_rays_say() {
     assert!((lit_gpu - lit).abs() <= 0.02 * lit, "GPU {lit_gpu} W vs rays {lit} W");
 }
 
+/// The sun's tiles a side the runtime gives a level of this scene by default.
+fn default_sun_tiles(scene: &Scene) -> u32 {
+    crate::lights::sun_tiles(crate::shadow::scene_bounds(scene), crate::lights::SUN_TILES_MAX)
+}
+
 /// The same wall and ceiling at the edge of a level 60 m across (a floor beside them, out of
 /// the sun's way to the wall). One 1024² map over it has texels of 6 cm, and its lookups stand
 /// 3 texels (18 cm) off the wall; the sun's map in tiles of at most 4 m of the level (4 x 4
@@ -313,8 +318,7 @@ fn a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles() {
     let g = gpu();
     let floor = [[v(-45., -0.5, -20.), v(-45., -0.5, 20.), v(-2., -0.5, 20.), v(-2., -0.5, -20.)]];
     let (scene, _, _) = wall_under_a_ceiling(&floor);
-    let bounds = crate::shadow::scene_bounds(&scene);
-    assert_eq!(crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX), 4);
+    assert_eq!(default_sun_tiles(&scene), 4);
     let (shaded, worst, lit_gpu, lit) = ceiling_shade(&g, &floor, 1024, 4);
     // Measured on lavapipe: 4 x 4 tiles 0.006 W in the shade, the worst cell 0.6 % of full sun,
     // 1.874 W in all against the rays' 1.857 W; one map 0.011 W, 1.2 %, 2.109 W (+13.6 %).
@@ -326,8 +330,7 @@ fn a_sun_over_a_wide_level_keeps_a_room_s_shadow_texel_in_tiles() {
     let far = [[v(-45., -0.5, -20.), v(-45., -0.5, 20.), v(-5., -0.5, 20.), v(-5., -0.5, -20.)]];
     let (scene, cells, areas) = floor_cut_by_a_wall(&far);
     let lights = [sun(v(1.0, -0.6, 0.1))];
-    let bounds = crate::shadow::scene_bounds(&scene);
-    assert_eq!(crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX), 4);
+    assert_eq!(default_sun_tiles(&scene), 4);
     let (e_on, _, hidden) = gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, 256, 4, true);
     let (e_off, _, none) = gpu_entry_pass_culling(&g, &scene, &lights, &cells, &areas, 256, 4, false);
     assert_eq!(none, 0);
@@ -352,8 +355,7 @@ fn a_room_sized_level_gets_sun_tiles_and_the_wall_its_light() {
     let g = gpu();
     let floor = [[v(-5., -0.5, -2.), v(-5., -0.5, 2.), v(-2., -0.5, 2.), v(-2., -0.5, -2.)]];
     let (scene, _, _) = wall_under_a_ceiling(&floor);
-    let bounds = crate::shadow::scene_bounds(&scene);
-    let n = crate::lights::sun_tiles(bounds, crate::lights::SUN_TILES_MAX);
+    let n = default_sun_tiles(&scene);
     let (shaded, worst, lit_gpu, lit) = ceiling_shade(&g, &floor, 1024, crate::lights::SUN_TILES_MAX);
     let (shaded_one, worst_one, lit_one, _) = ceiling_shade(&g, &floor, 1024, 1);
     assert_eq!(n, 2, "a level 7.6 m across in tiles of at most 4 m");
