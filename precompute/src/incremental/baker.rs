@@ -231,15 +231,16 @@ enum Work {
     Refresh(CellKey),
 }
 
-/// A refresh's cost per texel that did not move and light, over a full evaluation's: the texel's
-/// shadow rays drawn and tested against the moved boxes (cost model of [`Baker::plan`]).
-const REFRESH_TEST: f32 = 0.05;
-/// A refresh's cost over what [`REFRESH_TEST`] and full evaluations of its texels on and near
-/// what moved would take: its shadow rays that cross no moved box are not traced, and the
-/// others meet a few moved triangles first (time per unit of modelled cost, refreshes against
-/// rebuilds and corrections, measured on the chamber's carpet at 40,000 paths: 49-52 ns
-/// against 110-120 ns).
-const REFRESH_TRACED: f32 = 0.45;
+/// A refresh's cost, in full evaluations of one light at one texel (110-120 ns on 2 cores, as
+/// rebuilds and corrections take): [`REFRESH_PICK`] a texel of the level, to pick those whose
+/// rays may cross what moved, and [`REFRESH_TRACE`] a light and texel on what moved or in the
+/// share of the level the moved boxes take of the entry's view. Fitted to 2,119 refreshes'
+/// times on the chamber's carpet and the doorway's block (30 and 31 ns): the model before
+/// (every texel's test 0.05 of an evaluation, per light) put the doorway's at a third of their
+/// time and the chamber's at twice.
+const REFRESH_PICK: f32 = 0.26;
+/// See [`REFRESH_PICK`].
+const REFRESH_TRACE: f32 = 0.27;
 /// A correction's virtual light over a cell's, per texel: its polygons span a coarser cell and
 /// light more texels (measured on the chamber's edits, 2 cores).
 const DELTA_LIGHT: f32 = 1.9;
@@ -846,12 +847,13 @@ impl Baker {
                 continue;
             }
             if let Some((priority, view)) = self.refresh_estimate(*k, b, v.id) {
-                // A refresh evaluates the texels on what moved twice, and tests every other
-                // texel's rays against the moved boxes, tracing the few that cross them.
+                // A refresh tests every texel's cone against the moved boxes, evaluates the
+                // texels on what moved twice, and traces the rays of the others that cross
+                // the boxes.
                 let moved =
                     *on_moved.entry(b.version.id).or_insert_with(|| self.texels_moved_since(b.version.id));
                 let cost =
-                    REFRESH_TRACED * lights_of(b) * (2.0 * moved + texel_count * (REFRESH_TEST + view));
+                    REFRESH_PICK * texel_count + REFRESH_TRACE * lights_of(b) * (moved + texel_count * view);
                 // A direct light's entry holds its flux; a cell's, its VPLs'.
                 let whole = match &b.source {
                     Source::Direct(l) => self.flux_of(l),
