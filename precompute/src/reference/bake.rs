@@ -435,7 +435,7 @@ mod tests {
     #[test]
     fn kernel_weights_are_the_one_at_a_time_formula_exactly() {
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
-        let mut v = |rng: &mut rand_pcg::Pcg64Mcg| {
+        let v = |rng: &mut rand_pcg::Pcg64Mcg| {
             Vec3::new(rng.random_range(-4.0..4.0), rng.random_range(-4.0..4.0), rng.random_range(-4.0..4.0))
         };
         for len in 0..=MAX_SAMPLES {
