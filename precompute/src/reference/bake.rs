@@ -330,9 +330,19 @@ pub(crate) fn soft_visibility(
     rng: &mut rand_pcg::Pcg64Mcg,
 ) -> f32 {
     let mut seen = 0;
+    // Draws come in ascending order, and a member that dominates the kernel (the receiver
+    // close to it) is drawn in several strata: its ray, the same each time, is traced once.
+    let mut last: Option<(usize, bool)> = None;
     visibility_draws(p, n, samples, r2_min, s, rng, |i| {
-        let (q, nq) = samples[i];
-        seen += bvh.visible(p, n, q, nq) as u32;
+        let v = match last {
+            Some((j, v)) if j == i => v,
+            _ => {
+                let (q, nq) = samples[i];
+                bvh.visible(p, n, q, nq)
+            }
+        };
+        last = Some((i, v));
+        seen += v as u32;
     });
     seen as f32 / s as f32
 }
