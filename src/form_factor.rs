@@ -91,7 +91,7 @@ fn contour_f64(p: Vec3, n: Vec3, poly: &[Vec3]) -> f64 {
         if gl <= 0.0 {
             continue;
         }
-        sum += g.length().atan2(a.dot(b)) * n.dot(g / gl);
+        sum += gl.atan2(a.dot(b)) * n.dot(g / gl);
     }
     sum
 }
