@@ -33,6 +33,11 @@ pub const OFFSET_REL_SCENE: f32 = 1e-5;
 /// Offset floor relative to the magnitude of the coordinates (64 ulp).
 pub const OFFSET_REL_ULP: f32 = 64.0 * f32::EPSILON;
 
+/// Fewest triangles for which [`Bvh::build_with_rooms`] looks for rooms: a smaller level's
+/// tree stays in cache whole (the chamber, 3,454 triangles: 6.1 closest-hit Mrays/s a thread;
+/// 16 of them, 55,264: 3.4, and 5.1 with room trees).
+pub const ROOM_TREES_MIN_TRIANGLES: usize = 16_384;
+
 /// A ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
@@ -241,6 +246,18 @@ impl Bvh {
     /// Build over all triangles of `scene`.
     pub fn build(scene: &Scene) -> Bvh {
         Bvh::build_with_extent(scene, scene.diagonal())
+    }
+
+    /// Build over all triangles of `scene`, and on a level of at least
+    /// [`ROOM_TREES_MIN_TRIANGLES`] triangles give its closed rooms trees of their own
+    /// ([`Bvh::localise`]; the rooms' flood fill costs 0.2 s on the chamber, 0.5 s on 16).
+    pub fn build_with_rooms(scene: &Scene) -> Bvh {
+        let bvh = Bvh::build(scene);
+        if scene.triangles.len() >= ROOM_TREES_MIN_TRIANGLES {
+            let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+            bvh.localise(scene, &crate::rooms::Rooms::new(&corners));
+        }
+        bvh
     }
 
     /// Build with the offsets and the internal scale of a level whose diagonal is `diagonal`

@@ -71,7 +71,7 @@ pub fn run(a: Args) -> Result<()> {
     let glow = prm::emitters::emitters(&scene, |_| true);
     let sources = emissive_sources(&scene, scene.lights.len(), &glow);
     scene.lights.extend(glow.into_iter().map(|e| e.light));
-    let bvh = Bvh::build(&scene);
+    let bvh = Bvh::build_with_rooms(&scene);
     crate::common::warn_spheres_in_geometry(&scene, &bvh);
     let set = TexelSet::build_visible(&scene, &bvh, atlas.width(), atlas.height());
     let t = Instant::now();

@@ -37,7 +37,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     crate::common::check_output_file(&a.output)?;
     let (scene, bytes_prm) = a.map.load()?;
-    let bvh = Bvh::build(&scene);
+    let bvh = Bvh::build_with_rooms(&scene);
     let lights = a.rig.lights(&scene)?;
     let mut twin = prm_runtime::cpu::CpuTwin::new(&bytes_prm, &bvh, a.top_k.unwrap_or(usize::MAX));
     twin.set_residual(!a.no_residual);

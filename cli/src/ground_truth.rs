@@ -65,7 +65,7 @@ pub fn run(a: Args) -> Result<()> {
     params.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     scene.lights = a.rig.lights(&scene)?;
-    let bvh = Bvh::build(&scene);
+    let bvh = Bvh::build_with_rooms(&scene);
     let tracer = Tracer::new(&scene, &bvh, params);
     let cancel = cancel_flag();
     let start = Instant::now();
