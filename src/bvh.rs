@@ -283,7 +283,7 @@ impl Bvh {
     /// their own, which rays starting in them try first (see `Local`). Answers stay the same,
     /// but for which of two triangles hit at the same distance is named. Left out: a room whose
     /// tree would hold more than half of the level's triangles (the outside, or the one room of
-    /// a one-room level), and one whose rays mostly leave it ([`Region::keeps_rays`]: a
+    /// a one-room level), and one whose rays mostly leave it (`Region::keeps_rays`: a
     /// pillar's hollow, whose box a ray from the pillar's faces would try and leave at once).
     /// With no room left, nothing changes. Only the first call on a BVH counts (the answer may
     /// not change while others trace), and only a BVH over the whole `scene`.
