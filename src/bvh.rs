@@ -65,8 +65,8 @@ pub struct Bvh {
     scene_eps: f32,
     /// Power-of-two factor from scene space to BVH space.
     to_bvh: f32,
-    /// Boxes with a tree of their own ([`Bvh::localise`]); set at most once.
-    local: OnceLock<Local>,
+    /// Boxes with a tree of their own ([`Bvh::localise`]; None: it found none); set at most once.
+    local: OnceLock<Option<Local>>,
 }
 
 /// A wide BVH over some triangles.
@@ -127,8 +127,8 @@ impl Tree {
 /// triangles (a ray through a shared edge) may name the other triangle.
 struct Local {
     regions: Vec<Region>,
-    /// A coarse grid over the level: per cell, the region of the room with the most free
-    /// space in it (`u16::MAX`: none).
+    /// A coarse grid over the level: per cell, the region whose box overlaps most of it (of
+    /// equal overlaps, the larger box; `u16::MAX`: none).
     lo: Vec3,
     inv_side: f32,
     dims: [usize; 3],
@@ -163,6 +163,9 @@ impl Region {
     /// The distance at which the ray from `o` (inside) along `d` leaves the box, shrunk.
     #[inline]
     fn exit(&self, o: Vec3, d: Vec3) -> f32 {
+        // +0 for -0, as in `Bvh::ray`: a -0 component would pick the far face of +0 and give
+        // an exit at -infinity (the ray would never use its room's tree).
+        let d = d + Vec3::ZERO;
         let far = Vec3::select(d.cmpge(Vec3::ZERO), self.hi, self.lo);
         let t = (far - o) / d;
         // A zero component gives an infinite (or NaN, at a face) distance: `min` drops NaN.
@@ -286,10 +289,16 @@ impl Bvh {
     /// a one-room level), and one whose rays mostly leave it (`Region::keeps_rays`: a
     /// pillar's hollow, whose box a ray from the pillar's faces would try and leave at once).
     /// With no room left, nothing changes. Only the first call on a BVH counts (the answer may
-    /// not change while others trace), and only a BVH over the whole `scene`.
+    /// not change while others trace), and only on a BVH built over the whole `scene` (the
+    /// caller's to keep: a BVH over another scene of as many triangles is not told apart).
+    /// Everything that traces a level and must give the same bytes as another run of it
+    /// (a precompute, its shards) localises at the same point, before the rays that count.
     pub fn localise(&self, scene: &Scene, rooms: &crate::rooms::Rooms) {
-        let Some(tree) = &self.tree else { return };
-        if tree.tris.len() != scene.triangles.len() || self.local.get().is_some() {
+        let Some(tree) = &self.tree else {
+            let _ = self.local.set(None);
+            return;
+        };
+        if tree.tris.len() != scene.triangles.len() || self.is_localised() {
             return;
         }
         let bounds: Vec<(Vec3, Vec3)> = (0..scene.triangles.len())
@@ -301,6 +310,7 @@ impl Bvh {
         let (lo, hi) =
             bounds.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(l, h), b| (l.min(b.0), h.max(b.1)));
         if !(lo.is_finite() && hi.is_finite()) {
+            let _ = self.local.set(None);
             return;
         }
         let most = (REGION_SHARE * bounds.len() as f32) as usize;
@@ -325,6 +335,7 @@ impl Bvh {
             })
             .collect();
         if regions.is_empty() || regions.len() >= usize::from(u16::MAX) {
+            let _ = self.local.set(None);
             return;
         }
         let side = ((hi - lo).max_element() / REGION_GRID).max(f32::MIN_POSITIVE);
@@ -354,19 +365,24 @@ impl Bvh {
                 }
             }
         }
-        let _ = self.local.set(Local { regions, lo, inv_side: 1.0 / side, dims, cell });
+        let _ = self.local.set(Some(Local { regions, lo, inv_side: 1.0 / side, dims, cell }));
     }
 
     /// The room tree (an index below [`Bvh::local_regions`]) a ray starting at `p` tries first.
     pub fn region_at(&self, p: Vec3) -> Option<usize> {
-        let local = self.local.get()?;
+        let local = self.local.get()?.as_ref()?;
         let region = local.region_at(p)?;
         local.regions.iter().position(|r| std::ptr::eq(r, region))
     }
 
+    /// Whether [`Bvh::localise`] has run on this BVH (whatever it found).
+    pub fn is_localised(&self) -> bool {
+        self.local.get().is_some()
+    }
+
     /// How many boxes have trees of their own ([`Bvh::localise`]).
     pub fn local_regions(&self) -> usize {
-        self.local.get().map_or(0, |l| l.regions.len())
+        self.local.get().and_then(Option::as_ref).map_or(0, |l| l.regions.len())
     }
 
     /// The offset distance used at point `p`.
@@ -400,7 +416,14 @@ impl Bvh {
     /// Closest hit along a unit direction within `(0, tmax)`.
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let tree = self.tree.as_ref()?;
-        if let Some(region) = self.local.get().and_then(|l| l.region_at(origin)) {
+        // A NaN length goes to the level's tree, which finds nothing for it.
+        if let Some(region) = self
+            .local
+            .get()
+            .and_then(Option::as_ref)
+            .filter(|_| tmax >= 0.0)
+            .and_then(|l| l.region_at(origin))
+        {
             let inside = region.exit(origin, dir);
             if let Some(hit) = self.closest_in(&region.tree, origin, dir, tmax.min(inside)) {
                 return Some(hit);
@@ -421,7 +444,13 @@ impl Bvh {
     /// True when anything lies along the unit direction within `(0, tmax)`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let Some(tree) = self.tree.as_ref() else { return false };
-        if let Some(region) = self.local.get().and_then(|l| l.region_at(origin)) {
+        if let Some(region) = self
+            .local
+            .get()
+            .and_then(Option::as_ref)
+            .filter(|_| tmax >= 0.0)
+            .and_then(|l| l.region_at(origin))
+        {
             let inside = region.exit(origin, dir);
             if region.tree.any(self.ray(origin, dir, tmax.min(inside))) {
                 return true;
@@ -880,4 +909,68 @@ fn intersect(tri: &BvhTriangle, ray: &Ray) -> Option<(f32, f32, f32)> {
     }
     let t = e2.dot(q) * inv;
     (t > ray.tmin && t < ray.tmax).then_some((t, u, v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `n` closed cubes of side 3 (faces inward), 1 apart along x.
+    fn cubes(n: usize) -> Scene {
+        let mut pos = Vec::new();
+        for r in 0..n {
+            let o = Vec3::new(4.0 * r as f32, 0.0, 0.0);
+            let v = |x: f32, y: f32, z: f32| o + Vec3::new(x, y, z) * 3.0;
+            let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| pos.extend([a, b, c, a, c, d]);
+            quad(v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.));
+            quad(v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.));
+            quad(v(0., 0., 0.), v(1., 0., 0.), v(1., 1., 0.), v(0., 1., 0.));
+            quad(v(1., 0., 1.), v(0., 0., 1.), v(0., 1., 1.), v(1., 1., 1.));
+            quad(v(0., 0., 1.), v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.));
+            quad(v(1., 0., 0.), v(1., 0., 1.), v(1., 1., 1.), v(1., 1., 0.));
+        }
+        let idx: Vec<u32> = (0..pos.len() as u32).collect();
+        let uv = vec![glam::Vec2::ZERO; pos.len()];
+        Scene::from_mesh(pos, uv, &idx)
+    }
+
+    /// The rooms' trees answer rays inside their rooms themselves (the fallback to the level's
+    /// tree would hide a tree that never answers), axis-aligned ones with -0 components too.
+    #[test]
+    fn rays_in_a_room_are_answered_by_its_own_tree() {
+        let scene = cubes(4);
+        let bvh = Bvh::build(&scene);
+        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+        bvh.localise(&scene, &crate::rooms::Rooms::new(&corners));
+        assert!(bvh.is_localised());
+        assert_eq!(bvh.local_regions(), 4);
+        let local = bvh.local.get().and_then(Option::as_ref).expect("trees made above");
+        let mut dirs: Vec<Vec3> = Vec::new();
+        for k in 0..64 {
+            let z = 1.0 - 2.0 * (k as f32 + 0.5) / 64.0;
+            let (r, phi) = ((1.0 - z * z).sqrt(), 2.4 * k as f32);
+            dirs.push(Vec3::new(r * phi.cos(), r * phi.sin(), z));
+        }
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            // Both signs, and the other components -0.
+            dirs.push(axis - Vec3::ONE * 0.0 * -1.0);
+            dirs.push(-axis);
+        }
+        assert!(dirs.iter().any(|d| d.to_array().iter().any(|c| *c == 0.0 && c.is_sign_negative())));
+        for r in 0..4 {
+            // Off the quads' diagonals, where two triangles tie.
+            let o = Vec3::new(4.0 * r as f32 + 1.3, 1.6, 1.1);
+            let region = local.region_at(o).expect("a room's middle has its tree");
+            for &d in &dirs {
+                let inside = region.exit(o, d);
+                let own = bvh.closest_in(&region.tree, o, d, inside);
+                assert!(own.is_some(), "room {r}: a ray along {d} left its room's tree to the level's");
+                assert_eq!(own, bvh.closest_hit_brute_force(o, d, f32::INFINITY), "room {r} along {d}");
+                assert_eq!(own, bvh.closest_hit(o, d, f32::INFINITY));
+            }
+            // A NaN length finds nothing, as in the level's tree.
+            assert_eq!(bvh.closest_hit(o, Vec3::X, f32::NAN), None);
+            assert!(!bvh.occluded(o, Vec3::X, f32::NAN));
+        }
+    }
 }

@@ -202,33 +202,6 @@ impl Rooms {
         lo.iter().zip(&hi).map(|(&a, &b)| (corner(a, -grow), corner(b, 1.0 + grow))).collect()
     }
 
-    /// Over the grid of `dims` cells of side `side` from `lo`, per cell the room with the most
-    /// free voxels (by centre) in it, `u32::MAX` where it has none.
-    pub fn dominant(&self, lo: Vec3, side: f32, dims: [usize; 3]) -> Vec<u32> {
-        let cells = dims[0] * dims[1] * dims[2];
-        let mut counts: Vec<std::collections::BTreeMap<u32, u32>> = vec![Default::default(); cells];
-        let [nx, ny, _] = self.dims;
-        for (v, &l) in self.label.iter().enumerate() {
-            if l == SOLID {
-                continue;
-            }
-            let c = Vec3::new((v % nx) as f32, ((v / nx) % ny) as f32, (v / (nx * ny)) as f32);
-            let q = (self.lo + (c + 0.5) * self.side - lo) / side;
-            if !(q.min_element() >= 0.0) {
-                continue;
-            }
-            let [x, y, z] = [q.x as usize, q.y as usize, q.z as usize];
-            if x < dims[0] && y < dims[1] && z < dims[2] {
-                *counts[(z * dims[1] + y) * dims[0] + x].entry(l).or_default() += 1;
-            }
-        }
-        // The most voxels; of equal counts, the lowest label.
-        counts
-            .iter()
-            .map(|c| c.iter().max_by_key(|(&l, &n)| (n, std::cmp::Reverse(l))).map_or(u32::MAX, |(&l, _)| l))
-            .collect()
-    }
-
     /// Per room of this level, the rooms of `other` (the same level after an edit) in which
     /// its free voxels' centres lie, sorted; empty where none does. Room labels are given in
     /// voxel order, so an edit can renumber rooms it did not touch: this maps the labels of

@@ -235,3 +235,59 @@ fn every_estimator_merges_to_the_same_bytes() {
         );
     }
 }
+
+/// Two closed rooms a metre apart, a block in the first, a lamp in each: the second room has a
+/// ray tree of its own (`Bvh::localise`), the first holds over half the triangles.
+fn two_closed_rooms() -> Scene {
+    use glam::Vec3;
+    let mut b = prm_precompute::scenes::Builder::default();
+    let wall = b.material("wall", [0.7, 0.7, 0.7]);
+    let stone = b.material("stone", [0.5, 0.4, 0.3]);
+    b.boxed(wall, Vec3::ZERO, Vec3::new(3.0, 2.5, 3.0), true, &[]);
+    b.boxed(stone, Vec3::new(1.0, 0.0, 1.0), Vec3::new(1.6, 0.6, 1.6), false, &[2]);
+    b.boxed(wall, Vec3::new(4.0, 0.0, 0.0), Vec3::new(7.0, 2.5, 3.0), true, &[]);
+    let mut level = b.finish(96).unwrap();
+    for (k, x) in [1.5f32, 5.5].into_iter().enumerate() {
+        let lamp = prm::glb::GlbLight {
+            name: format!("lamp_{k}"),
+            kind: "point",
+            color: [1.0, 0.9, 0.8],
+            intensity: 20.0,
+            inner: 0.0,
+            outer: 0.0,
+            range: None,
+            extras: None,
+        };
+        level.add_light(lamp, Vec3::new(x, 2.0, 1.5), Vec3::NEG_Y);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two_closed_rooms.glb");
+    std::fs::write(&path, level.to_glb()).unwrap();
+    prm::gltf_load::load_scene(&path, &Default::default()).unwrap()
+}
+
+#[test]
+fn shards_with_bvhs_of_their_own_merge_to_the_bytes_of_one_machine_on_a_level_of_rooms() {
+    // Each shard process builds its BVH afresh (`prm precompute --shard`); the one machine's
+    // precompute gives its rooms trees of their own before the walks, so the shards must too.
+    let scene = two_closed_rooms();
+    let bvh = Bvh::build(&scene);
+    let p = PrecomputeParams { atlas: prm::density::Atlas::single(96), ..params(5) };
+    let (one, _) = precompute(&scene, &bvh, &p, &quiet, &never()).unwrap();
+    assert_eq!(bvh.local_regions(), 1, "the second room's tree");
+    let dir = tempfile::tempdir().unwrap();
+    let (_, plan_path) = make_plan(&scene, &Bvh::build(&scene), &p, dir.path(), "rooms");
+    let walks = Plan::read_walks(&plan_path).unwrap();
+    let parts: Vec<PathBuf> = (0..3)
+        .map(|i| {
+            let out = dir.path().join(format!("rooms-part-{i}"));
+            let fresh = Bvh::build(&scene);
+            assert!(!fresh.is_localised());
+            run_shard(&scene, &fresh, &walks, i, 3, &out, &quiet, &never()).unwrap();
+            assert_eq!(fresh.local_regions(), 1);
+            out
+        })
+        .collect();
+    let (prm, _) = merge(Plan::read(&plan_path).unwrap(), &parts, &quiet, &never()).unwrap();
+    assert!(prm.to_bytes() == one.to_bytes(), "the merged file differs from one machine's");
+}

@@ -176,6 +176,12 @@ pub fn run_shard(
             pre.geometry
         )));
     }
+    // The walks trace with the rooms' trees, as the one-machine precompute's do (where the
+    // plan was made in this process, the BVH has them already and this does nothing).
+    if !bvh.is_localised() {
+        let corners: Vec<[glam::Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+        bvh.localise(scene, &prm::rooms::Rooms::new(&corners));
+    }
     let range = shard_texels(pre.set.len(), index, count);
     let linked = pre.linked();
     let transport = pre.transport(scene, bvh, linked.as_ref(), params);
