@@ -543,6 +543,12 @@ impl<'a> FirstBounce<'a> {
                 h = mix_word(h, source[q]);
                 for a in run {
                     let (other, mut word) = (far.pair_block[a] as usize, far.visible[a * B + q % B]);
+                    // A pair in which it sees nothing lends nothing: its block's pairs with
+                    // another room's blocks (a block of entries of both rooms is traced with
+                    // every block) come and go with edits there.
+                    if word == 0 {
+                        continue;
+                    }
                     h = mix_word(h, (other as u64) << 32 | u64::from(word));
                     while word != 0 {
                         let c = word.trailing_zeros() as usize;
@@ -802,6 +808,18 @@ mod tests {
         blind.visible[2] = 0;
         let (vb, db) = lit(&blind, &assignment, &cell);
         assert!(vb != value && db != digest, "a neighbour lost its bit");
+        // A pair in which no neighbour sees anything (block 0 with itself here; on a level of
+        // rooms, a block of two rooms' entries with a block of the other room) lends nothing:
+        // it may come and go with an edit in the other room.
+        let mut idle = far.clone();
+        idle.block_first = vec![0, 2, 2];
+        idle.pair_block = vec![1, 0];
+        idle.visible.extend(std::iter::repeat_n(0, B));
+        assert_eq!(
+            lit(&idle, &assignment, &cell),
+            (value.clone(), digest),
+            "a pair of no bits moved the texel"
+        );
     }
 
     /// Two pairs facing each other across x = 0, one behind a square blocker there and one

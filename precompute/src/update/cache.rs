@@ -42,8 +42,9 @@ use super::footprint::VoxelGrid;
 
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
 /// 6: the digests of the rows' inputs (`NextBounce::input_digests`) too; 7: those digests
-/// include the rows' cutoff of weak elements.
-const VERSION: u32 = 7;
+/// include the rows' cutoff of weak elements; 8: a texel's far-field digest leaves out the
+/// pairs in which its neighbour sees nothing.
+const VERSION: u32 = 8;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
