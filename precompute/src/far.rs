@@ -350,6 +350,10 @@ fn pair_visibility(
 /// too, within an entry spacing, and borrowed its light (on the 2 x 2 chambers, every pane
 /// lit tiles of the neighbouring chambers, dropped later as below the drop rule but walked,
 /// smoothed and encoded: 46 % of the tiles encoded).
+/// How far, in entry spacings, a texel with sparse surroundings looks for its far-field
+/// neighbours ([`texel_neighbours`]).
+const FALLBACK_SPACINGS: f32 = 16.0;
+
 fn texel_neighbours(
     set: &TexelSet,
     entries: &[Entry],
@@ -394,10 +398,16 @@ fn texel_neighbours(
             }
             let mut candidates = by_distance(near);
             if candidates.len() < NEIGHBOURS {
-                // Sparse surroundings (a small detail far from most entries): every entry.
+                // Sparse surroundings (a small detail far from most entries): every entry
+                // within FALLBACK_SPACINGS. Unbounded, the texels of a strip along one
+                // chamber's dais side took the dais side of another chamber 21 m away (the
+                // strips' entries share a room label), so an edit there changed their first
+                // bounce's inputs.
+                let reach2 = (FALLBACK_SPACINGS * spacing).powi(2);
                 let all = (0..entries.len())
                     .filter(|&j| facing(j))
                     .map(|j| (entries[j].position.distance_squared(t.position), j as u32))
+                    .filter(|&(d2, _)| d2 <= reach2)
                     .collect();
                 candidates = by_distance(all);
             }
@@ -729,6 +739,45 @@ mod tests {
 
     fn entry(p: Vec3, n: Vec3) -> Entry {
         Entry { position: p, normal: n, albedo: Vec3::splat(0.5), area: 0.04, triangle: 0 }
+    }
+
+    /// A texel with fewer than [`NEIGHBOURS`] entries about it takes the nearest ones of its
+    /// room within [`FALLBACK_SPACINGS`], not those of the same room across the level (two
+    /// chambers' dais sides 21 m apart shared a room label and so a texel's neighbours).
+    #[test]
+    fn sparse_texels_keep_their_neighbours_near() {
+        // Spacing 0.2 m (area 0.04): two entries 0.3 m from the texel, eight at 20 m.
+        let mut entries =
+            vec![entry(Vec3::new(0.3, 0.0, 0.0), Vec3::Y), entry(Vec3::new(-0.3, 0.0, 0.0), Vec3::Y)];
+        entries.extend((0..8).map(|k| entry(Vec3::new(20.0 + 0.2 * k as f32, 0.0, 0.0), Vec3::Y)));
+        let texel = prm::Texel {
+            i: 0,
+            j: 0,
+            position: Vec3::ZERO,
+            normal: Vec3::Y,
+            triangle: 0,
+            bary: Vec3::splat(1.0 / 3.0),
+        };
+        let set = TexelSet {
+            width: 1,
+            height: 1,
+            texels: vec![texel],
+            index: vec![0],
+            dilation: Vec::new(),
+            zero_uv_area_triangles: 0,
+            shared_gutter_texels: 0,
+            buried: Default::default(),
+        };
+        let far = texel_neighbours(&set, &entries, &vec![0; entries.len()], &[Some(0)]);
+        assert_eq!(far.len(), 1);
+        let taken: Vec<u32> =
+            far[0].entries.iter().zip(&far[0].weights).filter(|(_, &w)| w > 0.0).map(|(&j, _)| j).collect();
+        assert_eq!(taken.len(), 2, "{:?}", far[0]);
+        assert!(taken.iter().all(|&j| j < 2), "a neighbour 20 m away: {:?}", far[0]);
+        // Those far entries in reach (spacing 2 m) are taken.
+        let wide: Vec<Entry> = entries.iter().map(|e| Entry { area: 4.0, ..*e }).collect();
+        let far = texel_neighbours(&set, &wide, &vec![0; wide.len()], &[Some(0)]);
+        assert!(far[0].weights.iter().all(|&w| w > 0.0), "{:?}", far[0]);
     }
 
     /// A texel's input digest ([`FirstBounce::input_digests`]) follows what
