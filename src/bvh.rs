@@ -416,15 +416,7 @@ impl Bvh {
     /// Closest hit along a unit direction within `(0, tmax)`.
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let tree = self.tree.as_ref()?;
-        // A NaN length goes to the level's tree, which finds nothing for it.
-        if let Some(region) = self
-            .local
-            .get()
-            .and_then(Option::as_ref)
-            .filter(|_| tmax >= 0.0)
-            .and_then(|l| l.region_at(origin))
-        {
-            let inside = region.exit(origin, dir);
+        if let Some((region, inside)) = self.room_of_ray(origin, dir, tmax) {
             if let Some(hit) = self.closest_in(&region.tree, origin, dir, tmax.min(inside)) {
                 return Some(hit);
             }
@@ -433,6 +425,14 @@ impl Bvh {
             }
         }
         self.closest_in(tree, origin, dir, tmax)
+    }
+
+    /// The room whose tree a ray tries first, and how far along it the ray stays in its box.
+    /// A NaN length goes to the level's tree, which finds nothing for it.
+    #[inline]
+    fn room_of_ray(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<(&Region, f32)> {
+        let region = self.local.get()?.as_ref().filter(|_| tmax >= 0.0)?.region_at(origin)?;
+        Some((region, region.exit(origin, dir)))
     }
 
     #[inline]
@@ -444,14 +444,7 @@ impl Bvh {
     /// True when anything lies along the unit direction within `(0, tmax)`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let Some(tree) = self.tree.as_ref() else { return false };
-        if let Some(region) = self
-            .local
-            .get()
-            .and_then(Option::as_ref)
-            .filter(|_| tmax >= 0.0)
-            .and_then(|l| l.region_at(origin))
-        {
-            let inside = region.exit(origin, dir);
+        if let Some((region, inside)) = self.room_of_ray(origin, dir, tmax) {
             if region.tree.any(self.ray(origin, dir, tmax.min(inside))) {
                 return true;
             }

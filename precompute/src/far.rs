@@ -737,6 +737,20 @@ mod tests {
     use super::*;
     use prm::Scene;
 
+    /// A lightmap of one covered texel.
+    fn one_texel(texel: prm::Texel) -> TexelSet {
+        TexelSet {
+            width: 1,
+            height: 1,
+            texels: vec![texel],
+            index: vec![0],
+            dilation: Vec::new(),
+            zero_uv_area_triangles: 0,
+            shared_gutter_texels: 0,
+            buried: Default::default(),
+        }
+    }
+
     fn entry(p: Vec3, n: Vec3) -> Entry {
         Entry { position: p, normal: n, albedo: Vec3::splat(0.5), area: 0.04, triangle: 0 }
     }
@@ -758,16 +772,7 @@ mod tests {
             triangle: 0,
             bary: Vec3::splat(1.0 / 3.0),
         };
-        let set = TexelSet {
-            width: 1,
-            height: 1,
-            texels: vec![texel],
-            index: vec![0],
-            dilation: Vec::new(),
-            zero_uv_area_triangles: 0,
-            shared_gutter_texels: 0,
-            buried: Default::default(),
-        };
+        let set = one_texel(texel);
         let far = texel_neighbours(&set, &entries, &vec![0; entries.len()], &[Some(0)]);
         assert_eq!(far.len(), 1);
         let taken: Vec<u32> =
@@ -804,16 +809,7 @@ mod tests {
             triangle: 0,
             bary: Vec3::splat(1.0 / 3.0),
         };
-        let set = TexelSet {
-            width: 1,
-            height: 1,
-            texels: vec![texel],
-            index: vec![0],
-            dilation: Vec::new(),
-            zero_uv_area_triangles: 0,
-            shared_gutter_texels: 0,
-            buried: Default::default(),
-        };
+        let set = one_texel(texel);
         // Block 0 pairs with block 1 only; its entries 0..4 see entry 37 (bit 5 of block 1).
         let mut visible = vec![0u32; 2 * B];
         visible[..4].fill(1 << 5);
