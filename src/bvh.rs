@@ -196,10 +196,7 @@ impl Region {
                     (((k as f32 + 0.5) * golden).fract(), (k as f32 + 0.5) / REGION_TEST_RAYS as f32);
                 let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
                 let o = bvh.offset(a + (b - a) * u + (c - a) * v, n);
-                let (x, y) = n.any_orthonormal_pair();
-                let (r, phi) = (v.sqrt(), std::f32::consts::TAU * u);
-                let d =
-                    (x * (r * phi.cos()) + y * (r * phi.sin()) + n * (1.0 - v).max(0.0).sqrt()).normalize();
+                let d = crate::sampling::cosine_direction(n, v, u);
                 self.contains(o) && bvh.closest_in(&self.tree, o, d, self.exit(o, d)).is_some()
             })
             .count();
@@ -257,8 +254,7 @@ impl Bvh {
     pub fn build_with_rooms(scene: &Scene) -> Bvh {
         let bvh = Bvh::build(scene);
         if scene.triangles.len() >= ROOM_TREES_MIN_TRIANGLES {
-            let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-            bvh.localise(scene, &crate::rooms::Rooms::new(&corners));
+            bvh.localise(scene, &crate::rooms::Rooms::of_scene(scene));
         }
         bvh
     }
@@ -933,8 +929,7 @@ mod tests {
     fn rays_in_a_room_are_answered_by_its_own_tree() {
         let scene = cubes(4);
         let bvh = Bvh::build(&scene);
-        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-        bvh.localise(&scene, &crate::rooms::Rooms::new(&corners));
+        bvh.localise(&scene, &crate::rooms::Rooms::of_scene(&scene));
         assert!(bvh.is_localised());
         assert_eq!(bvh.local_regions(), 4);
         let local = bvh.local.get().and_then(Option::as_ref).expect("trees made above");

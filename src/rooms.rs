@@ -99,6 +99,12 @@ impl Rooms {
         rooms
     }
 
+    /// The rooms of `scene`'s triangles.
+    pub fn of_scene(scene: &crate::scene::Scene) -> Rooms {
+        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
+        Rooms::new(&corners)
+    }
+
     /// The voxels' side (scene units).
     pub fn voxel_side(&self) -> f32 {
         self.side

@@ -41,8 +41,7 @@ pub fn run(a: Args) -> Result<()> {
     // The same level with its rooms' own trees (what the precompute traces).
     let start = Instant::now();
     let local = Bvh::build(&scene);
-    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-    local.localise(&scene, &prm::rooms::Rooms::new(&corners));
+    local.localise(&scene, &prm::rooms::Rooms::of_scene(&scene));
     let local_build = start.elapsed().as_secs_f64();
     // Start points stratified by area, as the precompute samples its entries; each ray's other
     // point is a start point picked at random.

@@ -119,13 +119,7 @@ impl Preamble {
                     TexelSet::build_visible(scene, bvh, params.atlas.width(), params.atlas.height())
                 })
             },
-            || {
-                timed(&mut rooms_s, || {
-                    let corners: Vec<[Vec3; 3]> =
-                        (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-                    prm::rooms::Rooms::new(&corners)
-                })
-            },
+            || timed(&mut rooms_s, || prm::rooms::Rooms::of_scene(scene)),
         );
         report.seconds_texels += texels_s;
         report.seconds_clustering += rooms_s;
@@ -779,8 +773,7 @@ mod tests {
         std::fs::write(&path, b.finish(64).unwrap().to_glb()).unwrap();
         let scene = prm::gltf_load::load_scene(&path, &Default::default()).unwrap();
         let bvh = Bvh::build(&scene);
-        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-        let rooms = prm::rooms::Rooms::new(&corners);
+        let rooms = prm::rooms::Rooms::of_scene(&scene);
         let on_shelf = |p: Vec3| (p.y - 1.5).abs() < 1e-4 && p.z > 2.39;
         let shelf: Vec<usize> =
             (0..scene.triangles.len()).filter(|&t| scene.corners(t).iter().all(|&c| on_shelf(c))).collect();

@@ -179,8 +179,7 @@ pub fn run_shard(
     // The walks trace with the rooms' trees, as the one-machine precompute's do (where the
     // plan was made in this process, the BVH has them already and this does nothing).
     if !bvh.is_localised() {
-        let corners: Vec<[glam::Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-        bvh.localise(scene, &prm::rooms::Rooms::new(&corners));
+        bvh.localise(scene, &prm::rooms::Rooms::of_scene(scene));
     }
     let range = shard_texels(pre.set.len(), index, count);
     let linked = pre.linked();
