@@ -7,6 +7,13 @@ use rand_pcg::Pcg64Mcg;
 
 const SCALES: [f32; 3] = [1e-3, 1.0, 1e4];
 
+/// A scene of the triangles `pos` lists corner by corner (no lightmap UVs).
+fn unindexed(pos: Vec<Vec3>) -> Scene {
+    let idx: Vec<u32> = (0..pos.len() as u32).collect();
+    let uv = vec![Vec2::ZERO; pos.len()];
+    Scene::from_mesh(pos, uv, &idx)
+}
+
 fn random_soup(scale: f32, seed: u64) -> Scene {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let mut pos = Vec::new();
@@ -16,9 +23,7 @@ fn random_soup(scale: f32, seed: u64) -> Scene {
             pos.push((c + Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5) * scale);
         }
     }
-    let idx: Vec<u32> = (0..pos.len() as u32).collect();
-    let uv = vec![Vec2::ZERO; pos.len()];
-    Scene::from_mesh(pos, uv, &idx)
+    unindexed(pos)
 }
 
 #[test]
@@ -261,9 +266,7 @@ fn rooms_in_a_row(rooms: usize, s: f32, seed: u64) -> Scene {
         }
     }
     let pos: Vec<Vec3> = pos.into_iter().map(|p| p * s).collect();
-    let idx: Vec<u32> = (0..pos.len() as u32).collect();
-    let uv = vec![Vec2::ZERO; pos.len()];
-    Scene::from_mesh(pos, uv, &idx)
+    unindexed(pos)
 }
 
 #[test]
@@ -272,8 +275,7 @@ fn rooms_own_trees_give_the_closest_hits_and_occlusion_of_the_whole_level() {
     for (k, &s) in SCALES.iter().enumerate() {
         let scene = rooms_in_a_row(4, s, k as u64);
         let bvh = Bvh::build(&scene);
-        let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-        bvh.localise(&scene, &prm::rooms::Rooms::new(&corners));
+        bvh.localise(&scene, &prm::rooms::Rooms::of_scene(&scene));
         // The four rooms, each its own, and not the pillars' hollows (their rays leave them at
         // once) nor the outside (it holds every triangle); a pocket the clutter closes off in
         // a room's corner may have one too.
@@ -344,8 +346,7 @@ fn rooms_own_trees_give_the_closest_hits_and_occlusion_of_the_whole_level() {
 fn a_level_of_one_room_gets_no_room_trees() {
     let scene = rooms_in_a_row(1, 1.0, 9);
     let bvh = Bvh::build(&scene);
-    let corners: Vec<[Vec3; 3]> = (0..scene.triangles.len()).map(|t| scene.corners(t)).collect();
-    bvh.localise(&scene, &prm::rooms::Rooms::new(&corners));
+    bvh.localise(&scene, &prm::rooms::Rooms::of_scene(&scene));
     assert_eq!(bvh.local_regions(), 0);
     assert_eq!(bvh.region_at(Vec3::splat(1.0)), None);
 }
