@@ -27,6 +27,7 @@
 //! on the chamber's torches).
 
 use std::collections::HashMap;
+use std::ops::Range;
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::{far_share, far_vote, Entry, Far, FarTexel};
@@ -581,7 +582,8 @@ impl<'a> FirstBounce<'a> {
                 h = mix_floats(h, &f.position.to_array());
                 h = mix_floats(h, &f.normal.to_array());
                 h = mix_floats(h, &f.weights);
-                for &q in &f.entries {
+                // A slot of no weight holds entry 0 and lends nothing ([`FirstBounce::add`]).
+                for (&q, _) in f.entries.iter().zip(&f.weights).filter(|(_, &w)| w > 0.0) {
                     h = mix_word(h, neighbour.get(q as usize).copied().unwrap_or(0));
                 }
                 h
@@ -618,7 +620,11 @@ impl<'a> FirstBounce<'a> {
             |(acc, touched, blocks, seen): &mut (Vec<Vec3>, Vec<u32>, Vec<u32>, Vec<u64>), (out, &k)| {
                 let Some(t) = of_texel(k) else { return };
                 let q: [usize; NEIGHBOURS] = std::array::from_fn(|k| t.entries[k] as usize);
-                let runs = q.map(run);
+                // A slot of no weight (fewer neighbours than NEIGHBOURS) holds entry 0 and lends
+                // nothing: no blocks, no bits, and no say in whether every neighbour sees.
+                let real: [bool; NEIGHBOURS] = std::array::from_fn(|k| t.weights[k] > 0.0);
+                let runs: [Range<usize>; NEIGHBOURS] =
+                    std::array::from_fn(|k| if real[k] { run(q[k]) } else { 0..0 });
                 // The blocks any neighbour sees something of (an entry sees itself), ascending:
                 // marked in a bit set and read back in order, which a sort of the four runs
                 // (a few hundred blocks each) cost several times over.
@@ -627,7 +633,7 @@ impl<'a> FirstBounce<'a> {
                         *w |= 1 << (b % 64);
                     }
                 };
-                for k in 0..NEIGHBOURS {
+                for k in (0..NEIGHBOURS).filter(|&k| real[k]) {
                     far.pair_block[runs[k].clone()].iter().for_each(|&b| mark(b as usize));
                     mark(q[k] / B);
                 }
@@ -655,14 +661,14 @@ impl<'a> FirstBounce<'a> {
                         if at[k] < runs[k].end && far.pair_block[at[k]] as usize == b {
                             w = far.visible[at[k] * B + q[k] % B];
                         }
-                        if q[k] / B == b {
+                        if real[k] && q[k] / B == b {
                             w |= 1 << (q[k] % B);
                         }
                         w
                     });
                     // An entry no neighbour sees gets no light from the vote.
                     let mut any = bits.iter().fold(0, |a, w| a | w);
-                    let every = bits.iter().fold(u32::MAX, |a, w| a & w);
+                    let every = bits.iter().zip(real).filter(|(_, r)| *r).fold(u32::MAX, |a, (w, _)| a & w);
                     while any != 0 {
                         let r = any.trailing_zeros() as usize;
                         any &= any - 1;
@@ -865,6 +871,23 @@ mod tests {
             (value.clone(), digest),
             "a pair of no bits moved the texel"
         );
+        // A texel of two neighbours (1 and 2) has entry 0 in its empty slots, at no weight.
+        // What entry 0 sees (38 here, and 37) is none of its business: on the 16 chambers such
+        // texels on every chamber's dais side followed edits of the first chamber's carpet,
+        // which entry 0 (on that chamber's ceiling) sees.
+        let mut sparse = far.clone();
+        sparse.texels[0].entries = [1, 2, 0, 0];
+        sparse.texels[0].weights = [0.5, 0.5, 0.0, 0.0];
+        sparse.visible[0] |= 1 << 6;
+        let (value, digest) = lit(&sparse, &assignment, &cell);
+        assert!(value.iter().any(|&(c, v)| c == 0 && v.x > 0.0), "{value:?}");
+        assert_eq!(lit(&sparse, &unseen, &cell), (value.clone(), digest), "entry 0's view moved the texel");
+        let mut blind0 = sparse.clone();
+        blind0.visible[0] = 0;
+        assert_eq!(lit(&blind0, &assignment, &cell), (value.clone(), digest), "entry 0 lost its bits");
+        let mut blind1 = sparse.clone();
+        blind1.visible[1] = 0;
+        assert!(lit(&blind1, &assignment, &cell) != (value, digest), "a real neighbour lost its bit");
     }
 
     /// Two pairs facing each other across x = 0, one behind a square blocker there and one
