@@ -330,6 +330,8 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
             "texels_walked": report.update_texels_walked,
             "rooms_touched": report.update_rooms_touched,
             "entries_settled": report.update_entries_settled,
+            "far_pairs_kept": report.update_far_pairs_kept,
+            "near_texels_kept": report.update_near_texels_kept,
             "rows_made": report.update_rows_made,
         });
     }

@@ -309,6 +309,20 @@ pub fn entry_rooms(rooms: &prm::rooms::Rooms, entries: &[Entry]) -> Vec<Option<u
     entries.iter().zip(found).map(|(e, f)| f.or_else(|| of_triangle.get(&e.triangle).copied())).collect()
 }
 
+/// The rooms with each entry that has none ([`entry_rooms`]) given the room of the nearest
+/// entry before it that has one (entries follow their triangles, so that is its neighbour),
+/// or after it.
+pub fn filled_rooms(found: &[Option<u32>]) -> Vec<u32> {
+    let mut last = found.iter().flatten().next().copied().unwrap_or(0);
+    found
+        .iter()
+        .map(|f| {
+            last = f.unwrap_or(last);
+            last
+        })
+        .collect()
+}
+
 /// For each triangle without an entry, the kept entry (sampled index) nearest along the
 /// surface: a shortest path over triangle centroids from the triangles holding kept entries,
 /// across edges shared by welded positions, through triangles without entries that face the

@@ -28,6 +28,7 @@
 
 use std::collections::HashMap;
 use std::ops::Range;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::{far_share, far_vote, Entry, Far, FarTexel};
@@ -84,9 +85,13 @@ pub fn far_field(
         return Far::default();
     }
     let reuse = reuse.filter(|r| {
-        r.old.block_first.len() == Far::blocks(entries.len()) + 1
+        let blocks = Far::blocks(entries.len());
+        r.old.block_first.len() == blocks + 1
             && r.old.energy.len() == entries.len()
             && r.entry.len() == entries.len()
+            && r.settled.len() == blocks
+            && r.same.len() == blocks
+            && r.old_room.len() == entries.len()
     });
     let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed, reuse);
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
@@ -98,10 +103,23 @@ pub fn far_field(
 /// not touch: `crate::update::Untouched::blocks`), and the energy of each settled `entry`.
 /// Such a pair's rays, and such an entry's, run through free space the edit did not reach,
 /// so they meet what they met before.
+///
+/// A pair of blocks in rooms the edit touched is also taken when both blocks' entries are as
+/// they were (`same`, per block) and the box holding both blocks' entries misses every box of
+/// the edit (`boxes`: `crate::update::Untouched::boxes`): each of the pair's rays runs between
+/// points of that box, so it meets the triangles it met before. The rooms must part the two
+/// blocks now as they did then (`old_room`, per entry, in the old level's labels): two
+/// blocks in rooms apart are not traced at all. On a level whose rooms are joined by doors, an
+/// edit touches the one room, and without this every pair was traced again.
 pub struct FarReuse<'a> {
     pub old: &'a Far,
     pub settled: &'a [bool],
     pub entry: &'a [bool],
+    pub same: &'a [bool],
+    pub old_room: &'a [u32],
+    pub boxes: &'a [(Vec3, Vec3)],
+    /// How many pairs were tested and taken by geometry (counted as it goes).
+    pub by_geometry: AtomicUsize,
 }
 
 impl FarReuse<'_> {
@@ -227,20 +245,44 @@ fn pair_visibility(
         })
         .collect();
     // Each block's rooms, ascending (None: not known, so it may see any).
-    let rooms: Vec<Option<Vec<u32>>> = (0..blocks)
-        .map(|a| {
-            let mut r = room.get(members(a))?.to_vec();
-            r.sort_unstable();
-            r.dedup();
-            Some(r)
-        })
-        .collect();
+    let block_rooms = |room: &[u32]| -> Vec<Option<Vec<u32>>> {
+        (0..blocks)
+            .map(|a| {
+                let mut r = room.get(members(a))?.to_vec();
+                r.sort_unstable();
+                r.dedup();
+                Some(r)
+            })
+            .collect()
+    };
+    let rooms = block_rooms(room);
     // Free space joins no room to another: blocks whose rooms are known and all differ see
     // nothing of each other (the 16 chambers' neighbours a metre apart were traced ray by ray
     // through their walls: 33x the one chamber's pair time).
-    let apart = |a: usize, b: usize| match (&rooms[a], &rooms[b]) {
+    let parted = |rooms: &[Option<Vec<u32>>], a: usize, b: usize| match (&rooms[a], &rooms[b]) {
         (Some(x), Some(y)) => !x.iter().any(|r| y.binary_search(r).is_ok()),
         _ => false,
+    };
+    let apart = |a: usize, b: usize| parted(&rooms, a, b);
+    // An update's pairs kept by geometry (`FarReuse`): the rooms as baked, and whether the box
+    // of two blocks' entries, grown by the rays' offsets off their surfaces, meets the edit.
+    let old_rooms = reuse.map(|r| block_rooms(r.old_room));
+    let offset = |lo: Vec3, hi: Vec3| 2.0 * bvh.eps_at(lo.abs().max(hi.abs()));
+    let kept_by_geometry = |r: &FarReuse, a: usize, b: usize| -> bool {
+        if !(r.same[a] && r.same[b]) {
+            return false;
+        }
+        if old_rooms.as_ref().is_none_or(|old| parted(old, a, b) != apart(a, b)) {
+            return false;
+        }
+        let (lo, hi) = (bounds[a].0.min(bounds[b].0), bounds[a].1.max(bounds[b].1));
+        let m = offset(lo, hi);
+        let (lo, hi) = (lo - Vec3::splat(m), hi + Vec3::splat(m));
+        let clear = !r.boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all());
+        if clear {
+            r.by_geometry.fetch_add(1, Ordering::Relaxed);
+        }
+        clear
     };
     // Gap between two boxes: no pair of their entries is closer.
     let gap = |a: usize, b: usize| {
@@ -271,7 +313,9 @@ fn pair_visibility(
         .map(|a| {
             let mut kept = Vec::new();
             for b in a..blocks {
-                if let Some(r) = reuse.filter(|r| r.settled[a] && r.settled[b]) {
+                // (Settled pairs first: those are not counted as kept by geometry.)
+                if let Some(r) = reuse.filter(|r| (r.settled[a] && r.settled[b]) || kept_by_geometry(r, a, b))
+                {
                     kept.extend(r.bits(a, b).map(|bits| (b as u32, bits)));
                     continue;
                 }
@@ -962,6 +1006,67 @@ mod tests {
         // Blocks 0 (z 0 .. 12.4) and 3 (z 38.4 .. 39.6) are 26 apart: not kept.
         assert_eq!((far.pair(0, 3), far.pair(3, 0)), (None, None));
         assert!(far.pair(0, 1).is_some() && far.pair(1, 0).is_some());
+    }
+
+    /// An update keeps a pair of blocks by geometry (`FarReuse`): both blocks' entries as they
+    /// were, the box of their entries clear of the edit's boxes, and the rooms parting them as
+    /// before. The old bake here is marked (every bit set), so a kept pair reads all ones and
+    /// a pair traced again reads the true bits. The blocks of `block_bits_are_the_brute_force_pairs`
+    /// along z (0 .. 12.4, 12.8 .. 25.2, 25.6 .. 38, 38.4 .. 39.6), an edit at z = 30.
+    #[test]
+    fn pairs_apart_from_the_edit_are_kept_by_geometry() {
+        const B: usize = Far::BLOCK;
+        let pos = vec![Vec3::new(0.0, -1.0, -1.0), Vec3::new(0.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let scene = Scene::from_mesh(pos, vec![glam::Vec2::ZERO; 3], &[0, 1, 2]);
+        let bvh = Bvh::build(&scene);
+        let entries: Vec<Entry> = (0..100)
+            .map(|k| {
+                let (x, n) = if k % 2 == 0 { (-1.0, Vec3::X) } else { (1.0, Vec3::NEG_X) };
+                entry(Vec3::new(x, 0.3 * (k % 7) as f32, 0.4 * k as f32), n)
+            })
+            .collect();
+        let (radius, room) = (6.0, vec![0u32; 100]);
+        let far_of = |(block_first, pair_block, visible): (Vec<u32>, Vec<u32>, Vec<u32>)| Far {
+            radius,
+            block_first,
+            pair_block,
+            visible,
+            ..Far::default()
+        };
+        let fresh = far_of(pair_visibility(&bvh, &entries, &room, radius, None));
+        let marked = Far { visible: vec![u32::MAX; fresh.visible.len()], ..fresh.clone() };
+        let bits =
+            |far: &Far, a: usize, b: usize| far.pair(a, b).map(|k| far.visible[k * B..(k + 1) * B].to_vec());
+        let boxes = [(Vec3::new(-0.5, 0.0, 29.5), Vec3::new(0.5, 1.0, 30.5))];
+        let (settled, energy_settled) = (vec![false; 4], vec![false; 100]);
+        let run = |same: &[bool], old_room: &[u32]| {
+            let reuse = FarReuse {
+                old: &marked,
+                settled: &settled,
+                entry: &energy_settled,
+                same,
+                old_room,
+                boxes: &boxes,
+                by_geometry: Default::default(),
+            };
+            far_of(pair_visibility(&bvh, &entries, &room, radius, Some(&reuse)))
+        };
+        let pairs = [(0, 0), (0, 1), (1, 1), (1, 2), (2, 2), (2, 3), (3, 3)];
+        assert!(pairs.iter().all(|&(a, b)| fresh.pair(a, b).is_some()), "every listed pair sees something");
+        let check = |far: &Far, kept: &[(usize, usize)]| {
+            for &(a, b) in &pairs {
+                let want = if kept.contains(&(a, b)) { bits(&marked, a, b) } else { bits(&fresh, a, b) };
+                assert_eq!(bits(far, a, b), want, "pair {a} {b}, kept: {kept:?}");
+            }
+        };
+        // The boxes of (1, 2), (2, 2) and (2, 3) hold z = 30.
+        check(&run(&[true; 4], &room), &[(0, 0), (0, 1), (1, 1), (3, 3)]);
+        // An entry of block 1 moved: its pairs are traced again.
+        check(&run(&[true, false, true, true], &room), &[(0, 0), (3, 3)]);
+        // Block 0 lay in another room before: (0, 1) was not traced then, so it is now.
+        let mut old_room = room.clone();
+        old_room[..32].fill(1);
+        check(&run(&[true; 4], &old_room), &[(0, 0), (1, 1), (3, 3)]);
     }
 
     /// Two rows of 64 entries facing each other 2 m apart (within the probe gap, so traced

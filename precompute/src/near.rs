@@ -50,7 +50,7 @@ pub fn near_links(
     cells: &Cells,
     radius: f32,
     far: &Far,
-    reuse: Option<(&[NearLink], &[bool])>,
+    reuse: Option<&NearReuse>,
 ) -> (Vec<NearLink>, Vec<NearPoint>) {
     let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
     let reach = radius * first.area.sqrt();
@@ -65,12 +65,15 @@ pub fn near_links(
         .enumerate()
         .map(|(k, t)| {
             let texel = (t.j as usize * width + t.i as usize) as u32;
-            if let Some((old, _)) = reuse.filter(|(_, settled)| settled[k]) {
-                let from = old.partition_point(|l| l.texel < texel);
-                let to = from + old[from..].partition_point(|l| l.texel == texel);
-                return old[from..to].to_vec();
-            }
             let fades = far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok();
+            if let Some(r) = reuse.filter(|r| {
+                r.settled.get(k) == Some(&true)
+                    || r.kept_by_geometry(bvh, t, texel, fades, cells, &cell, reach, &reaches)
+            }) {
+                let from = r.old.partition_point(|l| l.texel < texel);
+                let to = from + r.old[from..].partition_point(|l| l.texel == texel);
+                return r.old[from..to].to_vec();
+            }
             let mut out = Vec::new();
             for j in reaches.around(t.position) {
                 let (e, (centroid, area)) = (&entries[j], cell[j]);
@@ -108,6 +111,72 @@ pub fn near_links(
         .collect();
     round_near_points(&mut points);
     (links, points)
+}
+
+/// What an update takes from the old bake's near links (`crate::update::Untouched`): the
+/// links of every `settled` texel (its triangle as it was, in a room the edit did not touch),
+/// and of a texel the edit cannot have reached by geometry. That is a texel whose triangle is
+/// as it was (`triangle`), which the far field lights now as it did then (`old_far`), none of
+/// whose candidate cells changed (no changed entry's cell, old or new, reaches it: `changed`,
+/// its centroid and the square root of its area), and whose rays to its cells stay clear of
+/// the edit (the box of the texel and those cells' triangles misses every box of `boxes`).
+/// On a level whose rooms are joined by doors an edit touches the one room, and without the
+/// geometry every texel's links were made again.
+pub struct NearReuse<'a> {
+    pub old: &'a [NearLink],
+    pub settled: &'a [bool],
+    pub triangle: &'a [bool],
+    pub old_far: &'a Far,
+    pub changed: &'a [(Vec3, f32)],
+    pub boxes: &'a [(Vec3, Vec3)],
+    /// How many texels not settled were taken by geometry (counted as it goes).
+    pub by_geometry: std::sync::atomic::AtomicUsize,
+}
+
+impl NearReuse<'_> {
+    /// Whether texel `t` (atlas index `texel`) has the old bake's links by geometry (`fades`:
+    /// the far field lights it now; `cell`, `reach` and `reaches` as [`near_links`] finds its
+    /// candidate cells).
+    #[allow(clippy::too_many_arguments)]
+    fn kept_by_geometry(
+        &self,
+        bvh: &Bvh,
+        t: &prm::Texel,
+        texel: u32,
+        fades: bool,
+        cells: &Cells,
+        cell: &[(Vec3, f32)],
+        reach: f32,
+        reaches: &ReachGrid,
+    ) -> bool {
+        if self.triangle.get(t.triangle as usize) != Some(&true)
+            || self.old_far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok() != fades
+        {
+            return false;
+        }
+        let x = t.position;
+        let margin = 2.0 * bvh.eps_at(x);
+        if self.changed.iter().any(|&(c, s)| c.distance(x) <= reach + s + margin) {
+            return false;
+        }
+        let (mut lo, mut hi) = (x, x);
+        for j in reaches.around(x) {
+            let (centroid, area) = cell[j];
+            if !(area > 0.0) || centroid.distance(x) > reach + area.sqrt() {
+                continue;
+            }
+            for p in cells.of(j).iter().flatten() {
+                (lo, hi) = (lo.min(*p), hi.max(*p));
+            }
+        }
+        let m = 2.0 * bvh.eps_at(lo.abs().max(hi.abs()));
+        let (lo, hi) = (lo - Vec3::splat(m), hi + Vec3::splat(m));
+        if self.boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all()) {
+            return false;
+        }
+        self.by_geometry.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        true
+    }
 }
 
 /// The form factor from the texel `(x, n)` to the part of cell triangle `tri` it sees (`front`:

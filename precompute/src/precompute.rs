@@ -337,6 +337,12 @@ pub struct Report {
     /// far-field pairs and texels' near links come from the old bake
     /// (`crate::update::Untouched`).
     pub update_entries_settled: usize,
+    /// An update's pairs of entry blocks in touched rooms whose far-field bits came from the
+    /// old bake by geometry (`crate::far::FarReuse`), not traced again.
+    pub update_far_pairs_kept: usize,
+    /// An update's texels not settled whose near links came from the old bake by geometry
+    /// (`crate::near::NearReuse`).
+    pub update_near_texels_kept: usize,
     /// An update's rows of the walks' next-bounce table made again: those whose inputs
     /// changed and those of the rooms its walks can reach (of `entries`).
     pub update_rows_made: usize,

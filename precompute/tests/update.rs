@@ -187,6 +187,13 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
         r.update_entries_settled,
         r.entries
     );
+    // In the first room, whose entries are not settled, the pairs of blocks whose entries'
+    // box misses the block where it was and where it is come from the old bake too (by
+    // geometry, `prm_precompute::far::FarReuse`); the bytes above say they are what a full
+    // walk makes.
+    assert!(r.update_far_pairs_kept > 0, "no pair of the first room was kept by geometry");
+    // So are the near links of its texels away from the block (`prm_precompute::near::NearReuse`).
+    assert!(r.update_near_texels_kept > 0, "no texel of the first room kept its links by geometry");
     // Only the first room's next-bounce rows are made again (the second's inputs are as they
     // were, and its walks are not taken again), and the cache's row digests are the twin's.
     assert!(
@@ -198,13 +205,15 @@ fn an_update_is_its_twin_to_the_byte_and_walks_only_what_the_edit_reaches() {
     let up_rows = up.cache.as_ref().map(|c| (c.rows.clone(), c.row_inputs.clone()));
     assert_eq!(up_rows, Some((twin_cache.rows.clone(), twin_cache.row_inputs.clone())));
     eprintln!(
-        "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked, {} of {} rows made",
+        "moved block: {} of {tiles} tiles hit, {} encoded, {} of {} texels walked, {} of {} rows made, {} far pairs and {} texels' near links kept by geometry",
         r.update_tiles_hit,
         r.update_tiles_encoded,
         r.update_texels_walked,
         r.texels,
         r.update_rows_made,
-        r.entries
+        r.entries,
+        r.update_far_pairs_kept,
+        r.update_near_texels_kept
     );
     // And it is a different map from the old one (the block moved).
     assert_ne!(twin_bytes, old_bytes);

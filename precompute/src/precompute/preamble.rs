@@ -14,11 +14,11 @@ use prm::{Bvh, Scene, Smoothing, TexelSet};
 use rayon::prelude::*;
 
 use super::{Phase, PrecomputeError, PrecomputeParams, Report};
-use crate::cells::{entry_cells_in_rooms, entry_rooms, CellOwners, CellReport};
+use crate::cells::{entry_cells_in_rooms, entry_rooms, filled_rooms, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, FarReuse, FirstBounce};
-use crate::near::{echo_links, near_links, EchoReuse};
+use crate::near::{echo_links, near_links, EchoReuse, NearReuse};
 use crate::parallel::stop_if;
 use crate::transport::{
     CellSamples, Cutoff, Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport,
@@ -161,7 +161,7 @@ impl Preamble {
         };
         report.update_entries_settled =
             untouched.as_ref().map_or(0, |u| u.entry.iter().filter(|&&s| s).count());
-        let settled = untouched.as_ref().map(|u| u.blocks());
+        let settled = untouched.as_ref().map(|u| (u.blocks(), u.same_blocks()));
         let rooms = keep_rooms.then_some(rooms);
         for (r, t) in texel_room.iter_mut().zip(&set.texels).filter(|(r, _)| r.is_none()) {
             *r = owners.owner(t.triangle as usize, t.position).and_then(|e| room.get(e as usize).copied());
@@ -197,17 +197,23 @@ impl Preamble {
         let cell: Vec<(Vec3, f32)> = (0..entries.len())
             .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
             .collect();
-        let far = timed(&mut report.seconds_far, || {
+        let (far, far_kept) = timed(&mut report.seconds_far, || {
             if params.far_field {
                 let reach = params.near_radius * spacing;
                 let radius = params.far_radius * spacing;
-                let reuse = match (update, &settled) {
-                    (Some((old, _)), Some(settled)) => {
-                        untouched.as_ref().map(|u| FarReuse { old: old.far(), settled, entry: &u.entry })
-                    }
+                let reuse = match (update, &settled, &untouched) {
+                    (Some((old, _)), Some((settled, same)), Some(u)) => Some(FarReuse {
+                        old: old.far(),
+                        settled,
+                        entry: &u.entry,
+                        same,
+                        old_room: &u.old_room,
+                        boxes: &u.boxes,
+                        by_geometry: Default::default(),
+                    }),
                     _ => None,
                 };
-                far_field(
+                let far = far_field(
                     scene,
                     bvh,
                     &set,
@@ -219,27 +225,40 @@ impl Preamble {
                     radius,
                     params.seed,
                     reuse.as_ref(),
-                )
+                );
+                (far, reuse.map_or(0, |r| r.by_geometry.into_inner()))
             } else {
-                Far::default()
+                (Far::default(), 0)
             }
         });
+        report.update_far_pairs_kept = far_kept;
         // An update takes a settled texel's near and echo links from the old bake.
         let settled_texels: Option<Vec<bool>> = untouched
             .as_ref()
             .filter(|_| update.is_some())
             .map(|u| texel_room.iter().zip(&set.texels).map(|(&r, t)| u.texel(t.triangle, r)).collect());
-        let (near, near_points) = timed(&mut report.seconds_near, || {
+        let (near, near_points, near_kept) = timed(&mut report.seconds_near, || {
             if params.near_radius > 0.0 {
-                let reuse = match (update, &settled_texels) {
-                    (Some((old, _)), Some(s)) => Some((old.near(), &s[..])),
+                let reuse = match (update, &settled_texels, &untouched) {
+                    (Some((old, _)), Some(s), Some(u)) => Some(NearReuse {
+                        old: old.near(),
+                        settled: s,
+                        triangle: &u.triangle,
+                        old_far: old.far(),
+                        changed: &u.changed,
+                        boxes: &u.boxes,
+                        by_geometry: Default::default(),
+                    }),
                     _ => None,
                 };
-                near_links(bvh, &set, &entries, &cut, params.near_radius, &far, reuse)
+                let (near, points) =
+                    near_links(bvh, &set, &entries, &cut, params.near_radius, &far, reuse.as_ref());
+                (near, points, reuse.map_or(0, |r| r.by_geometry.into_inner()))
             } else {
-                (Vec::new(), Vec::new())
+                (Vec::new(), Vec::new(), 0)
             }
         });
+        report.update_near_texels_kept = near_kept;
         // The links' first bounce, exact: the gather leaves it out of its first hits and the
         // panes get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does
         // this (the MIS and scatter estimators, and dipole panes, walk it as before).
@@ -571,19 +590,6 @@ fn exact_first_bounce(
         tp.sort_by_key(|&(c, _)| c);
     }
     out
-}
-
-/// The rooms with each entry that has none given the room of the nearest entry before it that
-/// has one (entries follow their triangles, so that is its neighbour), or after it.
-fn filled_rooms(found: &[Option<u32>]) -> Vec<u32> {
-    let mut last = found.iter().flatten().next().copied().unwrap_or(0);
-    found
-        .iter()
-        .map(|f| {
-            last = f.unwrap_or(last);
-            last
-        })
-        .collect()
 }
 
 /// `f()`, with its run time in seconds added to `seconds`.

@@ -7,7 +7,13 @@
 //! makes every tile's other inputs comparable, but for what lies in rooms the edit did not
 //! touch ([`Untouched`], below under *Rooms*): there the far field's pairs of entry blocks and
 //! the texels' near links are the old bake's (on 16 chambers those two were 19 of a plain
-//! update's 44 s). Every tile's digest is still made again: a tile of an untouched room can
+//! update's 44 s). In a touched room they are the old bake's too where geometry shows the edit
+//! cannot reach them (`crate::far::FarReuse`, `crate::near::NearReuse`): a pair of unchanged
+//! blocks whose entries' box misses the edit's boxes, a texel none of whose candidate cells
+//! changed and whose box with them misses the edit's (on the halls, one room joined by doors,
+//! far 7.0 -> 2.7 s). A ray the two trees answer differently where it grazes an edge (one
+//! pair of 256,367 on the halls) then keeps the old bake's answer: a difference from the twin
+//! of that one bit, not of the byte. Every tile's digest is still made again: a tile of an untouched room can
 //! carry a trace (1e-11) of a touched room's clusters through the far field's first bounce.
 //! That digest holds what the exact first bounce is made of, not its values: per texel its
 //! far-field neighbours' pair bits and the cells, normals, flux and clusters of the entries
@@ -359,6 +365,18 @@ pub struct Untouched {
     /// edited level's rooms its space lies in ([`Rooms::rooms_in`]): the plan uses both.
     pub baked: Rooms,
     pub map: Vec<Vec<u32>>,
+    /// Per entry: as the old bake had it, whatever its room (`settled` asks more).
+    pub same: Vec<bool>,
+    /// The old bake's entries' rooms, in the labels of the level as baked
+    /// (`crate::cells::filled_rooms`, as that bake found them).
+    pub old_room: Vec<u32>,
+    /// The edit's boxes ([`Edit::boxes`], without the table's rows): every triangle changed,
+    /// where it was and where it is, and every entry changed, its cells and sites. A ray
+    /// between points of a box that meets none of them meets what it met before.
+    pub boxes: Vec<(Vec3, Vec3)>,
+    /// Per entry changed (itself or its cell), its cell's centroid and the square root of its
+    /// area, as baked and as now: a texel that close may have it among its near links' cells.
+    pub changed: Vec<(Vec3, f32)>,
 }
 
 impl Untouched {
@@ -383,20 +401,35 @@ impl Untouched {
             .iter()
             .flat_map(|&r| map.get(r as usize).into_iter().flatten().copied())
             .collect();
+        let same: Vec<bool> =
+            (0..entries.len()).map(|j| old.0.get(j).is_some_and(|o| same_entry(o, &entries[j]))).collect();
         let entry = (0..entries.len())
-            .map(|j| {
-                old.0.get(j).is_some_and(|o| same_entry(o, &entries[j]))
-                    && room.get(j).is_some_and(|r| !touched.contains(r))
-            })
+            .map(|j| same[j] && room.get(j).is_some_and(|r| !touched.contains(r)))
             .collect();
         let triangle = cache.triangles.iter().zip(now).map(|(a, b)| a.1 == b.1).collect();
-        Untouched { touched, entry, triangle, baked, map }
+        let old_room = crate::cells::filled_rooms(&crate::cells::entry_rooms(&baked, old.0));
+        let mut changed = Vec::new();
+        for (j, e) in entries.iter().enumerate() {
+            let kept = same[j] && same_cell(old.1.of(j), cells.of(j));
+            if !kept {
+                if let Some(o) = old.0.get(j) {
+                    changed.push((old.1.centroid(j).unwrap_or(o.position), old.1.area(j).max(0.0).sqrt()));
+                }
+                changed.push((cells.centroid(j).unwrap_or(e.position), cells.area(j).max(0.0).sqrt()));
+            }
+        }
+        Untouched { touched, entry, triangle, baked, map, same, old_room, boxes: edit.boxes, changed }
     }
 
     /// Per block of entries ([`prm::prm_file::Far::BLOCK`]): all settled. An update takes
     /// the far-field pairs of two such blocks from the old bake (`crate::far::FarReuse`).
     pub fn blocks(&self) -> Vec<bool> {
         self.entry.chunks(prm::prm_file::Far::BLOCK).map(|c| c.iter().all(|&s| s)).collect()
+    }
+
+    /// Per block of entries: every entry as it was, whatever its room.
+    pub fn same_blocks(&self) -> Vec<bool> {
+        self.same.chunks(prm::prm_file::Far::BLOCK).map(|c| c.iter().all(|&s| s)).collect()
     }
 
     /// Whether a texel on `triangle` in room `room` is settled: its triangle as it was and its
