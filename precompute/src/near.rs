@@ -518,6 +518,62 @@ mod tests {
         assert_eq!(seen_form_factor(&floor, x, n, &upright, Vec3::Z, 1.0), 0.0, "facing away");
     }
 
+    /// An update keeps a texel's near links by geometry (`NearReuse`) only where nothing it
+    /// reads can have changed: three 1 m cells on a floor at x = 0, 5 and 10 (reach 1 m), a
+    /// texel by each. The cell at 5 changed and an edit's box stands on the cell at 10: only
+    /// the texel by the cell at 0 keeps its links, and not if its triangle changed or the far
+    /// field lights it now and did not then.
+    #[test]
+    fn near_links_are_kept_only_clear_of_the_edit() {
+        let square = |x: f32| {
+            let c = |a: f32, b: f32| Vec3::new(x + a, 0.0, b);
+            vec![[c(-0.5, -0.5), c(-0.5, 0.5), c(0.5, 0.5)], [c(-0.5, -0.5), c(0.5, 0.5), c(0.5, -0.5)]]
+        };
+        let cells = Cells::from_lists(vec![square(0.0), square(5.0), square(10.0)]);
+        let cell: Vec<(Vec3, f32)> =
+            (0..3).map(|j| (cells.centroid(j).unwrap_or(Vec3::NAN), cells.area(j))).collect();
+        let reach = 1.0;
+        let reaches = ReachGrid::new(&cell, reach);
+        let speck = |k: f32| Vec3::new(50.0 + k, 50.0, 50.0);
+        let bvh = Bvh::build(&Scene::from_mesh(
+            vec![speck(0.0), speck(0.1), speck(0.2)],
+            vec![glam::Vec2::ZERO; 3],
+            &[0, 1, 2],
+        ));
+        let texel = |x: f32| prm::Texel {
+            i: x as u32,
+            j: 0,
+            position: Vec3::new(x + 0.2, 0.0, 0.0),
+            normal: Vec3::Y,
+            triangle: 0,
+            bary: Vec3::splat(1.0 / 3.0),
+        };
+        let old_far = Far::default();
+        let changed = [(cell[1].0, cell[1].1.sqrt())];
+        let boxes = [(Vec3::new(10.0, 0.0, -0.1), Vec3::new(10.1, 0.5, 0.1))];
+        let (same, moved) = ([true], [false]);
+        let reuse = |triangle| NearReuse {
+            old: &[],
+            settled: &[],
+            triangle,
+            old_far: &old_far,
+            changed: &changed,
+            boxes: &boxes,
+            by_geometry: Default::default(),
+        };
+        let r = reuse(&same);
+        let kept = |r: &NearReuse, x: f32, fades: bool| {
+            let t = texel(x);
+            r.kept_by_geometry(&bvh, &t, t.i, fades, &cells, &cell, reach, &reaches)
+        };
+        assert!(kept(&r, 0.0, false), "clear of every change");
+        assert!(!kept(&r, 5.0, false), "by a changed cell");
+        assert!(!kept(&r, 10.0, false), "its cell under the edit's box");
+        assert!(!kept(&r, 0.0, true), "the far field lights it now, not then");
+        assert!(!kept(&reuse(&moved), 0.0, false), "its triangle changed");
+        assert_eq!(r.by_geometry.into_inner(), 1);
+    }
+
     /// The echo's reach is the one asked for where a receiver looks at few points, and shrinks
     /// until it looks at no more than [`ECHO_CANDIDATES`] on average where it would look at
     /// all of them (a reach as large as the level: a map of two entries). The 27 cells around
