@@ -267,7 +267,6 @@ fn pair_visibility(
     // An update's pairs kept by geometry (`FarReuse`): the rooms as baked, and whether the box
     // of two blocks' entries, grown by the rays' offsets off their surfaces, meets the edit.
     let old_rooms = reuse.map(|r| block_rooms(r.old_room));
-    let offset = |lo: Vec3, hi: Vec3| 2.0 * bvh.eps_at(lo.abs().max(hi.abs()));
     let kept_by_geometry = |r: &FarReuse, a: usize, b: usize| -> bool {
         if !(r.same[a] && r.same[b]) {
             return false;
@@ -276,9 +275,7 @@ fn pair_visibility(
             return false;
         }
         let (lo, hi) = (bounds[a].0.min(bounds[b].0), bounds[a].1.max(bounds[b].1));
-        let m = offset(lo, hi);
-        let (lo, hi) = (lo - Vec3::splat(m), hi + Vec3::splat(m));
-        let clear = !r.boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all());
+        let clear = crate::update::clear_of_edit(bvh, lo, hi, r.boxes);
         if clear {
             r.by_geometry.fetch_add(1, Ordering::Relaxed);
         }

@@ -169,9 +169,7 @@ impl NearReuse<'_> {
                 (lo, hi) = (lo.min(*p), hi.max(*p));
             }
         }
-        let m = 2.0 * bvh.eps_at(lo.abs().max(hi.abs()));
-        let (lo, hi) = (lo - Vec3::splat(m), hi + Vec3::splat(m));
-        if self.boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all()) {
+        if !crate::update::clear_of_edit(bvh, lo, hi, self.boxes) {
             return false;
         }
         self.by_geometry.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

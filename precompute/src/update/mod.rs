@@ -441,6 +441,16 @@ impl Untouched {
     }
 }
 
+/// Whether every ray between points of the box `lo..hi` (off their surfaces by `bvh`'s
+/// offsets, which grow the box) stays clear of the edit's `boxes` ([`Untouched::boxes`]): such
+/// a ray meets the triangles it met before the edit. What the far field's pairs and the near
+/// links keep by geometry (`crate::far::FarReuse`, `crate::near::NearReuse`) ask.
+pub fn clear_of_edit(bvh: &prm::Bvh, lo: Vec3, hi: Vec3, boxes: &[(Vec3, Vec3)]) -> bool {
+    let m = Vec3::splat(2.0 * bvh.eps_at(lo.abs().max(hi.abs())));
+    let (lo, hi) = (lo - m, hi + m);
+    !boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all())
+}
+
 /// What an update does again (module doc).
 pub struct Plan {
     /// Per atlas tile: its walks or other inputs changed.
