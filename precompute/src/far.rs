@@ -968,22 +968,27 @@ mod tests {
         assert!(near.sees(2, 3) && near.sees(3, 2) && !near.sees(0, 3) && !near.sees(1, 2));
     }
 
-    /// Entries in several blocks, some beyond the radius: every bit is the brute-force answer
-    /// (facing, within the radius, a ray), in both orders, and pairs of blocks with nothing to
-    /// see are not kept.
-    #[test]
-    fn block_bits_are_the_brute_force_pairs() {
+    /// A BVH of one triangle on the plane x = 0, between the lines' first entries, and 100
+    /// entries on two facing lines 2 apart, spread 0 .. 40 along z: four blocks.
+    fn two_lines() -> (Bvh, Vec<Entry>) {
         let pos = vec![Vec3::new(0.0, -1.0, -1.0), Vec3::new(0.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)];
         let uv = vec![glam::Vec2::ZERO, glam::Vec2::X, glam::Vec2::ONE];
-        let scene = Scene::from_mesh(pos, uv, &[0, 1, 2]);
-        let bvh = Bvh::build(&scene);
-        // 100 entries on two facing lines 2 apart, spread 0 .. 40 along z: four blocks.
-        let entries: Vec<Entry> = (0..100)
+        let bvh = Bvh::build(&Scene::from_mesh(pos, uv, &[0, 1, 2]));
+        let entries = (0..100)
             .map(|k| {
                 let (x, n) = if k % 2 == 0 { (-1.0, Vec3::X) } else { (1.0, Vec3::NEG_X) };
                 entry(Vec3::new(x, 0.3 * (k % 7) as f32, 0.4 * k as f32), n)
             })
             .collect();
+        (bvh, entries)
+    }
+
+    /// Entries in several blocks, some beyond the radius: every bit is the brute-force answer
+    /// (facing, within the radius, a ray), in both orders, and pairs of blocks with nothing to
+    /// see are not kept.
+    #[test]
+    fn block_bits_are_the_brute_force_pairs() {
+        let (bvh, entries) = two_lines();
         let radius = 6.0;
         let (block_first, pair_block, visible) = pair_visibility(&bvh, &entries, &[], radius, None);
         let far = Far { radius, block_first, pair_block, visible, ..Far::default() };
@@ -1013,15 +1018,7 @@ mod tests {
     #[test]
     fn pairs_apart_from_the_edit_are_kept_by_geometry() {
         const B: usize = Far::BLOCK;
-        let pos = vec![Vec3::new(0.0, -1.0, -1.0), Vec3::new(0.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)];
-        let scene = Scene::from_mesh(pos, vec![glam::Vec2::ZERO; 3], &[0, 1, 2]);
-        let bvh = Bvh::build(&scene);
-        let entries: Vec<Entry> = (0..100)
-            .map(|k| {
-                let (x, n) = if k % 2 == 0 { (-1.0, Vec3::X) } else { (1.0, Vec3::NEG_X) };
-                entry(Vec3::new(x, 0.3 * (k % 7) as f32, 0.4 * k as f32), n)
-            })
-            .collect();
+        let (bvh, entries) = two_lines();
         let (radius, room) = (6.0, vec![0u32; 100]);
         let far_of = |(block_first, pair_block, visible): (Vec<u32>, Vec<u32>, Vec<u32>)| Far {
             radius,
