@@ -13,8 +13,9 @@
 //! changed and whose box with them misses the edit's (on the halls, one room joined by doors,
 //! far 7.0 -> 2.7 s). A ray the two trees answer differently where it grazes an edge (one
 //! pair of 256,367 on the halls) then keeps the old bake's answer: a difference from the twin
-//! of that one bit, not of the byte. Every tile's digest is still made again: a tile of an untouched room can
-//! carry a trace (1e-11) of a touched room's clusters through the far field's first bounce.
+//! of that one bit, not of the byte. Every tile's digest is still made again: a tile of an
+//! untouched room can carry a trace (1e-11) of a touched room's clusters through the far
+//! field's first bounce.
 //! That digest holds what the exact first bounce is made of, not its values: per texel its
 //! far-field neighbours' pair bits and the cells, normals, flux and clusters of the entries
 //! those bits say they see, and its links' cells (`Preamble::exact_digests`). The values
