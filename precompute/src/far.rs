@@ -117,7 +117,7 @@ pub struct FarReuse<'a> {
     pub entry: &'a [bool],
     pub same: &'a [bool],
     pub old_room: &'a [u32],
-    pub boxes: &'a [(Vec3, Vec3)],
+    pub boxes: &'a crate::update::EditBoxes,
     /// How many pairs were tested and taken by geometry (counted as it goes).
     pub by_geometry: AtomicUsize,
 }
@@ -275,7 +275,7 @@ fn pair_visibility(
             return false;
         }
         let (lo, hi) = (bounds[a].0.min(bounds[b].0), bounds[a].1.max(bounds[b].1));
-        let clear = crate::update::clear_of_edit(bvh, lo, hi, r.boxes);
+        let clear = r.boxes.clear(bvh, lo, hi);
         if clear {
             r.by_geometry.fetch_add(1, Ordering::Relaxed);
         }
@@ -1031,20 +1031,22 @@ mod tests {
         let marked = Far { visible: vec![u32::MAX; fresh.visible.len()], ..fresh.clone() };
         let bits =
             |far: &Far, a: usize, b: usize| far.pair(a, b).map(|k| far.visible[k * B..(k + 1) * B].to_vec());
-        let boxes = [(Vec3::new(-0.5, 0.0, 29.5), Vec3::new(0.5, 1.0, 30.5))];
+        let boxes =
+            crate::update::EditBoxes::new(vec![(Vec3::new(-0.5, 0.0, 29.5), Vec3::new(0.5, 1.0, 30.5))]);
         let (settled, energy_settled) = (vec![false; 4], vec![false; 100]);
-        let run = |same: &[bool], old_room: &[u32]| {
+        let run_with = |same: &[bool], old_room: &[u32], boxes: &crate::update::EditBoxes| {
             let reuse = FarReuse {
                 old: &marked,
                 settled: &settled,
                 entry: &energy_settled,
                 same,
                 old_room,
-                boxes: &boxes,
+                boxes,
                 by_geometry: Default::default(),
             };
             far_of(pair_visibility(&bvh, &entries, &room, radius, Some(&reuse)))
         };
+        let run = |same: &[bool], old_room: &[u32]| run_with(same, old_room, &boxes);
         let pairs = [(0, 0), (0, 1), (1, 1), (1, 2), (2, 2), (2, 3), (3, 3)];
         assert!(pairs.iter().all(|&(a, b)| fresh.pair(a, b).is_some()), "every listed pair sees something");
         let check = |far: &Far, kept: &[(usize, usize)]| {
@@ -1061,6 +1063,13 @@ mod tests {
         let mut old_room = room.clone();
         old_room[..32].fill(1);
         check(&run(&[true; 4], &old_room), &[(0, 0), (1, 1), (3, 3)]);
+        // An edit of more boxes than `MAX_GEOMETRY` keeps nothing by geometry, even where every
+        // box is far away.
+        let far_away = (Vec3::splat(1e3), Vec3::splat(1e3 + 1.0));
+        let wide = crate::update::EditBoxes::new(vec![far_away; crate::update::MAX_GEOMETRY + 1]);
+        check(&run_with(&[true; 4], &room, &wide), &[]);
+        let few = crate::update::EditBoxes::new(vec![far_away; crate::update::MAX_GEOMETRY]);
+        check(&run_with(&[true; 4], &room, &few), &pairs);
     }
 
     /// Two rows of 64 entries facing each other 2 m apart (within the probe gap, so traced

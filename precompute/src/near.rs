@@ -127,8 +127,8 @@ pub struct NearReuse<'a> {
     pub settled: &'a [bool],
     pub triangle: &'a [bool],
     pub old_far: &'a Far,
-    pub changed: &'a [(Vec3, f32)],
-    pub boxes: &'a [(Vec3, Vec3)],
+    pub changed: &'a crate::update::ChangedCells,
+    pub boxes: &'a crate::update::EditBoxes,
     /// How many texels not settled were taken by geometry (counted as it goes).
     pub by_geometry: std::sync::atomic::AtomicUsize,
 }
@@ -155,8 +155,7 @@ impl NearReuse<'_> {
             return false;
         }
         let x = t.position;
-        let margin = 2.0 * bvh.eps_at(x);
-        if self.changed.iter().any(|&(c, s)| c.distance(x) <= reach + s + margin) {
+        if self.changed.near(x, reach + 2.0 * bvh.eps_at(x)) {
             return false;
         }
         let (mut lo, mut hi) = (x, x);
@@ -169,7 +168,7 @@ impl NearReuse<'_> {
                 (lo, hi) = (lo.min(*p), hi.max(*p));
             }
         }
-        if !crate::update::clear_of_edit(bvh, lo, hi, self.boxes) {
+        if !self.boxes.clear(bvh, lo, hi) {
             return false;
         }
         self.by_geometry.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -547,8 +546,9 @@ mod tests {
             bary: Vec3::splat(1.0 / 3.0),
         };
         let old_far = Far::default();
-        let changed = [(cell[1].0, cell[1].1.sqrt())];
-        let boxes = [(Vec3::new(10.0, 0.0, -0.1), Vec3::new(10.1, 0.5, 0.1))];
+        let changed = crate::update::ChangedCells::new(vec![(cell[1].0, cell[1].1.sqrt())]);
+        let boxes =
+            crate::update::EditBoxes::new(vec![(Vec3::new(10.0, 0.0, -0.1), Vec3::new(10.1, 0.5, 0.1))]);
         let (same, moved) = ([true], [false]);
         let reuse = |triangle| NearReuse {
             old: &[],
@@ -570,6 +570,11 @@ mod tests {
         assert!(!kept(&r, 0.0, true), "the far field lights it now, not then");
         assert!(!kept(&reuse(&moved), 0.0, false), "its triangle changed");
         assert_eq!(r.by_geometry.into_inner(), 1);
+        // More changed cells than `MAX_GEOMETRY`, all far away: every texel is made again.
+        let far_away =
+            crate::update::ChangedCells::new(vec![(Vec3::splat(1e3), 1.0); crate::update::MAX_GEOMETRY + 1]);
+        let wide = NearReuse { changed: &far_away, ..reuse(&same) };
+        assert!(!kept(&wide, 0.0, false), "a wide edit keeps nothing by geometry");
     }
 
     /// The echo's reach is the one asked for where a receiver looks at few points, and shrinks

@@ -374,10 +374,10 @@ pub struct Untouched {
     /// The edit's boxes ([`Edit::boxes`], without the table's rows): every triangle changed,
     /// where it was and where it is, and every entry changed, its cells and sites. A ray
     /// between points of a box that meets none of them meets what it met before.
-    pub boxes: Vec<(Vec3, Vec3)>,
-    /// Per entry changed (itself or its cell), its cell's centroid and the square root of its
-    /// area, as baked and as now: a texel that close may have it among its near links' cells.
-    pub changed: Vec<(Vec3, f32)>,
+    pub boxes: EditBoxes,
+    /// The entries changed (themselves or their cells): a texel near one may have it among its
+    /// near links' cells.
+    pub changed: ChangedCells,
 }
 
 impl Untouched {
@@ -419,7 +419,8 @@ impl Untouched {
                 changed.push((cells.centroid(j).unwrap_or(e.position), cells.area(j).max(0.0).sqrt()));
             }
         }
-        Untouched { touched, entry, triangle, baked, map, same, old_room, boxes: edit.boxes, changed }
+        let (boxes, changed) = (EditBoxes::new(edit.boxes), ChangedCells::new(changed));
+        Untouched { touched, entry, triangle, baked, map, same, old_room, boxes, changed }
     }
 
     /// Per block of entries ([`prm::prm_file::Far::BLOCK`]): all settled. An update takes
@@ -442,14 +443,84 @@ impl Untouched {
     }
 }
 
-/// Whether every ray between points of the box `lo..hi` (off their surfaces by `bvh`'s
-/// offsets, which grow the box) stays clear of the edit's `boxes` ([`Untouched::boxes`]): such
-/// a ray meets the triangles it met before the edit. What the far field's pairs and the near
-/// links keep by geometry (`crate::far::FarReuse`, `crate::near::NearReuse`) ask.
-pub fn clear_of_edit(bvh: &prm::Bvh, lo: Vec3, hi: Vec3, boxes: &[(Vec3, Vec3)]) -> bool {
-    let m = Vec3::splat(2.0 * bvh.eps_at(lo.abs().max(hi.abs())));
-    let (lo, hi) = (lo - m, hi + m);
-    !boxes.iter().any(|&(bl, bh)| bl.cmple(hi).all() && lo.cmple(bh).all())
+/// Most boxes (or changed cells) an edit may have for what it spared to be kept by geometry
+/// (`crate::far::FarReuse`, `crate::near::NearReuse`). A wider edit (a wall colour over the
+/// whole chamber: thousands of entries changed) spares little, and testing every pair and
+/// texel against every box cost more than it saved (the chamber's walls: near links 0.48 ->
+/// 0.73 s); past this nothing is kept by geometry.
+pub const MAX_GEOMETRY: usize = 4096;
+
+/// The box around `items`' boxes (empty when there are none).
+fn hull(items: impl Iterator<Item = (Vec3, Vec3)>) -> (Vec3, Vec3) {
+    items.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), (a, b)| (lo.min(a), hi.max(b)))
+}
+
+/// Whether two boxes overlap.
+fn overlap((al, ah): (Vec3, Vec3), (bl, bh): (Vec3, Vec3)) -> bool {
+    al.cmple(bh).all() && bl.cmple(ah).all()
+}
+
+/// The edit's boxes ([`Edit::boxes`]) as the far field's pairs and the near links kept by
+/// geometry ask of them, with the box around them all to settle most questions at once.
+#[derive(Clone, Debug)]
+pub struct EditBoxes {
+    boxes: Vec<(Vec3, Vec3)>,
+    hull: (Vec3, Vec3),
+    /// More than [`MAX_GEOMETRY`] boxes: nothing is clear.
+    wide: bool,
+}
+
+impl EditBoxes {
+    pub fn new(boxes: Vec<(Vec3, Vec3)>) -> EditBoxes {
+        let wide = boxes.len() > MAX_GEOMETRY;
+        EditBoxes { hull: hull(boxes.iter().copied()), boxes, wide }
+    }
+
+    /// Whether every ray between points of the box `lo..hi` (off their surfaces by `bvh`'s
+    /// offsets, which grow the box) stays clear of the edit: such a ray meets the triangles it
+    /// met before the edit.
+    pub fn clear(&self, bvh: &prm::Bvh, lo: Vec3, hi: Vec3) -> bool {
+        if self.wide {
+            return false;
+        }
+        let m = Vec3::splat(2.0 * bvh.eps_at(lo.abs().max(hi.abs())));
+        let b = (lo - m, hi + m);
+        !overlap(b, self.hull) || !self.boxes.iter().any(|&x| overlap(b, x))
+    }
+}
+
+/// The entries an edit changed (themselves or their cells), as the near links kept by
+/// geometry ask of them: per entry its cell's centroid and the square root of its area, as
+/// baked and as now (a texel within the near reach plus that of a centroid may have had, or
+/// may have, that cell among its links' cells).
+#[derive(Clone, Debug)]
+pub struct ChangedCells {
+    cells: Vec<(Vec3, f32)>,
+    /// The centroids' box grown by the largest square root of an area.
+    hull: (Vec3, Vec3),
+    /// More than [`MAX_GEOMETRY`] cells: every texel is near one.
+    wide: bool,
+}
+
+impl ChangedCells {
+    pub fn new(cells: Vec<(Vec3, f32)>) -> ChangedCells {
+        let s = cells.iter().fold(0.0f32, |m, &(_, s)| m.max(s));
+        let (lo, hi) = hull(cells.iter().map(|&(c, _)| (c, c)));
+        ChangedCells {
+            hull: (lo - Vec3::splat(s), hi + Vec3::splat(s)),
+            wide: cells.len() > MAX_GEOMETRY,
+            cells,
+        }
+    }
+
+    /// Whether a changed cell lies within `reach` (plus its own size) of `x`.
+    pub fn near(&self, x: Vec3, reach: f32) -> bool {
+        if self.wide {
+            return true;
+        }
+        let r = Vec3::splat(reach);
+        overlap((x - r, x + r), self.hull) && self.cells.iter().any(|&(c, s)| c.distance(x) <= reach + s)
+    }
 }
 
 /// What an update does again (module doc).
