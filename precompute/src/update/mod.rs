@@ -21,14 +21,14 @@
 //! those bits say they see, and its links' cells (`Preamble::exact_digests`). The values
 //! cost the far field's sum over every entry in view at every texel, 8 s of an update of the
 //! 16 chambers; the inputs cost a few words per texel.
-//! The clustering is OLD's: k-means over all
-//! entries moves every cluster a little when one object moves, and a pane of a cluster whose
-//! members changed cannot be reused. So an update writes what a full precompute *given OLD's
-//! clusters* writes ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to
-//! (to the byte, or within float noise: below); against a fresh precompute (which
-//! re-clusters) it is within the distance between two fresh precomputes of different seeds. A material edit leaves the entries where
-//! they were, so the clusters agree and so does everything: the update is then byte for byte
-//! the fresh precompute.
+//! The clustering is OLD's: k-means over all entries moves every cluster a little when one
+//! object moves, and a pane of a cluster whose members changed cannot be reused. So an update
+//! writes what a full precompute *given OLD's clusters* writes
+//! ([`crate::precompute::Reuse::Clusters`]), the twin its tests hold it to (to the byte, or
+//! within float noise: below); against a fresh precompute (which re-clusters) it is within the
+//! distance between two fresh precomputes of different seeds. A material edit leaves the
+//! entries where they were, so the clusters agree and so does everything: the update is then
+//! byte for byte the fresh precompute.
 //!
 //! **What is walked again.** A texel's walks give the same contributions after the edit when
 //! every segment of them stayed clear of everything the edit changed: the triangles whose
