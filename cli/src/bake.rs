@@ -62,8 +62,11 @@ pub struct Args {
     #[arg(long)]
     no_consolidate: bool,
     /// Shadow rays per texel and virtual light.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = BakerParams::default().visibility_samples)]
     visibility_samples: u32,
+    /// Shadow rays per texel and virtual light of a correction (an edit's small changes).
+    #[arg(long, default_value_t = BakerParams::default().delta_visibility_samples)]
+    delta_visibility_samples: u32,
     #[command(flatten)]
     lightmap: AtlasArgs,
     #[arg(long, default_value_t = 0)]
@@ -119,6 +122,7 @@ pub fn run(a: Args) -> Result<()> {
         rebuild_share: a.rebuild_share,
         consolidate: !a.no_consolidate,
         visibility_samples: a.visibility_samples,
+        delta_visibility_samples: a.delta_visibility_samples,
         seed: a.seed,
         ..BakerParams::default()
     };
