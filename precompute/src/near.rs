@@ -68,7 +68,8 @@ pub fn near_links(
             let fades = far.texels.binary_search_by_key(&texel, |f| f.texel).is_ok();
             if let Some(r) = reuse.filter(|r| {
                 r.settled.get(k) == Some(&true)
-                    || r.kept_by_geometry(bvh, t, texel, fades, cells, &cell, reach, &reaches)
+                    || (r.same_texel.get(k) == Some(&true)
+                        && r.kept_by_geometry(bvh, t, texel, fades, cells, &cell, reach, &reaches))
             }) {
                 let from = r.old.partition_point(|l| l.texel < texel);
                 let to = from + r.old[from..].partition_point(|l| l.texel == texel);
@@ -125,6 +126,9 @@ pub fn near_links(
 pub struct NearReuse<'a> {
     pub old: &'a [NearLink],
     pub settled: &'a [bool],
+    /// Per covered texel (set order), whether the old bake had the same texel at its atlas
+    /// index (`crate::update::same_texels`); only such a texel is kept by geometry.
+    pub same_texel: &'a [bool],
     pub triangle: &'a [bool],
     pub old_far: &'a Far,
     pub changed: &'a crate::update::ChangedCells,
@@ -553,6 +557,7 @@ mod tests {
         let reuse = |triangle| NearReuse {
             old: &[],
             settled: &[],
+            same_texel: &[],
             triangle,
             old_far: &old_far,
             changed: &changed,

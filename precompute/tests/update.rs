@@ -437,6 +437,13 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
     let extra = grown.triangles[0];
     grown.triangles.push(extra);
     assert!(refused(&grown, &p).contains("triangles"));
+    // The second room pushed half a metre further out: the level's bounds move, and every
+    // ray's offsets with them.
+    let mut wider = level.clone();
+    for q in wider.positions.iter_mut().filter(|q| q.x > 1.5) {
+        q.x += 0.5;
+    }
+    assert!(refused(&wider, &p).contains("bounds"));
     // A cache of another map.
     let other = run(&level, &PrecomputeParams { seed: 3, ..params() }, Reuse::Nothing, false).unwrap().prm;
     let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&other) }, true);

@@ -233,16 +233,27 @@ impl Preamble {
         });
         report.update_far_pairs_kept = far_kept;
         // An update takes a settled texel's near and echo links from the old bake.
-        let settled_texels: Option<Vec<bool>> = untouched
-            .as_ref()
-            .filter(|_| update.is_some())
-            .map(|u| texel_room.iter().zip(&set.texels).map(|(&r, t)| u.texel(t.triangle, r)).collect());
+        // A texel keeps its links only where the old bake had the same texel at its atlas index
+        // (`crate::update::same_texels`).
+        let same_texel: Option<Vec<bool>> = update.map(|(old, _)| {
+            crate::update::same_texels(&set.texels, set.width, &old.far().texels, old.near_points())
+        });
+        let settled_texels: Option<Vec<bool>> =
+            untouched.as_ref().zip(same_texel.as_ref()).map(|(u, same)| {
+                texel_room
+                    .iter()
+                    .zip(&set.texels)
+                    .zip(same)
+                    .map(|((&r, t), &s)| s && u.texel(t.triangle, r))
+                    .collect()
+            });
         let (near, near_points, near_kept) = timed(&mut report.seconds_near, || {
             if params.near_radius > 0.0 {
                 let reuse = match (update, &settled_texels, &untouched) {
                     (Some((old, _)), Some(s), Some(u)) => Some(NearReuse {
                         old: old.near(),
                         settled: s,
+                        same_texel: same_texel.as_deref().unwrap_or(&[]),
                         triangle: &u.triangle,
                         old_far: old.far(),
                         changed: &u.changed,

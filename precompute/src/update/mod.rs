@@ -82,8 +82,14 @@
 //!
 //! **When an update is refused** (the caller then runs a full precompute): other parameters;
 //! triangles added or removed; a different number of entries (the edit changed the surface's
-//! area, or what lies inside solids); the MIS or scatter estimators (their walks depend on
-//! every cluster's entries); dipole panes.
+//! area, or what lies inside solids); the level's bounds moved (every ray's offsets follow
+//! its diagonal, so nothing traced before is what a full precompute traces); the MIS or
+//! scatter estimators (their walks depend on every cluster's entries); dipole panes.
+//!
+//! **Texels.** A texel keeps its near and echo links (settled, or by geometry) only where the
+//! old bake had the same texel at its atlas index ([`same_texels`]): an edit of lightmap UVs
+//! can give an atlas slot to another triangle, and moved geometry can move an unchanged
+//! triangle's buried sample point (a review found both, session 68).
 
 pub mod cache;
 pub mod footprint;
@@ -443,6 +449,44 @@ impl Untouched {
     }
 }
 
+/// Per covered texel (`texels`, of an atlas `width` wide), whether the old bake had the same texel at its
+/// atlas index: the same sample point and normal. A texel's links are kept (settled or by
+/// geometry) only then: an edit of lightmap UVs can hand an atlas slot to another, unchanged
+/// triangle far away, and geometry that moves can move an unchanged triangle's buried sample
+/// point within its square (`prm::texels`), and the old links were made at the old point.
+/// The far field keeps each lit texel's point exactly; elsewhere the near points keep it to
+/// their 16-bit steps across their box, and a point within 1.5 steps (and a normal within
+/// 1e-3) is taken as the same (a moved point moves by a part of a texel, many steps). A
+/// texel the old bake kept neither of is not the same (its links are made again).
+pub fn same_texels(
+    texels: &[prm::Texel],
+    width: u32,
+    old_far: &[prm::prm_file::FarTexel],
+    old_points: &[prm::prm_file::NearPoint],
+) -> Vec<bool> {
+    let (lo, hi) = prm::prm_file::near_point_box(old_points);
+    let step = (hi - lo) / 65535.0;
+    let width = width as usize;
+    texels
+        .iter()
+        .map(|t| {
+            let texel = (t.j as usize * width + t.i as usize) as u32;
+            if let Ok(k) = old_far.binary_search_by_key(&texel, |f| f.texel) {
+                let f = &old_far[k];
+                return f.position == t.position && f.normal == t.normal;
+            }
+            match old_points.binary_search_by_key(&texel, |p| p.texel) {
+                Ok(k) => {
+                    let p = &old_points[k];
+                    (p.position - t.position).abs().cmple(1.5 * step + Vec3::splat(1e-6)).all()
+                        && p.normal.dot(t.normal) >= 1.0 - 1e-3
+                }
+                Err(_) => false,
+            }
+        })
+        .collect()
+}
+
 /// Most boxes (or changed cells) an edit may have for what it spared to be kept by geometry
 /// (`crate::far::FarReuse`, `crate::near::NearReuse`). A wider edit (a wall colour over the
 /// whole chamber: thousands of entries changed) spares little, and testing every pair and
@@ -649,5 +693,64 @@ pub fn refusal(
     if tiles != cache.tiles.len() {
         return Some(Refused(format!("{tiles} atlas tiles now, {} then", cache.tiles.len())));
     }
+    // Every ray's offsets follow the level's diagonal (`prm::Bvh::build`): after an edit that
+    // moves the level's bounds, no ray kept from the old bake is the one a full precompute
+    // traces.
+    let bounds = |corners: &mut dyn Iterator<Item = Vec3>| {
+        corners.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p), hi.max(p)))
+    };
+    let now = bounds(&mut triangles.iter().flat_map(|(c, _)| c.iter().copied()));
+    let then = bounds(&mut cache.triangles.iter().flat_map(|(c, _)| c.iter().copied()));
+    if now != then {
+        return Some(Refused(format!(
+            "the edit moved the level's bounds ({:?}..{:?} now, {:?}..{:?} then), and every ray's offsets with them",
+            now.0, now.1, then.0, then.1
+        )));
+    }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use prm::prm_file::{FarTexel, NearPoint};
+
+    /// A texel is the old bake's where its far-field record has the very same point and
+    /// normal, or (lit by no far field) its near point is within the points' rounding; not
+    /// where the point moved by a part of a texel, the normal turned, or the old bake kept
+    /// neither.
+    #[test]
+    fn a_texel_is_the_old_bakes_only_at_the_same_point() {
+        let texel = |i: u32, x: f32, n: Vec3| prm::Texel {
+            i,
+            j: 0,
+            position: Vec3::new(x, 0.0, 0.0),
+            normal: n,
+            triangle: 0,
+            bary: Vec3::ONE / 3.0,
+        };
+        let far = |t: u32, x: f32| FarTexel {
+            texel: t,
+            position: Vec3::new(x, 0.0, 0.0),
+            normal: Vec3::Y,
+            ..Default::default()
+        };
+        // The near points span 10 m: steps of 0.15 mm.
+        let point =
+            |t: u32, x: f32| NearPoint { texel: t, position: Vec3::new(x, 0.0, 0.0), normal: Vec3::Y };
+        let old_far = [far(0, 1.0), far(1, 2.0)];
+        let old_points = [point(2, 3.0001), point(3, 4.0), point(9, 10.0), point(10, 0.0)];
+        let now = [
+            texel(0, 1.0, Vec3::Y),        // the far field's own point
+            texel(1, 2.0 + 1e-6, Vec3::Y), // moved by an ulp or so: not the same bits
+            texel(2, 3.0, Vec3::Y),        // within the near points' rounding
+            texel(3, 4.02, Vec3::Y),       // moved 2 cm (a buried point placed again)
+            texel(4, 5.0, Vec3::Y),        // the old bake kept neither
+            texel(9, 10.0, Vec3::X),       // turned
+        ];
+        assert_eq!(
+            same_texels(&now, 64, &old_far, &old_points),
+            vec![true, false, true, false, false, false]
+        );
+    }
 }
