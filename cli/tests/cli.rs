@@ -1395,8 +1395,16 @@ fn precompute_update_reuses_the_cache_and_refuses_what_it_cannot_do() {
     );
     assert_eq!(std::fs::read(&old).unwrap(), std::fs::read(&new).unwrap());
     assert_eq!(std::fs::read(&cache).unwrap(), std::fs::read(dir.join("new.prm.cache")).unwrap());
-    // The red wall moved: the update writes a map for the moved level (another fingerprint).
+    // The red wall, the box's side at its largest x, moved out: the level's bounds move, and
+    // every ray's offsets with them: said, and a full precompute instead.
+    let original = std::fs::read(&level).unwrap();
     std::fs::write(&level, moved_glb(&level, "red", [0.03, 0.0, 0.0])).unwrap();
+    let (ok, _, err) =
+        prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new)][..], &opts].concat());
+    assert!(ok && err.contains("cannot update: the edit moved the level's bounds"), "{err}");
+    // Moved in: the update writes a map for the moved level (another fingerprint).
+    std::fs::write(&level, &original).unwrap();
+    std::fs::write(&level, moved_glb(&level, "red", [-0.03, 0.0, 0.0])).unwrap();
     let (ok, out, err) =
         prm(&[&["precompute", s(&level), "--update", s(&old), "-o", s(&new), "--json"][..], &opts].concat());
     assert!(ok, "{err}");

@@ -703,7 +703,7 @@ pub fn refusal(
     let then = bounds(&mut cache.triangles.iter().flat_map(|(c, _)| c.iter().copied()));
     if now != then {
         return Some(Refused(format!(
-            "the edit moved the level's bounds ({:?}..{:?} now, {:?}..{:?} then), and every ray's offsets with them",
+            "the edit moved the level's bounds ({}..{} now, {}..{} then), and every ray's offsets with them",
             now.0, now.1, then.0, then.1
         )));
     }
