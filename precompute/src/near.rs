@@ -400,11 +400,15 @@ pub struct EchoReuse<'a> {
     pub old: &'a Echo,
     pub old_points: &'a [NearPoint],
     pub settled: &'a [bool],
+    /// Per covered texel (set order), whether the old bake had the same texel at its atlas
+    /// index (`crate::update::same_texels`): a kept link's source must be, too.
+    pub same: &'a [bool],
 }
 
 impl EchoReuse<'_> {
     /// Receiver `y`'s links (of `points`, this bake's near points) from the old bake, when it
-    /// is settled and the old bake had it and every source it linked to as near points. Both
+    /// is settled and the old bake had it and every source it linked to as near points, each
+    /// source the same texel as then. Both
     /// bakes' points are in texel order, so the sources stay in order.
     fn links_of(&self, set: &TexelSet, points: &[NearPoint], y: usize) -> Option<Vec<EchoLink>> {
         let texel = points.get(y)?.texel;
@@ -420,6 +424,10 @@ impl EchoReuse<'_> {
             .iter()
             .map(|l| {
                 let source = self.old_points.get(l.source as usize)?.texel;
+                let k = *set.index.get(source as usize)?;
+                if !self.same.get(k as usize).copied().unwrap_or(false) {
+                    return None;
+                }
                 let x = points.binary_search_by_key(&source, |p| p.texel).ok()?;
                 Some(EchoLink { receiver: y as u32, source: x as u32, factor: l.factor })
             })
@@ -459,6 +467,42 @@ mod tests {
     use super::*;
     use prm::Scene;
     use rand::{Rng, SeedableRng};
+
+    /// A settled receiver keeps its old echo links only while every source is the same texel
+    /// as then (after a UV edit an atlas slot can hold another triangle's texel).
+    #[test]
+    fn an_echo_link_is_kept_only_from_the_same_source() {
+        let texel = |i: u32| prm::Texel {
+            i,
+            j: 0,
+            position: Vec3::new(i as f32, 0.0, 0.0),
+            normal: Vec3::Y,
+            triangle: 0,
+            bary: Vec3::ONE / 3.0,
+        };
+        let set = TexelSet {
+            width: 4,
+            height: 1,
+            texels: vec![texel(0), texel(2)],
+            index: vec![0, TexelSet::EMPTY, 1, TexelSet::EMPTY],
+            dilation: Vec::new(),
+            zero_uv_area_triangles: 0,
+            shared_gutter_texels: 0,
+            buried: Default::default(),
+        };
+        let point = |t: u32| NearPoint { texel: t, position: Vec3::new(t as f32, 0.0, 0.0), normal: Vec3::Y };
+        let points = [point(0), point(2)];
+        let old = Echo {
+            albedo: vec![Vec3::ONE; 2],
+            links: vec![EchoLink { receiver: 0, source: 1, factor: 0.25 }],
+        };
+        let reuse = |same: &[bool]| {
+            EchoReuse { old: &old, old_points: &points, settled: &[true, true], same }
+                .links_of(&set, &points, 0)
+        };
+        assert_eq!(reuse(&[true, true]), Some(vec![EchoLink { receiver: 0, source: 1, factor: 0.25 }]));
+        assert_eq!(reuse(&[true, false]), None, "its source's slot holds another texel now");
+    }
 
     /// A texel at the origin facing up under a square cell 1 m above it (facing down, cut into
     /// four triangles along x = 0), a blocker over the x > 0 half at half height, and a cell

@@ -488,6 +488,9 @@ pub fn precompute_with(
             if prm_checksum(old) != cache.prm_checksum {
                 return Err(Refused("the cache belongs to another .prm (checksums differ)".into()).into());
             }
+            if let Some(r) = crate::update::moved_bounds(cache, scene.bounds()) {
+                return Err(r.into());
+            }
             triangles.as_ref() == Some(&cache.triangles)
         }
         _ => false,
@@ -771,6 +774,7 @@ pub fn precompute_with(
                 prm_checksum: prm_checksum(&prm),
                 params: params.canonical(),
                 grid,
+                bounds: scene.bounds(),
                 triangles,
                 assignment,
                 clusters: report.clusters,

@@ -291,9 +291,9 @@ impl Preamble {
         // The echo links need the near links' points only; made now, so nothing of the walks
         // is held while they are.
         let echo = timed(&mut report.seconds_near, || {
-            let reuse = match (update, &settled_texels) {
-                (Some((old, _)), Some(settled)) => {
-                    Some(EchoReuse { old: old.echo(), old_points: old.near_points(), settled })
+            let reuse = match (update, &settled_texels, &same_texel) {
+                (Some((old, _)), Some(settled), Some(same)) => {
+                    Some(EchoReuse { old: old.echo(), old_points: old.near_points(), settled, same })
                 }
                 _ => None,
             };

@@ -43,8 +43,9 @@ use super::footprint::VoxelGrid;
 const MAGIC: [u8; 8] = *b"PRMUPDT\n";
 /// 6: the digests of the rows' inputs (`NextBounce::input_digests`) too; 7: those digests
 /// include the rows' cutoff of weak elements; 8: a texel's far-field digest leaves out the
-/// pairs in which its neighbour sees nothing.
-const VERSION: u32 = 8;
+/// pairs in which its neighbour sees nothing; 9: the level's bounds (`prm::Scene::bounds`),
+/// which every ray's offsets follow (an update of a level whose bounds moved is refused).
+const VERSION: u32 = 9;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
@@ -77,6 +78,9 @@ pub struct UpdateCache {
     pub prm_checksum: u64,
     pub params: String,
     pub grid: VoxelGrid,
+    /// The level's bounds as baked (`prm::Scene::bounds`: every vertex, so the ray offsets'
+    /// diagonal).
+    pub bounds: (Vec3, Vec3),
     /// Corners and digest of every triangle of the level as baked.
     pub triangles: Vec<([Vec3; 3], u64)>,
     /// Cluster of each entry.
@@ -141,6 +145,8 @@ impl UpdateCache {
         put_vec3(&mut b, self.grid.origin);
         put_f32(&mut b, self.grid.side);
         self.grid.dims.iter().for_each(|&d| put_u32(&mut b, d));
+        put_vec3(&mut b, self.bounds.0);
+        put_vec3(&mut b, self.bounds.1);
         put_u32(&mut b, self.triangles.len() as u32);
         for (corners, digest) in &self.triangles {
             corners.iter().for_each(|&c| put_vec3(&mut b, c));
@@ -247,6 +253,7 @@ impl UpdateCache {
             return Err(format!("bad voxel grid (side {side}, dims {dims:?})"));
         }
         let grid = VoxelGrid { origin, side, dims };
+        let bounds = (r.vec3()?, r.vec3()?);
         let n = r.count(44)?;
         let triangles = (0..n)
             .map(|_| Ok(([r.vec3()?, r.vec3()?, r.vec3()?], r.u64()?)))
@@ -337,6 +344,7 @@ impl UpdateCache {
             prm_checksum,
             params,
             grid,
+            bounds,
             triangles,
             assignment,
             clusters,

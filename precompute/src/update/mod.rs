@@ -693,21 +693,21 @@ pub fn refusal(
     if tiles != cache.tiles.len() {
         return Some(Refused(format!("{tiles} atlas tiles now, {} then", cache.tiles.len())));
     }
-    // Every ray's offsets follow the level's diagonal (`prm::Bvh::build`): after an edit that
-    // moves the level's bounds, no ray kept from the old bake is the one a full precompute
-    // traces.
-    let bounds = |corners: &mut dyn Iterator<Item = Vec3>| {
-        corners.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p), hi.max(p)))
-    };
-    let now = bounds(&mut triangles.iter().flat_map(|(c, _)| c.iter().copied()));
-    let then = bounds(&mut cache.triangles.iter().flat_map(|(c, _)| c.iter().copied()));
-    if now != then {
-        return Some(Refused(format!(
-            "the edit moved the level's bounds ({}..{} now, {}..{} then), and every ray's offsets with them",
-            now.0, now.1, then.0, then.1
-        )));
-    }
     None
+}
+
+/// Why an update of a level whose bounds are `bounds` now cannot reuse the bake `cache` was
+/// made with, if they moved. Every ray's offsets follow the level's diagonal
+/// (`prm::Bvh::build`, from `prm::Scene::bounds`: every vertex, not only triangles'
+/// corners), so no ray kept from the old bake would be the one a full precompute traces. (A
+/// full precompute given OLD's clusters, the update's twin, does not ask.)
+pub fn moved_bounds(cache: &UpdateCache, bounds: (Vec3, Vec3)) -> Option<Refused> {
+    (bounds != cache.bounds).then(|| {
+        Refused(format!(
+            "the edit moved the level's bounds ({}..{} now, {}..{} then), and every ray's offsets with them",
+            bounds.0, bounds.1, cache.bounds.0, cache.bounds.1
+        ))
+    })
 }
 
 #[cfg(test)]
