@@ -266,7 +266,7 @@ const REFRESH_PICK: f32 = 0.26;
 const REFRESH_TRACE: f32 = 0.27;
 /// A correction's virtual light over a cell's, per texel: its polygons span a coarser cell and
 /// light more texels (measured on the chamber's edits, 2 cores).
-const DELTA_LIGHT: f32 = 1.9;
+const DELTA_LIGHT: f32 = 1.45;
 
 /// The glTF nodes that the edits logged after version `was`, up to `now`, moved.
 fn moved_nodes(log: &[(u64, Changes)], was: u64, now: u64) -> BTreeSet<u32> {
