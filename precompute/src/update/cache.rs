@@ -8,9 +8,12 @@
 //! prm checksum u64            the .prm's own checksum (its last 8 bytes): the pair belongs together
 //! params: u32 length, UTF-8   the parameters it was baked with (PrecomputeParams::canonical)
 //! grid: origin 3 f32, side f32, dims 3 u32
+//! bounds: lo 3 f32, hi 3 f32   (v9) the level's bounds as baked (prm::Scene::bounds)
 //! triangles u32, then per triangle: corners 9 f32, digest u64
 //! entries u32, then the cluster of each u32
 //! clusters u32, groups u32, then the group of each cluster u32 (none without groups)
+//! rows u32, then per entry its next-bounce row's digest u64 (none without the table)
+//! row inputs u32, then per entry the digest of what its row is made of u64
 //! tiles u32, then per atlas tile: inputs digest u64 (v4: of the exact first bounce's inputs,
 //!     not its values), walks cut u64, unowned vertices u64,
 //!     footprint (grid words x u64), rooms u32 then each room u32 (sorted; u32::MAX: any)
