@@ -87,6 +87,16 @@ pub struct BakerParams {
     pub max_depth: u32,
     /// Virtual lights per cell (paper 001: K = 4).
     pub lights_per_cell: usize,
+    /// Virtual lights per sign of a correction (its added and its removed VPLs each make at
+    /// most this many). Corrections are exchanged for a fresh bake's cells once no invalid
+    /// light is left, so they may be coarser than the cells. Measured (`prm bake --fresh`,
+    /// the chamber's carpet moved 1 m, runs alternated; 90 % of the invalid flux after / within
+    /// a fresh bake's noise after, in % of a bake): at 40,000 paths 4 gave 1.07-1.11 s / 15-18 %,
+    /// 3 0.91-0.99 s / 16-17 %, 2 0.90-0.94 s / 18-21 %; at 20,000 paths 4 gave 0.66-0.82 s /
+    /// 26-31 %, 3 0.66 s / 33 %, 2 0.53-0.59 s / 75-79 % (the coarser corrections then sit
+    /// above the bake's noise until consolidation replaces them). The doorway's block at
+    /// 40,000: 4 1.69-1.82 s / 27-35 %, 2 1.42-1.51 s / 25-26 %.
+    pub delta_lights_per_cell: usize,
     /// Smallest plane cluster that becomes a polygon light (paper 001: p_min = 10).
     pub min_polygon: usize,
     /// Shadow rays per texel and virtual light.
@@ -126,6 +136,7 @@ impl Default for BakerParams {
             interleave_t: 0.1,
             max_depth: 8,
             lights_per_cell: 4,
+            delta_lights_per_cell: 3,
             min_polygon: 10,
             visibility_samples: 2,
             delta_visibility_samples: 1,
@@ -155,6 +166,12 @@ impl BakerParams {
             (1..=16).contains(&self.lights_per_cell),
             "lights per cell",
             self.lights_per_cell,
+            "1 to 16",
+        )?;
+        require(
+            (1..=16).contains(&self.delta_lights_per_cell),
+            "correction lights per sign",
+            self.delta_lights_per_cell,
             "1 to 16",
         )?;
         require((1..=100_000).contains(&self.min_polygon), "polygon support", self.min_polygon, "1 to 1e5")?;
@@ -464,7 +481,7 @@ impl Baker {
         };
         let v = b.level.current().clone();
         for slot in v.lights.iter() {
-            let count = path_count(slot, b.bounds(), frame.quantum);
+            let count = path_count(slot, b.bounds(), frame.quantum, b.params.paths);
             b.lights.insert(slot.id, trace_all(&v, slot, count, b.bounds(), b.path_params()));
         }
         b.plan();
@@ -526,7 +543,10 @@ impl Baker {
                     lp.light = slot.clone();
                     lp
                 }
-                _ => trace_all(&v, slot, path_count(slot, bounds, self.frame.quantum), bounds, pp),
+                _ => {
+                    let count = path_count(slot, bounds, self.frame.quantum, self.params.paths);
+                    trace_all(&v, slot, count, bounds, pp)
+                }
             };
             for path in &lp.paths {
                 for x in &path.vertices {
@@ -827,7 +847,8 @@ impl Baker {
             }
             let priority = plus.iter().chain(&minus).map(|m| luminance(m.power)).sum();
             delta_codes.push(cell);
-            let lights = (plus.len() as f32).min(per_cell) + (minus.len() as f32).min(per_cell);
+            let per_sign = self.params.delta_lights_per_cell as f32;
+            let lights = (plus.len() as f32).min(per_sign) + (minus.len() as f32).min(per_sign);
             let cost = DELTA_LIGHT * texel_count * lights;
             units.push(Unit {
                 tier: TIER_INVALID,
@@ -1092,9 +1113,10 @@ impl Baker {
             }
             Work::Delta { code, plus, minus } => {
                 let bx = cell_box(&root, code);
+                let k_delta = self.params.delta_lights_per_cell;
                 let (pl, ml) = rayon::join(
-                    || cell_lights(&plus, &bx, k_lights, p_min),
-                    || cell_lights(&minus, &bx, k_lights, p_min),
+                    || cell_lights(&plus, &bx, k_delta, p_min),
+                    || cell_lights(&minus, &bx, k_delta, p_min),
                 );
                 let both: Vec<VirtualLight> = pl.iter().chain(&ml).cloned().collect();
                 let sum = |ms: &[Member]| ms.iter().fold(Vec3::ZERO, |a, m| a + m.power);

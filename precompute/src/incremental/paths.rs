@@ -69,13 +69,16 @@ pub fn light_flux(light: &LightSlot, bounds: (Vec3, Vec3)) -> Vec3 {
     }
 }
 
-/// How many paths a light gets for quantum `q`.
-pub fn path_count(light: &LightSlot, bounds: (Vec3, Vec3), q: f32) -> usize {
+/// How many paths a light gets for quantum `q`, at most `most` (the bake's paths). A level's
+/// lights share its paths by flux when it is opened; a light edited brighter later would take
+/// more (one 1e4 times the level's light, 1e4 times the bake's paths: an edit that never
+/// ended), so it is held to `most`, its paths then carrying more than `q` each.
+pub fn path_count(light: &LightSlot, bounds: (Vec3, Vec3), q: f32, most: usize) -> usize {
     let l = luminance(light_flux(light, bounds));
     if !(l > 0.0) || !(q > 0.0) {
         return 0;
     }
-    ((l / q).ceil() as usize).clamp(1, 100_000_000)
+    ((l / q).ceil().min(most as f32) as usize).clamp(1, most.max(1))
 }
 
 /// Trace path `index` of the `count` paths of `light` on version `v`.
