@@ -90,6 +90,15 @@ pub struct Incident {
     pub irradiance: Vec3,
 }
 
+/// The brightest light [`Light::check`] takes, a channel (W/sr, or W/m² for a directional
+/// light): a thousand times a stadium floodlight. A brighter one is a typo, and its squares
+/// overflow f32 in the error sums (a light of 1e38 baked to infinity).
+pub const MAX_INTENSITY: f32 = 1e9;
+
+/// How far from the origin [`Light::check`] takes a light, in metres: there f32 keeps a
+/// position to a metre, and squared distances near f32's range.
+pub const MAX_POSITION: f32 = 1e7;
+
 impl Light {
     /// A point light at `position` of `intensity` W/sr per channel, no range.
     pub fn point(name: &str, position: Vec3, intensity: Vec3) -> Light {
@@ -162,8 +171,14 @@ impl Light {
         if !(self.intensity.is_finite() && self.intensity.min_element() >= 0.0) {
             return Err(format!("intensity {} must be finite and >= 0", self.intensity));
         }
+        if self.intensity.max_element() > MAX_INTENSITY {
+            return Err(format!("intensity {} is beyond {MAX_INTENSITY:e} a channel", self.intensity));
+        }
         if self.is_positional() && !self.position.is_finite() {
             return Err(format!("position {} is not finite", self.position));
+        }
+        if self.is_positional() && self.position.abs().max_element() > MAX_POSITION {
+            return Err(format!("position {} is beyond {MAX_POSITION:e} m of the origin", self.position));
         }
         match &self.aperture {
             Aperture::Point => {}
@@ -725,6 +740,19 @@ mod tests {
         assert_eq!(l.incident(Vec3::new(0.0, 2.0, 0.0)).irradiance, Vec3::ZERO);
         let e = l.incident(Vec3::new(0.0, 1.0, 0.0)).irradiance.x;
         assert!((e - (1.0f32 - 1.0 / 16.0).powi(2)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_light_too_bright_or_too_far_is_refused_and_the_limits_are_not() {
+        let at = |p: Vec3, i: f32| Light::point("l", p, Vec3::new(i, 0.0, 0.0)).check();
+        assert_eq!(at(Vec3::ZERO, MAX_INTENSITY), Ok(()));
+        assert_eq!(at(Vec3::splat(MAX_POSITION), 1.0), Ok(()));
+        assert!(at(Vec3::ZERO, 2.0 * MAX_INTENSITY).unwrap_err().contains("beyond 1e9"));
+        assert!(at(Vec3::new(0.0, -2.0 * MAX_POSITION, 0.0), 1.0).unwrap_err().contains("beyond 1e7 m"));
+        // A sun has no position to be far.
+        let mut sun = Light::point("sun", Vec3::splat(1e30), Vec3::ONE);
+        sun.kind = LightKind::Directional;
+        assert_eq!(sun.check(), Ok(()));
     }
 
     /// The form factor from a point at the origin (normal +Y) to the rectangle

@@ -460,11 +460,13 @@ impl AnimatedLight {
 /// Apply a state's fields to a light; returns the colour in use (intensity is stored as
 /// colour x intensity, so the colour must be remembered to rescale).
 fn apply(light: &mut Light, s: &State, colour: Option<Vec3>) -> Result<Vec3, String> {
+    // Finite in f32 too: 1e39 passes as an f64 and is infinite once stored.
     let v3 = |name: &str, v: [f64; 3]| -> Result<Vec3, String> {
-        if v.iter().all(|x| x.is_finite()) {
-            Ok(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+        let f = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
+        if f.is_finite() {
+            Ok(f)
         } else {
-            Err(format!("{name} {v:?} is not finite"))
+            Err(format!("{name} {v:?} is not finite (as a 32-bit float)"))
         }
     };
     if let Some(p) = s.position {
@@ -494,13 +496,14 @@ fn apply(light: &mut Light, s: &State, colour: Option<Vec3>) -> Result<Vec3, Str
         None => old_colour,
     };
     let new_intensity = match s.intensity {
-        Some(i) if !(i.is_finite() && i >= 0.0) => {
-            return Err(format!("intensity {i} is negative or not finite"))
+        Some(i) if !((i as f32).is_finite() && i >= 0.0) => {
+            return Err(format!("intensity {i} is negative or not finite (as a 32-bit float)"))
         }
         Some(i) => i as f32,
         None => old_intensity,
     };
     light.intensity = new_colour * new_intensity;
+    light.check()?;
     Ok(new_colour)
 }
 
@@ -576,6 +579,12 @@ mod tests {
             (r#"{"lights": [{"name": "lamp", "direction": [0, 0, 0]}]}"#, "direction is zero"),
             (r#"{"lights": [{"name": "lamp", "colour": [1, 1, 1]}]}"#, "unknown field"),
             (r#"{"lights": "#, "not a valid rig"),
+            // Finite as f64, infinite as the f32 a light holds: refused, not baked to infinity.
+            (r#"{"lights": [{"name": "lamp", "intensity": 1e39}]}"#, "not finite (as a 32-bit float)"),
+            (r#"{"lights": [{"name": "lamp", "position": [1e39, 0, 0]}]}"#, "position"),
+            (r#"{"lights": [{"name": "lamp", "direction": [1e300, 1e300, 0]}]}"#, "not finite"),
+            (r#"{"lights": [{"name": "lamp", "intensity": 2e9}]}"#, "beyond 1e9"),
+            (r#"{"lights": [{"name": "lamp", "position": [2e7, 0, 0]}]}"#, "beyond 1e7 m"),
         ];
         for (text, want) in cases {
             let err = parse(text).unwrap_err().to_string();

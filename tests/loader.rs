@@ -394,3 +394,80 @@ fn a_malformed_buffer_reference_is_an_error_not_a_panic() {
     let err = load(&path).unwrap_err();
     assert!(err.to_string().contains("oob.glb"), "{err}");
 }
+
+#[test]
+fn a_node_reached_twice_is_an_error_not_a_walk_without_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut doc, bin) = one_quad().to_json_and_bin();
+    // Forty pairs of nodes, each a parent of both nodes of the pair below, over the quad's
+    // node: 2^40 ways down to it (a few KB that took memory until the machine ran out).
+    let quad = doc["nodes"].as_array().unwrap().len() - 1;
+    let mut below = vec![quad, quad];
+    for _ in 0..40 {
+        let nodes = doc["nodes"].as_array_mut().unwrap();
+        let first = nodes.len();
+        for _ in 0..2 {
+            nodes.push(serde_json::json!({"children": [below[0], below[1]]}));
+        }
+        below = vec![first, first + 1];
+    }
+    doc["scenes"][0]["nodes"] = serde_json::json!(below);
+    let path = write(dir.path(), "diamond.glb", &glb_bytes(&doc, &bin));
+    let err = load(&path).unwrap_err();
+    assert!(
+        matches!(err, SceneError::Malformed { .. }) && err.to_string().contains("reached twice"),
+        "{err}"
+    );
+}
+
+#[test]
+fn indices_that_are_not_unsigned_integers_are_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut doc, bin) = one_quad().to_json_and_bin();
+    let mesh = &doc["meshes"][0]["primitives"][0];
+    let at = mesh["indices"].as_u64().unwrap() as usize;
+    doc["accessors"][at]["componentType"] = serde_json::json!(5126);
+    let path = write(dir.path(), "float_indices.glb", &glb_bytes(&doc, &bin));
+    let err = load(&path).unwrap_err();
+    assert!(err.to_string().contains("indices accessor") && err.to_string().contains("F32"), "{err}");
+}
+
+#[test]
+fn a_light_or_an_emission_beyond_the_brightest_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.add_light(
+        GlbLight {
+            name: "sunburst".into(),
+            kind: "point",
+            color: [1.0; 3],
+            intensity: 3e38,
+            inner: 0.0,
+            outer: 0.0,
+            range: None,
+            extras: None,
+        },
+        Vec3::Y,
+        -Vec3::Y,
+    );
+    let err = load(&write(dir.path(), "bright.glb", &s.to_glb())).unwrap_err();
+    assert!(matches!(err, SceneError::BadLight { .. }) && err.to_string().contains("beyond 1e9"), "{err}");
+    let mut s = one_quad();
+    s.materials[0].emissive = [3e38, 0.0, 0.0];
+    let err = load(&write(dir.path(), "glow.glb", &s.to_glb())).unwrap_err();
+    assert!(matches!(err, SceneError::BadEmissive { .. }) && err.to_string().contains("beyond 1e9"), "{err}");
+}
+
+#[cfg(unix)]
+#[test]
+fn a_buffer_that_is_a_device_is_an_error_not_a_read_without_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut doc, bin) = one_quad().to_json_and_bin();
+    doc["buffers"][0]["uri"] = serde_json::json!("/dev/zero");
+    let path = write(dir.path(), "zero.glb", &glb_bytes(&doc, &bin));
+    let err = load(&path).unwrap_err();
+    assert!(err.to_string().contains("/dev/zero is not a regular file"), "{err}");
+    // The level itself a folder: the same.
+    let err = load(dir.path()).unwrap_err();
+    assert!(err.to_string().contains("not a regular file"), "{err}");
+}

@@ -35,7 +35,9 @@ pub enum SceneError {
     PartialTriangle { path: PathBuf, place: Place, count: usize },
     #[error("{path}: material {material} ('{name}'): albedo {value:?} is outside [0, 1]")]
     AlbedoOutOfRange { path: PathBuf, material: usize, name: String, value: [f32; 3] },
-    #[error("{path}: material {material} ('{name}'): emissive {value:?} is negative or not finite")]
+    #[error(
+        "{path}: material {material} ('{name}'): emissive {value:?} is negative, not finite or beyond 1e9"
+    )]
     BadEmissive { path: PathBuf, material: usize, name: String, value: [f32; 3] },
     #[error("{path}: light {light} ('{name}'): {what}")]
     BadLight { path: PathBuf, light: usize, name: String, what: String },

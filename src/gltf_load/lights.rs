@@ -81,8 +81,8 @@ pub(super) fn read_light(
         let extras: serde_json::Value =
             serde_json::from_str(raw.get()).map_err(|e| bad(format!("its extras are not JSON: {e}")))?;
         out = with_extras(path, out, &extras, world).map_err(bad)?;
-        out.check().map_err(bad)?;
     }
+    out.check().map_err(bad)?;
     Ok(out)
 }
 

@@ -35,7 +35,7 @@ pub(super) fn read_materials(
         let strength = m.emissive_strength().unwrap_or(1.0);
         let e = m.emissive_factor();
         let emissive = [e[0] * strength, e[1] * strength, e[2] * strength];
-        if emissive.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+        if emissive.iter().any(|c| !(c.is_finite() && (0.0..=crate::light::MAX_INTENSITY).contains(c))) {
             return Err(SceneError::BadEmissive {
                 path: path.into(),
                 material: index,

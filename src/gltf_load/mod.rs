@@ -67,6 +67,7 @@ impl Default for LoadOptions {
 /// Load a level file into a world-space scene.
 pub fn load_scene(path: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, SceneError> {
     let path = path.as_ref();
+    regular_file(path, path)?;
     let bytes = std::fs::read(path).map_err(|source| SceneError::Io { path: path.into(), source })?;
     // The gltf crate is not hardened against every malformed file; a panic inside it must
     // still reach the user as an error naming the file.
@@ -135,6 +136,31 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
 fn parse(path: &Path, bytes: &[u8]) -> Result<(gltf::Document, Vec<gltf::buffer::Data>), SceneError> {
     let gerr = |source| SceneError::Gltf { path: path.into(), source };
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(bytes).map_err(gerr)?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let buffers = document.buffers().filter_map(|b| match b.source() {
+        gltf::buffer::Source::Uri(u) => Some(u),
+        gltf::buffer::Source::Bin => None,
+    });
+    let images = document.images().filter_map(|i| match i.source() {
+        gltf::image::Source::Uri { uri, .. } => Some(uri),
+        gltf::image::Source::View { .. } => None,
+    });
+    for uri in buffers.chain(images).filter(|u| !u.starts_with("data:")) {
+        regular_file(path, &base.join(uri))?;
+    }
     let buffers = gltf::import_buffers(&document, path.parent(), blob).map_err(gerr)?;
     Ok((document, buffers))
+}
+
+/// Refuse `file` (the level `path`, or a file it names) if it is there but is not a regular
+/// file: reading a pipe or a device (/dev/zero) never ends. One that is not there is left to
+/// the reader, which names it.
+fn regular_file(path: &Path, file: &Path) -> Result<(), SceneError> {
+    match std::fs::metadata(file) {
+        Ok(m) if !m.is_file() => Err(SceneError::Malformed {
+            path: path.into(),
+            what: format!("{} is not a regular file (a folder, pipe or device)", file.display()),
+        }),
+        _ => Ok(()),
+    }
 }

@@ -22,7 +22,23 @@ pub(super) fn walk<'d>(
 ) -> Result<(), SceneError> {
     let mut stack: Vec<(gltf::Node, Mat4, usize, u32)> =
         root_nodes(document).into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0, 0)).collect();
+    // glTF's nodes form disjoint trees: a node met twice has two parents, or is a root and a
+    // child, or sits on a cycle. Walked again it would be built twice, and a file of a few KB
+    // that makes each of 40 pairs of nodes the children of both nodes before them would be
+    // walked 2^40 times.
+    let mut seen = vec![false; document.nodes().len()];
     while let Some((node, parent, depth, parent_object)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(SceneError::Malformed {
+                path: path.into(),
+                what: format!(
+                    "node {}{} is reached twice (two parents, a root that is also a child, or a \
+                     cycle); glTF nodes form disjoint trees",
+                    node.index(),
+                    node.name().map_or(String::new(), |n| format!(" ('{n}')")),
+                ),
+            });
+        }
         if depth > 256 {
             return Err(SceneError::Malformed {
                 path: path.into(),

@@ -138,6 +138,22 @@ impl<'a> PrimSource<'a> {
 
     /// Triangle-list indices (0..n when the primitive has none), each below the vertex count `n`.
     fn indices(&self, n: usize) -> Result<Vec<u32>, SceneError> {
+        // The reader takes any other kind for unreachable (a panic inside the gltf crate).
+        if let Some(a) = self.prim.indices() {
+            use gltf::accessor::{DataType, Dimensions};
+            let (kind, dims) = (a.data_type(), a.dimensions());
+            if !matches!(kind, DataType::U8 | DataType::U16 | DataType::U32) || dims != Dimensions::Scalar {
+                return Err(SceneError::Malformed {
+                    path: self.path.into(),
+                    what: format!(
+                        "{}: indices accessor {} holds {kind:?} {dims:?}; glTF indices are unsigned \
+                         byte, short or int scalars",
+                        self.place,
+                        a.index()
+                    ),
+                });
+            }
+        }
         let indices: Vec<u32> = match self.prim.indices() {
             Some(_) => self
                 .reader()
