@@ -67,6 +67,9 @@ pub struct Args {
     /// Shadow rays per texel and virtual light of a correction (an edit's small changes).
     #[arg(long, default_value_t = BakerParams::default().delta_visibility_samples)]
     delta_visibility_samples: u32,
+    /// Virtual lights a correction makes of its added VPLs, and as many of its removed ones.
+    #[arg(long, default_value_t = BakerParams::default().delta_lights_per_cell)]
+    delta_lights: usize,
     #[command(flatten)]
     lightmap: AtlasArgs,
     #[arg(long, default_value_t = 0)]
@@ -92,7 +95,7 @@ pub struct Args {
     /// Stop watching after this many reloads (scripts and tests).
     #[arg(long, requires = "watch")]
     watch_limit: Option<usize>,
-    /// Seconds between looks at the level file's modification time.
+    /// Seconds between looks at the level file's modification time (0.01 to 60).
     #[arg(long, default_value_t = 0.25, requires = "watch")]
     watch_interval: f64,
 }
@@ -101,7 +104,13 @@ pub fn run(a: Args) -> Result<()> {
     if !(a.tolerance.is_finite() && a.tolerance >= 0.0) {
         bail!("--tolerance {} must be a finite distance, at least 0", a.tolerance);
     }
-    crate::common::check_output_file(&a.output)?;
+    if !(0.01..=60.0).contains(&a.watch_interval) {
+        bail!("--watch-interval {} must be 0.01 to 60 seconds", a.watch_interval);
+    }
+    crate::common::check_output_file(
+        &a.output,
+        &[&a.scene.scene, a.edits.as_deref().unwrap_or(&a.scene.scene)],
+    )?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
     let glow = scene.emissive_lights();
@@ -123,6 +132,7 @@ pub fn run(a: Args) -> Result<()> {
         consolidate: !a.no_consolidate,
         visibility_samples: a.visibility_samples,
         delta_visibility_samples: a.delta_visibility_samples,
+        delta_lights_per_cell: a.delta_lights,
         seed: a.seed,
         ..BakerParams::default()
     };
@@ -345,7 +355,7 @@ fn watch(a: &Args, baker: &mut Baker, set: &TexelSet) -> Result<()> {
     let (mut last, mut seen) = (baker.level().current().scene.as_ref().clone(), stamp());
     // Baker light ids, one per light of `last`, in order.
     let mut ids: Vec<u32> = baker.level().current().lights.iter().map(|l| l.id).collect();
-    let interval = std::time::Duration::from_secs_f64(a.watch_interval.clamp(0.01, 60.0));
+    let interval = std::time::Duration::from_secs_f64(a.watch_interval);
     let (mut reloads, mut since, mut written) = (0, Instant::now(), true);
     eprintln!("watching {} (Ctrl-C stops)", path.display());
     loop {
@@ -524,11 +534,16 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
     let list =
         v.as_array().ok_or_else(|| anyhow!("{}: the script is a JSON list of edits", path.display()))?;
     let names = crate::common::node_names(level);
+    // An index is a whole number that fits (4294967296 is not node 0).
+    let index = |x: &Value, what: &str| -> Result<u32> {
+        x.as_u64().and_then(|n| u32::try_from(n).ok()).ok_or_else(|| anyhow!("{what} {x} is not an index"))
+    };
     let node = |x: &Value| -> Result<u32> {
         match x {
-            Value::Number(n) => {
-                n.as_u64().map(|n| n as u32).ok_or_else(|| anyhow!("node {n} is not an index"))
-            }
+            Value::Number(_) => match index(x, "node")? {
+                n if (n as usize) < names.len() => Ok(n),
+                n => bail!("no node {n}: {} has {}", level.display(), names.len()),
+            },
             Value::String(s) => names
                 .iter()
                 .position(|n| n.as_deref() == Some(s.as_str()))
@@ -539,9 +554,10 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
     };
     let material = |x: &Value| -> Result<u32> {
         match x {
-            Value::Number(n) => {
-                n.as_u64().map(|n| n as u32).ok_or_else(|| anyhow!("material {n} is not an index"))
-            }
+            Value::Number(_) => match index(x, "material")? {
+                m if (m as usize) < scene.materials.len() => Ok(m),
+                m => bail!("no material {m}: the level has {}", scene.materials.len()),
+            },
             Value::String(s) => scene
                 .materials
                 .iter()
@@ -551,72 +567,187 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
             _ => bail!("a material is a name or an index"),
         }
     };
+    // Three numbers, each finite once stored as f32 (1e39 is not).
     let vec3 = |x: Option<&Value>, what: &str| -> Result<Vec3> {
         let a = x.and_then(Value::as_array).ok_or_else(|| anyhow!("{what}: expected [x, y, z]"))?;
-        let f: Vec<f32> = a.iter().filter_map(|v| v.as_f64().map(|f| f as f32)).collect();
-        if f.len() != 3 {
-            bail!("{what}: expected three numbers");
+        let f: Vec<Option<f32>> = a.iter().map(|v| v.as_f64().map(|f| f as f32)).collect();
+        match f[..] {
+            [Some(x), Some(y), Some(z)] if Vec3::new(x, y, z).is_finite() => Ok(Vec3::new(x, y, z)),
+            [Some(_), Some(_), Some(_)] => {
+                bail!("{what}: {} is not finite as a 32-bit float", Value::Array(a.clone()))
+            }
+            _ => bail!("{what}: expected three numbers, got {}", Value::Array(a.clone())),
         }
-        Ok(Vec3::new(f[0], f[1], f[2]))
     };
+    // The lights as the script leaves them, by baker id: the level's in order, then those it
+    // adds (the baker numbers them so), `None` once removed. A `light` edit changes the light
+    // as the edits before it left it.
+    let mut lights: Vec<Option<Light>> = scene.lights.iter().cloned().map(Some).collect();
     let mut out = Vec::new();
     for (k, e) in list.iter().enumerate() {
-        let obj = e.as_object().ok_or_else(|| anyhow!("edit {}: an edit is a JSON object", k + 1))?;
-        let named =
-            obj.get("label").map(|l| l.as_str().ok_or_else(|| anyhow!("edit {}: label is text", k + 1)));
-        let named = named.transpose()?;
-        let mut kinds = obj.iter().filter(|(key, _)| *key != "label");
-        let (kind, body) = match (kinds.next(), kinds.next()) {
-            (Some(one), None) => one,
-            _ => bail!("edit {}: one edit per entry (and an optional label)", k + 1),
+        let mut one = || -> Result<(String, Edit)> {
+            let obj = e.as_object().ok_or_else(|| anyhow!("an edit is a JSON object"))?;
+            let named = obj.get("label").map(|l| l.as_str().ok_or_else(|| anyhow!("label is text")));
+            let named = named.transpose()?;
+            let mut kinds = obj.iter().filter(|(key, _)| *key != "label");
+            let (kind, body) = match (kinds.next(), kinds.next()) {
+                (Some(one), None) => one,
+                _ => bail!("one edit per entry (and an optional label)"),
+            };
+            let at = |f: &str| body.get(f);
+            let need = |f: &str| at(f).ok_or_else(|| anyhow!("{kind} needs {f}"));
+            let label = named.map_or_else(|| format!("{kind} {body}"), str::to_string);
+            let light_of = |lights: &[Option<Light>]| -> Result<(u32, Light)> {
+                let id = index(need("id")?, "light")?;
+                match lights.get(id as usize) {
+                    Some(Some(l)) => Ok((id, l.clone())),
+                    Some(None) => bail!("light {id} was removed by an earlier edit"),
+                    None => bail!(
+                        "no light {id} (the level has {}, the script adds {})",
+                        scene.lights.len(),
+                        lights.len() - scene.lights.len()
+                    ),
+                }
+            };
+            let edit = match kind.as_str() {
+                "move" => Edit::Transform {
+                    node: node(need("node")?)?,
+                    matrix: Mat4::from_translation(vec3(at("by"), "by")?),
+                },
+                "rotate" => {
+                    let about = vec3(at("about"), "about")?;
+                    let axis =
+                        vec3(at("axis"), "axis")?.try_normalize().ok_or_else(|| anyhow!("axis is zero"))?;
+                    let deg = need("degrees")?
+                        .as_f64()
+                        .filter(|d| (*d as f32).is_finite())
+                        .ok_or_else(|| anyhow!("degrees must be a finite number"))?;
+                    Edit::Transform {
+                        node: node(need("node")?)?,
+                        matrix: Mat4::from_translation(about)
+                            * Mat4::from_axis_angle(axis, (deg as f32).to_radians())
+                            * Mat4::from_translation(-about),
+                    }
+                }
+                "albedo" => {
+                    let albedo = vec3(at("rgb"), "rgb")?;
+                    if !(albedo.min_element() >= 0.0 && albedo.max_element() <= 1.0) {
+                        bail!("rgb {albedo} is outside [0, 1]");
+                    }
+                    Edit::Albedo { material: material(need("material")?)?, albedo }
+                }
+                "light" => {
+                    let (id, mut l) = light_of(&lights)?;
+                    if at("position").is_some() {
+                        l.position = vec3(at("position"), "position")?;
+                    }
+                    if at("intensity").is_some() {
+                        l.intensity = vec3(at("intensity"), "intensity")?;
+                    }
+                    l.check().map_err(|what| anyhow!("light {id}: {what}"))?;
+                    lights[id as usize] = Some(l.clone());
+                    Edit::SetLight { id, light: l }
+                }
+                "add_light" => {
+                    let l = Light::point(
+                        "added",
+                        vec3(at("position"), "position")?,
+                        vec3(at("intensity"), "intensity")?,
+                    );
+                    l.check().map_err(|what| anyhow!("the added light: {what}"))?;
+                    lights.push(Some(l.clone()));
+                    Edit::AddLight(l)
+                }
+                "remove_light" => {
+                    let (id, _) = light_of(&lights)?;
+                    lights[id as usize] = None;
+                    Edit::RemoveLight { id }
+                }
+                other => bail!("unknown edit {other:?}"),
+            };
+            Ok((label, edit))
         };
-        let at = |f: &str| body.get(f);
-        let label = named.map_or_else(|| format!("{kind} {body}"), str::to_string);
-        let edit = match kind.as_str() {
-            "move" => Edit::Transform {
-                node: node(at("node").ok_or_else(|| anyhow!("edit {}: move needs a node", k + 1))?)?,
-                matrix: Mat4::from_translation(vec3(at("by"), "by")?),
-            },
-            "rotate" => {
-                let about = vec3(at("about"), "about")?;
-                let axis =
-                    vec3(at("axis"), "axis")?.try_normalize().ok_or_else(|| anyhow!("axis is zero"))?;
-                let deg =
-                    at("degrees").and_then(Value::as_f64).ok_or_else(|| anyhow!("rotate needs degrees"))?;
-                Edit::Transform {
-                    node: node(at("node").ok_or_else(|| anyhow!("edit {}: rotate needs a node", k + 1))?)?,
-                    matrix: Mat4::from_translation(about)
-                        * Mat4::from_axis_angle(axis, (deg as f32).to_radians())
-                        * Mat4::from_translation(-about),
-                }
-            }
-            "albedo" => Edit::Albedo {
-                material: material(at("material").ok_or_else(|| anyhow!("albedo needs a material"))?)?,
-                albedo: vec3(at("rgb"), "rgb")?,
-            },
-            "light" => {
-                let id = at("id").and_then(Value::as_u64).ok_or_else(|| anyhow!("light needs an id"))? as u32;
-                let mut l = scene.lights.get(id as usize).cloned().ok_or_else(|| anyhow!("no light {id}"))?;
-                if at("position").is_some() {
-                    l.position = vec3(at("position"), "position")?;
-                }
-                if at("intensity").is_some() {
-                    l.intensity = vec3(at("intensity"), "intensity")?;
-                }
-                Edit::SetLight { id, light: l }
-            }
-            "add_light" => Edit::AddLight(Light::point(
-                "added",
-                vec3(at("position"), "position")?,
-                vec3(at("intensity"), "intensity")?,
-            )),
-            "remove_light" => Edit::RemoveLight {
-                id: at("id").and_then(Value::as_u64).ok_or_else(|| anyhow!("remove_light needs an id"))?
-                    as u32,
-            },
-            other => bail!("edit {}: unknown edit {other:?}", k + 1),
-        };
-        out.push((label, edit));
+        out.push(one().map_err(|e| anyhow!("{}: edit {}: {e}", path.display(), k + 1))?);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `script` parsed against the bundled Cornell box (one light, id 0).
+    fn parsed(script: &str) -> Result<Vec<(String, Edit)>> {
+        let level = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell.glb");
+        let opts = prm::gltf_load::LoadOptions { unwrap_resolution: Some(32), ..Default::default() };
+        let scene = prm::gltf_load::load_scene(&level, &opts)?;
+        let dir = std::env::temp_dir().join(format!("prm-script-{}", std::process::id()));
+        std::fs::create_dir_all(&dir)?;
+        // One file per script: the tests run side by side.
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        std::hash::Hash::hash(script, &mut h);
+        let path = dir.join(format!("{:016x}.json", std::hash::Hasher::finish(&h)));
+        std::fs::write(&path, script)?;
+        let r = parse_script(&path, &level, &scene);
+        std::fs::remove_file(&path)?;
+        r
+    }
+
+    #[test]
+    fn a_light_edit_changes_the_light_the_edits_before_it_left() {
+        let edits = parsed(
+            r#"[{"light": {"id": 0, "intensity": [0.5, 0.25, 0.125]}},
+                {"light": {"id": 0, "position": [0.1, 0.2, 0.3]}},
+                {"add_light": {"position": [0, 0.5, 0], "intensity": [1, 1, 1]}},
+                {"light": {"id": 1, "position": [0, 0.4, 0]}}]"#,
+        )
+        .unwrap();
+        let Edit::SetLight { id: 0, light } = &edits[1].1 else { panic!("{:?}", edits[1]) };
+        // The second edit keeps the first's intensity (it used to start from the file's).
+        assert_eq!(light.intensity, Vec3::new(0.5, 0.25, 0.125));
+        assert_eq!(light.position, Vec3::new(0.1, 0.2, 0.3));
+        // The added light is light 1, and can be edited.
+        let Edit::SetLight { id: 1, light } = &edits[3].1 else { panic!("{:?}", edits[3]) };
+        assert_eq!((light.position, light.intensity), (Vec3::new(0.0, 0.4, 0.0), Vec3::ONE));
+    }
+
+    #[test]
+    fn a_bad_edit_is_refused_by_its_number_and_what_is_wrong() {
+        for (script, says) in [
+            // Numbers that are not numbers, or do not fit, are not dropped or wrapped.
+            (r#"[{"move": {"node": "red", "by": [0.05, "x", 0]}}]"#, "edit 1: by: expected three numbers"),
+            (r#"[{"move": {"node": 4294967296, "by": [1, 0, 0]}}]"#, "node 4294967296 is not an index"),
+            (r#"[{"albedo": {"material": 4294967297, "rgb": [1, 0, 0]}}]"#, "is not an index"),
+            (r#"[{"remove_light": {"id": 4294967296}}]"#, "light 4294967296 is not an index"),
+            (r#"[{"light": {"id": 0, "position": [1e39, 0, 0]}}]"#, "not finite as a 32-bit float"),
+            (
+                r#"[{"rotate": {"node": "red", "about": [0,0,0], "axis": [0,1,0], "degrees": 1e39}}]"#,
+                "finite",
+            ),
+            (
+                r#"[{"remove_light": {"id": 0}}, {"light": {"id": 0, "position": [0, 0, 0]}}]"#,
+                "edit 2: light 0 was removed",
+            ),
+            (r#"[{"light": {"id": 7, "position": [0, 0, 0]}}]"#, "no light 7"),
+            // Found before the level's first bake, not after it.
+            (r#"[{"move": {"node": 999, "by": [1, 0, 0]}}]"#, "no node 999"),
+            (r#"[{"albedo": {"material": 99, "rgb": [1, 0, 0]}}]"#, "no material 99"),
+            (r#"[{"albedo": {"material": 0, "rgb": [2, 0, 0]}}]"#, "outside [0, 1]"),
+            (r#"[{"light": {"id": 0, "intensity": [2e9, 0, 0]}}]"#, "light 0: intensity"),
+            (
+                r#"[{"add_light": {"position": [0, 0, 0], "intensity": [-1, 0, 0]}}]"#,
+                "the added light: intensity",
+            ),
+            (r#"[{"light": {"id": -1}}]"#, "light -1 is not an index"),
+            (
+                r#"[{"move": {"node": "red", "by": [1, 0]}}, {"teleport": {}}]"#,
+                "edit 1: by: expected three numbers",
+            ),
+            (r#"[{"move": {"by": [1, 0, 0]}}]"#, "edit 1: move needs node"),
+            (r#"[{"albedo": {"material": 0, "rgb": [1, 0, 0]}}, {"teleport": {}}]"#, "edit 2: unknown edit"),
+        ] {
+            let err = format!("{:#}", parsed(script).unwrap_err());
+            assert!(err.contains(says), "{script}: {err}");
+        }
+    }
 }

@@ -51,7 +51,16 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    crate::common::check_output_file(&a.output)?;
+    let rig = a.rig.rig.as_deref().unwrap_or(&a.scene.scene);
+    crate::common::check_output_file(&a.output, &[&a.scene.scene, rig])?;
+    // Both outputs are checked before the bake: a bad --debug-lights path found after it
+    // left the lightmap written and the command failed.
+    if let Some(obj) = &a.debug_lights {
+        crate::common::check_output_file(obj, &[&a.scene.scene, rig])?;
+        if obj == &a.output {
+            anyhow::bail!("--debug-lights {} is the output lightmap too", obj.display());
+        }
+    }
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
     let p = BakeParams {
         photons: a.vpls,

@@ -21,15 +21,55 @@ pub struct SceneArgs {
 
 /// Check, before any work, that an output file can be made where it is asked for: its folder
 /// exists and it is not itself a folder (a long bake must not end in "No such file").
-pub fn check_output_file(path: &std::path::Path) -> Result<()> {
+pub fn check_output_file(path: &std::path::Path, inputs: &[&std::path::Path]) -> Result<()> {
     if path.is_dir() {
         bail!("{} is a folder: give the output a file name", path.display());
     }
-    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        Some(folder) if !folder.is_dir() => {
+    if let Some(folder) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !folder.is_dir() {
             bail!("the folder {} does not exist (for the output {})", folder.display(), path.display())
         }
-        _ => Ok(()),
+    }
+    // The same file by another name too (./a.glb, a link): what the two resolve to.
+    if let Ok(out) = path.canonicalize() {
+        if let Some(input) = inputs.iter().find(|i| i.canonicalize().is_ok_and(|i| i == out)) {
+            bail!(
+                "the output {} is the input {}: writing it would destroy what it is made from",
+                path.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// An output folder this run writes into. If the run made it and then fails, it goes again
+/// with what was written into it (no half-written results); one that was there before is
+/// left as it is. [`OutputFolder::keep`] once the run has succeeded.
+pub struct OutputFolder {
+    path: std::path::PathBuf,
+    made: bool,
+}
+
+impl OutputFolder {
+    pub fn create(path: &std::path::Path) -> Result<OutputFolder> {
+        let made = !path.exists();
+        std::fs::create_dir_all(path).with_context(|| format!("creating {}", path.display()))?;
+        Ok(OutputFolder { path: path.to_path_buf(), made })
+    }
+
+    /// The run succeeded: the folder stays.
+    pub fn keep(mut self) {
+        self.made = false;
+    }
+}
+
+impl Drop for OutputFolder {
+    fn drop(&mut self) {
+        if self.made {
+            // Best effort: the run's own error is the one to report.
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
     }
 }
 
@@ -279,12 +319,13 @@ pub struct ComposeArgs {
 }
 
 impl ComposeArgs {
-    /// The runtime's parameters with these, refusing K = 0.
+    /// The runtime's parameters with these, refused as the GPU runtime would (the CPU twin
+    /// would take them silently).
     pub fn runtime(&self, shadow_size: u32) -> Result<prm_runtime::RuntimeParams> {
         if self.top_k == 0 {
             bail!("--top-k must be at least 1");
         }
-        Ok(prm_runtime::RuntimeParams {
+        let p = prm_runtime::RuntimeParams {
             top_k: self.top_k,
             budget: self.budget.into(),
             shadow_size,
@@ -293,7 +334,9 @@ impl ComposeArgs {
             recompose_changed_only: !self.recompose_all,
             recompose_tolerance: self.recompose_tolerance,
             sun_tiles: self.sun_tiles,
-        })
+        };
+        p.check().map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
+        Ok(p)
     }
 }
 

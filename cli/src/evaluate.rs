@@ -35,7 +35,10 @@ pub fn run(a: Args) -> Result<()> {
     if a.top_k == Some(0) {
         anyhow::bail!("--top-k must be at least 1 (leave it out for every pane)");
     }
-    crate::common::check_output_file(&a.output)?;
+    crate::common::check_output_file(
+        &a.output,
+        &[&a.map.scene.scene, &a.map.prm, a.rig.rig.as_deref().unwrap_or(&a.map.prm)],
+    )?;
     let (scene, bytes_prm) = a.map.load()?;
     let bvh = Bvh::build_with_rooms(&scene);
     let lights = a.rig.lights(&scene)?;

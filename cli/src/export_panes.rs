@@ -25,7 +25,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--grid {} is out of range (1 to 64)", a.grid);
     }
     let prm = Prm::read(&a.prm, None).with_context(|| "reading the radiance map failed")?;
-    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let folder = crate::common::OutputFolder::create(&a.output)?;
     let (w, h) = (prm.header().atlas_width as usize, prm.header().atlas_height as usize);
     let g = a.grid as usize;
     let layout = prm.layout();
@@ -52,5 +52,6 @@ pub fn run(a: Args) -> Result<()> {
         ch.write(&path).with_context(|| format!("writing {}", path.display()))?;
     }
     println!("{} panes in {} pages of {}x{} -> {}", prm.clusters().len(), pages, g, g, a.output.display());
+    folder.keep();
     Ok(())
 }

@@ -54,7 +54,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    crate::common::check_output_file(&a.output)?;
+    crate::common::check_output_file(
+        &a.output,
+        &[&a.scene.scene, a.rig.rig.as_deref().unwrap_or(&a.scene.scene)],
+    )?;
     let params = GtParams {
         spp: a.spp,
         max_bounces: a.max_bounces,

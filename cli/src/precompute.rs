@@ -143,7 +143,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    crate::common::check_output_file(&a.output)?;
+    crate::common::check_output_file(&a.output, &[&a.scene.scene])?;
     if let Some(shard) = &a.shard {
         let given = [
             ("--entries", a.entries.is_some()),
@@ -270,6 +270,15 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
         return crate::shard::prepare(a, (&scene, &bvh), p, start, &on_progress, &bar);
     }
     let keep_cache = a.cache || a.update.is_some();
+    // Said before the bake, and as what was asked for: the bake would refuse it as an update.
+    if keep_cache && (p.estimator != Estimator::Gather || p.dipole_block > 0) {
+        bail!(
+            "{} needs the gather estimator without dipole panes (this bake: {}{})",
+            if a.update.is_some() { "--update" } else { "--cache" },
+            p.estimator,
+            if p.dipole_block > 0 { ", --dipole-block" } else { "" }
+        );
+    }
     // Given, not lent: the update lets each go once it is done with it.
     let reuse = match old {
         Some((prm, cache)) => Reuse::Update { cache: cache.into(), old: prm.into() },

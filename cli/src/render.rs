@@ -124,7 +124,7 @@ pub fn run(a: Args) -> Result<()> {
             }
         },
     };
-    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let folder = crate::common::OutputFolder::create(&a.output)?;
     let out = Output {
         dir: &a.output,
         lightmap: a.lightmap_out.then_some(prm_file.header().atlas()),
@@ -201,6 +201,7 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    folder.keep();
     Ok(())
 }
 

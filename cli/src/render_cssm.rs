@@ -88,7 +88,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let cam = camera(scene, a.camera.as_deref())?;
     let (iw, ih) = cam.image_size(a.width);
-    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let folder = crate::common::OutputFolder::create(&a.output)?;
     let atlas = Atlas::single(w);
     let out = Output {
         dir: &a.output,
@@ -198,5 +198,6 @@ pub fn run(a: Args) -> Result<()> {
             baseline_errors.iter().cloned().fold(0.0, f64::max) * 100.0
         );
     }
+    folder.keep();
     Ok(())
 }

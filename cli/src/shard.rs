@@ -123,7 +123,9 @@ pub struct MergeArgs {
 
 /// `prm merge`.
 pub fn merge(a: MergeArgs) -> Result<()> {
-    crate::common::check_output_file(&a.output)?;
+    let inputs: Vec<&std::path::Path> =
+        std::iter::once(&a.plan).chain(&a.parts).map(|p| p.as_path()).collect();
+    crate::common::check_output_file(&a.output, &inputs)?;
     with_threads(a.threads, || {
         let start = Instant::now();
         let plan = Plan::read(&a.plan).map_err(|e| failed(e, &a.output))?;

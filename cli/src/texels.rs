@@ -23,7 +23,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     check_atlas(a.atlas)?;
-    crate::common::check_output_file(&a.output)?;
+    crate::common::check_output_file(&a.output, &[&a.scene.scene])?;
     let scene = load(&a.scene, a.atlas, false)?;
     let start = Instant::now();
     let set = TexelSet::build_visible(&scene, &prm::Bvh::build(&scene), a.atlas, a.atlas);

@@ -34,7 +34,7 @@ pub fn run(a: Args) -> Result<()> {
     let params =
         VisibilityParams { res: a.res, occluder_dirs: a.occluder_dirs, occluder_res: a.occluder_res };
     params.validate().map_err(|e| anyhow::anyhow!("bad parameter: {e}"))?;
-    crate::common::check_output_file(&a.output)?;
+    crate::common::check_output_file(&a.output, &[&a.scene.scene])?;
     let (scene, atlas) = a.atlas.load(&a.scene, false)?;
     if atlas.pages != 1 {
         bail!(

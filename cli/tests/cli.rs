@@ -91,6 +91,19 @@ fn compare_gives_the_hand_computed_figures() {
     assert!((v["max_abs"].as_f64().unwrap() - 1.0).abs() < 1e-6);
     assert_eq!(v["negative"], 0, "the negative texel is outside the mask");
     assert!(png.exists());
+    // An infinite reference texel outside the mask is not looked at; inside it, the reference
+    // is refused (it read 0.00 %).
+    for (at, refused) in [(3, false), (1, true)] {
+        let mut v = vec![Vec3::splat(1.0), Vec3::splat(2.0), Vec3::splat(4.0), Vec3::splat(100.0)];
+        v[at] = Vec3::splat(f32::INFINITY);
+        let mut b = Channels::new(2, 2);
+        b.insert_rgb("indirect", &v);
+        b.insert("mask", vec![1.0, 1.0, 1.0, 0.0]);
+        b.write(&pb).unwrap();
+        let (ok, _, err) = prm(&["compare", s(&pa), s(&pb)]);
+        assert_eq!(ok, !refused, "{err}");
+        assert_eq!(err.contains("1 non-finite texels"), refused, "{err}");
+    }
 }
 
 #[test]
@@ -1265,15 +1278,26 @@ fn bake_applies_an_edit_script_and_refuses_a_bad_one() {
     assert!(ch.rgb("indirect").unwrap().iter().any(|x| x.x > 0.0));
     // The lamp sent far out of the level: all its light is taken out again, and what is left
     // (round-off) is written as no light, not as a negative one.
-    let (ok, _, stderr) = bake(r#"[{"light": {"id": 0, "position": [1e38, 0.0, 0.0]}}]"#, &out, "32", "2000");
+    let (ok, _, stderr) = bake(r#"[{"light": {"id": 0, "position": [1e6, 0.0, 0.0]}}]"#, &out, "32", "2000");
     assert!(ok, "{stderr}");
     let ch = Channels::read(&out).unwrap();
     for layer in ["direct", "indirect"] {
         let v = ch.rgb(layer).unwrap();
         assert!(v.iter().all(|x| x.min_element() >= 0.0 && x.max_element() < 1e-6), "{layer}");
     }
+    // A light added 1e7 times the lamp's flux takes the bake's paths, not 1e7 times them (it
+    // took memory until the machine ran out).
+    let (ok, _, stderr) = bake(
+        r#"[{"add_light": {"position": [0.2, 0.2, 0.2], "intensity": [1e8, 1e8, 1e8]}}]"#,
+        &out,
+        "16",
+        "100",
+    );
+    assert!(ok, "{stderr}");
     for (bad, says) in [
         (r#"[{"move": {"node": "no_such_node", "by": [1, 0, 0]}}]"#, "no node named"),
+        (r#"[{"light": {"id": 0, "intensity": [1e38, 1e38, 1e38]}}]"#, "beyond 1e9"),
+        (r#"[{"light": {"id": 0, "position": [2e7, 0, 0]}}]"#, "beyond 1e7 m"),
         (r#"[{"teleport": {}}]"#, "unknown edit"),
         (r#"[{"albedo": {"material": 0, "rgb": [2, 0, 0]}}]"#, "outside [0, 1]"),
         (r#"{"move": 1}"#, "a JSON list"),

@@ -71,6 +71,30 @@ pub struct RuntimeParams {
     pub recompose_tolerance: f32,
 }
 
+impl RuntimeParams {
+    /// What is wrong with these parameters on any device, if anything (the GPU runtime also
+    /// holds the shadow maps to its device's largest texture). The CPU twin's callers check
+    /// them here too: it takes what it uses of them without complaint.
+    pub fn check(&self) -> Result<(), String> {
+        if self.top_k == 0 {
+            return Err("top_k must be at least 1".into());
+        }
+        if !(0.0..=1.0).contains(&self.recompose_tolerance) {
+            return Err(format!("the recompose tolerance {} must be in 0..=1", self.recompose_tolerance));
+        }
+        if self.shadow_size < 16 {
+            return Err(format!("shadow map size {} must be at least 16", self.shadow_size));
+        }
+        if !(1..=16).contains(&self.sun_tiles) {
+            return Err(format!(
+                "{} tiles a side for a directional light's shadow map: give 1 to 16",
+                self.sun_tiles
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for RuntimeParams {
     fn default() -> Self {
         RuntimeParams {
@@ -152,15 +176,7 @@ impl Runtime {
         params: RuntimeParams,
     ) -> Result<Runtime, RuntimeError> {
         prm.check_scene(Path::new("the .prm"), scene)?;
-        if params.top_k == 0 {
-            return Err(RuntimeError::Params("top_k must be at least 1".into()));
-        }
-        if !(0.0..=1.0).contains(&params.recompose_tolerance) {
-            return Err(RuntimeError::Params(format!(
-                "the recompose tolerance {} must be in 0..=1",
-                params.recompose_tolerance
-            )));
-        }
+        params.check().map_err(RuntimeError::Params)?;
         let max_2d = device.limits().max_texture_dimension_2d;
         if !(16..=max_2d).contains(&params.shadow_size) {
             return Err(RuntimeError::Params(format!(
@@ -172,12 +188,6 @@ impl Runtime {
         // Every table the map needs, its allocations recorded (`gpu_memory`).
         let recording = crate::memory::Recording::start();
         let params_buf = crate::gpu::uniform_buffer::<IndirectParams>(device, "indirect params");
-        if !(1..=16).contains(&params.sun_tiles) {
-            return Err(RuntimeError::Params(format!(
-                "{} tiles a side for a directional light's shadow map: give 1 to 16",
-                params.sun_tiles
-            )));
-        }
         let shadows = ShadowMaps::with_sun_tiles(device, queue, scene, params.shadow_size, params.sun_tiles);
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);

@@ -186,7 +186,7 @@ struct Figures {
 pub fn run(a: Args) -> Result<()> {
     let b = Budget::new(a.quick, a.smoke);
     let start = Instant::now();
-    std::fs::create_dir_all(&a.output).with_context(|| format!("creating {}", a.output.display()))?;
+    let folder = crate::common::OutputFolder::create(&a.output)?;
     let gpu = Gpu::new().ok();
     let level = match &a.scene {
         Some(path) => Some(level_parts(&a, &b, path, gpu.as_ref())?),
@@ -214,6 +214,7 @@ pub fn run(a: Args) -> Result<()> {
     prm::fsutil::write_bytes_atomic(&a.output.join("report.md"), md.as_bytes())
         .with_context(|| "writing report.md")?;
     println!("report -> {} ({:.0} s)", a.output.join("report.md").display(), start.elapsed().as_secs_f64());
+    folder.keep();
     Ok(())
 }
 
@@ -239,15 +240,25 @@ fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) 
         Some(p) => Some(Rig::load(p, &level.scene.lights)?),
         None => None,
     };
+    // The edit script and the objects rig are read before the sweeps: a bad one found after
+    // them cost the whole run.
+    let script = a.edits.clone().or_else(|| editing::edits_beside(path));
+    if let Some(s) = &script {
+        crate::bake::parse_script(s, path, &level.scene)?;
+    }
+    let objects = a.objects_rig.clone().or_else(|| moving::objects_rig_beside(path));
+    if let Some(r) = &objects {
+        Rig::load(r, &level.scene.lights)?;
+    }
     let mut figures = measure(b, &level, &rig, gpu, a.seed)?;
     if let (Some(path), Some(r)) = (&torches, &torch_rig) {
         figures.placements = placement::placements(b, &level, r, &figures.map, gpu, a.seed)?;
         figures.torches = Some(path.clone());
     }
-    if let Some(r) = a.objects_rig.clone().or_else(|| moving::objects_rig_beside(path)) {
+    if let Some(r) = objects {
         figures.moving = moving::moving(b, &args, &r, gpu, a.seed)?;
     }
-    if let Some(script) = a.edits.clone().or_else(|| editing::edits_beside(path)) {
+    if let Some(script) = script {
         let budget = editing::EditBudget::new(a.quick, a.smoke);
         figures.editing = Some(editing::editing(budget, &level, path, &script, figures.prod, a.seed)?);
     }
