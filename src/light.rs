@@ -171,14 +171,34 @@ impl Light {
         if !(self.intensity.is_finite() && self.intensity.min_element() >= 0.0) {
             return Err(format!("intensity {} must be finite and >= 0", self.intensity));
         }
-        if self.intensity.max_element() > MAX_INTENSITY {
-            return Err(format!("intensity {} is beyond {MAX_INTENSITY:e} a channel", self.intensity));
+        // A polygon light's intensity is its radiance times its area: its radiance is held to
+        // the bound, as an emissive surface's is.
+        let brightness = match &self.aperture {
+            Aperture::Polygon { corners } => self.intensity / (0.5 * polygon_twice_area(corners).length()),
+            _ => self.intensity,
+        };
+        if brightness.max_element() > MAX_INTENSITY {
+            let what = if self.is_area() && !matches!(self.aperture, Aperture::Sphere { .. }) {
+                "radiance"
+            } else {
+                "intensity"
+            };
+            return Err(format!("{what} {brightness} is beyond {MAX_INTENSITY:e} a channel"));
         }
         if self.is_positional() && !self.position.is_finite() {
             return Err(format!("position {} is not finite", self.position));
         }
-        if self.is_positional() && self.position.abs().max_element() > MAX_POSITION {
-            return Err(format!("position {} is beyond {MAX_POSITION:e} m of the origin", self.position));
+        // Its corners and its reach too: corners at ±1e10 have their centroid at the origin.
+        let far = match &self.aperture {
+            Aperture::Polygon { corners } => corners.iter().fold(0.0f32, |m, c| m.max(c.abs().max_element())),
+            Aperture::Sphere { radius } => self.position.abs().max_element() + radius.abs(),
+            Aperture::Point => self.position.abs().max_element(),
+        };
+        if self.is_positional() && far > MAX_POSITION {
+            return Err(format!(
+                "light at {} reaches beyond {MAX_POSITION:e} m of the origin",
+                self.position
+            ));
         }
         match &self.aperture {
             Aperture::Point => {}
@@ -749,6 +769,16 @@ mod tests {
         assert_eq!(at(Vec3::splat(MAX_POSITION), 1.0), Ok(()));
         assert!(at(Vec3::ZERO, 2.0 * MAX_INTENSITY).unwrap_err().contains("beyond 1e9"));
         assert!(at(Vec3::new(0.0, -2.0 * MAX_POSITION, 0.0), 1.0).unwrap_err().contains("beyond 1e7 m"));
+        // A polygon's corners count, not only its centroid; its radiance, not its intensity.
+        let far = [Vec3::new(-1e10, 0.0, -1.0), Vec3::new(1e10, 0.0, -1.0), Vec3::new(0.0, 0.0, 1.0)];
+        assert!(Light::polygon("far", &far, Vec3::ONE).check().unwrap_err().contains("beyond 1e7 m"));
+        let square =
+            [Vec3::ZERO, Vec3::new(0.0, 0.0, 10.0), Vec3::new(10.0, 0.0, 10.0), Vec3::new(10.0, 0.0, 0.0)];
+        assert_eq!(Light::polygon("ceiling", &square, Vec3::splat(0.5 * MAX_INTENSITY)).check(), Ok(()));
+        assert!(Light::polygon("sun", &square, Vec3::splat(2.0 * MAX_INTENSITY))
+            .check()
+            .unwrap_err()
+            .contains("radiance"));
         // A sun has no position to be far.
         let mut sun = Light::point("sun", Vec3::splat(1e30), Vec3::ONE);
         sun.kind = LightKind::Directional;

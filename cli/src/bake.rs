@@ -112,16 +112,16 @@ pub fn run(a: Args) -> Result<()> {
         &[&a.scene.scene, a.edits.as_deref().unwrap_or(&a.scene.scene)],
     )?;
     let (mut scene, atlas) = a.lightmap.load(&a.scene, a.json)?;
-    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
-    let glow = scene.emissive_lights();
-    scene.lights.extend(glow);
     if atlas.pages > 1 {
         bail!("prm bake takes a one-page atlas (give --atlas)");
     }
     let script = match &a.edits {
-        Some(p) => parse_script(p, &a.scene.scene, &scene)?,
+        Some(p) => parse_script(p, &scene)?,
         None => Vec::new(),
     };
+    // Emissive surfaces light the bake as polygon lights (the ground truth meets them itself).
+    let glow = scene.emissive_lights();
+    scene.lights.extend(glow);
     let params = BakerParams {
         paths: a.paths,
         leaf_vpls: a.leaf_vpls,
@@ -527,13 +527,25 @@ pub fn summed(b: &Baker) -> Vec<Vec3> {
     d.iter().zip(&i).map(|(a, b)| *a + *b).collect()
 }
 
+/// A light as an edit script leaves it.
+#[derive(Clone)]
+enum Tracked {
+    Light(Light),
+    /// An emissive surface's polygon light: it follows its node and material.
+    Glow,
+    Gone,
+}
+
 /// Read an edit script; nodes and materials may be named (glTF names) or numbered.
-pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(String, Edit)>> {
+pub fn parse_script(path: &Path, scene: &Scene) -> Result<Vec<(String, Edit)>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let v: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
     let list =
         v.as_array().ok_or_else(|| anyhow!("{}: the script is a JSON list of edits", path.display()))?;
-    let names = crate::common::node_names(level);
+    let names = &scene.node_names;
+    // A move needs a node that places triangles itself (a group, a camera or a light places
+    // none, and the baker would refuse it only after the level's first bake).
+    let placed: std::collections::BTreeSet<u32> = scene.triangles.iter().map(|t| t.node).collect();
     // An index is a whole number that fits (4294967296 is not node 0).
     let index = |x: &Value, what: &str| -> Result<u32> {
         x.as_u64().and_then(|n| u32::try_from(n).ok()).ok_or_else(|| anyhow!("{what} {x} is not an index"))
@@ -541,14 +553,18 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
     let node = |x: &Value| -> Result<u32> {
         match x {
             Value::Number(_) => match index(x, "node")? {
-                n if (n as usize) < names.len() => Ok(n),
-                n => bail!("no node {n}: {} has {}", level.display(), names.len()),
+                n if placed.contains(&n) => Ok(n),
+                n if (n as usize) < names.len() => bail!("node {n} places no triangles"),
+                n => bail!("no node {n}: the level has {}", names.len()),
             },
-            Value::String(s) => names
-                .iter()
-                .position(|n| n.as_deref() == Some(s.as_str()))
-                .map(|i| i as u32)
-                .ok_or_else(|| anyhow!("no node named {s:?} in {}", level.display())),
+            Value::String(s) => {
+                let named: Vec<u32> = (0..names.len() as u32).filter(|&i| names[i as usize] == *s).collect();
+                match named.iter().find(|i| placed.contains(i)) {
+                    Some(&i) => Ok(i),
+                    None if named.is_empty() => bail!("no node named {s:?}"),
+                    None => bail!("node {s:?} places no triangles (a group, camera or light node)"),
+                }
+            }
             _ => bail!("a node is a name or an index"),
         }
     };
@@ -579,10 +595,14 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
             _ => bail!("{what}: expected three numbers, got {}", Value::Array(a.clone())),
         }
     };
-    // The lights as the script leaves them, by baker id: the level's in order, then those it
-    // adds (the baker numbers them so), `None` once removed. A `light` edit changes the light
-    // as the edits before it left it.
-    let mut lights: Vec<Option<Light>> = scene.lights.iter().cloned().map(Some).collect();
+    // The lights as the script leaves them, by baker id: the level's in order, its emissive
+    // surfaces' polygons, then those the script adds (the baker numbers them so; an id is
+    // never given again). A `light` edit changes the light as the edits before it left it.
+    // An emissive surface's light follows its node and material, which the script does not
+    // track here: it is edited through them.
+    let glow = scene.emissive_lights().len();
+    let mut lights: Vec<Tracked> = scene.lights.iter().cloned().map(Tracked::Light).collect();
+    lights.extend((0..glow).map(|_| Tracked::Glow));
     let mut out = Vec::new();
     for (k, e) in list.iter().enumerate() {
         let mut one = || -> Result<(String, Edit)> {
@@ -597,15 +617,15 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
             let at = |f: &str| body.get(f);
             let need = |f: &str| at(f).ok_or_else(|| anyhow!("{kind} needs {f}"));
             let label = named.map_or_else(|| format!("{kind} {body}"), str::to_string);
-            let light_of = |lights: &[Option<Light>]| -> Result<(u32, Light)> {
+            let id_of = |lights: &[Tracked]| -> Result<u32> {
                 let id = index(need("id")?, "light")?;
                 match lights.get(id as usize) {
-                    Some(Some(l)) => Ok((id, l.clone())),
-                    Some(None) => bail!("light {id} was removed by an earlier edit"),
+                    Some(Tracked::Gone) => bail!("light {id} was removed by an earlier edit"),
+                    Some(_) => Ok(id),
                     None => bail!(
-                        "no light {id} (the level has {}, the script adds {})",
+                        "no light {id} (the level has {} and {glow} emissive surfaces, the script adds {})",
                         scene.lights.len(),
-                        lights.len() - scene.lights.len()
+                        lights.len() - scene.lights.len() - glow
                     ),
                 }
             };
@@ -637,7 +657,10 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
                     Edit::Albedo { material: material(need("material")?)?, albedo }
                 }
                 "light" => {
-                    let (id, mut l) = light_of(&lights)?;
+                    let id = id_of(&lights)?;
+                    let Tracked::Light(mut l) = lights[id as usize].clone() else {
+                        bail!("light {id} is an emissive surface's: move its node or change its material")
+                    };
                     if at("position").is_some() {
                         l.position = vec3(at("position"), "position")?;
                     }
@@ -645,7 +668,7 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
                         l.intensity = vec3(at("intensity"), "intensity")?;
                     }
                     l.check().map_err(|what| anyhow!("light {id}: {what}"))?;
-                    lights[id as usize] = Some(l.clone());
+                    lights[id as usize] = Tracked::Light(l.clone());
                     Edit::SetLight { id, light: l }
                 }
                 "add_light" => {
@@ -655,12 +678,12 @@ pub fn parse_script(path: &Path, level: &Path, scene: &Scene) -> Result<Vec<(Str
                         vec3(at("intensity"), "intensity")?,
                     );
                     l.check().map_err(|what| anyhow!("the added light: {what}"))?;
-                    lights.push(Some(l.clone()));
+                    lights.push(Tracked::Light(l.clone()));
                     Edit::AddLight(l)
                 }
                 "remove_light" => {
-                    let (id, _) = light_of(&lights)?;
-                    lights[id as usize] = None;
+                    let id = id_of(&lights)?;
+                    lights[id as usize] = Tracked::Gone;
                     Edit::RemoveLight { id }
                 }
                 other => bail!("unknown edit {other:?}"),
@@ -688,7 +711,7 @@ mod tests {
         std::hash::Hash::hash(script, &mut h);
         let path = dir.join(format!("{:016x}.json", std::hash::Hasher::finish(&h)));
         std::fs::write(&path, script)?;
-        let r = parse_script(&path, &level, &scene);
+        let r = parse_script(&path, &scene);
         std::fs::remove_file(&path)?;
         r
     }

@@ -53,8 +53,17 @@ pub struct OutputFolder {
 
 impl OutputFolder {
     pub fn create(path: &std::path::Path) -> Result<OutputFolder> {
-        let made = !path.exists();
-        std::fs::create_dir_all(path).with_context(|| format!("creating {}", path.display()))?;
+        let creating = || format!("creating {}", path.display());
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).with_context(creating)?;
+        }
+        // Made here only if this call made it: a folder that is there (`out/..`, `.`, another
+        // run's made a moment ago) is never this run's to remove.
+        let made = match std::fs::create_dir(path) {
+            Ok(()) => true,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && path.is_dir() => false,
+            Err(e) => return Err(e).with_context(creating),
+        };
         Ok(OutputFolder { path: path.to_path_buf(), made })
     }
 
@@ -350,6 +359,7 @@ pub fn load_with_prm(args: &SceneArgs, prm_path: &std::path::Path) -> Result<(Sc
 
 /// The glTF node names of the level file, by node index (empty if it does not parse: the
 /// loader has already said why).
+#[cfg(feature = "view")]
 pub fn node_names(level: &std::path::Path) -> Vec<Option<String>> {
     gltf::Gltf::open(level)
         .map(|g| g.nodes().map(|n| n.name().map(str::to_string)).collect())

@@ -385,6 +385,7 @@ fn bad_edits_are_refused_and_change_nothing() {
             EditError::NonFinite("the transform"),
         ),
         (Edit::Transform { node: 1, matrix: Mat4::from_scale(v(1.0, 0.0, 1.0)) }, EditError::Singular(1)),
+        (Edit::Transform { node: 1, matrix: Mat4::from_translation(v(1e20, 0., 0.)) }, EditError::TooFar(1)),
         (Edit::Albedo { material: 9, albedo: Vec3::splat(0.5) }, EditError::UnknownMaterial(9, 2)),
         (Edit::Albedo { material: 0, albedo: Vec3::splat(1.5) }, EditError::BadAlbedo(Vec3::splat(1.5))),
         (Edit::RemoveLight { id: 4 }, EditError::UnknownLight(4)),

@@ -145,11 +145,52 @@ fn parse(path: &Path, bytes: &[u8]) -> Result<(gltf::Document, Vec<gltf::buffer:
         gltf::image::Source::Uri { uri, .. } => Some(uri),
         gltf::image::Source::View { .. } => None,
     });
-    for uri in buffers.chain(images).filter(|u| !u.starts_with("data:")) {
-        regular_file(path, &base.join(uri))?;
+    for uri in buffers.chain(images) {
+        for file in uri_files(base, uri) {
+            regular_file(path, &file)?;
+        }
     }
     let buffers = gltf::import_buffers(&document, path.parent(), blob).map_err(gerr)?;
     Ok((document, buffers))
+}
+
+/// The files a buffer or image URI may name, as the gltf crate reads it: `file:` and
+/// `file://` give a path as it stands, anything else is relative to `base` and percent-encoded
+/// (both spellings are given where they differ); `data:` and other schemes name none.
+fn uri_files(base: &Path, uri: &str) -> Vec<std::path::PathBuf> {
+    let decoded = |s: &str| -> String {
+        let b = s.as_bytes();
+        let (mut out, mut i) = (Vec::with_capacity(b.len()), 0);
+        while i < b.len() {
+            let hex = b.get(i + 1..i + 3).and_then(|h| std::str::from_utf8(h).ok());
+            match (b[i], hex.and_then(|h| u8::from_str_radix(h, 16).ok())) {
+                (b'%', Some(v)) => {
+                    out.push(v);
+                    i += 3;
+                }
+                (c, _) => {
+                    out.push(c);
+                    i += 1;
+                }
+            }
+        }
+        String::from_utf8_lossy(&out).into_owned()
+    };
+    let (raw, relative) = if let Some(p) = uri.strip_prefix("file://") {
+        (p, false)
+    } else if let Some(p) = uri.strip_prefix("file:") {
+        (p, false)
+    } else if uri.starts_with("data:") || uri.contains("://") {
+        return Vec::new();
+    } else {
+        (uri, true)
+    };
+    let mut files: Vec<std::path::PathBuf> = vec![raw.into(), decoded(raw).into()];
+    if relative {
+        files = files.into_iter().map(|f| base.join(f)).collect();
+    }
+    files.dedup();
+    files
 }
 
 /// Refuse `file` (the level `path`, or a file it names) if it is there but is not a regular

@@ -97,12 +97,16 @@ fn movable(path: &Path, node: &gltf::Node) -> Result<bool, SceneError> {
 fn root_nodes(document: &gltf::Document) -> Vec<gltf::Node<'_>> {
     match document.default_scene().or_else(|| document.scenes().next()) {
         Some(s) => s.nodes().collect(),
-        None => document.nodes().filter(|n| !has_parent(document, n.index())).collect(),
+        None => {
+            // Marked in one pass: asking each node for a parent was quadratic (10^5 nodes and
+            // no scene took minutes).
+            let mut child = vec![false; document.nodes().len()];
+            for c in document.nodes().flat_map(|n| n.children()) {
+                child[c.index()] = true;
+            }
+            document.nodes().filter(|n| !child[n.index()]).collect()
+        }
     }
-}
-
-fn has_parent(doc: &gltf::Document, index: usize) -> bool {
-    doc.nodes().any(|n| n.children().any(|c| c.index() == index))
 }
 
 /// What reading a node's contents needs from the rest of the file.

@@ -123,12 +123,11 @@ pub fn edits_beside(scene: &Path) -> Option<PathBuf> {
 pub fn editing(
     budget: EditBudget,
     level: &Level,
-    level_path: &Path,
     script_path: &Path,
     prm: (u32, u32, u32),
     seed: u64,
 ) -> Result<Editing> {
-    let script = parse_script(script_path, level_path, &level.scene)?;
+    let script = parse_script(script_path, &level.scene)?;
     let texels = Arc::new(level.set.clone());
     // The baker lights emissive surfaces with polygon lights; the ground truth meets them
     // itself, so they are left out of its light list.

@@ -244,7 +244,7 @@ fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) 
     // them cost the whole run.
     let script = a.edits.clone().or_else(|| editing::edits_beside(path));
     if let Some(s) = &script {
-        crate::bake::parse_script(s, path, &level.scene)?;
+        crate::bake::parse_script(s, &level.scene)?;
     }
     let objects = a.objects_rig.clone().or_else(|| moving::objects_rig_beside(path));
     if let Some(r) = &objects {
@@ -260,7 +260,7 @@ fn level_parts(a: &Args, b: &Budget, path: &std::path::Path, gpu: Option<&Gpu>) 
     }
     if let Some(script) = script {
         let budget = editing::EditBudget::new(a.quick, a.smoke);
-        figures.editing = Some(editing::editing(budget, &level, path, &script, figures.prod, a.seed)?);
+        figures.editing = Some(editing::editing(budget, &level, &script, figures.prod, a.seed)?);
     }
     Ok((level, figures))
 }

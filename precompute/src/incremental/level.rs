@@ -139,6 +139,8 @@ pub enum EditError {
     UnknownLight(u32),
     #[error("{0} is not finite")]
     NonFinite(&'static str),
+    #[error("the move takes node {0} beyond {max:e} m of the origin", max = prm::light::MAX_POSITION)]
+    TooFar(u32),
     #[error("the transform of node {0} is singular (it would flatten the object)")]
     Singular(u32),
     #[error("albedo {0} is outside [0, 1]")]
@@ -300,6 +302,10 @@ impl Level {
                 let after = Aabb::of(verts.iter().map(|&v| s.positions[v as usize]));
                 if !(after.lo.is_finite() && after.hi.is_finite()) {
                     return Err(EditError::NonFinite("the moved positions"));
+                }
+                // Squared distances there overflow f32, as they would for a light so far.
+                if after.lo.abs().max(after.hi.abs()).max_element() > prm::light::MAX_POSITION {
+                    return Err(EditError::TooFar(*node));
                 }
                 changes.moved_nodes.push(*node);
                 changes.regions = vec![before, after];
