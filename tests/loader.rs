@@ -225,25 +225,27 @@ fn albedo_outside_unit_range_is_an_error() {
     assert!(err.to_string().contains("[1.5, 0.2, 0.2]"), "{err}");
 }
 
+/// The quad with a white point light of `intensity` above it.
+fn with_point_light(intensity: f32) -> GlbScene {
+    let mut s = one_quad();
+    let light = GlbLight {
+        name: "lamp".into(),
+        kind: "point",
+        color: [1.0; 3],
+        intensity,
+        inner: 0.0,
+        outer: 0.0,
+        range: None,
+        extras: None,
+    };
+    s.add_light(light, Vec3::Y, -Vec3::Y);
+    s
+}
+
 #[test]
 fn negative_light_intensity_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
-    let mut s = one_quad();
-    s.add_light(
-        GlbLight {
-            name: "bad".into(),
-            kind: "point",
-            color: [1.0; 3],
-            intensity: -2.0,
-            inner: 0.0,
-            outer: 0.0,
-            range: None,
-            extras: None,
-        },
-        Vec3::Y,
-        -Vec3::Y,
-    );
-    let path = write(dir.path(), "light.glb", &s.to_glb());
+    let path = write(dir.path(), "light.glb", &with_point_light(-2.0).to_glb());
     let err = load(&path).unwrap_err();
     assert!(
         matches!(err, SceneError::BadLight { light: 0, .. }) && err.to_string().contains("intensity -2"),
@@ -435,22 +437,7 @@ fn indices_that_are_not_unsigned_integers_are_an_error_not_a_panic() {
 #[test]
 fn a_light_or_an_emission_beyond_the_brightest_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
-    let mut s = one_quad();
-    s.add_light(
-        GlbLight {
-            name: "sunburst".into(),
-            kind: "point",
-            color: [1.0; 3],
-            intensity: 3e38,
-            inner: 0.0,
-            outer: 0.0,
-            range: None,
-            extras: None,
-        },
-        Vec3::Y,
-        -Vec3::Y,
-    );
-    let err = load(&write(dir.path(), "bright.glb", &s.to_glb())).unwrap_err();
+    let err = load(&write(dir.path(), "bright.glb", &with_point_light(3e38).to_glb())).unwrap_err();
     assert!(matches!(err, SceneError::BadLight { .. }) && err.to_string().contains("beyond 1e9"), "{err}");
     let mut s = one_quad();
     s.materials[0].emissive = [3e38, 0.0, 0.0];
@@ -473,4 +460,16 @@ fn a_buffer_that_is_a_device_is_an_error_not_a_read_without_end() {
     // The level itself a folder: the same.
     let err = load(dir.path()).unwrap_err();
     assert!(err.to_string().contains("not a regular file"), "{err}");
+}
+
+#[test]
+fn geometry_beyond_the_farthest_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = one_quad();
+    s.meshes[0].positions[2] = [1e8, 0.0, 1.0];
+    let err = load(&write(dir.path(), "far.glb", &s.to_glb())).unwrap_err();
+    assert!(
+        matches!(err, SceneError::TooFar { vertex: 2, .. }) && err.to_string().contains("beyond 1e7 m"),
+        "{err}"
+    );
 }

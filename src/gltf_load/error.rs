@@ -29,6 +29,8 @@ pub enum SceneError {
     AccessorOutOfBounds { path: PathBuf, place: Place, attribute: &'static str },
     #[error("{path}: {place}: {attribute} of vertex {vertex} is not finite ({value})")]
     NonFinite { path: PathBuf, place: Place, attribute: &'static str, vertex: usize, value: String },
+    #[error("{path}: {place}: vertex {vertex} lies at {value}, beyond 1e7 m of the origin (squared distances overflow)")]
+    TooFar { path: PathBuf, place: Place, vertex: usize, value: String },
     #[error("{path}: {place}: index {position} is {value}, but the primitive has {vertex_count} vertices")]
     IndexOutOfRange { path: PathBuf, place: Place, position: usize, value: u32, vertex_count: usize },
     #[error("{path}: {place}: {count} indices is not a whole number of triangles")]

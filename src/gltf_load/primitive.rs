@@ -133,6 +133,12 @@ impl<'a> PrimSource<'a> {
         if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
             return Err(self.non_finite("POSITION (after the node transform)", i, format!("{p}")));
         }
+        // As for lights (`Light::check`) and edits: f32 keeps a metre there.
+        let far = |p: &Vec3| p.abs().max_element() > crate::light::MAX_POSITION;
+        if let Some((vertex, p)) = positions.iter().enumerate().find(|(_, p)| far(p)) {
+            let (path, place) = (self.path.into(), self.place.clone());
+            return Err(SceneError::TooFar { path, place, vertex, value: format!("{p}") });
+        }
         Ok(positions)
     }
 
