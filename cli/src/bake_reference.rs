@@ -57,7 +57,7 @@ pub fn run(a: Args) -> Result<()> {
     // left the lightmap written and the command failed.
     if let Some(obj) = &a.debug_lights {
         crate::common::check_output_file(obj, &[&a.scene.scene, rig])?;
-        if obj == &a.output {
+        if crate::common::same_file(obj, &a.output) {
             anyhow::bail!("--debug-lights {} is the output lightmap too", obj.display());
         }
     }

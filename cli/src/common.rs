@@ -30,17 +30,35 @@ pub fn check_output_file(path: &std::path::Path, inputs: &[&std::path::Path]) ->
             bail!("the folder {} does not exist (for the output {})", folder.display(), path.display())
         }
     }
-    // The same file by another name too (./a.glb, a link): what the two resolve to.
-    if let Ok(out) = path.canonicalize() {
-        if let Some(input) = inputs.iter().find(|i| i.canonicalize().is_ok_and(|i| i == out)) {
-            bail!(
-                "the output {} is the input {}: writing it would destroy what it is made from",
-                path.display(),
-                input.display()
-            );
-        }
+    if let Some(input) = inputs.iter().find(|i| same_file(path, i)) {
+        bail!(
+            "the output {} is the input {}: writing it would destroy what it is made from",
+            path.display(),
+            input.display()
+        );
     }
     Ok(())
+}
+
+/// Whether `a` and `b` name one file: by another spelling (`./a.glb`), through a symbolic
+/// link, or (on unix) as two hard links to it. Paths that are not there yet are compared by
+/// their resolved folder and name.
+pub fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+            return (x.dev(), x.ino()) == (y.dev(), y.ino());
+        }
+    }
+    let resolved = |p: &std::path::Path| -> Option<PathBuf> {
+        if let Ok(p) = p.canonicalize() {
+            return Some(p);
+        }
+        let folder = p.parent().filter(|f| !f.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+        Some(folder.canonicalize().ok()?.join(p.file_name()?))
+    };
+    matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
 }
 
 /// An output folder this run writes into. If the run made it and then fails, it goes again
@@ -381,5 +399,32 @@ pub fn warn_spheres_in_geometry(scene: &Scene, bvh: &prm::Bvh) {
                 l.name
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_file_is_known_by_any_of_its_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.glb"), dir.path().join("b.glb"));
+        std::fs::write(&a, b"level").unwrap();
+        std::fs::write(&b, b"level").unwrap();
+        assert!(same_file(&a, &dir.path().join(".").join("a.glb")));
+        assert!(!same_file(&a, &b), "two files of the same bytes are two files");
+        // Not there yet: by folder and name.
+        let x = dir.path().join("x.exr");
+        assert!(same_file(&x, &dir.path().join(".").join("x.exr")));
+        assert!(!same_file(&x, &a));
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link.glb");
+            std::fs::hard_link(&a, &link).unwrap();
+            assert!(same_file(&link, &a), "a hard link is the file");
+            assert!(check_output_file(&link, &[&a]).unwrap_err().to_string().contains("is the input"));
+        }
+        assert!(check_output_file(&b, &[&a]).is_ok());
     }
 }
