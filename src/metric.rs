@@ -26,6 +26,9 @@ pub struct Comparison {
     pub non_finite: usize,
     /// Texels of A with a negative channel.
     pub negative: usize,
+    /// Texels of the reference with a non-finite channel: any makes the figures meaningless
+    /// (an infinite one read 0.00 %), so a caller must refuse such a reference.
+    pub reference_non_finite: usize,
 }
 
 /// Compare `a` against reference `b` where `mask` is true (all when `None`).
@@ -48,6 +51,9 @@ pub fn compare(a: &[Vec3], b: &[Vec3], mask: Option<&[bool]>) -> Comparison {
             c.negative += 1;
         }
         let vb = b[k];
+        if !vb.is_finite() {
+            c.reference_non_finite += 1;
+        }
         let (ya, yb) = (luminance(va) as f64, luminance(vb) as f64);
         se += (ya - yb) * (ya - yb);
         sref += yb * yb;
@@ -93,7 +99,11 @@ mod tests {
         assert!((c.bias - (3.5 / 3.0 - 1.0)).abs() < 1e-6);
         assert!((c.max_abs - 0.5).abs() < 1e-6);
         assert!((c.error_rgb[0] - c.error).abs() < 1e-6);
-        assert_eq!((c.non_finite, c.negative), (0, 0));
+        assert_eq!((c.non_finite, c.negative, c.reference_non_finite), (0, 0, 0));
+        // A reference texel that is not finite is counted where it is compared.
+        let inf = [Vec3::splat(1.0), Vec3::splat(f32::INFINITY), Vec3::splat(f32::NAN)];
+        assert_eq!(compare(&a, &inf, Some(&mask)).reference_non_finite, 1);
+        assert_eq!(compare(&a, &inf, None).reference_non_finite, 2);
         // Unmasked, the third texel is non-finite (taken as 0) and negative.
         let c = compare(&a, &b, None);
         assert_eq!((c.non_finite, c.negative), (1, 0));

@@ -81,13 +81,12 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => cb.get("mask").map(|m| m.iter().map(|&v| v > 0.5).collect()),
     };
-    // A is judged (its non-finite texels are counted as errors); the reference must be sound,
-    // or the error it gives means nothing (an infinite texel read 0.00 %).
-    let bad = (0..vb.len()).filter(|&k| mask.as_ref().is_none_or(|m| m[k]) && !vb[k].is_finite()).count();
-    if bad > 0 {
+    let c = compare(&va, &vb, mask.as_deref());
+    // A is judged (its non-finite texels are counted as errors); the reference must be sound.
+    if c.reference_non_finite > 0 {
+        let bad = c.reference_non_finite;
         bail!("the reference {} has {bad} non-finite texels (layer {lb}): it cannot judge", a.b.display());
     }
-    let c = compare(&va, &vb, mask.as_deref());
     if let Some(png) = &a.diff_png {
         write_diff_png(png, &va, &vb, mask.as_deref(), ca.width, ca.height)?;
     }

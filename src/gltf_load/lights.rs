@@ -111,10 +111,7 @@ fn with_extras(path: &Path, mut l: Light, extras: &serde_json::Value, world: Mat
     if let Some(file) = extras.get("prm_profile") {
         let rel = file.as_str().ok_or_else(|| format!("prm_profile {file} is not a path"))?;
         let full = path.parent().unwrap_or(Path::new(".")).join(rel);
-        // A pipe or a device would be read without end.
-        if std::fs::metadata(&full).is_ok_and(|m| !m.is_file()) {
-            return Err(format!("prm_profile {} is not a regular file", full.display()));
-        }
+        super::regular_file(path, &full).map_err(|e| format!("prm_profile: {e}"))?;
         let table = Photometry::load(&full).map_err(|e| e.to_string())?;
         l = l.with_profile(Arc::new(table), world.transform_vector3(Vec3::X));
     }

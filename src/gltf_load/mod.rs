@@ -196,7 +196,7 @@ fn uri_files(base: &Path, uri: &str) -> Vec<std::path::PathBuf> {
 /// Refuse `file` (the level `path`, or a file it names) if it is there but is not a regular
 /// file: reading a pipe or a device (/dev/zero) never ends. One that is not there is left to
 /// the reader, which names it.
-fn regular_file(path: &Path, file: &Path) -> Result<(), SceneError> {
+pub(super) fn regular_file(path: &Path, file: &Path) -> Result<(), SceneError> {
     match std::fs::metadata(file) {
         Ok(m) if !m.is_file() => Err(SceneError::Malformed {
             path: path.into(),
