@@ -61,6 +61,8 @@ pub enum RigError {
     TooMany { path: PathBuf, count: usize },
     #[error("{path}: object '{object}': {what}")]
     Object { path: PathBuf, object: String, what: String },
+    #[error("{path}: a rig is a JSON object with \"lights\" and/or \"objects\"")]
+    NotAnObject { path: PathBuf },
     #[error("{path}: duration {value} must be finite and >= 0")]
     Duration { path: PathBuf, value: f64 },
 }
@@ -185,6 +187,10 @@ impl Rig {
 
     /// Parse rig JSON (`path` only for messages).
     pub fn parse(path: &Path, text: &str, level: &[Light]) -> Result<Rig, RigError> {
+        // serde reads a struct from an array too, so `[]` would be a rig that changes nothing.
+        if !text.trim_start().starts_with('{') {
+            return Err(RigError::NotAnObject { path: path.into() });
+        }
         let file: RigFile =
             serde_json::from_str(text).map_err(|source| RigError::Json { path: path.into(), source })?;
         let mut out: Vec<Option<AnimatedLight>> =
@@ -568,6 +574,8 @@ mod tests {
     fn bad_rigs_name_the_light_and_the_field() {
         let cases = [
             (r#"{"lights": [{"name": "ghost"}]}"#, "no such light"),
+            ("[]", "a rig is a JSON object"),
+            (r#"[{"name": "lamp"}]"#, "a rig is a JSON object"),
             (r#"{"lights": [{"name": "lamp", "position": [1, 1e999, 0]}]}"#, "not a valid rig"),
             (r#"{"lights": [{"name": "lamp", "intensity": -3}]}"#, "intensity -3"),
             (r#"{"lights": [{"name": "lamp", "keyframes": [{"time": 1}, {"time": 1}]}]}"#, "keyframe 1"),

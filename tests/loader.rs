@@ -435,6 +435,66 @@ fn indices_that_are_not_unsigned_integers_are_an_error_not_a_panic() {
 }
 
 #[test]
+fn accessors_the_reader_cannot_take_are_errors_not_panics() {
+    let dir = tempfile::tempdir().unwrap();
+    let (doc, bin) = one_quad().to_json_and_bin();
+    let attribute =
+        |name: &str| doc["meshes"][0]["primitives"][0]["attributes"][name].as_u64().unwrap() as usize;
+    let (uv1, position) = (attribute("TEXCOORD_1"), attribute("POSITION"));
+    let view = doc["accessors"][position]["bufferView"].as_u64().unwrap() as usize;
+    // Each edit, and what its error must say. Before, the first reached `unreachable!` inside
+    // the gltf crate (caught, but its message went to stderr too) and the last two an overflow
+    // or a debug assertion there.
+    let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>, &str); 4] = [
+        (
+            "uv_u32",
+            Box::new(move |d| d["accessors"][uv1]["componentType"] = serde_json::json!(5125)),
+            "TEXCOORD_1 accessor",
+        ),
+        (
+            "pos_vec2",
+            Box::new(move |d| d["accessors"][position]["type"] = serde_json::json!("VEC2")),
+            "POSITION accessor",
+        ),
+        (
+            "pos_empty",
+            Box::new(move |d| d["accessors"][position]["count"] = serde_json::json!(0)),
+            "no elements",
+        ),
+        (
+            "pos_stride",
+            Box::new(move |d| d["bufferViews"][view]["byteStride"] = serde_json::json!(4)),
+            "stride of 4",
+        ),
+    ];
+    for (name, edit, says) in cases {
+        let mut d = doc.clone();
+        edit(&mut d);
+        let path = write(dir.path(), &format!("{name}.glb"), &glb_bytes(&d, &bin));
+        let err = load(&path).unwrap_err();
+        assert!(
+            matches!(err, SceneError::Malformed { .. }) && err.to_string().contains(says),
+            "{name}: {err}"
+        );
+        assert!(!err.to_string().contains("panic"), "{name}: {err}");
+    }
+}
+
+#[test]
+fn points_and_lines_are_left_out_and_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut doc, bin) = one_quad().to_json_and_bin();
+    let prims = doc["meshes"][0]["primitives"].as_array_mut().unwrap();
+    let mut points = prims[0].clone();
+    points["mode"] = serde_json::json!(0);
+    prims.push(points);
+    let path = write(dir.path(), "points.glb", &glb_bytes(&doc, &bin));
+    let scene = load(&path).unwrap();
+    assert_eq!((scene.report.non_triangle_primitives, scene.triangles.len()), (1, 2));
+    assert!(scene.report.notes.iter().any(|n| n.contains("1 primitive(s) of points or lines left out")));
+}
+
+#[test]
 fn a_light_or_an_emission_beyond_the_brightest_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let err = load(&write(dir.path(), "bright.glb", &with_point_light(3e38).to_glb())).unwrap_err();

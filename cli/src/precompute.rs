@@ -261,6 +261,29 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     let area = scene.total_area();
     p.fit_to_area(&a.preset.density(), area, [a.entries, a.clusters, a.groups]);
     p.validate().map_err(|e| anyhow!("bad parameter: {e}"))?;
+    // The bake takes at most one cluster an entry and one group a cluster; a count asked for
+    // beyond that is refused rather than cut without a word.
+    let from = |given: Option<u32>| {
+        if given.is_some() {
+            ""
+        } else {
+            ", from the level's area at the preset's density"
+        }
+    };
+    if let Some(c) = a.clusters.filter(|&c| c > p.entries) {
+        bail!(
+            "--clusters {c} is more than the entries ({}{}): a cluster needs an entry",
+            p.entries,
+            from(a.entries)
+        );
+    }
+    if let Some(g) = a.groups.filter(|&g| g > p.clusters) {
+        bail!(
+            "--groups {g} is more than the clusters ({}{}): a group needs a cluster",
+            p.clusters,
+            from(a.clusters)
+        );
+    }
     let p = &p;
     let bvh = Bvh::build(&scene);
     let cancel = cancel_flag();

@@ -433,6 +433,14 @@ fn precompute_evaluate_and_export_panes() {
     let (ok, _, err) = prm(&["precompute", &asset("cornell.glb"), "--entries", "0", "-o", s(&bad)]);
     assert!(!ok && err.contains("entries 0"), "{err}");
     assert!(!bad.exists());
+    // Counts the bake could not keep are refused, not cut.
+    let args = ["--entries", "64", "--clusters", "65"];
+    let (ok, _, err) = prm(&[&["precompute", &asset("cornell.glb"), "-o", s(&bad)][..], &args].concat());
+    assert!(!ok && err.contains("--clusters 65 is more than the entries (64)"), "{err}");
+    let args = ["--entries", "64", "--clusters", "8", "--groups", "9"];
+    let (ok, _, err) = prm(&[&["precompute", &asset("cornell.glb"), "-o", s(&bad)][..], &args].concat());
+    assert!(!ok && err.contains("--groups 9 is more than the clusters (8)"), "{err}");
+    assert!(!bad.exists());
 }
 
 #[test]

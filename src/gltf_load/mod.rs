@@ -104,6 +104,12 @@ fn load_from_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Scen
         reader.read_node(node, world, object, &mut prims, scene, &mut report)
     })?;
 
+    if report.non_triangle_primitives > 0 {
+        report.notes.push(format!(
+            "{} primitive(s) of points or lines left out: only triangles take part in the light",
+            report.non_triangle_primitives
+        ));
+    }
     report.primitives_without_uv1 = lightmap::count_missing(path, &prims, opts)?;
     if prims.iter().all(|p| p.indices.is_empty()) {
         return Err(SceneError::NoGeometry { path: path.into() });

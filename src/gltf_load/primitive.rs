@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
+use gltf::accessor::{DataType, Dimensions};
 
 use super::{Place, SceneError};
 use crate::scene::{LoadReport, Scene, Triangle};
@@ -97,6 +98,43 @@ impl<'a> PrimSource<'a> {
         SceneError::AccessorOutOfBounds { path: self.path.into(), place: self.place.clone(), attribute }
     }
 
+    /// The gltf crate's readers assume an accessor of the kind its attribute allows, at least
+    /// one element and a stride that holds one: anything else reaches `unreachable!`, an
+    /// overflow or a read across elements inside the crate. Refused here, by name.
+    fn check_accessor(
+        &self,
+        attribute: &str,
+        accessor: &gltf::Accessor,
+        allowed: &[(DataType, Dimensions)],
+        allowed_in_words: &str,
+    ) -> Result<(), SceneError> {
+        let (kind, dims, index) = (accessor.data_type(), accessor.dimensions(), accessor.index());
+        let malformed = |what: String| SceneError::Malformed {
+            path: self.path.into(),
+            what: format!("{}: {attribute} accessor {index} {what}", self.place),
+        };
+        if !allowed.contains(&(kind, dims)) {
+            return Err(malformed(format!("holds {kind:?} {dims:?} where glTF allows {allowed_in_words}")));
+        }
+        if accessor.count() == 0 {
+            return Err(malformed("has no elements".into()));
+        }
+        let size = accessor.size();
+        let views = accessor.view().into_iter().chain(accessor.sparse().map(|s| s.values().view()));
+        for view in views {
+            if let Some(stride) = view.stride().filter(|&s| s < size) {
+                return Err(malformed(format!(
+                    "reads buffer view {} with a stride of {stride} bytes, less than one {size}-byte element",
+                    view.index()
+                )));
+            }
+        }
+        if accessor.sparse().is_some_and(|s| s.count() == 0) {
+            return Err(malformed("has a sparse part of no elements".into()));
+        }
+        Ok(())
+    }
+
     fn non_finite(&self, attribute: &'static str, vertex: usize, value: String) -> SceneError {
         SceneError::NonFinite { path: self.path.into(), place: self.place.clone(), attribute, vertex, value }
     }
@@ -110,9 +148,10 @@ impl<'a> PrimSource<'a> {
 
     /// POSITION as stored, all finite.
     fn local_positions(&self) -> Result<Vec<Vec3>, SceneError> {
-        if self.prim.get(&gltf::Semantic::Positions).is_none() {
+        let Some(a) = self.prim.get(&gltf::Semantic::Positions) else {
             return Err(SceneError::MissingPositions { path: self.path.into(), place: self.place.clone() });
-        }
+        };
+        self.check_accessor("POSITION", &a, &[(DataType::F32, Dimensions::Vec3)], "float VEC3")?;
         let local: Vec<Vec3> = self
             .reader()
             .read_positions()
@@ -144,21 +183,9 @@ impl<'a> PrimSource<'a> {
 
     /// Triangle-list indices (0..n when the primitive has none), each below the vertex count `n`.
     fn indices(&self, n: usize) -> Result<Vec<u32>, SceneError> {
-        // The reader takes any other kind for unreachable (a panic inside the gltf crate).
         if let Some(a) = self.prim.indices() {
-            use gltf::accessor::{DataType, Dimensions};
-            let (kind, dims) = (a.data_type(), a.dimensions());
-            if !matches!(kind, DataType::U8 | DataType::U16 | DataType::U32) || dims != Dimensions::Scalar {
-                return Err(SceneError::Malformed {
-                    path: self.path.into(),
-                    what: format!(
-                        "{}: indices accessor {} holds {kind:?} {dims:?}; glTF indices are unsigned \
-                         byte, short or int scalars",
-                        self.place,
-                        a.index()
-                    ),
-                });
-            }
+            let kinds = [DataType::U8, DataType::U16, DataType::U32].map(|k| (k, Dimensions::Scalar));
+            self.check_accessor("indices", &a, &kinds, "unsigned byte, short or int scalars")?;
         }
         let indices: Vec<u32> = match self.prim.indices() {
             Some(_) => self
@@ -181,9 +208,10 @@ impl<'a> PrimSource<'a> {
 
     /// NORMAL in world space (through the inverse transpose of `linear`), or `None` when absent.
     fn normals(&self, linear: Mat3, n: usize) -> Result<Option<Vec<Vec3>>, SceneError> {
-        if self.prim.get(&gltf::Semantic::Normals).is_none() {
+        let Some(a) = self.prim.get(&gltf::Semantic::Normals) else {
             return Ok(None);
-        }
+        };
+        self.check_accessor("NORMAL", &a, &[(DataType::F32, Dimensions::Vec3)], "float VEC3")?;
         let local: Vec<Vec3> = self
             .reader()
             .read_normals()
@@ -202,9 +230,11 @@ impl<'a> PrimSource<'a> {
 
     /// UV set `set` (called `name` in errors), or `None` when absent.
     fn tex_coords(&self, set: u32, name: &'static str, n: usize) -> Result<Option<Vec<Vec2>>, SceneError> {
-        if self.prim.get(&gltf::Semantic::TexCoords(set)).is_none() {
+        let Some(a) = self.prim.get(&gltf::Semantic::TexCoords(set)) else {
             return Ok(None);
-        }
+        };
+        let kinds = [DataType::F32, DataType::U8, DataType::U16].map(|k| (k, Dimensions::Vec2));
+        self.check_accessor(name, &a, &kinds, "float, unsigned byte or unsigned short VEC2")?;
         let uv: Vec<Vec2> = self
             .reader()
             .read_tex_coords(set)
