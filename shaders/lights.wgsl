@@ -121,7 +121,8 @@ fn direct_irradiance(p: vec3f, n: vec3f, count: u32) -> vec3f {
 // Power (W) light l delivers to the front of triangle (p0, p1, p2), counter-clockwise seen from
 // the front, without visibility: prm::Light::triangle_power, the same operations in the same
 // order (a GPU twin test holds them together). I x solid angle (Van Oosterom and Strackee) for
-// point and spot lights, E x projected area for directional ones.
+// point lights, the spot's falloff integrated over it for spots (spot_solid_angle), E x
+// projected area for directional ones.
 fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     let twice_area = cross(p1 - p0, p2 - p0);
     if l.kind == KIND_DIRECTIONAL {
@@ -140,13 +141,129 @@ fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     let denominator = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la;
     var scale = 2.0 * atan2(triple, denominator);
     if l.kind == KIND_SPOT {
-        let s = a / la + b / lb + c / lc;
-        var mean = vec3f(0.0);
-        if dot(s, s) > 0.0 {
-            mean = normalize(s);
-        }
-        scale *= spot_falloff(dot(l.direction, mean), l.cos_inner, l.cos_outer);
+        scale = spot_solid_angle(a / la, b / lb, c / lc, scale, l.direction, l.cos_inner, l.cos_outer);
     }
     scale *= range_window(length((a + b + c) / 3.0), l.range);
     return l.intensity * scale;
+}
+
+// prm::cone: a spot's falloff integrated over a spherical triangle (unit corners a, b, c wound
+// clockwise seen from the light, whole its solid angle), the same operations in the same order.
+const CONE_GAUSS_X = array<f32, 8>(0.019855072, 0.10166676, 0.23723379, 0.40828268,
+    0.5917173, 0.7627662, 0.89833324, 0.9801449);
+const CONE_GAUSS_W = array<f32, 8>(0.05061427, 0.11119052, 0.15685332, 0.18134189,
+    0.18134189, 0.15685332, 0.11119052, 0.05061427);
+
+fn spot_solid_angle(a: vec3f, b: vec3f, c: vec3f, whole: f32, axis: vec3f, ci: f32, co: f32) -> f32 {
+    let lowest = min(min(dot(axis, a), dot(axis, b)), dot(axis, c));
+    if lowest >= ci {
+        return whole;
+    }
+    var highest = 1.0;
+    if !cone_holds(axis, a, b, c) {
+        highest = max(max(cone_arc_highest(axis, a, b), cone_arc_highest(axis, b, c)), cone_arc_highest(axis, c, a));
+    }
+    if highest < co {
+        return 0.0;
+    }
+    let behind = cone_holds(-axis, a, b, c);
+    let span = ci - co;
+    if span <= 1e-6 {
+        return clamp(cone_in_cap(a, b, c, axis, co, behind), 0.0, whole);
+    }
+    let lo = clamp((lowest - co) / span, 0.0, 1.0);
+    let hi = clamp((highest - co) / span, lo, 1.0);
+    var sum = whole * lo * lo;
+    for (var i = 0u; i < 8u; i++) {
+        let t = lo + (hi - lo) * CONE_GAUSS_X[i];
+        let within = clamp(cone_in_cap(a, b, c, axis, co + t * span, behind), 0.0, whole);
+        sum += (hi - lo) * CONE_GAUSS_W[i] * 2.0 * t * within;
+    }
+    return sum;
+}
+
+fn cone_holds(d: vec3f, a: vec3f, b: vec3f, c: vec3f) -> bool {
+    return dot(d, cross(a, b)) < 0.0 && dot(d, cross(b, c)) < 0.0 && dot(d, cross(c, a)) < 0.0;
+}
+
+fn cone_arc_highest(d: vec3f, p: vec3f, q: vec3f) -> f32 {
+    let m = cross(p, q);
+    var best = max(dot(d, p), dot(d, q));
+    let m2 = dot(m, m);
+    if m2 > 0.0 {
+        let x = d - m * (dot(d, m) / m2);
+        if dot(cross(p, x), m) > 0.0 && dot(cross(x, q), m) > 0.0 {
+            best = max(best, length(x));
+        }
+    }
+    return best;
+}
+
+fn cone_in_cap(a: vec3f, b: vec3f, c: vec3f, d: vec3f, cap: f32, behind: bool) -> f32 {
+    let fan = -(cone_fan(d, a, b, cap) + cone_fan(d, b, c, cap) + cone_fan(d, c, a, cap));
+    if behind {
+        return fan + 6.2831855 * (1.0 - cap);
+    }
+    return fan;
+}
+
+fn cone_fan(d: vec3f, p: vec3f, q: vec3f, cap: f32) -> f32 {
+    let m = cross(p, q);
+    let len = length(m);
+    if !(len > 0.0) {
+        return 0.0;
+    }
+    let pole = m / len;
+    let k = dot(d, pole);
+    let across2 = 1.0 - k * k;
+    var cuts = array<vec3f, 2>(vec3f(0.0), vec3f(0.0));
+    var n = 0u;
+    if across2 > 1e-12 {
+        let across = sqrt(across2);
+        let e = (pole - d * k) / across;
+        let y = -cap * k / across;
+        let z2 = 1.0 - cap * cap - y * y;
+        if z2 > 0.0 {
+            let z = sqrt(z2);
+            let base = d * cap + e * y;
+            let side = cross(d, e) * z;
+            for (var s = 0u; s < 2u; s++) {
+                var x = base + side;
+                if s == 1u {
+                    x = base - side;
+                }
+                if dot(cross(p, x), m) > 0.0 && dot(cross(x, q), m) > 0.0 {
+                    cuts[n] = x;
+                    n += 1u;
+                }
+            }
+        }
+    }
+    if n == 2u && dot(p, cuts[0]) < dot(p, cuts[1]) {
+        let first = cuts[1];
+        cuts[1] = cuts[0];
+        cuts[0] = first;
+    }
+    var sum = 0.0;
+    var u = p;
+    for (var i = 0u; i <= n; i++) {
+        var v = q;
+        if i < n {
+            v = cuts[i];
+        }
+        sum += cone_piece(d, u, v, cap);
+        u = v;
+    }
+    return sum;
+}
+
+fn cone_piece(d: vec3f, u: vec3f, v: vec3f, cap: f32) -> f32 {
+    let turn = dot(d, cross(u, v));
+    let du = dot(d, u);
+    let dv = dot(d, v);
+    let mid = u + v;
+    if dot(d, mid) >= cap * length(mid) {
+        return 2.0 * atan2(turn, 1.0 + du + dv + dot(u, v));
+    }
+    return (1.0 - cap) * atan2(turn, dot(u, v) - du * dv);
 }

@@ -33,6 +33,7 @@
 #[cfg(feature = "bvh")]
 pub mod bvh;
 pub mod cell_light;
+pub mod cone;
 pub mod density;
 pub mod emitters;
 #[cfg(feature = "exr")]

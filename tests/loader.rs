@@ -445,7 +445,8 @@ fn accessors_the_reader_cannot_take_are_errors_not_panics() {
     // Each edit, and what its error must say. Before, the first reached `unreachable!` inside
     // the gltf crate (caught, but its message went to stderr too) and the last two an overflow
     // or a debug assertion there.
-    let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>, &str); 4] = [
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let cases: [(&str, Edit, &str); 4] = [
         (
             "uv_u32",
             Box::new(move |d| d["accessors"][uv1]["componentType"] = serde_json::json!(5125)),
