@@ -1,8 +1,8 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
-// weights_main: w_c = the power on cluster c's cells over their area, each entry's counted by
-// its stay share (energy[4 C + G + k] for the member at indices[k]), less the near field's
-// share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
+// weights_main: w_c = the power on cluster c's cells over their area, each entry's counted in
+// each channel by its stay share times its albedo (energy[4 C + G + 3 k ..] for the member at
+// indices[k]), less the near field's share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
@@ -16,6 +16,15 @@
 // Bindings (their meaning: runtime/src/weights.rs), IndirectParams, luminance and WG_LINEAR:
 // the generated prelude (runtime/src/contract.rs).
 
+// A colour over its luminance (prm_runtime::cpu::tint_of): grey for black.
+fn tint_of(colour: vec3f) -> vec3f {
+    let l = luminance(colour);
+    if l > 0.0 {
+        return colour / l;
+    }
+    return vec3f(1.0);
+}
+
 @compute @workgroup_size(WG_LINEAR)
 fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     let c = id.x;
@@ -25,17 +34,18 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     let r = ranges[c];
     var sum = vec3f(0.0);
     var near_sum = vec3f(0.0);
-    var near_total = 0.0;
+    var near_total = vec3f(0.0);
     var t_total = 0.0;
     var stay_sum = vec3f(0.0);
-    var stay_t = 0.0;
+    var stay_t = vec3f(0.0);
     let stays = 4u * params.cluster_count + params.group_count;
     for (var k = r.x; k < r.x + r.y; k++) {
         let m = indices[k];
         let e = entry_irradiance[m.x].xyz;
         let near = bitcast<f32>(m.y);
         let t = bitcast<f32>(m.z);
-        let s = energy[stays + k];
+        let s = vec3f(energy[stays + 3u * k], energy[stays + 3u * k + 1u], energy[stays + 3u * k + 2u]);
+        let tint = tint_of(s);
         sum += e;
         stay_sum += e * s;
         stay_t += t * s;
@@ -48,23 +58,23 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
                 linked = bitcast<vec3f>(hot.xyz) + e * bitcast<f32>(m.w);
             }
         }
-        near_sum += linked;
-        near_total += near * t;
+        near_sum += tint * linked;
+        near_total += tint * (near * t);
         t_total += t;
     }
-    var w = vec3f(0.0);
-    if stay_t > 0.0 {
-        w = stay_sum / stay_t;
-    } else if t_total > 0.0 {
-        w = sum / t_total;
+    var plain = vec3f(0.0);
+    if t_total > 0.0 {
+        plain = sum / t_total;
     }
-    let energy_c = energy[c];
+    var w = select(plain, stay_sum / max(stay_t, vec3f(1.17549435e-38)), stay_t > vec3f(0.0));
     let dipole = params.cluster_count + 3u * c;
     let balance = params.cluster_count + params.group_count + 3u * c;
     for (var k = 0u; k < 3u; k++) {
         near_sum -= weights[dipole + k].xyz * energy[balance + k];
     }
-    if near_total > 0.0 && energy_c > 0.0 {
+    // The pane's energy in each channel: its luminance's, tinted by the cluster's albedo.
+    let energy_c = energy[c] * tint_of(stay_t);
+    if max(max(near_total.x, near_total.y), near_total.z) > 0.0 && energy[c] > 0.0 {
         w = max((w * energy_c - near_sum) / max(energy_c - near_total, 0.1 * energy_c), vec3f(0.0));
     }
     weights[c] = vec4f(w, 0.0);

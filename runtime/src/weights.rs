@@ -27,7 +27,8 @@ pub const BINDINGS: &[Binding] = &[
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
     // Pane energy: C clusters, then G groups; then the balance's dipole terms (3 C); then each
-    // cluster member's stay share, in `indices` order (`prm::prm_file::Prm::stay`).
+    // cluster member's stay share times its albedo (RGB), in `indices` order
+    // (`prm_runtime::cpu::NearTables::reflect`).
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
@@ -99,7 +100,7 @@ pub struct WeightPass {
     /// Per cluster, then per group: (first, count) into the members (`vec2u`).
     pub ranges: wgpu::Buffer,
     /// Pane energy: clusters, groups, then the balance's dipole terms, then the members' stay
-    /// shares (`f32`).
+    /// shares times their albedo (`f32`, three a member).
     pub energy: wgpu::Buffer,
 }
 
@@ -154,8 +155,13 @@ impl WeightPass {
             }
         }
         energy.extend(balance);
-        // The members' stay shares, by their slot in `indices` (clusters' members come first).
-        energy.extend(prm.clusters().iter().flat_map(|c| c.members.iter().map(|&m| near.stay[m as usize])));
+        // The members' stay shares times albedo, by their slot in `indices` (clusters' members
+        // come first).
+        energy.extend(
+            prm.clusters()
+                .iter()
+                .flat_map(|c| c.members.iter().flat_map(|&m| near.reflect[m as usize].to_array())),
+        );
         let mut entry_dipole: Vec<[f32; 4]> = near
             .dipole_offset
             .iter()

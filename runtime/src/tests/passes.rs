@@ -765,13 +765,23 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     }
 }
 
+/// The open box with half its floor (one triangle, across the diagonal) red: clusters on the
+/// floor hold entries of two albedos.
+fn open_box_half_red() -> Scene {
+    let mut scene = open_box();
+    let red = prm::Material { albedo: v(0.7, 0.15, 0.1), ..scene.materials[0].clone() };
+    scene.materials.push(red);
+    scene.triangles[0].material = scene.materials.len() as u32 - 1;
+    scene
+}
+
 /// A cluster's weight is its cells' light with each entry's counted by its stay share
-/// (`Prm::stay`): on a map without near links or far field the weights are exactly that
-/// mean, and in the open box, where the entries by the opening lose light through it, it is
-/// not the plain mean.
+/// (`Prm::stay`) times its albedo, channel by channel: on a map without near links or far
+/// field the weights are exactly that mean, and in the open box, where the entries by the
+/// opening lose light through it and the floor is half red, it is not the plain mean.
 #[test]
-fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share() {
-    let scene = open_box();
+fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share_and_albedo() {
+    let scene = open_box_half_red();
     let bvh = Bvh::build(&scene);
     let mut parts = bake(&scene, 512, 40, 48).into_parts();
     (parts.near, parts.near_points, parts.echo, parts.far) = Default::default();
@@ -779,15 +789,21 @@ fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share() {
     let e = crate::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
     let w = cpu::cluster_weights(&prm, &e);
-    let mut differ = 0;
+    let (mut differ, mut coloured) = (0, 0);
     for (c, cl) in prm.clusters().iter().enumerate() {
-        let (mut stay_sum, mut stay_t, mut sum, mut t) = (Vec3::ZERO, 0.0f32, Vec3::ZERO, 0.0f32);
+        let (mut stay_sum, mut stay_t, mut sum, mut t) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO, 0.0f32);
+        let (mut grey_sum, mut grey_t) = (Vec3::ZERO, 0.0f32);
         for &m in &cl.members {
             let (m, s) = (m as usize, prm.stay(m as usize));
-            (stay_sum, stay_t) = (stay_sum + e[m] * s, stay_t + tables.area_ratio[m] * s);
+            let sr = s * prm.entries()[m].albedo;
+            (stay_sum, stay_t) = (stay_sum + e[m] * sr, stay_t + tables.area_ratio[m] * sr);
+            (grey_sum, grey_t) = (grey_sum + e[m] * s, grey_t + tables.area_ratio[m] * s);
             (sum, t) = (sum + e[m], t + tables.area_ratio[m]);
         }
         let want = stay_sum / stay_t;
+        if (grey_sum / grey_t - want).abs().max_element() > 0.02 * want.max_element() {
+            coloured += 1;
+        }
         assert!(
             (w[c] - want).abs().max_element() <= 1e-5 * want.max_element() + 1e-9,
             "cluster {c}: {} against {want}",
@@ -798,15 +814,16 @@ fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share() {
         }
     }
     assert!(differ > 0, "no cluster's stay shares change its weight: this checks nothing");
+    assert!(coloured > 0, "no cluster's albedos change its weight: this checks nothing");
 }
 
 #[test]
 fn gpu_lightmap_matches_the_cpu_twin() {
     let g = gpu();
-    let scene = open_box();
+    let scene = open_box_half_red();
     let prm = bake(&scene, 512, 40, 48);
-    // The entries by the opening lose light through it: the GPU's weights count their stay
-    // shares as the twin's do.
+    // The entries by the opening lose light through it, and half the floor is red: the GPU's
+    // weights count their stay shares and albedos as the twin's do.
     assert!((0..prm.entries().len()).any(|j| prm.stay(j) < 0.8));
     let bvh = Bvh::build(&scene);
     let c = prm.clusters().len();
