@@ -148,6 +148,36 @@ fn torch_rigs_visit_the_places_games_put_lights() {
     }
 }
 
+/// The chamber's spot rig (`assets/chamber_spots.json`): one spot through eight places, each
+/// inside the level with its axis meeting a surface from the front: mid-room over the floor
+/// (3 m) and from under the ceiling (6.9 m), and within 26 cm of the surface it aims at in
+/// five: down at the floor from 8 cm, along the floor from 3 cm, at a wall from 15 cm, into a
+/// corner, at the ceiling from 10 cm.
+#[test]
+fn the_spot_rig_aims_at_surfaces_near_and_far() {
+    let scene = load("chamber.glb");
+    let bvh = Bvh::build(&scene);
+    let rig = prm::rig::Rig::load(&asset("chamber_spots.json"), &scene.lights).unwrap();
+    let spot = rig.lights.iter().find(|l| l.base.name == "spot").expect("a light named spot");
+    assert!(matches!(spot.base.kind, prm::LightKind::Spot { .. }));
+    let mut reach: Vec<f32> = spot
+        .keys
+        .iter()
+        .map(|&(_, p, d, _)| {
+            let d = d.normalize();
+            let hit = bvh.closest_hit(p, d, f32::INFINITY).expect("the spot aims out of the level");
+            assert!(
+                scene.facing_normal(hit.triangle as usize, d).is_some(),
+                "the spot at {p} is inside a solid"
+            );
+            hit.t
+        })
+        .collect();
+    reach.sort_by(f32::total_cmp);
+    assert_eq!(reach.len(), 8);
+    assert!(reach[4] <= 0.27 && reach[6] >= 2.9, "axis lengths {reach:?}");
+}
+
 /// The sunroom's day (`assets/sunroom_sun.json`) keeps the sun in the sky south of the window:
 /// at every keyframe a ray from the opening's middle back towards the sun leaves the level,
 /// and one along the sunlight lands inside the room; from a low morning sun to a low evening
