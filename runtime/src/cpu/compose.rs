@@ -38,7 +38,7 @@ use super::concentrate::LinkLight;
 /// `w_c = (m_c energy_c - sum_j E_j near_j) / (energy_c - sum_j t_j near_j)`, the denominator
 /// kept at >= 0.1 energy_c and `w_c` at >= 0. Those energies are counted in luminance; in
 /// each channel, `near_j` is tinted by entry j's albedo and `energy_c` by the cluster's
-/// ([`NearTables::tint`], [`tint_of`]): a red entry's links deliver its red, and the balance
+/// ([`NearTables::tint`]): a red entry's links deliver its red, and the balance
 /// took them at its luminance, so a spot on the red runner of a closed box left the room
 /// +32 % too red and green and blue -12 and -19 % (tinted: +11, +6, +7 %, where a grey runner
 /// gives +4 % in every channel). Without links, `m_c`. (For a hot entry,
@@ -125,7 +125,7 @@ pub struct NearTables {
     /// Each entry's stay share times its albedo, `s_j rho_j`: how its light counts in its
     /// cluster's mean, channel by channel ([`cluster_weights`]).
     pub reflect: Vec<Vec3>,
-    /// [`Self::reflect`] over its luminance ([`tint_of`]; its albedo's, grey where the stay
+    /// [`Self::reflect`] over its luminance (its albedo's, grey where the stay
     /// share is 0): its links' energy ([`Self::energy`], counted in luminance) in each channel.
     pub tint: Vec<Vec3>,
     /// `t_j`: the entry's cell area over its share A/N. Under even irradiance E an entry's
