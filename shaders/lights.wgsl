@@ -121,8 +121,9 @@ fn direct_irradiance(p: vec3f, n: vec3f, count: u32) -> vec3f {
 // Power (W) light l delivers to the front of triangle (p0, p1, p2), counter-clockwise seen from
 // the front, without visibility: prm::Light::triangle_power, the same operations in the same
 // order (a GPU twin test holds them together). I x solid angle (Van Oosterom and Strackee) for
-// point lights, the spot's falloff integrated over it for spots (spot_solid_angle), E x
-// projected area for directional ones.
+// point lights, the spot's falloff integrated over it for spots (spot_solid_angle), a range's
+// window at the centroids of up to 16² pieces (window_pieces); E x projected area for
+// directional ones.
 fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     let twice_area = cross(p1 - p0, p2 - p0);
     if l.kind == KIND_DIRECTIONAL {
@@ -135,16 +136,71 @@ fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     if !(triple > 0.0) {
         return vec3f(0.0);
     }
+    if !(l.range > 0.0) {
+        return l.intensity * light_solid_angle(l, a, b, c, triple);
+    }
+    // The window along the triangle: split it where the window falls across it.
+    let pieces = window_pieces(a, b, c, l.range);
+    if pieces <= 1u {
+        let scale = light_solid_angle(l, a, b, c, triple) * range_window(length((a + b + c) / 3.0), l.range);
+        return l.intensity * scale;
+    }
+    let n = f32(pieces);
+    let e1 = (b - a) / n;
+    let e2 = (c - a) / n;
+    var scale = 0.0;
+    for (var i = 0u; i < pieces; i++) {
+        for (var j = 0u; j < pieces - i; j++) {
+            let last = i + j + 1u == pieces;
+            for (var down = 0u; down < 2u; down++) {
+                if down == 1u && last {
+                    break;
+                }
+                var p = a + e1 * f32(i) + e2 * f32(j);
+                var q = a + e1 * f32(i + 1u) + e2 * f32(j);
+                var r = a + e1 * f32(i) + e2 * f32(j + 1u);
+                if down == 1u {
+                    p = a + e1 * f32(i + 1u) + e2 * f32(j);
+                    q = a + e1 * f32(i + 1u) + e2 * f32(j + 1u);
+                    r = a + e1 * f32(i) + e2 * f32(j + 1u);
+                }
+                let t = -dot(p, cross(q - p, r - p));
+                if t > 0.0 {
+                    let w = range_window(length((p + q + r) / 3.0), l.range);
+                    scale += light_solid_angle(l, p, q, r, t) * w;
+                }
+            }
+        }
+    }
+    return l.intensity * scale;
+}
+
+// prm::Light::cone_solid_angle: the solid angle of the triangle (corners relative to the
+// light, facing it: triple > 0), a spot's falloff integrated over it.
+fn light_solid_angle(l: GpuLight, a: vec3f, b: vec3f, c: vec3f, triple: f32) -> f32 {
     let la = length(a);
     let lb = length(b);
     let lc = length(c);
     let denominator = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la;
-    var scale = 2.0 * atan2(triple, denominator);
+    let whole = 2.0 * atan2(triple, denominator);
     if l.kind == KIND_SPOT {
-        scale = spot_solid_angle(a / la, b / lb, c / lc, scale, l.direction, l.cos_inner, l.cos_outer);
+        return spot_solid_angle(a / la, b / lb, c / lc, whole, l.direction, l.cos_inner, l.cos_outer);
     }
-    scale *= range_window(length((a + b + c) / 3.0), l.range);
-    return l.intensity * scale;
+    return whole;
+}
+
+// prm::light::window_pieces: pieces a side so the range window is taken at each piece's
+// centroid (16 x its fall across the triangle, 1 to 16; 0 beyond the range).
+fn window_pieces(a: vec3f, b: vec3f, c: vec3f, range: f32) -> u32 {
+    let centroid = (a + b + c) / 3.0;
+    let radius = max(max(length(a - centroid), length(b - centroid)), length(c - centroid));
+    let far = max(max(length(a), length(b)), length(c));
+    let near = max(length(centroid) - radius, 0.0);
+    if near >= range {
+        return 0u;
+    }
+    let fall = range_window(near, range) - range_window(far, range);
+    return clamp(u32(ceil(16.0 * fall)), 1u, 16u);
 }
 
 // prm::cone: a spot's falloff integrated over a spherical triangle (unit corners a, b, c wound

@@ -363,9 +363,11 @@ impl Light {
     /// touching the triangle included; the triple product is taken from the triangle's edges so
     /// a small, far triangle keeps its precision. A spot's falloff is integrated over that
     /// solid angle ([`crate::cone`]: exact for a hard cone; a spot 1 cm above a floor lights a
-    /// spot of it smaller than any cell triangle), the range window taken at the centroid's
-    /// distance (smooth over one entry's cell). Directional lights: `E x` the triangle's area
-    /// projected along the light.
+    /// spot of it smaller than any cell triangle). A range's window is taken at the centroid's
+    /// distance of each of up to 16² equal pieces of the triangle, more where the window falls
+    /// more across it (`window_pieces`): at one centroid, a lamp of 0.5 m range 10 cm over a
+    /// floor gave cell-sized triangles 0.72 of their power. Directional lights: `E x` the
+    /// triangle's area projected along the light.
     pub fn triangle_power(&self, tri: &[Vec3; 3]) -> Vec3 {
         let [p0, p1, p2] = *tri;
         let twice_area = (p1 - p0).cross(p2 - p0);
@@ -378,15 +380,55 @@ impl Light {
         if !(triple > 0.0) {
             return Vec3::ZERO;
         }
+        let Some(range) = self.range.filter(|&r| r > 0.0) else {
+            return self.intensity * self.cone_solid_angle(a, b, c, triple);
+        };
+        // The window along the triangle: split it where the window falls across it.
+        let pieces = window_pieces([a, b, c], range);
+        if pieces <= 1 {
+            let scale =
+                self.cone_solid_angle(a, b, c, triple) * range_window(((a + b + c) / 3.0).length(), range);
+            return self.intensity * scale;
+        }
+        let n = pieces as f32;
+        let (e1, e2) = ((b - a) / n, (c - a) / n);
+        let at = |i: u32, j: u32| a + e1 * i as f32 + e2 * j as f32;
+        let mut scale = 0.0;
+        for i in 0..pieces {
+            for j in 0..pieces - i {
+                // The upward piece at (i, j), then the downward one beside it (not on the edge).
+                let last = i + j + 1 == pieces;
+                for down in [false, true] {
+                    if down && last {
+                        break;
+                    }
+                    let [p, q, r] = if down {
+                        [at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)]
+                    } else {
+                        [at(i, j), at(i + 1, j), at(i, j + 1)]
+                    };
+                    let t = -p.dot((q - p).cross(r - p));
+                    if t > 0.0 {
+                        let w = range_window(((p + q + r) / 3.0).length(), range);
+                        scale += self.cone_solid_angle(p, q, r, t) * w;
+                    }
+                }
+            }
+        }
+        self.intensity * scale
+    }
+
+    /// The solid angle of the triangle with corners `a`, `b`, `c` relative to the light (its
+    /// triple product `triple` > 0: facing it), and for a spot its falloff integrated over it.
+    fn cone_solid_angle(&self, a: Vec3, b: Vec3, c: Vec3, triple: f32) -> f32 {
         let (la, lb, lc) = (a.length(), b.length(), c.length());
         let denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
-        let mut scale = 2.0 * triple.atan2(denominator);
+        let whole = 2.0 * triple.atan2(denominator);
         if let LightKind::Spot { inner, outer } = self.kind {
             let dirs = [a / la, b / lb, c / lc];
-            scale = crate::cone::spot_solid_angle(dirs, scale, self.direction, inner.cos(), outer.cos());
+            return crate::cone::spot_solid_angle(dirs, whole, self.direction, inner.cos(), outer.cos());
         }
-        scale *= self.window(((a + b + c) / 3.0).length());
-        self.intensity * scale
+        whole
     }
 
     /// glTF range window ([`range_window`]); 1 without a range.
@@ -398,6 +440,22 @@ impl Light {
     pub fn is_positional(&self) -> bool {
         !matches!(self.kind, LightKind::Directional)
     }
+}
+
+/// Pieces a side to split a triangle into (corners relative to the light) so that the range
+/// window is taken at each piece's centroid: as many as 16 x the window's fall across the
+/// triangle (its value at a bound on the nearest point less at the farthest corner), 1 to 16;
+/// 0 where the whole triangle lies beyond the range.
+pub(crate) fn window_pieces(corners: [Vec3; 3], range: f32) -> u32 {
+    let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+    let radius = corners.iter().map(|&p| (p - centroid).length()).fold(0.0f32, f32::max);
+    let far = corners.iter().map(|p| p.length()).fold(0.0f32, f32::max);
+    let near = (centroid.length() - radius).max(0.0);
+    if near >= range {
+        return 0;
+    }
+    let fall = range_window(near, range) - range_window(far, range);
+    ((16.0 * fall).ceil() as u32).clamp(1, 16)
 }
 
 /// glTF's smooth range window `clamp(1 - (distance/range)^4, 0, 1)^2` at `distance` from a
@@ -780,6 +838,56 @@ mod tests {
                     (coarse - fine).abs() <= 1e-3 * fine,
                     "{inner}/{outer} at {h}, tilted: {coarse} vs {fine}"
                 );
+            }
+        }
+    }
+
+    /// A light with a glTF range over the 4 x 4 m square, from 30 cm to 3 cm above it: the
+    /// pieces' power adds up to the range window integrated over the square (a midpoint sum
+    /// on a 1000² grid, f64): within 3e-3 for a grid of 0.5 m triangles, a cell's size, and
+    /// 5e-2 for the square's two halves, 8 ranges across. The window at each triangle's
+    /// centroid gave the grid 0.55-0.72 of it at a 0.5 m range and the halves nothing.
+    #[test]
+    fn a_ranged_lights_power_on_a_plane_is_its_window_integrated() {
+        let s = 2.0f32;
+        let q = |a: usize, b: usize, m: usize| {
+            Vec3::new(-s + 2.0 * s * a as f32 / m as f32, 0.0, -s + 2.0 * s * b as f32 / m as f32)
+        };
+        let split = |m: usize| -> Vec<[Vec3; 3]> {
+            (0..m * m)
+                .flat_map(|k| {
+                    let (i, j) = (k / m, k % m);
+                    let (p0, p1, p2, p3) = (q(i, j, m), q(i, j + 1, m), q(i + 1, j + 1, m), q(i + 1, j, m));
+                    [[p0, p1, p2], [p0, p2, p3]]
+                })
+                .collect()
+        };
+        let (halves, grid) = (split(1), split(8));
+        for (range, spot) in [(0.5f32, false), (1.0, false), (3.0, false), (1.0, true)] {
+            for h in [0.3f32, 0.1, 0.03] {
+                let mut l = point(Vec3::new(0.0, h, 0.0), 1.0);
+                l.range = Some(range);
+                if spot {
+                    l.kind = LightKind::Spot { inner: 0.3, outer: 0.6 };
+                    l.direction = Vec3::new(0.3, -1.0, 0.0).normalize();
+                }
+                let n = 1000;
+                let mut want = 0.0f64;
+                for i in 0..n {
+                    for j in 0..n {
+                        let at = |k: usize| -s as f64 + 2.0 * s as f64 * (k as f64 + 0.5) / n as f64;
+                        let p = Vec3::new(at(i) as f32, 0.0, at(j) as f32);
+                        want += (l.irradiance(p, Vec3::Y).x as f64) * (2.0 * s as f64 / n as f64).powi(2);
+                    }
+                }
+                for (tris, tolerance) in [(&grid, 3e-3), (&halves, 5e-2)] {
+                    let got: f64 = tris.iter().map(|t| l.triangle_power(t).x as f64).sum();
+                    assert!(
+                        (got / want - 1.0).abs() < tolerance,
+                        "range {range} (spot {spot}) at {h}, {} triangles: {got} of {want}",
+                        tris.len()
+                    );
+                }
             }
         }
     }

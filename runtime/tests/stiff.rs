@@ -290,6 +290,63 @@ fn a_spot_a_hair_above_a_floor_delivers_its_cone_through_the_entries() {
 }
 
 #[test]
+fn a_lamp_of_short_range_a_hair_above_a_floor_delivers_its_window_through_the_entries() {
+    let g = gpu();
+    // A point light of range R = 0.4 m over the floor of the closed box: only the floor within
+    // R receives it, 2 pi I h int_h^R w(r) / r² dr with glTF's window w (the plane's
+    // irradiance I h / r³ over rings of radius sqrt(r² - h²)), by Simpson's rule. The entry
+    // weights must carry it, CPU twin and GPU to 2e-3 (measured: 4e-4). With the window at
+    // each cell triangle's centroid: 0.995 of it at 10 cm, where this box's cells are 15 cm
+    // across; 0.55-0.72 on cells of 0.5 m (`prm::light`'s tests).
+    let p = PrecomputeParams {
+        entries: 256,
+        paths: 8,
+        clusters: 16,
+        atlas: prm::density::Atlas::single(ATLAS),
+        groups: 4,
+        tile_size: 8,
+        ..PrecomputeParams::production()
+    };
+    let range = 0.4f64;
+    for h in [0.1f64, 0.01] {
+        let f = |r: f64| prm::light::range_window(r as f32, range as f32) as f64 / (r * r);
+        let steps = 20_000;
+        let dr = (range - h) / steps as f64;
+        let simpson: f64 = (0..=steps)
+            .map(|k| {
+                let weight = if k == 0 || k == steps {
+                    1.0
+                } else if k % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                };
+                weight * f(h + k as f64 * dr)
+            })
+            .sum::<f64>()
+            * dr
+            / 3.0;
+        let power = std::f64::consts::TAU * h * simpson;
+        let mut lamp = point(v(0.5, h as f32, 0.5), 1.0);
+        lamp.range = Some(range as f32);
+        let scene = closed_box(0.5, 1.0, vec![lamp]);
+        let bvh = Bvh::build(&scene);
+        let (map, _) = precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
+        let mut rt = Runtime::new(&g.device, &g.queue, &scene, &map, RuntimeParams::default()).unwrap();
+        rt.update(&scene.lights).unwrap();
+        let total = |e: &[Vec3]| {
+            e.iter().zip(map.entries()).map(|(e, en)| prm::luminance(*e) as f64 * en.area as f64).sum::<f64>()
+        };
+        let cpu = total(&prm_runtime::cpu::entry_irradiance(&map, &bvh, &scene.lights));
+        let gpu = total(&rt.read_entry_irradiance().unwrap());
+        for (name, got) in [("CPU", cpu), ("GPU", gpu)] {
+            println!("range {range} m, {h} m above the floor: {name} {:.5} of the window's", got / power);
+            assert!((got / power - 1.0).abs() < 2e-3, "{h}: {name} {got} of {power}");
+        }
+    }
+}
+
+#[test]
 fn grazing_light() {
     let g = gpu();
     // A floor and a back wall, lit by a sun 89.4° from the floor's normal.
