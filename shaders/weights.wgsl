@@ -75,7 +75,9 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     // The pane's energy in each channel: its luminance's, tinted by the cluster's albedo.
     let energy_c = energy[c] * tint_of(stay_t);
     if max(max(near_total.x, near_total.y), near_total.z) > 0.0 && energy[c] > 0.0 {
-        w = max((w * energy_c - near_sum) / max(energy_c - near_total, 0.1 * energy_c), vec3f(0.0));
+        // A channel the cluster reflects none of keeps its weight: its pane carries none.
+        let balanced = max((w * energy_c - near_sum) / max(energy_c - near_total, 0.1 * energy_c), vec3f(0.0));
+        w = select(w, balanced, energy_c > vec3f(0.0));
     }
     weights[c] = vec4f(w, 0.0);
     scores[c] = luminance(w) * energy[c];

@@ -95,9 +95,11 @@ pub fn cluster_weights_with(
             let counted = stay_sum / stay_t.max(Vec3::splat(f32::MIN_POSITIVE));
             let w = Vec3::select(stay_t.cmpgt(Vec3::ZERO), counted, plain);
             // The pane's energy in each channel: its luminance's, tinted by the cluster's albedo.
+            // A channel the cluster reflects none of keeps its weight: its pane carries none.
             let energy = c.energy * tint_of(stay_t);
             if near_total.max_element() > 0.0 && c.energy > 0.0 {
-                ((w * energy - near_sum) / (energy - near_total).max(0.1 * energy)).max(Vec3::ZERO)
+                let balanced = (w * energy - near_sum) / (energy - near_total).max(0.1 * energy);
+                Vec3::select(energy.cmpgt(Vec3::ZERO), balanced.max(Vec3::ZERO), w)
             } else {
                 w
             }

@@ -765,11 +765,11 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
     }
 }
 
-/// The open box with half its floor (one triangle, across the diagonal) red: clusters on the
-/// floor hold entries of two albedos.
+/// The open box with half its floor (one triangle, across the diagonal) red, with no green at
+/// all: clusters on the floor hold entries of two albedos, and some reflect no green.
 fn open_box_half_red() -> Scene {
     let mut scene = open_box();
-    let red = prm::Material { albedo: v(0.7, 0.15, 0.1), ..scene.materials[0].clone() };
+    let red = prm::Material { albedo: v(0.7, 0.0, 0.1), ..scene.materials[0].clone() };
     scene.materials.push(red);
     scene.triangles[0].material = scene.materials.len() as u32 - 1;
     scene
