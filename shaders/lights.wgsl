@@ -222,8 +222,16 @@ fn spot_solid_angle(a: vec3f, b: vec3f, c: vec3f, whole: f32, axis: vec3f, ci: f
     if highest < co {
         return 0.0;
     }
-    let behind = cone_holds(-axis, a, b, c);
     let span = ci - co;
+    if span > 1e-6 && highest - lowest < 0.01 * span {
+        let s = a + b + c;
+        var mean = vec3f(0.0);
+        if dot(s, s) > 0.0 {
+            mean = normalize(s);
+        }
+        return whole * spot_falloff(dot(axis, mean), ci, co);
+    }
+    let behind = cone_holds(-axis, a, b, c);
     if span <= 1e-6 {
         return clamp(cone_in_cap(a, b, c, axis, co, behind), 0.0, whole);
     }
