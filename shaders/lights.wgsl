@@ -136,14 +136,12 @@ fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
     if !(triple > 0.0) {
         return vec3f(0.0);
     }
-    if !(l.range > 0.0) {
-        return l.intensity * light_solid_angle(l, a, b, c, triple);
-    }
-    // The window along the triangle: split it where the window falls across it.
-    let pieces = window_pieces(a, b, c, l.range);
-    if pieces <= 1u {
-        let scale = light_solid_angle(l, a, b, c, triple) * range_window(length((a + b + c) / 3.0), l.range);
-        return l.intensity * scale;
+    // The window along the triangle: split it where the window falls across it. One call of
+    // light_solid_angle for every case (small code: lavapipe's compiler copies every call);
+    // unsplit, the piece is the triangle itself, as prm::Light::triangle_power has it.
+    var pieces = 1u;
+    if l.range > 0.0 {
+        pieces = max(window_pieces(a, b, c, l.range), 1u);
     }
     let n = f32(pieces);
     let e1 = (b - a) / n;
@@ -156,17 +154,26 @@ fn triangle_power(l: GpuLight, p0: vec3f, p1: vec3f, p2: vec3f) -> vec3f {
                 if down == 1u && last {
                     break;
                 }
-                var p = a + e1 * f32(i) + e2 * f32(j);
-                var q = a + e1 * f32(i + 1u) + e2 * f32(j);
-                var r = a + e1 * f32(i) + e2 * f32(j + 1u);
-                if down == 1u {
-                    p = a + e1 * f32(i + 1u) + e2 * f32(j);
-                    q = a + e1 * f32(i + 1u) + e2 * f32(j + 1u);
+                var p = a;
+                var q = b;
+                var r = c;
+                var t = triple;
+                if pieces > 1u {
+                    p = a + e1 * f32(i) + e2 * f32(j);
+                    q = a + e1 * f32(i + 1u) + e2 * f32(j);
                     r = a + e1 * f32(i) + e2 * f32(j + 1u);
+                    if down == 1u {
+                        p = a + e1 * f32(i + 1u) + e2 * f32(j);
+                        q = a + e1 * f32(i + 1u) + e2 * f32(j + 1u);
+                        r = a + e1 * f32(i) + e2 * f32(j + 1u);
+                    }
+                    t = -dot(p, cross(q - p, r - p));
                 }
-                let t = -dot(p, cross(q - p, r - p));
                 if t > 0.0 {
-                    let w = range_window(length((p + q + r) / 3.0), l.range);
+                    var w = 1.0;
+                    if l.range > 0.0 {
+                        w = range_window(length((p + q + r) / 3.0), l.range);
+                    }
                     scale += light_solid_angle(l, p, q, r, t) * w;
                 }
             }
@@ -205,15 +212,28 @@ fn window_pieces(a: vec3f, b: vec3f, c: vec3f, range: f32) -> u32 {
 
 // prm::cone: a spot's falloff integrated over a spherical triangle (unit corners a, b, c wound
 // clockwise seen from the light, whole its solid angle), the same operations in the same order.
-const CONE_GAUSS_X = array<f32, 8>(0.019855072, 0.10166676, 0.23723379, 0.40828268,
-    0.5917173, 0.7627662, 0.89833324, 0.9801449);
-const CONE_GAUSS_W = array<f32, 8>(0.05061427, 0.11119052, 0.15685332, 0.18134189,
-    0.18134189, 0.15685332, 0.11119052, 0.05061427);
+const CONE_GAUSS_X = array<f32, 12>(0.019855072, 0.10166676, 0.23723379, 0.40828268,
+    0.5917173, 0.7627662, 0.89833324, 0.9801449,
+    0.069431844, 0.33000948, 0.6699905, 0.93056816);
+const CONE_GAUSS_W = array<f32, 12>(0.05061427, 0.11119052, 0.15685332, 0.18134189,
+    0.18134189, 0.15685332, 0.11119052, 0.05061427,
+    0.17392742, 0.32607258, 0.32607258, 0.17392742);
 
 fn spot_solid_angle(a: vec3f, b: vec3f, c: vec3f, whole: f32, axis: vec3f, ci: f32, co: f32) -> f32 {
     let lowest = min(min(dot(axis, a), dot(axis, b)), dot(axis, c));
     if lowest >= ci {
         return whole;
+    }
+    let s = a + b + c;
+    var mean = vec3f(0.0);
+    if dot(s, s) > 0.0 {
+        mean = normalize(s);
+    }
+    let cos_radius = min(min(dot(mean, a), dot(mean, b)), dot(mean, c));
+    let sin_radius = sqrt(max(1.0 - cos_radius * cos_radius, 0.0));
+    let sin_outer = sqrt(max(1.0 - co * co, 0.0));
+    if cos_radius > 0.0 && dot(axis, mean) < co * cos_radius - sin_outer * sin_radius {
+        return 0.0;
     }
     var highest = 1.0;
     if !cone_holds(axis, a, b, c) {
@@ -223,12 +243,7 @@ fn spot_solid_angle(a: vec3f, b: vec3f, c: vec3f, whole: f32, axis: vec3f, ci: f
         return 0.0;
     }
     let span = ci - co;
-    if span > 1e-6 && highest - lowest < 0.01 * span {
-        let s = a + b + c;
-        var mean = vec3f(0.0);
-        if dot(s, s) > 0.0 {
-            mean = normalize(s);
-        }
+    if span > 1e-6 && highest - lowest < 0.06 * span {
         return whole * spot_falloff(dot(axis, mean), ci, co);
     }
     let behind = cone_holds(-axis, a, b, c);
@@ -238,7 +253,14 @@ fn spot_solid_angle(a: vec3f, b: vec3f, c: vec3f, whole: f32, axis: vec3f, ci: f
     let lo = clamp((lowest - co) / span, 0.0, 1.0);
     let hi = clamp((highest - co) / span, lo, 1.0);
     var sum = whole * lo * lo;
-    for (var i = 0u; i < 8u; i++) {
+    // Over half the falloff's span or less, 4 points (the 8-point rule's nodes, then the 4's).
+    var first = 8u;
+    var end = 12u;
+    if hi - lo > 0.5 {
+        first = 0u;
+        end = 8u;
+    }
+    for (var i = first; i < end; i++) {
         let t = lo + (hi - lo) * CONE_GAUSS_X[i];
         let within = clamp(cone_in_cap(a, b, c, axis, co + t * span, behind), 0.0, whole);
         sum += (hi - lo) * CONE_GAUSS_W[i] * 2.0 * t * within;
@@ -264,7 +286,13 @@ fn cone_arc_highest(d: vec3f, p: vec3f, q: vec3f) -> f32 {
 }
 
 fn cone_in_cap(a: vec3f, b: vec3f, c: vec3f, d: vec3f, cap: f32, behind: bool) -> f32 {
-    let fan = -(cone_fan(d, a, b, cap) + cone_fan(d, b, c, cap) + cone_fan(d, c, a, cap));
+    // The three fans in one loop body (small code: lavapipe's compiler copies every call).
+    let corners = array<vec3f, 4>(a, b, c, a);
+    var sum = 0.0;
+    for (var e = 0u; e < 3u; e++) {
+        sum += cone_fan(d, corners[e], corners[e + 1u], cap);
+    }
+    let fan = -sum;
     if behind {
         return fan + 6.2831855 * (1.0 - cap);
     }
