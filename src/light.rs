@@ -760,6 +760,23 @@ mod tests {
         assert_eq!(spot_falloff(0.31f32.cos(), 0.3, 0.3), 0.0);
     }
 
+    /// The square [-s, s]² in the plane y = 0, facing up, as two triangles and as a fan of
+    /// eight about a point off its centre.
+    fn square_pieces(s: f32) -> ([[Vec3; 3]; 2], Vec<[Vec3; 3]>) {
+        let corners =
+            [Vec3::new(-s, 0.0, -s), Vec3::new(-s, 0.0, s), Vec3::new(s, 0.0, s), Vec3::new(s, 0.0, -s)];
+        let halves = [[corners[0], corners[1], corners[2]], [corners[0], corners[2], corners[3]]];
+        let mid = Vec3::new(0.1, 0.0, -0.05);
+        let fan = (0..4)
+            .flat_map(|k| {
+                let (p, q) = (corners[k], corners[(k + 1) % 4]);
+                let m = (p + q) / 2.0;
+                [[mid, p, m], [mid, m, q]]
+            })
+            .collect();
+        (halves, fan)
+    }
+
     /// The square [-s, s]² at height 0 seen from (0, h, 0) has solid angle
     /// `4 asin(s² / (s² + h²))`; split into two triangles or into a fan of eight, each piece's
     /// power must add up to `I x` that, from 1 m to 1e-4 m above it. Tolerance 1e-3: a light
@@ -768,17 +785,7 @@ mod tests {
     #[test]
     fn triangle_power_is_the_solid_angle_at_any_height() {
         let s = 0.5f32;
-        let corners =
-            [Vec3::new(-s, 0.0, -s), Vec3::new(-s, 0.0, s), Vec3::new(s, 0.0, s), Vec3::new(s, 0.0, -s)];
-        let halves = [[corners[0], corners[1], corners[2]], [corners[0], corners[2], corners[3]]];
-        let mid = Vec3::new(0.1, 0.0, -0.05);
-        let fan: Vec<[Vec3; 3]> = (0..4)
-            .flat_map(|k| {
-                let (p, q) = (corners[k], corners[(k + 1) % 4]);
-                let m = (p + q) / 2.0;
-                [[mid, p, m], [mid, m, q]]
-            })
-            .collect();
+        let (halves, fan) = square_pieces(s);
         for h in [1.0f32, 0.1, 0.01, 1e-3, 1e-4] {
             let l = point(Vec3::new(0.0, h, 0.0), 2.0);
             let want = 2.0 * 4.0 * ((s * s) / (s * s + h * h)).asin();
@@ -809,17 +816,7 @@ mod tests {
     #[test]
     fn a_spots_power_on_a_plane_is_its_cones_at_any_height() {
         let s = 2.0f32;
-        let corners =
-            [Vec3::new(-s, 0.0, -s), Vec3::new(-s, 0.0, s), Vec3::new(s, 0.0, s), Vec3::new(s, 0.0, -s)];
-        let halves = [[corners[0], corners[1], corners[2]], [corners[0], corners[2], corners[3]]];
-        let mid = Vec3::new(0.1, 0.0, -0.05);
-        let fan: Vec<[Vec3; 3]> = (0..4)
-            .flat_map(|k| {
-                let (p, q) = (corners[k], corners[(k + 1) % 4]);
-                let m = (p + q) / 2.0;
-                [[mid, p, m], [mid, m, q]]
-            })
-            .collect();
+        let (halves, fan) = square_pieces(s);
         for (inner, outer) in [(20f32, 20f32), (10.0, 20.0), (40.0, 60.0), (0.0, 5.0)] {
             let (ci, co) = (inner.to_radians().cos(), outer.to_radians().cos());
             let want = std::f32::consts::TAU * ((ci - co) / 3.0 + 1.0 - ci);

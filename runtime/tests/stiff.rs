@@ -239,6 +239,29 @@ fn a_light_a_hair_above_a_surface_and_one_exactly_on_it() {
     }
 }
 
+/// The power the entry weights say the level receives (sum of weight x area), CPU twin and
+/// GPU, on a small map of `scene` (256 entries).
+fn entry_power(g: &Gpu, scene: &Scene) -> (f64, f64) {
+    let p = PrecomputeParams {
+        entries: 256,
+        paths: 8,
+        clusters: 16,
+        atlas: prm::density::Atlas::single(ATLAS),
+        groups: 4,
+        tile_size: 8,
+        ..PrecomputeParams::production()
+    };
+    let bvh = Bvh::build(scene);
+    let (map, _) = precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
+    let mut rt = Runtime::new(&g.device, &g.queue, scene, &map, RuntimeParams::default()).unwrap();
+    rt.update(&scene.lights).unwrap();
+    let total = |e: &[Vec3]| {
+        e.iter().zip(map.entries()).map(|(e, en)| prm::luminance(*e) as f64 * en.area as f64).sum::<f64>()
+    };
+    let cpu = total(&prm_runtime::cpu::entry_irradiance(&map, &bvh, &scene.lights));
+    (cpu, total(&rt.read_entry_irradiance().unwrap()))
+}
+
 #[test]
 fn a_spot_a_hair_above_a_floor_delivers_its_cone_through_the_entries() {
     let g = gpu();
@@ -249,15 +272,6 @@ fn a_spot_a_hair_above_a_floor_delivers_its_cone_through_the_entries() {
     // With the falloff taken along each cell triangle's mean direction they carried 0.96 and
     // 0.50 of a hard 20° cone at 30 and 10 cm and nothing at 3 cm, and 1.25 and 0.01 of a
     // smooth 40°-60° one at 3 and 1 cm.
-    let p = PrecomputeParams {
-        entries: 256,
-        paths: 8,
-        clusters: 16,
-        atlas: prm::density::Atlas::single(ATLAS),
-        groups: 4,
-        tile_size: 8,
-        ..PrecomputeParams::production()
-    };
     for (inner, outer) in [(20f32, 20f32), (10.0, 20.0), (40.0, 60.0)] {
         let (ci, co) = (inner.to_radians().cos(), outer.to_radians().cos());
         let power = std::f64::consts::TAU * ((ci - co) / 3.0 + 1.0 - ci) as f64;
@@ -265,19 +279,7 @@ fn a_spot_a_hair_above_a_floor_delivers_its_cone_through_the_entries() {
             let mut spot = point(v(0.5, h, 0.5), 1.0);
             spot.kind = LightKind::Spot { inner: inner.to_radians(), outer: outer.to_radians() };
             spot.direction = -Vec3::Y;
-            let scene = closed_box(0.5, 1.0, vec![spot]);
-            let bvh = Bvh::build(&scene);
-            let (map, _) = precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
-            let mut rt = Runtime::new(&g.device, &g.queue, &scene, &map, RuntimeParams::default()).unwrap();
-            rt.update(&scene.lights).unwrap();
-            let total = |e: &[Vec3]| {
-                e.iter()
-                    .zip(map.entries())
-                    .map(|(e, en)| prm::luminance(*e) as f64 * en.area as f64)
-                    .sum::<f64>()
-            };
-            let cpu = total(&prm_runtime::cpu::entry_irradiance(&map, &bvh, &scene.lights));
-            let gpu = total(&rt.read_entry_irradiance().unwrap());
+            let (cpu, gpu) = entry_power(&g, &closed_box(0.5, 1.0, vec![spot]));
             for (name, got) in [("CPU", cpu), ("GPU", gpu)] {
                 println!(
                     "{inner}°/{outer}° spot {h} m above the floor: {name} {:.5} of the cone",
@@ -298,15 +300,6 @@ fn a_lamp_of_short_range_a_hair_above_a_floor_delivers_its_window_through_the_en
     // weights must carry it, CPU twin and GPU to 2e-3 (measured: 4e-4). With the window at
     // each cell triangle's centroid: 0.995 of it at 10 cm, where this box's cells are 15 cm
     // across; 0.55-0.72 on cells of 0.5 m (`prm::light`'s tests).
-    let p = PrecomputeParams {
-        entries: 256,
-        paths: 8,
-        clusters: 16,
-        atlas: prm::density::Atlas::single(ATLAS),
-        groups: 4,
-        tile_size: 8,
-        ..PrecomputeParams::production()
-    };
     let range = 0.4f64;
     for h in [0.1f64, 0.01] {
         let f = |r: f64| prm::light::range_window(r as f32, range as f32) as f64 / (r * r);
@@ -329,16 +322,7 @@ fn a_lamp_of_short_range_a_hair_above_a_floor_delivers_its_window_through_the_en
         let power = std::f64::consts::TAU * h * simpson;
         let mut lamp = point(v(0.5, h as f32, 0.5), 1.0);
         lamp.range = Some(range as f32);
-        let scene = closed_box(0.5, 1.0, vec![lamp]);
-        let bvh = Bvh::build(&scene);
-        let (map, _) = precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap();
-        let mut rt = Runtime::new(&g.device, &g.queue, &scene, &map, RuntimeParams::default()).unwrap();
-        rt.update(&scene.lights).unwrap();
-        let total = |e: &[Vec3]| {
-            e.iter().zip(map.entries()).map(|(e, en)| prm::luminance(*e) as f64 * en.area as f64).sum::<f64>()
-        };
-        let cpu = total(&prm_runtime::cpu::entry_irradiance(&map, &bvh, &scene.lights));
-        let gpu = total(&rt.read_entry_irradiance().unwrap());
+        let (cpu, gpu) = entry_power(&g, &closed_box(0.5, 1.0, vec![lamp]));
         for (name, got) in [("CPU", cpu), ("GPU", gpu)] {
             println!("range {range} m, {h} m above the floor: {name} {:.5} of the window's", got / power);
             assert!((got / power - 1.0).abs() < 2e-3, "{h}: {name} {got} of {power}");
