@@ -238,6 +238,11 @@ mod tests {
         go(tri.map(|p| p.as_dvec3()), axis.as_dvec3(), ci, co, 0)
     }
 
+    /// A point uniform in the cube [-1, 1]³.
+    fn in_cube(rng: &mut rand_pcg::Pcg64) -> Vec3 {
+        Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+    }
+
     /// A triangle wound clockwise seen from the origin (the light).
     fn seen_clockwise(t: [Vec3; 3]) -> [Vec3; 3] {
         if t[0].dot((t[1] - t[0]).cross(t[2] - t[0])) > 0.0 {
@@ -257,26 +262,10 @@ mod tests {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
         let mut worst = 0.0f64;
         for case in 0..200 {
-            let centre = Vec3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            );
+            let centre = in_cube(&mut rng);
             let size = rng.random_range(0.05f32..1.5);
-            let tri = seen_clockwise(std::array::from_fn(|_| {
-                centre
-                    + Vec3::new(
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                    ) * size
-            }));
-            let axis = Vec3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            )
-            .normalize();
+            let tri = seen_clockwise(std::array::from_fn(|_| centre + in_cube(&mut rng) * size));
+            let axis = in_cube(&mut rng).normalize();
             let outer = rng.random_range(0.1f32..std::f32::consts::FRAC_PI_2);
             let inner = if case % 3 == 0 { outer } else { rng.random_range(0.0..outer) };
             let (ci, co) = (inner.cos(), outer.cos());
@@ -309,14 +298,7 @@ mod tests {
             let dir = (axis * off.cos() + side * off.sin()).normalize();
             let centre = dir * rng.random_range(1.0f32..5.0);
             let size = rng.random_range(0.05f32..0.5);
-            let tri = seen_clockwise(std::array::from_fn(|_| {
-                centre
-                    + Vec3::new(
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                    ) * size
-            }));
+            let tri = seen_clockwise(std::array::from_fn(|_| centre + in_cube(&mut rng) * size));
             // Not a sliver: f32 rounding in the fan's pieces, as long as the triangle, is
             // measured against its area (a 5 cm sliver 5 m away of 1e-6 sr: 4e-3 of it).
             let longest = (0..3).map(|k| (tri[k] - tri[(k + 1) % 3]).length_squared()).fold(0.0f32, f32::max);
