@@ -77,6 +77,28 @@ pub fn sub_centroids(t: &[Vec3; 3], sub: u32) -> impl Iterator<Item = Vec3> + '_
     })
 }
 
+/// Which of the [`FINE_SUB`]² fine points' sub-triangles ([`sub_centroids`]' order) holds point
+/// `y` of triangle `t` (a point off it counts as at the nearest edge): the fine point whose
+/// shadow bit stands for `y` on a mixed triangle.
+pub fn fine_index(t: &[Vec3; 3], y: Vec3) -> usize {
+    let (e1, e2, d) = (t[1] - t[0], t[2] - t[0], y - t[0]);
+    let (d00, d01, d11) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d20, d21) = (d.dot(e1), d.dot(e2));
+    let denom = d00 * d11 - d01 * d01;
+    let s = FINE_SUB as f32;
+    let (fa, fb) = if denom > 0.0 {
+        ((d11 * d20 - d01 * d21) / denom * s, (d00 * d21 - d01 * d20) / denom * s)
+    } else {
+        (s / 3.0, s / 3.0)
+    };
+    let fa = if fa.is_finite() { fa.clamp(0.0, s) } else { 0.0 };
+    let fb = if fb.is_finite() { fb.clamp(0.0, s - fa) } else { 0.0 };
+    let a = (fa.floor() as u32).min(FINE_SUB - 1);
+    let b = (fb.floor() as u32).min(FINE_SUB - 1 - a);
+    let down = a + b + 1 < FINE_SUB && (fa - a as f32) + (fb - b as f32) > 1.0;
+    (a * (2 * FINE_SUB - a) + 2 * b + down as u32) as usize
+}
+
 /// This frame's light on one cell triangle.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TriangleLight {
@@ -193,6 +215,30 @@ const ALL_FINE: u64 = (1u64 << FINE_POINTS) - 1;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fine_index_finds_each_fine_point_and_the_points_about_it() {
+        let t = [Vec3::new(0.2, 0.0, -0.3), Vec3::new(1.7, 0.1, 0.2), Vec3::new(0.5, 0.3, 1.4)];
+        let fine: Vec<Vec3> = sub_centroids(&t, FINE_SUB).collect();
+        for (k, y) in fine.iter().enumerate() {
+            assert_eq!(fine_index(&t, *y), k, "fine point {k}");
+        }
+        // Points scattered over the triangle take the fine point of the sub-triangle holding
+        // them: the nearest centroid, within a sub-triangle's size, and the same index for a
+        // point nudged off the triangle's plane.
+        let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+        for i in 0..50 {
+            for j in 0..50 - i {
+                let y = t[0]
+                    + (t[1] - t[0]) * ((i as f32 + 0.3) / 50.0)
+                    + (t[2] - t[0]) * ((j as f32 + 0.3) / 50.0);
+                let k = fine_index(&t, y);
+                assert!(fine[k].distance(y) < 0.3, "point ({i}, {j}) given fine point {k}");
+                assert_eq!(fine_index(&t, y + n * 1e-3), k);
+            }
+        }
+        assert!(fine_index(&t, t[0] - (t[1] - t[0])) < FINE_POINTS, "off the triangle");
+    }
 
     fn tri() -> [Vec3; 3] {
         [Vec3::ZERO, Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 0.0)]
