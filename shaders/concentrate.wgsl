@@ -9,10 +9,14 @@
 // point's bit, else the triangle's visible share) / (their area mean), the unshadowed
 // irradiance on a cell no light is near being each triangle's level (irradiance.wgsl);
 // SUB = CONCENTRATION_SUB on a mixed triangle and within NEAR_SIZES cell sizes of the centroid
-// of a cell a light is near, else CONCENTRATION_SUB_FAR. Links of cells that are not hot are
+// of a cell a light is near, else CONCENTRATION_SUB_FAR. A point or spot light near the cell
+// takes footprint()'s points instead of the centroids alone, and the kernel's plain mean is
+// then exact (triangle_form_factor). Links of cells that are not hot are
 // not written: their number stays old. (u32 words: the number kept as bits of a float could be
 // a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
+
+const PI: f32 = 3.14159265358979;
 
 // A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
 // past the 64th has none and is taken as reaching) closer to its centroid than HOT_REACH x
@@ -43,9 +47,266 @@ fn fine_bit(t: GpuCellTriangle, q: u32) -> f32 {
 // Per channel: the seen mean over the plain mean, 1 where either is undefined.
 fn ratio(seen: f32, plain: f32, weight: f32, area: f32) -> f32 {
     if plain > 0.0 {
-        return (seen / weight) / (plain / area);
+        return (max(seen, 0.0) / weight) / (plain / area);
     }
     return 1.0;
+}
+
+// Light i reaches triangle t (a light past the 64th has no bit: taken as reaching).
+fn reaches(t: GpuCellTriangle, i: u32) -> bool {
+    if i >= 64u {
+        return true;
+    }
+    let bits = select(t.reach_lo, t.reach_hi, i >= 32u);
+    return ((bits >> (i % 32u)) & 1u) != 0u;
+}
+
+// A point or spot light near the cell, whose light the footprint's points take
+// (prm_runtime::cpu::concentrate::concentration).
+fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
+    return l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size;
+}
+
+// prm::sampling::solid_angle.
+fn solid_angle(a: vec3f, b: vec3f, c: vec3f) -> f32 {
+    return 2.0 * atan2(abs(dot(a, cross(b, c))), 1.0 + dot(a, b) + dot(b, c) + dot(c, a));
+}
+
+// The unit part of `to` across `origin` (0 where there is none).
+fn across(origin: vec3f, to: vec3f) -> vec3f {
+    let v = to - origin * dot(origin, to);
+    let len = length(v);
+    return select(vec3f(0.0), v / len, len > 0.0);
+}
+
+// prm::sampling::spherical_triangle: xyz a direction uniform in solid angle over the spherical
+// triangle (a, b, c) from (u1, u2), w its solid angle; w = 0 where it cannot be sampled.
+fn spherical_triangle(a: vec3f, b: vec3f, c: vec3f, u1: f32, u2: f32) -> vec4f {
+    let area = solid_angle(a, b, c);
+    let ab = across(a, b);
+    let ac = across(a, c);
+    if !(area > 1e-7) || all(ab == vec3f(0.0)) || all(ac == vec3f(0.0)) {
+        return vec4f(0.0);
+    }
+    let alpha = acos(clamp(dot(ab, ac), -1.0, 1.0));
+    let sin_alpha = sin(alpha);
+    let cos_alpha = cos(alpha);
+    let s = sin(u1 * area - alpha);
+    let t = cos(u1 * area - alpha);
+    let u = t - cos_alpha;
+    let v = s + sin_alpha * dot(a, b);
+    var q = ((v * t - u * s) * cos_alpha - v) / ((v * s + u * t) * sin_alpha);
+    // Not finite: the triangle is too thin to sample.
+    if !(abs(q) < 3.4e38) {
+        return vec4f(0.0);
+    }
+    q = clamp(q, -1.0, 1.0);
+    let c2 = a * q + ac * sqrt(max(1.0 - q * q, 0.0));
+    let z = 1.0 - u2 * (1.0 - dot(c2, b));
+    let bc = across(b, c2);
+    var dir = b;
+    if any(bc != vec3f(0.0)) {
+        dir = b * z + bc * sqrt(max(1.0 - z * z, 0.0));
+    }
+    let len = length(dir);
+    if !(len > 0.0) {
+        return vec4f(0.0);
+    }
+    return vec4f(dir / len, area);
+}
+
+// prm::cell_light::fine_index: the fine point whose sub-triangle holds y.
+fn fine_index(t: GpuCellTriangle, y: vec3f) -> u32 {
+    let e1 = t.b - t.a;
+    let e2 = t.c - t.a;
+    let d = y - t.a;
+    let d00 = dot(e1, e1);
+    let d01 = dot(e1, e2);
+    let d11 = dot(e2, e2);
+    let d20 = dot(d, e1);
+    let d21 = dot(d, e2);
+    let denom = d00 * d11 - d01 * d01;
+    let s = f32(CELL_FINE_SUB);
+    var fa = s / 3.0;
+    var fb = s / 3.0;
+    if denom > 0.0 {
+        fa = (d11 * d20 - d01 * d21) / denom * s;
+        fb = (d00 * d21 - d01 * d20) / denom * s;
+    }
+    fa = select(0.0, clamp(fa, 0.0, s), abs(fa) < 3.4e38);
+    fb = select(0.0, clamp(fb, 0.0, s - fa), abs(fb) < 3.4e38);
+    let a = min(u32(floor(fa)), CELL_FINE_SUB - 1u);
+    let b = min(u32(floor(fb)), CELL_FINE_SUB - 1u - a);
+    let down = a + b + 1u < CELL_FINE_SUB && (fa - f32(a)) + (fb - f32(b)) > 1.0;
+    return a * (2u * CELL_FINE_SUB - a) + 2u * b + select(0u, 1u, down);
+}
+
+// prm_runtime::cpu::concentrate::closest_point: the point of triangle (a, b, c) nearest p.
+fn closest_point(a: vec3f, b: vec3f, c: vec3f, p: vec3f) -> vec3f {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = va + vb + vc;
+    if !(denom > 0.0) {
+        return (a + b + c) / 3.0;
+    }
+    return a + ab * (vb / denom) + ac * (vc / denom);
+}
+
+// Form factor from the point p (unit normal n) to triangle (a, b, c), the part on p's side of
+// its plane (prm::form_factor::point_to_polygon).
+fn triangle_form_factor(p: vec3f, n: vec3f, a: vec3f, b: vec3f, c: vec3f) -> f32 {
+    let v = array<vec3f, 3>(a, b, c);
+    let tol = 1e-5 * max(max(length(a - p), length(b - p)), length(c - p));
+    var k: array<vec3f, 4>;
+    var m = 0u;
+    for (var i = 0u; i < 3u; i++) {
+        let va = v[i];
+        let vb = v[(i + 1u) % 3u];
+        let da = dot(va - p, n) - tol;
+        let db = dot(vb - p, n) - tol;
+        if da > 0.0 {
+            k[m] = va;
+            m++;
+        }
+        if (da > 0.0) != (db > 0.0) && da != db {
+            k[m] = va + (vb - va) * (da / (da - db));
+            m++;
+        }
+    }
+    if m < 3u {
+        return 0.0;
+    }
+    var sum = 0.0;
+    for (var i = 0u; i < m; i++) {
+        let e0 = k[i] - p;
+        let e1 = k[(i + 1u) % m] - p;
+        let g = cross(e0, e1);
+        let gl = length(g);
+        if gl <= 0.0 {
+            continue;
+        }
+        sum += atan2(gl, dot(e0, e1)) * dot(n, g / gl);
+    }
+    return min(abs(sum) / (2.0 * PI), 1.0);
+}
+
+struct Footprint {
+    seen: vec3f,
+    plain: vec3f,
+}
+
+// prm_runtime::cpu::concentrate::footprint: light l's (sum of E G dA, sum of E dA) over cell
+// triangle t (unit normal n) for the texel at x (unit normal nx), from sub² area centroids
+// and (sub / 2)² directions (rounded up) even in the triangle's solid angle from the light, combined by the
+// balance heuristic, with the light at the triangle's point nearest x as a control within
+// twice the triangle's size (kernel: the kernel's exact integral over t). One loop over both
+// sets, the first sub² its centroids (sub_centroids' order), the rest the directions.
+fn footprint(x: vec3f, nx: vec3f, t: GpuCellTriangle, n: vec3f, l: GpuLight, sub: u32, kernel: f32) -> Footprint {
+    var out = Footprint(vec3f(0.0), vec3f(0.0));
+    let height = dot(n, t.a - l.position);
+    let ca = normalize(t.a - l.position);
+    let cb = normalize(t.b - l.position);
+    let cc = normalize(t.c - l.position);
+    let omega = solid_angle(ca, cb, cc);
+    if height >= 0.0 || !(omega > 0.0) {
+        return out;
+    }
+    let mixed = (t.fine_hi & CELL_MIXED) != 0u;
+    let m2 = f32(sub * sub);
+    let e1 = t.b - t.a;
+    let e2 = t.c - t.a;
+    let cell_area = 0.5 * length(cross(e1, e2));
+    let a_pt = cell_area / m2;
+    let y0 = closest_point(t.a, t.b, t.c, x);
+    var e0 = vec3f(0.0);
+    if dot(y0 - x, y0 - x) < 4.0 * cell_area {
+        let inc = incident(l, y0);
+        var v0 = t.visibility;
+        if mixed {
+            v0 = fine_bit(t, fine_index(t, y0));
+        }
+        e0 = inc.irradiance * max(dot(n, inc.to_light), 0.0) * v0;
+    }
+    let s = f32(sub);
+    // The light's points: half as many a side (prm_runtime::cpu::concentrate::light_side).
+    let side = (sub + 1u) / 2u;
+    let l2 = f32(side * side);
+    for (var q = 0u; q < sub * sub + side * side; q++) {
+        var y: vec3f;
+        var k: u32;
+        if q < sub * sub {
+            // Centroid q: row a holds 2 (sub - a) - 1 of them, up and down by turns.
+            var r = q;
+            var a = 0u;
+            while r >= 2u * (sub - a) - 1u {
+                r -= 2u * (sub - a) - 1u;
+                a++;
+            }
+            let off = select(1.0 / 3.0, 2.0 / 3.0, (r % 2u) == 1u);
+            y = t.a + e1 * ((f32(a) + off) / s) + e2 * ((f32(r / 2u) + off) / s);
+            k = select(fine_index(t, y), q, sub == CELL_FINE_SUB);
+        } else {
+            let p = q - sub * sub;
+            let w = spherical_triangle(ca, cb, cc, (f32(p / side) + 0.5) / f32(side), (f32(p % side) + 0.5) / f32(side));
+            let cos = -dot(n, w.xyz);
+            if !(w.w > 0.0) || !(cos > 1e-6) {
+                continue;
+            }
+            y = l.position + w.xyz * (-height / cos);
+            k = fine_index(t, y);
+        }
+        let to = y - l.position;
+        let dist2 = dot(to, to);
+        let cos = -dot(n, to) / sqrt(dist2);
+        var inv_patch = 0.0;
+        if cos > 0.0 {
+            inv_patch = cos * l2 / (dist2 * omega);
+        }
+        let wt = 1.0 / (1.0 / a_pt + inv_patch);
+        let inc = incident(l, y);
+        var v = t.visibility;
+        if mixed {
+            v = fine_bit(t, k);
+        }
+        let e = inc.irradiance * max(dot(n, inc.to_light), 0.0) * v;
+        let d = y - x;
+        let r2 = dot(d, d);
+        let g = max(dot(nx, d), 0.0) * max(-dot(n, d), 0.0) / max(r2 * (r2 + wt / PI), 1e-30);
+        out.seen += (e - e0) * (g * wt);
+        out.plain += e * wt;
+    }
+    out.seen += e0 * kernel;
+    return out;
 }
 
 // lit_near: near_light(h).
@@ -54,6 +315,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
     var weight = 0.0;
     var plain = vec3f(0.0);
     var area_sum = 0.0;
+    var exact = 0.0;
     // Every triangle fine near a cell a light is near; near one hot only by a shadow edge, its
     // mixed triangles (prm_runtime::cpu::concentrate::concentration).
     let near = lit_near && distance(x, h.centroid) < NEAR_SIZES * h.size;
@@ -71,8 +333,19 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
         let sub = select(CONCENTRATION_SUB_FAR, CONCENTRATION_SUB, near || mixed);
         let s = f32(sub);
         let area = 0.5 * len / (s * s);
+        // Near a light, the footprint takes the lights it samples and the kernel's mean is
+        // exact: the centroids are needed only for the other lights that reach the triangle.
+        var others = false;
+        for (var i = 0u; i < params.light_count; i++) {
+            others = others || (reaches(t, i) && !sampled(lights[i], h));
+        }
+        var rows = sub;
+        if lit_near && !others {
+            rows = 0u;
+            area_sum += 0.5 * len;
+        }
         var q = 0u;
-        for (var a = 0u; a < sub; a++) {
+        for (var a = 0u; a < rows; a++) {
             for (var b = 0u; b < sub - a; b++) {
                 for (var up = 0u; up < 2u; up++) {
                     let off = select(1.0 / 3.0, 2.0 / 3.0, up == 1u);
@@ -88,9 +361,9 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
                     if lit_near {
                         e = vec3f(0.0);
                         for (var i = 0u; i < params.light_count; i++) {
-                            // Only the lights that reach the triangle (irradiance.wgsl).
-                            let bits = select(t.reach_lo, t.reach_hi, i >= 32u);
-                            if ((bits >> (i % 32u)) & 1u) == 0u {
+                            // Only the lights that reach the triangle (irradiance.wgsl), and
+                            // not those the footprint takes.
+                            if !reaches(t, i) || sampled(lights[i], h) {
                                 continue;
                             }
                             let inc = incident(lights[i], y);
@@ -113,6 +386,26 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
                 }
             }
         }
+        if lit_near {
+            // The kernel's integral over the part of the triangle facing x, exact (Lambert).
+            var kernel = 0.0;
+            if dot(n, x - t.a) > 0.0 {
+                kernel = PI * triangle_form_factor(x, nx, t.a, t.b, t.c);
+            }
+            exact += kernel;
+            for (var i = 0u; i < params.light_count; i++) {
+                if reaches(t, i) && sampled(lights[i], h) {
+                    let f = footprint(x, nx, t, n, lights[i], sub, kernel);
+                    seen += f.seen;
+                    plain += f.plain;
+                }
+            }
+        }
+    }
+    // Where a light is near, the kernel's mean is the exact one (the footprint's points crowd
+    // where the light lands, which may be next to the texel).
+    if lit_near {
+        weight = exact;
     }
     if !(weight > 0.0 && area_sum > 0.0) {
         return vec3f(1.0);

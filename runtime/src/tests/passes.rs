@@ -896,6 +896,26 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     assert!(near_share > 0.1, "the near field changes the corner's lightmap by only {near_share}");
     let m = prm::metric::compare(&gpu_l, &cpu, None);
     assert!(m.error < 0.01, "corner lamp: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    // A spot 3 cm over the floor by a wall, aimed down: its light lands in a spot smaller than
+    // the concentration's sub-triangles, which the footprint's points find
+    // (`cpu::concentrate`): the GPU's against the twin's, again where the near field matters.
+    let mut spot = corner.clone();
+    spot[0].kind = LightKind::Spot { inner: 0.3, outer: 0.5 };
+    spot[0].position = v(0.1, 0.03, 0.5);
+    spot[0].direction = Vec3::NEG_Y;
+    rt.update(&spot).unwrap();
+    let gpu_l = rt.read_lightmap().unwrap();
+    let cpu = twin.frame(&spot).to_vec();
+    let e = crate::cpu::entry_irradiance(&prm, &bvh, &spot);
+    let w = cpu::cluster_weights(&prm, &e);
+    let panes_only = cpu::compose(&prm, &w, &cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e));
+    let near_share = prm::metric::compare(&panes_only, &cpu, None).error;
+    assert!(near_share > 0.1, "the near field changes the spot's lightmap by only {near_share}");
+    let m = prm::metric::compare(&gpu_l, &cpu, None);
+    assert!(m.error < 0.01, "low spot: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    rt.update(&corner).unwrap();
+    let gpu_l = rt.read_lightmap().unwrap();
+    let cpu = twin.frame(&corner).to_vec();
     // The echo is part of what the two agree on: it must change the corner's lightmap (by 19 %
     // when measured before the dipoles; 3.8 % with them, which now carry the linear part of the
     // hot spot's light and all its bounces, leaving the echo the rest).
