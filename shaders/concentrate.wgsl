@@ -1,8 +1,8 @@
 // How a texel sees a hot cell (prm_runtime::cpu::concentrate says why and what; the CPU twin
 // computes the same). concentrate_main, one workgroup per work item (up to WG_LINEAR links of
 // one entry): for each near-field link whose entry's cell is hot (a point or spot light that
-// reaches it closer to its centroid than HOT_REACH x its size, or a mixed triangle in it: a shadow edge across
-// it, irradiance.wgsl), link_light = (E_j kappa, this update's number; kappa 1 for a texel
+// reaches it closer to its centroid than HOT_REACH x its size, a spot's cone edge over it, or
+// a mixed triangle in it: a shadow edge across it, irradiance.wgsl), link_light = (E_j kappa, this update's number; kappa 1 for a texel
 // beyond NEAR_SIZES of a cell hot only by a shadow edge), kappa = per channel,
 // (form-factor-kernel-weighted mean of the unshadowed irradiance over the centroids of SUB²
 // sub-triangles of each cell triangle, each times its visibility: on a mixed triangle its fine
@@ -19,8 +19,7 @@
 const PI: f32 = 3.14159265358979;
 
 // A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
-// past the 64th has none and is taken as reaching) closer to its centroid than HOT_REACH x
-// its size.
+// past the 64th has none and is taken as reaching) and may light it unevenly (sampled).
 fn near_light(h: GpuHotEntry) -> bool {
     var reach = vec2u(0u);
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
@@ -29,7 +28,7 @@ fn near_light(h: GpuHotEntry) -> bool {
     for (var i = 0u; i < params.light_count; i++) {
         let l = lights[i];
         let reaches = i >= 64u || ((reach[i / 32u] >> (i % 32u)) & 1u) != 0u;
-        if reaches && l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size {
+        if reaches && sampled(l, h) {
             return true;
         }
     }
@@ -61,10 +60,24 @@ fn reaches(t: GpuCellTriangle, i: u32) -> bool {
     return ((bits >> (i % 32u)) & 1u) != 0u;
 }
 
-// A point or spot light near the cell, whose light the footprint's points take
-// (prm_runtime::cpu::concentrate::concentration).
+// prm_runtime::cpu::concentrate::concentrates: a point or spot light closer to the cell than
+// HOT_REACH x its size, or a spot whose cone's edge band passes over the cell as the light
+// sees it (a disk of the cell's size about its centroid). Its light is uneven over the cell,
+// and the footprint's points take it.
 fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
-    return l.kind != KIND_DIRECTIONAL && distance(l.position, h.centroid) < HOT_REACH * h.size;
+    if l.kind == KIND_DIRECTIONAL {
+        return false;
+    }
+    let d = distance(l.position, h.centroid);
+    if d < HOT_REACH * h.size {
+        return true;
+    }
+    if l.kind != KIND_SPOT {
+        return false;
+    }
+    let spread = atan(h.size / d);
+    let angle = acos(clamp(dot(l.direction, (h.centroid - l.position) / d), -1.0, 1.0));
+    return angle - spread < acos(l.cos_outer) && angle + spread > acos(l.cos_inner);
 }
 
 // prm::sampling::solid_angle.

@@ -8,8 +8,9 @@
 //! W/m² against the ground truth's 200-231.
 //!
 //! So when entry j's cell is *hot* (a point or spot light that reaches it closer to its centroid than
-//! [`HOT_REACH`] times the cell's size, the square root of its area, or a shadow edge across
-//! one of its triangles: [`prm::cell_light::TriangleLight::mixed`]), its links use `E_j kappa`
+//! [`HOT_REACH`] times the cell's size, the square root of its area, or a spot whose cone's
+//! edge passes over it ([`concentrates`]), or a shadow edge across one of its triangles:
+//! [`prm::cell_light::TriangleLight::mixed`]), its links use `E_j kappa`
 //! instead of `E_j`. A shadow makes a cell's light as uneven as a near lamp does: a pillar's
 //! shadow across the plinth around it leaves the plinth's lit crescent in front of the
 //! pillar's foot and its dark half behind it, and the foot saw the cell's mean. kappa (per colour channel) is the ratio of two means of the
@@ -60,15 +61,38 @@ pub const HOT_REACH: f32 = 2.0;
 
 /// True when a point or spot light that reaches the cell (some probe of one of its triangles
 /// sees it: a bit of `reach`, the union of its triangles' [`TriangleLight::reach`]; a light
-/// past the 64th is taken as reaching) is closer to the cell (centroid, size) than
-/// [`HOT_REACH`] sizes: its irradiance may then vary over the cell by more than a few times. A
-/// torch behind the wall the cell lies on brings it nothing to concentrate.
+/// past the 64th is taken as reaching) may light the cell (centroid, size) unevenly
+/// ([`concentrates`]): closer than [`HOT_REACH`] sizes, its irradiance may vary over the cell
+/// by more than a few times; a spot's cone edge over it lights part of it. A torch behind the
+/// wall the cell lies on brings it nothing to concentrate.
 pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light], reach: u64) -> bool {
-    lights.iter().enumerate().any(|(i, l)| {
-        (i >= 64 || (reach >> i) & 1 == 1)
-            && l.is_positional()
-            && l.position.distance(centroid) < HOT_REACH * size
-    })
+    lights
+        .iter()
+        .enumerate()
+        .any(|(i, l)| (i >= 64 || (reach >> i) & 1 == 1) && concentrates(l, centroid, size))
+}
+
+/// True when light `l` may light the cell (centroid, size) unevenly: a point or spot light
+/// closer than [`HOT_REACH`] sizes, or a spot whose cone's edge (the band between its inner
+/// and outer angles) passes over the cell as the light sees it (a disk of the cell's size
+/// about its centroid): a narrow spot 3 m over a plinth lights a disk 0.8 m across, whose rim
+/// crosses cells as a shadow edge does.
+pub fn concentrates(l: &Light, centroid: Vec3, size: f32) -> bool {
+    if !l.is_positional() {
+        return false;
+    }
+    let d = l.position.distance(centroid);
+    if d < HOT_REACH * size {
+        return true;
+    }
+    match l.kind {
+        prm::LightKind::Spot { inner, outer } => {
+            let spread = (size / d).atan();
+            let angle = l.direction.dot((centroid - l.position) / d).clamp(-1.0, 1.0).acos();
+            angle - spread < outer && angle + spread > inner
+        }
+        _ => false,
+    }
 }
 
 /// The lights that reach any of a cell's triangles (bits as [`TriangleLight::reach`]).
@@ -109,9 +133,7 @@ pub fn concentration(
         let reaches = |i: usize| i >= 64 || (v.reach >> i) & 1 == 1;
         // A point or spot light near the cell lands where the area points may miss it: its
         // light is taken at points it sends evenly over its solid angle ([`footprint`]).
-        let sampled = |i: usize, l: &Light| {
-            lit_near && reaches(i) && l.is_positional() && l.position.distance(centroid) < HOT_REACH * size
-        };
+        let sampled = |i: usize, l: &Light| lit_near && reaches(i) && concentrates(l, centroid, size);
         // Near a light, the footprint takes the lights it samples and the kernel's mean is
         // exact: the centroids are needed only for the other lights that reach the triangle.
         let others = lights.iter().enumerate().any(|(i, l)| reaches(i) && !sampled(i, l));
@@ -471,6 +493,31 @@ mod tests {
         // Each triangle's visibility scales its points: a shadowed half darkens what it holds.
         let half = concentration(near.0, near.1, geom, &cell, &[even(1.0), even(0.0)], &[lamp]).x;
         assert!(half != k_near && half.is_finite());
+    }
+
+    /// A spot's cone edge makes a cell hot as a near light does: a 6-8 degree spot 3 m over a
+    /// floor lights a disk about 0.8 m across; 0.2 m cells on its rim are hot, those well inside
+    /// it or outside it are not, nor any under a point light at the same height; within
+    /// HOT_REACH sizes every positional light is, a directional one never.
+    #[test]
+    fn a_spot_s_cone_edge_over_a_cell_makes_it_hot() {
+        let mut spot = Light::point("spot", Vec3::new(0.0, 3.0, 0.0), Vec3::ONE);
+        spot.kind = prm::LightKind::Spot { inner: 6f32.to_radians(), outer: 8f32.to_radians() };
+        spot.direction = Vec3::NEG_Y;
+        let lamp = Light::point("lamp", spot.position, Vec3::ONE);
+        let rim = 3.0 * 7f32.to_radians().tan();
+        let cell = |r: f32| Vec3::new(r, 0.0, 0.0);
+        assert!(concentrates(&spot, cell(rim), 0.2), "on the rim");
+        assert!(concentrates(&spot, cell(rim - 0.15), 0.2) && concentrates(&spot, cell(rim + 0.15), 0.2));
+        assert!(!concentrates(&spot, cell(0.0), 0.2), "inside the inner cone");
+        assert!(!concentrates(&spot, cell(1.5), 0.2), "outside the outer cone");
+        assert!(!concentrates(&lamp, cell(rim), 0.2), "a point light 3 m off");
+        // A cell larger than the whole disk holds the rim.
+        assert!(concentrates(&spot, cell(0.0), 1.0));
+        assert!(concentrates(&lamp, Vec3::new(0.0, 2.7, 0.0), 0.2), "within HOT_REACH sizes");
+        let mut sun = lamp.clone();
+        sun.kind = prm::LightKind::Directional;
+        assert!(!concentrates(&sun, Vec3::new(0.0, 2.9, 0.0), 0.2));
     }
 
     /// Lights a few cm over the cell, where the irradiance peaks in a spot smaller than the

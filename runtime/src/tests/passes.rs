@@ -913,6 +913,30 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     assert!(near_share > 0.1, "the near field changes the spot's lightmap by only {near_share}");
     let m = prm::metric::compare(&gpu_l, &cpu, None);
     assert!(m.error < 0.01, "low spot: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    // A narrow spot from under the box's top, aimed down: its cone's rim crosses floor cells
+    // 0.9 m from it, farther than HOT_REACH sizes, which it makes hot as a shadow edge does
+    // (`cpu::concentrate::concentrates`); the GPU's twin of that test, against the twin's.
+    let mut narrow = corner.clone();
+    narrow[0].kind = LightKind::Spot { inner: 10f32.to_radians(), outer: 14f32.to_radians() };
+    narrow[0].position = v(0.5, 0.9, 0.5);
+    narrow[0].direction = Vec3::NEG_Y;
+    let tables = cpu::NearTables::new(&prm);
+    let e = crate::cpu::entry_irradiance(&prm, &bvh, &narrow);
+    let cells = crate::cpu::cell_lights(&prm, &bvh, &narrow);
+    let hot = cpu::LinkLight::new(&prm, &tables, &e, &cells, &narrow).hot;
+    let by_rim = (0..hot.len())
+        .filter(|&j| {
+            hot[j]
+                && narrow[0].position.distance(tables.centroid[j])
+                    > cpu::concentrate::HOT_REACH * tables.size[j]
+        })
+        .count();
+    assert!(by_rim > 0, "no cell is hot by the cone's rim");
+    rt.update(&narrow).unwrap();
+    let gpu_l = rt.read_lightmap().unwrap();
+    let cpu = twin.frame(&narrow).to_vec();
+    let m = prm::metric::compare(&gpu_l, &cpu, None);
+    assert!(m.error < 0.01, "narrow spot: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
     rt.update(&corner).unwrap();
     let gpu_l = rt.read_lightmap().unwrap();
     let cpu = twin.frame(&corner).to_vec();
