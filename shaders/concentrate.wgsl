@@ -62,8 +62,8 @@ fn reaches(t: GpuCellTriangle, i: u32) -> bool {
 
 // prm_runtime::cpu::concentrate::concentrates: a point or spot light closer to the cell than
 // HOT_REACH x its size, or a spot whose cone's edge band passes over the cell as the light
-// sees it (a disk of the cell's size about its centroid). Its light is uneven over the cell,
-// and the footprint's points take it.
+// sees it (a disk of the cell's size about its centroid) and is narrower than that disk. Its
+// light is uneven over the cell, and the footprint's points take it.
 fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
     if l.kind == KIND_DIRECTIONAL {
         return false;
@@ -77,7 +77,9 @@ fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
     }
     let spread = atan(h.size / d);
     let angle = acos(clamp(dot(l.direction, (h.centroid - l.position) / d), -1.0, 1.0));
-    return angle - spread < acos(l.cos_outer) && angle + spread > acos(l.cos_inner);
+    let inner = acos(l.cos_inner);
+    let outer = acos(l.cos_outer);
+    return spread > outer - inner && angle - spread < outer && angle + spread > inner;
 }
 
 // prm::sampling::solid_angle.

@@ -75,8 +75,11 @@ pub fn is_hot(centroid: Vec3, size: f32, lights: &[Light], reach: u64) -> bool {
 /// True when light `l` may light the cell (centroid, size) unevenly: a point or spot light
 /// closer than [`HOT_REACH`] sizes, or a spot whose cone's edge (the band between its inner
 /// and outer angles) passes over the cell as the light sees it (a disk of the cell's size
-/// about its centroid): a narrow spot 3 m over a plinth lights a disk 0.8 m across, whose rim
-/// crosses cells as a shadow edge does.
+/// about its centroid) and is narrower than that disk, so that the falloff goes from nothing
+/// to whole within the cell: a narrow spot 3 m over a plinth lights a disk 0.8 m across,
+/// whose rim crosses cells as a shadow edge does. A band wider than the cell only tilts its
+/// light (the chamber's dais spot, 26-34 degrees from 7 m: every cell its band touched hot
+/// cost the concentration 4x on lavapipe and moved no error).
 pub fn concentrates(l: &Light, centroid: Vec3, size: f32) -> bool {
     if !l.is_positional() {
         return false;
@@ -89,7 +92,7 @@ pub fn concentrates(l: &Light, centroid: Vec3, size: f32) -> bool {
         prm::LightKind::Spot { inner, outer } => {
             let spread = (size / d).atan();
             let angle = l.direction.dot((centroid - l.position) / d).clamp(-1.0, 1.0).acos();
-            angle - spread < outer && angle + spread > inner
+            spread > outer - inner && angle - spread < outer && angle + spread > inner
         }
         _ => false,
     }
@@ -497,8 +500,9 @@ mod tests {
 
     /// A spot's cone edge makes a cell hot as a near light does: a 6-8 degree spot 3 m over a
     /// floor lights a disk about 0.8 m across; 0.2 m cells on its rim are hot, those well inside
-    /// it or outside it are not, nor any under a point light at the same height; within
-    /// HOT_REACH sizes every positional light is, a directional one never.
+    /// it or outside it are not, nor any under a point light at the same height, nor those on
+    /// a 20-35 degree spot's wider band; within HOT_REACH sizes every positional light is, a
+    /// directional one never.
     #[test]
     fn a_spot_s_cone_edge_over_a_cell_makes_it_hot() {
         let mut spot = Light::point("spot", Vec3::new(0.0, 3.0, 0.0), Vec3::ONE);
@@ -514,6 +518,12 @@ mod tests {
         assert!(!concentrates(&lamp, cell(rim), 0.2), "a point light 3 m off");
         // A cell larger than the whole disk holds the rim.
         assert!(concentrates(&spot, cell(0.0), 1.0));
+        // A band wider than the cell (20-35 degrees) only tilts its light: not hot.
+        let mut wide = spot.clone();
+        wide.kind = prm::LightKind::Spot { inner: 20f32.to_radians(), outer: 35f32.to_radians() };
+        let wide_rim = 3.0 * 27f32.to_radians().tan();
+        assert!(!concentrates(&wide, cell(wide_rim), 0.2), "a wide band over a small cell");
+        assert!(concentrates(&wide, cell(wide_rim), 1.2), "a cell wider than the band");
         assert!(concentrates(&lamp, Vec3::new(0.0, 2.7, 0.0), 0.2), "within HOT_REACH sizes");
         let mut sun = lamp.clone();
         sun.kind = prm::LightKind::Directional;
