@@ -82,7 +82,7 @@ fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
     return spread > outer - inner && angle - spread < outer && angle + spread > inner;
 }
 
-// prm::sampling::solid_angle.
+// prm::cone::solid_angle.
 fn solid_angle(a: vec3f, b: vec3f, c: vec3f) -> f32 {
     return 2.0 * atan2(abs(dot(a, cross(b, c))), 1.0 + dot(a, b) + dot(b, c) + dot(c, a));
 }
@@ -94,7 +94,7 @@ fn across(origin: vec3f, to: vec3f) -> vec3f {
     return select(vec3f(0.0), v / len, len > 0.0);
 }
 
-// prm::sampling::spherical_triangle: xyz a direction uniform in solid angle over the spherical
+// prm::cone::spherical_triangle: xyz a direction uniform in solid angle over the spherical
 // triangle (a, b, c) from (u1, u2), w its solid angle; w = 0 where it cannot be sampled.
 fn spherical_triangle(a: vec3f, b: vec3f, c: vec3f, u1: f32, u2: f32) -> vec4f {
     let area = solid_angle(a, b, c);

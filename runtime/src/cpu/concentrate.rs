@@ -32,7 +32,7 @@
 //! Where a point or spot light is near the cell, its light peaks in a spot smaller than a
 //! sub-triangle (a spot 8 cm over the chamber's floor lights a disk 11 cm across, the centroids
 //! are 5-8 cm apart): its part of the weighted mean also takes points it sends over the
-//! triangle's solid angle, combined with the centroids by the balance heuristic ([`footprint`]),
+//! triangle's solid angle, combined with the centroids by the balance heuristic (`footprint`),
 //! and the plain kernel mean is then the exact one (Lambert's contour integral).
 //!
 //! The cluster weight keeps its energy balance with the energy these links then deliver: for a
@@ -42,8 +42,8 @@
 
 use glam::Vec3;
 use prm::cell_light::{fine_index, sub_centroids, TriangleLight};
+use prm::cone::spherical_triangle;
 use prm::prm_file::Prm;
-use prm::sampling::spherical_triangle;
 use prm::Light;
 
 use super::NearTables;
@@ -200,7 +200,7 @@ pub fn concentration(
 /// Two sets of points, combined by multiple importance sampling (the balance heuristic): the
 /// area quadrature's `sub`² sub-triangle centroids, even over the area, and [`light_side`]²
 /// points the light sends evenly over the solid angle the triangle subtends from it
-/// ([`prm::sampling::spherical_triangle`]), which crowd where its light lands. A point's
+/// ([`prm::cone::spherical_triangle`]), which crowd where its light lands. A point's
 /// weight is `1 / (1 / a + 1 / p)`, `a` the area a centroid stands for and `p` the patch of
 /// plane a direction stands for there (`r² / cos` times the solid angle's share): a lamp 2 cm
 /// over a floor puts most of its light in a spot smaller than one sub-triangle, which the
@@ -221,7 +221,7 @@ fn footprint(
     let (mut seen, mut plain) = (Vec3::ZERO, Vec3::ZERO);
     let height = n.dot(t[0] - l.position);
     let corners = t.map(|c| (c - l.position).normalize_or_zero());
-    let omega = prm::sampling::solid_angle(corners[0], corners[1], corners[2]);
+    let omega = prm::cone::solid_angle(corners[0], corners[1], corners[2]);
     if height >= 0.0 || !(omega > 0.0) {
         // The light is behind the triangle's plane (or in it): nothing arrives.
         return (seen, plain);
