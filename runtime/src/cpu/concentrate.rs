@@ -134,8 +134,9 @@ pub fn concentration(
         // Only the lights that reach the triangle (`TriangleLight::reach`), as its share; a
         // light past the 64th has no bit: taken as reaching.
         let reaches = |i: usize| i >= 64 || (v.reach >> i) & 1 == 1;
-        // A point or spot light near the cell lands where the area points may miss it: its
-        // light is taken at points it sends evenly over its solid angle ([`footprint`]).
+        // A light that concentrates on the cell ([`concentrates`]: near it, or a spot's sharp
+        // cone edge over it) lands where the area points may miss it: its light is taken at
+        // points it sends evenly over its solid angle as well ([`footprint`]).
         let sampled = |i: usize, l: &Light| lit_near && reaches(i) && concentrates(l, centroid, size);
         // Near a light, the footprint takes the lights it samples and the kernel's mean is
         // exact: the centroids are needed only for the other lights that reach the triangle.
@@ -144,8 +145,9 @@ pub fn concentration(
             area_sum += 0.5 * cross.length();
         }
         for (k, y) in sub_centroids(t, sub).enumerate().filter(|_| !lit_near || others) {
-            // Lights farther than HOT_REACH cell sizes vary little over one triangle: the
-            // level the entry pass found stands for them (a shadow edge is what varies).
+            // The other lights vary little over one triangle: near a light, each at the
+            // point; else the level the entry pass found stands for them all (a shadow edge is
+            // what varies).
             let e = if lit_near {
                 lights
                     .iter()
