@@ -14,9 +14,8 @@
 // then exact (triangle_form_factor). Links of cells that are not hot are
 // not written: their number stays old. (u32 words: the number kept as bits of a float could be
 // a denormal, which a GPU may flush.)
-// Structs, constants, bindings: the generated prelude; the lights: lights.wgsl.
-
-const PI: f32 = 3.14159265358979;
+// Structs, constants, bindings: the generated prelude; the lights: lights.wgsl;
+// triangle_form_factor: form_factor.wgsl.
 
 // A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
 // past the 64th has none and is taken as reaching) and may light it unevenly (sampled).
@@ -195,44 +194,6 @@ fn closest_point(a: vec3f, b: vec3f, c: vec3f, p: vec3f) -> vec3f {
         return (a + b + c) / 3.0;
     }
     return a + ab * (vb / denom) + ac * (vc / denom);
-}
-
-// Form factor from the point p (unit normal n) to triangle (a, b, c), the part on p's side of
-// its plane (prm::form_factor::point_to_polygon).
-fn triangle_form_factor(p: vec3f, n: vec3f, a: vec3f, b: vec3f, c: vec3f) -> f32 {
-    let v = array<vec3f, 3>(a, b, c);
-    let tol = 1e-5 * max(max(length(a - p), length(b - p)), length(c - p));
-    var k: array<vec3f, 4>;
-    var m = 0u;
-    for (var i = 0u; i < 3u; i++) {
-        let va = v[i];
-        let vb = v[(i + 1u) % 3u];
-        let da = dot(va - p, n) - tol;
-        let db = dot(vb - p, n) - tol;
-        if da > 0.0 {
-            k[m] = va;
-            m++;
-        }
-        if (da > 0.0) != (db > 0.0) && da != db {
-            k[m] = va + (vb - va) * (da / (da - db));
-            m++;
-        }
-    }
-    if m < 3u {
-        return 0.0;
-    }
-    var sum = 0.0;
-    for (var i = 0u; i < m; i++) {
-        let e0 = k[i] - p;
-        let e1 = k[(i + 1u) % m] - p;
-        let g = cross(e0, e1);
-        let gl = length(g);
-        if gl <= 0.0 {
-            continue;
-        }
-        sum += atan2(gl, dot(e0, e1)) * dot(n, g / gl);
-    }
-    return min(abs(sum) / (2.0 * PI), 1.0);
 }
 
 struct Footprint {

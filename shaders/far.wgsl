@@ -14,8 +14,6 @@
 // sum runs over those, in the same order. Structs, bindings, WG_LINEAR,
 // WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, luminance, far_share: the generated prelude.
 
-const PI: f32 = 3.14159265358979;
-
 var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
 var<workgroup> reflected: array<f32, WG_FAR_SOURCES>;
 var<workgroup> scan: array<u32, WG_FAR_SOURCES>;

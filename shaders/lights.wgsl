@@ -294,7 +294,7 @@ fn cone_in_cap(a: vec3f, b: vec3f, c: vec3f, d: vec3f, cap: f32, behind: bool) -
     }
     let fan = -sum;
     if behind {
-        return fan + 6.2831855 * (1.0 - cap);
+        return fan + 2.0 * PI * (1.0 - cap);
     }
     return fan;
 }

@@ -8,7 +8,6 @@
 // power conservation's "sent"), `params.flux_half` the one `flux_main` writes and `gather_main`
 // reads, the tail comparing the two halves' roots; and the nodes' gathered power (x, "got").
 
-const PI: f32 = 3.14159265358979;
 const BIG: f32 = 3.0e38;
 
 fn rad_point(t: RadTexel) -> vec3f {
@@ -240,52 +239,11 @@ fn between(r: RadTexel, pr: vec3f, s: RadTexel, ps: vec3f) -> f32 {
     return v;
 }
 
-// --- Lambert's contour integral (prm::form_factor::point_to_polygon) ---
+// --- Lambert's contour integral (form_factor.wgsl) ---
 
 // Texel t's shape (crate::cpu::radiosity::Shape) posed by `w`: its vertices, count in [7].x.
 fn shape_vertex(t: u32, i: u32, w: mat4x4f) -> vec3f {
     return (w * vec4f(shapes[8u * t + i].xyz, 1.0)).xyz;
-}
-
-// Form factor from the point p (unit normal n) to the convex polygon v[0..count], clipped to
-// p's side (prm::form_factor::point_to_polygon).
-fn clipped_form_factor(p: vec3f, n: vec3f, v: array<vec3f, 8>, count: u32) -> f32 {
-    var scale = 0.0;
-    for (var i = 0u; i < count; i++) {
-        scale = max(scale, length(v[i] - p));
-    }
-    let tol = 1e-5 * scale;
-    var c: array<vec3f, 9>;
-    var m = 0u;
-    for (var i = 0u; i < count; i++) {
-        let a = v[i];
-        let b = v[(i + 1u) % count];
-        let da = dot(a - p, n) - tol;
-        let db = dot(b - p, n) - tol;
-        if da > 0.0 {
-            c[m] = a;
-            m++;
-        }
-        if (da > 0.0) != (db > 0.0) && da != db {
-            c[m] = a + (b - a) * (da / (da - db));
-            m++;
-        }
-    }
-    if m < 3u {
-        return 0.0;
-    }
-    var sum = 0.0;
-    for (var i = 0u; i < m; i++) {
-        let a = c[i] - p;
-        let b = c[(i + 1u) % m] - p;
-        let g = cross(a, b);
-        let gl = length(g);
-        if gl <= 0.0 {
-            continue;
-        }
-        sum += atan2(gl, dot(a, b)) * dot(n, g / gl);
-    }
-    return min(abs(sum) / (2.0 * PI), 1.0);
 }
 
 // Texel t's shape posed by `w`, and its vertex count.
@@ -299,7 +257,7 @@ fn posed_shape(t: u32, w: mat4x4f) -> array<vec3f, 8> {
 }
 
 fn point_to_shape(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
-    return clipped_form_factor(p, n, posed_shape(t, w), u32(shapes[8u * t + 7u].x));
+    return polygon_form_factor(p, n, posed_shape(t, w), u32(shapes[8u * t + 7u].x));
 }
 
 // The same, each part (centroid, vertex i, vertex i + 1) weighted by its share of the direct
@@ -318,7 +276,7 @@ fn point_to_parts(p: vec3f, n: vec3f, t: u32, w: mat4x4f) -> f32 {
         tri[0] = c;
         tri[1] = v[i];
         tri[2] = v[(i + 1u) % count];
-        sum += shapes[8u * t + i].w * clipped_form_factor(p, n, tri, 3u);
+        sum += shapes[8u * t + i].w * polygon_form_factor(p, n, tri, 3u);
     }
     return sum;
 }

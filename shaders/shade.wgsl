@@ -60,5 +60,5 @@ fn fs_main(v: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec
     if params.indirect_scale != 0.0 {
         e += params.indirect_scale * lightmap_bilinear(v.uv1);
     }
-    return vec4f(v.emissive + v.albedo / 3.14159265358979 * e, 1.0);
+    return vec4f(v.emissive + v.albedo / PI * e, 1.0);
 }

@@ -69,7 +69,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "compose",
     body: include_str!("../../shaders/compose.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "select_main", workgroup: LINEAR },

@@ -13,7 +13,7 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::contract::{Compute, Library, Shader, LINEAR, WG_LINEAR};
 use crate::gpu;
 use crate::layout::{GpuHotEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
@@ -74,7 +74,7 @@ pub const CONCENTRATE_BINDINGS: &[Binding] = &[
 pub const CONCENTRATE: Shader = Shader {
     stem: "concentrate",
     body: include_str!("../../shaders/concentrate.wgsl"),
-    lights: true,
+    libraries: &[Library::Lights, Library::FormFactor],
     groups: &[SHADOW_GROUP, CONCENTRATE_BINDINGS],
     compute: &[
         Compute { entry: "hot_items_main", workgroup: LINEAR },
@@ -100,7 +100,7 @@ pub const ENERGY_BINDINGS: &[Binding] = &[
 pub const LINK_ENERGY: Shader = Shader {
     stem: "link_energy",
     body: include_str!("../../shaders/link_energy.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[ENERGY_BINDINGS],
     compute: &[Compute { entry: "link_energy_main", workgroup: LINEAR }],
 };

@@ -8,8 +8,9 @@
 //!   window from [`prm::light::RANGE_WINDOW_WGSL`] (written next to its Rust twin), and every
 //!   struct of [`crate::layout`];
 //! - the `@group @binding` declarations, from each pass's table ([`crate::bindings`]);
-//! - then, for passes that light surfaces, the light library `shaders/lights.wgsl`; last the
-//!   pass's own `shaders/<stem>.wgsl`, which only adds functions, local structs and entry points.
+//! - then the [`Library`]s the pass uses: the light library `shaders/lights.wgsl` for passes
+//!   that light surfaces, the polygon form factor `shaders/form_factor.wgsl`; last the pass's
+//!   own `shaders/<stem>.wgsl`, which only adds functions, local structs and entry points.
 //!
 //! A [`Shader`] names those parts; [`SHADERS`] lists every one, so the layout test can parse
 //! each assembled source with naga and check bindings, visibility and workgroup sizes against
@@ -127,13 +128,15 @@ pub fn prelude() -> &'static str {
              // Shadow texels a directional light's lookup stands off its receiver (crate::shadow).\n\
              const SUN_NORMAL_OFFSET: f32 = {:?}f;\n\
              // Texels a directional light's tile reaches past its part of the grid (crate::lights).\n\
-             const SUN_TILE_MARGIN: f32 = {:?}f;\n",
+             const SUN_TILE_MARGIN: f32 = {:?}f;\n\
+             const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
             crate::cpu::FAR_SOURCE_SCALE,
             crate::shadow::FOOTPRINT_TEXELS,
             crate::shadow::SUN_NORMAL_OFFSET,
-            crate::lights::SUN_TILE_MARGIN as f32
+            crate::lights::SUN_TILE_MARGIN as f32,
+            std::f32::consts::PI
         );
         let _ = writeln!(
             s,
@@ -183,6 +186,38 @@ pub const LINEAR: [u32; 3] = [WG_LINEAR, 1, 1];
 /// `@workgroup_size(WG_TILE, WG_TILE)`.
 pub const TILE: [u32; 3] = [WG_TILE, WG_TILE, 1];
 
+/// WGSL functions more than one pass calls, written once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Library {
+    /// `shaders/lights.wgsl`: how a light reaches a point, with its shadow maps (it needs
+    /// [`crate::shadow::SHADOW_GROUP`] as group 0).
+    Lights,
+    /// `shaders/form_factor.wgsl`: a point's form factor to a convex polygon
+    /// (`prm::form_factor::point_to_polygon`).
+    FormFactor,
+}
+
+impl Library {
+    /// Every library, for the contract tests.
+    pub const ALL: [Library; 2] = [Library::Lights, Library::FormFactor];
+
+    /// Its WGSL.
+    pub fn source(self) -> &'static str {
+        match self {
+            Library::Lights => crate::lights::LIBRARY,
+            Library::FormFactor => include_str!("../../shaders/form_factor.wgsl"),
+        }
+    }
+
+    /// `shaders/<stem>.wgsl`.
+    pub fn stem(self) -> &'static str {
+        match self {
+            Library::Lights => "lights",
+            Library::FormFactor => "form_factor",
+        }
+    }
+}
+
 /// One shader: the parts it is assembled from and what its entry points must be.
 #[derive(Clone, Copy, Debug)]
 pub struct Shader {
@@ -190,9 +225,8 @@ pub struct Shader {
     pub stem: &'static str,
     /// The pass's own WGSL.
     pub body: &'static str,
-    /// Whether the light library (`shaders/lights.wgsl`) goes in (it needs
-    /// [`crate::shadow::SHADOW_GROUP`] as group 0).
-    pub lights: bool,
+    /// The WGSL libraries that go in before the pass, in this order.
+    pub libraries: &'static [Library],
     /// Bind groups, group `g` = `groups[g]`.
     pub groups: &'static [&'static [Binding]],
     /// Compute entry points with their workgroup sizes (none for render shaders).
@@ -201,14 +235,14 @@ pub struct Shader {
 }
 
 impl Shader {
-    /// The assembled WGSL: prelude, bindings, light library if used, the pass.
+    /// The assembled WGSL: prelude, bindings, the libraries it uses, the pass.
     pub fn source(&self) -> String {
         let mut s = String::from(prelude());
         s += "\n// Bindings (runtime/src/bindings.rs tables).\n";
         s += &bindings::declarations(self.groups);
-        if self.lights {
+        for library in self.libraries {
             s += "\n";
-            s += crate::lights::LIBRARY;
+            s += library.source();
         }
         s += "\n";
         s += self.body;

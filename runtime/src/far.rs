@@ -44,7 +44,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "far",
     body: include_str!("../../shaders/far.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "sources_main", workgroup: [WG_FAR_SOURCES, 1, 1] },

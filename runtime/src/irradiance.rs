@@ -17,7 +17,7 @@
 use prm::prm_file::Cells;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::contract::{Compute, Library, Shader, LINEAR, WG_LINEAR};
 use crate::gpu;
 use crate::layout::{GpuCellTriangle, GpuEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
@@ -39,7 +39,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "irradiance",
     body: include_str!("../../shaders/irradiance.wgsl"),
-    lights: true,
+    libraries: &[Library::Lights],
     groups: &[SHADOW_GROUP, BINDINGS],
     compute: &[Compute { entry: "entry_main", workgroup: LINEAR }],
 };

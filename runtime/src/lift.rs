@@ -34,7 +34,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "lift",
     body: include_str!("../../shaders/lift.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "lift_main", workgroup: LINEAR },

@@ -34,7 +34,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "near",
     body: include_str!("../../shaders/near.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "deviation_main", workgroup: LINEAR },
@@ -55,7 +55,7 @@ pub const ECHO_BINDINGS: &[Binding] = &[
 pub const ECHO: Shader = Shader {
     stem: "echo",
     body: include_str!("../../shaders/echo.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[ECHO_BINDINGS],
     compute: &[
         Compute { entry: "echo_first_main", workgroup: LINEAR },

@@ -22,7 +22,7 @@
 //! test checks them).
 
 use crate::bindings::{b, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR};
+use crate::contract::{Compute, Library, Shader, LINEAR};
 use crate::shadow::SHADOW_GROUP;
 
 /// Texel sizes within which a single texel sends by the exact form factor of its atlas square.
@@ -51,7 +51,7 @@ pub const MAX_CONSERVE: f32 = 1.25;
 pub const SHADER: Shader = Shader {
     stem: "radiosity",
     body: include_str!("../../shaders/radiosity.wgsl"),
-    lights: false,
+    libraries: &[Library::FormFactor],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "flux_main", workgroup: LINEAR },
@@ -78,7 +78,7 @@ pub const DIRECT_BINDINGS: &[Binding] = &[
 pub const DIRECT: Shader = Shader {
     stem: "texel_direct",
     body: include_str!("../../shaders/texel_direct.wgsl"),
-    lights: true,
+    libraries: &[Library::Lights],
     groups: &[SHADOW_GROUP, DIRECT_BINDINGS],
     compute: &[Compute { entry: "texel_direct_main", workgroup: LINEAR }],
 };

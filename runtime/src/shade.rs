@@ -15,7 +15,7 @@ use prm::{Camera, Scene};
 use wgpu::util::DeviceExt;
 
 use crate::bindings::{b, bind, Binding, Res, FRAGMENT, VERTEX_FRAGMENT};
-use crate::contract::Shader;
+use crate::contract::{Library, Shader};
 use crate::layout::{mat, GpuStruct, ShadeParams, ShadeVertex};
 use crate::runtime::Runtime;
 use crate::shadow::SHADOW_GROUP;
@@ -32,7 +32,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "shade",
     body: include_str!("../../shaders/shade.wgsl"),
-    lights: true,
+    libraries: &[Library::Lights],
     groups: &[SHADOW_GROUP, BINDINGS],
     compute: &[],
 };

@@ -101,7 +101,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "shadow",
     body: include_str!("../../shaders/shadow.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[],
 };
@@ -117,7 +117,7 @@ pub const BLOCK_BINDINGS: &[Binding] = &[
 pub const BLOCKS: Shader = Shader {
     stem: "shadow_blocks",
     body: include_str!("../../shaders/shadow_blocks.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BLOCK_BINDINGS],
     compute: &[Compute { entry: "blocks_main", workgroup: LINEAR }],
 };

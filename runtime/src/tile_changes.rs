@@ -76,7 +76,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "tile_changes",
     body: include_str!("../../shaders/tile_changes.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "tiles_main", workgroup: LINEAR },

@@ -56,7 +56,7 @@ pub const DIPOLE_BINDINGS: &[Binding] = &[
 pub const DIPOLE: Shader = Shader {
     stem: "dipole",
     body: include_str!("../../shaders/dipole.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[DIPOLE_BINDINGS],
     compute: &[
         Compute { entry: "moments_main", workgroup: LINEAR },
@@ -67,7 +67,7 @@ pub const DIPOLE: Shader = Shader {
 pub const SHADER: Shader = Shader {
     stem: "weights",
     body: include_str!("../../shaders/weights.wgsl"),
-    lights: false,
+    libraries: &[],
     groups: &[BINDINGS],
     compute: &[
         Compute { entry: "weights_main", workgroup: LINEAR },

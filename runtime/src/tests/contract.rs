@@ -16,7 +16,7 @@ use std::collections::BTreeMap;
 use std::mem::{offset_of, size_of};
 
 use crate::bindings::{Binding, Res};
-use crate::contract::{self, Compute, Shader, SHADERS};
+use crate::contract::{self, Compute, Library, Shader, SHADERS};
 use crate::layout::{gpu_structs, Field, ShadeVertex};
 use naga::valid::{Capabilities, ModuleInfo, ValidationFlags, Validator};
 use naga::{AddressSpace, ImageClass, ImageDimension, Module, ScalarKind, StorageAccess, TypeInner};
@@ -233,8 +233,8 @@ fn the_prelude_constants_have_the_rust_values() {
 /// or bindings and structs of their own (those would be checked, but could still drift).
 #[test]
 fn no_shader_writes_the_contract_by_hand() {
-    let lights = include_str!("../../../shaders/lights.wgsl");
-    let bodies = SHADERS.iter().map(|s| (s.stem, s.body)).chain([("lights", lights)]);
+    let libraries = Library::ALL.map(|l| (l.stem(), l.source()));
+    let bodies = SHADERS.iter().map(|s| (s.stem, s.body)).chain(libraries);
     let forbidden = [
         "@workgroup_size(6",
         "@workgroup_size(8",
@@ -250,12 +250,37 @@ fn no_shader_writes_the_contract_by_hand() {
         "fn luminance",
         "fn range_window",
         "fn spot_falloff",
+        "const PI",
+        "3.14159",
     ];
     for (stem, body) in bodies {
         for f in forbidden {
             assert!(!body.contains(f), "shaders/{stem}.wgsl writes `{f}`: take it from the prelude");
         }
     }
+}
+
+/// A helper function is written in one WGSL file: where two passes need it, it goes into a
+/// [`Library`] both include (entry points, `*_main`, are each pass's own).
+#[test]
+fn no_wgsl_function_is_written_twice() {
+    let libraries = Library::ALL.map(|l| (l.stem(), l.source()));
+    let mut seen: BTreeMap<&str, &str> = BTreeMap::new();
+    for (stem, body) in SHADERS.iter().map(|s| (s.stem, s.body)).chain(libraries) {
+        for line in body.lines() {
+            let Some(rest) = line.strip_prefix("fn ") else { continue };
+            let name = rest.split('(').next().unwrap_or(rest).trim();
+            if name.ends_with("_main") {
+                continue;
+            }
+            if let Some(first) = seen.insert(name, stem) {
+                panic!(
+                    "fn {name} is written in shaders/{first}.wgsl and shaders/{stem}.wgsl: make it a Library"
+                );
+            }
+        }
+    }
+    assert!(seen.contains_key("polygon_form_factor"), "the form factor library was not read");
 }
 
 #[test]

@@ -886,16 +886,9 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     assert!(!prm.near().is_empty());
     let mut corner = scene.lights.clone();
     corner[0].position = v(0.05, 0.05, 0.05);
-    rt.update(&corner).unwrap();
-    let gpu_l = rt.read_lightmap().unwrap();
-    let cpu = twin.frame(&corner).to_vec();
-    let e = crate::cpu::entry_irradiance(&prm, &bvh, &corner);
-    let w = cpu::cluster_weights(&prm, &e);
-    let panes_only = cpu::compose(&prm, &w, &cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e));
-    let near_share = prm::metric::compare(&panes_only, &cpu, None).error;
-    assert!(near_share > 0.1, "the near field changes the corner's lightmap by only {near_share}");
-    let m = prm::metric::compare(&gpu_l, &cpu, None);
-    assert!(m.error < 0.01, "corner lamp: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    let cpu = lightmaps_agree(&mut rt, &mut twin, &corner, "corner lamp").1;
+    let near = near_share(&prm, &bvh, &corner, &cpu);
+    assert!(near > 0.1, "the near field changes the corner's lightmap by only {near}");
     // A spot 3 cm over the floor by a wall, aimed down: its light lands in a spot smaller than
     // the concentration's sub-triangles, which the footprint's points find
     // (`cpu::concentrate`): the GPU's against the twin's, again where the near field matters.
@@ -903,16 +896,9 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     spot[0].kind = LightKind::Spot { inner: 0.3, outer: 0.5 };
     spot[0].position = v(0.1, 0.03, 0.5);
     spot[0].direction = Vec3::NEG_Y;
-    rt.update(&spot).unwrap();
-    let gpu_l = rt.read_lightmap().unwrap();
-    let cpu = twin.frame(&spot).to_vec();
-    let e = crate::cpu::entry_irradiance(&prm, &bvh, &spot);
-    let w = cpu::cluster_weights(&prm, &e);
-    let panes_only = cpu::compose(&prm, &w, &cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e));
-    let near_share = prm::metric::compare(&panes_only, &cpu, None).error;
-    assert!(near_share > 0.1, "the near field changes the spot's lightmap by only {near_share}");
-    let m = prm::metric::compare(&gpu_l, &cpu, None);
-    assert!(m.error < 0.01, "low spot: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    let cpu = lightmaps_agree(&mut rt, &mut twin, &spot, "low spot").1;
+    let near = near_share(&prm, &bvh, &spot, &cpu);
+    assert!(near > 0.1, "the near field changes the spot's lightmap by only {near}");
     // A narrow spot from under the box's top, aimed down: its cone's rim crosses floor cells
     // 0.9 m from it, farther than HOT_REACH sizes, which it makes hot as a shadow edge does
     // (`cpu::concentrate::concentrates`); the GPU's twin of that test, against the twin's.
@@ -932,14 +918,8 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         })
         .count();
     assert!(by_rim > 0, "no cell is hot by the cone's rim");
-    rt.update(&narrow).unwrap();
-    let gpu_l = rt.read_lightmap().unwrap();
-    let cpu = twin.frame(&narrow).to_vec();
-    let m = prm::metric::compare(&gpu_l, &cpu, None);
-    assert!(m.error < 0.01, "narrow spot: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
-    rt.update(&corner).unwrap();
-    let gpu_l = rt.read_lightmap().unwrap();
-    let cpu = twin.frame(&corner).to_vec();
+    lightmaps_agree(&mut rt, &mut twin, &narrow, "narrow spot");
+    let (gpu_l, cpu) = lightmaps_agree(&mut rt, &mut twin, &corner, "corner lamp");
     // The echo is part of what the two agree on: it must change the corner's lightmap (by 19 %
     // when measured before the dipoles; 3.8 % with them, which now carry the linear part of the
     // hot spot's light and all its bounces, leaving the echo the rest).
@@ -992,6 +972,32 @@ fn gpu_lightmap_matches_the_cpu_twin() {
         let m = prm::metric::compare(&gpu_4, &cpu_4, None);
         assert!(m.error < 0.01, "corner lamp, 4 per vertex, residual {residual}: GPU vs twin: {}", m.error);
     }
+}
+
+/// The GPU's indirect lightmap and the CPU twin's for `lights`, held within 1 % normalised RMSE
+/// of each other.
+fn lightmaps_agree(
+    rt: &mut Runtime,
+    twin: &mut cpu::CpuTwin,
+    lights: &[Light],
+    what: &str,
+) -> (Vec<Vec3>, Vec<Vec3>) {
+    rt.update(lights).unwrap();
+    let gpu = rt.read_lightmap().unwrap();
+    let cpu = twin.frame(lights).to_vec();
+    let m = prm::metric::compare(&gpu, &cpu, None);
+    assert!(m.error < 0.01, "{what}: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    (gpu, cpu)
+}
+
+/// How much the near field changes the twin's lightmap `twin_lightmap` for `lights`: its
+/// normalised RMSE from the panes and dipoles alone (a GPU-twin check where this is small
+/// checks nothing of the near pass).
+fn near_share(prm: &Prm, bvh: &Bvh, lights: &[Light], twin_lightmap: &[Vec3]) -> f64 {
+    let e = crate::cpu::entry_irradiance(prm, bvh, lights);
+    let w = cpu::cluster_weights(prm, &e);
+    let panes_only = cpu::compose(prm, &w, &cpu::dipole_moments(prm, &cpu::NearTables::new(prm), &e));
+    prm::metric::compare(&panes_only, twin_lightmap, None).error
 }
 
 /// The far field alone, GPU and CPU twin, for `lights`: each lightmap less the one of the same
