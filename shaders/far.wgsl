@@ -2,17 +2,25 @@
 // far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sums of
 // |phi| luminances and of the light the surfaces reflect onto the level (luminance(flux_j) x
 // deviation_j.w x stay_j, deviation_j.w the near pass's luminance(E_j)), the count over the
-// stable threshold, the threshold (far_threshold), and the entries over it, ascending, into
-// source_index / source_flux (their number at source_index[FAR_SOURCES]).
+// stable threshold, the threshold (far_threshold), and the entries over it, ascending: their
+// entries in source_sees' index (source_entry; their number at FAR_SOURCES), their records in
+// deviation (record: phi, then the whole flux flux_j E_j with the light that lights the cell
+// up close, lit_by, or NO_LIGHT).
 // sees_main, one invocation per (source, block of 32 entries): which entries of the block see
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
-// texel's near_sum slot (written when the slot is past the near field's own texels); its
-// workgroup first lists the sources any of its texels' neighbours sees (group_words), and the
-// sum runs over those, in the same order. Structs, bindings, WG_LINEAR,
-// WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, luminance, far_share: the generated prelude.
+// texel's near_sum slot (written when the slot is past the near field's own texels), and for a
+// source lit up close, its whole flux times (what the texel sees of that light, its shadow
+// maps, less V); its workgroup first lists the sources any of its texels' neighbours sees, or
+// that are lit up close (group_words), and the sum runs over those, in the same order.
+// Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
+// NO_LIGHT, luminance, far_share: the generated prelude; visibility: lights.wgsl.
+//
+// deviation: [0, N) the near pass's deviations, [N, 2N) the entries' irradiance E_j (rgb),
+// then two vec4f a source (record). source_sees: FAR_SOURCES rows of blocks() words, then the
+// sources' entries and their number (index_base).
 
 var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
 var<workgroup> reflected: array<f32, WG_FAR_SOURCES>;
@@ -21,6 +29,44 @@ var<workgroup> listed: u32;
 
 fn flux_of(j: u32) -> vec3f {
     return far_entries[j].flux * deviation[j].xyz;
+}
+
+// Where source s's two vec4f lie in deviation: (phi, 0), (whole flux, bits of lit_by).
+fn record(s: u32) -> u32 {
+    return 2u * params.entry_count + 2u * s;
+}
+
+// Where the sources' entries start in source_sees (after the rows of bits).
+fn index_base() -> u32 {
+    return FAR_SOURCES * blocks();
+}
+
+fn source_entry(s: u32) -> u32 {
+    return source_sees[index_base() + s];
+}
+
+fn source_count() -> u32 {
+    return source_sees[index_base() + FAR_SOURCES];
+}
+
+// prm_runtime::cpu::LightSight::lit_by: of the point and spot lights with a cube of shadow
+// maps, the nearest within HOT_REACH sizes of entry j's cell centroid and in front of it.
+fn lit_by(j: u32) -> u32 {
+    let e = far_entries[j];
+    var best = NO_LIGHT;
+    var best_d = HOT_REACH * e.size;
+    for (var k = 0u; k < params.light_count; k++) {
+        let l = lights[k];
+        if l.kind == KIND_DIRECTIONAL || l.layers != CUBE_LAYERS {
+            continue;
+        }
+        let d = distance(l.position, e.centroid);
+        if d < best_d && dot(e.normal, l.position - e.centroid) > 0.0 {
+            best = k;
+            best_d = d;
+        }
+    }
+    return best;
 }
 
 @compute @workgroup_size(WG_FAR_SOURCES)
@@ -86,8 +132,10 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
         }
         let at = listed + scan[lid] - keep;
         if keep == 1u && at < FAR_SOURCES {
-            source_index[at] = j;
-            source_flux[at] = vec4f(phi, 0.0);
+            source_sees[index_base() + at] = j;
+            deviation[record(at)] = vec4f(phi, 0.0);
+            let whole = far_entries[j].flux * deviation[params.entry_count + j].xyz;
+            deviation[record(at) + 1u] = vec4f(whole, bitcast<f32>(lit_by(j)));
         }
         workgroupBarrier();
         if lid == 0u {
@@ -96,7 +144,7 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
         workgroupBarrier();
     }
     if lid == 0u {
-        source_index[FAR_SOURCES] = min(listed, FAR_SOURCES);
+        source_sees[index_base() + FAR_SOURCES] = min(listed, FAR_SOURCES);
     }
 }
 
@@ -114,11 +162,11 @@ fn sees_main(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) 
     let i = id.x + id.y * groups.x * WG_LINEAR;
     let b = blocks();
     let s = i / b;
-    if s >= source_index[FAR_SOURCES] {
+    if s >= source_count() {
         return;
     }
     let a = i % b;
-    let j = source_index[s];
+    let j = source_entry(s);
     let other = j / 32u;
     // The pair (a, other) in block a's run of pairs, whose other blocks ascend.
     let end = far_visible[a + 1u];
@@ -158,6 +206,11 @@ fn group_table() -> u32 {
     return b + 1u + 33u * far_visible[b];
 }
 
+// The light that lights source s's cell up close (NO_LIGHT for none).
+fn lit(s: u32) -> u32 {
+    return bitcast<u32>(deviation[record(s) + 1u].w);
+}
+
 // Whether any neighbour of the workgroup's texels sees source s (group_words).
 fn group_sees(s: u32, group: u32) -> bool {
     let table = group_table();
@@ -182,7 +235,7 @@ fn far_main(
     let live = k < params.far_texel_count;
     let t = far_texels[min(k, params.far_texel_count - 1u)];
     if lid == 0u {
-        wg_count = source_index[FAR_SOURCES];
+        wg_count = source_count();
     }
     let count = workgroupUniformLoad(&wg_count);
     // The neighbours' cells, for which of them face a source (their bits say nothing of one
@@ -196,11 +249,13 @@ fn far_main(
         facing[q] = m.normal;
     }
     var sum = vec3f(0.0);
+    var sight_of = NO_LIGHT;
+    var sight = 0.0;
     for (var start = 0u; start < count; start += WG_LINEAR) {
         // The workgroup lists, in order, the sources of this run that some neighbour of its
         // texels sees (a prefix sum over the run), and each texel sums over those alone.
         let s0 = start + lid;
-        let seen0 = u32(s0 < count && group_sees(s0, wid.x));
+        let seen0 = u32(s0 < count && (lit(s0) != NO_LIGHT || group_sees(s0, wid.x)));
         wg_flags[lid] = seen0;
         workgroupBarrier();
         for (var off = 1u; off < WG_LINEAR; off *= 2u) {
@@ -230,10 +285,11 @@ fn far_main(
                 votes[q] = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
                 every += votes[q];
             }
-            if every == 0.0 {
+            let by = lit(s);
+            if every == 0.0 && by == NO_LIGHT {
                 continue;
             }
-            let j = source_index[s];
+            let j = source_entry(s);
             let e = far_entries[j];
             let d = e.centroid - t.position;
             let cx = dot(t.normal, d);
@@ -258,7 +314,18 @@ fn far_main(
             if total > 0.0 {
                 v = seen / total;
             }
-            sum += source_flux[s].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+            var light = deviation[record(s)].xyz * v;
+            if by != NO_LIGHT {
+                // What the texel sees of the light that lights the cell up close, from its
+                // shadow maps (the same for every source it lights: read once a texel).
+                if by != sight_of {
+                    let l = lights[by];
+                    sight = visibility(l, t.position, t.normal, distance(l.position, t.position));
+                    sight_of = by;
+                }
+                light += deviation[record(s) + 1u].xyz * (sight - v);
+            }
+            sum += light * (share * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
         }
         workgroupBarrier();
     }

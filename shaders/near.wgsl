@@ -4,7 +4,8 @@
 // left in `deviation` this update. near_main, one per texel with links: near_sum = sum over its
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
 // read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
-// in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads.
+// in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads;
+// deviation[N + j]: E_entry, which far.wgsl's sources lit up close send whole.
 // Structs, bindings, WG_LINEAR, luminance: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -17,6 +18,8 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
     let fit = weights[ec.x].xyz + deviation[j].xyz;
     let e = entry_irradiance[j].xyz;
     deviation[j] = vec4f(e - fit * bitcast<f32>(ec.y), luminance(e));
+    // For the far field (far.wgsl): E_j itself.
+    deviation[params.entry_count + j] = vec4f(e, 0.0);
 }
 
 @compute @workgroup_size(WG_LINEAR)

@@ -94,6 +94,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("MAX_LIGHTS", prm::rig::MAX_LIGHTS as u32),
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
+    ("NO_LIGHT", crate::far::NO_LIGHT),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
     ("CSSM_NOTHING", prm::visibility::cssm::NOTHING as u32),
     ("CSM_MISS", prm::visibility::csm::MISS as u32),

@@ -10,42 +10,58 @@
 //!    sums, which it adds in another order, at the threshold).
 //! 2. `far_main`, one invocation per far texel: the sources' light at the texel, added to the
 //!    texel's `near_sum` slot (written there when the texel has no near links of its own), which
-//!    the compose adds to the panes.
+//!    the compose adds to the panes. A source whose cell a light lights up close
+//!    (`crate::cpu::LightSight`) is seen as the texel sees that light, in its own shadow maps:
+//!    the pass binds the shadow group as group 0 and reads them with `shaders/lights.wgsl`.
+//!
+//! A stage may bind 8 storage buffers, and the shadow group takes 2 of them, so the sources'
+//! list shares buffers with tables the pass already binds: their entries follow the rows of
+//! `source_sees`, and their records (deviation flux; whole flux and the light that lights it
+//! up close) follow the entries' irradiance in `deviation` ([`deviation_len`]).
 
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::contract::{Compute, Library, Shader, LINEAR, WG_LINEAR};
 use crate::cpu::{NearTables, FAR_SOURCES};
 use crate::gpu;
 use crate::layout::{FarEntry, GpuFarTexel, GpuStruct, IndirectParams};
+use crate::shadow::SHADOW_GROUP;
 
 /// Invocations of the one workgroup that lists the sources (`@workgroup_size(WG_FAR_SOURCES)`).
 pub const WG_FAR_SOURCES: u32 = 256;
 
+/// A source no light lights up close (`crate::cpu::FarSource::lit_by` None).
+pub const NO_LIGHT: u32 = u32::MAX;
+
+/// Length in `vec4f` of the buffer the near pass leaves its deviations in, for `entries`
+/// entries: the deviations, the entries' irradiance, then two records a far-field source.
+pub fn deviation_len(entries: usize) -> usize {
+    2 * entries + 2 * FAR_SOURCES
+}
+
+/// Group 1 (group 0 is the shadow maps' `SHADOW_GROUP`).
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    // Per entry, this update's `E_j - (w_c + lin_j) t_j` (the near pass's `deviation_main`).
-    b("deviation", Res::Read("array<vec4f>"), COMPUTE),
+    // Per entry, this update's `E_j - (w_c + lin_j) t_j` (the near pass's `deviation_main`),
+    // then per entry E_j, then the sources' records, written here ([`deviation_len`]).
+    b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("far_entries", Res::Read("array<FarEntry>"), COMPUTE),
     // The entries' visibility by blocks ([`far_words`]).
     b("far_visible", Res::Read("array<u32>"), COMPUTE),
     b("far_texels", Res::Read("array<GpuFarTexel>"), COMPUTE),
-    // The sources' entries, then (at FAR_SOURCES) their number.
-    b("source_index", Res::ReadWrite("array<u32>"), COMPUTE),
-    // The sources' flux (W, RGB).
-    b("source_flux", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // The near field's per-texel sums (crate::near), where the compose reads both fields.
     b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // Per source, which entries see it: a bit an entry ([`source_sees_words`]).
+    // Per source, which entries see it: a bit an entry; then the sources' entries and their
+    // number ([`source_sees_words`]).
     b("source_sees", Res::ReadWrite("array<u32>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
     stem: "far",
     body: include_str!("../../shaders/far.wgsl"),
-    libraries: &[],
-    groups: &[BINDINGS],
+    libraries: &[Library::Lights],
+    groups: &[SHADOW_GROUP, BINDINGS],
     compute: &[
         Compute { entry: "sources_main", workgroup: [WG_FAR_SOURCES, 1, 1] },
         Compute { entry: "sees_main", workgroup: LINEAR },
@@ -57,7 +73,7 @@ pub const SHADER: Shader = Shader {
 pub struct FarPass {
     sources: wgpu::ComputePipeline,
     sees: wgpu::ComputePipeline,
-    /// Invocations of `sees_main`: [`source_sees_words`].
+    /// Invocations of `sees_main`: a (source, block of 32 entries) each.
     sees_count: u32,
     texels: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
@@ -67,17 +83,26 @@ pub struct FarPass {
     pub reach: f32,
 }
 
+/// The buffers the far field shares with the passes before it.
+pub struct FarBuffers<'a> {
+    pub params: &'a wgpu::Buffer,
+    /// The near pass's deviations, [`deviation_len`] long.
+    pub deviation: &'a wgpu::Buffer,
+    /// The near field's per-texel sums.
+    pub sums: &'a wgpu::Buffer,
+}
+
 impl FarPass {
     /// `slot_of(texel)`: the texel's place in `sums` (`crate::near::NearData::index`).
     pub fn new(
         device: &wgpu::Device,
+        shadow_layout: &wgpu::BindGroupLayout,
         prm: &Prm,
         tables: &NearTables,
-        params: &wgpu::Buffer,
-        deviation: &wgpu::Buffer,
-        sums: &wgpu::Buffer,
+        buffers: FarBuffers,
         slot_of: &[u32],
     ) -> Option<FarPass> {
+        let FarBuffers { params, deviation, sums } = buffers;
         let far = prm.far();
         if far.texels.is_empty() {
             return None;
@@ -112,11 +137,9 @@ impl FarPass {
         let visible =
             gpu::storage_buffer(device, "far visibility", bytemuck::cast_slice(&far_words(far)), none);
         let texel_buf = gpu::storage_buffer(device, "far texels", bytemuck::cast_slice(&texels), none);
-        let index = gpu::storage_buffer(device, "far sources", &vec![0u8; (FAR_SOURCES + 1) * 4], none);
-        let flux = gpu::storage_buffer(device, "far source flux", &vec![0u8; FAR_SOURCES * 16], none);
         let sees_words = source_sees_words(prm.entries().len());
         let source_sees = gpu::storage_buffer(device, SOURCE_SEES, &vec![0u8; sees_words * 4], none);
-        let layout = SHADER.layout(device, 0);
+        let layout = SHADER.layout(device, 1);
         let group = bind(
             device,
             "far field",
@@ -128,20 +151,19 @@ impl FarPass {
                 ("far_entries", entries.as_entire_binding()),
                 ("far_visible", visible.as_entire_binding()),
                 ("far_texels", texel_buf.as_entire_binding()),
-                ("source_index", index.as_entire_binding()),
-                ("source_flux", flux.as_entire_binding()),
                 ("near_sum", sums.as_entire_binding()),
                 ("source_sees", source_sees.as_entire_binding()),
             ],
         );
         let source = SHADER.source();
-        let sources = gpu::compute_pipeline(device, "far.wgsl", &source, "sources_main", &[&layout]);
-        let sees = gpu::compute_pipeline(device, "far.wgsl", &source, "sees_main", &[&layout]);
-        let texels_pipeline = gpu::compute_pipeline(device, "far.wgsl", &source, "far_main", &[&layout]);
+        let layouts = [shadow_layout, &layout];
+        let sources = gpu::compute_pipeline(device, "far.wgsl", &source, "sources_main", &layouts);
+        let sees = gpu::compute_pipeline(device, "far.wgsl", &source, "sees_main", &layouts);
+        let texels_pipeline = gpu::compute_pipeline(device, "far.wgsl", &source, "far_main", &layouts);
         Some(FarPass {
             sources,
             sees,
-            sees_count: sees_words as u32,
+            sees_count: (FAR_SOURCES * prm.entries().len().div_ceil(32)) as u32,
             texels: texels_pipeline,
             group,
             count: texels.len() as u32,
@@ -150,8 +172,9 @@ impl FarPass {
     }
 
     /// Records the three dispatches into an open compute pass (after the near field's).
-    pub fn encode(&self, pass: &mut wgpu::ComputePass) {
-        pass.set_bind_group(0, &self.group, &[]);
+    pub fn encode(&self, pass: &mut wgpu::ComputePass, shadows: &wgpu::BindGroup) {
+        pass.set_bind_group(0, shadows, &[]);
+        pass.set_bind_group(1, &self.group, &[]);
         pass.set_pipeline(&self.sources);
         pass.dispatch_workgroups(1, 1, 1);
         // A (source, block) an invocation, in rows of at most 32768 workgroups (the limit is
@@ -169,11 +192,12 @@ impl FarPass {
 /// `sees_main`), as the GPU memory estimate names it.
 pub const SOURCE_SEES: &str = "far source visibility";
 
-/// Words of that table for `entries` entries: [`FAR_SOURCES`] rows of a bit an entry. Made
-/// once a frame from the pairs' bits, it spares the far field's texels the search for their
-/// neighbours' pairs at every source (on lavapipe, most of the far field's time).
+/// Words of that table for `entries` entries: [`FAR_SOURCES`] rows of a bit an entry, then the
+/// sources' entries and their number. Made once a frame from the pairs' bits, the rows spare
+/// the far field's texels the search for their neighbours' pairs at every source (on
+/// lavapipe, most of the far field's time).
 pub fn source_sees_words(entries: usize) -> usize {
-    FAR_SOURCES * entries.div_ceil(32)
+    FAR_SOURCES * entries.div_ceil(32) + FAR_SOURCES + 1
 }
 
 /// The far field's visibility as the shader reads it, in one buffer (a stage has few storage

@@ -204,6 +204,7 @@ impl NearPass {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         device: &wgpu::Device,
+        shadow_layout: &wgpu::BindGroupLayout,
         prm: &Prm,
         tables: &crate::cpu::NearTables,
         params: &wgpu::Buffer,
@@ -254,13 +255,25 @@ impl NearPass {
             gpu::compute_pipeline(device, "near.wgsl", &source, "deviation_main", &[&layout]);
         let entries = prm.entries().len() as u32;
         let echo = EchoPass::new(device, prm, params, &sums);
-        let far = FarPass::new(device, prm, tables, params, deviation, &sums, &index);
+        let far = FarPass::new(
+            device,
+            shadow_layout,
+            prm,
+            tables,
+            crate::far::FarBuffers { params, deviation, sums: &sums },
+            &index,
+        );
         NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo, far }
     }
 
     /// Records the pass (after the weights, before the compose).
     /// With `timer`, the near field and its echo are pass 5 and the far field pass 6.
-    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, timer: Option<&crate::timer::PassTimer>) {
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        shadows: &wgpu::BindGroup,
+        timer: Option<&crate::timer::PassTimer>,
+    ) {
         if self.count == 0 && self.far.is_none() {
             return;
         }
@@ -289,7 +302,7 @@ impl NearPass {
                 label: Some("far field"),
                 timestamp_writes: timer.map(|t| t.writes(6)),
             });
-            far.encode(&mut pass);
+            far.encode(&mut pass, shadows);
         }
     }
 

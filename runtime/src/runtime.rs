@@ -208,6 +208,7 @@ impl Runtime {
             WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
         let near = NearPass::new(
             device,
+            shadows.layout(),
             prm,
             &tables,
             &params_buf,
@@ -296,7 +297,7 @@ impl Runtime {
             self.concentrate.encode(&mut enc, shadows, timer.map(|t| t.writes(4)));
         }
         self.weights.encode_weights(&mut enc, timer.map(|t| t.writes(1)));
-        self.near.encode(&mut enc, timer);
+        self.near.encode(&mut enc, shadows, timer);
         if let Some(lift) = &self.lift {
             lift.encode(&mut enc);
         }

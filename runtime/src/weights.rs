@@ -198,7 +198,14 @@ impl WeightPass {
         let selected =
             gpu::storage_buffer(device, "selected weights", &vec![0u8; (4 * n + g_count).max(1) * 16], rw);
         let entries = prm.entries().len();
-        let lin = gpu::storage_buffer(device, "entry fits", &vec![0u8; entries.max(1) * 16], rw);
+        // The near pass turns the fits into deviations and adds the far field's tables after
+        // them (`crate::far::deviation_len`).
+        let lin = gpu::storage_buffer(
+            device,
+            "entry fits",
+            &vec![0u8; crate::far::deviation_len(entries) * 16],
+            rw,
+        );
         let none = wgpu::BufferUsages::empty();
         let members_buf =
             gpu::storage_buffer(device, "dipole members", bytemuck::cast_slice(&dipole_members), none);

@@ -358,3 +358,72 @@ fn the_far_threshold_lists_at_most_far_sources_and_is_the_stable_one_where_it_ca
     }
     assert!((10..190).contains(&fallbacks), "{fallbacks} of 200 rounds fell back: one branch barely tried");
 }
+
+/// A lamp 3 cm over the floor makes a spot of light a few cm across, which the far field sends
+/// to the texels beyond the near field's reach as their neighbour entries see the spot's cell.
+/// Under a pillar's abacus, 1.6 m up and a metre away, the few entries lie on both sides of
+/// the shaft, which hides the spot from the far side: their votes sent light behind the shaft
+/// and too little in front of it. A source a light lights up close is now seen as the texel
+/// sees the light (`cpu::LightSight`; the GPU reads the light's shadow maps). Against the
+/// ground truth, noise removed: the error with the sight at most 0.8 of the error without
+/// (measured 0.087 -> 0.055), and the underside behind the shaft nearer the truth (0.377 ->
+/// 0.286 against 0.261).
+#[test]
+fn far_texels_see_a_near_lamps_spot_as_they_see_the_lamp() {
+    let scene = common::pillar_room();
+    let bvh = Bvh::build(&scene);
+    let atlas = 48;
+    let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 11);
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 1024,
+        paths: 64,
+        clusters: 32,
+        atlas: prm::density::Atlas::single(atlas),
+        ..Default::default()
+    };
+    let (prm, _) =
+        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
+            .unwrap();
+    assert!(!prm.far().texels.is_empty());
+    let e = entry_irradiance(&prm, &bvh, &scene.lights);
+    let tables = cpu::NearTables::new(&prm);
+    let seeing = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
+    assert!(!seeing.sight.seen[0].is_empty(), "the lamp lights no cell up close");
+    let blind = cpu::LinkLight { sight: cpu::LightSight::default(), ..seeing.clone() };
+    let moments = cpu::dipole_moments(&prm, &tables, &e);
+    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
+    let lightmap = |link: &cpu::LinkLight| {
+        let (w, near) = cpu::pane_weights_with(&prm, &tables, link, &e, &lin);
+        let mut img = cpu::compose(&prm, &w, &moments);
+        cpu::add_and_clamp(&mut img, &near);
+        set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>()
+    };
+    let error = |img: &[Vec3]| {
+        let e = prm::metric::compare(img, &gt, None).error;
+        (e * e - noise * noise).max(0.0).sqrt()
+    };
+    let behind = |img: &[Vec3]| {
+        let at: Vec<f32> = set
+            .texels
+            .iter()
+            .zip(img)
+            .filter(|(t, _)| {
+                (t.position.y - 1.6).abs() < 1e-3 && t.position.x > 2.1 && (t.position.z - 1.0).abs() < 0.08
+            })
+            .map(|(_, v)| prm::luminance(*v))
+            .collect();
+        at.iter().sum::<f32>() / at.len().max(1) as f32
+    };
+    let (with, without) = (lightmap(&seeing), lightmap(&blind));
+    let (e_with, e_without) = (error(&with), error(&without));
+    let (b_with, b_without, b_truth) = (behind(&with), behind(&without), behind(&gt));
+    println!(
+        "error {e_without:.4} -> {e_with:.4} (noise {noise:.4}); the abacus behind the shaft \
+         {b_without:.4} -> {b_with:.4}, ground truth {b_truth:.4}"
+    );
+    assert!(e_with < 0.8 * e_without, "error {e_with} with the sight, {e_without} without");
+    assert!(
+        (b_with - b_truth).abs() < (b_without - b_truth).abs(),
+        "behind the shaft: {b_with} with the sight, {b_without} without, {b_truth} true"
+    );
+}

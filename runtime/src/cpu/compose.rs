@@ -443,17 +443,34 @@ pub fn far_threshold(reflected: f32, total: f32, over: usize) -> f32 {
     }
 }
 
-/// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending, with their
-/// deviation flux `phi_j = albedo_j (A/N) (E_j - t_j (w_c + lin_j))` (W): those whose
-/// luminance |phi_j| exceeds the threshold ([`far_threshold`]), never more than
-/// [`FAR_SOURCES`]. Empty without a far field.
+/// A far-field source this frame ([`far_sources`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FarSource {
+    /// Its entry.
+    pub entry: u32,
+    /// Its deviation flux `phi_j = albedo_j (A/N) (E_j - t_j (w_c + lin_j))` (W): what the
+    /// far field sends, seen as its texels' neighbours see it.
+    pub phi: Vec3,
+    /// The whole flux its cell reflects, `albedo_j (A/N) E_j` (W), and the light that lights
+    /// the cell up close ([`LightSight::lit_by`]): the panes and the far field together send
+    /// that flux as the neighbours see the cell, and a texel sees the spot the light makes as
+    /// it sees the light ([`far_field`]). None where no light is that close.
+    pub whole: Vec3,
+    pub lit_by: Option<u32>,
+}
+
+/// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending: those whose
+/// deviation flux's luminance |phi_j| exceeds the threshold ([`far_threshold`]), never more
+/// than [`FAR_SOURCES`], each with the light that lights its cell up close (`sight`). Empty
+/// without a far field.
 pub fn far_sources(
     prm: &Prm,
     tables: &NearTables,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
     lin: &[Vec3],
-) -> Vec<(u32, Vec3)> {
+    sight: &LightSight,
+) -> Vec<FarSource> {
     if prm.far().texels.is_empty() {
         return Vec::new();
     }
@@ -477,12 +494,55 @@ pub fn far_sources(
     let stable = reflected / FAR_SOURCE_SCALE;
     let over = phi.iter().filter(|p| luminance(p.abs()) > stable).count();
     let threshold = far_threshold(reflected, total, over);
+    let entries = prm.entries();
     phi.iter()
         .enumerate()
         .filter(|(_, p)| luminance(p.abs()) > threshold)
         .take(FAR_SOURCES)
-        .map(|(j, p)| (j as u32, *p))
+        .map(|(j, p)| FarSource {
+            entry: j as u32,
+            phi: *p,
+            whole: entries[j].albedo * entries[j].area * entry_irradiance[j],
+            lit_by: sight.lit_by(tables.centroid[j], entries[j].normal, tables.size[j]),
+        })
         .collect()
+}
+
+/// How the far texels see the point and spot lights that have a cube of shadow maps
+/// ([`crate::lights::layers`]): a light within [`HOT_REACH`] cell sizes of a cell makes a spot
+/// of light on it much smaller than the cell, which the far field otherwise sends as the
+/// texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
+/// or under its capital, a texel's neighbours lie on other faces and say nothing of what it
+/// sees: on the chamber's torch 15 cm from a wall, a capital 3 m away that saw the torch's
+/// spot got a sixth of its light. The spot is seen where the light is: the GPU reads the
+/// light's own cube of shadow maps at the texel, the twin traces a ray (`crate::cpu::light_sight`).
+///
+/// [`HOT_REACH`]: crate::cpu::concentrate::HOT_REACH
+#[derive(Clone, Debug, Default)]
+pub struct LightSight {
+    /// Per light: its position where it has a cube of shadow maps, else None.
+    pub at: Vec<Option<Vec3>>,
+    /// Per light with a position: how much of it each far texel (in `Far::texels` order) sees,
+    /// 0 to 1; empty for the others.
+    pub seen: Vec<Vec<f32>>,
+}
+
+impl LightSight {
+    /// The light that lights a cell (centroid, unit normal, size) up close: of the lights with
+    /// a position, the nearest within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes
+    /// of its centroid and in front of it (the first of equals).
+    pub fn lit_by(&self, centroid: Vec3, normal: Vec3, size: f32) -> Option<u32> {
+        let reach = crate::cpu::concentrate::HOT_REACH * size;
+        let mut best: Option<(u32, f32)> = None;
+        for (k, at) in self.at.iter().enumerate() {
+            let Some(p) = at else { continue };
+            let d = p.distance(centroid);
+            if d < reach && normal.dot(*p - centroid) > 0.0 && best.is_none_or(|(_, b)| d < b) {
+                best = Some((k as u32, d));
+            }
+        }
+        best.map(|(k, _)| k)
+    }
 }
 
 /// The far field at each of the map's far texels (in their order): `sum over sources j of
@@ -490,15 +550,19 @@ pub fn far_sources(
 /// of the entry's cell (its light's centre, where the entry point is only a sample of it),
 /// share = `far_share(|x - centroid_j|, reach, s_j)` (s_j: the cell's size), V the texel's
 /// neighbours' visibility of j weighted as stored. The `max` only matters with no near links
-/// (reach 0), where it bounds the spike a source next to the texel would make.
-pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec<Vec3> {
+/// (reach 0), where it bounds the spike a source next to the texel would make. A source lit up
+/// close by a light ([`FarSource::lit_by`]) also sends its whole flux times (what the texel
+/// sees of that light, `sight`, less V): the panes' first bounce and the deviation together
+/// send the cell's whole flux by V, and this sends it by what the texel sees.
+pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &LightSight) -> Vec<Vec3> {
     let (far, entries) = (prm.far(), prm.entries());
     far.texels
         .iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(i, t)| {
             let mut sum = Vec3::ZERO;
-            for &(j, phi) in sources {
-                let (j, e) = (j as usize, &entries[j as usize]);
+            for s in sources {
+                let (j, e) = (s.entry as usize, &entries[s.entry as usize]);
                 let (size, centroid) = (tables.size[j], tables.centroid[j]);
                 let share = far_share(centroid.distance(t.position), far.reach, size);
                 let d = centroid - t.position;
@@ -511,7 +575,11 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[(u32, Vec3)]) -> Vec
                     let q = t.entries[k] as usize;
                     entries[q].normal.dot(centroid - tables.centroid[q]) > 0.0
                 });
-                sum += phi * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(size * size)));
+                let mut light = s.phi * v;
+                if let Some(l) = s.lit_by {
+                    light += s.whole * (sight.seen[l as usize][i] - v);
+                }
+                sum += light * (share * cx * cy / (std::f32::consts::PI * r2 * r2.max(size * size)));
             }
             sum
         })
@@ -598,7 +666,8 @@ pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
 /// The near field (`prm_precompute::near`; the GPU's `runtime/src/near.rs`), per atlas texel
 /// and signed: each texel with links gets `sum albedo_j factor (E_j - w_c(j) t_j)` over them
 /// (`t_j`: [`NearTables`]), from the entries' irradiance and the cluster weights, its echo,
-/// and the far field ([`far_sources`], [`far_field`]). Hot cells' links use their own `E_j
+/// and the far field ([`far_sources`], [`far_field`], seeing lights by `link_light.sight`).
+/// Hot cells' links use their own `E_j
 /// kappa` for `E_j` (`link_light`); with dipoles (`lin`: [`dipole_offsets`]) a link's
 /// deviation is from the cluster's linear fit, `E_j - t_j (w_c + lin_j)`, since the dipole
 /// panes already carry the fit's slope. `weights` are the balanced ones
@@ -642,8 +711,9 @@ pub fn near_field(
     for (links, sum) in runs.iter().zip(near) {
         img[links[0].texel as usize] += sum;
     }
-    let sources = far_sources(prm, tables, entry_irradiance, weights, lin);
-    for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources)) {
+    let sight = &link_light.sight;
+    let sources = far_sources(prm, tables, entry_irradiance, weights, lin, sight);
+    for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources, sight)) {
         img[t.texel as usize] += v;
     }
     img

@@ -46,7 +46,7 @@ use prm::cone::spherical_triangle;
 use prm::prm_file::Prm;
 use prm::Light;
 
-use super::NearTables;
+use super::{LightSight, NearTables};
 
 /// Sub-triangles per side of a cell triangle in the quadrature (SUB² centroids each) for a
 /// texel within [`NEAR_SIZES`] cell sizes of the cell's centroid, and for a mixed triangle: the
@@ -346,13 +346,21 @@ pub struct LinkLight {
     /// Per entry: the energy its links deliver per unit deviation when hot
     /// (`sum luminance(albedo) factor E_j kappa`), else unused.
     pub energy: Vec<Vec3>,
+    /// How the far texels see the lights that light cells up close (none here: the twin fills
+    /// it, `crate::cpu::light_sight`).
+    pub sight: LightSight,
 }
 
 impl LinkLight {
     /// No hot cells: every link uses its entry's mean irradiance.
     pub fn none(prm: &Prm) -> LinkLight {
         let n = prm.entries().len();
-        LinkLight { hot: vec![false; n], value: Vec::new(), energy: vec![Vec3::ZERO; n] }
+        LinkLight {
+            hot: vec![false; n],
+            value: Vec::new(),
+            energy: vec![Vec3::ZERO; n],
+            sight: LightSight::default(),
+        }
     }
 
     /// The link light of `lights` from the entries' irradiance and the light on every cell
@@ -398,7 +406,7 @@ impl LinkLight {
                 }
             }
         }
-        LinkLight { hot, value, energy }
+        LinkLight { hot, value, energy, sight: LightSight::default() }
     }
 }
 

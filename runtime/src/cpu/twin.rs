@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::{
     add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
-    select_top_k, LinkLight, NearTables, TileBudget,
+    select_top_k, LightSight, LinkLight, NearTables, TileBudget,
 };
 
 /// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
@@ -53,7 +53,40 @@ pub fn link_light(
     entry_irradiance: &[Vec3],
     lights: &[Light],
 ) -> LinkLight {
-    LinkLight::new(prm, tables, entry_irradiance, &cell_lights(prm, bvh, lights), lights)
+    let mut l = LinkLight::new(prm, tables, entry_irradiance, &cell_lights(prm, bvh, lights), lights);
+    l.sight = light_sight(prm, bvh, tables, lights);
+    l
+}
+
+/// How the far texels see the lights ([`LightSight`]): the point and spot lights with a cube of
+/// shadow maps on the GPU ([`crate::lights::layers`]), each seen from a far texel where a ray
+/// from it reaches the light (the GPU: the light's shadow maps there), for the lights that
+/// light some cell up close.
+pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) -> LightSight {
+    let at: Vec<Option<Vec3>> = lights
+        .iter()
+        .map(|l| {
+            let cube = crate::lights::layers(l, 1) == crate::contract::CUBE_LAYERS;
+            (cube && !matches!(l.kind, prm::LightKind::Directional)).then_some(l.position)
+        })
+        .collect();
+    let mut sight = LightSight { at, seen: vec![Vec::new(); lights.len()] };
+    let mut used = vec![false; lights.len()];
+    for (j, e) in prm.entries().iter().enumerate() {
+        if let Some(k) = sight.lit_by(tables.centroid[j], e.normal, tables.size[j]) {
+            used[k as usize] = true;
+        }
+    }
+    let texels = &prm.far().texels;
+    for (k, l) in lights.iter().enumerate() {
+        if used[k] {
+            sight.seen[k] = texels
+                .par_iter()
+                .map(|t| bvh.visible_point(t.position, t.normal, l.position) as u8 as f32)
+                .collect();
+        }
+    }
+    sight
 }
 
 /// The per-frame CPU lightmap, remembering the last lights to skip unchanged frames.
@@ -115,7 +148,8 @@ impl<'a> CpuTwin<'a> {
         }
         let cell_lights = cell_lights(self.prm, self.bvh, lights);
         let e = entry_irradiance_from(self.prm, &cell_lights);
-        let link_light = LinkLight::new(self.prm, &self.near, &e, &cell_lights, lights);
+        let mut link_light = LinkLight::new(self.prm, &self.near, &e, &cell_lights, lights);
+        link_light.sight = light_sight(self.prm, self.bvh, &self.near, lights);
         let moments = dipole_moments(self.prm, &self.near, &e);
         let lin = dipole_offsets(self.prm, &self.near, &moments);
         let (w, near) = pane_weights_with(self.prm, &self.near, &link_light, &e, &lin);

@@ -4,7 +4,7 @@
 
 #[path = "../../tests/common/mod.rs"]
 mod common;
-use common::{open_box, point, quads, quads_in_grid, v};
+use common::{open_box, pillar_room, point, quads, quads_in_grid, v};
 use std::sync::atomic::AtomicBool;
 
 use crate::irradiance::EntryPass;
@@ -974,6 +974,44 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     }
 }
 
+/// A lamp 3 cm over the floor a metre from a pillar: the far field sees the lamp's spot as each
+/// texel sees the lamp (`cpu::LightSight`), the GPU in the lamp's cube of shadow maps, the
+/// twin by rays. The sight must matter here (the twin without it differs by more than 2 %,
+/// measured 6.2 %),
+/// and the GPU's lightmap must be the twin's within 2 %.
+#[test]
+fn the_far_field_sees_a_near_lamps_spot_through_its_shadow_maps() {
+    let g = gpu();
+    let scene = pillar_room();
+    let prm = bake(&scene, 1024, 32, 48);
+    let bvh = Bvh::build(&scene);
+    let c = prm.clusters().len();
+    let params = RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() };
+    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, params).unwrap();
+    let mut twin = cpu::CpuTwin::new(&prm, &bvh, c);
+    rt.update(&scene.lights).unwrap();
+    let gpu_l = rt.read_lightmap().unwrap();
+    let cpu_l = twin.frame(&scene.lights).to_vec();
+    // 2 %: where the abacus meets the shaft, texels a centimetre from its face see the lamp by
+    // a ray and half see it in the map's PCF (measured 1.39 %, the worst texels there; 0.83 %
+    // with the lamp 1 m up, where no spot is lit up close).
+    let m = prm::metric::compare(&gpu_l, &cpu_l, None);
+    assert!(m.error < 0.02, "lamp by the pillar: GPU vs CPU twin lightmap: normalised RMSE {}", m.error);
+    let tables = cpu::NearTables::new(&prm);
+    let e = cpu::entry_irradiance(&prm, &bvh, &scene.lights);
+    let seeing = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
+    assert!(!seeing.sight.seen[0].is_empty(), "the lamp lights no cell up close");
+    let blind = cpu::LinkLight { sight: cpu::LightSight::default(), ..seeing };
+    let moments = cpu::dipole_moments(&prm, &tables, &e);
+    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
+    let (w, near) = cpu::pane_weights_with(&prm, &tables, &blind, &e, &lin);
+    let mut without = cpu::compose(&prm, &w, &moments);
+    cpu::add_and_clamp(&mut without, &near);
+    let share = prm::metric::compare(&without, &cpu_l, None).error;
+    println!("the sight changes the lightmap by {share}");
+    assert!(share > 0.02, "the sight changes the lightmap by only {share}");
+}
+
 /// The GPU's indirect lightmap and the CPU twin's for `lights`, held within 1 % normalised RMSE
 /// of each other.
 fn lightmaps_agree(
@@ -1569,11 +1607,12 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
     let cells = cpu::cell_lights(prm, bvh, lights);
     let e = cpu::entry_irradiance_from(prm, &cells);
     let link = cpu::LinkLight::new(prm, &tables, &e, &cells, lights);
+    let sight = cpu::light_sight(prm, bvh, &tables, lights);
     let lin = cpu::dipole_offsets(prm, &tables, &cpu::dipole_moments(prm, &tables, &e));
     let balanced = cpu::cluster_weights_with(prm, &tables, &link, &e, &lin);
-    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin);
-    let light = cpu::far_field(prm, &tables, &sources);
-    (sources, light)
+    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &sight);
+    let light = cpu::far_field(prm, &tables, &sources, &sight);
+    (sources.iter().map(|s| (s.entry, s.phi)).collect(), light)
 }
 
 /// Light the level's surfaces send out of it sets no bar for the far field. A closed room lit
