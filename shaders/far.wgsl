@@ -16,7 +16,7 @@
 // maps, less V); its workgroup first lists the sources any of its texels' neighbours sees, or
 // that are lit up close (group_words), and the sum runs over those, in the same order.
 // Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
-// NO_LIGHT, luminance, far_share: the generated prelude; visibility: lights.wgsl.
+// NO_LIGHT, luminance, far_share: the generated prelude; cube_visibility: lights.wgsl.
 //
 // deviation: [0, N) the near pass's deviations, [N, 2N) the entries' irradiance E_j (rgb),
 // then two vec4f a source (record). source_sees: FAR_SOURCES rows of blocks() words, then the
@@ -57,7 +57,9 @@ fn lit_by(j: u32) -> u32 {
     var best_d = HOT_REACH * e.size;
     for (var k = 0u; k < params.light_count; k++) {
         let l = lights[k];
-        if l.kind == KIND_DIRECTIONAL || l.layers != CUBE_LAYERS {
+        // A cube: a point light, a wide spot, or a spot that lights a cell up close (its
+        // frustum and a cube: crate::lights::layers).
+        if l.kind == KIND_DIRECTIONAL || l.layers < CUBE_LAYERS {
             continue;
         }
         let d = distance(l.position, e.centroid);
@@ -320,7 +322,7 @@ fn far_main(
                 // shadow maps (the same for every source it lights: read once a texel).
                 if by != sight_of {
                     let l = lights[by];
-                    sight = visibility(l, t.position, t.normal, distance(l.position, t.position));
+                    sight = cube_visibility(l, t.position, t.normal, distance(l.position, t.position));
                     sight_of = by;
                 }
                 light += deviation[record(s) + 1u].xyz * (sight - v);

@@ -130,6 +130,8 @@ pub fn prelude() -> &'static str {
              const SUN_NORMAL_OFFSET: f32 = {:?}f;\n\
              // Texels a directional light's tile reaches past its part of the grid (crate::lights).\n\
              const SUN_TILE_MARGIN: f32 = {:?}f;\n\
+             // Shadow texels a cube face reaches past its 90° (crate::lights).\n\
+             const CUBE_PAD_TEXELS: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
@@ -137,6 +139,7 @@ pub fn prelude() -> &'static str {
             crate::shadow::FOOTPRINT_TEXELS,
             crate::shadow::SUN_NORMAL_OFFSET,
             crate::lights::SUN_TILE_MARGIN as f32,
+            crate::lights::CUBE_PAD_TEXELS,
             std::f32::consts::PI
         );
         let _ = writeln!(

@@ -115,14 +115,22 @@ pub fn validate(lights: &[Light]) -> Result<(), LightError> {
 }
 
 /// Shadow layers a light owns, a directional light's map being `sun_tiles` x `sun_tiles` tiles.
-pub fn layers(l: &Light, sun_tiles: u32) -> u32 {
+/// A spot with one frustum that lights some cell up close (`close`: [`crate::cpu::UpClose`])
+/// also owns a cube after it: the spot of light it makes lights the room, and the far field
+/// sees that spot as each texel sees the light, in the cube (`shaders/far.wgsl`).
+pub fn layers(l: &Light, sun_tiles: u32, close: bool) -> u32 {
     match l.kind {
         LightKind::Point => CUBE_LAYERS,
         LightKind::Spot { outer, .. } if outer > SPOT_CUBE_ABOVE => CUBE_LAYERS,
         LightKind::Directional => sun_tiles * sun_tiles,
+        LightKind::Spot { .. } if close => 1 + CUBE_LAYERS,
         LightKind::Spot { .. } => 1,
     }
 }
+
+/// Shadow texels a cube face reaches past its 90° on each side (so a lookup's PCF near a
+/// face's edge stays on the face it picked).
+pub const CUBE_PAD_TEXELS: f32 = 4.0;
 
 /// The level's bounding box and the sphere around it (centre, radius), used to fit directional
 /// frusta and near planes.
@@ -153,8 +161,8 @@ impl Bounds {
 /// View-projection matrices of a light's layers and the world size of one shadow texel
 /// (per unit distance for perspective layers), for maps of `size` x `size` (a directional
 /// light's in `sun_tiles` x `sun_tiles` tiles, row by row from the map's top left).
-pub fn frusta(l: &Light, size: u32, bounds: Bounds, sun_tiles: u32) -> (Vec<Mat4>, f32) {
-    let pad = 1.0 + 4.0 / size as f32;
+pub fn frusta(l: &Light, size: u32, bounds: Bounds, sun_tiles: u32, close: bool) -> (Vec<Mat4>, f32) {
+    let pad = 1.0 + CUBE_PAD_TEXELS / size as f32;
     let near = (bounds.radius * 2e-6).max(f32::MIN_POSITIVE * 1e6);
     let cube = |pos: Vec3| {
         let half = pad.atan();
@@ -176,10 +184,11 @@ pub fn frusta(l: &Light, size: u32, bounds: Bounds, sun_tiles: u32) -> (Vec<Mat4
         LightKind::Spot { outer, .. } => {
             let half = (outer.max(1e-3).tan() * pad).atan();
             let proj = perspective_infinite_reverse(2.0 * half, 1.0, near);
-            (
-                vec![proj * look_to_mat4(l.position, l.direction, up_for(l.direction))],
-                2.0 * half.tan() / size as f32,
-            )
+            let mut mats = vec![proj * look_to_mat4(l.position, l.direction, up_for(l.direction))];
+            if close {
+                mats.extend(cube(l.position).0);
+            }
+            (mats, 2.0 * half.tan() / size as f32)
         }
         LightKind::Directional => sun_frusta(l.direction, size, bounds, sun_tiles),
     }
@@ -247,11 +256,17 @@ fn up_for(dir: Vec3) -> Vec3 {
 }
 
 /// GPU lights and their layer matrices for `lights` (already validated).
-pub fn pack(lights: &[Light], size: u32, bounds: Bounds, sun_tiles: u32) -> (Vec<GpuLight>, Vec<Mat4>) {
+pub fn pack(
+    lights: &[Light],
+    size: u32,
+    bounds: Bounds,
+    sun_tiles: u32,
+    close: &[bool],
+) -> (Vec<GpuLight>, Vec<Mat4>) {
     let mut gpu = Vec::with_capacity(lights.len());
     let mut mats = Vec::new();
-    for l in lights {
-        let (m, texel) = frusta(l, size, bounds, sun_tiles);
+    for (i, l) in lights.iter().enumerate() {
+        let (m, texel) = frusta(l, size, bounds, sun_tiles, close.get(i).copied().unwrap_or(false));
         gpu.push(GpuLight::new(l, mats.len() as u32, m.len() as u32, texel));
         mats.extend(m);
     }
@@ -290,8 +305,8 @@ mod sun_tests {
             [Vec3::new(0.9192, -0.2079, 0.3345), Vec3::new(0.0, -0.788, 0.6157), Vec3::new(0.01, -1.0, 0.0)]
         {
             let l = sun(dir);
-            assert_eq!(layers(&l, n), 16);
-            let (mats, texel) = frusta(&l, size, bounds, n);
+            assert_eq!(layers(&l, n, false), 16);
+            let (mats, texel) = frusta(&l, size, bounds, n, false);
             assert_eq!(mats.len(), 16);
             // One map over the level's bounding sphere had texels of its diameter / size.
             assert!(texel * size as f32 <= 2.0 * bounds.radius / n as f32 * 1.01, "texel {texel}");

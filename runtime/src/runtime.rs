@@ -188,12 +188,17 @@ impl Runtime {
         // Every table the map needs, its allocations recorded (`gpu_memory`).
         let recording = crate::memory::Recording::start();
         let params_buf = crate::gpu::uniform_buffer::<IndirectParams>(device, "indirect params");
-        let shadows = ShadowMaps::with_sun_tiles(device, queue, scene, params.shadow_size, params.sun_tiles);
+        let mut shadows =
+            ShadowMaps::with_sun_tiles(device, queue, scene, params.shadow_size, params.sun_tiles);
         let areas: Vec<f32> = prm.entries().iter().map(|e| e.area).collect();
         let entries = EntryPass::new(device, shadows.layout(), &params_buf, prm.cells(), &areas);
         let near_data = NearData::new(device, prm);
         // Built once: the concentration, weight and near passes all read it.
         let tables = crate::cpu::NearTables::new(prm);
+        // A spot that lights a cell up close gets a cube for the far field (`crate::far`).
+        if !prm.far().texels.is_empty() {
+            shadows.set_up_close(crate::cpu::UpClose::new(prm, &tables));
+        }
         let concentrate = ConcentratePass::new(
             device,
             shadows.layout(),

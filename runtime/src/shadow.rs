@@ -92,6 +92,10 @@ pub const SHADOW_GROUP: &[Binding] = &[
     b("shadow_blocks", Res::Texture2dArray, LIT),
 ];
 
+/// The most shadow layers the lights may own: a cube and a frustum each (a spot that lights a
+/// cell up close, [`lights::layers`]).
+pub const MAX_LAYERS: u32 = (CUBE_LAYERS + 1) * prm::rig::MAX_LIGHTS as u32;
+
 /// The bind group of `shaders/shadow.wgsl`.
 pub const BINDINGS: &[Binding] = &[
     // One view-projection per shadow layer, picked by the instance index.
@@ -168,6 +172,11 @@ pub struct ShadowMaps {
     layout: wgpu::BindGroupLayout,
     group: Option<wgpu::BindGroup>,
     last: Option<Vec<Light>>,
+    /// Per light of `last`: a spot that lights a cell up close, with a cube besides its frustum
+    /// ([`lights::layers`]).
+    last_close: Vec<bool>,
+    /// The level's cells, to tell those spots (none: no spot has a cube).
+    up_close: Option<crate::cpu::UpClose>,
     light_count: u32,
     /// Shadow layers rendered so far.
     layers_rendered: u64,
@@ -224,7 +233,7 @@ impl ShadowMaps {
         });
         let mats_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow matrices"),
-            size: (max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) as u64) * 64,
+            size: (max_layers.min(MAX_LAYERS) as u64) * 64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -252,7 +261,7 @@ impl ShadowMaps {
         );
         let block_layers = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow block layers"),
-            size: (max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) as u64) * 4,
+            size: (max_layers.min(MAX_LAYERS) as u64) * 4,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -281,9 +290,18 @@ impl ShadowMaps {
             layout,
             group: None,
             last: None,
+            last_close: Vec::new(),
+            up_close: None,
             light_count: 0,
             layers_rendered: 0,
         }
+    }
+
+    /// Gives a spot that lights one of these cells up close a cube besides its frustum, from
+    /// the next update on (the runtime's far field reads it: [`lights::layers`]).
+    pub(crate) fn set_up_close(&mut self, cells: crate::cpu::UpClose) {
+        self.up_close = Some(cells);
+        self.last = None;
     }
 
     /// Brings the maps and light buffer up to date with `lights`. Returns whether anything the
@@ -294,12 +312,12 @@ impl ShadowMaps {
             return Ok(false);
         }
         let n = self.sun_tiles;
-        let layers = |l: &Light| lights::layers(l, n);
-        let needed: u32 = lights.iter().map(layers).sum();
-        if needed > self.max_layers.min(CUBE_LAYERS * prm::rig::MAX_LIGHTS as u32) {
-            return Err(LightError::TooManyLayers { needed, max: self.max_layers });
+        let close = self.up_close.as_ref().map_or_else(|| vec![false; lights.len()], |u| u.spots(lights));
+        let needed: u32 = lights.iter().zip(&close).map(|(l, &c)| lights::layers(l, n, c)).sum();
+        if needed > self.max_layers.min(MAX_LAYERS) {
+            return Err(LightError::TooManyLayers { needed, max: self.max_layers.min(MAX_LAYERS) });
         }
-        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n);
+        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n, &close);
         let realloc = self.texture.as_ref().is_none_or(|(_, n)| *n != needed.max(1));
         if realloc {
             self.allocate(needed.max(1));
@@ -307,11 +325,18 @@ impl ShadowMaps {
         // Layers to render: all after a reallocation, else those of lights whose frusta moved
         // (or that now sit at other layers).
         let mut dirty = Vec::new();
+        let old_layers = |k: usize| {
+            let o = self.last.as_ref().and_then(|v| v.get(k));
+            o.map(|o| lights::layers(o, n, self.last_close.get(k).copied().unwrap_or(false)))
+        };
         for (i, l) in lights.iter().enumerate() {
             let old = self.last.as_ref().and_then(|v| v.get(i));
-            let old_first = self.last.as_ref().map(|v| v[..i.min(v.len())].iter().map(layers).sum::<u32>());
+            let old_first = self
+                .last
+                .as_ref()
+                .map(|v| (0..i.min(v.len())).map(|k| old_layers(k).unwrap_or(0)).sum::<u32>());
             let same = !realloc
-                && old.is_some_and(|o| lights::same_shadow(o, l) && layers(o) == gpu[i].layers)
+                && old.is_some_and(|o| lights::same_shadow(o, l) && old_layers(i) == Some(gpu[i].layers))
                 && old_first == Some(gpu[i].first_layer);
             if !same {
                 dirty.extend(gpu[i].first_layer..gpu[i].first_layer + gpu[i].layers);
@@ -326,11 +351,15 @@ impl ShadowMaps {
         }
         self.directional = lights
             .iter()
-            .flat_map(|l| std::iter::repeat_n(matches!(l.kind, LightKind::Directional), layers(l) as usize))
+            .zip(&gpu)
+            .flat_map(|(l, g)| {
+                std::iter::repeat_n(matches!(l.kind, LightKind::Directional), g.layers as usize)
+            })
             .collect();
         self.render(&dirty);
         self.light_count = lights.len() as u32;
         self.last = Some(lights.to_vec());
+        self.last_close = close;
         Ok(true)
     }
 

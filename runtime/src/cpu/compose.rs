@@ -509,7 +509,8 @@ pub fn far_sources(
 }
 
 /// How the far texels see the point and spot lights that have a cube of shadow maps
-/// ([`crate::lights::layers`]): a light within [`HOT_REACH`] cell sizes of a cell makes a spot
+/// ([`crate::lights::layers`]: every point light, a wide spot, a spot that lights a cell up
+/// close): a light within [`HOT_REACH`] cell sizes of a cell makes a spot
 /// of light on it much smaller than the cell, which the far field otherwise sends as the
 /// texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
 /// or under its capital, a texel's neighbours lie on other faces and say nothing of what it
@@ -528,20 +529,55 @@ pub struct LightSight {
 }
 
 impl LightSight {
-    /// The light that lights a cell (centroid, unit normal, size) up close: of the lights with
-    /// a position, the nearest within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes
-    /// of its centroid and in front of it (the first of equals).
+    /// The light that lights a cell (centroid, unit normal, size) up close ([`up_close`]): of
+    /// the lights with a position, the nearest (the first of equals).
     pub fn lit_by(&self, centroid: Vec3, normal: Vec3, size: f32) -> Option<u32> {
-        let reach = crate::cpu::concentrate::HOT_REACH * size;
         let mut best: Option<(u32, f32)> = None;
         for (k, at) in self.at.iter().enumerate() {
-            let Some(p) = at else { continue };
-            let d = p.distance(centroid);
-            if d < reach && normal.dot(*p - centroid) > 0.0 && best.is_none_or(|(_, b)| d < b) {
+            let Some(d) = at.and_then(|p| up_close(p, centroid, normal, size)) else { continue };
+            if best.is_none_or(|(_, b)| d < b) {
                 best = Some((k as u32, d));
             }
         }
         best.map(|(k, _)| k)
+    }
+}
+
+/// The distance from a light at `p` to a cell (centroid, unit normal, size) it lights up
+/// close: within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes of the centroid and
+/// in front of the cell. None farther or behind.
+pub fn up_close(p: Vec3, centroid: Vec3, normal: Vec3, size: f32) -> Option<f32> {
+    let d = p.distance(centroid);
+    (d < crate::cpu::concentrate::HOT_REACH * size && normal.dot(p - centroid) > 0.0).then_some(d)
+}
+
+/// The cells, to tell whether a light lights some cell up close ([`up_close`]): a spot that
+/// does owns a cube of shadow maps besides its frustum ([`crate::lights::layers`]).
+#[derive(Clone, Debug, Default)]
+pub struct UpClose {
+    centroid: Vec<Vec3>,
+    normal: Vec<Vec3>,
+    size: Vec<f32>,
+}
+
+impl UpClose {
+    pub fn new(prm: &Prm, tables: &NearTables) -> UpClose {
+        UpClose {
+            centroid: tables.centroid.clone(),
+            normal: prm.entries().iter().map(|e| e.normal).collect(),
+            size: tables.size.clone(),
+        }
+    }
+
+    /// Whether a light at `p` lights some cell up close.
+    pub fn any(&self, p: Vec3) -> bool {
+        (0..self.size.len()).any(|j| up_close(p, self.centroid[j], self.normal[j], self.size[j]).is_some())
+    }
+
+    /// Per light: a spot that lights some cell up close (what [`crate::lights::layers`] is
+    /// given; false for the other kinds, whose maps do not depend on it).
+    pub fn spots(&self, lights: &[prm::Light]) -> Vec<bool> {
+        lights.iter().map(|l| matches!(l.kind, prm::LightKind::Spot { .. }) && self.any(l.position)).collect()
     }
 }
 

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::{
     add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
-    select_top_k, LightSight, LinkLight, NearTables, TileBudget,
+    select_top_k, LightSight, LinkLight, NearTables, TileBudget, UpClose,
 };
 
 /// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
@@ -59,14 +59,17 @@ pub fn link_light(
 }
 
 /// How the far texels see the lights ([`LightSight`]): the point and spot lights with a cube of
-/// shadow maps on the GPU ([`crate::lights::layers`]), each seen from a far texel where a ray
+/// shadow maps on the GPU ([`crate::lights::layers`], a spot's cube where it lights a cell up
+/// close: [`UpClose`]), each seen from a far texel where a ray
 /// from it reaches the light (the GPU: the light's shadow maps there), for the lights that
 /// light some cell up close.
 pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) -> LightSight {
+    let close = UpClose::new(prm, tables).spots(lights);
     let at: Vec<Option<Vec3>> = lights
         .iter()
-        .map(|l| {
-            let cube = crate::lights::layers(l, 1) == crate::contract::CUBE_LAYERS;
+        .zip(close)
+        .map(|(l, close)| {
+            let cube = crate::lights::layers(l, 1, close) >= crate::contract::CUBE_LAYERS;
             (cube && !matches!(l.kind, prm::LightKind::Directional)).then_some(l.position)
         })
         .collect();
