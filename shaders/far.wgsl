@@ -4,23 +4,25 @@
 // deviation_j.w x stay_j, deviation_j.w the near pass's luminance(E_j)), the count over the
 // stable threshold, the threshold (far_threshold), and the entries over it, ascending: their
 // entries in source_sees' index (source_entry; their number at FAR_SOURCES), their records in
-// deviation (record: phi, then the whole flux flux_j E_j with the light that lights the cell
-// up close, lit_by, or NO_LIGHT).
+// deviation (record: phi, then the whole flux flux_j E_j with the slot of the sighted light
+// that lights the cell up close, lit_by, or NO_LIGHT).
 // sees_main, one invocation per (source, block of 32 entries): which entries of the block see
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
 // texel's near_sum slot (written when the slot is past the near field's own texels), and for a
-// source lit up close, its whole flux times (what the texel sees of that light, its shadow
-// maps, less V); its workgroup first lists the sources any of its texels' neighbours sees, or
-// that are lit up close (group_words), and the sum runs over those, in the same order.
+// source lit up close, its whole flux times (what the texel sees of that light, its cube of
+// shadow maps, looked up once a texel, less V); its workgroup first lists the sources any of
+// its texels' neighbours sees, or that are lit up close (group_words), and the sum runs over
+// those, in the same order.
 // Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
-// NO_LIGHT, luminance, far_share: the generated prelude; cube_visibility: lights.wgsl.
+// NO_LIGHT, CLOSE_SIGHTS, CELL_DISK, luminance, far_share: the generated prelude; cube_visibility:
+// lights.wgsl.
 //
 // deviation: [0, N) the near pass's deviations, [N, 2N) the entries' irradiance E_j (rgb),
 // then two vec4f a source (record). source_sees: FAR_SOURCES rows of blocks() words, then the
-// sources' entries and their number (index_base).
+// sources' entries (index_base), their number, the number of those lit up close and theirs.
 
 var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
 var<workgroup> reflected: array<f32, WG_FAR_SOURCES>;
@@ -49,24 +51,67 @@ fn source_count() -> u32 {
     return source_sees[index_base() + FAR_SOURCES];
 }
 
-// prm_runtime::cpu::LightSight::lit_by: of the point and spot lights with a cube of shadow
-// maps, the nearest within HOT_REACH sizes of entry j's cell centroid and in front of it.
+// Whether light k is one whose spots the far field sees (params.sighted_*: the first
+// CLOSE_SIGHTS that light a cell up close, prm_runtime::cpu::sighted; each has a cube).
+fn sighted(k: u32) -> bool {
+    var bits = params.sighted_lo;
+    if k >= 32u {
+        bits = params.sighted_hi;
+    }
+    return k < 64u && ((bits >> (k % 32u)) & 1u) != 0u;
+}
+
+// Whether spot l's outer cone holds the point q.
+fn in_cone(l: GpuLight, q: vec3f) -> bool {
+    let d = q - l.position;
+    var to = vec3f(0.0);
+    if length(d) > 0.0 {
+        to = d / length(d);
+    }
+    return dot(l.direction, to) > l.cos_outer;
+}
+
+// prm_runtime::cpu::LightSight::lit_by: of the sighted lights, the nearest within HOT_REACH
+// sizes of entry j's cell centroid, in front of it and (a spot) whose cone reaches it; its
+// rank among the sighted lights (the slot far_main looks it up in), or NO_LIGHT.
 fn lit_by(j: u32) -> u32 {
     let e = far_entries[j];
     var best = NO_LIGHT;
     var best_d = HOT_REACH * e.size;
-    for (var k = 0u; k < params.light_count; k++) {
-        let l = lights[k];
-        // A cube: a point light, a wide spot, or a spot that lights a cell up close (its
-        // frustum and a cube: crate::lights::layers).
-        if l.kind == KIND_DIRECTIONAL || l.layers < CUBE_LAYERS {
+    var rank = 0u;
+    for (var k = 0u; k < params.light_count && rank < CLOSE_SIGHTS; k++) {
+        if !sighted(k) {
             continue;
         }
+        let l = lights[k];
         let d = distance(l.position, e.centroid);
-        if d < best_d && dot(e.normal, l.position - e.centroid) > 0.0 {
-            best = k;
+        var reaches = d < best_d && dot(e.normal, l.position - e.centroid) > 0.0;
+        if reaches && l.kind == KIND_SPOT {
+            // The outer cone reaches the disk of the cell's area (prm_runtime::cpu::up_close).
+            let r = e.size * CELL_DISK;
+            let c = e.centroid;
+            let toward = dot(l.direction, e.normal);
+            var u = l.direction - e.normal * toward;
+            var on_axis = false;
+            if toward < 0.0 {
+                let hit = l.position + l.direction * (dot(c - l.position, e.normal) / toward);
+                u = hit - c;
+                on_axis = length(u) <= r;
+            }
+            if length(u) > 1e-6 {
+                u = u / length(u);
+            } else {
+                u = vec3f(0.0);
+            }
+            let v = cross(e.normal, u);
+            reaches = on_axis || in_cone(l, c) || in_cone(l, c + u * r) || in_cone(l, c + v * r)
+                || in_cone(l, c - v * r);
+        }
+        if reaches {
+            best = rank;
             best_d = d;
         }
+        rank++;
     }
     return best;
 }
@@ -145,8 +190,20 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
         }
         workgroupBarrier();
     }
+    // The records above were written by the whole workgroup.
+    storageBarrier();
     if lid == 0u {
-        source_sees[index_base() + FAR_SOURCES] = min(listed, FAR_SOURCES);
+        let sources = min(listed, FAR_SOURCES);
+        source_sees[index_base() + FAR_SOURCES] = sources;
+        // The sources lit up close, for far_main's second sum (few; in order).
+        var lits = 0u;
+        for (var s = 0u; s < sources; s++) {
+            if lit(s) != NO_LIGHT {
+                source_sees[index_base() + FAR_SOURCES + 2u + lits] = s;
+                lits++;
+            }
+        }
+        source_sees[index_base() + FAR_SOURCES + 1u] = lits;
     }
 }
 
@@ -208,9 +265,42 @@ fn group_table() -> u32 {
     return b + 1u + 33u * far_visible[b];
 }
 
-// The light that lights source s's cell up close (NO_LIGHT for none).
+// The slot of the sighted light that lights source s's cell up close (NO_LIGHT for none).
 fn lit(s: u32) -> u32 {
     return bitcast<u32>(deviation[record(s) + 1u].w);
+}
+
+// The sources lit up close, listed by sources_main after the sources' entries: their number,
+// then theirs, ascending.
+fn lit_count() -> u32 {
+    return source_sees[index_base() + FAR_SOURCES + 1u];
+}
+
+fn lit_source(i: u32) -> u32 {
+    return source_sees[index_base() + FAR_SOURCES + 2u + i];
+}
+
+// Texel t's vote for source s (entry e): its neighbours' pair bits, over those that face the
+// source (prm::prm_file::far_vote), as far_main's sum takes it.
+fn texel_vote(t: GpuFarTexel, s: u32, e: FarEntry) -> f32 {
+    let b = blocks();
+    var seen = 0.0;
+    var total = 0.0;
+    var every = 0.0;
+    for (var q = 0u; q < 4u; q++) {
+        let m = t.entries[q];
+        let vote = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
+        every += vote;
+        let n = far_entries[m];
+        if dot(n.normal, e.centroid - n.centroid) > 0.0 {
+            seen += vote;
+            total += t.weights[q];
+        }
+    }
+    if total > 0.0 {
+        return seen / total;
+    }
+    return every;
 }
 
 // Whether any neighbour of the workgroup's texels sees source s (group_words).
@@ -251,13 +341,11 @@ fn far_main(
         facing[q] = m.normal;
     }
     var sum = vec3f(0.0);
-    var sight_of = NO_LIGHT;
-    var sight = 0.0;
     for (var start = 0u; start < count; start += WG_LINEAR) {
         // The workgroup lists, in order, the sources of this run that some neighbour of its
         // texels sees (a prefix sum over the run), and each texel sums over those alone.
         let s0 = start + lid;
-        let seen0 = u32(s0 < count && (lit(s0) != NO_LIGHT || group_sees(s0, wid.x)));
+        let seen0 = u32(s0 < count && group_sees(s0, wid.x));
         wg_flags[lid] = seen0;
         workgroupBarrier();
         for (var off = 1u; off < WG_LINEAR; off *= 2u) {
@@ -287,8 +375,7 @@ fn far_main(
                 votes[q] = t.weights[q] * f32((source_sees[s * b + m / 32u] >> (m % 32u)) & 1u);
                 every += votes[q];
             }
-            let by = lit(s);
-            if every == 0.0 && by == NO_LIGHT {
+            if every == 0.0 {
                 continue;
             }
             let j = source_entry(s);
@@ -316,20 +403,42 @@ fn far_main(
             if total > 0.0 {
                 v = seen / total;
             }
-            var light = deviation[record(s)].xyz * v;
-            if by != NO_LIGHT {
-                // What the texel sees of the light that lights the cell up close, from its
-                // shadow maps (the same for every source it lights: read once a texel).
-                if by != sight_of {
-                    let l = lights[by];
-                    sight = cube_visibility(l, t.position, t.normal, distance(l.position, t.position));
-                    sight_of = by;
-                }
-                light += deviation[record(s) + 1u].xyz * (sight - v);
-            }
-            sum += light * (share * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+            sum += deviation[record(s)].xyz * (share * v * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
         }
         workgroupBarrier();
+    }
+    // The sources lit up close, apart: their whole flux times (what the texel sees of the
+    // light, in its cube of shadow maps, less the vote). Looked up once a texel, a lookup a
+    // sighted light; inside the sum above they doubled the pass on lavapipe, and even a branch
+    // there that never ran slowed it by a tenth.
+    let lits = lit_count();
+    if lits > 0u && live {
+        var sights = vec4f(0.0);
+        var slot = 0u;
+        for (var k = 0u; k < params.light_count && slot < CLOSE_SIGHTS; k++) {
+            if sighted(k) {
+                let l = lights[k];
+                let seen = cube_visibility(l, t.position, t.normal, distance(l.position, t.position));
+                sights += seen * vec4f(vec4u(slot) == vec4u(0u, 1u, 2u, 3u));
+                slot++;
+            }
+        }
+        for (var i = 0u; i < lits; i++) {
+            let s = lit_source(i);
+            let e = far_entries[source_entry(s)];
+            let d = e.centroid - t.position;
+            let cx = dot(t.normal, d);
+            let cy = -dot(e.normal, d);
+            let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
+            if cx <= 0.0 || cy <= 0.0 || share <= 0.0 {
+                continue;
+            }
+            let r2 = dot(d, d);
+            let whole = deviation[record(s) + 1u];
+            let sight = dot(sights, vec4f(vec4u(bitcast<u32>(whole.w)) == vec4u(0u, 1u, 2u, 3u)));
+            let v = texel_vote(t, s, e);
+            sum += whole.xyz * ((sight - v) * share * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+        }
     }
     if !live {
         return;

@@ -95,6 +95,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
     ("NO_LIGHT", crate::far::NO_LIGHT),
+    ("CLOSE_SIGHTS", crate::cpu::CLOSE_SIGHTS as u32),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
     ("CSSM_NOTHING", prm::visibility::cssm::NOTHING as u32),
     ("CSM_MISS", prm::visibility::csm::MISS as u32),
@@ -132,6 +133,8 @@ pub fn prelude() -> &'static str {
              const SUN_TILE_MARGIN: f32 = {:?}f;\n\
              // Shadow texels a cube face reaches past its 90° (crate::lights).\n\
              const CUBE_PAD_TEXELS: f32 = {:?}f;\n\
+             // A disk of a cell's area, its radius in cell sizes (prm_runtime::cpu::up_close).\n\
+             const CELL_DISK: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
@@ -140,6 +143,7 @@ pub fn prelude() -> &'static str {
             crate::shadow::SUN_NORMAL_OFFSET,
             crate::lights::SUN_TILE_MARGIN as f32,
             crate::lights::CUBE_PAD_TEXELS,
+            crate::cpu::CELL_DISK,
             std::f32::consts::PI
         );
         let _ = writeln!(

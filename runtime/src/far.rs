@@ -193,11 +193,11 @@ impl FarPass {
 pub const SOURCE_SEES: &str = "far source visibility";
 
 /// Words of that table for `entries` entries: [`FAR_SOURCES`] rows of a bit an entry, then the
-/// sources' entries and their number. Made once a frame from the pairs' bits, the rows spare
-/// the far field's texels the search for their neighbours' pairs at every source (on
-/// lavapipe, most of the far field's time).
+/// sources' entries, their number, the number of those lit up close and theirs. Made once a
+/// frame from the pairs' bits, the rows spare the far field's texels the search for their
+/// neighbours' pairs at every source (on lavapipe, most of the far field's time).
 pub fn source_sees_words(entries: usize) -> usize {
-    FAR_SOURCES * entries.div_ceil(32) + FAR_SOURCES + 1
+    FAR_SOURCES * entries.div_ceil(32) + 2 * FAR_SOURCES + 2
 }
 
 /// The far field's visibility as the shader reads it, in one buffer (a stage has few storage

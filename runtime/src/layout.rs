@@ -256,6 +256,12 @@ gpu_struct! {
         /// 1: an entry every changed light is hidden from, now and at the last update that ran
         /// it, keeps its light (`shaders/irradiance.wgsl`); 0: the entry pass runs every entry.
         pub keep_unchanged: u32,
+        /// Bits of the lights whose spots the far field sees in their cubes (lights 0-31,
+        /// 32-63: `crate::cpu::sighted`, `shaders/far.wgsl`).
+        pub sighted_lo: u32,
+        pub sighted_hi: u32,
+        pub _pad0: u32,
+        pub _pad1: u32,
     }
 }
 

@@ -108,7 +108,7 @@ impl GpuMemory {
 
 /// Bytes of the shadow maps of `lights` at `size`^2 a layer, a directional light's map in
 /// `sun_tiles` x `sun_tiles` tiles ([`sun_tiles`]), every spot counted with the cube it owns
-/// when it lights a cell up close ([`crate::lights::layers`]): at most what they take.
+/// when it lights a cell up close (`crate::lights::layers`): at most what they take.
 pub fn shadow_bytes(lights: &[prm::Light], size: u32, sun_tiles: u32) -> u64 {
     lights.iter().map(|l| crate::lights::layers(l, sun_tiles, true) as u64).sum::<u64>()
         * shadow_bytes_per_layer(size)

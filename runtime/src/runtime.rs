@@ -423,6 +423,9 @@ impl Runtime {
             changed_lo: self.changed[0],
             changed_hi: self.changed[1],
             keep_unchanged: !self.redo_entries as u32,
+            sighted_lo: self.shadows.sighted_bits()[0],
+            sighted_hi: self.shadows.sighted_bits()[1],
+            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }

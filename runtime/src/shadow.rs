@@ -172,8 +172,8 @@ pub struct ShadowMaps {
     layout: wgpu::BindGroupLayout,
     group: Option<wgpu::BindGroup>,
     last: Option<Vec<Light>>,
-    /// Per light of `last`: a spot that lights a cell up close, with a cube besides its frustum
-    /// ([`lights::layers`]).
+    /// Per light of `last`: a point or spot light that lights a cell up close (a spot has a
+    /// cube besides its frustum: [`lights::layers`]).
     last_close: Vec<bool>,
     /// The level's cells, to tell those spots (none: no spot has a cube).
     up_close: Option<crate::cpu::UpClose>,
@@ -312,7 +312,7 @@ impl ShadowMaps {
             return Ok(false);
         }
         let n = self.sun_tiles;
-        let close = self.up_close.as_ref().map_or_else(|| vec![false; lights.len()], |u| u.spots(lights));
+        let close = self.up_close.as_ref().map_or_else(|| vec![false; lights.len()], |u| u.lights(lights));
         let needed: u32 = lights.iter().zip(&close).map(|(l, &c)| lights::layers(l, n, c)).sum();
         if needed > self.max_layers.min(MAX_LAYERS) {
             return Err(LightError::TooManyLayers { needed, max: self.max_layers.min(MAX_LAYERS) });
@@ -534,6 +534,18 @@ impl ShadowMaps {
     /// Lights in the buffer.
     pub fn light_count(&self) -> u32 {
         self.light_count
+    }
+
+    /// Bits of the lights whose spots the far field sees (lights 0-31, 32-63):
+    /// [`crate::cpu::sighted`] of those that light a cell up close.
+    pub fn sighted_bits(&self) -> [u32; 2] {
+        let mut bits = [0u32; 2];
+        for (i, &s) in crate::cpu::sighted(&self.last_close).iter().enumerate().take(64) {
+            if s {
+                bits[i / 32] |= 1 << (i % 32);
+            }
+        }
+        bits
     }
 
     /// Texels per side of one layer.

@@ -427,3 +427,36 @@ fn far_texels_see_a_near_lamps_spot_as_they_see_the_lamp() {
         "behind the shaft: {b_with} with the sight, {b_without} without, {b_truth} true"
     );
 }
+
+/// Which lights light a cell up close (`cpu::up_close`): a floor cell 50 cm across at the
+/// origin. A lamp 10 cm over it does, 10 cm under it (behind) or 2 m off does not; a spot 20 cm
+/// under a ceiling cell aimed down does not (its cone never reaches the ceiling), aimed up
+/// does; a spot 8 cm over the floor 40 cm to the side aimed straight down, its axis meeting
+/// the floor outside the cell's disk, does only if its cone reaches the disk's rim.
+#[test]
+fn a_light_lights_a_cell_up_close_only_where_its_cone_reaches_it() {
+    let (c, size) = (Vec3::ZERO, 0.5);
+    let lamp = |p: Vec3| common::point(p, 1.0);
+    let spot = |p: Vec3, dir: Vec3, outer_deg: f32| {
+        let mut l = common::point(p, 1.0);
+        l.kind = prm::LightKind::Spot { inner: 0.0, outer: outer_deg.to_radians() };
+        l.direction = dir.normalize();
+        l
+    };
+    let close = |l: &prm::Light, n: Vec3| cpu::up_close(l, c, n, size).is_some();
+    assert!(close(&lamp(v(0.0, 0.1, 0.0)), Vec3::Y));
+    assert!(!close(&lamp(v(0.0, -0.1, 0.0)), Vec3::Y), "behind the cell");
+    assert!(!close(&lamp(v(2.0, 0.1, 0.0)), Vec3::Y), "farther than HOT_REACH sizes");
+    // The cell as a ceiling (facing down), the spot 20 cm under it.
+    assert!(!close(&spot(v(0.0, -0.2, 0.0), -Vec3::Y, 35.0), -Vec3::Y), "aimed away from the ceiling");
+    assert!(close(&spot(v(0.0, -0.2, 0.0), Vec3::Y, 35.0), -Vec3::Y), "aimed at the ceiling");
+    // 40 cm to the side, 8 cm up, straight down: the disk's rim is 12 cm off the axis's foot,
+    // at 56° from the axis: a 60° cone reaches it, a 35° one does not.
+    assert!(close(&spot(v(0.4, 0.08, 0.0), -Vec3::Y, 60.0), Vec3::Y));
+    assert!(!close(&spot(v(0.4, 0.08, 0.0), -Vec3::Y, 35.0), Vec3::Y));
+    // Straight over the cell, any cone reaches it.
+    assert!(close(&spot(v(0.1, 0.08, 0.0), -Vec3::Y, 5.0), Vec3::Y));
+    // The far field sees the spots of the first CLOSE_SIGHTS lights up close, no more.
+    assert_eq!(cpu::CLOSE_SIGHTS, 4);
+    assert_eq!(cpu::sighted(&[true, false, true, true, true, true]), [true, false, true, true, true, false]);
+}

@@ -509,7 +509,7 @@ pub fn far_sources(
 }
 
 /// How the far texels see the point and spot lights that have a cube of shadow maps
-/// ([`crate::lights::layers`]: every point light, a wide spot, a spot that lights a cell up
+/// (`crate::lights::layers`: every point light, a wide spot, a spot that lights a cell up
 /// close): a light within [`HOT_REACH`] cell sizes of a cell makes a spot
 /// of light on it much smaller than the cell, which the far field otherwise sends as the
 /// texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
@@ -521,8 +521,9 @@ pub fn far_sources(
 /// [`HOT_REACH`]: crate::cpu::concentrate::HOT_REACH
 #[derive(Clone, Debug, Default)]
 pub struct LightSight {
-    /// Per light: its position where it has a cube of shadow maps, else None.
-    pub at: Vec<Option<Vec3>>,
+    /// Per light: the light where the far field sees its spots in its cube of shadow maps
+    /// ([`sighted`]), else None.
+    pub at: Vec<Option<prm::Light>>,
     /// Per light with a position: how much of it each far texel (in `Far::texels` order) sees,
     /// 0 to 1; empty for the others.
     pub seen: Vec<Vec<f32>>,
@@ -534,7 +535,7 @@ impl LightSight {
     pub fn lit_by(&self, centroid: Vec3, normal: Vec3, size: f32) -> Option<u32> {
         let mut best: Option<(u32, f32)> = None;
         for (k, at) in self.at.iter().enumerate() {
-            let Some(d) = at.and_then(|p| up_close(p, centroid, normal, size)) else { continue };
+            let Some(d) = at.as_ref().and_then(|l| up_close(l, centroid, normal, size)) else { continue };
             if best.is_none_or(|(_, b)| d < b) {
                 best = Some((k as u32, d));
             }
@@ -543,16 +544,48 @@ impl LightSight {
     }
 }
 
-/// The distance from a light at `p` to a cell (centroid, unit normal, size) it lights up
-/// close: within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes of the centroid and
-/// in front of the cell. None farther or behind.
-pub fn up_close(p: Vec3, centroid: Vec3, normal: Vec3, size: f32) -> Option<f32> {
-    let d = p.distance(centroid);
-    (d < crate::cpu::concentrate::HOT_REACH * size && normal.dot(p - centroid) > 0.0).then_some(d)
+/// The radius of a disk of a cell's area, in cell sizes (the square root of its area): 1/sqrt(pi).
+pub const CELL_DISK: f32 = 0.564_189_6;
+
+/// The distance from a point or spot light to a cell (centroid, unit normal, size) it lights
+/// up close: within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes of the centroid,
+/// in front of the cell, and for a spot, its outer cone reaching the disk of the cell's area
+/// about the centroid (a spot under a ceiling aimed down lights no ceiling cell, and would
+/// render a cube for nothing: the chamber's dais spot did, every frame of its rig). None
+/// otherwise.
+pub fn up_close(l: &prm::Light, centroid: Vec3, normal: Vec3, size: f32) -> Option<f32> {
+    let d = l.position.distance(centroid);
+    if !(d < crate::cpu::concentrate::HOT_REACH * size && normal.dot(l.position - centroid) > 0.0) {
+        return None;
+    }
+    if let prm::LightKind::Spot { outer, .. } = l.kind {
+        // The cell's disk (radius size / sqrt(pi): its area) about its centroid: where the
+        // axis meets its plane inside it, the cone holds it; else one of four points on its
+        // rim holds the cone's nearest part, the one toward where the axis meets the plane (or
+        // toward where the axis points along it, when it points away).
+        let r = size * CELL_DISK;
+        let toward = l.direction.dot(normal);
+        let mut u = l.direction - normal * toward;
+        if toward < 0.0 {
+            let hit = l.position + l.direction * ((centroid - l.position).dot(normal) / toward);
+            u = hit - centroid;
+            if u.length() <= r {
+                return Some(d);
+            }
+        }
+        let u = if u.length() > 1e-6 { u / u.length() } else { Vec3::ZERO };
+        let v = normal.cross(u);
+        let cos_outer = outer.cos();
+        let inside = |q: Vec3| l.direction.dot((q - l.position).normalize_or_zero()) > cos_outer;
+        if ![centroid, centroid + u * r, centroid + v * r, centroid - v * r].into_iter().any(inside) {
+            return None;
+        }
+    }
+    Some(d)
 }
 
 /// The cells, to tell whether a light lights some cell up close ([`up_close`]): a spot that
-/// does owns a cube of shadow maps besides its frustum ([`crate::lights::layers`]).
+/// does owns a cube of shadow maps besides its frustum (`crate::lights::layers`).
 #[derive(Clone, Debug, Default)]
 pub struct UpClose {
     centroid: Vec<Vec3>,
@@ -569,16 +602,39 @@ impl UpClose {
         }
     }
 
-    /// Whether a light at `p` lights some cell up close.
-    pub fn any(&self, p: Vec3) -> bool {
-        (0..self.size.len()).any(|j| up_close(p, self.centroid[j], self.normal[j], self.size[j]).is_some())
+    /// Whether a point or spot light lights some cell up close.
+    pub fn any(&self, l: &prm::Light) -> bool {
+        (0..self.size.len()).any(|j| up_close(l, self.centroid[j], self.normal[j], self.size[j]).is_some())
     }
 
-    /// Per light: a spot that lights some cell up close (what [`crate::lights::layers`] is
-    /// given; false for the other kinds, whose maps do not depend on it).
-    pub fn spots(&self, lights: &[prm::Light]) -> Vec<bool> {
-        lights.iter().map(|l| matches!(l.kind, prm::LightKind::Spot { .. }) && self.any(l.position)).collect()
+    /// Per light: a point or spot light that lights some cell up close (what
+    /// `crate::lights::layers` is given: a spot with one frustum then owns a cube too).
+    pub fn lights(&self, lights: &[prm::Light]) -> Vec<bool> {
+        lights.iter().map(|l| l.is_positional() && self.any(l)).collect()
     }
+}
+
+/// The most lights the far field sees the spots of ([`LightSight`]): the first this many (in
+/// the lights' order) that light some cell up close. Each far texel looks each of them up in
+/// its cube of shadow maps once, and sums the sources they light up close apart from the
+/// others (a lookup inside the sum over all sources doubled the far pass on lavapipe); the
+/// spots of the lights after them are seen by the votes.
+pub const CLOSE_SIGHTS: usize = 4;
+// `shaders/far.wgsl` keeps the sights in a `vec4f`.
+const _: () = assert!(CLOSE_SIGHTS == 4);
+
+/// Which lights the far field sees the spots of: the first [`CLOSE_SIGHTS`] of those `close`
+/// ([`UpClose::lights`]).
+pub fn sighted(close: &[bool]) -> Vec<bool> {
+    let mut left = CLOSE_SIGHTS;
+    close
+        .iter()
+        .map(|&c| {
+            let take = c && left > 0;
+            left -= take as usize;
+            take
+        })
+        .collect()
 }
 
 /// The far field at each of the map's far texels (in their order): `sum over sources j of

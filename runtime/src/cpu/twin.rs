@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::{
     add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
-    select_top_k, LightSight, LinkLight, NearTables, TileBudget, UpClose,
+    select_top_k, sighted, LightSight, LinkLight, NearTables, TileBudget, UpClose,
 };
 
 /// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
@@ -58,19 +58,22 @@ pub fn link_light(
     l
 }
 
-/// How the far texels see the lights ([`LightSight`]): the point and spot lights with a cube of
-/// shadow maps on the GPU ([`crate::lights::layers`], a spot's cube where it lights a cell up
-/// close: [`UpClose`]), each seen from a far texel where a ray
+/// How the far texels see the lights ([`LightSight`]): the first [`super::CLOSE_SIGHTS`] point
+/// and spot lights that light a cell up close ([`UpClose`]; on the GPU each has a cube of
+/// shadow maps, a spot's besides its frustum: `crate::lights::layers`), each seen from a far
+/// texel where a ray
 /// from it reaches the light (the GPU: the light's shadow maps there), for the lights that
 /// light some cell up close.
 pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) -> LightSight {
-    let close = UpClose::new(prm, tables).spots(lights);
-    let at: Vec<Option<Vec3>> = lights
+    let close = UpClose::new(prm, tables).lights(lights);
+    let at: Vec<Option<Light>> = lights
         .iter()
-        .zip(close)
-        .map(|(l, close)| {
-            let cube = crate::lights::layers(l, 1, close) >= crate::contract::CUBE_LAYERS;
-            (cube && !matches!(l.kind, prm::LightKind::Directional)).then_some(l.position)
+        .zip(sighted(&close))
+        .zip(&close)
+        .map(|((l, seen), &close)| {
+            // Every light up close has a cube (a spot's besides its frustum).
+            debug_assert!(!close || crate::lights::layers(l, 1, close) >= crate::contract::CUBE_LAYERS);
+            seen.then(|| l.clone())
         })
         .collect();
     let mut sight = LightSight { at, seen: vec![Vec::new(); lights.len()] };

@@ -997,7 +997,7 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
     let mut spot = scene.lights.clone();
     spot[0].kind = LightKind::Spot { inner: 0.4, outer: 0.5 };
     spot[0].direction = Vec3::NEG_Y;
-    assert_eq!(cpu::UpClose::new(&prm, &tables).spots(&spot), [true], "the spot has no cube");
+    assert_eq!(cpu::UpClose::new(&prm, &tables).lights(&spot), [true], "the spot has no cube");
     for (lights, what) in [(&scene.lights, "lamp"), (&spot, "spot")] {
         rt.update(lights).unwrap();
         let gpu_l = rt.read_lightmap().unwrap();
