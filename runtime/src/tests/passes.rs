@@ -974,15 +974,17 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     }
 }
 
-/// A lamp 3 cm over the floor a metre from a pillar, then a spot there aimed down (a 30°
-/// cone: one frustum, and the cube it owns for lighting a cell up close): the far field sees
-/// the light's spot as each texel sees the light (`cpu::LightSight`), the GPU in the light's
-/// cube of shadow maps, the twin by rays. The sight must matter (the twin without it differs by
-/// more than 2 %; measured 6.2 % for the lamp, 10.7 % for the spot), and the GPU's lightmap must be the twin's
-/// within 3 %: where the abacus meets the shaft, texels a centimetre from its face see the
-/// light by a ray and half see it in the map's PCF (measured 1.39 % for the lamp and 2.30 %
-/// for the dimmer spot, the ten worst texels all there; 0.83 % with the lamp 1 m up, where no
-/// spot is lit up close).
+/// A lamp 3 cm over the floor a metre from a pillar, then a spot there aimed down (a 30° cone:
+/// one frustum, and the cube it owns for lighting a cell up close), then six lamps, five of
+/// them close to a surface (the far field sees four lights' spots at most, the GPU and the
+/// twin the same four). The far field sees each light's spot as each texel sees the light
+/// (`cpu::LightSight`), the GPU in the light's cube of shadow maps, the twin by rays. The
+/// sight must matter (the twin without it differs by more than 2 %, 1 % for the six lamps;
+/// measured 6.2, 10.7 and 1.7 %), and the GPU's lightmap must be the twin's within 3 %: where
+/// the abacus meets the shaft, texels a centimetre from its face see the light by a ray and
+/// half see it in the map's PCF (measured 1.39 % for the lamp and 2.30 % for the dimmer spot,
+/// the ten worst texels all there; 0.4 % for the six lamps; 0.83 % with the lamp 1 m up, where
+/// no spot is lit up close).
 #[test]
 fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
     let g = gpu();
@@ -998,7 +1000,20 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
     spot[0].kind = LightKind::Spot { inner: 0.4, outer: 0.5 };
     spot[0].direction = Vec3::NEG_Y;
     assert_eq!(cpu::UpClose::new(&prm, &tables).lights(&spot), [true], "the spot has no cube");
-    for (lights, what) in [(&scene.lights, "lamp"), (&spot, "spot")] {
+    // Six lamps: one mid-room, then five close to the floor, the walls and the ceiling, of
+    // which the far field sees the first four's spots and the fifth's by the votes: the GPU
+    // must pick the same four as the twin.
+    let mut many = vec![point(v(2.6, 1.0, 1.4), 1.0)];
+    for p in [v(1.0, 0.03, 1.0), v(3.5, 0.05, 0.5), v(0.3, 1.0, 0.05), v(3.9, 1.0, 1.5), v(2.8, 1.95, 1.0)] {
+        many.push(point(p, 1.0));
+    }
+    let close = cpu::UpClose::new(&prm, &tables).lights(&many);
+    assert_eq!(close, [false, true, true, true, true, true]);
+    assert_eq!(cpu::sighted(&close), [false, true, true, true, true, false]);
+    // (Measured: the sight changes the six lamps' map by 1.7 %, spread over five spots.)
+    for (lights, what, matters) in
+        [(&scene.lights, "lamp", 0.02), (&spot, "spot", 0.02), (&many, "six lamps", 0.01)]
+    {
         rt.update(lights).unwrap();
         let gpu_l = rt.read_lightmap().unwrap();
         let cpu_l = twin.frame(lights).to_vec();
@@ -1011,7 +1026,7 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
         );
         let e = cpu::entry_irradiance(&prm, &bvh, lights);
         let seeing = cpu::link_light(&prm, &bvh, &tables, &e, lights);
-        assert!(!seeing.sight.seen[0].is_empty(), "the {what} lights no cell up close");
+        assert!(seeing.sight.seen.iter().any(|s| !s.is_empty()), "the {what} light no cell up close");
         let blind = cpu::LinkLight { sight: cpu::LightSight::default(), ..seeing };
         let moments = cpu::dipole_moments(&prm, &tables, &e);
         let lin = cpu::dipole_offsets(&prm, &tables, &moments);
@@ -1020,7 +1035,7 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
         cpu::add_and_clamp(&mut without, &near);
         let share = prm::metric::compare(&without, &cpu_l, None).error;
         println!("{what}: the sight changes the lightmap by {share}");
-        assert!(share > 0.02, "{what}: the sight changes the lightmap by only {share}");
+        assert!(share > matters, "{what}: the sight changes the lightmap by only {share}");
     }
 }
 
