@@ -508,11 +508,10 @@ pub fn far_sources(
         .collect()
 }
 
-/// How the far texels see the point and spot lights that have a cube of shadow maps
-/// (`crate::lights::layers`: every point light, a wide spot, a spot that lights a cell up
-/// close): a light within [`HOT_REACH`] cell sizes of a cell makes a spot
-/// of light on it much smaller than the cell, which the far field otherwise sends as the
-/// texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
+/// How the far texels see the lights that light a cell up close ([`up_close`]; the first
+/// [`CLOSE_SIGHTS`] of them, [`sighted`]): such a light makes a spot of light on the cell much
+/// smaller than the cell (it is within [`HOT_REACH`] cell sizes of it), which the far field
+/// otherwise sends as the texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
 /// or under its capital, a texel's neighbours lie on other faces and say nothing of what it
 /// sees: on the chamber's torch 15 cm from a wall, a capital 3 m away that saw the torch's
 /// spot got a sixth of its light. The spot is seen where the light is: the GPU reads the
@@ -524,8 +523,8 @@ pub struct LightSight {
     /// Per light: the light where the far field sees its spots in its cube of shadow maps
     /// ([`sighted`]), else None.
     pub at: Vec<Option<prm::Light>>,
-    /// Per light with a position: how much of it each far texel (in `Far::texels` order) sees,
-    /// 0 to 1; empty for the others.
+    /// Per light in `at` that lights some cell up close: how much of it each far texel (in
+    /// `Far::texels` order) sees, 0 to 1 (the GPU: its cube's PCF share); empty for the others.
     pub seen: Vec<Vec<f32>>,
 }
 
