@@ -39,6 +39,18 @@ fn bake_at(scene: &Scene, atlas: u32) -> prm::prm_file::Prm {
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
+/// A finer bake for the tests against the ground truth: 1024 entries, 64 walks, 32 clusters.
+fn bake_fine(scene: &Scene, bvh: &Bvh, atlas: u32) -> prm::prm_file::Prm {
+    let p = prm_precompute::precompute::PrecomputeParams {
+        entries: 1024,
+        paths: 64,
+        clusters: 32,
+        atlas: prm::density::Atlas::single(atlas),
+        ..Default::default()
+    };
+    prm_precompute::precompute::precompute(scene, bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
+}
+
 #[test]
 fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     let scene = open_box();
@@ -196,16 +208,7 @@ fn the_near_fields_later_bounces_keep_the_energy() {
     let bvh = Bvh::build(&scene);
     let atlas = 32;
     let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 7);
-    let p = prm_precompute::precompute::PrecomputeParams {
-        entries: 1024,
-        paths: 64,
-        clusters: 32,
-        atlas: prm::density::Atlas::single(atlas),
-        ..Default::default()
-    };
-    let (prm, _) =
-        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
-            .unwrap();
+    let prm = bake_fine(&scene, &bvh, atlas);
     assert!(!prm.far().texels.is_empty());
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
@@ -374,16 +377,7 @@ fn far_texels_see_a_near_lamps_spot_as_they_see_the_lamp() {
     let bvh = Bvh::build(&scene);
     let atlas = 48;
     let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 11);
-    let p = prm_precompute::precompute::PrecomputeParams {
-        entries: 1024,
-        paths: 64,
-        clusters: 32,
-        atlas: prm::density::Atlas::single(atlas),
-        ..Default::default()
-    };
-    let (prm, _) =
-        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
-            .unwrap();
+    let prm = bake_fine(&scene, &bvh, atlas);
     assert!(!prm.far().texels.is_empty());
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
