@@ -43,6 +43,16 @@ fn index_base() -> u32 {
     return FAR_SOURCES * blocks();
 }
 
+// Where entry j's cell's light lands (the entry pass's, copied by the near pass after the
+// records: crate::far::deviation_len), its centroid where none arrives.
+fn landed_at(j: u32, centroid: vec3f) -> vec3f {
+    let at = deviation[2u * params.entry_count + 2u * FAR_SOURCES + j];
+    if at.w > 0.0 {
+        return at.xyz;
+    }
+    return centroid;
+}
+
 fn source_entry(s: u32) -> u32 {
     return source_sees[index_base() + s];
 }
@@ -407,10 +417,11 @@ fn far_main(
         }
         workgroupBarrier();
     }
-    // The sources lit up close, apart: their whole flux times (what the texel sees of the
-    // light, in its cube of shadow maps, less the vote). Looked up once a texel, a lookup a
-    // sighted light; inside the sum above they doubled the pass on lavapipe, and even a branch
-    // there that never ran slowed it by a tenth.
+    // The sources lit up close, apart: their whole flux times what the texel sees of the
+    // light, in its cube of shadow maps, from where the light lands on the cell, less their
+    // whole flux times the vote, from the centroid (prm_runtime::cpu::far_field). Looked up
+    // once a texel, a lookup a sighted light; inside the sum above they doubled the pass on
+    // lavapipe, and even a branch there that never ran slowed it by a tenth.
     let lits = lit_count();
     if lits > 0u && live {
         var sights = vec4f(0.0);
@@ -434,10 +445,19 @@ fn far_main(
                 continue;
             }
             let r2 = dot(d, d);
+            let size2 = e.size * e.size;
             let whole = deviation[record(s) + 1u];
             let sight = dot(sights, vec4f(vec4u(bitcast<u32>(whole.w)) == vec4u(0u, 1u, 2u, 3u)));
             let v = texel_vote(t, s, e);
-            sum += whole.xyz * ((sight - v) * share * cx * cy / (PI * r2 * max(r2, e.size * e.size)));
+            sum -= whole.xyz * (v * share * cx * cy / (PI * r2 * max(r2, size2)));
+            // The whole flux as the texel sees the light, from where it lands on the cell.
+            let dl = landed_at(source_entry(s), e.centroid) - t.position;
+            let lx = dot(t.normal, dl);
+            let ly = -dot(e.normal, dl);
+            if lx > 0.0 && ly > 0.0 {
+                let l2 = dot(dl, dl);
+                sum += whole.xyz * (sight * share * lx * ly / (PI * l2 * max(l2, size2)));
+            }
         }
     }
     if !live {

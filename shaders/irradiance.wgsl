@@ -12,15 +12,55 @@
 // unshadowed level (its power over that share and its area) and those lights' bits (reach_lo,
 // reach_hi). The near field's concentration
 // (concentrate.wgsl) reads them, and the w of E_j: flags, ENTRY_EDGE where one of the cell's
-// triangles is mixed, ENTRY_UNCHANGED where the entry kept last update's light. A light that
+// triangles is mixed, ENTRY_UNCHANGED where the entry kept last update's light. After the N
+// entries' irradiance, where each cell's light lands (landing()), for the far field. A light that
 // changed since the last update, hidden from the whole cell then and now, cannot change it:
 // such an entry is not run again (entry_hidden keeps the lights hidden at its last run). Structs, constants and bindings: the generated prelude (runtime/src/contract.rs,
-// runtime/src/irradiance.rs); the power: lights.wgsl.
+// runtime/src/irradiance.rs); the power: lights.wgsl; spherical_triangle: spherical.wgsl.
 
 // Fine point (fa, fb) of a triangle, in units of a sub-triangle's side.
 fn fine_point(a: vec3f, e1: vec3f, e2: vec3f, fa: f32, fb: f32) -> vec3f {
     let s = f32(CELL_FINE_SUB);
     return a + e1 * (fa / s) + e2 * (fb / s);
+}
+
+// prm::cell_light::landing: where light l's power on triangle (a, b, c) of unit normal n lands,
+// the irradiance-weighted mean point; a point or spot light nearer than LANDING_REACH longest
+// edges: the mean of where LANDING_SIDE² stratified directions even in solid angle over the
+// triangle meet its plane, each weighted by the light's intensity that way; else the centroid.
+fn landing(l: GpuLight, a: vec3f, b: vec3f, c: vec3f, n: vec3f) -> vec3f {
+    let centroid = (a + b + c) / 3.0;
+    let longest = max(max(length(b - a), length(c - b)), length(a - c));
+    let height = dot(n, l.position - a);
+    if l.kind == KIND_DIRECTIONAL || !(height > 0.0) || distance(l.position, centroid) >= LANDING_REACH * longest {
+        return centroid;
+    }
+    let ca = normalize(a - l.position);
+    let cb = normalize(b - l.position);
+    let cc = normalize(c - l.position);
+    var sum = vec3f(0.0);
+    var weight = 0.0;
+    let side = f32(LANDING_SIDE);
+    for (var i = 0u; i < LANDING_SIDE; i++) {
+        for (var j = 0u; j < LANDING_SIDE; j++) {
+            let s = spherical_triangle(ca, cb, cc, (f32(i) + 0.5) / side, (f32(j) + 0.5) / side);
+            let down = -dot(n, s.xyz);
+            if !(s.w > 0.0) || !(down > 1e-6) {
+                continue;
+            }
+            let y = l.position + s.xyz * (height / down);
+            let to = y - l.position;
+            let w = luminance(incident(l, y).irradiance) * dot(to, to);
+            if w > 0.0 && w < 3.4e38 {
+                sum += y * w;
+                weight += w;
+            }
+        }
+    }
+    if weight > 0.0 {
+        return sum / weight;
+    }
+    return centroid;
 }
 
 // The light's unshadowed irradiance (luminance) at a point of normal n (prm::Light::irradiance).
@@ -215,6 +255,10 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let e = entries[j];
     var power = vec3f(0.0);
+    // Where the light lands on the cell (prm_runtime::cpu::LinkLight::landing): each light's
+    // landing on each triangle weighted by the luminance of the power it brings there.
+    var landed = vec3f(0.0);
+    var landed_weight = 0.0;
     var any_mixed = false;
     // Bit i: light i hidden from the whole cell.
     var hid = vec2u(0u);
@@ -297,6 +341,11 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                 tri_power += p * v;
                 total += luminance(p);
                 seen += luminance(p) * v;
+                let w = luminance(p * v);
+                if w > 0.0 {
+                    landed += landing(l, t.a, t.b, t.c, n) * w;
+                    landed_weight += w;
+                }
             }
             if mixed {
                 // Per fine point, every light's unshadowed light and what arrives.
@@ -343,6 +392,11 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
                         tri_power += p * v;
                         total += luminance(p);
                         seen += luminance(p) * v;
+                        let w = luminance(p * v);
+                        if w > 0.0 {
+                            landed += landing(l, t.a, t.b, t.c, n) * w;
+                            landed_weight += w;
+                        }
                     }
                 }
                 var bits = vec2u(0u);
@@ -381,4 +435,11 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     // w: ENTRY_EDGE where a shadow edge crosses the cell (a mixed triangle), for the
     // concentration.
     entry_irradiance[j] = vec4f(power * e.inv_area, f32(select(0u, ENTRY_EDGE, any_mixed)));
+    // After the entries: where the light lands, w 1 (0: none arrives; the far field then takes
+    // the cell's centroid).
+    var at = vec4f(0.0);
+    if landed_weight > 0.0 {
+        at = vec4f(landed / landed_weight, 1.0);
+    }
+    entry_irradiance[params.entry_count + j] = at;
 }

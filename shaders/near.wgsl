@@ -5,7 +5,8 @@
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
 // read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
 // in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads;
-// deviation[N + j]: E_entry, which far.wgsl's sources lit up close send whole.
+// deviation[N + j]: E_entry, which far.wgsl's sources lit up close send whole, from where
+// the cell's light lands (the entry pass's, after the records: crate::far::deviation_len).
 // Structs, bindings, WG_LINEAR, luminance: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -18,8 +19,10 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
     let fit = weights[ec.x].xyz + deviation[j].xyz;
     let e = entry_irradiance[j].xyz;
     deviation[j] = vec4f(e - fit * bitcast<f32>(ec.y), luminance(e));
-    // For the far field (far.wgsl): E_j itself.
+    // For the far field (far.wgsl): E_j itself, and where the cell's light lands (after the
+    // sources' records, crate::far::deviation_len).
     deviation[params.entry_count + j] = vec4f(e, 0.0);
+    deviation[2u * params.entry_count + 2u * FAR_SOURCES + j] = entry_irradiance[params.entry_count + j];
 }
 
 @compute @workgroup_size(WG_LINEAR)

@@ -74,7 +74,7 @@ pub const CONCENTRATE_BINDINGS: &[Binding] = &[
 pub const CONCENTRATE: Shader = Shader {
     stem: "concentrate",
     body: include_str!("../../shaders/concentrate.wgsl"),
-    libraries: &[Library::Lights, Library::FormFactor],
+    libraries: &[Library::Lights, Library::FormFactor, Library::Spherical],
     groups: &[SHADOW_GROUP, CONCENTRATE_BINDINGS],
     compute: &[
         Compute { entry: "hot_items_main", workgroup: LINEAR },

@@ -85,6 +85,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CONCENTRATION_SUB", crate::cpu::concentrate::SUB),
     ("CELL_FINE_SUB", prm::cell_light::FINE_SUB),
     ("CELL_FINE_POINTS", prm::cell_light::FINE_POINTS as u32),
+    ("LANDING_SIDE", prm::cell_light::LANDING_SIDE),
     ("CELL_MIXED", CELL_MIXED),
     ("ENTRY_EDGE", ENTRY_EDGE),
     ("ENTRY_UNCHANGED", ENTRY_UNCHANGED),
@@ -135,6 +136,8 @@ pub fn prelude() -> &'static str {
              const CUBE_PAD_TEXELS: f32 = {:?}f;\n\
              // A disk of a cell's area, its radius in cell sizes (prm_runtime::cpu::up_close).\n\
              const CELL_DISK: f32 = {:?}f;\n\
+             // A light lands off a triangle's centroid within this many longest edges (prm::cell_light::landing).\n\
+             const LANDING_REACH: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
@@ -144,6 +147,7 @@ pub fn prelude() -> &'static str {
             crate::lights::SUN_TILE_MARGIN as f32,
             crate::lights::CUBE_PAD_TEXELS,
             crate::cpu::CELL_DISK,
+            prm::cell_light::LANDING_REACH,
             std::f32::consts::PI
         );
         let _ = writeln!(
@@ -203,17 +207,21 @@ pub enum Library {
     /// `shaders/form_factor.wgsl`: a point's form factor to a convex polygon
     /// (`prm::form_factor::point_to_polygon`).
     FormFactor,
+    /// `shaders/spherical.wgsl`: directions even in solid angle over a spherical triangle
+    /// (`prm::cone::spherical_triangle`).
+    Spherical,
 }
 
 impl Library {
     /// Every library, for the contract tests.
-    pub const ALL: [Library; 2] = [Library::Lights, Library::FormFactor];
+    pub const ALL: [Library; 3] = [Library::Lights, Library::FormFactor, Library::Spherical];
 
     /// Its WGSL.
     pub fn source(self) -> &'static str {
         match self {
             Library::Lights => crate::lights::LIBRARY,
             Library::FormFactor => include_str!("../../shaders/form_factor.wgsl"),
+            Library::Spherical => include_str!("../../shaders/spherical.wgsl"),
         }
     }
 
@@ -222,6 +230,7 @@ impl Library {
         match self {
             Library::Lights => "lights",
             Library::FormFactor => "form_factor",
+            Library::Spherical => "spherical",
         }
     }
 }

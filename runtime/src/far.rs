@@ -35,16 +35,18 @@ pub const WG_FAR_SOURCES: u32 = 256;
 pub const NO_LIGHT: u32 = u32::MAX;
 
 /// Length in `vec4f` of the buffer the near pass leaves its deviations in, for `entries`
-/// entries: the deviations, the entries' irradiance, then two records a far-field source.
+/// entries: the deviations, the entries' irradiance, two records a far-field source, then
+/// where each entry's cell's light lands (w 0 where none does; `crate::cpu::LinkLight::landing`).
 pub fn deviation_len(entries: usize) -> usize {
-    2 * entries + 2 * FAR_SOURCES
+    3 * entries + 2 * FAR_SOURCES
 }
 
 /// Group 1 (group 0 is the shadow maps' `SHADOW_GROUP`).
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     // Per entry, this update's `E_j - (w_c + lin_j) t_j` (the near pass's `deviation_main`),
-    // then per entry E_j, then the sources' records, written here ([`deviation_len`]).
+    // then per entry E_j, then the sources' records, written here, then per entry where its
+    // light lands ([`deviation_len`]).
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("far_entries", Res::Read("array<FarEntry>"), COMPUTE),
     // The entries' visibility by blocks ([`far_words`]).

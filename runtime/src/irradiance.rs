@@ -39,7 +39,7 @@ pub const BINDINGS: &[Binding] = &[
 pub const SHADER: Shader = Shader {
     stem: "irradiance",
     body: include_str!("../../shaders/irradiance.wgsl"),
-    libraries: &[Library::Lights],
+    libraries: &[Library::Lights, Library::Spherical],
     groups: &[SHADOW_GROUP, BINDINGS],
     compute: &[Compute { entry: "entry_main", workgroup: LINEAR }],
 };
@@ -48,7 +48,8 @@ pub struct EntryPass {
     pipeline: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
     count: u32,
-    /// Per-entry irradiance, `vec4f` each (w unused).
+    /// Per-entry irradiance, `vec4f` each (w: flags), then per entry where its cell's light
+    /// lands (w 1; 0 where none arrives).
     pub output: wgpu::Buffer,
     /// The cells' triangles, with this frame's visibility (`GpuCellTriangle`).
     pub cells: wgpu::Buffer,
@@ -128,7 +129,7 @@ impl EntryPass {
         let output = gpu::storage_buffer(
             device,
             "entry irradiance",
-            &vec![0u8; areas.len().max(1) * 16],
+            &vec![0u8; areas.len().max(1) * 32],
             wgpu::BufferUsages::COPY_SRC,
         );
         let stats = gpu::storage_buffer(

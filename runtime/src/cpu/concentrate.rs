@@ -349,6 +349,11 @@ pub struct LinkLight {
     /// How the far texels see the lights that light cells up close (none here: the twin fills
     /// it, `crate::cpu::light_sight`).
     pub sight: LightSight,
+    /// Per entry: where its cell's light lands, its triangles' [`TriangleLight::centre`]
+    /// weighted by the luminance of their power (the cell's centroid where none arrives;
+    /// empty: every centroid). The far field sends a cell lit up close from there
+    /// (`crate::cpu::far_field`).
+    pub landing: Vec<Vec3>,
 }
 
 impl LinkLight {
@@ -360,6 +365,7 @@ impl LinkLight {
             value: Vec::new(),
             energy: vec![Vec3::ZERO; n],
             sight: LightSight::default(),
+            landing: Vec::new(),
         }
     }
 
@@ -406,7 +412,22 @@ impl LinkLight {
                 }
             }
         }
-        LinkLight { hot, value, energy, sight: LightSight::default() }
+        let landing = (0..n)
+            .map(|j| {
+                let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
+                for t in of(j) {
+                    let w = prm::luminance(t.power);
+                    sum += t.centre * w;
+                    weight += w;
+                }
+                if weight > 0.0 {
+                    sum / weight
+                } else {
+                    tables.centroid[j]
+                }
+            })
+            .collect();
+        LinkLight { hot, value, energy, sight: LightSight::default(), landing }
     }
 }
 
@@ -424,7 +445,7 @@ mod tests {
 
     /// A triangle's light with visible share `share` everywhere on it, every light reaching it.
     fn even(share: f32) -> TriangleLight {
-        TriangleLight { power: Vec3::ZERO, share, fine: 0, reach: u64::MAX, mixed: false }
+        TriangleLight { power: Vec3::ZERO, share, fine: 0, reach: u64::MAX, mixed: false, centre: Vec3::ZERO }
     }
 
     /// kappa by brute force: a 400 x 400 grid of the cell's square, the same two means.
@@ -631,7 +652,14 @@ mod tests {
         let area = 0.5;
         let level = unshadowed_level(&vis[0], area);
         assert!((level * vis[0].share * area - vis[0].power).abs().max_element() < 1e-6);
-        let dark = TriangleLight { power: Vec3::ZERO, share: 1.0, fine: 0, reach: 0, mixed: false };
+        let dark = TriangleLight {
+            power: Vec3::ZERO,
+            share: 1.0,
+            fine: 0,
+            reach: 0,
+            mixed: false,
+            centre: Vec3::ZERO,
+        };
         assert_eq!(unshadowed_level(&dark, area), Vec3::ZERO);
     }
 

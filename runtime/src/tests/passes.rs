@@ -1637,7 +1637,7 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
     let sight = cpu::light_sight(prm, bvh, &tables, lights);
     let lin = cpu::dipole_offsets(prm, &tables, &cpu::dipole_moments(prm, &tables, &e));
     let balanced = cpu::cluster_weights_with(prm, &tables, &link, &e, &lin);
-    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &sight);
+    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &sight, &link.landing);
     let light = cpu::far_field(prm, &tables, &sources, &sight);
     (sources.iter().map(|s| (s.entry, s.phi)).collect(), light)
 }
