@@ -414,15 +414,17 @@ mod pass {
                 });
             }
             crate::lights::validate(lights)?;
-            if self.light.as_ref().is_none_or(|l| l.shadows.size() != shadow_size) {
-                self.light = Some(self.texel_light(device, queue, posed, shadow_size));
-            }
-            let light = self.light.as_mut().expect("made above");
+            self.set_poses(queue, poses);
+            let light = match self.light.take() {
+                Some(l) if l.shadows.size() == shadow_size => self.light.insert(l),
+                _ => {
+                    let made = self.texel_light(device, queue, posed, shadow_size);
+                    self.light.insert(made)
+                }
+            };
             let moved = light.shadows.set_geometry(posed);
             debug_assert!(moved, "the triangle count is checked above");
             light.shadows.update(lights)?;
-            self.set_poses(queue, poses);
-            let light = self.light.as_ref().expect("made above");
             let p =
                 DirectParams { texels: self.texels, light_count: lights.len() as u32, ..Default::default() };
             queue.write_buffer(&light.params, 0, bytemuck::bytes_of(&p));
