@@ -459,6 +459,15 @@ impl Runtime {
         Ok(crate::gpu::read_rgba32f(&self.device, &self.queue, &self.compose.lightmap)?)
     }
 
+    /// Reads back where the last update found each entry's cell's light to land
+    /// (`crate::cpu::LinkLight::landing`); None where no light arrives.
+    pub fn read_landing(&self) -> Result<Vec<Option<Vec3>>, RuntimeError> {
+        let bytes = crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output)?;
+        let n = self.entry_count as usize;
+        let v: &[[f32; 4]] = bytemuck::cast_slice(&bytes[n * 16..2 * n * 16]);
+        Ok(v.iter().map(|a| (a[3] > 0.0).then(|| Vec3::new(a[0], a[1], a[2]))).collect())
+    }
+
     /// Reads the last entry irradiance back (W/m² per entry).
     pub fn read_entry_irradiance(&self) -> Result<Vec<Vec3>, RuntimeError> {
         Ok(read_vec4(
