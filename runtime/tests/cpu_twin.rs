@@ -41,10 +41,16 @@ fn bake_at(scene: &Scene, atlas: u32) -> prm::prm_file::Prm {
 
 /// A finer bake for the tests against the ground truth: 1024 entries, 64 walks, 32 clusters.
 fn bake_fine(scene: &Scene, bvh: &Bvh, atlas: u32) -> prm::prm_file::Prm {
+    bake_walked(scene, bvh, atlas, 1024, 32)
+}
+
+/// A bake with 64 walks and the given entries and clusters, for the tests against the ground
+/// truth.
+fn bake_walked(scene: &Scene, bvh: &Bvh, atlas: u32, entries: u32, clusters: u32) -> prm::prm_file::Prm {
     let p = prm_precompute::precompute::PrecomputeParams {
-        entries: 1024,
+        entries,
         paths: 64,
-        clusters: 32,
+        clusters,
         atlas: prm::density::Atlas::single(atlas),
         ..Default::default()
     };
@@ -444,17 +450,8 @@ fn the_far_field_sends_a_near_spots_light_from_where_it_lands() {
     let bvh = Bvh::build(&scene);
     let atlas = 48;
     let (set, gt, _) = ground_truth(&scene, &bvh, atlas, 12);
-    let p = prm_precompute::precompute::PrecomputeParams {
-        entries: 256,
-        paths: 64,
-        clusters: 16,
-        atlas: prm::density::Atlas::single(atlas),
-        ..Default::default()
-    };
-    let prm =
-        prm_precompute::precompute::precompute(&scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false))
-            .unwrap()
-            .0;
+    // Cells about 40 cm across, as the chamber's are at the default preset's density.
+    let prm = bake_walked(&scene, &bvh, atlas, 256, 16);
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
     let landing = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
