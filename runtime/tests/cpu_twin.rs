@@ -57,6 +57,22 @@ fn bake_walked(scene: &Scene, bvh: &Bvh, atlas: u32, entries: u32, clusters: u32
     prm_precompute::precompute::precompute(scene, bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
+/// The twin's lightmap for entry irradiance `e` and this frame's link light: every pane with
+/// its lifted weight, dipoles, and the near and far fields.
+fn twin_lightmap(
+    prm: &prm::prm_file::Prm,
+    tables: &cpu::NearTables,
+    link: &cpu::LinkLight,
+    e: &[Vec3],
+) -> Vec<Vec3> {
+    let moments = cpu::dipole_moments(prm, tables, e);
+    let lin = cpu::dipole_offsets(prm, tables, &moments);
+    let (w, near) = cpu::pane_weights_with(prm, tables, link, e, &lin);
+    let mut img = cpu::compose(prm, &w, &moments);
+    cpu::add_and_clamp(&mut img, &near);
+    img
+}
+
 #[test]
 fn top_k_equal_to_c_is_the_full_sum_and_smaller_k_takes_the_strongest() {
     let scene = open_box();
@@ -393,12 +409,8 @@ fn far_texels_see_a_near_lamps_spot_as_they_see_the_lamp() {
     let seeing = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
     assert!(!seeing.sight.seen[0].is_empty(), "the lamp lights no cell up close");
     let blind = cpu::LinkLight { sight: cpu::LightSight::default(), ..seeing.clone() };
-    let moments = cpu::dipole_moments(&prm, &tables, &e);
-    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
     let lightmap = |link: &cpu::LinkLight| {
-        let (w, near) = cpu::pane_weights_with(&prm, &tables, link, &e, &lin);
-        let mut img = cpu::compose(&prm, &w, &moments);
-        cpu::add_and_clamp(&mut img, &near);
+        let img = twin_lightmap(&prm, &tables, link, &e);
         set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect::<Vec<Vec3>>()
     };
     let error = |img: &[Vec3]| {
@@ -462,14 +474,10 @@ fn the_far_field_sends_a_near_spots_light_from_where_it_lands() {
         (0..e.len()).filter(|&j| lit(j) && landing.landing[j].distance(tables.centroid[j]) > 0.05).count();
     assert!(moved > 0, "no cell the spot lights up close has its light land 5 cm off its centroid");
     let centroids = cpu::LinkLight { landing: Vec::new(), ..landing.clone() };
-    let moments = cpu::dipole_moments(&prm, &tables, &e);
-    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
     // On the floor 1.5 to 4 m from the wall: the mean over the truth's, and the RMS error
     // over the truth's RMS.
     let floor = |link: &cpu::LinkLight| {
-        let (w, near) = cpu::pane_weights_with(&prm, &tables, link, &e, &lin);
-        let mut img = cpu::compose(&prm, &w, &moments);
-        cpu::add_and_clamp(&mut img, &near);
+        let img = twin_lightmap(&prm, &tables, link, &e);
         let (mut sum, mut truth, mut d2, mut t2) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for (t, g) in set.texels.iter().zip(&gt) {
             if t.position.y < 1e-3 && t.position.x > 1.5 {
