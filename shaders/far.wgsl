@@ -17,7 +17,7 @@
 // its texels' neighbours sees, or that are lit up close (group_words), and the sum runs over
 // those, in the same order.
 // Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
-// NO_LIGHT, CLOSE_SIGHTS, CELL_DISK, luminance, far_share: the generated prelude; cube_visibility:
+// NO_LIGHT, CLOSE_SIGHTS, CONE_REACH, luminance, far_share: the generated prelude; cube_visibility:
 // lights.wgsl.
 //
 // deviation: [0, N) the near pass's deviations, [N, 2N) the entries' irradiance E_j (rgb),
@@ -97,8 +97,8 @@ fn lit_by(j: u32) -> u32 {
         let d = distance(l.position, e.centroid);
         var reaches = d < best_d && dot(e.normal, l.position - e.centroid) > 0.0;
         if reaches && l.kind == KIND_SPOT {
-            // The outer cone reaches the disk of the cell's area (prm_runtime::cpu::up_close).
-            let r = e.size * CELL_DISK;
+            // The outer cone reaches CONE_REACH sizes of the centroid (prm_runtime::cpu::up_close).
+            let r = e.size * CONE_REACH;
             let c = e.centroid;
             let toward = dot(l.direction, e.normal);
             var u = l.direction - e.normal * toward;

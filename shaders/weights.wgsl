@@ -49,16 +49,7 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         sum += e;
         stay_sum += e * s;
         stay_t += t * s;
-        var linked = e * near;
-        if params.any_hot != 0u {
-            // A hot entry's links deliver what their own light says (concentrate.wgsl); its far
-            // field, what its mean irradiance says.
-            let hot = hot_energy[m.x];
-            if hot.w == params.frame {
-                linked = bitcast<vec3f>(hot.xyz) + e * bitcast<f32>(m.w);
-            }
-        }
-        near_sum += tint * linked;
+        near_sum += tint * (e * near);
         near_total += tint * (near * t);
         t_total += t;
     }

@@ -1,14 +1,13 @@
-//! The near field where a light is close, on the GPU (`shaders/concentrate.wgsl`,
-//! `shaders/link_energy.wgsl`; [`crate::cpu::concentrate`] says what and why, and is the twin).
+//! The near field where a light is close, on the GPU (`shaders/concentrate.wgsl`;
+//! [`crate::cpu::concentrate`] says what and why, and is the twin).
 //!
 //! After the entry pass: `hot_items_main` lists the hot cells' work items, and
 //! `concentrate_main`, dispatched on that list, gives each near-field link of a hot cell its own
 //! light (`E_j kappa`, stamped with the update's number; a workgroup per entry, whose links
-//! that take kappa are gathered so that the group computes them side by side), then `link_energy_main` sums each hot
-//! entry's links into the energy the weight pass balances against. The near pass reads a link's
-//! light only when its stamp is this update's. A hot entry kept since its last run (no changed
-//! light reaches its cell: `ENTRY_UNCHANGED`) is not listed: `hot_items_main` stamps its links'
-//! light, and `link_energy_main` its energy, as this update's, both as they were.
+//! //! that take kappa are gathered so that the group computes them side by side). The near pass
+//! reads a link's light only when its stamp is this update's. A hot entry kept since its last
+//! run (no changed light reaches its cell: `ENTRY_UNCHANGED`) is not listed: `hot_items_main`
+//! stamps its links' light as this update's, as it was.
 
 use prm::prm_file::Prm;
 
@@ -83,36 +82,12 @@ pub const CONCENTRATE: Shader = Shader {
     ],
 };
 
-pub const ENERGY_BINDINGS: &[Binding] = &[
-    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
-    // Link indices grouped by entry (each entry's run: `GpuHotEntry::first_link`, `link_count`).
-    b("link_ids", Res::Read("array<u32>"), COMPUTE),
-    // Per link: luminance(albedo) x factor x its texel's echo gain (`crate::cpu::echo_gain`).
-    b("link_weight", Res::Read("array<f32>"), COMPUTE),
-    b("link_light", Res::Read("array<vec4u>"), COMPUTE),
-    // Per entry: (bits of its hot links' energy, update number).
-    b("hot_energy", Res::ReadWrite("array<vec4u>"), COMPUTE),
-    // The entry pass's output: its flags in w (irradiance.wgsl).
-    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
-];
-
-pub const LINK_ENERGY: Shader = Shader {
-    stem: "link_energy",
-    body: include_str!("../../shaders/link_energy.wgsl"),
-    libraries: &[],
-    groups: &[ENERGY_BINDINGS],
-    compute: &[Compute { entry: "link_energy_main", workgroup: LINEAR }],
-};
-
 /// The two passes and the per-link and per-entry tables they fill.
 pub struct ConcentratePass {
     items: wgpu::ComputePipeline,
     args: wgpu::ComputePipeline,
     concentrate: wgpu::ComputePipeline,
-    energy: wgpu::ComputePipeline,
     concentrate_group: wgpu::BindGroup,
-    energy_group: wgpu::BindGroup,
     texels: u32,
     entries: u32,
     /// Near-field links (`IndirectParams::link_count`).
@@ -123,8 +98,6 @@ pub struct ConcentratePass {
     hot_args: wgpu::Buffer,
     /// Per link: `vec4u` (bits of E_j kappa, update number).
     pub link_light: wgpu::Buffer,
-    /// Per entry: `vec4u` (bits of its hot links' energy, update number).
-    pub hot_energy: wgpu::Buffer,
 }
 
 /// The buffers the near pass already holds, shared here.
@@ -170,20 +143,8 @@ impl ConcentratePass {
             bytemuck::cast_slice(&link_ids),
             wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
         );
-        let mut link_weight: Vec<f32> = Vec::with_capacity(prm.near().len().max(1));
-        for (links, gain) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(&tables.echo_gain) {
-            for l in links {
-                link_weight.push(prm::luminance(prm.entries()[l.entry as usize].albedo) * l.factor * gain);
-            }
-        }
-        if link_weight.is_empty() {
-            link_weight.push(0.0);
-        }
-        let weight_buf =
-            gpu::storage_buffer(device, "link weights", bytemuck::cast_slice(&link_weight), none);
         let link_light =
             gpu::storage_buffer(device, "link light", &vec![0u8; prm.near().len().max(1) * 16], none);
-        let hot_energy = gpu::storage_buffer(device, "hot link energy", &vec![0u8; n.max(1) * 16], none);
         let hot_args = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hot work dispatch"),
             size: 12,
@@ -213,43 +174,17 @@ impl ConcentratePass {
         };
         let (items, args, concentrate) =
             (pipeline("hot_items_main"), pipeline("hot_args_main"), pipeline("concentrate_main"));
-        let energy_layout = LINK_ENERGY.layout(device, 0);
-        let energy_group = bind(
-            device,
-            "link energy",
-            &energy_layout,
-            ENERGY_BINDINGS,
-            &[
-                ("params", params.as_entire_binding()),
-                ("hot_entries", hot_buf.as_entire_binding()),
-                ("link_ids", ids_buf.as_entire_binding()),
-                ("link_weight", weight_buf.as_entire_binding()),
-                ("link_light", link_light.as_entire_binding()),
-                ("hot_energy", hot_energy.as_entire_binding()),
-                ("entry_irradiance", entry_irradiance.as_entire_binding()),
-            ],
-        );
-        let energy = gpu::compute_pipeline(
-            device,
-            "link_energy.wgsl",
-            &LINK_ENERGY.source(),
-            "link_energy_main",
-            &[&energy_layout],
-        );
         ConcentratePass {
             items,
             args,
             concentrate,
-            energy,
             concentrate_group,
-            energy_group,
             texels: near.texel_count,
             entries: n as u32,
             links: prm.near().len() as u32,
             link_ids: ids_buf,
             hot_args,
             link_light,
-            hot_energy,
         }
     }
 
@@ -289,8 +224,5 @@ impl ConcentratePass {
         pass.set_bind_group(1, &self.concentrate_group, &[]);
         // A workgroup a hot cell's work item, in rows of at most 32768 (`hot_args_main`).
         pass.dispatch_workgroups_indirect(&self.hot_args, 0);
-        pass.set_pipeline(&self.energy);
-        pass.set_bind_group(0, &self.energy_group, &[]);
-        pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
     }
 }

@@ -134,8 +134,8 @@ pub fn prelude() -> &'static str {
              const SUN_TILE_MARGIN: f32 = {:?}f;\n\
              // Shadow texels a cube face reaches past its 90° (crate::lights).\n\
              const CUBE_PAD_TEXELS: f32 = {:?}f;\n\
-             // A disk of a cell's area, its radius in cell sizes (prm_runtime::cpu::up_close).\n\
-             const CELL_DISK: f32 = {:?}f;\n\
+             // A spot's cone lights a cell up close when it reaches this many cell sizes of its centroid (prm_runtime::cpu::up_close).\n\
+             const CONE_REACH: f32 = {:?}f;\n\
              // A light lands off a triangle's centroid within this many longest edges (prm::cell_light::landing).\n\
              const LANDING_REACH: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
@@ -146,7 +146,7 @@ pub fn prelude() -> &'static str {
             crate::shadow::SUN_NORMAL_OFFSET,
             crate::lights::SUN_TILE_MARGIN as f32,
             crate::lights::CUBE_PAD_TEXELS,
-            crate::cpu::CELL_DISK,
+            crate::cpu::CONE_REACH,
             prm::cell_light::LANDING_REACH,
             std::f32::consts::PI
         );
@@ -292,11 +292,11 @@ pub const SHADERS: [&Shader; 17] = [
     &crate::shadow::BLOCKS,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
-    &crate::concentrate::LINK_ENERGY,
     &crate::weights::DIPOLE,
     &crate::weights::SHADER,
     &crate::near::SHADER,
     &crate::near::ECHO,
+    &crate::near::RELAY,
     &crate::far::SHADER,
     &crate::lift::SHADER,
     &crate::tile_changes::SHADER,

@@ -73,7 +73,6 @@ impl GpuMemory {
             ),
             (SLOTS_AND_RANGES, storage(atlas.texels() * 8 + per_tile.len() as u64 * 8)),
             (LIGHTMAP, atlas.texels() * 16),
-            ("link weights", size(near, 4)),
             ("link ids by entry", size(crate::concentrate::link_ids_len(prm), 4)),
             ("entry cells", size(prm.cells().triangles.len(), std::mem::size_of::<GpuCellTriangle>())),
             ("near links", size(near, std::mem::size_of::<GpuNearLink>())),
@@ -98,6 +97,9 @@ impl GpuMemory {
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
             ("echo runs", size(points, 8)),
             ("echo sums", size(points, 16)),
+            // The relay runs with links and a far field (`crate::near`).
+            ("relay ranges", if far_texels > 0 && points > 0 { size(c, 8) } else { 0 }),
+            ("relay members", if far_texels > 0 && points > 0 { size(members.max(1), 16) } else { 0 }),
             ("cluster weights", size(4 * c.max(1), 16)),
             ("selected weights", size((4 * c + g).max(1), 16)),
             (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),

@@ -2,8 +2,9 @@
 //! are): per texel with near-field links, `sum albedo_j factor (E_j - w_c(j) t_j)` over its links,
 //! from this frame's entry irradiance and cluster weights, into `near_sum`, which the compose
 //! adds to the panes (and clamps at zero). A link of a hot cell uses its own light instead of
-//! `E_j` (`crate::concentrate`). Only the texels with links are visited; then the far field
-//! (`crate::far`) adds its light to the same sums. A frame composed from caller-chosen weights
+//! `E_j` (`crate::concentrate`). Only the texels with links are visited; their echo follows,
+//! then the relay (the links' own deviation from each cluster's mean, into `deviation`), then
+//! the far field (`crate::far`) adds its light to the same sums. A frame composed from caller-chosen weights
 //! has no entry irradiance, so the sums are cleared.
 
 use prm::prm_file::Prm;
@@ -62,6 +63,78 @@ pub const ECHO: Shader = Shader {
         Compute { entry: "echo_second_main", workgroup: LINEAR },
     ],
 };
+
+pub const RELAY_BINDINGS: &[Binding] = &[
+    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
+    // Per cluster: (first member, member count) into `relay_members`.
+    b("relay_ranges", Res::Read("array<vec2u>"), COMPUTE),
+    // Per member, clusters in order: its texel's slot among the sums (NO_SLOT for none), its
+    // cell's area over A/N (f32 bits), its entry, 0.
+    b("relay_members", Res::Read("array<vec4u>"), COMPUTE),
+    b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
+    b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
+];
+
+pub const RELAY: Shader = Shader {
+    stem: "relay",
+    body: include_str!("../../shaders/relay.wgsl"),
+    libraries: &[],
+    groups: &[RELAY_BINDINGS],
+    compute: &[Compute { entry: "relay_main", workgroup: LINEAR }],
+};
+
+/// The relay's pipeline and tables (`shaders/relay.wgsl`): the near field's own deviation from
+/// each cluster's mean, which the far field sends (`crate::cpu::near_deviation`). None without
+/// links or a far field.
+struct RelayPass {
+    pipeline: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+    clusters: u32,
+}
+
+impl RelayPass {
+    fn new(
+        device: &wgpu::Device,
+        prm: &Prm,
+        tables: &crate::cpu::NearTables,
+        params: &wgpu::Buffer,
+        index: &[u32],
+        sums: &wgpu::Buffer,
+        deviation: &wgpu::Buffer,
+    ) -> Option<RelayPass> {
+        let (mut ranges, mut members) = (Vec::new(), Vec::new());
+        for c in prm.clusters() {
+            ranges.push([members.len() as u32, c.members.len() as u32]);
+            members.extend(c.members.iter().map(|&m| {
+                let texel = tables.entry_texel[m as usize];
+                let slot = if texel == crate::cpu::NO_TEXEL { NO_SLOT } else { index[texel as usize] };
+                [slot, tables.area_ratio[m as usize].to_bits(), m, 0]
+            }));
+        }
+        if members.iter().all(|m: &[u32; 4]| m[0] == NO_SLOT) {
+            return None;
+        }
+        let none = wgpu::BufferUsages::empty();
+        let ranges_buf = gpu::storage_buffer(device, "relay ranges", bytemuck::cast_slice(&ranges), none);
+        let members_buf = gpu::storage_buffer(device, "relay members", bytemuck::cast_slice(&members), none);
+        let layout = RELAY.layout(device, 0);
+        let group = bind(
+            device,
+            "relay",
+            &layout,
+            RELAY_BINDINGS,
+            &[
+                ("params", params.as_entire_binding()),
+                ("relay_ranges", ranges_buf.as_entire_binding()),
+                ("relay_members", members_buf.as_entire_binding()),
+                ("near_sum", sums.as_entire_binding()),
+                ("deviation", deviation.as_entire_binding()),
+            ],
+        );
+        let pipeline = gpu::compute_pipeline(device, "relay.wgsl", &RELAY.source(), "relay_main", &[&layout]);
+        Some(RelayPass { pipeline, group, clusters: ranges.len() as u32 })
+    }
+}
 
 /// The echo's pipelines and tables (`shaders/echo.wgsl`); none when the map has no echo.
 struct EchoPass {
@@ -196,6 +269,8 @@ pub struct NearPass {
     /// Per atlas texel, its index in `sums`, or `NO_SLOT`.
     pub index: Vec<u32>,
     echo: Option<EchoPass>,
+    /// The near field's own deviation, into `deviation` for the far field.
+    relay: Option<RelayPass>,
     /// The far field, added to the sums after the echo.
     pub far: Option<FarPass>,
 }
@@ -263,7 +338,11 @@ impl NearPass {
             crate::far::FarBuffers { params, deviation, sums: &sums },
             &index,
         );
-        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo, far }
+        let relay = match (&far, count) {
+            (Some(_), 1..) => RelayPass::new(device, prm, tables, params, &index, &sums, deviation),
+            _ => None,
+        };
+        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo, relay, far }
     }
 
     /// Records the pass (after the weights, before the compose).
@@ -295,6 +374,11 @@ impl NearPass {
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
             pass.set_pipeline(&echo.second);
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
+        }
+        if let Some(relay) = &self.relay {
+            pass.set_bind_group(0, &relay.group, &[]);
+            pass.set_pipeline(&relay.pipeline);
+            pass.dispatch_workgroups(relay.clusters.div_ceil(WG_LINEAR), 1, 1);
         }
         drop(pass);
         if let Some(far) = &self.far {

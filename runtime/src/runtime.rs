@@ -209,8 +209,7 @@ impl Runtime {
             &entries.output,
             NearBuffers { texels: &near_data.texels, texel_count: near_data.count },
         );
-        let weights =
-            WeightPass::new(device, &params_buf, &entries.output, &concentrate.hot_energy, prm, &tables);
+        let weights = WeightPass::new(device, &params_buf, &entries.output, prm, &tables);
         let near = NearPass::new(
             device,
             shadows.layout(),

@@ -21,9 +21,8 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
     // Per cluster c: (first member, member count) into `indices` at ranges[c]; per group g:
     // (first child cluster, child count) into `indices` at ranges[C + g]. Each index comes with
-    // the member's near-field energy (links and far field), its cell's area over A/N and its
-    // far field's energy alone (f32 bits, `prm_runtime::cpu::NearTables`; 0 for a group's
-    // children).
+    // the member's near-field energy (links and far field) and its cell's area over A/N (f32
+    // bits, `prm_runtime::cpu::NearTables`; 0 for a group's children), then 0.
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
     // Pane energy: C clusters, then G groups; then the balance's dipole terms (3 C); then each
@@ -33,8 +32,6 @@ pub const BINDINGS: &[Binding] = &[
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
     b("selected", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // Per entry: its hot links' energy this update, stamped (`crate::concentrate`).
-    b("hot_energy", Res::Read("array<vec4u>"), COMPUTE),
 ];
 
 /// The dipole weights' bind group (`shaders/dipole.wgsl`).
@@ -109,7 +106,6 @@ impl WeightPass {
         device: &wgpu::Device,
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
-        hot_energy: &wgpu::Buffer,
         prm: &Prm,
         near: &crate::cpu::NearTables,
     ) -> WeightPass {
@@ -123,12 +119,7 @@ impl WeightPass {
             ranges.push([indices.len() as u32, c.members.len() as u32]);
             indices.extend(c.members.iter().map(|&m| {
                 let m = m as usize;
-                [
-                    m as u32,
-                    near.energy[m].to_bits(),
-                    near.area_ratio[m].to_bits(),
-                    near.far_energy[m].to_bits(),
-                ]
+                [m as u32, near.energy[m].to_bits(), near.area_ratio[m].to_bits(), 0]
             }));
         }
         let mut children = vec![Vec::new(); g_count];
@@ -227,7 +218,6 @@ impl WeightPass {
                 ("weights", weights.as_entire_binding()),
                 ("scores", scores.as_entire_binding()),
                 ("selected", selected.as_entire_binding()),
-                ("hot_energy", hot_energy.as_entire_binding()),
             ],
         );
         let dipole_layout = DIPOLE.layout(device, 0);

@@ -210,8 +210,12 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
          light as the texel sees it, {echo:.3} with its echo (ground-truth noise {noise:.3})"
     );
     assert!(with <= 0.5 * without, "error {with} with the near field, {without} without");
-    assert!(seen <= 0.8 * with, "error {seen} with hot cells seen, {with} spread evenly");
-    assert!(echo <= 0.985 * seen, "error {echo} with the echo, {seen} without");
+    // Measured 0.366, 0.308 and 0.158; before the balance counted hot links at their cell's
+    // power and the far field sent the links' own deviation (`cpu::near_deviation`): 0.365,
+    // 0.285 and 0.176 (seen hot cells' light counted by the balance as the texels read it).
+    assert!(seen <= 0.9 * with, "error {seen} with hot cells seen, {with} spread evenly");
+    assert!(echo <= 0.6 * seen, "error {echo} with the echo, {seen} without");
+    assert!(echo <= 0.17, "error {echo} with the echo");
 }
 
 /// The near field's later bounces (`cpu::lift_weights`) add no energy: per channel `sum_c w_c
@@ -240,7 +244,7 @@ fn the_near_fields_later_bounces_keep_the_energy() {
     let light = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
     let moments = cpu::dipole_moments(&prm, &tables, &e);
     let lin = cpu::dipole_offsets(&prm, &tables, &moments);
-    let balanced = cpu::cluster_weights_with(&prm, &tables, &light, &e, &lin);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e, &lin);
     let near = cpu::near_field(&prm, &tables, &light, &e, &balanced, &lin);
     let lifted = cpu::lift_weights(&prm, &tables, &balanced, &near);
     let error = |weights: &[Vec3]| {
@@ -451,7 +455,9 @@ fn far_texels_see_a_near_lamps_spot_as_they_see_the_lamp() {
 /// from where the light lands on the cell (`cpu::LinkLight::landing`,
 /// `prm::cell_light::landing`), against the ground truth on the floor beyond the near field
 /// (1.5 to 4 m from the wall): the mean's excess at most 0.7 of what it is from the centroids
-/// and the RMS error at most 0.85 of it (measured: +18.1 % -> +11.7 %, 0.285 -> 0.230).
+/// and the RMS error at most 0.85 of it (measured: +15.7 % -> +9.4 %, 0.280 -> 0.227; +18.1 %
+/// -> +11.7 %, 0.285 -> 0.230 before the balance counted hot links at their cell's power and
+/// the far field sent the links' own deviation, `cpu::near_deviation`).
 #[test]
 fn the_far_field_sends_a_near_spots_light_from_where_it_lands() {
     let mut scene = common::pillar_room();
@@ -504,11 +510,46 @@ fn the_far_field_sends_a_near_spots_light_from_where_it_lands() {
     );
 }
 
+/// The near field's own deviation (`cpu::near_deviation`) moves light within each cluster and
+/// adds none: over a cluster's members it sums to zero (to float rounding of its largest
+/// term), so the far field sends the links' light from where it lands and not more of it.
+/// Next to a lamp 4 cm from the open box's corner it is far from zero: the corner's cells
+/// hold the links' light and the cells beyond them give it back.
+#[test]
+fn the_near_fields_own_deviation_moves_light_within_each_cluster() {
+    let mut scene = open_box();
+    scene.lights[0].position = Vec3::new(0.04, 0.04, 0.04);
+    let bvh = Bvh::build(&scene);
+    let prm = bake_at(&scene, 32);
+    let e = entry_irradiance(&prm, &bvh, &scene.lights);
+    let tables = cpu::NearTables::new(&prm);
+    let light = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
+    let lin = cpu::dipole_offsets(&prm, &tables, &cpu::dipole_moments(&prm, &tables, &e));
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e, &lin);
+    let linked = cpu::link_field(&prm, &tables, &light, &e, &balanced, &lin);
+    let relay = cpu::near_deviation(&prm, &tables, &linked);
+    let (mut largest, mut moved) = (0.0f32, 0.0f32);
+    for c in prm.clusters() {
+        let sum: Vec3 = c.members.iter().map(|&m| relay[m as usize]).sum();
+        let size = c.members.iter().map(|&m| relay[m as usize].abs().max_element()).fold(0.0, f32::max);
+        assert!(
+            sum.abs().max_element() <= 1e-5 * size.max(1e-30),
+            "cluster sums to {sum} (largest term {size})"
+        );
+        largest = largest.max(size);
+        moved += c.members.iter().map(|&m| prm::luminance(relay[m as usize].abs())).sum::<f32>();
+    }
+    let light_on_links: f32 = linked.iter().map(|v| prm::luminance(v.abs())).sum();
+    println!("largest relay term {largest:.4}, luminance moved {moved:.3}, links' light {light_on_links:.3}");
+    assert!(largest > 0.0 && moved > 1e-3 * light_on_links, "nothing moved: {moved} of {light_on_links}");
+}
+
 /// Which lights light a cell up close (`cpu::up_close`): a floor cell 50 cm across at the
 /// origin. A lamp 10 cm over it does, 10 cm under it (behind) or 2 m off does not; a spot 20 cm
 /// under a ceiling cell aimed down does not (its cone never reaches the ceiling), aimed up
-/// does; a spot 8 cm over the floor 40 cm to the side aimed straight down, its axis meeting
-/// the floor outside the cell's disk, does only if its cone reaches the disk's rim.
+/// does; a spot 8 cm over the floor 70 cm to the side aimed straight down, its axis meeting
+/// the floor outside [`cpu::CONE_REACH`] sizes of the centroid, does only if its cone reaches
+/// that far.
 #[test]
 fn a_light_lights_a_cell_up_close_only_where_its_cone_reaches_it() {
     let (c, size) = (Vec3::ZERO, 0.5);
@@ -526,10 +567,11 @@ fn a_light_lights_a_cell_up_close_only_where_its_cone_reaches_it() {
     // The cell as a ceiling (facing down), the spot 20 cm under it.
     assert!(!close(&spot(v(0.0, -0.2, 0.0), -Vec3::Y, 35.0), -Vec3::Y), "aimed away from the ceiling");
     assert!(close(&spot(v(0.0, -0.2, 0.0), Vec3::Y, 35.0), -Vec3::Y), "aimed at the ceiling");
-    // 40 cm to the side, 8 cm up, straight down: the disk's rim is 12 cm off the axis's foot,
-    // at 56° from the axis: a 60° cone reaches it, a 35° one does not.
-    assert!(close(&spot(v(0.4, 0.08, 0.0), -Vec3::Y, 60.0), Vec3::Y));
-    assert!(!close(&spot(v(0.4, 0.08, 0.0), -Vec3::Y, 35.0), Vec3::Y));
+    // 70 cm to the side, 8 cm up, straight down: the reach (one size, 50 cm) ends 20 cm off
+    // the axis's foot, at 68° from the axis: a 75° cone reaches it, a 60° one does not.
+    assert_eq!(cpu::CONE_REACH, 1.0);
+    assert!(close(&spot(v(0.7, 0.08, 0.0), -Vec3::Y, 75.0), Vec3::Y));
+    assert!(!close(&spot(v(0.7, 0.08, 0.0), -Vec3::Y, 60.0), Vec3::Y));
     // Straight over the cell, any cone reaches it.
     assert!(close(&spot(v(0.1, 0.08, 0.0), -Vec3::Y, 5.0), Vec3::Y));
     // The far field sees the spots of the first CLOSE_SIGHTS lights up close, no more.

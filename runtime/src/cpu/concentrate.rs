@@ -35,10 +35,9 @@
 //! triangle's solid angle, combined with the centroids by the balance heuristic (`footprint`),
 //! and the plain kernel mean is then the exact one (Lambert's contour integral).
 //!
-//! The cluster weight keeps its energy balance with the energy these links then deliver: for a
-//! hot entry, `sum over its links of luminance(albedo) factor E_j kappa` replaces the links'
-//! part of `E_j near_j`; its far field's part stays `E_j` times its far energy
-//! (`crate::cpu::cluster_weights`).
+//! The cluster weight's energy balance counts a hot entry's links at the power its cell
+//! reflects, as any other's, not at the light these links deliver to texels that read a
+//! spot's peak (`crate::cpu::cluster_weights` says why).
 
 use glam::Vec3;
 use prm::cell_light::{fine_index, sub_centroids, TriangleLight};
@@ -343,9 +342,6 @@ pub struct LinkLight {
     pub hot: Vec<bool>,
     /// Per link (in `Prm::near` order): `E_j kappa` where the link's entry is hot, else unused.
     pub value: Vec<Vec3>,
-    /// Per entry: the energy its links deliver per unit deviation when hot
-    /// (`sum luminance(albedo) factor E_j kappa`), else unused.
-    pub energy: Vec<Vec3>,
     /// How the far texels see the lights that light cells up close (none here: the twin fills
     /// it, `crate::cpu::light_sight`).
     pub sight: LightSight,
@@ -363,7 +359,6 @@ impl LinkLight {
         LinkLight {
             hot: vec![false; n],
             value: Vec::new(),
-            energy: vec![Vec3::ZERO; n],
             sight: LightSight::default(),
             landing: Vec::new(),
         }
@@ -388,11 +383,10 @@ impl LinkLight {
             (0..n).map(|j| is_hot(tables.centroid[j], tables.size[j], lights, cell_reach(of(j)))).collect();
         let hot: Vec<bool> = (0..n).map(|j| near_light[j] || of(j).iter().any(|t| t.mixed)).collect();
         let mut value = vec![Vec3::ZERO; prm.near().len()];
-        let mut energy = vec![Vec3::ZERO; n];
         if hot.iter().any(|&h| h) {
             let mut k = 0;
             let runs = prm.near().chunk_by(|a, b| a.texel == b.texel);
-            for ((links, p), gain) in runs.zip(prm.near_points()).zip(&tables.echo_gain) {
+            for (links, p) in runs.zip(prm.near_points()) {
                 for l in links {
                     let j = l.entry as usize;
                     if hot[j] {
@@ -406,7 +400,6 @@ impl LinkLight {
                             Vec3::ONE
                         };
                         value[k] = entry_irradiance[j] * kappa;
-                        energy[j] += value[k] * (prm::luminance(prm.entries()[j].albedo) * l.factor * gain);
                     }
                     k += 1;
                 }
@@ -427,7 +420,7 @@ impl LinkLight {
                 }
             })
             .collect();
-        LinkLight { hot, value, energy, sight: LightSight::default(), landing }
+        LinkLight { hot, value, sight: LightSight::default(), landing }
     }
 }
 

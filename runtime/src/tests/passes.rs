@@ -1676,8 +1676,10 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
     let link = cpu::LinkLight::new(prm, &tables, &e, &cells, lights);
     let sight = cpu::light_sight(prm, bvh, &tables, lights);
     let lin = cpu::dipole_offsets(prm, &tables, &cpu::dipole_moments(prm, &tables, &e));
-    let balanced = cpu::cluster_weights_with(prm, &tables, &link, &e, &lin);
-    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &sight, &link.landing);
+    let balanced = cpu::cluster_weights_with(prm, &tables, &e, &lin);
+    let linked = cpu::link_field(prm, &tables, &link, &e, &balanced, &lin);
+    let relay = cpu::near_deviation(prm, &tables, &linked);
+    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &relay, &sight, &link.landing);
     let light = cpu::far_field(prm, &tables, &sources, &sight);
     (sources.iter().map(|s| (s.entry, s.phi)).collect(), light)
 }
