@@ -873,8 +873,8 @@ pub fn link_field(
 /// corner torch 5.93 -> 5.62 %, the torch under the ceiling 5.48 -> 5.17 %; no other placement
 /// of the chamber, two_rooms or cornell rigs moved by more than 0.26 points, and the 4 x 4
 /// halls stayed at 5.61 % (bias +0.8 -> +1.0 %). The corner spot's bias is left because the
-/// later bounces of its light still spread over the corner's clusters: baked with 1,024
-/// clusters instead of 256 (70 MB, 10.8 s), it reads -1.3 %.
+/// later bounces of its light still spread over the corner's clusters (README, *Corner spots:
+/// the balance and the relay*, also for what was tried against it).
 pub fn near_deviation(prm: &Prm, tables: &NearTables, near: &[Vec3]) -> Vec<Vec3> {
     let mut relay = vec![Vec3::ZERO; prm.entries().len()];
     for cl in prm.clusters() {
