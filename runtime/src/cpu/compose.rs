@@ -877,21 +877,36 @@ pub fn link_field(
 /// the balance and the relay*, also for what was tried against it).
 pub fn near_deviation(prm: &Prm, tables: &NearTables, near: &[Vec3]) -> Vec<Vec3> {
     let mut relay = vec![Vec3::ZERO; prm.entries().len()];
-    for cl in prm.clusters() {
-        let texel = |m: u32| tables.entry_texel[m as usize];
-        let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
-        for &m in cl.members.iter().filter(|&&m| texel(m) != NO_TEXEL) {
-            sum += near[texel(m) as usize] * tables.area_ratio[m as usize];
-            t_sum += tables.area_ratio[m as usize];
-        }
-        if t_sum > 0.0 {
-            let u = sum / t_sum;
-            for &m in cl.members.iter().filter(|&&m| texel(m) != NO_TEXEL) {
-                relay[m as usize] = (near[texel(m) as usize] - u) * tables.area_ratio[m as usize];
+    for (cl, u) in prm.clusters().iter().zip(cluster_means(prm, tables, near)) {
+        let Some(u) = u else { continue };
+        for &m in &cl.members {
+            let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
+            if texel != NO_TEXEL {
+                relay[m] = (near[texel as usize] - u) * tables.area_ratio[m];
             }
         }
     }
     relay
+}
+
+/// Per cluster, the mean of `field` (per atlas texel) over its cells, each read at its entry's
+/// texel ([`NearTables::entry_texel`]) and weighted by `t_j`; None where no member has a texel.
+/// The lift's `u_c` ([`lift_weights`]) and the relay's ([`near_deviation`]).
+fn cluster_means(prm: &Prm, tables: &NearTables, field: &[Vec3]) -> Vec<Option<Vec3>> {
+    prm.clusters()
+        .iter()
+        .map(|cl| {
+            let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
+            for &m in &cl.members {
+                let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
+                if texel != NO_TEXEL {
+                    sum += field[texel as usize] * tables.area_ratio[m];
+                    t_sum += tables.area_ratio[m];
+                }
+            }
+            (t_sum > 0.0).then(|| sum / t_sum)
+        })
+        .collect()
 }
 
 /// The cluster weights with the near field's later bounces: `(1 - lambda) w_c + u_c`.
@@ -924,20 +939,10 @@ pub fn near_deviation(prm: &Prm, tables: &NearTables, near: &[Vec3]) -> Vec<Vec3
 /// against 7.81 %); kept at >= 0 with lambda raised until the energy is kept, 8.02 %.
 /// Without a far field (no texel stands for an entry) the weights are returned unchanged.
 pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Vec3]) -> Vec<Vec3> {
-    let mut lift = vec![Vec3::ZERO; weights.len()];
+    let lift: Vec<Vec3> =
+        cluster_means(prm, tables, near).into_iter().map(|u| u.unwrap_or(Vec3::ZERO)).collect();
     let (mut lifted, mut kept) = (vec![Vec3::ZERO; tables.rooms], vec![Vec3::ZERO; tables.rooms]);
     for (c, cl) in prm.clusters().iter().enumerate() {
-        let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
-        for &m in &cl.members {
-            let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
-            if texel != NO_TEXEL {
-                sum += near[texel as usize] * tables.area_ratio[m];
-                t_sum += tables.area_ratio[m];
-            }
-        }
-        if t_sum > 0.0 {
-            lift[c] = sum / t_sum;
-        }
         let room = tables.cluster_room[c] as usize;
         lifted[room] += lift[c] * cl.energy;
         kept[room] += weights[c] * cl.energy;
