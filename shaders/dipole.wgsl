@@ -5,7 +5,7 @@
 // weights[C + 3 c + k] (weights.wgsl reads them for the energy balance and the selection).
 // lin_main, one per entry: lin_j = sum_k m_k(c(j)) offset_jk, the fit's part of the entry's
 // expected weight, written to `lin` (the near pass's deviation buffer: deviation_main in
-// near.wgsl turns it into E_j - (w_c + lin_j) t_j). Structs, bindings, WG_LINEAR: the
+// near.wgsl turns it into E_j - (w_c + lin_j) t_j, relay.wgsl adds to it). Structs, bindings, WG_LINEAR: the
 // generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)

@@ -4,7 +4,7 @@
 //! After the entry pass: `hot_items_main` lists the hot cells' work items, and
 //! `concentrate_main`, dispatched on that list, gives each near-field link of a hot cell its own
 //! light (`E_j kappa`, stamped with the update's number; a workgroup per entry, whose links
-//! //! that take kappa are gathered so that the group computes them side by side). The near pass
+//! that take kappa are gathered so that the group computes them side by side). The near pass
 //! reads a link's light only when its stamp is this update's. A hot entry kept since its last
 //! run (no changed light reaches its cell: `ENTRY_UNCHANGED`) is not listed: `hot_items_main`
 //! stamps its links' light as this update's, as it was.
@@ -82,7 +82,7 @@ pub const CONCENTRATE: Shader = Shader {
     ],
 };
 
-/// The two passes and the per-link and per-entry tables they fill.
+/// The listing and the concentration, and the per-link light they fill.
 pub struct ConcentratePass {
     items: wgpu::ComputePipeline,
     args: wgpu::ComputePipeline,

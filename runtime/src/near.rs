@@ -24,7 +24,8 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_cluster", Res::Read("array<vec2u>"), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
     b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
-    // Per entry, this frame's `E_j - w_c t_j` (written by `deviation_main`).
+    // Per entry, this frame's `E_j - (w_c + lin_j) t_j` (written by `deviation_main`; the relay
+    // adds to it after the echo).
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // One per linked texel, in near_texels order (the compose finds it through its slots).
     b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
@@ -346,7 +347,7 @@ impl NearPass {
     }
 
     /// Records the pass (after the weights, before the compose).
-    /// With `timer`, the near field and its echo are pass 5 and the far field pass 6.
+    /// With `timer`, the near field with its echo and relay is pass 5 and the far field pass 6.
     pub fn encode(
         &self,
         enc: &mut wgpu::CommandEncoder,

@@ -82,7 +82,7 @@ pub fn cluster_weights_with(
                 stay_sum += e * tables.reflect[m];
                 stay_t += tables.area_ratio[m] * tables.reflect[m];
                 t_sum += tables.area_ratio[m];
-                near_sum += tint * e * tables.energy[m];
+                near_sum += tint * (e * tables.energy[m]);
                 // (Untinted: the GPU sums this term per cluster, `shaders/weights.wgsl`.)
                 if let Some(l) = lin.get(m) {
                     near_sum -= *l * (tables.energy[m] * tables.area_ratio[m]);
