@@ -183,9 +183,17 @@ fn entries(p: &PrmParts) -> Result<(), String> {
             return Err(format!("echo link {k} is out of order"));
         }
     }
+    // An entry belongs to one cluster at most: the runtime's per-entry tables name one, and
+    // the GPU's per-cluster passes (the lift's, the relay's) write each member's slot once.
+    let mut owner: Vec<Option<usize>> = vec![None; n];
     for (k, c) in p.clusters.iter().enumerate() {
         if let Some(bad) = c.members.iter().find(|&&m| m as usize >= n) {
             return Err(format!("cluster {k}'s member {bad} is not an entry (there are {n})"));
+        }
+        for &m in &c.members {
+            if let Some(other) = owner[m as usize].replace(k) {
+                return Err(format!("entry {m} is a member of cluster {other} and of cluster {k}"));
+            }
         }
     }
     Ok(())

@@ -1470,6 +1470,7 @@ mod tests {
                 p.data.pop();
             }),
             ("non-finite energy", |p| p.clusters[0].energy = f32::INFINITY),
+            ("entry 1 is a member of cluster 0 and of cluster 0", |p| p.clusters[0].members = vec![0, 1, 1]),
         ];
         for (reason, break_it) in cases {
             let mut p = parts();
