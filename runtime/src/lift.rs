@@ -7,8 +7,8 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
-use crate::cpu::{NearTables, NO_TEXEL};
+use crate::contract::{Compute, Shader, LINEAR, WG_LINEAR};
+use crate::cpu::NearTables;
 use crate::gpu;
 use crate::layout::{GpuStruct, IndirectParams};
 
@@ -17,8 +17,9 @@ pub const BINDINGS: &[Binding] = &[
     // The weight pass's member ranges (clusters first).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     // Per member, in the weight pass's `indices` order: its texel's slot among the near sums
-    // (NO_SLOT for none), its cell's area over A/N (f32 bits).
-    b("lift_members", Res::Read("array<vec2u>"), COMPUTE),
+    // (NO_SLOT for none), its cell's area over A/N (f32 bits), its entry, 0 (the near pass's
+    // `members`).
+    b("lift_members", Res::Read("array<vec4u>"), COMPUTE),
     // The near pass's sums: near links with their echo, and the far field.
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
     // Pane energy: clusters first.
@@ -91,31 +92,18 @@ pub fn room_words(tables: &NearTables) -> Vec<u32> {
 }
 
 impl LiftPass {
-    /// None when no member has a texel to read (a map without a far field): the weights stay.
-    /// `slot_of(texel)`: the texel's place in the near sums (`crate::near::NearData::index`).
+    /// None without the near pass's member table (no member has a texel to read: a map without
+    /// a far field): the weights stay.
     pub fn new(
         device: &wgpu::Device,
         prm: &Prm,
         tables: &NearTables,
-        slot_of: &[u32],
+        members: Option<&wgpu::Buffer>,
         buffers: LiftBuffers,
     ) -> Option<LiftPass> {
-        let members: Vec<[u32; 2]> = prm
-            .clusters()
-            .iter()
-            .flat_map(|c| c.members.iter())
-            .map(|&m| {
-                let texel = tables.entry_texel[m as usize];
-                let slot = if texel == NO_TEXEL { NO_SLOT } else { slot_of[texel as usize] };
-                [slot, tables.area_ratio[m as usize].to_bits()]
-            })
-            .collect();
-        if members.iter().all(|m| m[0] == NO_SLOT) {
-            return None;
-        }
+        let members = members?;
         let clusters = prm.clusters().len();
         let none = wgpu::BufferUsages::empty();
-        let members = gpu::storage_buffer(device, "lift members", bytemuck::cast_slice(&members), none);
         let lifted =
             gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + tables.rooms) * 16], none);
         let rooms = gpu::storage_buffer(device, "rooms", bytemuck::cast_slice(&room_words(tables)), none);

@@ -97,14 +97,12 @@ impl GpuMemory {
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
             ("echo runs", size(points, 8)),
             ("echo sums", size(points, 16)),
-            // The relay runs with links and a far field (`crate::near`).
-            ("relay ranges", if far_texels > 0 && points > 0 { size(c, 8) } else { 0 }),
-            ("relay members", if far_texels > 0 && points > 0 { size(members.max(1), 16) } else { 0 }),
             ("cluster weights", size(4 * c.max(1), 16)),
             ("selected weights", size((4 * c + g).max(1), 16)),
             (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),
             // Without a far field there is no lift (`crate::lift`).
-            ("lift members", if far_texels > 0 { size(members.max(1), 8) } else { 0 }),
+            // The relay's and the lift's (`crate::near::cluster_members`).
+            ("cluster members", if far_texels > 0 { size(members.max(1), 16) } else { 0 }),
             ("lifted weights", if far_texels > 0 { size(c + rooms, 16) } else { 0 }),
             ("rooms", if far_texels > 0 { size(crate::lift::room_words_len(c, rooms), 4) } else { 0 }),
         ];

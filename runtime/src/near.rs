@@ -67,10 +67,9 @@ pub const ECHO: Shader = Shader {
 
 pub const RELAY_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    // Per cluster: (first member, member count) into `relay_members`.
+    // The weight pass's member ranges (clusters first) into `relay_members`.
     b("relay_ranges", Res::Read("array<vec2u>"), COMPUTE),
-    // Per member, clusters in order: its texel's slot among the sums (NO_SLOT for none), its
-    // cell's area over A/N (f32 bits), its entry, 0.
+    // Per member: its texel's slot among the sums, t_j, its entry ([`cluster_members`]).
     b("relay_members", Res::Read("array<vec4u>"), COMPUTE),
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
@@ -84,57 +83,30 @@ pub const RELAY: Shader = Shader {
     compute: &[Compute { entry: "relay_main", workgroup: LINEAR }],
 };
 
-/// The relay's pipeline and tables (`shaders/relay.wgsl`): the near field's own deviation from
-/// each cluster's mean, which the far field sends (`crate::cpu::near_deviation`). None without
-/// links or a far field.
+/// Per cluster member, clusters in order (the weight pass's `indices`, whose `ranges` index
+/// it): its texel's slot among the near sums (NO_SLOT for none: [`crate::cpu::NearTables::entry_texel`]),
+/// its cell's area over A/N (f32 bits), its entry, 0. The relay and the lift
+/// (`crate::lift`) read it. None when no member has a slot (a map without a far field).
+fn cluster_members(prm: &Prm, tables: &crate::cpu::NearTables, index: &[u32]) -> Option<Vec<[u32; 4]>> {
+    let members: Vec<[u32; 4]> = prm
+        .clusters()
+        .iter()
+        .flat_map(|c| c.members.iter())
+        .map(|&m| {
+            let texel = tables.entry_texel[m as usize];
+            let slot = if texel == crate::cpu::NO_TEXEL { NO_SLOT } else { index[texel as usize] };
+            [slot, tables.area_ratio[m as usize].to_bits(), m, 0]
+        })
+        .collect();
+    members.iter().any(|m| m[0] != NO_SLOT).then_some(members)
+}
+
+/// The relay's pipeline (`shaders/relay.wgsl`): the near field's own deviation from each
+/// cluster's mean, which the far field sends (`crate::cpu::near_deviation`).
 struct RelayPass {
     pipeline: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
     clusters: u32,
-}
-
-impl RelayPass {
-    fn new(
-        device: &wgpu::Device,
-        prm: &Prm,
-        tables: &crate::cpu::NearTables,
-        params: &wgpu::Buffer,
-        index: &[u32],
-        sums: &wgpu::Buffer,
-        deviation: &wgpu::Buffer,
-    ) -> Option<RelayPass> {
-        let (mut ranges, mut members) = (Vec::new(), Vec::new());
-        for c in prm.clusters() {
-            ranges.push([members.len() as u32, c.members.len() as u32]);
-            members.extend(c.members.iter().map(|&m| {
-                let texel = tables.entry_texel[m as usize];
-                let slot = if texel == crate::cpu::NO_TEXEL { NO_SLOT } else { index[texel as usize] };
-                [slot, tables.area_ratio[m as usize].to_bits(), m, 0]
-            }));
-        }
-        if members.iter().all(|m: &[u32; 4]| m[0] == NO_SLOT) {
-            return None;
-        }
-        let none = wgpu::BufferUsages::empty();
-        let ranges_buf = gpu::storage_buffer(device, "relay ranges", bytemuck::cast_slice(&ranges), none);
-        let members_buf = gpu::storage_buffer(device, "relay members", bytemuck::cast_slice(&members), none);
-        let layout = RELAY.layout(device, 0);
-        let group = bind(
-            device,
-            "relay",
-            &layout,
-            RELAY_BINDINGS,
-            &[
-                ("params", params.as_entire_binding()),
-                ("relay_ranges", ranges_buf.as_entire_binding()),
-                ("relay_members", members_buf.as_entire_binding()),
-                ("near_sum", sums.as_entire_binding()),
-                ("deviation", deviation.as_entire_binding()),
-            ],
-        );
-        let pipeline = gpu::compute_pipeline(device, "relay.wgsl", &RELAY.source(), "relay_main", &[&layout]);
-        Some(RelayPass { pipeline, group, clusters: ranges.len() as u32 })
-    }
 }
 
 /// The echo's pipelines and tables (`shaders/echo.wgsl`); none when the map has no echo.
@@ -272,6 +244,8 @@ pub struct NearPass {
     echo: Option<EchoPass>,
     /// The near field's own deviation, into `deviation` for the far field.
     relay: Option<RelayPass>,
+    /// [`cluster_members`]' buffer, for the relay and the lift; None without a far field.
+    pub members: Option<wgpu::Buffer>,
     /// The far field, added to the sums after the echo.
     pub far: Option<FarPass>,
 }
@@ -287,6 +261,7 @@ impl NearPass {
         entry_irradiance: &wgpu::Buffer,
         weights: &wgpu::Buffer,
         lin: &wgpu::Buffer,
+        ranges: &wgpu::Buffer,
         data: &NearData,
         link_light: &wgpu::Buffer,
     ) -> NearPass {
@@ -339,11 +314,44 @@ impl NearPass {
             crate::far::FarBuffers { params, deviation, sums: &sums },
             &index,
         );
-        let relay = match (&far, count) {
-            (Some(_), 1..) => RelayPass::new(device, prm, tables, params, &index, &sums, deviation),
+        let members = far.as_ref().and_then(|_| cluster_members(prm, tables, &index)).map(|members| {
+            gpu::storage_buffer(device, "cluster members", bytemuck::cast_slice(&members), none)
+        });
+        let relay = match (&members, count) {
+            (Some(members), 1..) => {
+                let layout = RELAY.layout(device, 0);
+                let group = bind(
+                    device,
+                    "relay",
+                    &layout,
+                    RELAY_BINDINGS,
+                    &[
+                        ("params", params.as_entire_binding()),
+                        ("relay_ranges", ranges.as_entire_binding()),
+                        ("relay_members", members.as_entire_binding()),
+                        ("near_sum", sums.as_entire_binding()),
+                        ("deviation", deviation.as_entire_binding()),
+                    ],
+                );
+                let pipeline =
+                    gpu::compute_pipeline(device, "relay.wgsl", &RELAY.source(), "relay_main", &[&layout]);
+                Some(RelayPass { pipeline, group, clusters: prm.clusters().len() as u32 })
+            }
             _ => None,
         };
-        NearPass { deviation_pipeline, pipeline, entries, group, count, sums, index, echo, relay, far }
+        NearPass {
+            deviation_pipeline,
+            pipeline,
+            entries,
+            group,
+            count,
+            sums,
+            index,
+            echo,
+            relay,
+            members,
+            far,
+        }
     }
 
     /// Records the pass (after the weights, before the compose).

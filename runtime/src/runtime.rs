@@ -219,6 +219,7 @@ impl Runtime {
             &entries.output,
             &weights.weights,
             &weights.lin,
+            &weights.ranges,
             &near_data,
             &concentrate.link_light,
         );
@@ -226,7 +227,7 @@ impl Runtime {
             device,
             prm,
             &tables,
-            &near.index,
+            near.members.as_ref(),
             LiftBuffers {
                 params: &params_buf,
                 ranges: &weights.ranges,
