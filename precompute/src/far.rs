@@ -32,9 +32,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::{far_share, far_vote, Entry, Far, FarTexel};
-use prm::sampling::{cosine_direction, shifted_hammersley, stream};
-use prm::{luminance, Bvh, Scene, TexelSet};
-use rand::Rng;
+use prm::{luminance, Bvh, TexelSet};
 use rayon::prelude::*;
 
 /// Blocks of entries farther apart than this many entry spacings are traced pair by pair only
@@ -57,13 +55,12 @@ const MIN_NORMAL_DOT: f32 = 0.5;
 
 /// The far field for these entries: visibility bits between the pairs within `radius` of each
 /// other that could exchange light, each covered texel's neighbours, and each entry's energy
-/// (`far_energy`, counting only what lands within `radius`). `reach` and `radius` are in scene
+/// (`far_energy`: what the runtime's far field delivers of it). `reach` and `radius` are in scene
 /// units; `cell` is each entry's cell centroid and area; `room` each entry's room
 /// (`prm::rooms`; empty: not known): two blocks of entries whose rooms all differ exchange
 /// no light and are not traced.
 #[allow(clippy::too_many_arguments)]
 pub fn far_field(
-    scene: &Scene,
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
@@ -72,7 +69,6 @@ pub fn far_field(
     cell: &[(Vec3, f32)],
     reach: f32,
     radius: f32,
-    seed: u64,
     reuse: Option<&FarReuse>,
 ) -> Far {
     let n = entries.len();
@@ -93,9 +89,10 @@ pub fn far_field(
             && r.same.len() == blocks
             && r.old_room.len() == entries.len()
     });
-    let energy = far_energy(scene, bvh, set, &texels, entries, cell, reach, radius, seed, reuse);
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
-    Far { reach, radius, block_first, pair_block, visible, texels, energy }
+    let mut far = Far { reach, radius, block_first, pair_block, visible, texels, energy: Vec::new() };
+    far.energy = far_energy(&far, entries, cell, reuse);
+    far
 }
 
 /// What an update (`crate::update`) takes from the old bake's far field: the visibility of
@@ -132,80 +129,60 @@ impl FarReuse<'_> {
     }
 }
 
-/// Rays per entry of [`far_energy`]. The estimate only sets how much of a cluster's light the
-/// panes leave to the far field, summed over the cluster's entries, where one entry's noise
-/// averages out.
-const ENERGY_RAYS: u32 = 64;
+/// Far texels per part of [`far_energy`]'s sweep: each part sums its texels in their order,
+/// and the parts are added in theirs, so the sums are the same at any thread count.
+const ENERGY_PART: usize = 1024;
 
 /// Per entry j, the energy (luminance summed over texels, a pane's unit) the far field
-/// delivers per W/m² of deviation: `albedo_j (A/N) sum over texels x of far_share cos cos /
-/// (pi r²)`. The texels cover the surfaces at some density (texels per m²), and the form
-/// factor from a point integrates to one over what it sees, so with cosine rays from the entry
-/// this is `albedo_j (A/N) E[far_share(|y - centroid_j|) density(y)]` over the hits y on the
-/// front of a triangle (the back has no texel facing the source). The cluster balance counts it with
-/// the near links' energy: without it the far field's light came on top of a cluster's panes,
-/// which already carry all of it (a lamp 1 cm over a closed box's floor: 6 % more indirect
-/// light than the power allows). First directions as the gather's: a shifted Hammersley set.
-#[allow(clippy::too_many_arguments)]
-fn far_energy(
-    scene: &Scene,
-    bvh: &Bvh,
-    set: &TexelSet,
-    lit: &[FarTexel],
-    entries: &[Entry],
-    cell: &[(Vec3, f32)],
-    reach: f32,
-    radius: f32,
-    seed: u64,
-    reuse: Option<&FarReuse>,
-) -> Vec<f32> {
-    // Texels per m² of each UV chart: the texels the far field lights (`lit`) that its
-    // triangles own, over its area (a chart's partly covered edge texels count whole, as sums
-    // over texels count them; per triangle, which of two owns a texel on their shared edge
-    // would skew it).
-    let chart = prm::uv::charts(scene);
-    let charts = chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0);
-    let (mut texels, mut area) = (vec![0.0f64; charts], vec![0.0f64; charts]);
-    for f in lit {
-        let k = set.index[f.texel as usize];
-        if let Some(t) = set.texels.get(k as usize) {
-            texels[chart[t.triangle as usize] as usize] += 1.0;
+/// delivers per W/m² of deviation: `albedo_j (A/N) sum over far texels x of w_j(x)`, where
+/// `w_j(x)` is what the runtime's far field sends to x per W of deviation flux (the share,
+/// the neighbours' vote and the kernel from the cell's centroid: [`Visit::sources`]). The
+/// cluster balance counts it with the near links' energy: without it the far field's light came
+/// on top of a cluster's panes, which already carry all of it (a lamp 1 cm over a closed
+/// box's floor: 6 % more indirect light than the power allows).
+///
+/// It is the runtime's own sum, not an estimate of the light's true path: the balance sets
+/// the panes for what the far field does bring. It was estimated from 64 cosine rays per entry
+/// and a texel density per UV chart; summed over a level that was within 7 % of what the far
+/// field delivers, but entry by entry off by up to 2x (a floor cell under a lamp 3 cm up: 5.78
+/// counted, 2.87 delivered), and next to a near light one entry carries most of its cluster's
+/// deviation: a small pillar room's indirect light came out 1.20 of the ground truth's under a
+/// spot at a wall's foot. An update (`reuse`) keeps an entry's old energy where it is settled
+/// ([`FarReuse`]), and sums none where every entry is.
+fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<&FarReuse>) -> Vec<f32> {
+    let n = entries.len();
+    let kept = |j: usize| reuse.filter(|r| r.entry[j]).map(|r| r.old.energy[j]);
+    let mut sum = vec![0.0f64; n];
+    if (0..n).any(|j| kept(j).is_none()) {
+        let sources = Source::all(entries, cell, far.reach, &[]);
+        let parts: Vec<Vec<(u32, f64)>> = far
+            .texels
+            .par_chunks(ENERGY_PART)
+            .map_init(
+                || (vec![0.0f64; n], Vec::new(), Visit::new(n)),
+                |(acc, touched, visit): &mut (Vec<f64>, Vec<u32>, Visit), part| {
+                    for t in part {
+                        visit.sources(far, entries, &sources, t, |j, _, w| {
+                            if acc[j] == 0.0 {
+                                touched.push(j as u32);
+                            }
+                            acc[j] += w as f64;
+                        });
+                    }
+                    touched.sort_unstable();
+                    touched.dedup();
+                    touched.drain(..).map(|j| (j, std::mem::take(&mut acc[j as usize]))).collect()
+                },
+            )
+            .collect();
+        for (j, w) in parts.into_iter().flatten() {
+            sum[j as usize] += w;
         }
     }
-    for (t, &c) in chart.iter().enumerate() {
-        area[c as usize] += scene.area(t) as f64;
-    }
-    let density: Vec<f64> = chart
-        .iter()
-        .map(|&c| if area[c as usize] > 0.0 { texels[c as usize] / area[c as usize] } else { 0.0 })
-        .collect();
     entries
-        .par_iter()
+        .iter()
         .enumerate()
-        .map(|(j, e)| {
-            if let Some(r) = reuse.filter(|r| r.entry[j]) {
-                return r.old.energy[j];
-            }
-            let mut rng = stream(seed, 7, j as u64);
-            let shift: (f32, f32) = (rng.random(), rng.random());
-            let (centroid, area) = cell[j];
-            let mut sum = 0.0f64;
-            for k in 0..ENERGY_RAYS {
-                let (u1, u2) = shifted_hammersley(k, ENERGY_RAYS, shift);
-                let d = cosine_direction(e.normal, u1, u2);
-                let Some(hit) = bvh.trace_from_surface(e.position, e.normal, d) else { continue };
-                let t = hit.triangle as usize;
-                if scene.face_normal(t).dot(d) >= 0.0 {
-                    continue;
-                }
-                let y = scene.point(t, hit.bary());
-                if y.distance(e.position) > radius {
-                    continue;
-                }
-                sum += far_share(y.distance(centroid), reach, area.sqrt()) as f64 * density[t];
-            }
-            (luminance(e.albedo) as f64 * e.area as f64 * sum / ENERGY_RAYS as f64) as f32
-        })
+        .map(|(j, e)| kept(j).unwrap_or((luminance(e.albedo) as f64 * e.area as f64 * sum[j]) as f32))
         .collect()
 }
 
@@ -486,7 +463,7 @@ pub fn far_lit(set: &TexelSet, far: &Far) -> Vec<bool> {
     lit
 }
 
-/// One far-field source as [`FirstBounce::add`] reads it.
+/// One far-field source as [`Visit::sources`] reads it.
 struct Source {
     centroid: Vec3,
     normal: Vec3,
@@ -496,6 +473,32 @@ struct Source {
     /// Squared distances from the centroid past which its far share is 1, and under which 0.
     whole: f32,
     none: f32,
+}
+
+impl Source {
+    /// Each entry's, with its cell's centroid and area (`cell`) and its cluster (0 for all
+    /// where `assignment` is empty); `flux` per W/m² of irradiance over the cell.
+    fn all(entries: &[Entry], cell: &[(Vec3, f32)], reach: f32, assignment: &[u32]) -> Vec<Source> {
+        entries
+            .iter()
+            .zip(cell)
+            .enumerate()
+            .map(|(j, (e, &(centroid, area)))| {
+                let size = area.max(0.0).sqrt();
+                Source {
+                    centroid,
+                    normal: e.normal,
+                    flux: e.albedo * area,
+                    size,
+                    cluster: assignment.get(j).copied().unwrap_or(0),
+                    // With a margin for the square root's rounding: past `whole` the share
+                    // computed is exactly 1, under `none` exactly 0.
+                    whole: ((reach + size.max(1e-6)) * (1.0 + 1e-5)).powi(2),
+                    none: (reach * (1.0 - 1e-5)).max(0.0).powi(2),
+                }
+            })
+            .collect()
+    }
 }
 
 /// The far field's part of every cluster's first bounce at a texel (the links carry the rest,
@@ -533,25 +536,7 @@ impl<'a> FirstBounce<'a> {
         assignment: &'a [u32],
         clusters: usize,
     ) -> Self {
-        let sources = entries
-            .iter()
-            .zip(cell)
-            .zip(assignment)
-            .map(|((e, &(centroid, area)), &cluster)| {
-                let size = area.max(0.0).sqrt();
-                Source {
-                    centroid,
-                    normal: e.normal,
-                    flux: e.albedo * area,
-                    size,
-                    cluster,
-                    // With a margin for the square root's rounding: past `whole` the share
-                    // computed is exactly 1, under `none` exactly 0.
-                    whole: ((far.reach + size.max(1e-6)) * (1.0 + 1e-5)).powi(2),
-                    none: (far.reach * (1.0 - 1e-5)).max(0.0).powi(2),
-                }
-            })
-            .collect();
+        let sources = Source::all(entries, cell, far.reach, assignment);
         FirstBounce { set, entries, sources, far, assignment, clusters }
     }
 
@@ -636,8 +621,7 @@ impl<'a> FirstBounce<'a> {
     /// (one per texel, clusters ascending; what the links gave is already there). Texels the
     /// far field does not light get nothing.
     pub fn add(&self, texels: &[usize], out: &mut [crate::transport::TexelPanes]) {
-        const B: usize = Far::BLOCK;
-        let (set, entries, far) = (self.set, self.entries, self.far);
+        let (set, far) = (self.set, self.far);
         let sources = &self.sources;
         if far.texels.is_empty() {
             return;
@@ -647,114 +631,17 @@ impl<'a> FirstBounce<'a> {
             let atlas = t.j * set.width + t.i;
             far.texels.binary_search_by_key(&atlas, |f| f.texel).ok().map(|i| &far.texels[i])
         };
-        // The run of block pairs of the block holding entry q.
-        let run = |q: usize| {
-            let b = q / B;
-            match (far.block_first.get(b), far.block_first.get(b + 1)) {
-                (Some(&from), Some(&to)) => from as usize..to as usize,
-                _ => 0..0,
-            }
-        };
-        let words = Far::blocks(entries.len()).div_ceil(64);
         out.par_iter_mut().zip(texels).for_each_init(
-            || (vec![Vec3::ZERO; self.clusters], Vec::new(), Vec::new(), vec![0u64; words]),
-            |(acc, touched, blocks, seen): &mut (Vec<Vec3>, Vec<u32>, Vec<u32>, Vec<u64>), (out, &k)| {
+            || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(self.entries.len())),
+            |(acc, touched, visit): &mut (Vec<Vec3>, Vec<u32>, Visit), (out, &k)| {
                 let Some(t) = of_texel(k) else { return };
-                let q: [usize; NEIGHBOURS] = std::array::from_fn(|k| t.entries[k] as usize);
-                // A slot of no weight (fewer neighbours than NEIGHBOURS) holds entry 0 and lends
-                // nothing: no blocks, no bits, and no say in whether every neighbour sees.
-                let real: [bool; NEIGHBOURS] = std::array::from_fn(|k| t.weights[k] > 0.0);
-                let runs: [Range<usize>; NEIGHBOURS] =
-                    std::array::from_fn(|k| if real[k] { run(q[k]) } else { 0..0 });
-                // The blocks any neighbour sees something of (an entry sees itself), ascending:
-                // marked in a bit set and read back in order, which a sort of the four runs
-                // (a few hundred blocks each) cost several times over.
-                let mut mark = |b: usize| {
-                    if let Some(w) = seen.get_mut(b / 64) {
-                        *w |= 1 << (b % 64);
+                visit.sources(far, self.entries, sources, t, |_, src, w| {
+                    let c = src.cluster as usize;
+                    if acc[c] == Vec3::ZERO {
+                        touched.push(c as u32);
                     }
-                };
-                for k in (0..NEIGHBOURS).filter(|&k| real[k]) {
-                    far.pair_block[runs[k].clone()].iter().for_each(|&b| mark(b as usize));
-                    mark(q[k] / B);
-                }
-                blocks.clear();
-                for (i, w) in seen.iter_mut().enumerate() {
-                    let mut word = std::mem::take(w);
-                    while word != 0 {
-                        blocks.push((i * 64) as u32 + word.trailing_zeros());
-                        word &= word - 1;
-                    }
-                }
-                // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
-                let planes: [(Vec3, f32); NEIGHBOURS] = std::array::from_fn(|k| {
-                    (entries[q[k]].normal, entries[q[k]].normal.dot(sources[q[k]].centroid))
+                    acc[c] += src.flux * w;
                 });
-                let mut at = runs.clone().map(|r| r.start);
-                let (p, n) = (t.position, t.normal);
-                for &b in blocks.iter() {
-                    let b = b as usize;
-                    let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
-                        while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
-                            at[k] += 1;
-                        }
-                        let mut w = 0;
-                        if at[k] < runs[k].end && far.pair_block[at[k]] as usize == b {
-                            w = far.visible[at[k] * B + q[k] % B];
-                        }
-                        if real[k] && q[k] / B == b {
-                            w |= 1 << (q[k] % B);
-                        }
-                        w
-                    });
-                    // An entry no neighbour sees gets no light from the vote.
-                    let mut any = bits.iter().fold(0, |a, w| a | w);
-                    let every = bits.iter().zip(real).filter(|(_, r)| *r).fold(u32::MAX, |a, (w, _)| a & w);
-                    while any != 0 {
-                        let r = any.trailing_zeros() as usize;
-                        any &= any - 1;
-                        let j = b * B + r;
-                        let Some(src) = sources.get(j) else { continue };
-                        let centroid = src.centroid;
-                        let d = centroid - p;
-                        let (cx, cy) = (n.dot(d), -src.normal.dot(d));
-                        if cx <= 0.0 || cy <= 0.0 {
-                            continue;
-                        }
-                        let r2 = d.length_squared();
-                        // The far share without its square root and division where it is 0 or 1
-                        // (most sources: the same values).
-                        let share = if r2 >= src.whole {
-                            1.0
-                        } else if r2 <= src.none {
-                            0.0
-                        } else {
-                            far_share(r2.sqrt(), far.reach, src.size)
-                        };
-                        if share <= 0.0 {
-                            continue;
-                        }
-                        // Every neighbour sees it: the vote is 1 whichever of them face it.
-                        let v = if every >> r & 1 == 1 {
-                            1.0
-                        } else {
-                            far_vote(
-                                &t.weights,
-                                |k| bits[k] >> r & 1 == 1,
-                                |k| planes[k].0.dot(centroid) > planes[k].1,
-                            )
-                        };
-                        if v <= 0.0 {
-                            continue;
-                        }
-                        let s2 = src.size * src.size;
-                        let c = src.cluster as usize;
-                        if acc[c] == Vec3::ZERO {
-                            touched.push(c as u32);
-                        }
-                        acc[c] += src.flux * (share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
-                    }
-                }
                 for &(c, v) in out.iter() {
                     if acc[c as usize] == Vec3::ZERO {
                         touched.push(c);
@@ -776,6 +663,133 @@ impl<'a> FirstBounce<'a> {
                 touched.clear();
             },
         );
+    }
+}
+
+/// Scratch for walking the far-field sources a far texel sees ([`Visit::sources`]): the
+/// blocks its neighbours see something of.
+struct Visit {
+    blocks: Vec<u32>,
+    seen: Vec<u64>,
+}
+
+impl Visit {
+    fn new(entries: usize) -> Visit {
+        Visit { blocks: Vec::new(), seen: vec![0u64; Far::blocks(entries).div_ceil(64)] }
+    }
+
+    /// Calls `f(j, source, w)` for each source j (ascending) that lights far texel `t`, with
+    /// `w = share V cos_x cos_j / (pi r² max(r², s_j²))`: what it delivers there per W of
+    /// deviation flux, as the runtime's far field (`prm_runtime::cpu::far_field`) computes it.
+    #[inline]
+    fn sources(
+        &mut self,
+        far: &Far,
+        entries: &[Entry],
+        sources: &[Source],
+        t: &FarTexel,
+        mut f: impl FnMut(usize, &Source, f32),
+    ) {
+        const B: usize = Far::BLOCK;
+        // The run of block pairs of the block holding entry q.
+        let run = |q: usize| {
+            let b = q / B;
+            match (far.block_first.get(b), far.block_first.get(b + 1)) {
+                (Some(&from), Some(&to)) => from as usize..to as usize,
+                _ => 0..0,
+            }
+        };
+        let (blocks, seen) = (&mut self.blocks, &mut self.seen);
+        let q: [usize; NEIGHBOURS] = std::array::from_fn(|k| t.entries[k] as usize);
+        // A slot of no weight (fewer neighbours than NEIGHBOURS) holds entry 0 and lends
+        // nothing: no blocks, no bits, and no say in whether every neighbour sees.
+        let real: [bool; NEIGHBOURS] = std::array::from_fn(|k| t.weights[k] > 0.0);
+        let runs: [Range<usize>; NEIGHBOURS] =
+            std::array::from_fn(|k| if real[k] { run(q[k]) } else { 0..0 });
+        // The blocks any neighbour sees something of (an entry sees itself), ascending:
+        // marked in a bit set and read back in order, which a sort of the four runs
+        // (a few hundred blocks each) cost several times over.
+        let mut mark = |b: usize| {
+            if let Some(w) = seen.get_mut(b / 64) {
+                *w |= 1 << (b % 64);
+            }
+        };
+        for k in (0..NEIGHBOURS).filter(|&k| real[k]) {
+            far.pair_block[runs[k].clone()].iter().for_each(|&b| mark(b as usize));
+            mark(q[k] / B);
+        }
+        blocks.clear();
+        for (i, w) in seen.iter_mut().enumerate() {
+            let mut word = std::mem::take(w);
+            while word != 0 {
+                blocks.push((i * 64) as u32 + word.trailing_zeros());
+                word &= word - 1;
+            }
+        }
+        // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
+        let planes: [(Vec3, f32); NEIGHBOURS] =
+            std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(sources[q[k]].centroid)));
+        let mut at = runs.clone().map(|r| r.start);
+        let (p, n) = (t.position, t.normal);
+        for &b in blocks.iter() {
+            let b = b as usize;
+            let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
+                while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
+                    at[k] += 1;
+                }
+                let mut w = 0;
+                if at[k] < runs[k].end && far.pair_block[at[k]] as usize == b {
+                    w = far.visible[at[k] * B + q[k] % B];
+                }
+                if real[k] && q[k] / B == b {
+                    w |= 1 << (q[k] % B);
+                }
+                w
+            });
+            // An entry no neighbour sees gets no light from the vote.
+            let mut any = bits.iter().fold(0, |a, w| a | w);
+            let every = bits.iter().zip(real).filter(|(_, r)| *r).fold(u32::MAX, |a, (w, _)| a & w);
+            while any != 0 {
+                let r = any.trailing_zeros() as usize;
+                any &= any - 1;
+                let j = b * B + r;
+                let Some(src) = sources.get(j) else { continue };
+                let centroid = src.centroid;
+                let d = centroid - p;
+                let (cx, cy) = (n.dot(d), -src.normal.dot(d));
+                if cx <= 0.0 || cy <= 0.0 {
+                    continue;
+                }
+                let r2 = d.length_squared();
+                // The far share without its square root and division where it is 0 or 1
+                // (most sources: the same values).
+                let share = if r2 >= src.whole {
+                    1.0
+                } else if r2 <= src.none {
+                    0.0
+                } else {
+                    far_share(r2.sqrt(), far.reach, src.size)
+                };
+                if share <= 0.0 {
+                    continue;
+                }
+                // Every neighbour sees it: the vote is 1 whichever of them face it.
+                let v = if every >> r & 1 == 1 {
+                    1.0
+                } else {
+                    far_vote(
+                        &t.weights,
+                        |k| bits[k] >> r & 1 == 1,
+                        |k| planes[k].0.dot(centroid) > planes[k].1,
+                    )
+                };
+                if v <= 0.0 {
+                    continue;
+                }
+                let s2 = src.size * src.size;
+                f(j, src, share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
+            }
+        }
     }
 }
 

@@ -323,14 +323,17 @@ fn near_links_and_far_field_add_up_to_one_cells_first_bounce() {
     }
 }
 
-/// The cluster balance's energy per unit deviation (`NearTables::energy`: the links' sum,
-/// exact, plus the far field's, estimated at precompute with 64 cosine rays per entry and the
-/// texels' density on each chart) against what the near links and the far field deliver,
-/// summed over the texels, for every entry of the open box lit alone. One entry's estimate is
-/// noisy where few of its rays hit anything (an entry at the open side: 10-15 hits, 19 % off);
-/// a cluster's balance sums a dozen or more. All 256 together, measured: 1.084 at a 24² atlas,
-/// 1.030 at 48², 1.022 at 96² (the far field treats a cell as a point and borrows visibility
-/// from the nearest entries, coarse against 4 cm texels); asserted at 96²: within 4 %.
+/// The cluster balance's energy per unit deviation (`NearTables::energy`: the links' sum plus
+/// the far field's, `prm::prm_file::Far::energy`, both summed at precompute as the runtime
+/// delivers them) against what the near links and the far field deliver, summed over the
+/// texels, for every entry of the open box lit alone. The balance sets the panes for this
+/// light, so it must count what comes, entry by entry: with the far field's part estimated from
+/// 64 cosine rays and a texel density per chart, the sum over the box was 1.022 of it and one
+/// entry's up to 2x off (an entry at the open side, 10-15 of its rays hitting anything, 19 %;
+/// a floor cell under a lamp 3 cm up elsewhere, 2x). What is left: the relay
+/// (`cpu::near_deviation`) sends the cluster's other members' share of the lit entry's links
+/// through the far field with their own energies, and the clamp at zero. Measured: every entry
+/// within 1.9 % (the sum 0.11 %); asserted: 3 % and 1 %.
 #[test]
 fn the_balance_counts_what_the_near_and_far_fields_deliver() {
     let scene = open_box();
@@ -340,7 +343,7 @@ fn the_balance_counts_what_the_near_and_far_fields_deliver() {
     let n = prm.entries().len();
     let tables = cpu::NearTables::new(&prm);
     let weights = vec![Vec3::ZERO; prm.clusters().len()];
-    let (mut counted, mut delivered) = (0.0f64, 0.0f64);
+    let (mut counted, mut delivered, mut worst) = (0.0f64, 0.0f64, (0usize, 1.0f64));
     for j in 0..n {
         let mut e = vec![Vec3::ZERO; n];
         e[j] = Vec3::ONE;
@@ -349,13 +352,26 @@ fn the_balance_counts_what_the_near_and_far_fields_deliver() {
             &mut img,
             &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[]),
         );
-        delivered +=
-            prm.far().texels.iter().map(|t| prm::luminance(img[t.texel as usize]) as f64).sum::<f64>();
+        let got = prm.far().texels.iter().map(|t| prm::luminance(img[t.texel as usize]) as f64).sum::<f64>();
+        let ratio = tables.energy[j] as f64 / got;
+        if (ratio - 1.0).abs() > (worst.1 - 1.0).abs() {
+            worst = (j, ratio);
+        }
+        delivered += got;
         counted += tables.energy[j] as f64;
     }
     let ratio = counted / delivered;
-    println!("the balance counts {ratio:.4} of what the near and far fields deliver");
-    assert!((ratio - 1.0).abs() < 0.04, "the balance counts {ratio} of what the near and far fields deliver");
+    println!(
+        "the balance counts {ratio:.4} of what the near and far fields deliver; entry {} {:.4}",
+        worst.0, worst.1
+    );
+    assert!((ratio - 1.0).abs() < 0.01, "the balance counts {ratio} of what the near and far fields deliver");
+    assert!(
+        (worst.1 - 1.0).abs() < 0.03,
+        "entry {}: the balance counts {} of what it delivers",
+        worst.0,
+        worst.1
+    );
 }
 
 /// The far field's threshold never lets more than `FAR_SOURCES` entries through, whatever the
@@ -508,6 +524,48 @@ fn the_far_field_sends_a_near_spots_light_from_where_it_lands() {
         rms_landing < 0.85 * rms_centroids,
         "RMS {rms_landing} from where it lands, {rms_centroids} from the centroids"
     );
+}
+
+/// Next to a near light one entry carries most of its cluster's deviation, and the cluster
+/// balance sets the pane for the light the far field then brings from it (`Far::energy`). In
+/// the pillar room at 256 entries (cells 40 cm across, 16 clusters), with that energy estimated
+/// from 64 cosine rays per entry and a texel density per UV chart (up to 2x off entry by entry),
+/// the room's indirect light was 1.200 of the ground truth's under a spot at a wall's foot and
+/// 0.879 under the lamp 3 cm over the floor (RMS error 0.130). Summed as the far field
+/// delivers it: measured 1.008 and 0.984 (0.051); asserted: within 5 %, the lamp's error under
+/// 0.08.
+#[test]
+fn the_room_s_indirect_light_is_the_truth_s_next_to_near_lights() {
+    let lamp = common::pillar_room();
+    let mut foot = common::pillar_room();
+    let mut spot = common::point(v(0.15, 0.25, 1.3), 2.0);
+    spot.kind = prm::LightKind::Spot { inner: 20f32.to_radians(), outer: 35f32.to_radians() };
+    spot.direction = v(-1.0, -0.8, 0.0).normalize();
+    foot.lights = vec![spot];
+    let atlas = 48;
+    for (name, scene, seed) in
+        [("the spot at the wall's foot", foot, 12), ("the lamp 3 cm over the floor", lamp, 11)]
+    {
+        let bvh = Bvh::build(&scene);
+        let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, seed);
+        let prm = bake_walked(&scene, &bvh, atlas, 256, 16);
+        let e = entry_irradiance(&prm, &bvh, &scene.lights);
+        let tables = cpu::NearTables::new(&prm);
+        let link = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
+        let img = twin_lightmap(&prm, &tables, &link, &e);
+        let img: Vec<Vec3> = set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect();
+        let total = |v: &[Vec3]| v.iter().map(|c| prm::luminance(*c) as f64).sum::<f64>();
+        let ratio = total(&img) / total(&gt);
+        let error = prm::metric::compare(&img, &gt, None).error;
+        let error = (error * error - noise * noise).max(0.0).sqrt();
+        println!(
+            "{name}: {ratio:.3} of the ground truth's indirect light, error {error:.3} (noise {noise:.3})"
+        );
+        assert!((ratio - 1.0).abs() < 0.05, "{name}: {ratio} of the ground truth's indirect light");
+        if seed == 11 {
+            assert!(error < 0.08, "{name}: error {error}");
+        }
+    }
 }
 
 /// The near field's own deviation (`cpu::near_deviation`) moves light within each cluster and

@@ -213,19 +213,8 @@ impl Preamble {
                     }),
                     _ => None,
                 };
-                let far = far_field(
-                    scene,
-                    bvh,
-                    &set,
-                    &entries,
-                    &room,
-                    &texel_room,
-                    &cell,
-                    reach,
-                    radius,
-                    params.seed,
-                    reuse.as_ref(),
-                );
+                let far =
+                    far_field(bvh, &set, &entries, &room, &texel_room, &cell, reach, radius, reuse.as_ref());
                 (far, reuse.map_or(0, |r| r.by_geometry.into_inner()))
             } else {
                 (Far::default(), 0)
