@@ -1,7 +1,7 @@
 // The near field's later bounces (runtime/src/lift.rs; twin: prm_runtime::cpu::lift_weights).
 // After the near pass (near links, echo, far field into near_sum) and before the selection:
-// lift_main, one invocation per cluster: u_c = sum over its members with a slot of
-// t_j near_sum(slot_j) / sum t_j, into lifted[c]. lambda_main, one workgroup per room: per
+// lift_main, one invocation per cluster: u_c = sum over its members with texels of
+// t_j n_j / sum t_j, n_j the mean of near_sum over the member's cell's texels, into lifted[c]. lambda_main, one workgroup per room: per
 // channel lambda = sum_c u_c energy_c / sum_c w_c energy_c over the room's clusters (0 where the
 // second sum is 0), into lifted[C + room]. apply_main, one per cluster: w_c = w_c (1 - lambda of
 // its room) + u_c, signed (the twin's doc says why), and its score |luminance(w_c)| x energy_c.
@@ -19,10 +19,17 @@ fn lift_main(@builtin(global_invocation_id) id: vec3u) {
     var sum = vec3f(0.0);
     var t_sum = 0.0;
     for (var k = r.x; k < r.x + r.y; k++) {
-        let m = lift_members[k];
-        if m.x != NO_SLOT {
-            let t = bitcast<f32>(m.y);
-            sum += near_sum[m.x].xyz * t;
+        let m = vec4u(lift_members[4u * k], lift_members[4u * k + 1u], lift_members[4u * k + 2u], 0u);
+        if m.y > m.x {
+            var cell = vec3f(0.0);
+            for (var i = m.x; i < m.y; i++) {
+                let slot = lift_members[i];
+                if slot != NO_SLOT {
+                    cell += near_sum[slot].xyz;
+                }
+            }
+            let t = bitcast<f32>(m.z);
+            sum += cell / f32(m.y - m.x) * t;
             t_sum += t;
         }
     }

@@ -1,7 +1,7 @@
 //! The near field's later bounces on the GPU (`shaders/lift.wgsl`; twin:
 //! [`crate::cpu::lift_weights`], whose doc says why). Three dispatches between the near pass
-//! and the selection: each cluster's mean of the near field over its cells (read at each
-//! member's texel, [`crate::cpu::NearTables::entry_texel`]), the share `lambda` that keeps the
+//! and the selection: each cluster's mean of the near field over its cells (each cell's mean
+//! over its texels, [`crate::cpu::cell_means`]), the share `lambda` that keeps the
 //! panes' energy in each room (`crate::cpu::rooms`), and the lifted weights with their scores.
 
 use prm::prm_file::Prm;
@@ -16,10 +16,10 @@ pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     // The weight pass's member ranges (clusters first).
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
-    // Per member, in the weight pass's `indices` order: its texel's slot among the near sums
-    // (NO_SLOT for none), its cell's area over A/N (f32 bits), its entry, 0 (the near pass's
-    // `members`).
-    b("lift_members", Res::Read("array<vec4u>"), COMPUTE),
+    // Per member, in the weight pass's `indices` order, four words: its cell's run of slots
+    // among the near sums further on (first, end), its cell's area over A/N (f32 bits), its
+    // entry; then the runs (the near pass's `members`).
+    b("lift_members", Res::Read("array<u32>"), COMPUTE),
     // The near pass's sums: near links with their echo, and the far field.
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
     // Pane energy: clusters first.

@@ -102,7 +102,8 @@ impl GpuMemory {
             (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),
             // Without a far field there is no lift (`crate::lift`).
             // The relay's and the lift's (`crate::near::cluster_members`).
-            ("cluster members", if far_texels > 0 { size(members.max(1), 16) } else { 0 }),
+            // Four words a member, then each far texel's slot under its nearest entry's cell.
+            ("cluster members", if far_texels > 0 { size(4 * members + far_texels, 4) } else { 0 }),
             ("lifted weights", if far_texels > 0 { size(c + rooms, 16) } else { 0 }),
             ("rooms", if far_texels > 0 { size(crate::lift::room_words_len(c, rooms), 4) } else { 0 }),
         ];

@@ -69,8 +69,9 @@ pub const RELAY_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     // The weight pass's member ranges (clusters first) into `relay_members`.
     b("relay_ranges", Res::Read("array<vec2u>"), COMPUTE),
-    // Per member: its texel's slot among the sums, t_j, its entry ([`cluster_members`]).
-    b("relay_members", Res::Read("array<vec4u>"), COMPUTE),
+    // Per member: its cell's run of slots further on, t_j, its entry; then the runs
+    // ([`cluster_members`]).
+    b("relay_members", Res::Read("array<u32>"), COMPUTE),
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
@@ -84,21 +85,32 @@ pub const RELAY: Shader = Shader {
 };
 
 /// Per cluster member, clusters in order (the weight pass's `indices`, whose `ranges` index
-/// it): its texel's slot among the near sums (NO_SLOT for none: [`crate::cpu::NearTables::entry_texel`]),
-/// its cell's area over A/N (f32 bits), its entry, 0. The relay and the lift
-/// (`crate::lift`) read it. None when no member has a slot (a map without a far field).
-fn cluster_members(prm: &Prm, tables: &crate::cpu::NearTables, index: &[u32]) -> Option<Vec<[u32; 4]>> {
-    let members: Vec<[u32; 4]> = prm
-        .clusters()
-        .iter()
-        .flat_map(|c| c.members.iter())
-        .map(|&m| {
-            let texel = tables.entry_texel[m as usize];
-            let slot = if texel == crate::cpu::NO_TEXEL { NO_SLOT } else { index[texel as usize] };
-            [slot, tables.area_ratio[m as usize].to_bits(), m, 0]
-        })
-        .collect();
-    members.iter().any(|m| m[0] != NO_SLOT).then_some(members)
+/// it), four words: where its cell's texels' slots among the near sums lie further on in the
+/// same table (first, end; equal for an entry no texel stands for:
+/// [`crate::cpu::NearTables::cell_texels`]), its cell's area over A/N (f32 bits), its entry;
+/// then those slots. The relay and the lift (`crate::lift`) read the near field's mean over
+/// each cell from it (one table: the lift has no binding left for a second). None when no
+/// member has a texel (a map without a far field).
+fn cluster_members(prm: &Prm, tables: &crate::cpu::NearTables, index: &[u32]) -> Option<Vec<u32>> {
+    let count: usize = prm.clusters().iter().map(|c| c.members.len()).sum();
+    let mut words = Vec::with_capacity(4 * count + tables.cell_texels.len());
+    let mut first = 4 * count as u32;
+    for &m in prm.clusters().iter().flat_map(|c| c.members.iter()) {
+        let j = m as usize;
+        let end = first + tables.cell_first[j + 1] - tables.cell_first[j];
+        words.extend([first, end, tables.area_ratio[j].to_bits(), m]);
+        first = end;
+    }
+    if first as usize == 4 * count {
+        return None;
+    }
+    for &m in prm.clusters().iter().flat_map(|c| c.members.iter()) {
+        let run = tables.cell_first[m as usize] as usize..tables.cell_first[m as usize + 1] as usize;
+        words.extend(
+            tables.cell_texels[run].iter().map(|&t| index.get(t as usize).copied().unwrap_or(NO_SLOT)),
+        );
+    }
+    Some(words)
 }
 
 /// The relay's pipeline (`shaders/relay.wgsl`): the near field's own deviation from each
@@ -314,9 +326,10 @@ impl NearPass {
             crate::far::FarBuffers { params, deviation, sums: &sums },
             &index,
         );
-        let members = far.as_ref().and_then(|_| cluster_members(prm, tables, &index)).map(|members| {
-            gpu::storage_buffer(device, "cluster members", bytemuck::cast_slice(&members), none)
-        });
+        let members = far
+            .as_ref()
+            .and_then(|_| cluster_members(prm, tables, &index))
+            .map(|words| gpu::storage_buffer(device, "cluster members", bytemuck::cast_slice(&words), none));
         let relay = match (&members, count) {
             (Some(members), 1..) => {
                 let layout = RELAY.layout(device, 0);

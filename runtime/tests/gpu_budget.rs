@@ -128,10 +128,13 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
         100.0 * rel[2]
     );
     // Inside, only the near field's balance (a cluster whose links were cut weighs the rest a
-    // little differently) moves a texel; at the cut the pick at shared grid vertices too.
-    // Measured: 0.39 % inside, 1.5 % at the cut, 0.94 % over all kept texels; a tile's data
-    // read at another's offset, or the ranges off by one, is tens of per cent.
-    assert!(rel[0] < 0.01, "kept texels inside differ by {:.3} % RMS", 100.0 * rel[0]);
+    // little differently) and the lift (a cell the cut splits reads the near field's mean over
+    // its kept texels, `cpu::cell_means`, and the room's lambda moves with it) move a texel;
+    // at the cut the pick at shared grid vertices too. Measured: 1.25 % inside, 2.1 % at the
+    // cut, 1.6 % over all kept texels (0.39, 1.5 and 0.94 % while the lift read one texel per
+    // cell); a tile's data read at another's offset, or the ranges off by one, is tens of per
+    // cent.
+    assert!(rel[0] < 0.02, "kept texels inside differ by {:.3} % RMS", 100.0 * rel[0]);
     assert!(rel[2] < 0.025, "kept texels differ by {:.3} % RMS", 100.0 * rel[2]);
 }
 

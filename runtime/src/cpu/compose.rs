@@ -146,10 +146,13 @@ pub struct NearTables {
     /// Per entry: what one W/m² of its weight adds to its cluster's moment along each axis,
     /// `A/N (1 / lambda_k) v_k . (x_j - o)` ([`dipole_moments`]).
     pub dipole_coef: Vec<[f32; 3]>,
-    /// Per entry, the atlas texel where [`lift_weights`] reads the near field at its point: of
-    /// the far texels whose nearest entry it is, the closest ([`NO_TEXEL`] for none, and for
-    /// every entry of a map without a far field).
-    pub entry_texel: Vec<u32>,
+    /// Per entry, the texels that stand for its cell, where [`lift_weights`] and
+    /// [`near_deviation`] read the near field ([`cell_means`]): the far texels whose nearest
+    /// entry it is, in the far field's order, entry j's at `cell_texels[cell_first[j] as
+    /// usize..cell_first[j + 1] as usize]` as atlas texels (none for an entry no far texel is
+    /// nearest to, and for every entry of a map without a far field).
+    pub cell_first: Vec<u32>,
+    pub cell_texels: Vec<u32>,
     /// Per cluster, its room ([`super::rooms`]): [`lift_weights`] keeps the energy room by
     /// room.
     pub cluster_room: Vec<u32>,
@@ -157,24 +160,45 @@ pub struct NearTables {
     pub rooms: usize,
 }
 
-/// [`NearTables::entry_texel`] of an entry no texel stands for.
-pub const NO_TEXEL: u32 = u32::MAX;
-
-/// Per entry, the far texel closest to it among those whose nearest entry it is (the far
-/// field's neighbours are sorted nearest first): [`NearTables::entry_texel`].
-fn entry_texels(prm: &Prm) -> Vec<u32> {
-    let entries = prm.entries();
-    let mut best = vec![(f32::INFINITY, NO_TEXEL); entries.len()];
-    for t in &prm.far().texels {
-        let j = t.entries[0] as usize;
-        if let Some(e) = entries.get(j) {
-            let d2 = e.position.distance_squared(t.position);
-            if d2 < best[j].0 {
-                best[j] = (d2, t.texel);
-            }
-        }
+/// Per entry, the far texels whose nearest entry it is (the far field's neighbours are sorted
+/// nearest first): [`NearTables::cell_first`] and [`NearTables::cell_texels`], as atlas
+/// texels.
+fn cell_texels(prm: &Prm) -> (Vec<u32>, Vec<u32>) {
+    let n = prm.entries().len();
+    let texels = &prm.far().texels;
+    let mut first = vec![0u32; n + 1];
+    for t in texels.iter().filter(|t| (t.entries[0] as usize) < n) {
+        first[t.entries[0] as usize + 1] += 1;
     }
-    best.into_iter().map(|(_, t)| t).collect()
+    for j in 0..n {
+        first[j + 1] += first[j];
+    }
+    let mut next = first.clone();
+    let mut list = vec![0u32; first[n] as usize];
+    for t in texels.iter().filter(|t| (t.entries[0] as usize) < n) {
+        let slot = &mut next[t.entries[0] as usize];
+        list[*slot as usize] = t.texel;
+        *slot += 1;
+    }
+    (first, list)
+}
+
+/// Per entry, the mean of `field` (per atlas texel) over the texels of its cell
+/// ([`NearTables::cell_texels`]), None for an entry without any: what [`lift_weights`] and
+/// [`near_deviation`] take as the near field on the cell. Next to a light near a surface the
+/// near field changes across a cell much faster than the cell: one texel (the far texel
+/// nearest the entry) read the peak of the first bounce rather than the cell's share (the
+/// chamber's corner spot lifted a side wall's cluster to 1.9x its balanced weight).
+pub fn cell_means(tables: &NearTables, field: &[Vec3]) -> Vec<Option<Vec3>> {
+    tables
+        .cell_first
+        .windows(2)
+        .map(|w| {
+            let texels = &tables.cell_texels[w[0] as usize..w[1] as usize];
+            (!texels.is_empty())
+                .then(|| texels.iter().map(|&t| field[t as usize]).sum::<Vec3>() / texels.len() as f32)
+        })
+        .collect()
 }
 
 impl NearTables {
@@ -182,6 +206,7 @@ impl NearTables {
         let n = prm.entries().len();
         let (mut cluster, mut area_ratio, mut energy) = (vec![0u32; n], vec![0.0f32; n], vec![0.0f32; n]);
         let cells = prm.cells();
+        let (cell_first, cell_texels) = cell_texels(prm);
         for (c, cl) in prm.clusters().iter().enumerate() {
             for &m in &cl.members {
                 cluster[m as usize] = c as u32;
@@ -226,7 +251,8 @@ impl NearTables {
             size,
             dipole_offset,
             dipole_coef,
-            entry_texel: entry_texels(prm),
+            cell_first,
+            cell_texels,
             rooms: super::rooms::room_count(&cluster_room),
             cluster_room,
         }
@@ -855,10 +881,11 @@ pub fn link_field(
 }
 
 /// Per entry, the near field's own light on its cell less its cluster's mean of it, `t_j (n_j -
-/// u_c)` (W/m² of entry weight, as `E_j`): `n_j` the near links and their echo at the entry's
-/// texel ([`link_field`], [`NearTables::entry_texel`]; 0 for none with links), `u_c` their mean over the
-/// cluster's cells weighted by `t_j`, as [`lift_weights`] takes it. The far field sends it with
-/// the entries' own deviation ([`far_sources`]).
+/// u_c)` (W/m² of entry weight, as `E_j`): `n_j` the near links and their echo over the
+/// entry's cell ([`link_field`], [`cell_means`]; 0 at a texel without links), `u_c` their mean
+/// over the cluster's cells weighted by `t_j`, as [`lift_weights`] takes it. Entries without
+/// texels take no part. The far field sends it with the entries' own deviation
+/// ([`far_sources`]).
 ///
 /// The lift gives a cluster's pane the near field's light that lands on the cluster, spread
 /// over the cluster: next to a light near a surface, its first bounce lands in a few of a
@@ -872,35 +899,39 @@ pub fn link_field(
 /// +11.2 %, this alone -12.7 %), the spot under the ceiling aimed at it 7.64 -> 6.63 %, the
 /// corner torch 5.93 -> 5.62 %, the torch under the ceiling 5.48 -> 5.17 %; no other placement
 /// of the chamber, two_rooms or cornell rigs moved by more than 0.26 points, and the 4 x 4
-/// halls stayed at 5.61 % (bias +0.8 -> +1.0 %). The corner spot's bias is left because the
-/// later bounces of its light still spread over the corner's clusters (README, *Corner spots:
-/// the balance and the relay*, also for what was tried against it).
+/// halls stayed at 5.61 % (bias +0.8 -> +1.0 %). Then each cell's near field was read at one
+/// texel, the far texel nearest its entry, which by the corner spot read the peak of its first
+/// bounce; over all the cell's texels, with the far field's energies summed as it delivers
+/// them (`prm::prm_file::Far::energy`), the corner spot's bias went +5.5 -> +1.1 % and
+/// two_rooms' corner spot's +5.5 -> +1.6 % (README, *Corner spots: the balance and the
+/// relay*).
 pub fn near_deviation(prm: &Prm, tables: &NearTables, near: &[Vec3]) -> Vec<Vec3> {
     let mut relay = vec![Vec3::ZERO; prm.entries().len()];
-    for (cl, u) in prm.clusters().iter().zip(cluster_means(prm, tables, near)) {
+    let vals = cell_means(tables, near);
+    for (cl, u) in prm.clusters().iter().zip(cluster_means(prm, tables, &vals)) {
         let Some(u) = u else { continue };
         for &m in &cl.members {
-            let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
-            if texel != NO_TEXEL {
-                relay[m] = (near[texel as usize] - u) * tables.area_ratio[m];
+            let m = m as usize;
+            if let Some(v) = vals[m] {
+                relay[m] = (v - u) * tables.area_ratio[m];
             }
         }
     }
     relay
 }
 
-/// Per cluster, the mean of `field` (per atlas texel) over its cells, each read at its entry's
-/// texel ([`NearTables::entry_texel`]) and weighted by `t_j`; None where no member has a texel.
-/// The lift's `u_c` ([`lift_weights`]) and the relay's ([`near_deviation`]).
-fn cluster_means(prm: &Prm, tables: &NearTables, field: &[Vec3]) -> Vec<Option<Vec3>> {
+/// Per cluster, the mean of its cells' values (`vals`: [`cell_means`]) weighted by `t_j`; None
+/// where no member has a texel. The lift's `u_c` ([`lift_weights`]) and the relay's
+/// ([`near_deviation`]).
+fn cluster_means(prm: &Prm, tables: &NearTables, vals: &[Option<Vec3>]) -> Vec<Option<Vec3>> {
     prm.clusters()
         .iter()
         .map(|cl| {
             let (mut sum, mut t_sum) = (Vec3::ZERO, 0.0f32);
             for &m in &cl.members {
-                let (m, texel) = (m as usize, tables.entry_texel[m as usize]);
-                if texel != NO_TEXEL {
-                    sum += field[texel as usize] * tables.area_ratio[m];
+                let m = m as usize;
+                if let Some(v) = vals[m] {
+                    sum += v * tables.area_ratio[m];
                     t_sum += tables.area_ratio[m];
                 }
             }
@@ -915,8 +946,8 @@ fn cluster_means(prm: &Prm, tables: &NearTables, field: &[Vec3]) -> Vec<Option<V
 /// cluster's mean (`K D`); its later bounces were left out, or rather spread by the balance
 /// over the deviating cluster's pane. But `K D` is itself light on the level's surfaces, and a
 /// pane is the answer (all bounces) to light on its cluster: so `u_c`, the mean of the near
-/// field over cluster c's cells (read at each entry's texel, [`NearTables::entry_texel`],
-/// weighted by `t_j`), weights c's pane with what the deviation's first bounce puts there. A
+/// field over cluster c's cells (each cell's mean over its texels, [`cell_means`], weighted by
+/// `t_j`), weights c's pane with what the deviation's first bounce puts there. A
 /// lamp 5 cm from the chamber's wall lights the floor in front of it through the near and far
 /// fields; that floor's clusters now light the wall around the lamp with it (measured on the
 /// chamber's torch rig: every placement better, the 5 cm wall 9.3 -> 8.7 %, the ceiling 9.9
@@ -939,8 +970,10 @@ fn cluster_means(prm: &Prm, tables: &NearTables, field: &[Vec3]) -> Vec<Option<V
 /// against 7.81 %); kept at >= 0 with lambda raised until the energy is kept, 8.02 %.
 /// Without a far field (no texel stands for an entry) the weights are returned unchanged.
 pub fn lift_weights(prm: &Prm, tables: &NearTables, weights: &[Vec3], near: &[Vec3]) -> Vec<Vec3> {
-    let lift: Vec<Vec3> =
-        cluster_means(prm, tables, near).into_iter().map(|u| u.unwrap_or(Vec3::ZERO)).collect();
+    let lift: Vec<Vec3> = cluster_means(prm, tables, &cell_means(tables, near))
+        .into_iter()
+        .map(|u| u.unwrap_or(Vec3::ZERO))
+        .collect();
     let (mut lifted, mut kept) = (vec![Vec3::ZERO; tables.rooms], vec![Vec3::ZERO; tables.rooms]);
     for (c, cl) in prm.clusters().iter().enumerate() {
         let room = tables.cluster_room[c] as usize;

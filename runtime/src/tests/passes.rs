@@ -1615,9 +1615,11 @@ fn a_light_moving_in_one_sealed_room_recomposes_only_what_it_reaches() {
         (0..second.len()).map(|_| Vec3::new(rng.random(), rng.random(), rng.random())).collect();
     let near: Vec<Vec3> = (0..prm.texel_count()).map(|_| Vec3::splat(rng.random::<f32>() - 0.3)).collect();
     let mut brighter = near.clone();
-    for (j, &t) in tables.entry_texel.iter().enumerate() {
-        if t != cpu::NO_TEXEL && !second[tables.cluster[j] as usize] {
-            brighter[t as usize] += Vec3::splat(0.5);
+    for (j, w) in tables.cell_first.windows(2).enumerate() {
+        if !second[tables.cluster[j] as usize] {
+            for &t in &tables.cell_texels[w[0] as usize..w[1] as usize] {
+                brighter[t as usize] += Vec3::splat(0.5);
+            }
         }
     }
     let (a, b) =
