@@ -1237,10 +1237,12 @@ fn a_gpu_budget_leaves_out_what_the_camera_does_not_see_on_both_backends() {
         .zip(&whole_lightmap)
         .filter(|(a, b)| a.max_element() == 0.0 && b.max_element() > 0.0);
     assert!(gone.count() > 0, "no texel left out");
-    // What the camera sees: within 1 % of the whole map's frame (measured 0.10 %; GPU vs CPU
-    // under the budget: lightmap 0.49 %, frame 1.5 %).
+    // What the camera sees: within 2 % of the whole map's frame (measured 1.0 %; 0.10 % while
+    // the lift read one texel per cell: a cell the cut splits now reads the near field's mean
+    // over its kept texels, and at 30 cm texels a cell has a handful; GPU vs CPU under the
+    // budget: lightmap 0.49 %, frame 1.5 %).
     let m = prm::metric::compare(&cpu_frame, &whole_frame, None);
-    assert!(m.error < 0.01, "the budget changed the camera's frame by {}", m.error);
+    assert!(m.error < 0.02, "the budget changed the camera's frame by {}", m.error);
     // The GPU runs the same reduced map: its lightmap and frame agree with the CPU twin's as
     // on the whole map (see the paged test for the tolerances).
     let (gpu_frame, gpu_lightmap) = render("gpu", Some(&budget_mb));
