@@ -148,12 +148,17 @@ const ENERGY_PART: usize = 1024;
 /// counted, 2.87 delivered), and next to a near light one entry carries most of its cluster's
 /// deviation: a small pillar room's indirect light came out 1.20 of the ground truth's under a
 /// spot at a wall's foot. An update (`reuse`) keeps an entry's old energy where it is settled
-/// ([`FarReuse`]), and sums none where every entry is.
+/// ([`FarReuse`]), and walks only the blocks of entries that are not.
 fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<&FarReuse>) -> Vec<f32> {
     let n = entries.len();
     let kept = |j: usize| reuse.filter(|r| r.entry[j]).map(|r| r.old.energy[j]);
     let mut sum = vec![0.0f64; n];
-    if (0..n).any(|j| kept(j).is_none()) {
+    // The blocks holding an entry whose energy is summed: an update's edit touches few.
+    let mut wanted = vec![false; Far::blocks(n)];
+    for j in (0..n).filter(|&j| kept(j).is_none()) {
+        wanted[j / Far::BLOCK] = true;
+    }
+    if wanted.contains(&true) {
         let sources = Source::all(entries, cell, far.reach, &[]);
         let parts: Vec<Vec<(u32, f64)>> = far
             .texels
@@ -162,7 +167,7 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
                 || (vec![0.0f64; n], Vec::new(), Visit::new(n)),
                 |(acc, touched, visit): &mut (Vec<f64>, Vec<u32>, Visit), part| {
                     for t in part {
-                        visit.sources(far, entries, &sources, t, |j, _, w| {
+                        visit.sources(far, entries, &sources, t, Some(&wanted), |j, _, w| {
                             if acc[j] == 0.0 {
                                 touched.push(j as u32);
                             }
@@ -635,7 +640,7 @@ impl<'a> FirstBounce<'a> {
             || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(self.entries.len())),
             |(acc, touched, visit): &mut (Vec<Vec3>, Vec<u32>, Visit), (out, &k)| {
                 let Some(t) = of_texel(k) else { return };
-                visit.sources(far, self.entries, sources, t, |_, src, w| {
+                visit.sources(far, self.entries, sources, t, None, |_, src, w| {
                     let c = src.cluster as usize;
                     if acc[c] == Vec3::ZERO {
                         touched.push(c as u32);
@@ -678,7 +683,8 @@ impl Visit {
         Visit { blocks: Vec::new(), seen: vec![0u64; Far::blocks(entries).div_ceil(64)] }
     }
 
-    /// Calls `f(j, source, w)` for each source j (ascending) that lights far texel `t`, with
+    /// Calls `f(j, source, w)` for each source j (ascending) that lights far texel `t` (of the
+    /// blocks of [`Far::BLOCK`] entries `wanted` marks, where given), with
     /// `w = share V cos_x cos_j / (pi r² max(r², s_j²))`: what it delivers there per W of
     /// deviation flux, as the runtime's far field (`prm_runtime::cpu::far_field`) computes it.
     #[inline]
@@ -688,6 +694,7 @@ impl Visit {
         entries: &[Entry],
         sources: &[Source],
         t: &FarTexel,
+        wanted: Option<&[bool]>,
         mut f: impl FnMut(usize, &Source, f32),
     ) {
         const B: usize = Far::BLOCK;
@@ -733,6 +740,9 @@ impl Visit {
         let (p, n) = (t.position, t.normal);
         for &b in blocks.iter() {
             let b = b as usize;
+            if wanted.is_some_and(|w| !w.get(b).copied().unwrap_or(false)) {
+                continue;
+            }
             let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
                 while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
                     at[k] += 1;
