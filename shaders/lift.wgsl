@@ -1,10 +1,11 @@
 // The near field's later bounces (runtime/src/lift.rs; twin: prm_runtime::cpu::lift_weights).
 // After the near pass (near links, echo, far field into near_sum) and before the selection:
-// lift_main, one invocation per cluster: u_c = sum over its members with texels of
-// t_j n_j / sum t_j, n_j the mean of near_sum over the member's cell's texels, into lifted[c]. lambda_main, one workgroup per room: per
-// channel lambda = sum_c u_c energy_c / sum_c w_c energy_c over the room's clusters (0 where the
-// second sum is 0), into lifted[C + room]. apply_main, one per cluster: w_c = w_c (1 - lambda of
-// its room) + u_c, signed (the twin's doc says why), and its score |luminance(w_c)| x energy_c.
+// lift_main, one invocation per cluster: u_c = sum over its members with texels of t_j n_j /
+// sum t_j, n_j the mean of near_sum over the member's cell's texels, into lifted[c].
+// lambda_main, one workgroup per room: per channel lambda = sum_c u_c energy_c / sum_c w_c
+// energy_c over the room's clusters (energy_c in that channel: energy[c].xyz; 0 where the second
+// sum is 0), into lifted[C + room]. apply_main, one per cluster: w_c = w_c (1 - lambda of its
+// room) + u_c, signed (the twin's doc says why), and its score |luminance(w_c)| x energy[c].w.
 // rooms holds R, then each cluster's room (C), then where each room's clusters start in the list
 // (R + 1), then the list (C, ascending within a room; prm_runtime::cpu::rooms).
 // Bindings, IndirectParams, NO_SLOT, luminance and WG_LINEAR: the generated prelude.
@@ -68,8 +69,8 @@ fn lambda_main(
     var k = vec3f(0.0);
     for (var i = first + lid; i < end; i += WG_LINEAR) {
         let c = rooms[list + i];
-        l += lifted[c].xyz * energy[c];
-        k += weights[c].xyz * energy[c];
+        l += lifted[c].xyz * energy[c].xyz;
+        k += weights[c].xyz * energy[c].xyz;
     }
     part_lifted[lid] = l;
     part_kept[lid] = k;
@@ -97,5 +98,5 @@ fn apply_main(@builtin(global_invocation_id) id: vec3u) {
     let lambda = lifted[params.cluster_count + room_of(c)].xyz;
     let w = weights[c].xyz * (vec3f(1.0) - lambda) + lifted[c].xyz;
     weights[c] = vec4f(w, 0.0);
-    scores[c] = abs(luminance(w)) * energy[c];
+    scores[c] = abs(luminance(w)) * energy[c].w;
 }

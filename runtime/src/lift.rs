@@ -22,8 +22,9 @@ pub const BINDINGS: &[Binding] = &[
     b("lift_members", Res::Read("array<u32>"), COMPUTE),
     // The near pass's sums: near links with their echo, and the far field.
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
-    // Pane energy: clusters first.
-    b("energy", Res::Read("array<f32>"), COMPUTE),
+    // Per cluster, its pane's energy in each channel (its luminance's tinted by the cluster's
+    // albedo, `NearTables::cluster_tint`), and in w its luminance's ([`cluster_energies`]).
+    b("energy", Res::Read("array<vec4f>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
     // Per cluster u_c, then each room's lambda (C + R).
@@ -48,7 +49,6 @@ pub const SHADER: Shader = Shader {
 pub struct LiftBuffers<'a> {
     pub params: &'a wgpu::Buffer,
     pub ranges: &'a wgpu::Buffer,
-    pub energy: &'a wgpu::Buffer,
     pub weights: &'a wgpu::Buffer,
     pub scores: &'a wgpu::Buffer,
     pub near_sum: &'a wgpu::Buffer,
@@ -91,6 +91,19 @@ pub fn room_words(tables: &NearTables) -> Vec<u32> {
     words
 }
 
+/// The lift's `energy` buffer: per cluster, `energy_c` times its tint in xyz (what
+/// [`crate::cpu::lift_weights`] weighs each channel by) and `energy_c` in w (the score's).
+pub fn cluster_energies(prm: &Prm, tables: &NearTables) -> Vec<[f32; 4]> {
+    prm.clusters()
+        .iter()
+        .zip(&tables.cluster_tint)
+        .map(|(c, t)| {
+            let e = c.energy * *t;
+            [e.x, e.y, e.z, c.energy]
+        })
+        .collect()
+}
+
 impl LiftPass {
     /// None without the near pass's member table (no member has a texel to read: a map without
     /// a far field): the weights stay.
@@ -107,6 +120,11 @@ impl LiftPass {
         let lifted =
             gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + tables.rooms) * 16], none);
         let rooms = gpu::storage_buffer(device, "rooms", bytemuck::cast_slice(&room_words(tables)), none);
+        let mut energies = cluster_energies(prm, tables);
+        if energies.is_empty() {
+            energies.push([0.0; 4]);
+        }
+        let energy = gpu::storage_buffer(device, "lift energies", bytemuck::cast_slice(&energies), none);
         let layout = SHADER.layout(device, 0);
         let group = bind(
             device,
@@ -118,7 +136,7 @@ impl LiftPass {
                 ("ranges", buffers.ranges.as_entire_binding()),
                 ("lift_members", members.as_entire_binding()),
                 ("near_sum", buffers.near_sum.as_entire_binding()),
-                ("energy", buffers.energy.as_entire_binding()),
+                ("energy", energy.as_entire_binding()),
                 ("weights", buffers.weights.as_entire_binding()),
                 ("scores", buffers.scores.as_entire_binding()),
                 ("lifted", lifted.as_entire_binding()),

@@ -105,6 +105,7 @@ impl GpuMemory {
             // Four words a member, then each far texel's slot under its nearest entry's cell.
             ("cluster members", if far_texels > 0 { size(4 * members + far_texels, 4) } else { 0 }),
             ("lifted weights", if far_texels > 0 { size(c + rooms, 16) } else { 0 }),
+            ("lift energies", if far_texels > 0 { size(c.max(1), 16) } else { 0 }),
             ("rooms", if far_texels > 0 { size(crate::lift::room_words_len(c, rooms), 4) } else { 0 }),
         ];
         GpuMemory { items: items.iter().map(|(n, b)| (n.to_string(), *b)).collect() }

@@ -231,7 +231,6 @@ impl Runtime {
             LiftBuffers {
                 params: &params_buf,
                 ranges: &weights.ranges,
-                energy: &weights.energy,
                 weights: &weights.weights,
                 scores: &weights.scores,
                 near_sum: &near.sums,

@@ -96,9 +96,6 @@ pub struct WeightPass {
     pub selected: wgpu::Buffer,
     /// Per cluster, then per group: (first, count) into the members (`vec2u`).
     pub ranges: wgpu::Buffer,
-    /// Pane energy: clusters, groups, then the balance's dipole terms, then the members' stay
-    /// shares times their albedo (`f32`, three a member).
-    pub energy: wgpu::Buffer,
 }
 
 impl WeightPass {
@@ -257,7 +254,6 @@ impl WeightPass {
             scores,
             selected,
             ranges,
-            energy,
         }
     }
 

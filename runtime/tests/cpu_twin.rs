@@ -136,10 +136,11 @@ fn an_unchanged_frame_does_no_compose_work() {
 /// +93, +117 %; by albedo in the mean +40, -12, -19 % (the balance took a red entry's links
 /// at their luminance); and tinted in the balance too +11, +6, +7 % (the same spot on a grey
 /// runner: +4 % in each). Since the far field's energies are summed as it delivers them and
-/// the lift reads each cell's mean: +15.4, +5.9, +6.3 % (the red is too much on the grey
-/// surfaces, 1.13-1.22 of the truth's, not on the runner; README, *Corner spots*). Asserted:
-/// the channels within 10 points of each other and 17 % of the ground truth, which the two
-/// failures above break.
+/// the lift reads each cell's mean, the lift, which spreads the runner's red light onto grey
+/// clusters, took it back from the runner's panes at their luminance: +15.4, +5.9, +6.3 %;
+/// taken back in each channel at the panes' tinted energy (`cpu::lift_weights`), +5.4,
+/// +10.4, +11.7 % (+5.8, +10.3, +11.5 % without the lift). Asserted: the channels within 8
+/// points of each other and 13 % of the ground truth.
 #[test]
 fn the_weights_count_each_entry_s_light_by_its_albedo() {
     let size = Vec3::new(2.0, 1.0, 2.0);
@@ -169,8 +170,8 @@ fn the_weights_count_each_entry_s_light_by_its_albedo() {
     let mean = |v: &[Vec3]| v.iter().sum::<Vec3>() / v.len() as f32;
     let bias = mean(&at) / mean(&gt) - Vec3::ONE;
     println!("spot on a red runner: bias per channel {bias}, ground truth {} (noise {noise:.3})", mean(&gt));
-    assert!(bias.max_element() - bias.min_element() < 0.10, "bias per channel {bias}");
-    assert!(bias.abs().max_element() < 0.17, "bias per channel {bias}");
+    assert!(bias.max_element() - bias.min_element() < 0.08, "bias per channel {bias}");
+    assert!(bias.abs().max_element() < 0.13, "bias per channel {bias}");
 }
 
 #[test]
