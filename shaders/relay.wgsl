@@ -3,9 +3,8 @@
 // before far.wgsl lists its sources. relay_main, one invocation per cluster: u_c = sum over its
 // members with texels of t_j n_j / sum t_j, n_j the mean of the links' sum over the member's
 // cell's texels (0 at a texel the far field alone lights), then deviation_j += t_j (n_j - u_c)
-// for those members, so
-// that far.wgsl sends it with the entry's own deviation. Bindings, IndirectParams, NO_SLOT and
-// WG_LINEAR: the generated prelude.
+// for those members, so that far.wgsl sends it with the entry's own deviation. Bindings,
+// IndirectParams and WG_LINEAR: the generated prelude.
 
 fn linked(slot: u32) -> vec3f {
     if slot < params.near_texel_count {

@@ -16,8 +16,10 @@
 //! size_j`; the near links keep the rest, [`crate::near::near_links`]), and a visibility. Only the
 //! entries carrying a share of the deviation are sent (`prm_runtime::cpu::far_sources`).
 //!
-//! What is precomputed: the visibility. A bit per pair of entries within the far radius (one ray
-//! each; pairs that face away from each other get none), kept by blocks of 32 entries
+//! What is precomputed: the visibility, and per entry what the far field delivers of a unit of
+//! its deviation, for the runtime's cluster balance (`far_energy`). The visibility is a bit per
+//! pair of entries within the far radius (one ray each; pairs that face away from each other
+//! get none), kept by blocks of 32 entries
 //! ([`prm::prm_file::Far`]; the blocks are runs of the entries' order, which follows the
 //! triangles: compact where the level's triangles are), and per texel its nearest entries that face its way, with
 //! inverse-square-distance weights: a texel's visibility of entry j is the
@@ -98,8 +100,10 @@ pub fn far_field(
 /// What an update (`crate::update`) takes from the old bake's far field: the visibility of
 /// every pair of entry blocks both `settled` (each entry as it was, in a room the edit did
 /// not touch: `crate::update::Untouched::blocks`), and the energy of each settled `entry`.
-/// Such a pair's rays, and such an entry's, run through free space the edit did not reach,
-/// so they meet what they met before.
+/// Such a pair's rays run through free space the edit did not reach, so they meet what they
+/// met before; such an entry's energy is a sum over the far texels its pairs' bits light,
+/// which lie in its room, as they were (`far_energy`; a texel in no room borrows from any,
+/// and on edited geometry could differ: left as it is).
 ///
 /// A pair of blocks in rooms the edit touched is also taken when both blocks' entries are as
 /// they were (`same`, per block) and the box holding both blocks' entries misses every box of
@@ -481,8 +485,9 @@ struct Source {
 }
 
 impl Source {
-    /// Each entry's, with its cell's centroid and area (`cell`) and its cluster (0 for all
-    /// where `assignment` is empty); `flux` per W/m² of irradiance over the cell.
+    /// Each entry's, with its cell's centroid and area (`cell`) and its cluster (0 where
+    /// `assignment` has none: `far_energy` passes none); `flux` per W/m² of irradiance over
+    /// the cell.
     fn all(entries: &[Entry], cell: &[(Vec3, f32)], reach: f32, assignment: &[u32]) -> Vec<Source> {
         entries
             .iter()

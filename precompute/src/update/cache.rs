@@ -47,8 +47,11 @@ const MAGIC: [u8; 8] = *b"PRMUPDT\n";
 /// 6: the digests of the rows' inputs (`NextBounce::input_digests`) too; 7: those digests
 /// include the rows' cutoff of weak elements; 8: a texel's far-field digest leaves out the
 /// pairs in which its neighbour sees nothing; 9: the level's bounds (`prm::Scene::bounds`),
-/// which every ray's offsets follow (an update of a level whose bounds moved is refused).
-const VERSION: u32 = 9;
+/// which every ray's offsets follow (an update of a level whose bounds moved is refused); 10:
+/// the far field's energies are the runtime's own sums (`crate::far`), and an update keeps a
+/// settled entry's: an older bake's were estimates, so its cache is refused and the level
+/// baked whole.
+const VERSION: u32 = 10;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
