@@ -57,7 +57,8 @@ const MIN_NORMAL_DOT: f32 = 0.5;
 
 /// The far field for these entries: visibility bits between the pairs within `radius` of each
 /// other that could exchange light, each covered texel's neighbours, and each entry's energy
-/// (`far_energy`: what the runtime's far field delivers of it). `reach` and `radius` are in scene
+/// (`far_energy`: what the runtime's far field delivers of it; with `sum_energy` false left
+/// empty, for [`EnergySum`] to add up beside the first bounce, or [`energies`] after). `reach` and `radius` are in scene
 /// units; `cell` is each entry's cell centroid and area; `room` each entry's room
 /// (`prm::rooms`; empty: not known): two blocks of entries whose rooms all differ exchange
 /// no light and are not traced.
@@ -72,6 +73,7 @@ pub fn far_field(
     reach: f32,
     radius: f32,
     reuse: Option<&FarReuse>,
+    sum_energy: bool,
 ) -> Far {
     let n = entries.len();
     // Within the near reach the links carry everything: a radius no longer has nothing to send.
@@ -93,7 +95,9 @@ pub fn far_field(
     });
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
     let mut far = Far { reach, radius, block_first, pair_block, visible, texels, energy: Vec::new() };
-    far.energy = far_energy(&far, entries, cell, reuse);
+    if sum_energy {
+        far.energy = far_energy(&far, entries, cell, reuse);
+    }
     far
 }
 
@@ -163,7 +167,7 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
         wanted[j / Far::BLOCK] = true;
     }
     if wanted.contains(&true) {
-        let sources = Source::all(entries, cell, far.reach, &[]);
+        let sources = Sources::new(entries, cell, far.reach, &[]);
         let parts: Vec<Vec<(u32, f64)>> = far
             .texels
             .par_chunks(ENERGY_PART)
@@ -172,15 +176,10 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
                 |(acc, touched, visit): &mut (Vec<f64>, Vec<u32>, Visit), part| {
                     for t in part {
                         visit.sources(far, entries, &sources, t, Some(&wanted), |j, _, w| {
-                            if acc[j] == 0.0 {
-                                touched.push(j as u32);
-                            }
-                            acc[j] += w as f64;
+                            add_energy(acc, touched, j, w);
                         });
                     }
-                    touched.sort_unstable();
-                    touched.dedup();
-                    touched.drain(..).map(|j| (j, std::mem::take(&mut acc[j as usize]))).collect()
+                    take_part(acc, touched)
                 },
             )
             .collect();
@@ -188,11 +187,76 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
             sum[j as usize] += w;
         }
     }
-    entries
-        .iter()
-        .enumerate()
-        .map(|(j, e)| kept(j).unwrap_or((luminance(e.albedo) as f64 * e.area as f64 * sum[j]) as f32))
-        .collect()
+    entries.iter().enumerate().map(|(j, e)| kept(j).unwrap_or_else(|| energy_of(e, sum[j]))).collect()
+}
+
+/// [`far_energy`]'s sum for a level, not an update: `energies(far, entries, cell)`.
+pub fn energies(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)]) -> Vec<f32> {
+    far_energy(far, entries, cell, None)
+}
+
+/// One term of an entry's far-field energy, into a part's sums (`touched` lists the entries
+/// it holds).
+#[inline]
+fn add_energy(acc: &mut [f64], touched: &mut Vec<u32>, j: usize, w: f32) {
+    if acc[j] == 0.0 {
+        touched.push(j as u32);
+    }
+    acc[j] += w as f64;
+}
+
+/// A part's sums, entries ascending, and the scratch cleared for the next part.
+fn take_part(acc: &mut [f64], touched: &mut Vec<u32>) -> Vec<(u32, f64)> {
+    touched.sort_unstable();
+    touched.dedup();
+    touched.drain(..).map(|j| (j, std::mem::take(&mut acc[j as usize]))).collect()
+}
+
+/// Entry `e`'s far-field energy from the sum of its kernel over the far texels.
+fn energy_of(e: &Entry, sum: f64) -> f32 {
+    (luminance(e.albedo) as f64 * e.area as f64 * sum) as f32
+}
+
+/// [`far_energy`] added up while the first bounce is made ([`FirstBounce::add`] visits the
+/// same sources at the same far texels): the sweep of its own was 0.38 s of the chamber's
+/// 5.4 s. The terms are added in [`far_energy`]'s order, part by part of [`ENERGY_PART`] far
+/// texels, a part that runs across two calls carried from one to the next, so the energies
+/// are the same to the bit (an update sums only the entries it changed, with [`far_energy`],
+/// and must agree with a full precompute). A far texel seen again (bands that make their
+/// texels' first bounce twice) is not counted again; one missed, or texels out of order,
+/// leave the sum unfinished ([`EnergySum::finish`] gives None, and the caller sums alone).
+pub struct EnergySum {
+    sum: Vec<f64>,
+    /// The far texels added so far (they come in order).
+    next: usize,
+    /// The part the last call ended in, not yet added: its index and sums.
+    carry: Option<(usize, Vec<(u32, f64)>)>,
+    broken: bool,
+}
+
+impl EnergySum {
+    pub fn new(entries: usize) -> EnergySum {
+        EnergySum { sum: vec![0.0; entries], next: 0, carry: None, broken: false }
+    }
+
+    fn close(&mut self, part: Vec<(u32, f64)>) {
+        for (j, w) in part {
+            if let Some(s) = self.sum.get_mut(j as usize) {
+                *s += w;
+            }
+        }
+    }
+
+    /// The energies, if every far texel of `far` was added once, in order.
+    pub fn finish(mut self, far: &Far, entries: &[Entry]) -> Option<Vec<f32>> {
+        if self.broken || self.next != far.texels.len() || self.sum.len() != entries.len() {
+            return None;
+        }
+        if let Some((_, part)) = self.carry.take() {
+            self.close(part);
+        }
+        Some(entries.iter().zip(&self.sum).map(|(e, &s)| energy_of(e, s)).collect())
+    }
 }
 
 /// The entries' visibility by blocks of [`Far::BLOCK`] ([`Far`]): `(block_first, pair_block,
@@ -484,12 +548,30 @@ struct Source {
     none: f32,
 }
 
-impl Source {
+/// A block of [`Far::BLOCK`] sources' geometry, one array per coordinate: what
+/// [`Visit::sources`] reads of a whole block at once, so that the block's lanes go through
+/// the kernel's arithmetic together (the scalar loop over lit sources was a fifth of a
+/// chamber's precompute, run twice: the far energies and the first bounce). Lanes past the
+/// last entry have a zero normal, which faces nothing.
+#[derive(Clone, Copy)]
+struct Lanes {
+    centroid: [[f32; Far::BLOCK]; 3],
+    normal: [[f32; Far::BLOCK]; 3],
+    size2: [f32; Far::BLOCK],
+}
+
+/// The far-field sources of a level's entries ([`Source`]), and by blocks ([`Lanes`]).
+struct Sources {
+    each: Vec<Source>,
+    blocks: Vec<Lanes>,
+}
+
+impl Sources {
     /// Each entry's, with its cell's centroid and area (`cell`) and its cluster (0 where
     /// `assignment` has none: `far_energy` passes none); `flux` per W/m² of irradiance over
     /// the cell.
-    fn all(entries: &[Entry], cell: &[(Vec3, f32)], reach: f32, assignment: &[u32]) -> Vec<Source> {
-        entries
+    fn new(entries: &[Entry], cell: &[(Vec3, f32)], reach: f32, assignment: &[u32]) -> Sources {
+        let each: Vec<Source> = entries
             .iter()
             .zip(cell)
             .enumerate()
@@ -507,7 +589,26 @@ impl Source {
                     none: (reach * (1.0 - 1e-5)).max(0.0).powi(2),
                 }
             })
-            .collect()
+            .collect();
+        let blocks = each
+            .chunks(Far::BLOCK)
+            .map(|block| {
+                let mut lanes = Lanes {
+                    centroid: [[0.0; Far::BLOCK]; 3],
+                    normal: [[0.0; Far::BLOCK]; 3],
+                    size2: [0.0; Far::BLOCK],
+                };
+                for (r, s) in block.iter().enumerate() {
+                    for a in 0..3 {
+                        lanes.centroid[a][r] = s.centroid[a];
+                        lanes.normal[a][r] = s.normal[a];
+                    }
+                    lanes.size2[r] = s.size * s.size;
+                }
+                lanes
+            })
+            .collect();
+        Sources { each, blocks }
     }
 }
 
@@ -530,7 +631,7 @@ pub struct FirstBounce<'a> {
     entries: &'a [Entry],
     /// Per entry, what is read of its cell: in one record, as the inner loop of
     /// [`FirstBounce::add`] reads them (apart, they cost a cache line each).
-    sources: Vec<Source>,
+    sources: Sources,
     far: &'a Far,
     assignment: &'a [u32],
     clusters: usize,
@@ -546,7 +647,7 @@ impl<'a> FirstBounce<'a> {
         assignment: &'a [u32],
         clusters: usize,
     ) -> Self {
-        let sources = Source::all(entries, cell, far.reach, assignment);
+        let sources = Sources::new(entries, cell, far.reach, assignment);
         FirstBounce { set, entries, sources, far, assignment, clusters }
     }
 
@@ -567,10 +668,10 @@ impl<'a> FirstBounce<'a> {
         let source: Vec<u64> = (0..entries.len())
             .into_par_iter()
             .map(|j| {
-                let h = mix_floats(mix_word(0, j as u64), &self.sources[j].centroid.to_array());
+                let h = mix_floats(mix_word(0, j as u64), &self.sources.each[j].centroid.to_array());
                 let h = mix_floats(h, &entries[j].normal.to_array());
-                let h = mix_floats(h, &[self.sources[j].size]);
-                let h = mix_floats(h, &self.sources[j].flux.to_array());
+                let h = mix_floats(h, &[self.sources.each[j].size]);
+                let h = mix_floats(h, &self.sources.each[j].flux.to_array());
                 mix_word(h, u64::from(self.assignment[j]))
             })
             .collect();
@@ -586,7 +687,7 @@ impl<'a> FirstBounce<'a> {
                     _ => 0..0,
                 };
                 let mut h = mix_floats(mix_word(0, q as u64), &entries[q].normal.to_array());
-                h = mix_floats(h, &self.sources[q].centroid.to_array());
+                h = mix_floats(h, &self.sources.each[q].centroid.to_array());
                 h = mix_word(h, source[q]);
                 for a in run {
                     let (other, mut word) = (far.pair_block[a] as usize, far.visible[a * B + q % B]);
@@ -627,52 +728,154 @@ impl<'a> FirstBounce<'a> {
             .collect()
     }
 
-    /// Adds the far field's first bounce at covered texels `texels` (set indices) to `out`
-    /// (one per texel, clusters ascending; what the links gave is already there). Texels the
-    /// far field does not light get nothing.
-    pub fn add(&self, texels: &[usize], out: &mut [crate::transport::TexelPanes]) {
+    /// Adds the far field's first bounce at covered texels `texels` (set indices, ascending) to
+    /// `out` (one per texel, clusters ascending; what the links gave is already there). Texels
+    /// the far field does not light get nothing. With `energy`, the far texels' terms of
+    /// [`far_energy`] are added up there too ([`EnergySum`]).
+    pub fn add(
+        &self,
+        texels: &[usize],
+        out: &mut [crate::transport::TexelPanes],
+        energy: Option<&mut EnergySum>,
+    ) {
         let (set, far) = (self.set, self.far);
-        let sources = &self.sources;
         if far.texels.is_empty() {
             return;
         }
-        let of_texel = |k: usize| {
+        let far_index = |k: usize| {
             let t = set.texels.get(k)?;
             let atlas = t.j * set.width + t.i;
-            far.texels.binary_search_by_key(&atlas, |f| f.texel).ok().map(|i| &far.texels[i])
+            far.texels.binary_search_by_key(&atlas, |f| f.texel).ok()
         };
-        out.par_iter_mut().zip(texels).for_each_init(
-            || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(self.entries.len())),
-            |(acc, touched, visit): &mut (Vec<Vec3>, Vec<u32>, Visit), (out, &k)| {
-                let Some(t) = of_texel(k) else { return };
-                visit.sources(far, self.entries, sources, t, None, |_, src, w| {
-                    let c = src.cluster as usize;
-                    if acc[c] == Vec3::ZERO {
-                        touched.push(c as u32);
-                    }
-                    acc[c] += src.flux * w;
-                });
-                for &(c, v) in out.iter() {
-                    if acc[c as usize] == Vec3::ZERO {
-                        touched.push(c);
-                    }
-                    acc[c as usize] += v;
+        let n = self.entries.len();
+        let Some(sum) = energy.filter(|s| !s.broken) else {
+            out.par_iter_mut().zip(texels).for_each_init(
+                || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(n)),
+                |(acc, touched, visit), (out, &k)| {
+                    let Some(i) = far_index(k) else { return };
+                    self.one_texel(&far.texels[i], out, acc, touched, visit, |_, _| {});
+                },
+            );
+            return;
+        };
+        // Per texel its far texel, and whether its terms are added (the next far texel in
+        // order); runs of texels whose far texels lie in one part of ENERGY_PART.
+        let mut runs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+        let mut far_of: Vec<Option<(usize, bool)>> = Vec::with_capacity(texels.len());
+        for (x, &k) in texels.iter().enumerate() {
+            let i = far_index(k);
+            let counted = match i {
+                Some(i) if i == sum.next => {
+                    sum.next += 1;
+                    true
                 }
-                touched.sort_unstable();
-                touched.dedup();
-                out.clear();
-                // Room for exactly what comes: grown by doubling, a band's lists held 40 %
-                // more than they used (50 MB on the 16 chambers).
-                out.reserve_exact(touched.len());
-                for &c in touched.iter() {
-                    let v = std::mem::take(&mut acc[c as usize]);
-                    if v != Vec3::ZERO {
-                        out.push((c, v));
-                    }
+                Some(i) if i > sum.next => {
+                    sum.broken = true;
+                    false
                 }
-                touched.clear();
-            },
-        );
+                _ => false,
+            };
+            far_of.push(i.map(|i| (i, counted && !sum.broken)));
+            // A texel with no far texel joins the run it lies in (or the first one).
+            match (runs.last_mut(), i.map(|i| i / ENERGY_PART)) {
+                (Some((p, r)), Some(part)) if *p == part => r.end = x + 1,
+                (Some((_, r)), None) => r.end = x + 1,
+                (Some((_, r)), Some(part)) => {
+                    let start = r.end;
+                    runs.push((part, start..x + 1));
+                }
+                (None, Some(part)) => runs.push((part, 0..x + 1)),
+                (None, None) => {}
+            }
+        }
+        // The part carried from the last call goes on in the first run if it is the same.
+        let carry = sum.carry.take();
+        let (carried, closed) = match carry {
+            Some((p, part)) if runs.first().is_some_and(|(q, _)| *q == p) => (Some(part), None),
+            other => (None, other.map(|(_, part)| part)),
+        };
+        if let Some(part) = closed {
+            sum.close(part);
+        }
+        let mut pieces: Vec<(&mut [crate::transport::TexelPanes], std::ops::Range<usize>)> = Vec::new();
+        let mut rest = out;
+        for (_, r) in &runs {
+            let (piece, tail) = rest.split_at_mut(r.len().min(rest.len()));
+            pieces.push((piece, r.clone()));
+            rest = tail;
+        }
+        let far_of = &far_of;
+        let parts: Vec<Vec<(u32, f64)>> = pieces
+            .into_par_iter()
+            .enumerate()
+            .map_init(
+                || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(n), vec![0.0f64; n], Vec::new()),
+                |(acc, touched, visit, energy, listed), (x, (piece, r))| {
+                    if x == 0 {
+                        for &(j, w) in carried.iter().flatten() {
+                            energy[j as usize] = w;
+                            listed.push(j);
+                        }
+                    }
+                    for (out, x) in piece.iter_mut().zip(r) {
+                        let Some((i, counted)) = far_of[x] else { continue };
+                        self.one_texel(&far.texels[i], out, acc, touched, visit, |j, w| {
+                            if counted {
+                                add_energy(energy, listed, j, w);
+                            }
+                        });
+                    }
+                    take_part(energy, listed)
+                },
+            )
+            .collect();
+        let mut parts: Vec<(usize, Vec<(u32, f64)>)> = runs.iter().map(|(p, _)| *p).zip(parts).collect();
+        if let Some((p, last)) = parts.pop() {
+            for (_, part) in parts {
+                sum.close(part);
+            }
+            sum.carry = Some((p, last));
+        }
+    }
+
+    /// The far field's first bounce at far texel `t` added to its list `out` (clusters
+    /// ascending), each source's term also given to `term(j, w)`.
+    fn one_texel(
+        &self,
+        t: &FarTexel,
+        out: &mut crate::transport::TexelPanes,
+        acc: &mut [Vec3],
+        touched: &mut Vec<u32>,
+        visit: &mut Visit,
+        mut term: impl FnMut(usize, f32),
+    ) {
+        visit.sources(self.far, self.entries, &self.sources, t, None, |j, src, w| {
+            let c = src.cluster as usize;
+            if acc[c] == Vec3::ZERO {
+                touched.push(c as u32);
+            }
+            acc[c] += src.flux * w;
+            term(j, w);
+        });
+        for &(c, v) in out.iter() {
+            if acc[c as usize] == Vec3::ZERO {
+                touched.push(c);
+            }
+            acc[c as usize] += v;
+        }
+        touched.sort_unstable();
+        touched.dedup();
+        out.clear();
+        // Room for exactly what comes: grown by doubling, a band's lists held 40 %
+        // more than they used (50 MB on the 16 chambers).
+        out.reserve_exact(touched.len());
+        for &c in touched.iter() {
+            let v = std::mem::take(&mut acc[c as usize]);
+            if v != Vec3::ZERO {
+                out.push((c, v));
+            }
+        }
+        touched.clear();
     }
 }
 
@@ -692,12 +895,17 @@ impl Visit {
     /// blocks of [`Far::BLOCK`] entries `wanted` marks, where given), with
     /// `w = share V cos_x cos_j / (pi r² max(r², s_j²))`: what it delivers there per W of
     /// deviation flux, as the runtime's far field (`prm_runtime::cpu::far_field`) computes it.
+    ///
+    /// A block's geometry goes through the kernel lane by lane ([`Lanes`]), the share and the
+    /// vote then source by source where they are not 1 (few: the sources past the near reach
+    /// that every neighbour sees). The operations are the scalar formula's, in its order, so
+    /// `w` is the same to the bit.
     #[inline]
     fn sources(
         &mut self,
         far: &Far,
         entries: &[Entry],
-        sources: &[Source],
+        sources: &Sources,
         t: &FarTexel,
         wanted: Option<&[bool]>,
         mut f: impl FnMut(usize, &Source, f32),
@@ -738,9 +946,10 @@ impl Visit {
                 word &= word - 1;
             }
         }
+        let each = &sources.each;
         // Each neighbour's facing test as a plane: n_q . c_j > n_q . c_q.
         let planes: [(Vec3, f32); NEIGHBOURS] =
-            std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(sources[q[k]].centroid)));
+            std::array::from_fn(|k| (entries[q[k]].normal, entries[q[k]].normal.dot(each[q[k]].centroid)));
         let mut at = runs.clone().map(|r| r.start);
         let (p, n) = (t.position, t.normal);
         for &b in blocks.iter() {
@@ -748,6 +957,7 @@ impl Visit {
             if wanted.is_some_and(|w| !w.get(b).copied().unwrap_or(false)) {
                 continue;
             }
+            let Some(lanes) = sources.blocks.get(b) else { continue };
             let bits: [u32; NEIGHBOURS] = std::array::from_fn(|k| {
                 while at[k] < runs[k].end && (far.pair_block[at[k]] as usize) < b {
                     at[k] += 1;
@@ -763,19 +973,33 @@ impl Visit {
             });
             // An entry no neighbour sees gets no light from the vote.
             let mut any = bits.iter().fold(0, |a, w| a | w);
+            if any == 0 {
+                continue;
+            }
             let every = bits.iter().zip(real).filter(|(_, r)| *r).fold(u32::MAX, |a, (w, _)| a & w);
+            // The kernel in every lane: the cosines, r² and `cos_x cos_j / (pi r² max(r², s²))`
+            // (the whole of w where the share and the vote are 1), and which lanes face.
+            let (mut cosx, mut cosy, mut dist2, mut kernel) =
+                ([0.0f32; B], [0.0f32; B], [0.0f32; B], [0.0f32; B]);
+            let mut facing = 0u32;
+            for r in 0..B {
+                let d = [lanes.centroid[0][r] - p.x, lanes.centroid[1][r] - p.y, lanes.centroid[2][r] - p.z];
+                let cx = n.x * d[0] + n.y * d[1] + n.z * d[2];
+                let cy = -(lanes.normal[0][r] * d[0] + lanes.normal[1][r] * d[1] + lanes.normal[2][r] * d[2]);
+                let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                cosx[r] = cx;
+                cosy[r] = cy;
+                dist2[r] = r2;
+                kernel[r] = cx * cy / (std::f32::consts::PI * r2 * r2.max(lanes.size2[r]));
+                facing |= u32::from(cx > 0.0 && cy > 0.0) << r;
+            }
+            any &= facing;
             while any != 0 {
                 let r = any.trailing_zeros() as usize;
                 any &= any - 1;
                 let j = b * B + r;
-                let Some(src) = sources.get(j) else { continue };
-                let centroid = src.centroid;
-                let d = centroid - p;
-                let (cx, cy) = (n.dot(d), -src.normal.dot(d));
-                if cx <= 0.0 || cy <= 0.0 {
-                    continue;
-                }
-                let r2 = d.length_squared();
+                let Some(src) = each.get(j) else { continue };
+                let r2 = dist2[r];
                 // The far share without its square root and division where it is 0 or 1
                 // (most sources: the same values).
                 let share = if r2 >= src.whole {
@@ -792,6 +1016,7 @@ impl Visit {
                 let v = if every >> r & 1 == 1 {
                     1.0
                 } else {
+                    let centroid = src.centroid;
                     far_vote(
                         &t.weights,
                         |k| bits[k] >> r & 1 == 1,
@@ -801,8 +1026,13 @@ impl Visit {
                 if v <= 0.0 {
                     continue;
                 }
-                let s2 = src.size * src.size;
-                f(j, src, share * v * cx * cy / (std::f32::consts::PI * r2 * r2.max(s2)));
+                let w = if share == 1.0 && v == 1.0 {
+                    kernel[r]
+                } else {
+                    let s2 = lanes.size2[r];
+                    share * v * cosx[r] * cosy[r] / (std::f32::consts::PI * r2 * r2.max(s2))
+                };
+                f(j, src, w);
             }
         }
     }
@@ -866,6 +1096,114 @@ mod tests {
     /// ceiling, whose neighbours see entry 37 of the second block and not entry 38. Moving 38 to
     /// another cluster changes neither the texel's first bounce nor its digest; moving 37 changes
     /// both, and so does its flux, or a neighbour's bit.
+    /// The energies added up beside the first bounce ([`EnergySum`]) are [`far_energy`]'s to
+    /// the bit, over calls that split parts, make a run of texels twice (as bands do) and pass
+    /// texels the far field does not light; a far texel missed leaves the sum unfinished. And
+    /// the first bounce is the same with the sum as without.
+    #[test]
+    #[allow(clippy::single_range_in_vec_init)] // one call over a run of texels
+    fn energies_summed_with_the_first_bounce_are_the_sweep_s() {
+        const B: usize = Far::BLOCK;
+        let (w, h) = (64u32, 48u32);
+        // 64 floor entries on an 8 x 8 grid, two blocks that see each other and themselves
+        // by a scatter of bits.
+        let entries: Vec<Entry> = (0..2 * B)
+            .map(|j| Entry {
+                position: Vec3::new((j % 8) as f32 * 0.8, 0.0, (j / 8) as f32 * 0.6),
+                normal: Vec3::Y,
+                albedo: Vec3::new(0.6, 0.5, 0.4),
+                area: 0.4,
+                triangle: j as u32,
+            })
+            .collect();
+        let mut state = 0x9e37_79b9u32;
+        let mut bits = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state | state >> 3
+        };
+        let visible: Vec<u32> = (0..4 * B).map(|_| bits()).collect();
+        // A ceiling texel at every atlas texel but every fifth; every seventh has no far texel.
+        let mut set = TexelSet {
+            width: w,
+            height: h,
+            texels: Vec::new(),
+            index: vec![TexelSet::EMPTY; (w * h) as usize],
+            dilation: Vec::new(),
+            zero_uv_area_triangles: 0,
+            shared_gutter_texels: 0,
+            buried: Default::default(),
+        };
+        let mut texels = Vec::new();
+        for a in (0..w * h).filter(|a| a % 5 != 0) {
+            let (i, j) = (a % w, a / w);
+            let position = Vec3::new(i as f32 * 0.1, 2.0, j as f32 * 0.1);
+            set.index[a as usize] = set.texels.len() as u32;
+            set.texels.push(prm::Texel {
+                i,
+                j,
+                position,
+                normal: Vec3::NEG_Y,
+                triangle: 0,
+                bary: Vec3::splat(1.0 / 3.0),
+            });
+            if a % 7 != 0 {
+                let q = (a as usize * 7) % (2 * B);
+                texels.push(FarTexel {
+                    texel: a,
+                    position,
+                    normal: Vec3::NEG_Y,
+                    entries: [q as u32, ((q + 1) % (2 * B)) as u32, ((q + 8) % (2 * B)) as u32, 3],
+                    weights: [0.4, 0.3, 0.2, 0.1],
+                });
+            }
+        }
+        assert!(texels.len() > 2 * ENERGY_PART, "{} far texels", texels.len());
+        let far = Far {
+            reach: 0.5,
+            radius: 100.0,
+            block_first: vec![0, 2, 4],
+            pair_block: vec![0, 1, 0, 1],
+            visible,
+            texels,
+            energy: Vec::new(),
+        };
+        let cell: Vec<(Vec3, f32)> = entries.iter().map(|e| (e.position + Vec3::X * 0.05, e.area)).collect();
+        let assignment: Vec<u32> = (0..2 * B as u32).map(|j| j % 5).collect();
+        let first = FirstBounce::new(&set, &entries, &cell, &far, &assignment, 5);
+        let sweep = far_energy(&far, &entries, &cell, None);
+        assert!(sweep.iter().all(|&e| e > 0.0), "{sweep:?}");
+        let n = set.len();
+        let calls = |ranges: &[std::ops::Range<usize>], sum: Option<&mut EnergySum>| {
+            let mut sum = sum;
+            let mut lists = vec![Vec::new(); n];
+            for r in ranges {
+                let texels: Vec<usize> = r.clone().collect();
+                let mut out = vec![vec![(0u32, Vec3::splat(1e-3))]; r.len()];
+                first.add(&texels, &mut out, sum.as_deref_mut());
+                lists[r.clone()].clone_from_slice(&out);
+            }
+            lists
+        };
+        let plain = calls(&[0..n], None);
+        let bands = [0..700, 500..1900, 1900..1901, 1901..n];
+        let mut sum = EnergySum::new(entries.len());
+        assert_eq!(calls(&bands, Some(&mut sum)), plain, "the first bounce moved with the sum");
+        let summed = sum.finish(&far, &entries).expect("every far texel was added");
+        let bits = |e: &[f32]| e.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&summed), bits(&sweep));
+        let mut whole = EnergySum::new(entries.len());
+        calls(&[0..n], Some(&mut whole));
+        assert_eq!(whole.finish(&far, &entries).map(|e| bits(&e)), Some(bits(&sweep)));
+        let mut gap = EnergySum::new(entries.len());
+        calls(&[0..700, 900..n], Some(&mut gap));
+        assert!(gap.finish(&far, &entries).is_none(), "texels 700..900 were missed");
+        let mut short = EnergySum::new(entries.len());
+        calls(&[0..700], Some(&mut short));
+        assert!(short.finish(&far, &entries).is_none(), "the sum stopped at texel 700");
+    }
+
     #[test]
     fn input_digests_follow_what_the_first_bounce_reads() {
         const B: usize = Far::BLOCK;
@@ -908,7 +1246,7 @@ mod tests {
         let lit = |far: &Far, assignment: &[u32], cell: &[(Vec3, f32)]| {
             let first = FirstBounce::new(&set, &entries, cell, far, assignment, 4);
             let mut out = vec![Vec::new()];
-            first.add(&[0], &mut out);
+            first.add(&[0], &mut out, None);
             (out.remove(0), first.input_digests()[0])
         };
         let assignment = vec![0u32; 2 * B];

@@ -18,6 +18,7 @@ use prm::{Bvh, Scene};
 use serde::Serialize;
 
 use crate::cluster::Clustering;
+use crate::far::EnergySum;
 use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
@@ -874,6 +875,19 @@ pub(crate) fn finish(
     (pre.keep, pre.smoothing) = (None, None);
     pre.owners = crate::cells::CellOwners::default();
     crate::memory::release_freed();
+    // The far field's energies, where the preamble left them: added up beside the first
+    // bounce, or (without it) summed now.
+    if !pre.far.texels.is_empty() && pre.far.energy.is_empty() {
+        pre.far.energy = match acc.far_energy {
+            Some(e) => e,
+            None => {
+                let t = Instant::now();
+                let energies = crate::far::energies(&pre.far, &pre.entries, &pre.cell());
+                report.seconds_far += t.elapsed().as_secs_f64();
+                energies
+            }
+        };
+    }
     let t = Instant::now();
     let encoder = Encoder::new(&pre.set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let (members, threshold) = (&pre.clustering.members, params.drop_threshold);
@@ -917,6 +931,8 @@ pub(crate) fn finish(
 
 /// The panes being encoded: the clusters', the groups' and the dipoles' (if any).
 pub(crate) struct Encoded {
+    /// The far field's energies where they were added up beside the first bounce.
+    pub(crate) far_energy: Option<Vec<f32>>,
     pub(crate) fine: Accumulated,
     pub(crate) groups: Accumulated,
     pub(crate) dipoles: Option<Accumulated>,
@@ -951,6 +967,7 @@ pub(crate) fn walk_and_encode(
     let encoder = Encoder::new(set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let clusters = pre.clustering.members.len();
     let mut out = Encoded {
+        far_energy: None,
         fine: Accumulated::new(clusters)?,
         groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
         dipoles: if pre.dipoles.is_empty() { None } else { Some(Accumulated::new(3 * pre.dipoles.len())?) },
@@ -964,6 +981,10 @@ pub(crate) fn walk_and_encode(
         (0, Vec::new(), Vec::new());
     let n = set.len();
     let first_bounce = pre.first_bounce();
+    // The far field's energies, added up beside the first bounce where the preamble left them
+    // (a full precompute: `crate::far::EnergySum`).
+    let mut energy = (need.is_none() && first_bounce.is_some() && pre.far.energy.is_empty())
+        .then(|| EnergySum::new(pre.entries.len()));
     // The last band's exact first bounce and its texels.
     let (mut last, mut last_at): (Vec<TexelPanes>, std::ops::Range<usize>) = (Vec::new(), 0..0);
     let bands = encoder.bands();
@@ -996,9 +1017,9 @@ pub(crate) fn walk_and_encode(
             Vec::new()
         };
         if kept.start == range.start && !exact.is_empty() {
-            exact.extend(pre.band_exact(kept.end..range.end, first_bounce.as_ref(), need));
+            exact.extend(pre.band_exact(kept.end..range.end, first_bounce.as_ref(), need, energy.as_mut()));
         } else {
-            exact = pre.band_exact(range.clone(), first_bounce.as_ref(), need);
+            exact = pre.band_exact(range.clone(), first_bounce.as_ref(), need, energy.as_mut());
         }
         let fine_reuse = reuse.map(|(dirty, fine, _)| (dirty, fine));
         encoder.encode_band(band, first, &panes, &exact, &mut out.fine, fine_reuse)?;
@@ -1023,6 +1044,7 @@ pub(crate) fn walk_and_encode(
         }
         report.seconds_panes += t.elapsed().as_secs_f64();
     }
+    out.far_energy = energy.and_then(|e| e.finish(&pre.far, &pre.entries));
     Ok(out)
 }
 /// Each texel's contributions summed by group, its list ascending by group as every pane list

@@ -17,7 +17,7 @@ use super::{Phase, PrecomputeError, PrecomputeParams, Report};
 use crate::cells::{entry_cells_in_rooms, entry_rooms, filled_rooms, CellOwners, CellReport};
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
-use crate::far::{far_field, FarReuse, FirstBounce};
+use crate::far::{far_field, EnergySum, FarReuse, FirstBounce};
 use crate::near::{echo_links, near_links, EchoReuse, NearReuse};
 use crate::parallel::stop_if;
 use crate::transport::{
@@ -213,8 +213,21 @@ impl Preamble {
                     }),
                     _ => None,
                 };
-                let far =
-                    far_field(bvh, &set, &entries, &room, &texel_room, &cell, reach, radius, reuse.as_ref());
+                // A full precompute adds up the far field's energies while it makes the first
+                // bounce (`walk_and_encode`); an update sums those of the entries it changed.
+                let sum = reuse.is_some();
+                let far = far_field(
+                    bvh,
+                    &set,
+                    &entries,
+                    &room,
+                    &texel_room,
+                    &cell,
+                    reach,
+                    radius,
+                    reuse.as_ref(),
+                    sum,
+                );
                 (far, reuse.map_or(0, |r| r.by_geometry.into_inner()))
             } else {
                 (Far::default(), 0)
@@ -350,15 +363,20 @@ impl Preamble {
         report.echo_links = self.echo.links.len();
     }
 
+    /// Each entry's cell centroid and area, as the far field reads them.
+    pub(crate) fn cell(&self) -> Vec<(Vec3, f32)> {
+        (0..self.entries.len())
+            .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
+            .collect()
+    }
+
     /// The far field's first bounce for the exact panes (`crate::far::FirstBounce`): with the
     /// walks' next-bounce table only. Made once per use of [`Preamble::band_exact`]'s loop.
     pub(crate) fn first_bounce(&self) -> Option<FirstBounce<'_>> {
         if !self.next_on {
             return None;
         }
-        let cell: Vec<(Vec3, f32)> = (0..self.entries.len())
-            .map(|j| (self.cells.centroid(j).unwrap_or(self.entries[j].position), self.cells.area(j)))
-            .collect();
+        let cell = self.cell();
         let clusters = self.clustering.members.len();
         Some(FirstBounce::new(
             &self.set,
@@ -459,12 +477,14 @@ impl Preamble {
     /// field's too where `first` is given ([`Preamble::first_bounce`]), made here so that it is
     /// never held for the whole level.
     /// With `need` (an update's texels walked again) only the texels it marks get theirs;
-    /// the others', which are taken from the cache, are left empty.
+    /// the others', which are taken from the cache, are left empty. Without it, `energy`
+    /// adds up the far field's energies as the far field's part is made.
     pub(crate) fn band_exact(
         &self,
         range: std::ops::Range<usize>,
         first: Option<&FirstBounce>,
         need: Option<&[bool]>,
+        energy: Option<&mut EnergySum>,
     ) -> Vec<TexelPanes> {
         let linked = self.keep.is_some();
         if !linked && first.is_none() {
@@ -493,12 +513,12 @@ impl Preamble {
         if let Some(first) = first {
             if need.is_none() {
                 let texels: Vec<usize> = range.collect();
-                first.add(&texels, &mut out);
+                first.add(&texels, &mut out, energy);
             } else {
                 let texels: Vec<usize> = runs.iter().flat_map(|r| r.clone()).collect();
                 let mut some: Vec<TexelPanes> =
                     texels.iter().map(|&k| std::mem::take(&mut out[k - range.start])).collect();
-                first.add(&texels, &mut some);
+                first.add(&texels, &mut some, None);
                 for (&k, e) in texels.iter().zip(some) {
                     out[k - range.start] = e;
                 }

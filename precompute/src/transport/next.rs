@@ -163,7 +163,7 @@ impl NextBounce {
         for cells in (0..entries).collect::<Vec<_>>().chunks(CELL_CHUNK) {
             let flat: Vec<usize> = cells.iter().flat_map(|&e| sample(e)).collect();
             let mut exact: Vec<TexelPanes> = flat.par_iter().map(|&k| links(k)).collect();
-            first.add(&flat, &mut exact);
+            first.add(&flat, &mut exact, None);
             let mut from = vec![0usize; cells.len() + 1];
             for (i, &e) in cells.iter().enumerate() {
                 from[i + 1] = from[i] + sample(e).count();
