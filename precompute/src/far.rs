@@ -747,13 +747,13 @@ impl<'a> FirstBounce<'a> {
             let atlas = t.j * set.width + t.i;
             far.texels.binary_search_by_key(&atlas, |f| f.texel).ok()
         };
-        let n = self.entries.len();
+        let (n, marks) = (self.entries.len(), self.clusters.div_ceil(64));
         let Some(sum) = energy.filter(|s| !s.broken) else {
             out.par_iter_mut().zip(texels).for_each_init(
-                || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(n)),
-                |(acc, touched, visit), (out, &k)| {
+                || (vec![Vec3::ZERO; self.clusters], vec![0u64; marks], Visit::new(n)),
+                |(acc, marks, visit), (out, &k)| {
                     let Some(i) = far_index(k) else { return };
-                    self.one_texel(&far.texels[i], out, acc, touched, visit, |_, _| {});
+                    self.one_texel(&far.texels[i], out, acc, marks, visit, |_, _| {});
                 },
             );
             return;
@@ -809,8 +809,16 @@ impl<'a> FirstBounce<'a> {
             .into_par_iter()
             .enumerate()
             .map_init(
-                || (vec![Vec3::ZERO; self.clusters], Vec::new(), Visit::new(n), vec![0.0f64; n], Vec::new()),
-                |(acc, touched, visit, energy, listed), (x, (piece, r))| {
+                || {
+                    (
+                        vec![Vec3::ZERO; self.clusters],
+                        vec![0u64; marks],
+                        Visit::new(n),
+                        vec![0.0f64; n],
+                        Vec::new(),
+                    )
+                },
+                |(acc, marks, visit, energy, listed), (x, (piece, r))| {
                     if x == 0 {
                         for &(j, w) in carried.iter().flatten() {
                             energy[j as usize] = w;
@@ -819,7 +827,7 @@ impl<'a> FirstBounce<'a> {
                     }
                     for (out, x) in piece.iter_mut().zip(r) {
                         let Some((i, counted)) = far_of[x] else { continue };
-                        self.one_texel(&far.texels[i], out, acc, touched, visit, |j, w| {
+                        self.one_texel(&far.texels[i], out, acc, marks, visit, |j, w| {
                             if counted {
                                 add_energy(energy, listed, j, w);
                             }
@@ -839,43 +847,43 @@ impl<'a> FirstBounce<'a> {
     }
 
     /// The far field's first bounce at far texel `t` added to its list `out` (clusters
-    /// ascending), each source's term also given to `term(j, w)`.
+    /// ascending), each source's term also given to `term(j, w)`. `marks` has a bit per
+    /// cluster, zero on entry and on return: the clusters lit are read back from it in order
+    /// (a sort of them per texel was a tenth of the sweep).
     fn one_texel(
         &self,
         t: &FarTexel,
         out: &mut crate::transport::TexelPanes,
         acc: &mut [Vec3],
-        touched: &mut Vec<u32>,
+        marks: &mut [u64],
         visit: &mut Visit,
         mut term: impl FnMut(usize, f32),
     ) {
         visit.sources(self.far, self.entries, &self.sources, t, None, |j, src, w| {
             let c = src.cluster as usize;
-            if acc[c] == Vec3::ZERO {
-                touched.push(c as u32);
-            }
+            marks[c / 64] |= 1 << (c % 64);
             acc[c] += src.flux * w;
             term(j, w);
         });
         for &(c, v) in out.iter() {
-            if acc[c as usize] == Vec3::ZERO {
-                touched.push(c);
-            }
+            marks[c as usize / 64] |= 1 << (c % 64);
             acc[c as usize] += v;
         }
-        touched.sort_unstable();
-        touched.dedup();
         out.clear();
         // Room for exactly what comes: grown by doubling, a band's lists held 40 %
         // more than they used (50 MB on the 16 chambers).
-        out.reserve_exact(touched.len());
-        for &c in touched.iter() {
-            let v = std::mem::take(&mut acc[c as usize]);
-            if v != Vec3::ZERO {
-                out.push((c, v));
+        out.reserve_exact(marks.iter().map(|w| w.count_ones() as usize).sum());
+        for (i, w) in marks.iter_mut().enumerate() {
+            let mut word = std::mem::take(w);
+            while word != 0 {
+                let c = i * 64 + word.trailing_zeros() as usize;
+                word &= word - 1;
+                let v = std::mem::take(&mut acc[c]);
+                if v != Vec3::ZERO {
+                    out.push((c as u32, v));
+                }
             }
         }
-        touched.clear();
     }
 }
 
