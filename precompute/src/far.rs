@@ -190,7 +190,7 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
     entries.iter().enumerate().map(|(j, e)| kept(j).unwrap_or_else(|| energy_of(e, sum[j]))).collect()
 }
 
-/// [`far_energy`]'s sum for a level, not an update: `energies(far, entries, cell)`.
+/// Each entry's far-field energy (`far_energy`, the sweep) for a level, not an update.
 pub fn energies(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)]) -> Vec<f32> {
     far_energy(far, entries, cell, None)
 }
@@ -217,11 +217,11 @@ fn energy_of(e: &Entry, sum: f64) -> f32 {
     (luminance(e.albedo) as f64 * e.area as f64 * sum) as f32
 }
 
-/// [`far_energy`] added up while the first bounce is made ([`FirstBounce::add`] visits the
+/// `far_energy` added up while the first bounce is made ([`FirstBounce::add`] visits the
 /// same sources at the same far texels): the sweep of its own was 0.38 s of the chamber's
-/// 5.4 s. The terms are added in [`far_energy`]'s order, part by part of [`ENERGY_PART`] far
+/// 5.4 s. The terms are added in `far_energy`'s order, part by part of `ENERGY_PART` far
 /// texels, a part that runs across two calls carried from one to the next, so the energies
-/// are the same to the bit (an update sums only the entries it changed, with [`far_energy`],
+/// are the same to the bit (an update sums only the entries it changed, with `far_energy`,
 /// and must agree with a full precompute). A far texel seen again (bands that make their
 /// texels' first bounce twice) is not counted again; one missed, or texels out of order,
 /// leave the sum unfinished ([`EnergySum::finish`] gives None, and the caller sums alone).
@@ -731,7 +731,7 @@ impl<'a> FirstBounce<'a> {
     /// Adds the far field's first bounce at covered texels `texels` (set indices, ascending) to
     /// `out` (one per texel, clusters ascending; what the links gave is already there). Texels
     /// the far field does not light get nothing. With `energy`, the far texels' terms of
-    /// [`far_energy`] are added up there too ([`EnergySum`]).
+    /// `far_energy` are added up there too ([`EnergySum`]).
     pub fn add(
         &self,
         texels: &[usize],
