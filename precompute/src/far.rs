@@ -138,8 +138,14 @@ impl FarReuse<'_> {
 }
 
 /// Far texels per part of [`far_energy`]'s sweep: each part sums its texels in their order,
-/// and the parts are added in theirs, so the sums are the same at any thread count.
-const ENERGY_PART: usize = 1024;
+/// and the parts are added in theirs, so the sums are the same at any thread count. A part is
+/// also what [`FirstBounce::add`] sums on one thread: a band of one tile row holds a few
+/// thousand far texels, so at 1,024 a band ran on two or three threads.
+const ENERGY_PART: usize = 128;
+
+/// Parts of [`far_energy`]'s sweep made at once before they are added (each holds a sum per
+/// entry it reached: on the 16 chambers a few thousand).
+const ENERGY_PARTS_AT_ONCE: usize = 64;
 
 /// Per entry j, the energy (luminance summed over texels, a pane's unit) the far field
 /// delivers per W/m² of deviation: `albedo_j (A/N) sum over far texels x of w_j(x)`, where
@@ -160,22 +166,32 @@ const ENERGY_PART: usize = 1024;
 fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<&FarReuse>) -> Vec<f32> {
     let n = entries.len();
     let kept = |j: usize| reuse.filter(|r| r.entry[j]).map(|r| r.old.energy[j]);
-    let mut sum = vec![0.0f64; n];
     // The blocks holding an entry whose energy is summed: an update's edit touches few.
     let mut wanted = vec![false; Far::blocks(n)];
     for j in (0..n).filter(|&j| kept(j).is_none()) {
         wanted[j / Far::BLOCK] = true;
     }
-    if wanted.contains(&true) {
-        let sources = Sources::new(entries, cell, far.reach, &[]);
-        let parts: Vec<Vec<(u32, f64)>> = far
-            .texels
+    let sum = far_sums(far, entries, cell, &wanted);
+    entries.iter().enumerate().map(|(j, e)| kept(j).unwrap_or_else(|| energy_of(e, sum[j]))).collect()
+}
+
+/// [`far_energy`]'s sums of the kernel per entry, over the entries of the blocks `wanted`
+/// marks (0 for the others).
+fn far_sums(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], wanted: &[bool]) -> Vec<f64> {
+    let n = entries.len();
+    let mut sum = vec![0.0f64; n];
+    if !wanted.contains(&true) {
+        return sum;
+    }
+    let sources = Sources::new(entries, cell, far.reach, &[]);
+    for group in far.texels.chunks(ENERGY_PART * ENERGY_PARTS_AT_ONCE) {
+        let parts: Vec<Vec<(u32, f64)>> = group
             .par_chunks(ENERGY_PART)
             .map_init(
                 || (vec![0.0f64; n], Vec::new(), Visit::new(n)),
                 |(acc, touched, visit): &mut (Vec<f64>, Vec<u32>, Visit), part| {
                     for t in part {
-                        visit.sources(far, entries, &sources, t, Some(&wanted), |j, _, w| {
+                        visit.sources(far, entries, &sources, t, Some(wanted), |j, _, w| {
                             add_energy(acc, touched, j, w);
                         });
                     }
@@ -187,7 +203,7 @@ fn far_energy(far: &Far, entries: &[Entry], cell: &[(Vec3, f32)], reuse: Option<
             sum[j as usize] += w;
         }
     }
-    entries.iter().enumerate().map(|(j, e)| kept(j).unwrap_or_else(|| energy_of(e, sum[j]))).collect()
+    sum
 }
 
 /// Each entry's far-field energy (`far_energy`, the sweep) for a level, not an update.
@@ -222,9 +238,10 @@ fn energy_of(e: &Entry, sum: f64) -> f32 {
 /// 5.4 s. The terms are added in `far_energy`'s order, part by part of `ENERGY_PART` far
 /// texels, a part that runs across two calls carried from one to the next, so the energies
 /// are the same to the bit (an update sums only the entries it changed, with `far_energy`,
-/// and must agree with a full precompute). A far texel seen again (bands that make their
-/// texels' first bounce twice) is not counted again; one missed, or texels out of order,
-/// leave the sum unfinished ([`EnergySum::finish`] gives None, and the caller sums alone).
+/// and must agree with a full precompute). A call that counts nothing leaves the carried part
+/// as it is. A far texel seen again (calls whose runs of texels overlap; `walk_and_encode`'s
+/// do not) is not counted again; one missed, or a call whose lists differ in length, leave the
+/// sum unfinished ([`EnergySum::finish`] gives None, and the caller sums alone).
 pub struct EnergySum {
     sum: Vec<f64>,
     /// The far texels added so far (they come in order).
@@ -248,14 +265,21 @@ impl EnergySum {
     }
 
     /// The energies, if every far texel of `far` was added once, in order.
-    pub fn finish(mut self, far: &Far, entries: &[Entry]) -> Option<Vec<f32>> {
-        if self.broken || self.next != far.texels.len() || self.sum.len() != entries.len() {
+    pub fn finish(self, far: &Far, entries: &[Entry]) -> Option<Vec<f32>> {
+        let sums = self.sums(far).filter(|s| s.len() == entries.len())?;
+        Some(entries.iter().zip(&sums).map(|(e, &s)| energy_of(e, s)).collect())
+    }
+
+    /// The sums of the kernel per entry ([`far_sums`]'s), if every far texel of `far` was
+    /// added once, in order.
+    fn sums(mut self, far: &Far) -> Option<Vec<f64>> {
+        if self.broken || self.next != far.texels.len() {
             return None;
         }
         if let Some((_, part)) = self.carry.take() {
             self.close(part);
         }
-        Some(entries.iter().zip(&self.sum).map(|(e, &s)| energy_of(e, s)).collect())
+        Some(self.sum)
     }
 }
 
@@ -629,8 +653,8 @@ impl Sources {
 pub struct FirstBounce<'a> {
     set: &'a TexelSet,
     entries: &'a [Entry],
-    /// Per entry, what is read of its cell: in one record, as the inner loop of
-    /// [`FirstBounce::add`] reads them (apart, they cost a cache line each).
+    /// Per entry, what is read of its cell: in one record each, as the inner loop of
+    /// [`FirstBounce::add`] reads them (apart, they cost a cache line each), and by blocks.
     sources: Sources,
     far: &'a Far,
     assignment: &'a [u32],
@@ -748,7 +772,7 @@ impl<'a> FirstBounce<'a> {
             far.texels.binary_search_by_key(&atlas, |f| f.texel).ok()
         };
         let (n, marks) = (self.entries.len(), self.clusters.div_ceil(64));
-        let Some(sum) = energy.filter(|s| !s.broken) else {
+        let plain = |out: &mut [crate::transport::TexelPanes]| {
             out.par_iter_mut().zip(texels).for_each_init(
                 || (vec![Vec3::ZERO; self.clusters], vec![0u64; marks], Visit::new(n)),
                 |(acc, marks, visit), (out, &k)| {
@@ -756,28 +780,36 @@ impl<'a> FirstBounce<'a> {
                     self.one_texel(&far.texels[i], out, acc, marks, visit, |_, _| {});
                 },
             );
+        };
+        let Some(sum) = energy.filter(|s| !s.broken) else {
+            plain(out);
             return;
         };
+        if out.len() != texels.len() {
+            sum.broken = true;
+            plain(out);
+            return;
+        }
         // Per texel its far texel, and whether its terms are added (the next far texel in
-        // order); runs of texels whose far texels lie in one part of ENERGY_PART.
-        let mut runs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
-        let mut far_of: Vec<Option<(usize, bool)>> = Vec::with_capacity(texels.len());
-        for (x, &k) in texels.iter().enumerate() {
-            let i = far_index(k);
-            let counted = match i {
-                Some(i) if i == sum.next => {
+        // order: one before it was added already, one after it means a texel was missed).
+        let far_of: Vec<Option<(usize, bool)>> = texels
+            .iter()
+            .map(|&k| {
+                let i = far_index(k)?;
+                let counted = !sum.broken && i == sum.next;
+                if counted {
                     sum.next += 1;
-                    true
-                }
-                Some(i) if i > sum.next => {
+                } else if i > sum.next {
                     sum.broken = true;
-                    false
                 }
-                _ => false,
-            };
-            far_of.push(i.map(|i| (i, counted && !sum.broken)));
-            // A texel with no far texel joins the run it lies in (or the first one).
-            match (runs.last_mut(), i.map(|i| i / ENERGY_PART)) {
+                Some((i, counted))
+            })
+            .collect();
+        // Runs of texels whose counted far texels lie in one part of ENERGY_PART; the texels
+        // not counted join the run they lie in (or the first).
+        let mut runs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+        for (x, f) in far_of.iter().enumerate() {
+            match (runs.last_mut(), f.filter(|(_, counted)| *counted).map(|(i, _)| i / ENERGY_PART)) {
                 (Some((p, r)), Some(part)) if *p == part => r.end = x + 1,
                 (Some((_, r)), None) => r.end = x + 1,
                 (Some((_, r)), Some(part)) => {
@@ -788,19 +820,27 @@ impl<'a> FirstBounce<'a> {
                 (None, None) => {}
             }
         }
-        // The part carried from the last call goes on in the first run if it is the same.
-        let carry = sum.carry.take();
-        let (carried, closed) = match carry {
-            Some((p, part)) if runs.first().is_some_and(|(q, _)| *q == p) => (Some(part), None),
-            other => (None, other.map(|(_, part)| part)),
+        let Some(&(first_part, _)) = runs.first() else {
+            // Nothing counted here: the carried part waits for the next call.
+            plain(out);
+            return;
         };
-        if let Some(part) = closed {
-            sum.close(part);
+        if let Some((_, r)) = runs.last_mut() {
+            r.end = texels.len();
         }
+        // The part carried from the last call goes on in the first run if it is the same.
+        let carried = match sum.carry.take() {
+            Some((p, part)) if p == first_part => Some(part),
+            Some((_, part)) => {
+                sum.close(part);
+                None
+            }
+            None => None,
+        };
         let mut pieces: Vec<(&mut [crate::transport::TexelPanes], std::ops::Range<usize>)> = Vec::new();
         let mut rest = out;
         for (_, r) in &runs {
-            let (piece, tail) = rest.split_at_mut(r.len().min(rest.len()));
+            let (piece, tail) = rest.split_at_mut(r.len());
             pieces.push((piece, r.clone()));
             rest = tail;
         }
@@ -1132,7 +1172,8 @@ mod tests {
             state | state >> 3
         };
         let visible: Vec<u32> = (0..4 * B).map(|_| bits()).collect();
-        // A ceiling texel at every atlas texel but every fifth; every seventh has no far texel.
+        // A texel facing down at every atlas texel but every fifth; every seventh has no far
+        // texel.
         let mut set = TexelSet {
             width: w,
             height: h,
@@ -1146,7 +1187,10 @@ mod tests {
         let mut texels = Vec::new();
         for a in (0..w * h).filter(|a| a % 5 != 0) {
             let (i, j) = (a % w, a / w);
-            let position = Vec3::new(i as f32 * 0.1, 2.0, j as f32 * 0.1);
+            // Heights from 0.6 m to 6 km: terms over 20 orders of magnitude, so that the f64
+            // sums depend on the order they are added in.
+            let position =
+                Vec3::new(i as f32 * 0.1, 0.55 + 0.05 * 1.7f32.powi((a % 23) as i32), j as f32 * 0.1);
             set.index[a as usize] = set.texels.len() as u32;
             set.texels.push(prm::Texel {
                 i,
@@ -1195,15 +1239,41 @@ mod tests {
             lists
         };
         let plain = calls(&[0..n], None);
-        let bands = [0..700, 500..1900, 1900..1901, 1901..n];
+        // The f64 sums, which an order of additions other than the sweep's moves in their
+        // last bits (the f32 energies hide that but for one entry in 2^29).
+        let sweep_sums = far_sums(&far, &entries, &cell, &[true, true]);
+        let bits64 = |e: &[f64]| e.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let lone = (720..n)
+            .find(|&k| {
+                let t = &set.texels[k];
+                far.texels.binary_search_by_key(&(t.j * w + t.i), |f| f.texel).is_err()
+            })
+            .expect("a texel with no far texel");
+        let orders: [&[std::ops::Range<usize>]; 5] = [
+            // Overlapping runs, one of a single texel.
+            &[0..700, 500..1900, 1900..1901, 1901..n],
+            // A call of no texels, and one of a texel the far field does not light.
+            &[0..700, 700..700, 700..lone, lone..lone + 1, lone + 1..n],
+            // A run that goes back into parts before the one carried.
+            &[0..300, 100..1200, 1200..n],
+            &[0..n],
+            // One texel at a time for a while.
+            &[0..5, 5..6, 6..7, 7..8, 8..n],
+        ];
+        for order in orders {
+            let mut sum = EnergySum::new(entries.len());
+            assert_eq!(
+                calls(order, Some(&mut sum)),
+                plain,
+                "the first bounce moved with the sum ({order:?})"
+            );
+            assert_eq!(sum.sums(&far).map(|s| bits64(&s)), Some(bits64(&sweep_sums)), "{order:?}");
+        }
         let mut sum = EnergySum::new(entries.len());
-        assert_eq!(calls(&bands, Some(&mut sum)), plain, "the first bounce moved with the sum");
+        calls(orders[0], Some(&mut sum));
         let summed = sum.finish(&far, &entries).expect("every far texel was added");
         let bits = |e: &[f32]| e.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&summed), bits(&sweep));
-        let mut whole = EnergySum::new(entries.len());
-        calls(&[0..n], Some(&mut whole));
-        assert_eq!(whole.finish(&far, &entries).map(|e| bits(&e)), Some(bits(&sweep)));
         let mut gap = EnergySum::new(entries.len());
         calls(&[0..700, 900..n], Some(&mut gap));
         assert!(gap.finish(&far, &entries).is_none(), "texels 700..900 were missed");

@@ -50,8 +50,9 @@ const MAGIC: [u8; 8] = *b"PRMUPDT\n";
 /// which every ray's offsets follow (an update of a level whose bounds moved is refused); 10:
 /// the far field's energies are the runtime's own sums (`crate::far`), and an update keeps a
 /// settled entry's: an older bake's were estimates, so its cache is refused and the level
-/// baked whole.
-const VERSION: u32 = 10;
+/// baked whole; 11: those sums are added in parts of 128 far texels (were 1,024), so an
+/// older bake's settled entries could differ from a fresh precompute's in their last bit.
+const VERSION: u32 = 11;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
