@@ -58,7 +58,7 @@ pub struct PrecomputeParams {
     /// k-means iterations (default 30).
     pub kmeans_iterations: u32,
     /// Reach of the geometry-guided smoothing applied to every pane, in entry spacings
-    /// (`prm::Smoothing`, per texel converted to texels; 0: none; default 1, measured: README).
+    /// (`prm::Smoothing`, per texel converted to texels; 0: none; default 1, measured best).
     pub smooth_radius: f32,
     /// Groups G of clusters (k-means on the clusters' centroids and normals), each storing the
     /// sum of its clusters' panes: what a runtime composing only the top K adds for the clusters
@@ -119,7 +119,7 @@ impl PrecomputeParams {
             near_radius: 2.5,
             echo_radius: 1.0,
             // Off: measured mixed (chamber torches 1-6 points better, two_rooms' floor and
-            // wall torches 2-3 points worse) and +1 s of precompute (README).
+            // wall torches 2-3 points worse) and +1 s of precompute (`docs/near-lights.md`).
             dipole_block: 0,
             far_field: true,
             far_radius: 48.0,

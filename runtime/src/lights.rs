@@ -32,8 +32,8 @@ pub const LIBRARY: &str = include_str!("../../shaders/lights.wgsl");
 /// The most of the level (its bounding sphere's diameter, in scene units: metres) one tile of a
 /// directional light's map covers: the sunlit room's 8.4 m take 3 x 3 tiles, whose 1024²
 /// texels are 3.9 mm. With one tile (8.3 mm texels; 10 m here before) its GPU lightmap was
-/// 2.3-4.8 % darker than the twin's over the day, with 3 x 3 within 0.9 % (README, *A sunlit
-/// room*). A level wider than [`SUN_TILES_MAX`] tiles of this keeps that many, wider.
+/// 2.3-4.8 % darker than the twin's over the day, with 3 x 3 within 0.9 % (`docs/sunroom.md`, *A
+/// sunlit room*). A level wider than [`SUN_TILES_MAX`] tiles of this keeps that many, wider.
 pub const SUN_TILE_SPAN: f32 = 4.0;
 
 /// Tiles per side of a directional light's map at most, by default

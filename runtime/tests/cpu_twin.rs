@@ -231,7 +231,7 @@ fn the_near_field_lights_a_corner_next_to_a_lamp() {
 /// noise removed, with the far field sending the lamp's spot from its cell's centroid, and
 /// 0.062 -> 0.066 since it sends it from where it lands (`cpu::LinkLight::landing`; a 6 x 3 x 3
 /// m box with the lamp 2 cm from its end wall went 0.123 -> 0.130 before that). On the bundled
-/// levels it helps every torch, spot and level's own lights (README: without it the chamber's
+/// levels it helps every torch, spot and level's own lights (`docs/near-lights.md`: without it the chamber's
 /// torch 5 cm from a wall 4.30 -> 6.79 %, its spot at the wall 5.92 -> 9.11 %); asserted here:
 /// no worse than 8 % of the error.
 #[test]

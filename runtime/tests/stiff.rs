@@ -1,4 +1,4 @@
-//! Stiff and extreme cases (README "Stiff cases"): each scene goes through all four stages
+//! Stiff and extreme cases (`docs/stiff.md`): each scene goes through all four stages
 //! (ground truth, precompute + CPU twin, GPU runtime, reference baker) and every lightmap must
 //! be finite and non-negative, with the stated expectation for that case.
 //!

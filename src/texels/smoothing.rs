@@ -17,7 +17,7 @@
 //! what the row pass took in against theirs, so light may reach a texel through one hop: up to
 //! twice the footprint, or across a bevel between two faces; a hard crease still stops it): `4 r + 2` taps a texel instead of `(2 r + 1)²`, which is what makes
 //! the measured reach (one entry spacing, 3 texels on the bundled levels: chamber torches
-//! 10.0 -> 8.1 % mean error, README) affordable in the precompute budget. Weights depend on
+//! 10.0 -> 8.1 % mean error when it came) affordable in the precompute budget. Weights depend on
 //! geometry only, so the filter is linear: smoothing panes and then summing them is summing and
 //! then smoothing, which is what lets the runtime compose smoothed panes.
 

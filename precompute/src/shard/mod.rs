@@ -1,6 +1,6 @@
 //! A precompute in parts, for a farm (issue 16): `prm precompute --prepare`, `--shard I/N`
 //! and `prm merge`. Each step is a process of its own, so any scheduler can run them (Ray,
-//! a Slurm job array, a Kubernetes indexed Job: README):
+//! a Slurm job array, a Kubernetes indexed Job: `docs/farm.md`):
 //!
 //! 1. **Plan** ([`plan`]): everything before the walks ([`Preamble`]: texels, entries and
 //!    cells, clusters and groups, the near, echo and far fields, the smoothing), once, into a

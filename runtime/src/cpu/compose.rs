@@ -921,8 +921,8 @@ pub fn link_field(
 /// texel, the far texel nearest its entry, which by the corner spot read the peak of its first
 /// bounce; over all the cell's texels, with the far field's energies summed as it delivers
 /// them (`prm::prm_file::Far::energy`), the corner spot's bias went +5.5 -> +1.1 % and
-/// two_rooms' corner spot's +5.5 -> +1.6 % (README, *Corner spots: the balance and the
-/// relay*).
+/// two_rooms' corner spot's +5.5 -> +1.6 % (`docs/near-lights.md`, *Corner spots: the balance and
+/// the relay*).
 pub fn near_deviation(prm: &Prm, tables: &NearTables, near: &[Vec3]) -> Vec<Vec3> {
     let mut relay = vec![Vec3::ZERO; prm.entries().len()];
     let vals = cell_means(tables, near);
