@@ -140,11 +140,29 @@ struct Tracing<'f> {
     voxels: Recorder,
     /// The level's rooms, and those the texel's walks' segments lay in (sorted).
     rooms: &'f Rooms,
+    /// The voxels of the last segment's points, looked up when the next segment (or the
+    /// texel's end) is recorded ([`Rooms::segment_voxels`]: their labels are fetched while
+    /// the next ray is traced).
+    pending: Vec<u32>,
     found: Vec<u32>,
     /// Whether any walk of the texel was placed in a room.
     placed: bool,
     truncated: u64,
     unowned: u64,
+}
+
+impl Tracing<'_> {
+    /// Looks up the rooms of the points [`Tracing::pending`] holds.
+    fn place_pending(&mut self) {
+        for v in self.pending.drain(..) {
+            if let Some(r) = self.rooms.room_of_voxel(v) {
+                self.placed = true;
+                if let Err(at) = self.found.binary_search(&r) {
+                    self.found.insert(at, r);
+                }
+            }
+        }
+    }
 }
 
 /// A texel's rooms ([`Trace::rooms`]) when none of its walks' segments could be placed in a
@@ -177,6 +195,7 @@ impl<'f> Scratch<'f> {
                 grid,
                 voxels: Recorder::new(grid),
                 rooms,
+                pending: Vec::new(),
                 found: Vec::new(),
                 placed: false,
                 truncated: 0,
@@ -190,21 +209,19 @@ impl<'f> Scratch<'f> {
     /// lies in ([`Rooms::rooms_on_segment`]; past a surface's back that may name a room it
     /// never reached, which only widens what an update walks again).
     fn segment(&mut self, x: Vec3, d: Vec3, end: Option<Vec3>) {
-        if let Some(Tracing { grid, voxels, rooms, found, placed, .. }) = self.trace.as_mut() {
-            let end = end.unwrap_or_else(|| grid.exit(x, d));
-            grid.segment(x, end, |v| voxels.mark(v));
-            rooms.rooms_on_segment(x, end, |r| {
-                *placed = true;
-                if let Err(at) = found.binary_search(&r) {
-                    found.insert(at, r);
-                }
-            });
+        if let Some(t) = self.trace.as_mut() {
+            // The last segment's points, fetched while this segment's ray was traced.
+            t.place_pending();
+            let end = end.unwrap_or_else(|| t.grid.exit(x, d));
+            t.grid.segment(x, end, |v| t.voxels.mark(v));
+            t.rooms.segment_voxels(x, end, |v| t.pending.push(v));
         }
     }
 
     fn take_trace(&mut self) -> Trace {
         match self.trace.as_mut() {
             Some(t) => {
+                t.place_pending();
                 // Every walk of a texel starts at the same point, so all lie in the room of any
                 // one placed; a texel none of whose walks was placed may have been anywhere.
                 if !std::mem::take(&mut t.placed) {
