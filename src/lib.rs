@@ -47,6 +47,7 @@ pub mod gltf_load;
 pub mod light;
 pub mod metric;
 pub mod photometry;
+pub mod prefetch;
 pub mod prm_file;
 pub mod rig;
 pub mod rooms;

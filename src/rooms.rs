@@ -159,7 +159,10 @@ impl Rooms {
         let points: &[f32] = if f < 0.5 { &[f, 0.5, 1.0 - f] } else { &[0.5] };
         for &t in points {
             if let Some(v) = self.voxel(a.lerp(b, t)) {
-                self.prefetch(v);
+                match &self.bytes {
+                    Some(bytes) => crate::prefetch::prefetch(bytes, v),
+                    None => crate::prefetch::prefetch(&self.label, v),
+                }
                 voxel(v as u32);
             }
         }
@@ -173,23 +176,6 @@ impl Rooms {
             Some(bytes) => bytes.get(v)?.checked_sub(1).map(u32::from),
             None => self.label.get(v).copied().filter(|&l| l != SOLID),
         }
-    }
-
-    /// Asks the processor to fetch voxel `v`'s label towards the cache; nothing else.
-    #[inline]
-    fn prefetch(&self, v: usize) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let p = match &self.bytes {
-                Some(bytes) => bytes.as_ptr().wrapping_add(v).cast::<i8>(),
-                None => self.label.as_ptr().wrapping_add(v).cast::<i8>(),
-            };
-            // SAFETY: a prefetch is a hint: it reads nothing the program sees and does not
-            // fault, whatever the address (here always inside the grid's labels).
-            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p) };
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = v;
     }
 
     /// The rooms whose free voxels overlap the box `lo..hi` grown by `grow` voxels on every
