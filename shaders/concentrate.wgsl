@@ -18,8 +18,9 @@
 // triangle_form_factor: form_factor.wgsl; solid_angle, spherical_triangle: spherical.wgsl.
 
 // A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
-// past the 64th has none and is taken as reaching) and may light it unevenly (sampled).
-fn near_light(h: GpuHotEntry) -> bool {
+// past the 64th has none and is taken as reaching) and may light it unevenly (sampled), for
+// a texel within BAND_SIZES of it (close) or for any.
+fn near_light(h: GpuHotEntry, close: bool) -> bool {
     var reach = vec2u(0u);
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         reach |= vec2u(cells[k].reach_lo, cells[k].reach_hi);
@@ -27,7 +28,7 @@ fn near_light(h: GpuHotEntry) -> bool {
     for (var i = 0u; i < params.light_count; i++) {
         let l = lights[i];
         let reaches = i >= 64u || ((reach[i / 32u] >> (i % 32u)) & 1u) != 0u;
-        if reaches && sampled(l, h) {
+        if reaches && sampled(l, h, close) {
             return true;
         }
     }
@@ -61,9 +62,10 @@ fn reaches(t: GpuCellTriangle, i: u32) -> bool {
 
 // prm_runtime::cpu::concentrate::concentrates: a point or spot light closer to the cell than
 // HOT_REACH x its size, or a spot whose cone's edge band passes over the cell as the light
-// sees it (a disk of the cell's size about its centroid) and is narrower than that disk. Its
-// light is uneven over the cell, and the footprint's points take it.
-fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
+// sees it (a disk of radius the cell's size about its centroid) and is narrower than that
+// radius, or for a texel within BAND_SIZES of the cell (close) than its diameter. Its light is
+// uneven over the cell, and the footprint's points take it.
+fn sampled(l: GpuLight, h: GpuHotEntry, close: bool) -> bool {
     if l.kind == KIND_DIRECTIONAL {
         return false;
     }
@@ -78,7 +80,8 @@ fn sampled(l: GpuLight, h: GpuHotEntry) -> bool {
     let angle = acos(clamp(dot(l.direction, (h.centroid - l.position) / d), -1.0, 1.0));
     let inner = acos(l.cos_inner);
     let outer = acos(l.cos_outer);
-    return spread > outer - inner && angle - spread < outer && angle + spread > inner;
+    let across = select(spread, 2.0 * spread, close);
+    return across > outer - inner && angle - spread < outer && angle + spread > inner;
 }
 
 // prm::cell_light::fine_index: the fine point whose sub-triangle holds y.
@@ -237,8 +240,10 @@ fn footprint(x: vec3f, nx: vec3f, t: GpuCellTriangle, n: vec3f, l: GpuLight, sub
     return out;
 }
 
-// lit_near: near_light(h).
-fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
+// lit_any: near_light(h, false); lit_close: near_light(h, true).
+fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_any: bool, lit_close: bool) -> vec3f {
+    let close = distance(x, h.centroid) < BAND_SIZES * h.size;
+    let lit_near = lit_any || (close && lit_close);
     var seen = vec3f(0.0);
     var weight = 0.0;
     var plain = vec3f(0.0);
@@ -265,7 +270,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
         // exact: the centroids are needed only for the other lights that reach the triangle.
         var others = false;
         for (var i = 0u; i < params.light_count; i++) {
-            others = others || (reaches(t, i) && !sampled(lights[i], h));
+            others = others || (reaches(t, i) && !sampled(lights[i], h, close));
         }
         var rows = sub;
         if lit_near && !others {
@@ -291,7 +296,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
                         for (var i = 0u; i < params.light_count; i++) {
                             // Only the lights that reach the triangle (irradiance.wgsl), and
                             // not those the footprint takes.
-                            if !reaches(t, i) || sampled(lights[i], h) {
+                            if !reaches(t, i) || sampled(lights[i], h, close) {
                                 continue;
                             }
                             let inc = incident(lights[i], y);
@@ -322,7 +327,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_near: bool) -> vec3f {
             }
             exact += kernel;
             for (var i = 0u; i < params.light_count; i++) {
-                if reaches(t, i) && sampled(lights[i], h) {
+                if reaches(t, i) && sampled(lights[i], h, close) {
                     let f = footprint(x, nx, t, n, lights[i], sub, kernel);
                     seen += f.seen;
                     plain += f.plain;
@@ -382,7 +387,7 @@ fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
     }
     // w: the entry pass's flags (irradiance.wgsl).
     let flags = u32(entry_irradiance[j].w);
-    if (flags & ENTRY_EDGE) == 0u && !near_light(h) {
+    if (flags & ENTRY_EDGE) == 0u && !near_light(h, true) {
         return;
     }
     if (flags & ENTRY_UNCHANGED) != 0u {
@@ -433,7 +438,8 @@ fn concentrate_main(
     let j = atomicLoad(&link_ids[list + 4u + 2u * item]);
     let first = atomicLoad(&link_ids[list + 5u + 2u * item]);
     let h = hot_entries[j];
-    let lit_near = near_light(h);
+    let lit_near = near_light(h, false);
+    let lit_close = near_light(h, true);
     // Entries kept since their last run are not listed (hot_items_main).
     let e = entry_irradiance[j];
     if lid == 0u {
@@ -444,8 +450,9 @@ fn concentrate_main(
     if k < h.link_count {
         let i = atomicLoad(&link_ids[h.first_link + k]);
         let t = texel_of(i);
-        // A cell hot only by a shadow edge: a texel beyond NEAR_SIZES sees it under a kernel
-        // that varies little, so at its mean (kappa 1).
+        // A cell hot only by a shadow edge, or by a spot's band for close texels alone: a
+        // texel beyond NEAR_SIZES sees it under a kernel that varies little, so at its mean
+        // (kappa 1).
         if lit_near || distance(near_texels[t].position, h.centroid) < NEAR_SIZES * h.size {
             seen_links[atomicAdd(&seen_count, 1u)] = vec2u(i, t);
         } else {
@@ -457,7 +464,7 @@ fn concentrate_main(
     if lid < n {
         let p = seen_links[lid];
         let t = near_texels[p.y];
-        let light = e.xyz * kappa(t.position, t.normal, h, lit_near);
+        let light = e.xyz * kappa(t.position, t.normal, h, lit_near, lit_close);
         link_light[p.x] = vec4u(bitcast<vec3u>(light), params.frame);
     }
 }

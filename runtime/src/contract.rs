@@ -124,6 +124,8 @@ pub fn prelude() -> &'static str {
              const HOT_REACH: f32 = {:?}f;\n\
              // Nearer than this many cell sizes, the quadrature is the fine one.\n\
              const NEAR_SIZES: f32 = {:?}f;\n\
+             // A spot's band narrower than a cell's diameter makes it hot for the texels this near (in cell sizes).\n\
+             const BAND_SIZES: f32 = {:?}f;\n\
              // The far field's sources against the light the surfaces reflect (prm_runtime::cpu::far_threshold).\n\
              const FAR_SOURCE_SCALE: f32 = {:?}f;\n\
              // Shadow texels within which an entry's lookup near a triangle's edge looks again, pulled in (crate::shadow).\n\
@@ -141,6 +143,7 @@ pub fn prelude() -> &'static str {
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
+            crate::cpu::concentrate::BAND_SIZES,
             crate::cpu::FAR_SOURCE_SCALE,
             crate::shadow::FOOTPRINT_TEXELS,
             crate::shadow::SUN_NORMAL_OFFSET,
