@@ -18,21 +18,25 @@
 // triangle_form_factor: form_factor.wgsl; solid_angle, spherical_triangle: spherical.wgsl.
 
 // A point or spot light that reaches the cell (a reach bit of one of its triangles; a light
-// past the 64th has none and is taken as reaching) and may light it unevenly (sampled), for
-// a texel within BAND_SIZES of it (close) or for any.
-fn near_light(h: GpuHotEntry, close: bool) -> bool {
+// past the 64th has none and is taken as reaching) and may light it unevenly (concentrates):
+// x for any texel, y for a texel within BAND_SIZES of it.
+fn near_light(h: GpuHotEntry) -> vec2<bool> {
     var reach = vec2u(0u);
     for (var k = h.first_cell; k < h.first_cell + h.cell_count; k++) {
         reach |= vec2u(cells[k].reach_lo, cells[k].reach_hi);
     }
+    var out = vec2<bool>(false);
     for (var i = 0u; i < params.light_count; i++) {
-        let l = lights[i];
         let reaches = i >= 64u || ((reach[i / 32u] >> (i % 32u)) & 1u) != 0u;
-        if reaches && sampled(l, h, close) {
-            return true;
+        if reaches {
+            out = out | concentrates(lights[i], h);
+            // x implies y (a band narrower than the radius is narrower than the diameter).
+            if out.x {
+                return out;
+            }
         }
     }
-    return false;
+    return out;
 }
 
 // A fine point's visibility bit (irradiance.wgsl).
@@ -60,28 +64,48 @@ fn reaches(t: GpuCellTriangle, i: u32) -> bool {
     return ((bits >> (i % 32u)) & 1u) != 0u;
 }
 
-// prm_runtime::cpu::concentrate::concentrates: a point or spot light closer to the cell than
-// HOT_REACH x its size, or a spot whose cone's edge band passes over the cell as the light
-// sees it (a disk of radius the cell's size about its centroid) and is narrower than that
-// radius, or for a texel within BAND_SIZES of the cell (close) than its diameter. Its light is
-// uneven over the cell, and the footprint's points take it.
-fn sampled(l: GpuLight, h: GpuHotEntry, close: bool) -> bool {
+// prm_runtime::cpu::concentrate::concentrates, x for any texel and y for a texel within
+// BAND_SIZES of the cell: a point or spot light closer to the cell than HOT_REACH x its size,
+// or a spot whose cone's edge band passes over the cell as the light sees it (a disk of radius
+// the cell's size about its centroid) and is narrower than that radius (x), or than its
+// diameter (y). Its light is uneven over the cell, and the footprint's points take it.
+fn concentrates(l: GpuLight, h: GpuHotEntry) -> vec2<bool> {
     if l.kind == KIND_DIRECTIONAL {
-        return false;
+        return vec2<bool>(false);
     }
     let d = distance(l.position, h.centroid);
     if d < HOT_REACH * h.size {
-        return true;
+        return vec2<bool>(true);
     }
     if l.kind != KIND_SPOT {
-        return false;
+        return vec2<bool>(false);
     }
     let spread = atan(h.size / d);
     let angle = acos(clamp(dot(l.direction, (h.centroid - l.position) / d), -1.0, 1.0));
-    let inner = acos(l.cos_inner);
-    let outer = acos(l.cos_outer);
-    let across = select(spread, 2.0 * spread, close);
-    return across > outer - inner && angle - spread < outer && angle + spread > inner;
+    let band = acos(l.cos_outer) - acos(l.cos_inner);
+    let over = angle - spread < acos(l.cos_outer) && angle + spread > acos(l.cos_inner);
+    return vec2<bool>(over && spread > band, over && 2.0 * spread > band);
+}
+
+// The lights the footprint takes for a texel (close: within BAND_SIZES of the cell), as bits
+// of the first 64 (taken() tests a later one itself): found once per texel, not at every point.
+fn taken_bits(h: GpuHotEntry, close: bool) -> vec2u {
+    var bits = vec2u(0u);
+    for (var i = 0u; i < min(params.light_count, 64u); i++) {
+        let c = concentrates(lights[i], h);
+        if select(c.x, c.y, close) {
+            bits[i / 32u] |= 1u << (i % 32u);
+        }
+    }
+    return bits;
+}
+
+fn taken(bits: vec2u, i: u32, h: GpuHotEntry, close: bool) -> bool {
+    if i >= 64u {
+        let c = concentrates(lights[i], h);
+        return select(c.x, c.y, close);
+    }
+    return ((bits[i / 32u] >> (i % 32u)) & 1u) != 0u;
 }
 
 // prm::cell_light::fine_index: the fine point whose sub-triangle holds y.
@@ -240,10 +264,14 @@ fn footprint(x: vec3f, nx: vec3f, t: GpuCellTriangle, n: vec3f, l: GpuLight, sub
     return out;
 }
 
-// lit_any: near_light(h, false); lit_close: near_light(h, true).
-fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_any: bool, lit_close: bool) -> vec3f {
+// lit: near_light(h).
+fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>) -> vec3f {
     let close = distance(x, h.centroid) < BAND_SIZES * h.size;
-    let lit_near = lit_any || (close && lit_close);
+    let lit_near = lit.x || (close && lit.y);
+    var takes = vec2u(0u);
+    if lit_near {
+        takes = taken_bits(h, close);
+    }
     var seen = vec3f(0.0);
     var weight = 0.0;
     var plain = vec3f(0.0);
@@ -269,8 +297,8 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_any: bool, lit_close: bool) ->
         // Near a light, the footprint takes the lights it samples and the kernel's mean is
         // exact: the centroids are needed only for the other lights that reach the triangle.
         var others = false;
-        for (var i = 0u; i < params.light_count; i++) {
-            others = others || (reaches(t, i) && !sampled(lights[i], h, close));
+        for (var i = 0u; lit_near && i < params.light_count; i++) {
+            others = others || (reaches(t, i) && !taken(takes, i, h, close));
         }
         var rows = sub;
         if lit_near && !others {
@@ -296,7 +324,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_any: bool, lit_close: bool) ->
                         for (var i = 0u; i < params.light_count; i++) {
                             // Only the lights that reach the triangle (irradiance.wgsl), and
                             // not those the footprint takes.
-                            if !reaches(t, i) || sampled(lights[i], h, close) {
+                            if !reaches(t, i) || taken(takes, i, h, close) {
                                 continue;
                             }
                             let inc = incident(lights[i], y);
@@ -327,7 +355,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit_any: bool, lit_close: bool) ->
             }
             exact += kernel;
             for (var i = 0u; i < params.light_count; i++) {
-                if reaches(t, i) && sampled(lights[i], h, close) {
+                if reaches(t, i) && taken(takes, i, h, close) {
                     let f = footprint(x, nx, t, n, lights[i], sub, kernel);
                     seen += f.seen;
                     plain += f.plain;
@@ -387,7 +415,7 @@ fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
     }
     // w: the entry pass's flags (irradiance.wgsl).
     let flags = u32(entry_irradiance[j].w);
-    if (flags & ENTRY_EDGE) == 0u && !near_light(h, true) {
+    if (flags & ENTRY_EDGE) == 0u && !near_light(h).y {
         return;
     }
     if (flags & ENTRY_UNCHANGED) != 0u {
@@ -438,8 +466,7 @@ fn concentrate_main(
     let j = atomicLoad(&link_ids[list + 4u + 2u * item]);
     let first = atomicLoad(&link_ids[list + 5u + 2u * item]);
     let h = hot_entries[j];
-    let lit_near = near_light(h, false);
-    let lit_close = near_light(h, true);
+    let lit = near_light(h);
     // Entries kept since their last run are not listed (hot_items_main).
     let e = entry_irradiance[j];
     if lid == 0u {
@@ -453,7 +480,7 @@ fn concentrate_main(
         // A cell hot only by a shadow edge, or by a spot's band for close texels alone: a
         // texel beyond NEAR_SIZES sees it under a kernel that varies little, so at its mean
         // (kappa 1).
-        if lit_near || distance(near_texels[t].position, h.centroid) < NEAR_SIZES * h.size {
+        if lit.x || distance(near_texels[t].position, h.centroid) < NEAR_SIZES * h.size {
             seen_links[atomicAdd(&seen_count, 1u)] = vec2u(i, t);
         } else {
             link_light[i] = vec4u(bitcast<vec3u>(e.xyz), params.frame);
@@ -464,7 +491,7 @@ fn concentrate_main(
     if lid < n {
         let p = seen_links[lid];
         let t = near_texels[p.y];
-        let light = e.xyz * kappa(t.position, t.normal, h, lit_near, lit_close);
+        let light = e.xyz * kappa(t.position, t.normal, h, lit);
         link_light[p.x] = vec4u(bitcast<vec3u>(light), params.frame);
     }
 }

@@ -143,6 +143,9 @@ pub fn concentration(
     let close = x.distance(centroid) < BAND_SIZES * size;
     let lit_near = is_hot(centroid, size, lights, cell_reach(vis), close);
     let near = lit_near && x.distance(centroid) < NEAR_SIZES * size;
+    // The lights that concentrate on the cell for this texel, found once (not at every point).
+    let takes: Vec<bool> =
+        lights.iter().map(|l| lit_near && concentrates(l, centroid, size, close)).collect();
     for (t, v) in tris.iter().zip(vis) {
         let cross = (t[1] - t[0]).cross(t[2] - t[0]);
         let Some(n) = cross.try_normalize() else { continue };
@@ -155,10 +158,10 @@ pub fn concentration(
         // A light that concentrates on the cell ([`concentrates`]: near it, or a spot's sharp
         // cone edge over it) lands where the area points may miss it: its light is taken at
         // points it sends evenly over its solid angle as well ([`footprint`]).
-        let sampled = |i: usize, l: &Light| lit_near && reaches(i) && concentrates(l, centroid, size, close);
+        let sampled = |i: usize| reaches(i) && takes[i];
         // Near a light, the footprint takes the lights it samples and the kernel's mean is
         // exact: the centroids are needed only for the other lights that reach the triangle.
-        let others = lights.iter().enumerate().any(|(i, l)| reaches(i) && !sampled(i, l));
+        let others = (0..lights.len()).any(|i| reaches(i) && !sampled(i));
         if lit_near && !others {
             area_sum += 0.5 * cross.length();
         }
@@ -170,7 +173,7 @@ pub fn concentration(
                 lights
                     .iter()
                     .enumerate()
-                    .filter(|&(i, l)| reaches(i) && !sampled(i, l))
+                    .filter(|&(i, _)| reaches(i) && !sampled(i))
                     .map(|(_, l)| l.irradiance(y, n))
                     .sum()
             } else {
@@ -193,7 +196,7 @@ pub fn concentration(
                 0.0
             };
             exact += kernel;
-            for (_, l) in lights.iter().enumerate().filter(|&(i, l)| sampled(i, l)) {
+            for (_, l) in lights.iter().enumerate().filter(|&(i, _)| sampled(i)) {
                 let (s, p) = footprint(x, nx, t, n, v, l, sub, kernel);
                 seen += s;
                 plain += p;
