@@ -914,7 +914,23 @@ fn report_writes_figures_and_plots() {
     assert_eq!(place[6][0], "0.02 above the surface");
     assert!((distance(&place[6]) - 0.02).abs() < 1e-3, "{:?}", place[6]);
     for r in &place {
-        assert!(r[2..].iter().all(|c| error_ok(c)), "{r:?}");
+        let noise = percent(&r[2]);
+        assert!(error_ok(&r[2]), "{r:?}");
+        // "clean % (raw % raw)", clean = sqrt(raw² - noise²) to the printed decimals, or
+        // "within the noise (raw % raw)" where raw <= noise.
+        for c in &r[3..] {
+            let (head, raw) = c.strip_suffix(" raw)").and_then(|c| c.split_once(" (")).unwrap();
+            let raw = percent(raw);
+            assert!(error_ok(&format!("{raw} %")), "{r:?}");
+            if head == "within the noise" {
+                assert!(raw <= noise, "{r:?}");
+            } else {
+                let clean = percent(head);
+                // Each printed to 0.005: the squares to 0.01 x the figure.
+                let slack = 0.01 * (raw + noise + clean) + 1e-9;
+                assert!(raw > noise && (clean * clean - (raw * raw - noise * noise)).abs() <= slack, "{r:?}");
+            }
+        }
     }
     assert!(out.join("placement.png").is_file());
     // Editing: cornell_edits.json beside the level moves the red wall, recolours the green one

@@ -46,6 +46,17 @@ fn pct(x: f64) -> String {
     format!("{:.2} %", x * 100.0)
 }
 
+/// An error with the ground truth's noise removed in quadrature, and the raw figure beside it;
+/// an error no larger than the noise says so rather than reading 0 %: the ground truth cannot
+/// tell it from nothing.
+fn pct_clean(error: f64, noise: f64) -> String {
+    if error <= noise {
+        format!("within the noise ({} raw)", pct(error))
+    } else {
+        format!("{} ({} raw)", pct((error * error - noise * noise).sqrt()), pct(error))
+    }
+}
+
 fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -259,7 +270,8 @@ fn placement_section(s: &mut String, b: &Budget, f: &Figures, plots: bool) {
         s,
         "Each placement measured as a rig frame: ground truth at {} spp (light paths for the lights' \
         hot spots), reference at {} photons. Errors with the ground truth's own noise removed in \
-        quadrature (sqrt(error² - noise²)); the raw figures are the rig table's kind. Targets (DESIGN.md §9): \
+        quadrature (sqrt(error² - noise²)), the raw figure (the rig table's kind) in brackets; an error \
+        no larger than the noise cannot be told from nothing at this many samples. Targets (DESIGN.md §9): \
         5 cm or more from the nearest surface <= 8 %, 15 cm from a corner <= 12 %, mid-room <= 5 % \
         (all panes), top-32 within 3 points.\n",
         b.rig_gt_spp, b.rig_reference.0
@@ -269,16 +281,16 @@ fn placement_section(s: &mut String, b: &Budget, f: &Figures, plots: bool) {
         "| placement | nearest surface | GT noise | PRM all | PRM top-32 | reference |\n| --- | --- | --- | --- | --- | --- |"
     );
     for p in &f.placements {
-        let clean = |e: f64| (e * e - p.frame.gt_noise * p.frame.gt_noise).max(0.0).sqrt();
+        let noise = p.frame.gt_noise;
         let _ = writeln!(
             s,
             "| {} | {:.3} | {} | {} | {} | {} |",
             p.label,
             p.distance,
-            pct(p.frame.gt_noise),
-            pct(clean(p.frame.errors[1])),
-            pct(clean(p.frame.errors[0])),
-            pct(clean(p.frame.errors[2]))
+            pct(noise),
+            pct_clean(p.frame.errors[1], noise),
+            pct_clean(p.frame.errors[0], noise),
+            pct_clean(p.frame.errors[2], noise)
         );
     }
 }
