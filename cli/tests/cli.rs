@@ -918,7 +918,10 @@ fn report_writes_figures_and_plots() {
         assert!(error_ok(&r[2]), "{r:?}");
         // "clean % (raw % raw)", clean = sqrt(raw² - noise²) to the printed decimals, or
         // "within the noise (raw % raw)" where raw <= noise.
-        for c in &r[3..] {
+        // Error, bias for PRM all, PRM top-32 and the reference.
+        assert_eq!(r.len(), 9, "{r:?}");
+        assert!([&r[4], &r[6], &r[8]].iter().all(|c| bias_ok(c)), "{r:?}");
+        for c in [&r[3], &r[5], &r[7]] {
             let (head, raw) = c.strip_suffix(" raw)").and_then(|c| c.split_once(" (")).unwrap();
             let raw = percent(raw);
             assert!(error_ok(&format!("{raw} %")), "{r:?}");

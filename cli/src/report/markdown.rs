@@ -46,6 +46,10 @@ fn pct(x: f64) -> String {
     format!("{:.2} %", x * 100.0)
 }
 
+fn signed_pct(x: f64) -> String {
+    format!("{:+.2} %", x * 100.0)
+}
+
 /// An error with the ground truth's noise removed in quadrature, and the raw figure beside it;
 /// an error no larger than the noise says so rather than reading 0 %: the ground truth cannot
 /// tell it from nothing.
@@ -271,26 +275,30 @@ fn placement_section(s: &mut String, b: &Budget, f: &Figures, plots: bool) {
         "Each placement measured as a rig frame: ground truth at {} spp (light paths for the lights' \
         hot spots), reference at {} photons. Errors with the ground truth's own noise removed in \
         quadrature (sqrt(error² - noise²)), the raw figure (the rig table's kind) in brackets; an error \
-        no larger than the noise cannot be told from nothing at this many samples. Targets (DESIGN.md §9): \
-        5 cm or more from the nearest surface <= 8 %, 15 cm from a corner <= 12 %, mid-room <= 5 % \
-        (all panes), top-32 within 3 points.\n",
+        no larger than the noise cannot be told from nothing at this many samples. Bias: the signed \
+        mean difference over the ground truth's mean (its noise averages out of it). Targets (DESIGN.md §9): \
+        5 cm or more from the nearest surface <= 8 % with |bias| <= 3 %, 15 cm from a corner <= 12 %, \
+        mid-room <= 5 % (all panes), top-32 within 3 points.\n",
         b.rig_gt_spp, b.rig_reference.0
     );
     let _ = writeln!(
         s,
-        "| placement | nearest surface | GT noise | PRM all | PRM top-32 | reference |\n| --- | --- | --- | --- | --- | --- |"
+        "| placement | nearest surface | GT noise | PRM all | bias | PRM top-32 | bias | reference | bias |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
     );
     for p in &f.placements {
         let noise = p.frame.gt_noise;
         let _ = writeln!(
             s,
-            "| {} | {:.3} | {} | {} | {} | {} |",
+            "| {} | {:.3} | {} | {} | {} | {} | {} | {} | {} |",
             p.label,
             p.distance,
             pct(noise),
             pct_clean(p.frame.errors[1], noise),
+            signed_pct(p.frame.biases[1]),
             pct_clean(p.frame.errors[0], noise),
-            pct_clean(p.frame.errors[2], noise)
+            signed_pct(p.frame.biases[0]),
+            pct_clean(p.frame.errors[2], noise),
+            signed_pct(p.frame.biases[2])
         );
     }
 }

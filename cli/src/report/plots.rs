@@ -328,30 +328,54 @@ fn plot_rig_flicker(area: &DrawingArea<BitMapBackend, Shift>, frames: &[Frame]) 
     Ok(())
 }
 
-/// Error (noise removed) against the distance to the nearest surface, log scale: lines for the
-/// height sweep, dots for the torch rig's keyframes.
+/// Error (noise removed, left) and bias (right) against the distance to the nearest surface,
+/// log scale: lines for the height sweep, dots for the torch rig's keyframes.
 fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Result<()> {
-    let root = BitMapBackend::new(path, (900, 500)).into_drawing_area();
+    let root = BitMapBackend::new(path, (1200, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
+    let (left, right) = root.split_horizontally(600);
     let clean = |p: &super::placement::Placement, m: usize| {
         (p.frame.errors[m].powi(2) - p.frame.gt_noise.powi(2)).max(0.0).sqrt() * 100.0
     };
+    let bias = |p: &super::placement::Placement, m: usize| p.frame.biases[m] * 100.0;
+    let top = placements.iter().flat_map(|p| (0..3).map(move |m| clean(p, m))).fold(0.0, f64::max);
+    placement_panel(
+        &left,
+        placements,
+        "Error",
+        "error, ground-truth noise removed (%)",
+        0.0..top * 1.15 + 0.5,
+        &clean,
+    )?;
+    let reach = placements.iter().flat_map(|p| (0..3).map(move |m| bias(p, m).abs())).fold(0.0, f64::max);
+    let span = reach * 1.15 + 0.5;
+    placement_panel(&right, placements, "Bias", "bias (%)", -span..span, &bias)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// One panel of [`plot_placement`]: `value(placement, method)` against the distance.
+fn placement_panel(
+    area: &DrawingArea<BitMapBackend, Shift>,
+    placements: &[super::placement::Placement],
+    what: &str,
+    y_desc: &str,
+    y: Range<f64>,
+    value: &dyn Fn(&super::placement::Placement, usize) -> f64,
+) -> Result<()> {
     let d = |p: &super::placement::Placement| (p.distance as f64).max(1e-3);
     let (lo, hi) = placements.iter().map(d).fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
-    let e1 = placements.iter().flat_map(|p| [clean(p, 0), clean(p, 1), clean(p, 2)]).fold(0.0, f64::max)
-        * 1.15
-        + 0.5;
-    let mut chart = ChartBuilder::on(&root)
-        .caption("Error against the light's distance to the nearest surface", ("sans-serif", 20))
+    let mut chart = ChartBuilder::on(area)
+        .caption(format!("{what} against the light's distance to the nearest surface"), ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d((lo * 0.8..hi * 1.25).log_scale(), 0.0..e1)
+        .build_cartesian_2d((lo * 0.8..hi * 1.25).log_scale(), y)
         .map_err(plot_err)?;
     chart
         .configure_mesh()
         .x_desc("distance to the nearest surface (scene units, log)")
-        .y_desc("error, ground-truth noise removed (%)")
+        .y_desc(y_desc)
         .draw()
         .map_err(plot_err)?;
     let mut sweep: Vec<&super::placement::Placement> = placements.iter().filter(|p| p.sweep).collect();
@@ -359,7 +383,7 @@ fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Re
     for m in 0..3 {
         let c = RIG_COLOURS[m];
         chart
-            .draw_series(LineSeries::new(sweep.iter().map(|p| (d(p), clean(p, m))), c.stroke_width(2)))
+            .draw_series(LineSeries::new(sweep.iter().map(|p| (d(p), value(p, m))), c.stroke_width(2)))
             .map_err(plot_err)?
             .label(RIG_NAMES[m])
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
@@ -368,12 +392,11 @@ fn plot_placement(path: &Path, placements: &[super::placement::Placement]) -> Re
                 placements
                     .iter()
                     .filter(|p| !p.sweep)
-                    .map(|p| Circle::new((d(p), clean(p, m)), 4, c.filled())),
+                    .map(|p| Circle::new((d(p), value(p, m)), 4, c.filled())),
             )
             .map_err(plot_err)?;
     }
     legend(&mut chart)?;
-    root.present().map_err(plot_err)?;
     Ok(())
 }
 

@@ -17,6 +17,8 @@ pub struct Frame {
     pub gt_noise: f64,
     /// (PRM top-32, PRM all, reference) error
     pub errors: [f64; 3],
+    /// Their biases (signed, over the ground truth's mean), in the same order.
+    pub biases: [f64; 3],
     /// Per-texel signed luminance error of each, for flicker.
     pub residuals: [Vec<f32>; 3],
     pub gt_mean: f64,
@@ -106,9 +108,11 @@ pub fn rig_frame(
     let top = at_texels(&level.set, &top);
     let all = at_texels(&level.set, &all);
     let res = |x: &[Vec3]| x.iter().zip(&g).map(|(a, b)| luminance(*a) - luminance(*b)).collect::<Vec<f32>>();
+    let (top_c, all_c, rf_c) = (compare_texels(&top, &g), compare_texels(&all, &g), compare_texels(&rf, &g));
     Ok(Frame {
         gt_noise: g_noise,
-        errors: [compare_texels(&top, &g).0, compare_texels(&all, &g).0, compare_texels(&rf, &g).0],
+        errors: [top_c.0, all_c.0, rf_c.0],
+        biases: [top_c.1, all_c.1, rf_c.1],
         residuals: [res(&top), res(&all), res(&rf)],
         gt_mean: g.iter().map(|v| luminance(*v) as f64).sum::<f64>() / g.len() as f64,
         gt: g.iter().map(|v| luminance(*v)).collect(),
