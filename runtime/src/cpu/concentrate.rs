@@ -141,11 +141,16 @@ pub fn concentration(
     // a shadow edge, its mixed triangles (their light is smooth elsewhere, and the fine points
     // of every triangle made the concentration most of a moving light's frame on lavapipe).
     let close = x.distance(centroid) < BAND_SIZES * size;
-    let lit_near = is_hot(centroid, size, lights, cell_reach(vis), close);
+    // The lights that reach the cell and concentrate on it for this texel ([`is_hot`]'s test,
+    // light by light), found once: not again at every point.
+    let reach = cell_reach(vis);
+    let takes: Vec<bool> = lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| (i >= 64 || (reach >> i) & 1 == 1) && concentrates(l, centroid, size, close))
+        .collect();
+    let lit_near = takes.iter().any(|&t| t);
     let near = lit_near && x.distance(centroid) < NEAR_SIZES * size;
-    // The lights that concentrate on the cell for this texel, found once (not at every point).
-    let takes: Vec<bool> =
-        lights.iter().map(|l| lit_near && concentrates(l, centroid, size, close)).collect();
     for (t, v) in tris.iter().zip(vis) {
         let cross = (t[1] - t[0]).cross(t[2] - t[0]);
         let Some(n) = cross.try_normalize() else { continue };
