@@ -5,7 +5,7 @@
 // stable threshold, the threshold (far_threshold), and the entries over it, ascending: their
 // entries in source_sees' index (source_entry; their number at FAR_SOURCES), their records in
 // deviation (record: phi, then the whole flux flux_j E_j with the slot of the sighted light
-// that lights the cell up close, lit_by, or NO_LIGHT).
+// that lights the cell up close, lit_by, or APART where its light lands apart, or NO_LIGHT).
 // sees_main, one invocation per (source, block of 32 entries): which entries of the block see
 // the source, a word of source_sees (row s of blocks() words: bit r of word a, entry 32 a + r
 // sees source s; prm::prm_file::Far::sees), so that far_main reads one bit per neighbour.
@@ -13,7 +13,8 @@
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
 // texel's near_sum slot (written when the slot is past the near field's own texels), and for a
 // source lit up close, its whole flux times (what the texel sees of that light, its cube of
-// shadow maps, looked up once a texel, less V); its workgroup first lists the sources any of
+// shadow maps, looked up once a texel, from where it lands, less V from the centroid), for one
+// whose light lands apart (tag APART), the same with V for the sight; its workgroup first lists the sources any of
 // its texels' neighbours sees, or that are lit up close (group_words), and the sum runs over
 // those, in the same order.
 // Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
@@ -51,6 +52,24 @@ fn landed_at(j: u32, centroid: vec3f) -> vec3f {
         return at.xyz;
     }
     return centroid;
+}
+
+// Which way entry j's cell's light leaves (after where it lands: crate::far::deviation_len),
+// the entry's normal where none arrives.
+fn leaving(j: u32, normal: vec3f) -> vec3f {
+    let toward = deviation[3u * params.entry_count + 2u * FAR_SOURCES + j];
+    if toward.w > 0.0 {
+        return toward.xyz;
+    }
+    return normal;
+}
+
+// prm_runtime::cpu::lands_apart: entry j's cell's light lands more than LANDING_APART sizes
+// from its centroid, or leaves turned from its normal past LANDING_TURN.
+fn lands_apart(j: u32) -> bool {
+    let e = far_entries[j];
+    return distance(landed_at(j, e.centroid), e.centroid) > LANDING_APART * e.size
+        || dot(leaving(j, e.normal), e.normal) < LANDING_TURN;
 }
 
 fn source_entry(s: u32) -> u32 {
@@ -192,7 +211,11 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
             source_sees[index_base() + at] = j;
             deviation[record(at)] = vec4f(phi, 0.0);
             let whole = far_entries[j].flux * deviation[params.entry_count + j].xyz;
-            deviation[record(at) + 1u] = vec4f(whole, bitcast<f32>(lit_by(j)));
+            var tag = lit_by(j);
+            if tag == NO_LIGHT && lands_apart(j) {
+                tag = APART;
+            }
+            deviation[record(at) + 1u] = vec4f(whole, bitcast<f32>(tag));
         }
         workgroupBarrier();
         if lid == 0u {
@@ -205,7 +228,7 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     if lid == 0u {
         let sources = min(listed, FAR_SOURCES);
         source_sees[index_base() + FAR_SOURCES] = sources;
-        // The sources lit up close, for far_main's second sum (few; in order).
+        // The sources lit up close or landing apart, for far_main's second sum (few; in order).
         var lits = 0u;
         for (var s = 0u; s < sources; s++) {
             if lit(s) != NO_LIGHT {
@@ -417,11 +440,12 @@ fn far_main(
         }
         workgroupBarrier();
     }
-    // The sources lit up close, apart: their whole flux times what the texel sees of the
-    // light, in its cube of shadow maps, from where the light lands on the cell, less their
-    // whole flux times the vote, from the centroid (prm_runtime::cpu::far_field). Looked up
-    // once a texel, a lookup a sighted light; inside the sum above they doubled the pass on
-    // lavapipe, and even a branch there that never ran slowed it by a tenth.
+    // The sources lit up close or landing apart, in a second sum: their whole flux from where
+    // it lands on the cell, the way it leaves, times what the texel sees of the light that
+    // lights it up close (its cube of shadow maps, looked up once a texel) or (apart) the vote;
+    // less their whole flux times the vote from the centroid (prm_runtime::cpu::far_field).
+    // Inside the sum above the lookups doubled the pass on lavapipe, and even a branch there
+    // that never ran slowed it by a tenth.
     let lits = lit_count();
     if lits > 0u && live {
         var sights = vec4f(0.0);
@@ -436,27 +460,33 @@ fn far_main(
         }
         for (var i = 0u; i < lits; i++) {
             let s = lit_source(i);
-            let e = far_entries[source_entry(s)];
+            let j = source_entry(s);
+            let e = far_entries[j];
+            let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
+            if share <= 0.0 {
+                continue;
+            }
+            let size2 = e.size * e.size;
+            let whole = deviation[record(s) + 1u];
+            let tag = bitcast<u32>(whole.w);
+            let v = texel_vote(t, s, e);
+            var seen = v;
+            if tag < CLOSE_SIGHTS {
+                seen = dot(sights, vec4f(vec4u(tag) == vec4u(0u, 1u, 2u, 3u)));
+            }
             let d = e.centroid - t.position;
             let cx = dot(t.normal, d);
             let cy = -dot(e.normal, d);
-            let share = far_share(distance(e.centroid, t.position), params.far_reach, e.size);
-            if cx <= 0.0 || cy <= 0.0 || share <= 0.0 {
-                continue;
+            if cx > 0.0 && cy > 0.0 {
+                let r2 = dot(d, d);
+                sum -= whole.xyz * (v * share * cx * cy / (PI * r2 * max(r2, size2)));
             }
-            let r2 = dot(d, d);
-            let size2 = e.size * e.size;
-            let whole = deviation[record(s) + 1u];
-            let sight = dot(sights, vec4f(vec4u(bitcast<u32>(whole.w)) == vec4u(0u, 1u, 2u, 3u)));
-            let v = texel_vote(t, s, e);
-            sum -= whole.xyz * (v * share * cx * cy / (PI * r2 * max(r2, size2)));
-            // The whole flux as the texel sees the light, from where it lands on the cell.
-            let dl = landed_at(source_entry(s), e.centroid) - t.position;
+            let dl = landed_at(j, e.centroid) - t.position;
             let lx = dot(t.normal, dl);
-            let ly = -dot(e.normal, dl);
+            let ly = -dot(leaving(j, e.normal), dl);
             if lx > 0.0 && ly > 0.0 {
                 let l2 = dot(dl, dl);
-                sum += whole.xyz * (sight * share * lx * ly / (PI * l2 * max(l2, size2)));
+                sum += whole.xyz * (seen * share * lx * ly / (PI * l2 * max(l2, size2)));
             }
         }
     }

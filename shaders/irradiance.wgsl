@@ -259,6 +259,10 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     // landing on each triangle weighted by the luminance of the power it brings there.
     var landed = vec3f(0.0);
     var landed_weight = 0.0;
+    // Which way it leaves (prm_runtime::cpu::LinkLight::landing_normal): the triangles' unit
+    // normals, each weighted by the luminance of the power it takes (the sum of the landings'
+    // weights on it).
+    var leaving = vec3f(0.0);
     var any_mixed = false;
     // Bit i: light i hidden from the whole cell.
     var hid = vec2u(0u);
@@ -419,6 +423,9 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
             }
         }
         power += tri_power;
+        if len > 0.0 {
+            leaving += (twice_area / len) * luminance(tri_power);
+        }
         // The unshadowed level the concentration spreads by the visibility where no light is
         // near (prm_runtime::cpu::concentrate::unshadowed_level).
         var level = vec3f(0.0);
@@ -437,9 +444,16 @@ fn entry_main(@builtin(global_invocation_id) id: vec3u) {
     entry_irradiance[j] = vec4f(power * e.inv_area, f32(select(0u, ENTRY_EDGE, any_mixed)));
     // After the entries: where the light lands, w 1 (0: none arrives; the far field then takes
     // the cell's centroid).
+    // Then which way it leaves, w 1 (0: none arrives; the far field then takes the entry's
+    // normal).
     var at = vec4f(0.0);
+    var toward = vec4f(0.0);
     if landed_weight > 0.0 {
         at = vec4f(landed / landed_weight, 1.0);
+        if length(leaving) > 0.0 {
+            toward = vec4f(normalize(leaving), 1.0);
+        }
     }
     entry_irradiance[params.entry_count + j] = at;
+    entry_irradiance[2u * params.entry_count + j] = toward;
 }

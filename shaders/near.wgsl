@@ -19,10 +19,11 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
     let fit = weights[ec.x].xyz + deviation[j].xyz;
     let e = entry_irradiance[j].xyz;
     deviation[j] = vec4f(e - fit * bitcast<f32>(ec.y), luminance(e));
-    // For the far field (far.wgsl): E_j itself, and where the cell's light lands (after the
-    // sources' records, crate::far::deviation_len).
+    // For the far field (far.wgsl): E_j itself, and where the cell's light lands and which way
+    // it leaves (after the sources' records, crate::far::deviation_len).
     deviation[params.entry_count + j] = vec4f(e, 0.0);
     deviation[2u * params.entry_count + 2u * FAR_SOURCES + j] = entry_irradiance[params.entry_count + j];
+    deviation[3u * params.entry_count + 2u * FAR_SOURCES + j] = entry_irradiance[2u * params.entry_count + j];
 }
 
 @compute @workgroup_size(WG_LINEAR)

@@ -206,3 +206,34 @@ fn the_sunroom_day_sends_the_sun_through_its_window() {
     }
     assert!(lowest < 0.25, "no low sun: the lowest is {} over the horizon", lowest.asin().to_degrees());
 }
+
+/// The chamber's flashlight rig (`assets/chamber_flashlight.json`): a narrow spot (8°-12°)
+/// carried at hand height (1.2-1.6 m), out in the open, through eight aims: each axis meets a
+/// surface from the front, from under 1.5 m (a wall, the floor at one's feet) to 6 m across the
+/// nave, and two of them meet one of the pillars (marble), where its cells wrap round the
+/// shaft (`docs/near-lights.md`, *A flashlight on a pillar*).
+#[test]
+fn the_flashlight_rig_is_carried_at_hand_height_and_aims_at_pillars_and_walls() {
+    let scene = load("chamber.glb");
+    let bvh = Bvh::build(&scene);
+    let rig = prm::rig::Rig::load(&asset("chamber_flashlight.json"), &scene.lights).unwrap();
+    let torch = rig.lights.iter().find(|l| l.base.name == "flashlight").expect("a light named flashlight");
+    assert!(matches!(torch.base.kind, prm::LightKind::Spot { outer, .. } if outer < 0.25));
+    let pillar = scene.materials.iter().position(|m| m.name == "pillar").expect("a pillar material") as u32;
+    let (mut reach, mut on_pillars) = (Vec::new(), 0);
+    for &(_, p, d, _) in &torch.keys {
+        assert!((1.2..=1.6).contains(&p.y), "the flashlight at {p}: not at hand height");
+        let d = d.normalize();
+        let hit = bvh.closest_hit(p, d, f32::INFINITY).expect("the flashlight aims out of the level");
+        assert!(
+            scene.facing_normal(hit.triangle as usize, d).is_some(),
+            "the flashlight at {p} is inside a solid"
+        );
+        on_pillars += (scene.triangles[hit.triangle as usize].material == pillar) as usize;
+        reach.push(hit.t);
+    }
+    reach.sort_by(f32::total_cmp);
+    assert_eq!(reach.len(), 8);
+    assert!(reach[0] < 1.5 && reach[7] > 5.0, "axis lengths {reach:?}");
+    assert!(on_pillars >= 2, "{on_pillars} aims meet a pillar");
+}

@@ -96,6 +96,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("CONCENTRATION_SUB_FAR", crate::cpu::concentrate::SUB_FAR),
     ("FAR_SOURCES", crate::cpu::FAR_SOURCES as u32),
     ("NO_LIGHT", crate::far::NO_LIGHT),
+    ("APART", crate::far::APART),
     ("CLOSE_SIGHTS", crate::cpu::CLOSE_SIGHTS as u32),
     ("WG_FAR_SOURCES", crate::far::WG_FAR_SOURCES),
     ("CSSM_NOTHING", prm::visibility::cssm::NOTHING as u32),
@@ -140,6 +141,9 @@ pub fn prelude() -> &'static str {
              const CONE_REACH: f32 = {:?}f;\n\
              // A light lands off a triangle's centroid within this many longest edges (prm::cell_light::landing).\n\
              const LANDING_REACH: f32 = {:?}f;\n\
+             // The far field sends a cell's light from where it lands this many sizes off its centroid, or leaving past this cosine of its normal (prm_runtime::cpu::lands_apart).\n\
+             const LANDING_APART: f32 = {:?}f;\n\
+             const LANDING_TURN: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
@@ -151,6 +155,8 @@ pub fn prelude() -> &'static str {
             crate::lights::CUBE_PAD_TEXELS,
             crate::cpu::CONE_REACH,
             prm::cell_light::LANDING_REACH,
+            crate::cpu::LANDING_APART,
+            crate::cpu::LANDING_TURN,
             std::f32::consts::PI
         );
         let _ = writeln!(

@@ -34,11 +34,16 @@ pub const WG_FAR_SOURCES: u32 = 256;
 /// A source no light lights up close (`crate::cpu::FarSource::lit_by` None).
 pub const NO_LIGHT: u32 = u32::MAX;
 
+/// A source no light lights up close whose light lands apart from its cell's centroid or normal
+/// (`crate::cpu::FarSource::apart`).
+pub const APART: u32 = u32::MAX - 1;
+
 /// Length in `vec4f` of the buffer the near pass leaves its deviations in, for `entries`
 /// entries: the deviations, the entries' irradiance, two records a far-field source, then
-/// where each entry's cell's light lands (w 0 where none does; `crate::cpu::LinkLight::landing`).
+/// where each entry's cell's light lands (w 0 where none does; `crate::cpu::LinkLight::landing`),
+/// then which way it leaves (the same; `crate::cpu::LinkLight::landing_normal`).
 pub fn deviation_len(entries: usize) -> usize {
-    3 * entries + 2 * FAR_SOURCES
+    4 * entries + 2 * FAR_SOURCES
 }
 
 /// Group 1 (group 0 is the shadow maps' `SHADOW_GROUP`).
@@ -47,7 +52,7 @@ pub const BINDINGS: &[Binding] = &[
     // Per entry, this update's `E_j - (w_c + lin_j) t_j + relay_j` (the near pass's
     // `deviation_main` and relay),
     // then per entry E_j, then the sources' records, written here, then per entry where its
-    // light lands ([`deviation_len`]).
+    // light lands and which way it leaves ([`deviation_len`]).
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("far_entries", Res::Read("array<FarEntry>"), COMPUTE),
     // The entries' visibility by blocks ([`far_words`]).

@@ -49,7 +49,7 @@ pub struct EntryPass {
     group: wgpu::BindGroup,
     count: u32,
     /// Per-entry irradiance, `vec4f` each (w: flags), then per entry where its cell's light
-    /// lands (w 1; 0 where none arrives).
+    /// lands (w 1; 0 where none arrives), then which way it leaves (the same).
     pub output: wgpu::Buffer,
     /// The cells' triangles, with this frame's visibility (`GpuCellTriangle`).
     pub cells: wgpu::Buffer,
@@ -129,7 +129,7 @@ impl EntryPass {
         let output = gpu::storage_buffer(
             device,
             "entry irradiance",
-            &vec![0u8; areas.len().max(1) * 32],
+            &vec![0u8; areas.len().max(1) * 48],
             wgpu::BufferUsages::COPY_SRC,
         );
         let stats = gpu::storage_buffer(

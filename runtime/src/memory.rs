@@ -85,8 +85,8 @@ impl GpuMemory {
             ),
             ("far texels", size(far_texels, std::mem::size_of::<GpuFarTexel>())),
             ("hot entries", size(n, std::mem::size_of::<GpuHotEntry>())),
-            // Each entry's irradiance, then where its light lands.
-            ("entry irradiance", size(2 * n.max(1), 16)),
+            // Each entry's irradiance, then where its light lands and which way it leaves.
+            ("entry irradiance", size(3 * n.max(1), 16)),
             // The near pass's deviations and the far field's per-entry tables after them.
             ("entry fits", size(crate::far::deviation_len(n), 16)),
             (crate::irradiance::ENTRY_HIDDEN, size(n, 8)),

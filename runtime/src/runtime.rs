@@ -467,6 +467,15 @@ impl Runtime {
         Ok(v.iter().map(|a| (a[3] > 0.0).then(|| Vec3::new(a[0], a[1], a[2]))).collect())
     }
 
+    /// Reads back which way the last update found each entry's cell's light to leave
+    /// (`crate::cpu::LinkLight::landing_normal`); None where no light arrives.
+    pub fn read_landing_normal(&self) -> Result<Vec<Option<Vec3>>, RuntimeError> {
+        let bytes = crate::gpu::read_buffer(&self.device, &self.queue, &self.entries.output)?;
+        let n = self.entry_count as usize;
+        let v: &[[f32; 4]] = bytemuck::cast_slice(&bytes[2 * n * 16..3 * n * 16]);
+        Ok(v.iter().map(|a| (a[3] > 0.0).then(|| Vec3::new(a[0], a[1], a[2]))).collect())
+    }
+
     /// Reads the last entry irradiance back (W/m² per entry).
     pub fn read_entry_irradiance(&self) -> Result<Vec<Vec3>, RuntimeError> {
         Ok(read_vec4(

@@ -491,10 +491,39 @@ pub struct FarSource {
     /// it sees the light ([`far_field`]). None where no light is that close.
     pub whole: Vec3,
     pub lit_by: Option<u32>,
-    /// Where its cell's light lands ([`LinkLight::landing`]) when a light lights it up close,
-    /// else its cell's centroid: the far field sends the whole flux it sees of the light from
-    /// there.
+    /// Where its cell's light lands ([`LinkLight::landing`]) when a light lights it up close
+    /// or it lands apart ([`FarSource::apart`]), else its cell's centroid: the far field sends
+    /// the whole flux from there.
     pub landing: Vec3,
+    /// Which way the light at `landing` leaves ([`LinkLight::landing_normal`]); the entry's
+    /// normal where `landing` is the centroid.
+    pub normal: Vec3,
+    /// Its light lands apart from its cell's centroid or its normal ([`lands_apart`]), and no
+    /// light lights it up close: the far field sends its whole flux from `landing` as the
+    /// texel's neighbours see the cell, less that flux from the centroid.
+    pub apart: bool,
+}
+
+/// How far, in cell sizes, the light on a cell must land from its centroid for the far field
+/// to send it from where it lands ([`lands_apart`]).
+pub const LANDING_APART: f32 = 0.1;
+/// The cosine of the angle between the way a cell's light leaves and its entry's normal past
+/// which the far field sends it the way it leaves ([`lands_apart`]): 10 degrees.
+pub const LANDING_TURN: f32 = 0.985;
+
+/// Whether a cell's light lands apart from its centroid and normal: more than
+/// [`LANDING_APART`] sizes from the centroid, or leaving more than [`LANDING_TURN`]'s angle
+/// from the entry's normal. The far field then sends the cell's whole flux from where it lands,
+/// the way it leaves, less that flux from the centroid, the way the pane and the deviation
+/// sent it ([`far_field`]).
+///
+/// A narrow spot (8°-12°) on the chamber's pillar lights the faces toward it, in cells that
+/// wrap a quarter of the way round the pillar, whose entry points face elsewhere; sent the
+/// way those points face, the floor beside the pillar got its light on the wrong side
+/// (`docs/near-lights.md`, *A flashlight*). Cells lit evenly, flat or not, land at their
+/// centroid and leave along their mean normal: nothing changes for them.
+pub fn lands_apart(landing: Vec3, landing_normal: Vec3, centroid: Vec3, normal: Vec3, size: f32) -> bool {
+    landing.distance(centroid) > LANDING_APART * size || landing_normal.dot(normal) < LANDING_TURN
 }
 
 /// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending: those whose
@@ -509,9 +538,9 @@ pub fn far_sources(
     weights: &[Vec3],
     lin: &[Vec3],
     relay: &[Vec3],
-    sight: &LightSight,
-    landing: &[Vec3],
+    link_light: &LinkLight,
 ) -> Vec<FarSource> {
+    let sight = &link_light.sight;
     if prm.far().texels.is_empty() {
         return Vec::new();
     }
@@ -542,16 +571,20 @@ pub fn far_sources(
         .filter(|(_, p)| luminance(p.abs()) > threshold)
         .take(FAR_SOURCES)
         .map(|(j, p)| {
-            let lit_by = sight.lit_by(tables.centroid[j], entries[j].normal, tables.size[j]);
+            let (centroid, normal, size) = (tables.centroid[j], entries[j].normal, tables.size[j]);
+            let lit_by = sight.lit_by(centroid, normal, size);
+            let at = link_light.landing.get(j).copied().unwrap_or(centroid);
+            let toward = link_light.landing_normal.get(j).copied().unwrap_or(normal);
+            let apart = lit_by.is_none() && lands_apart(at, toward, centroid, normal, size);
+            let (landing, normal) = if lit_by.is_some() || apart { (at, toward) } else { (centroid, normal) };
             FarSource {
                 entry: j as u32,
                 phi: *p,
                 whole: entries[j].albedo * entries[j].area * entry_irradiance[j],
                 lit_by,
-                landing: match lit_by {
-                    Some(_) => landing.get(j).copied().unwrap_or(tables.centroid[j]),
-                    None => tables.centroid[j],
-                },
+                landing,
+                normal,
+                apart,
             }
         })
         .collect()
@@ -705,7 +738,9 @@ pub fn sighted(close: &[bool]) -> Vec<bool> {
 /// this sends it as the texel sees it from where it is. A spot 15 cm from the chamber's wall,
 /// aimed at it, lights a patch of a cell half a metre across; sent from the cell's centroid,
 /// the floor and ceiling in front, which see the patch at a grazing angle, took it from where
-/// it is not (that spot's error 10.5 -> 5.9 %).
+/// it is not (that spot's error 10.5 -> 5.9 %). A source whose light lands apart
+/// ([`FarSource::apart`]) does the same with V for the sight; both send from `landing` along
+/// [`FarSource::normal`], the way the light leaves.
 pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &LightSight) -> Vec<Vec3> {
     let (far, entries) = (prm.far(), prm.entries());
     far.texels
@@ -717,31 +752,40 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
                 let (j, e) = (s.entry as usize, &entries[s.entry as usize]);
                 let (size, centroid) = (tables.size[j], tables.centroid[j]);
                 let share = far_share(centroid.distance(t.position), far.reach, size);
-                let d = centroid - t.position;
-                let r2 = d.length_squared();
-                let (cx, cy) = (t.normal.dot(d), -e.normal.dot(d));
-                if share <= 0.0 || cx <= 0.0 || cy <= 0.0 {
+                if share <= 0.0 {
+                    continue;
+                }
+                let kernel = |d: Vec3, normal: Vec3| {
+                    let (cx, cy) = (t.normal.dot(d), -normal.dot(d));
+                    let r2 = d.length_squared();
+                    if cx > 0.0 && cy > 0.0 {
+                        share * cx * cy / (std::f32::consts::PI * r2 * r2.max(size * size))
+                    } else {
+                        0.0
+                    }
+                };
+                let from_centroid = kernel(centroid - t.position, e.normal);
+                let landed = s.lit_by.is_some() || s.apart;
+                if from_centroid == 0.0 && !landed {
                     continue;
                 }
                 let v = vote(far, t, j, |k| {
                     let q = t.entries[k] as usize;
                     entries[q].normal.dot(centroid - tables.centroid[q]) > 0.0
                 });
-                let kernel = |cx: f32, cy: f32, r2: f32| {
-                    share * cx * cy / (std::f32::consts::PI * r2 * r2.max(size * size))
-                };
                 let mut light = s.phi * v;
-                if let Some(l) = s.lit_by {
-                    // The whole flux as the texel sees the light, from where it lands; less
-                    // what the panes and the deviation sent of it by the vote.
+                if landed {
+                    // The whole flux from where it lands, the way it leaves, as the texel sees
+                    // the light that lights it up close or (apart) as the neighbours see the
+                    // cell; less what the panes and the deviation sent of it from the centroid.
                     light -= s.whole * v;
-                    let d = s.landing - t.position;
-                    let (cx, cy) = (t.normal.dot(d), -e.normal.dot(d));
-                    if cx > 0.0 && cy > 0.0 {
-                        sum += s.whole * (sight.seen[l as usize][i] * kernel(cx, cy, d.length_squared()));
-                    }
+                    let seen = match s.lit_by {
+                        Some(l) => sight.seen[l as usize][i],
+                        None => v,
+                    };
+                    sum += s.whole * (seen * kernel(s.landing - t.position, s.normal));
                 }
-                sum += light * kernel(cx, cy, r2);
+                sum += light * from_centroid;
             }
             sum
         })
@@ -847,8 +891,7 @@ pub fn near_field(
     let mut img = link_field(prm, tables, link_light, entry_irradiance, weights, lin);
     let sight = &link_light.sight;
     let relay = near_deviation(prm, tables, &img);
-    let sources =
-        far_sources(prm, tables, entry_irradiance, weights, lin, &relay, sight, &link_light.landing);
+    let sources = far_sources(prm, tables, entry_irradiance, weights, lin, &relay, link_light);
     for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources, sight)) {
         img[t.texel as usize] += v;
     }

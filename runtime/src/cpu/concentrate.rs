@@ -374,9 +374,15 @@ pub struct LinkLight {
     pub sight: LightSight,
     /// Per entry: where its cell's light lands, its triangles' [`TriangleLight::centre`]
     /// weighted by the luminance of their power (the cell's centroid where none arrives;
-    /// empty: every centroid). The far field sends a cell lit up close from there
-    /// (`crate::cpu::far_field`).
+    /// empty: every centroid). The far field sends a cell lit up close, or whose light lands
+    /// apart from its centroid or its normal ([`lands_apart`](crate::cpu::lands_apart)), from
+    /// there (`crate::cpu::far_field`).
     pub landing: Vec<Vec3>,
+    /// Per entry: which way its cell's light leaves, its triangles' unit normals weighted as
+    /// `landing` weights their centres, normalised (the entry's normal where none arrives;
+    /// empty: every entry's normal). A cell wraps round a pillar: lit on the face toward a
+    /// spot, it sends that light the way that face looks, not the way its entry point's does.
+    pub landing_normal: Vec<Vec3>,
 }
 
 impl LinkLight {
@@ -388,6 +394,7 @@ impl LinkLight {
             value: Vec::new(),
             sight: LightSight::default(),
             landing: Vec::new(),
+            landing_normal: Vec::new(),
         }
     }
 
@@ -438,22 +445,21 @@ impl LinkLight {
                 }
             }
         }
-        let landing = (0..n)
-            .map(|j| {
-                let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
-                for t in of(j) {
-                    let w = prm::luminance(t.power);
-                    sum += t.centre * w;
-                    weight += w;
-                }
-                if weight > 0.0 {
-                    sum / weight
-                } else {
-                    tables.centroid[j]
-                }
-            })
-            .collect();
-        LinkLight { hot, value, sight: LightSight::default(), landing }
+        let (mut landing, mut landing_normal) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for j in 0..n {
+            let (mut at, mut toward, mut weight) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
+            for (t, tri) in of(j).iter().zip(cells.of(j)) {
+                let w = prm::luminance(t.power);
+                at += t.centre * w;
+                // The cells' triangles are wound counter-clockwise seen from the front.
+                toward += (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero() * w;
+                weight += w;
+            }
+            let normal = prm.entries()[j].normal;
+            landing.push(if weight > 0.0 { at / weight } else { tables.centroid[j] });
+            landing_normal.push(if weight > 0.0 { toward.try_normalize().unwrap_or(normal) } else { normal });
+        }
+        LinkLight { hot, value, sight: LightSight::default(), landing, landing_normal }
     }
 }
 
