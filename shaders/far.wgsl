@@ -13,10 +13,10 @@
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
 // texel's near_sum slot (written when the slot is past the near field's own texels), and for a
 // source lit up close, its whole flux times (what the texel sees of that light, its cube of
-// shadow maps, looked up once a texel, from where it lands, less V from the centroid), for one
-// whose light lands apart (tag APART), the same with V for the sight; its workgroup first lists the sources any of
-// its texels' neighbours sees, or that are lit up close (group_words), and the sum runs over
-// those, in the same order.
+// shadow maps, looked up once a texel, from where it lands, less V from the centroid), and for
+// one whose light lands apart (tag APART) the same with V for the sight; its workgroup first
+// lists the sources any of its texels' neighbours sees, or that are lit up close
+// (group_words), and the sum runs over those, in the same order.
 // Structs, bindings, WG_LINEAR, WG_FAR_SOURCES, FAR_SOURCES, FAR_SOURCE_SCALE, HOT_REACH,
 // NO_LIGHT, CLOSE_SIGHTS, CONE_REACH, luminance, far_share: the generated prelude; cube_visibility:
 // lights.wgsl.

@@ -520,17 +520,17 @@ pub const LANDING_TURN: f32 = 0.985;
 /// A narrow spot (8°-12°) on the chamber's pillar lights the faces toward it, in cells that
 /// wrap a quarter of the way round the pillar, whose entry points face elsewhere; sent the
 /// way those points face, the floor beside the pillar got its light on the wrong side
-/// (`docs/near-lights.md`, *A flashlight*). Cells lit evenly, flat or not, land at their
-/// centroid and leave along their mean normal: nothing changes for them.
+/// (`docs/near-lights.md`, *A flashlight on a pillar*). A flat cell lit evenly lands at its
+/// centroid along its normal: nothing changes for it.
 pub fn lands_apart(landing: Vec3, landing_normal: Vec3, centroid: Vec3, normal: Vec3, size: f32) -> bool {
     landing.distance(centroid) > LANDING_APART * size || landing_normal.dot(normal) < LANDING_TURN
 }
 
 /// The entries the far field (`prm::prm_file::Far`) sends this frame, ascending: those whose
 /// deviation flux's luminance |phi_j| exceeds the threshold ([`far_threshold`]), never more
-/// than [`FAR_SOURCES`], each with the light that lights its cell up close (`sight`). Empty
-/// without a far field.
-#[allow(clippy::too_many_arguments)]
+/// than [`FAR_SOURCES`], each with the light that lights its cell up close
+/// (`link_light.sight`) and where its light lands (`link_light.landing`, `landing_normal`).
+/// Empty without a far field.
 pub fn far_sources(
     prm: &Prm,
     tables: &NearTables,
