@@ -90,6 +90,12 @@ fn sighted(k: u32) -> bool {
     return k < 64u && ((bits >> (k % 32u)) & 1u) != 0u;
 }
 
+// prm_runtime::cpu::sight_share: how much a far texel takes a source lit up close as it sees
+// the light, the rest by the vote, for a light `d` off the cell's plane.
+fn sight_share(d: f32, size: f32) -> f32 {
+    return min(max(HOT_REACH - d / size, 0.0), 1.0);
+}
+
 // Whether spot l's outer cone holds the point q.
 fn in_cone(l: GpuLight, q: vec3f) -> bool {
     let d = q - l.position;
@@ -449,12 +455,14 @@ fn far_main(
     let lits = lit_count();
     if lits > 0u && live {
         var sights = vec4f(0.0);
+        var sighted_at = array<vec3f, CLOSE_SIGHTS>();
         var slot = 0u;
         for (var k = 0u; k < params.light_count && slot < CLOSE_SIGHTS; k++) {
             if sighted(k) {
                 let l = lights[k];
                 let seen = cube_visibility(l, t.position, t.normal, distance(l.position, t.position));
                 sights += seen * vec4f(vec4u(slot) == vec4u(0u, 1u, 2u, 3u));
+                sighted_at[slot] = l.position;
                 slot++;
             }
         }
@@ -472,7 +480,10 @@ fn far_main(
             let v = texel_vote(t, s, e);
             var seen = v;
             if tag < CLOSE_SIGHTS {
-                seen = dot(sights, vec4f(vec4u(tag) == vec4u(0u, 1u, 2u, 3u)));
+                // The sight fades into the vote as the light stands 1 to HOT_REACH sizes off
+                // the cell's plane (sight_share).
+                let w = sight_share(dot(e.normal, sighted_at[tag] - e.centroid), e.size);
+                seen = mix(v, dot(sights, vec4f(vec4u(tag) == vec4u(0u, 1u, 2u, 3u))), w);
             }
             let d = e.centroid - t.position;
             let cx = dot(t.normal, d);

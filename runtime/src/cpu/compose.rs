@@ -736,10 +736,11 @@ pub fn sighted(close: &[bool]) -> Vec<bool> {
 /// neighbours' visibility of j weighted as stored. The `max` only matters with no near links
 /// (reach 0), where it bounds the spike a source next to the texel would make. A source lit up
 /// close by a light ([`FarSource::lit_by`]) also sends its whole flux times what the texel
-/// sees of that light (`sight`), from where the light lands on the cell
-/// ([`FarSource::landing`]), less its whole flux times V from the centroid: the panes' first
-/// bounce and the deviation together send the cell's whole flux by V from the centroid, and
-/// this sends it as the texel sees it from where it is. A spot 15 cm from the chamber's wall,
+/// sees of that light (`sight`, faded into V as the light stands farther off the cell:
+/// [`sight_share`]), from where the light lands on the cell ([`FarSource::landing`]), less
+/// its whole flux times V from the centroid: the panes' first bounce and the deviation
+/// together send the cell's whole flux by V from the centroid, and this sends it as the texel
+/// sees it from where it is. A spot 15 cm from the chamber's wall,
 /// aimed at it, lights a patch of a cell half a metre across; sent from the cell's centroid,
 /// the floor and ceiling in front, which see the patch at a grazing angle, took it from where
 /// it is not (that spot's error 10.5 -> 5.9 %). A source whose light lands apart
@@ -784,7 +785,11 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
                     // cell; less what the panes and the deviation sent of it from the centroid.
                     light -= s.whole * v;
                     let seen = match s.lit_by {
-                        Some(l) => sight.seen[l as usize][i],
+                        Some(l) => {
+                            let at = sight.at[l as usize].as_ref().map_or(centroid, |x| x.position);
+                            let w = sight_share(e.normal.dot(at - centroid), size);
+                            w * sight.seen[l as usize][i] + (1.0 - w) * v
+                        }
                         None => v,
                     };
                     sum += s.whole * (seen * kernel(s.landing - t.position, s.normal));
@@ -794,6 +799,27 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
             sum
         })
         .collect()
+}
+
+/// How much a far texel takes a source lit up close as it sees the light ([`LightSight`]),
+/// the rest as its neighbours see the cell (the vote), for a light `height` off the cell's
+/// plane (`size`: the cell's): all within one size, none at
+/// [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH), linear between (`sight_share` in
+/// `shaders/far.wgsl`). What the light sees stands for what its spot on the cell sees only
+/// while the light is close to the surface it lights: the chamber's flashlight 1 m from a side
+/// wall (1.8 sizes) saw round a pillar that hides the wall's lit patch from the floor behind
+/// it (11.9 %; at this share 9.1 %), where a torch 15 cm from a wall, or a lamp 3 cm over a
+/// floor lighting the floor around it, sees what its spot sees. Measured against the light's
+/// distance from the centroid (9.3 %) and the baseline across the texel's direction from
+/// where the light lands (10.8 %); the height is kept.
+pub fn sight_share(height: f32, size: f32) -> f32 {
+    let w = (crate::cpu::concentrate::HOT_REACH - height / size).clamp(0.0, 1.0);
+    // A cell of no size takes the vote.
+    if w.is_nan() {
+        0.0
+    } else {
+        w
+    }
 }
 
 /// How much of far-field source `j` texel `t` sees: the weighted vote of its neighbour entries'
