@@ -664,11 +664,7 @@ fn a_light_lights_a_cell_up_close_only_where_its_cone_reaches_it() {
 /// sight 0.158, the vote alone 0.131, the ground truth's noise 0.039).
 #[test]
 fn a_light_a_metre_off_a_wall_is_not_what_its_spot_on_the_wall_sees() {
-    let mut scene = common::pillar_room();
-    let mut spot = common::point(v(2.0, 1.0, 1.25), 4.0);
-    spot.kind = prm::LightKind::Spot { inner: 10f32.to_radians(), outer: 15f32.to_radians() };
-    spot.direction = Vec3::Z;
-    scene.lights = vec![spot];
+    let scene = common::pillar_room_spot_off_a_wall();
     let bvh = Bvh::build(&scene);
     let atlas = 48;
     let (set, gt, noise) = ground_truth(&scene, &bvh, atlas, 13);

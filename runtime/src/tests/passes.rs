@@ -1195,11 +1195,7 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
 #[test]
 fn the_gpu_fades_a_far_lights_sight_into_the_vote_as_the_twin_does() {
     let g = gpu();
-    let mut scene = pillar_room();
-    let mut spot = point(v(2.0, 1.0, 1.25), 4.0);
-    spot.kind = LightKind::Spot { inner: 10f32.to_radians(), outer: 15f32.to_radians() };
-    spot.direction = Vec3::Z;
-    scene.lights = vec![spot];
+    let scene = common::pillar_room_spot_off_a_wall();
     let prm = bake(&scene, 256, 16, 48);
     let bvh = Bvh::build(&scene);
     let tables = cpu::NearTables::new(&prm);

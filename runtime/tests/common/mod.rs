@@ -84,6 +84,19 @@ pub fn pillar_room() -> Scene {
     s
 }
 
+/// [`pillar_room`] lit by one narrow spot (10°-15°, 4 W/sr) 75 cm in front of its +z wall and
+/// aimed at it, the pillar 15 cm behind the light: the light stands off the wall's lit patch
+/// by more than the patch's cells are across, and sees round the pillar where the patch does
+/// not.
+pub fn pillar_room_spot_off_a_wall() -> Scene {
+    let mut scene = pillar_room();
+    let mut spot = point(v(2.0, 1.0, 1.25), 4.0);
+    spot.kind = prm::LightKind::Spot { inner: 10f32.to_radians(), outer: 15f32.to_radians() };
+    spot.direction = Vec3::Z;
+    scene.lights = vec![spot];
+    scene
+}
+
 /// Floor and two walls of the unit cube, open on three sides, a 2 W/sr point light inside.
 pub fn open_box() -> Scene {
     let mut s = quads(&[
