@@ -237,3 +237,44 @@ fn the_flashlight_rig_is_carried_at_hand_height_and_aims_at_pillars_and_walls() 
     assert!(reach[0] < 1.5 && reach[7] > 5.0, "axis lengths {reach:?}");
     assert!(on_pillars >= 2, "{on_pillars} aims meet a pillar");
 }
+
+/// two_rooms' flashlight rig (`assets/two_rooms_flashlight.json`; `docs/near-lights.md`, *The
+/// same flashlight in two_rooms*): the chamber's narrow spot carried at 1.5 m through the two
+/// rooms and their door (x = 0, 1 m wide, 2.1 m high). Each aim meets a surface from the front;
+/// two send the beam through the door, one each way (the axis crosses the wall's plane inside
+/// the opening and lands in the other room), and two land on the door's own faces (its jamb
+/// and its lintel, within the wall's 10 cm).
+#[test]
+fn the_two_rooms_flashlight_shines_through_the_door_both_ways_and_onto_its_frame() {
+    let scene = load("two_rooms.glb");
+    let bvh = Bvh::build(&scene);
+    let rig = prm::rig::Rig::load(&asset("two_rooms_flashlight.json"), &scene.lights).unwrap();
+    let torch = rig.lights.iter().find(|l| l.base.name == "flashlight").expect("a light named flashlight");
+    assert!(matches!(torch.base.kind, prm::LightKind::Spot { outer, .. } if outer < 0.25));
+    let (mut through, mut on_frame) = ([0usize; 2], 0);
+    for &(_, p, d, _) in &torch.keys {
+        assert!((p.y - 1.5).abs() < 1e-4, "the flashlight at {p}: not at hand height");
+        let d = d.normalize();
+        let hit = bvh.closest_hit(p, d, f32::INFINITY).expect("the flashlight aims out of the level");
+        assert!(
+            scene.facing_normal(hit.triangle as usize, d).is_some(),
+            "the flashlight at {p} is inside a solid"
+        );
+        let q = p + d * hit.t;
+        if q.x.abs() <= 0.05 + 1e-3 {
+            on_frame += 1;
+            continue;
+        }
+        if p.x.signum() != q.x.signum() {
+            // Where the axis crosses the wall's plane: inside the opening.
+            let at = p + d * (-p.x / d.x);
+            assert!(
+                at.z.abs() < 0.5 && at.y < 2.1,
+                "the beam from {p} crosses the wall at {at}, not the door"
+            );
+            through[(p.x > 0.0) as usize] += 1;
+        }
+    }
+    assert!(through[0] >= 1 && through[1] >= 1, "through the door from A, from B: {through:?}");
+    assert!(on_frame >= 2, "{on_frame} aims land on the door's faces");
+}
