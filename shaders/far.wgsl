@@ -91,9 +91,9 @@ fn sighted(k: u32) -> bool {
 }
 
 // prm_runtime::cpu::sight_share: how much a far texel takes a source lit up close as it sees
-// the light, the rest by the vote, for a light `d` off the cell's plane.
-fn sight_share(d: f32, size: f32) -> f32 {
-    return min(max(HOT_REACH - d / size, 0.0), 1.0);
+// the light, the rest by the vote, for a light `height` off the cell's plane.
+fn sight_share(height: f32, size: f32) -> f32 {
+    return min(max(HOT_REACH - height / size, 0.0), 1.0);
 }
 
 // Whether spot l's outer cone holds the point q.

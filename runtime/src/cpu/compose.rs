@@ -740,10 +740,10 @@ pub fn sighted(close: &[bool]) -> Vec<bool> {
 /// [`sight_share`]), from where the light lands on the cell ([`FarSource::landing`]), less
 /// its whole flux times V from the centroid: the panes' first bounce and the deviation
 /// together send the cell's whole flux by V from the centroid, and this sends it as the texel
-/// sees it from where it is. A spot 15 cm from the chamber's wall,
-/// aimed at it, lights a patch of a cell half a metre across; sent from the cell's centroid,
-/// the floor and ceiling in front, which see the patch at a grazing angle, took it from where
-/// it is not (that spot's error 10.5 -> 5.9 %). A source whose light lands apart
+/// sees it from where it is. A spot 15 cm from the chamber's wall, aimed at it, lights a patch
+/// of a cell half a metre across; sent from the cell's centroid, the floor and ceiling in
+/// front, which see the patch at a grazing angle, took it from where it is not (that spot's
+/// error 10.5 -> 5.9 %). A source whose light lands apart
 /// ([`FarSource::apart`]) does the same with V for the sight; both send from `landing` along
 /// [`FarSource::normal`], the way the light leaves.
 pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &LightSight) -> Vec<Vec3> {
