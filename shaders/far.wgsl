@@ -12,7 +12,7 @@
 // far_main, one invocation per far texel: sum over the sources of
 // phi share V cos_x cos_j / (pi r² max(r², size²)), r to the cell's centroid, added to the
 // texel's near_sum slot (written when the slot is past the near field's own texels), and for a
-// source lit up close, its whole flux times (what the texel sees of that light, its cube of
+// source lit up close, its whole flux times (what the texel sees of that light from its eye, its cube of
 // shadow maps, looked up once a texel, from where it lands, less V from the centroid), and for
 // one whose light lands apart (tag APART) the same with V for the sight; its workgroup first
 // lists the sources any of its texels' neighbours sees, or that are lit up close
@@ -91,7 +91,7 @@ fn sighted(k: u32) -> bool {
 }
 
 // prm_runtime::cpu::sight_share: how much a far texel takes a source lit up close as it sees
-// the light, the rest by the vote, for a light `height` off the cell's plane.
+// the light's eye, the rest by the vote, for an eye `height` off the cell's plane.
 fn sight_share(height: f32, size: f32) -> f32 {
     return min(max(HOT_REACH - height / size, 0.0), 1.0);
 }
@@ -106,9 +106,10 @@ fn in_cone(l: GpuLight, q: vec3f) -> bool {
     return dot(l.direction, to) > l.cos_outer;
 }
 
-// prm_runtime::cpu::LightSight::lit_by: of the sighted lights, the nearest within HOT_REACH
-// sizes of entry j's cell centroid, in front of it and (a spot) whose cone reaches it; its
-// rank among the sighted lights (the slot far_main looks it up in), or NO_LIGHT.
+// prm_runtime::cpu::LightSight::lit_by: of the sighted lights, the one whose eye is nearest
+// within HOT_REACH sizes of entry j's cell centroid, in front of it and (a spot) whose cone
+// reaches it; its rank among the sighted lights (the slot far_main looks it up in, and
+// params.sight_eyes holds its eye in), or NO_LIGHT.
 fn lit_by(j: u32) -> u32 {
     let e = far_entries[j];
     var best = NO_LIGHT;
@@ -119,8 +120,10 @@ fn lit_by(j: u32) -> u32 {
             continue;
         }
         let l = lights[k];
-        let d = distance(l.position, e.centroid);
-        var reaches = d < best_d && dot(e.normal, l.position - e.centroid) > 0.0;
+        // From the light's eye (prm_runtime::cpu::sight_eye; its cube is there).
+        let eye = params.sight_eyes[rank].xyz;
+        let d = distance(eye, e.centroid);
+        var reaches = d < best_d && dot(e.normal, eye - e.centroid) > 0.0;
         if reaches && l.kind == KIND_SPOT {
             // The outer cone reaches CONE_REACH sizes of the centroid (prm_runtime::cpu::up_close).
             let r = e.size * CONE_REACH;
@@ -459,10 +462,10 @@ fn far_main(
         var slot = 0u;
         for (var k = 0u; k < params.light_count && slot < CLOSE_SIGHTS; k++) {
             if sighted(k) {
-                let l = lights[k];
-                let seen = cube_visibility(l, t.position, t.normal, distance(l.position, t.position));
+                let eye = params.sight_eyes[slot].xyz;
+                let seen = cube_visibility(lights[k], eye, t.position, t.normal, distance(eye, t.position));
                 sights += seen * vec4f(vec4u(slot) == vec4u(0u, 1u, 2u, 3u));
-                sighted_at[slot] = l.position;
+                sighted_at[slot] = eye;
                 slot++;
             }
         }

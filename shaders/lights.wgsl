@@ -85,15 +85,16 @@ fn visibility(l: GpuLight, p: vec3f, n: vec3f, dist: f32) -> f32 {
     return pcf(layer, q);
 }
 
-// The same in light l's cube (crate::lights::layers: a point light's, a wide spot's, or the
-// one a spot that lights a cell up close owns after its frustum), which sees every way: how a
-// far texel sees the spot of light the light makes (far.wgsl).
-fn cube_visibility(l: GpuLight, p: vec3f, n: vec3f, dist: f32) -> f32 {
+// The same in light l's cube, drawn at `eye` (crate::lights::layers: a point light's or a wide
+// spot's at the light, or the one a spot that lights a cell up close owns after its frustum,
+// at its eye: prm_runtime::cpu::sight_eye), which sees every way: how a far texel sees the
+// spot of light the light makes (far.wgsl); `dist` is from the eye.
+fn cube_visibility(l: GpuLight, eye: vec3f, p: vec3f, n: vec3f, dist: f32) -> f32 {
     // A cube face's texel per unit distance (crate::lights::frusta).
     let size = f32(textureDimensions(shadow_tex).x);
     let texel = 2.0 * (1.0 + CUBE_PAD_TEXELS / size) / size;
     let q = p + n * (1.5 * texel * dist);
-    return pcf(l.first_layer + l.layers - CUBE_LAYERS + cube_face(q - l.position), q);
+    return pcf(l.first_layer + l.layers - CUBE_LAYERS + cube_face(q - eye), q);
 }
 
 // The share of the 3x3 PCF of bilinear comparisons around the point q in shadow layer `layer`

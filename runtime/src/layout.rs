@@ -262,6 +262,9 @@ gpu_struct! {
         pub sighted_hi: u32,
         pub _pad0: u32,
         pub _pad1: u32,
+        /// Column k: the eye of the light in sighted slot k (`crate::cpu::sight_eye`: where its
+        /// cube is and its spots are seen from), w = 1; zero past the last.
+        pub sight_eyes: [[f32; 4]; 4],
     }
 }
 

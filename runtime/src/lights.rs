@@ -160,8 +160,17 @@ impl Bounds {
 
 /// View-projection matrices of a light's layers and the world size of one shadow texel
 /// (per unit distance for perspective layers), for maps of `size` x `size` (a directional
-/// light's in `sun_tiles` x `sun_tiles` tiles, row by row from the map's top left).
-pub fn frusta(l: &Light, size: u32, bounds: Bounds, sun_tiles: u32, close: bool) -> (Vec<Mat4>, f32) {
+/// light's in `sun_tiles` x `sun_tiles` tiles, row by row from the map's top left). A spot
+/// that lights a cell up close (`close`) has its cube at its eye (`crate::cpu::sight_eye`),
+/// where the far field sees its spots from; every other cube is at its light.
+pub fn frusta(
+    l: &Light,
+    size: u32,
+    bounds: Bounds,
+    sun_tiles: u32,
+    close: bool,
+    eye: Vec3,
+) -> (Vec<Mat4>, f32) {
     let pad = 1.0 + CUBE_PAD_TEXELS / size as f32;
     let near = (bounds.radius * 2e-6).max(f32::MIN_POSITIVE * 1e6);
     let cube = |pos: Vec3| {
@@ -186,7 +195,7 @@ pub fn frusta(l: &Light, size: u32, bounds: Bounds, sun_tiles: u32, close: bool)
             let proj = perspective_infinite_reverse(2.0 * half, 1.0, near);
             let mut mats = vec![proj * look_to_mat4(l.position, l.direction, up_for(l.direction))];
             if close {
-                mats.extend(cube(l.position).0);
+                mats.extend(cube(eye).0);
             }
             (mats, 2.0 * half.tan() / size as f32)
         }
@@ -255,18 +264,22 @@ fn up_for(dir: Vec3) -> Vec3 {
     }
 }
 
-/// GPU lights and their layer matrices for `lights` (already validated).
+/// GPU lights and their layer matrices for `lights` (already validated), each with whether it
+/// lights a cell up close and its eye ([`frusta`]).
 pub fn pack(
     lights: &[Light],
     size: u32,
     bounds: Bounds,
     sun_tiles: u32,
     close: &[bool],
+    eyes: &[Vec3],
 ) -> (Vec<GpuLight>, Vec<Mat4>) {
     let mut gpu = Vec::with_capacity(lights.len());
     let mut mats = Vec::new();
     for (i, l) in lights.iter().enumerate() {
-        let (m, texel) = frusta(l, size, bounds, sun_tiles, close.get(i).copied().unwrap_or(false));
+        let close = close.get(i).copied().unwrap_or(false);
+        let eye = eyes.get(i).copied().unwrap_or(l.position);
+        let (m, texel) = frusta(l, size, bounds, sun_tiles, close, eye);
         gpu.push(GpuLight::new(l, mats.len() as u32, m.len() as u32, texel));
         mats.extend(m);
     }
@@ -306,7 +319,7 @@ mod sun_tests {
         {
             let l = sun(dir);
             assert_eq!(layers(&l, n, false), 16);
-            let (mats, texel) = frusta(&l, size, bounds, n, false);
+            let (mats, texel) = frusta(&l, size, bounds, n, false, l.position);
             assert_eq!(mats.len(), 16);
             // One map over the level's bounding sphere had texels of its diameter / size.
             assert!(texel * size as f32 <= 2.0 * bounds.radius / n as f32 * 1.01, "texel {texel}");

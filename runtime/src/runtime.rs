@@ -195,9 +195,10 @@ impl Runtime {
         let near_data = NearData::new(device, prm);
         // Built once: the concentration, weight and near passes all read it.
         let tables = crate::cpu::NearTables::new(prm);
-        // A spot that lights a cell up close gets a cube for the far field (`crate::far`).
+        // A spot that lights a cell up close gets a cube for the far field (`crate::far`), at
+        // its eye: where its axis meets the level (`crate::cpu::sight_eye`).
         if !prm.far().texels.is_empty() {
-            shadows.set_up_close(crate::cpu::UpClose::new(prm, &tables));
+            shadows.set_up_close(crate::cpu::UpClose::new(prm, &tables), prm::Bvh::build(scene));
         }
         let concentrate = ConcentratePass::new(
             device,
@@ -353,10 +354,10 @@ impl Runtime {
         self.entry_lights = Some(lights.to_vec());
     }
 
-    /// Updates only the shadow maps and light buffer: what a direct-only frame needs. The next
-    /// [`Runtime::update`] recomposes.
+    /// Updates only the shadow maps and light buffer: what a direct-only frame needs (no spot's
+    /// cube for the far field). The next [`Runtime::update`] recomposes.
     pub fn update_direct(&mut self, lights: &[Light]) -> Result<(), RuntimeError> {
-        if self.shadows.update(lights)? {
+        if self.shadows.update_direct(lights)? {
             self.stale = true;
         }
         Ok(())
@@ -424,6 +425,7 @@ impl Runtime {
             keep_unchanged: !self.redo_entries as u32,
             sighted_lo: self.shadows.sighted_bits()[0],
             sighted_hi: self.shadows.sighted_bits()[1],
+            sight_eyes: self.shadows.sight_eyes(),
             ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));

@@ -14,6 +14,7 @@
 //! shadow at every one of them, so the entry pass can skip a light hidden from a whole cell
 //! after a few block reads instead of probing each triangle (`shaders/irradiance.wgsl`).
 
+use glam::Vec3;
 use prm::{Light, LightKind, Scene};
 use wgpu::util::DeviceExt;
 
@@ -173,10 +174,14 @@ pub struct ShadowMaps {
     group: Option<wgpu::BindGroup>,
     last: Option<Vec<Light>>,
     /// Per light of `last`: a point or spot light that lights a cell up close (a spot has a
-    /// cube besides its frustum: [`lights::layers`]).
+    /// cube besides its frustum: [`lights::layers`]), and its eye (`crate::cpu::sight_eye`).
     last_close: Vec<bool>,
-    /// The level's cells, to tell those spots (none: no spot has a cube).
-    up_close: Option<crate::cpu::UpClose>,
+    last_eyes: Vec<Vec3>,
+    /// Whether the last update drew the spots' cubes ([`ShadowMaps::update_direct`] does not).
+    last_cubes: bool,
+    /// The level's cells, to tell those spots, and the level, to find the eyes (none: no spot
+    /// has a cube, every eye is its light).
+    up_close: Option<(crate::cpu::UpClose, prm::Bvh)>,
     light_count: u32,
     /// Shadow layers rendered so far.
     layers_rendered: u64,
@@ -291,33 +296,54 @@ impl ShadowMaps {
             group: None,
             last: None,
             last_close: Vec::new(),
+            last_eyes: Vec::new(),
+            last_cubes: true,
             up_close: None,
             light_count: 0,
             layers_rendered: 0,
         }
     }
 
-    /// Gives a spot that lights one of these cells up close a cube besides its frustum, from
-    /// the next update on (the runtime's far field reads it: [`lights::layers`]).
-    pub(crate) fn set_up_close(&mut self, cells: crate::cpu::UpClose) {
-        self.up_close = Some(cells);
+    /// Gives a spot that lights one of these cells up close a cube besides its frustum, at its
+    /// eye in this level (`bvh`: `crate::cpu::sight_eye`), from the next update on (the
+    /// runtime's far field reads it: [`lights::layers`]).
+    pub(crate) fn set_up_close(&mut self, cells: crate::cpu::UpClose, bvh: prm::Bvh) {
+        self.up_close = Some((cells, bvh));
         self.last = None;
     }
 
     /// Brings the maps and light buffer up to date with `lights`. Returns whether anything the
     /// lighting depends on changed (false: the last frame's light is still right).
     pub(crate) fn update(&mut self, lights: &[Light]) -> Result<bool, LightError> {
+        self.update_with(lights, true)
+    }
+
+    /// [`ShadowMaps::update`] with only the maps direct light needs: no spot gets the cube the
+    /// far field reads (a direct-only frame, the benchmark's baseline, does not draw it).
+    pub(crate) fn update_direct(&mut self, lights: &[Light]) -> Result<bool, LightError> {
+        self.update_with(lights, false)
+    }
+
+    fn update_with(&mut self, lights: &[Light], cubes: bool) -> Result<bool, LightError> {
         lights::validate(lights)?;
-        if self.last.as_deref() == Some(lights) {
+        if self.last.as_deref() == Some(lights) && self.last_cubes == cubes {
             return Ok(false);
         }
+        self.last_cubes = cubes;
         let n = self.sun_tiles;
-        let close = self.up_close.as_ref().map_or_else(|| vec![false; lights.len()], |u| u.lights(lights));
+        let (close, eyes) = match self.up_close.as_ref().filter(|_| cubes) {
+            Some((cells, bvh)) => {
+                let eyes: Vec<Vec3> =
+                    lights.iter().map(|l| crate::cpu::sight_eye(l, bvh, cells.spacing())).collect();
+                (cells.lights(lights, &eyes), eyes)
+            }
+            None => (vec![false; lights.len()], lights.iter().map(|l| l.position).collect()),
+        };
         let needed: u32 = lights.iter().zip(&close).map(|(l, &c)| lights::layers(l, n, c)).sum();
         if needed > self.max_layers.min(MAX_LAYERS) {
             return Err(LightError::TooManyLayers { needed, max: self.max_layers.min(MAX_LAYERS) });
         }
-        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n, &close);
+        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n, &close, &eyes);
         let realloc = self.texture.as_ref().is_none_or(|(_, n)| *n != needed.max(1));
         if realloc {
             self.allocate(needed.max(1));
@@ -360,6 +386,7 @@ impl ShadowMaps {
         self.light_count = lights.len() as u32;
         self.last = Some(lights.to_vec());
         self.last_close = close;
+        self.last_eyes = eyes;
         Ok(true)
     }
 
@@ -546,6 +573,19 @@ impl ShadowMaps {
             }
         }
         bits
+    }
+
+    /// The eyes of the lights whose spots the far field sees (`crate::cpu::sight_eye`), in
+    /// their slots (the order of [`ShadowMaps::sighted_bits`]' lights), as the columns of
+    /// `IndirectParams::sight_eyes`; zero past the last.
+    pub fn sight_eyes(&self) -> [[f32; 4]; 4] {
+        let mut eyes = [[0.0; 4]; 4];
+        let sighted = crate::cpu::sighted(&self.last_close);
+        let seen = sighted.iter().zip(&self.last_eyes).filter(|(&s, _)| s).map(|(_, e)| e);
+        for (slot, e) in eyes.iter_mut().zip(seen) {
+            *slot = [e.x, e.y, e.z, 1.0];
+        }
+        eyes
     }
 
     /// Texels per side of one layer.

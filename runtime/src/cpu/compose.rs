@@ -3,8 +3,8 @@
 //! The GPU passes (`weights.wgsl`, `compose.wgsl`) are held to these functions by the tests.
 
 use glam::Vec3;
-use prm::luminance;
 use prm::prm_file::{far_share, Prm, TileLayout};
+use prm::{luminance, Bvh};
 
 use super::concentrate::LinkLight;
 
@@ -600,8 +600,10 @@ pub fn far_sources(
 /// otherwise sends as the texel's neighbour entries see the cell (`prm::prm_file::far_vote`). Beside a pillar's foot
 /// or under its capital, a texel's neighbours lie on other faces and say nothing of what it
 /// sees: on the chamber's torch 15 cm from a wall, a capital 3 m away that saw the torch's
-/// spot got a sixth of its light. The spot is seen where the light is: the GPU reads the
-/// light's own cube of shadow maps at the texel, the twin traces a ray (`crate::cpu::light_sight`).
+/// spot got a sixth of its light. The spot is seen from the light's eye ([`sight_eye`]: a
+/// point light's own position, a narrow spot's axis where it meets the level): the GPU reads
+/// the light's cube of shadow maps there at the texel, the twin traces a ray
+/// (`crate::cpu::light_sight`).
 ///
 /// [`HOT_REACH`]: crate::cpu::concentrate::HOT_REACH
 #[derive(Clone, Debug, Default)]
@@ -609,6 +611,8 @@ pub struct LightSight {
     /// Per light: the light where the far field sees its spots in its cube of shadow maps
     /// ([`sighted`]), else None.
     pub at: Vec<Option<prm::Light>>,
+    /// Per light: its eye ([`sight_eye`]), where its cube is and its spots are seen from.
+    pub eye: Vec<Vec3>,
     /// Per light in `at` that lights some cell up close: how much of it each far texel (in
     /// `Far::texels` order) sees, 0 to 1 (the GPU: its cube's PCF share); empty for the others.
     pub seen: Vec<Vec<f32>>,
@@ -619,8 +623,10 @@ impl LightSight {
     /// the lights with a position, the nearest (the first of equals).
     pub fn lit_by(&self, centroid: Vec3, normal: Vec3, size: f32) -> Option<u32> {
         let mut best: Option<(u32, f32)> = None;
-        for (k, at) in self.at.iter().enumerate() {
-            let Some(d) = at.as_ref().and_then(|l| up_close(l, centroid, normal, size)) else { continue };
+        for (k, (at, &eye)) in self.at.iter().zip(&self.eye).enumerate() {
+            let Some(d) = at.as_ref().and_then(|l| up_close(l, eye, centroid, normal, size)) else {
+                continue;
+            };
             if best.is_none_or(|(_, b)| d < b) {
                 best = Some((k as u32, d));
             }
@@ -639,15 +645,16 @@ impl LightSight {
 /// bundled rigs only that spot moves.
 pub const CONE_REACH: f32 = 1.0;
 
-/// The distance from a point or spot light to a cell (centroid, unit normal, size) it lights
-/// up close: within [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes of the centroid,
-/// in front of the cell, and for a spot, its outer cone reaching a disk of radius
-/// [`CONE_REACH`] cell sizes about the centroid (a spot under a ceiling aimed down lights no
-/// ceiling cell, and would render a cube for nothing: the chamber's dais spot did, every frame
-/// of its rig). None otherwise.
-pub fn up_close(l: &prm::Light, centroid: Vec3, normal: Vec3, size: f32) -> Option<f32> {
-    let d = l.position.distance(centroid);
-    if !(d < crate::cpu::concentrate::HOT_REACH * size && normal.dot(l.position - centroid) > 0.0) {
+/// The distance from a point or spot light's eye ([`sight_eye`]) to a cell (centroid, unit
+/// normal, size) the light lights up close: the eye within
+/// [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH) sizes of the centroid and in front of the
+/// cell, and for a spot, its outer cone reaching a disk of radius [`CONE_REACH`] cell sizes
+/// about the centroid (a spot under a ceiling aimed down lights no ceiling cell, and would
+/// render a cube for nothing: the chamber's dais spot did, every frame of its rig). None
+/// otherwise.
+pub fn up_close(l: &prm::Light, eye: Vec3, centroid: Vec3, normal: Vec3, size: f32) -> Option<f32> {
+    let d = eye.distance(centroid);
+    if !(d < crate::cpu::concentrate::HOT_REACH * size && normal.dot(eye - centroid) > 0.0) {
         return None;
     }
     if let prm::LightKind::Spot { outer, .. } = l.kind {
@@ -694,15 +701,60 @@ impl UpClose {
         }
     }
 
-    /// Whether a point or spot light lights some cell up close.
-    pub fn any(&self, l: &prm::Light) -> bool {
-        (0..self.size.len()).any(|j| up_close(l, self.centroid[j], self.normal[j], self.size[j]).is_some())
+    /// Whether a point or spot light, seen from `eye` ([`sight_eye`]), lights some cell up
+    /// close.
+    pub fn any(&self, l: &prm::Light, eye: Vec3) -> bool {
+        (0..self.size.len())
+            .any(|j| up_close(l, eye, self.centroid[j], self.normal[j], self.size[j]).is_some())
     }
 
-    /// Per light: a point or spot light that lights some cell up close (what
-    /// `crate::lights::layers` is given: a spot with one frustum then owns a cube too).
-    pub fn lights(&self, lights: &[prm::Light]) -> Vec<bool> {
-        lights.iter().map(|l| l.is_positional() && self.any(l)).collect()
+    /// Per light, with its eye ([`sight_eye`]): a point or spot light that lights some cell
+    /// up close (what `crate::lights::layers` is given: a spot with one frustum then owns a
+    /// cube too, at its eye).
+    pub fn lights(&self, lights: &[prm::Light], eyes: &[Vec3]) -> Vec<bool> {
+        lights.iter().zip(eyes).map(|(l, &eye)| l.is_positional() && self.any(l, eye)).collect()
+    }
+
+    /// The cells' mean size (their entry spacing; 0 with no cells): what [`sight_eye`] steps
+    /// back by.
+    pub fn spacing(&self) -> f32 {
+        if self.size.is_empty() {
+            return 0.0;
+        }
+        (self.size.iter().map(|&s| f64::from(s)).sum::<f64>() / self.size.len() as f64) as f32
+    }
+}
+
+/// How far short of where its axis meets the level a narrow spot's eye stands
+/// ([`sight_eye`]), in entry spacings ([`UpClose::spacing`]). The chamber's flashlight rig
+/// moved by at most 0.4 points between 0.04 and 0.3 spacings.
+pub const EYE_BACK: f32 = 0.1;
+
+/// Where the far field sees a light's spots from ([`LightSight`]), and where its cube of
+/// shadow maps is drawn: for a spot with a frustum (its outer cone within
+/// [`SPOT_CUBE_ABOVE`](crate::lights::SPOT_CUBE_ABOVE)) whose axis meets the level within its
+/// range, [`EYE_BACK`] spacings short of that point along the axis (at most half the way
+/// back to the light); for every other light, the light itself.
+///
+/// A narrow spot's light lands in a patch much smaller than its distance, and a far texel sees
+/// that patch as a point in it sees the texel, not as the light does: the chamber's flashlight
+/// 1.2 m over the floor by a pillar cast the shaft's shadow onto the capital's underside as
+/// seen from the patch, which the texels' neighbours (the vote) blurred over half a metre and
+/// the light's own view put elsewhere (10.7 %; seen from the patch, 7.1 %). A point light's
+/// patch is about as wide as the light is high, so its own position is as good a point as any
+/// in the patch.
+pub fn sight_eye(l: &prm::Light, bvh: &Bvh, spacing: f32) -> Vec3 {
+    let prm::LightKind::Spot { outer, .. } = l.kind else { return l.position };
+    if outer > crate::lights::SPOT_CUBE_ABOVE {
+        return l.position;
+    }
+    let reach = l.range.filter(|r| *r > 0.0).unwrap_or(f32::INFINITY);
+    match bvh.closest_hit(l.position, l.direction, reach) {
+        Some(hit) if hit.t.is_finite() => {
+            let back = (EYE_BACK * spacing).min(0.5 * hit.t);
+            l.position + l.direction * (hit.t - back)
+        }
+        _ => l.position,
     }
 }
 
@@ -786,7 +838,7 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
                     light -= s.whole * v;
                     let seen = match s.lit_by {
                         Some(l) => {
-                            let at = sight.at[l as usize].as_ref().map_or(centroid, |x| x.position);
+                            let at = sight.eye.get(l as usize).copied().unwrap_or(centroid);
                             let w = sight_share(e.normal.dot(at - centroid), size);
                             w * sight.seen[l as usize][i] + (1.0 - w) * v
                         }
@@ -801,9 +853,9 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
         .collect()
 }
 
-/// How much a far texel takes a source lit up close as it sees the light ([`LightSight`]),
-/// the rest as its neighbours see the cell (the vote), for a light `height` off the cell's
-/// plane (`size`: the cell's): all within one size, none at
+/// How much a far texel takes a source lit up close as it sees the light's eye
+/// ([`LightSight`], [`sight_eye`]), the rest as its neighbours see the cell (the vote), for an
+/// eye `height` off the cell's plane (`size`: the cell's): all within one size, none at
 /// [`HOT_REACH`](crate::cpu::concentrate::HOT_REACH), linear between (`sight_share` in
 /// `shaders/far.wgsl`). What the light sees stands for what its spot on the cell sees only
 /// while the light is close to the surface it lights: the chamber's flashlight 1 m from a side
@@ -811,7 +863,8 @@ pub fn far_field(prm: &Prm, tables: &NearTables, sources: &[FarSource], sight: &
 /// it (11.9 %; at this share 9.1 %), where a torch 15 cm from a wall, or a lamp 3 cm over a
 /// floor lighting the floor around it, sees what its spot sees. Measured against the light's
 /// distance from the centroid (9.3 %) and the baseline across the texel's direction from
-/// where the light lands (10.8 %); the height is kept.
+/// where the light lands (10.8 %); the height is kept. A narrow spot's eye is where its light
+/// lands (that flashlight from there: 6.7 %), so this keeps to point lights.
 pub fn sight_share(height: f32, size: f32) -> f32 {
     let w = (crate::cpu::concentrate::HOT_REACH - height / size).clamp(0.0, 1.0);
     // A cell of no size takes the vote.

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::{
     add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
-    select_top_k, sighted, LightSight, LinkLight, NearTables, TileBudget, UpClose,
+    select_top_k, sight_eye, sighted, LightSight, LinkLight, NearTables, TileBudget, UpClose,
 };
 
 /// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
@@ -59,13 +59,14 @@ pub fn link_light(
 }
 
 /// How the far texels see the lights ([`LightSight`]): the first [`super::CLOSE_SIGHTS`] point
-/// and spot lights that light a cell up close ([`UpClose`]; on the GPU each has a cube of
-/// shadow maps, a spot's besides its frustum: `crate::lights::layers`), each seen from a far
-/// texel where a ray
-/// from it reaches the light (the GPU: the light's shadow maps there), for the lights that
-/// light some cell up close.
+/// and spot lights that light a cell up close from their eyes ([`sight_eye`], [`UpClose`]; on
+/// the GPU each has a cube of shadow maps there, a spot's besides its frustum:
+/// `crate::lights::layers`), each seen from a far texel where a ray from it reaches the eye
+/// (the GPU: the cube's shadow maps there), for the lights that light some cell up close.
 pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) -> LightSight {
-    let close = UpClose::new(prm, tables).lights(lights);
+    let up = UpClose::new(prm, tables);
+    let eye: Vec<Vec3> = lights.iter().map(|l| sight_eye(l, bvh, up.spacing())).collect();
+    let close = up.lights(lights, &eye);
     let at: Vec<Option<Light>> = lights
         .iter()
         .zip(sighted(&close))
@@ -76,7 +77,7 @@ pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) 
             seen.then(|| l.clone())
         })
         .collect();
-    let mut sight = LightSight { at, seen: vec![Vec::new(); lights.len()] };
+    let mut sight = LightSight { at, eye, seen: vec![Vec::new(); lights.len()] };
     let mut used = vec![false; lights.len()];
     for (j, e) in prm.entries().iter().enumerate() {
         if let Some(k) = sight.lit_by(tables.centroid[j], e.normal, tables.size[j]) {
@@ -84,11 +85,11 @@ pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) 
         }
     }
     let texels = &prm.far().texels;
-    for (k, l) in lights.iter().enumerate() {
+    for (k, &eye) in sight.eye.iter().enumerate() {
         if used[k] {
             sight.seen[k] = texels
                 .par_iter()
-                .map(|t| bvh.visible_point(t.position, t.normal, l.position) as u8 as f32)
+                .map(|t| bvh.visible_point(t.position, t.normal, eye) as u8 as f32)
                 .collect();
         }
     }
