@@ -115,9 +115,11 @@ pub fn validate(lights: &[Light]) -> Result<(), LightError> {
 }
 
 /// Shadow layers a light owns, a directional light's map being `sun_tiles` x `sun_tiles` tiles.
-/// A spot with one frustum that lights some cell up close (`close`: [`crate::cpu::UpClose`])
-/// also owns a cube after it: the spot of light it makes lights the room, and the far field
-/// sees that spot as each texel sees the light, in the cube (`shaders/far.wgsl`).
+/// A spot with one frustum whose spots the far field sees (`close`: it lights some cell up
+/// close, [`crate::cpu::UpClose`], and is among the first [`crate::cpu::CLOSE_SIGHTS`] that
+/// do, [`crate::cpu::sighted`]) also owns a cube after it, at its eye: the spot of light it
+/// makes lights the room, and the far field sees that spot as each texel sees the eye, in the
+/// cube (`shaders/far.wgsl`).
 pub fn layers(l: &Light, sun_tiles: u32, close: bool) -> u32 {
     match l.kind {
         LightKind::Point => CUBE_LAYERS,

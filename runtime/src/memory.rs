@@ -113,11 +113,17 @@ impl GpuMemory {
 }
 
 /// Bytes of the shadow maps of `lights` at `size`^2 a layer, a directional light's map in
-/// `sun_tiles` x `sun_tiles` tiles ([`sun_tiles`]), every spot counted with the cube it owns
-/// when it lights a cell up close (`crate::lights::layers`): at most what they take.
+/// `sun_tiles` x `sun_tiles` tiles ([`sun_tiles`]), and the cubes of the first
+/// [`CLOSE_SIGHTS`](crate::cpu::CLOSE_SIGHTS) spots that could own one (those whose spots the
+/// far field sees: `crate::lights::layers`): at most what they take.
 pub fn shadow_bytes(lights: &[prm::Light], size: u32, sun_tiles: u32) -> u64 {
-    lights.iter().map(|l| crate::lights::layers(l, sun_tiles, true) as u64).sum::<u64>()
-        * shadow_bytes_per_layer(size)
+    let own: u64 = lights.iter().map(|l| crate::lights::layers(l, sun_tiles, false) as u64).sum();
+    let cubed = lights
+        .iter()
+        .filter(|l| crate::lights::layers(l, sun_tiles, true) > crate::lights::layers(l, sun_tiles, false))
+        .count()
+        .min(crate::cpu::CLOSE_SIGHTS) as u64;
+    (own + cubed * crate::contract::CUBE_LAYERS as u64) * shadow_bytes_per_layer(size)
 }
 
 pub use crate::lights::SUN_TILES_MAX;

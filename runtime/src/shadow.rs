@@ -339,11 +339,14 @@ impl ShadowMaps {
             }
             None => (vec![false; lights.len()], lights.iter().map(|l| l.position).collect()),
         };
-        let needed: u32 = lights.iter().zip(&close).map(|(l, &c)| lights::layers(l, n, c)).sum();
+        // Only the spots whose spots the far field sees (the first CLOSE_SIGHTS lights up
+        // close) read their cubes: a spot after them draws none.
+        let cubes = crate::cpu::sighted(&close);
+        let needed: u32 = lights.iter().zip(&cubes).map(|(l, &c)| lights::layers(l, n, c)).sum();
         if needed > self.max_layers.min(MAX_LAYERS) {
             return Err(LightError::TooManyLayers { needed, max: self.max_layers.min(MAX_LAYERS) });
         }
-        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n, &close, &eyes);
+        let (gpu, mats) = lights::pack(lights, self.size, self.bounds, n, &cubes, &eyes);
         let realloc = self.texture.as_ref().is_none_or(|(_, n)| *n != needed.max(1));
         if realloc {
             self.allocate(needed.max(1));
@@ -351,9 +354,10 @@ impl ShadowMaps {
         // Layers to render: all after a reallocation, else those of lights whose frusta moved
         // (or that now sit at other layers).
         let mut dirty = Vec::new();
+        let last_cubes = crate::cpu::sighted(&self.last_close);
         let old_layers = |k: usize| {
             let o = self.last.as_ref().and_then(|v| v.get(k));
-            o.map(|o| lights::layers(o, n, self.last_close.get(k).copied().unwrap_or(false)))
+            o.map(|o| lights::layers(o, n, last_cubes.get(k).copied().unwrap_or(false)))
         };
         for (i, l) in lights.iter().enumerate() {
             let old = self.last.as_ref().and_then(|v| v.get(i));
