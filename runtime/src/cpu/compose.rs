@@ -732,7 +732,7 @@ pub const EYE_BACK: f32 = 0.1;
 
 /// Where the far field sees a light's spots from ([`LightSight`]), and where its cube of
 /// shadow maps is drawn: for a spot with a frustum (its outer cone within
-/// [`SPOT_CUBE_ABOVE`](crate::lights::SPOT_CUBE_ABOVE)) whose axis meets the level within its
+/// `crate::lights::SPOT_CUBE_ABOVE`, 60°) whose axis meets the level within its
 /// range, [`EYE_BACK`] spacings short of that point along the axis (at most half the way
 /// back to the light); for every other light, the light itself.
 ///
