@@ -52,6 +52,7 @@
 //! Rust (constants, structs, bind groups, workgroup sizes) is generated from the `contract`,
 //! `layout` and `bindings` modules, and a test checks every shader against them with naga.
 
+mod axis;
 mod bindings;
 pub mod budget;
 mod compose;

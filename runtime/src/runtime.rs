@@ -198,7 +198,7 @@ impl Runtime {
         // A spot that lights a cell up close gets a cube for the far field (`crate::far`), at
         // its eye: where its axis meets the level (`crate::cpu::sight_eye`).
         if !prm.far().texels.is_empty() {
-            shadows.set_up_close(crate::cpu::UpClose::new(prm, &tables), prm::Bvh::build(scene));
+            shadows.set_up_close(crate::cpu::UpClose::new(prm, &tables), crate::axis::AxisCaster::new(scene));
         }
         let concentrate = ConcentratePass::new(
             device,

@@ -181,7 +181,7 @@ pub struct ShadowMaps {
     last_cubes: bool,
     /// The level's cells, to tell those spots, and the level, to find the eyes (none: no spot
     /// has a cube, every eye is its light).
-    up_close: Option<(crate::cpu::UpClose, prm::Bvh)>,
+    up_close: Option<(crate::cpu::UpClose, crate::axis::AxisCaster)>,
     light_count: u32,
     /// Shadow layers rendered so far.
     layers_rendered: u64,
@@ -305,10 +305,10 @@ impl ShadowMaps {
     }
 
     /// Gives a spot that lights one of these cells up close a cube besides its frustum, at its
-    /// eye in this level (`bvh`: `crate::cpu::sight_eye`), from the next update on (the
+    /// eye in this level (`axis`: `crate::cpu::sight_eye`), from the next update on (the
     /// runtime's far field reads it: [`lights::layers`]).
-    pub(crate) fn set_up_close(&mut self, cells: crate::cpu::UpClose, bvh: prm::Bvh) {
-        self.up_close = Some((cells, bvh));
+    pub(crate) fn set_up_close(&mut self, cells: crate::cpu::UpClose, axis: crate::axis::AxisCaster) {
+        self.up_close = Some((cells, axis));
         self.last = None;
     }
 
@@ -332,9 +332,10 @@ impl ShadowMaps {
         self.last_cubes = cubes;
         let n = self.sun_tiles;
         let (close, eyes) = match self.up_close.as_ref().filter(|_| cubes) {
-            Some((cells, bvh)) => {
+            Some((cells, axis)) => {
+                let first_hit = |o: Vec3, d: Vec3, tmax: f32| axis.first_hit(o, d, tmax);
                 let eyes: Vec<Vec3> =
-                    lights.iter().map(|l| crate::cpu::sight_eye(l, bvh, cells.spacing())).collect();
+                    lights.iter().map(|l| crate::cpu::sight_eye(l, first_hit, cells.spacing())).collect();
                 (cells.lights(lights, &eyes), eyes)
             }
             None => (vec![false; lights.len()], lights.iter().map(|l| l.position).collect()),

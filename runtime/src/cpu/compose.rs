@@ -3,8 +3,8 @@
 //! The GPU passes (`weights.wgsl`, `compose.wgsl`) are held to these functions by the tests.
 
 use glam::Vec3;
+use prm::luminance;
 use prm::prm_file::{far_share, Prm, TileLayout};
-use prm::{luminance, Bvh};
 
 use super::concentrate::LinkLight;
 
@@ -734,7 +734,9 @@ pub const EYE_BACK: f32 = 0.1;
 /// shadow maps is drawn: for a spot with a frustum (its outer cone within
 /// `crate::lights::SPOT_CUBE_ABOVE`, 60°) whose axis meets the level within its
 /// range, [`EYE_BACK`] spacings short of that point along the axis (at most half the way
-/// back to the light); for every other light, the light itself.
+/// back to the light); for every other light, the light itself. `first_hit(origin, unit
+/// direction, tmax)` is the distance to the first triangle of the level the ray meets: the
+/// GPU runtime's `crate::AxisCaster`, the twin's BVH.
 ///
 /// A narrow spot's light lands in a patch much smaller than its distance, and a far texel sees
 /// that patch as a point in it sees the texel, not as the light does: the chamber's flashlight
@@ -743,16 +745,16 @@ pub const EYE_BACK: f32 = 0.1;
 /// the light's own view put elsewhere (10.7 %; seen from the patch, 7.1 %). A point light's
 /// patch is about as wide as the light is high, so its own position is as good a point as any
 /// in the patch.
-pub fn sight_eye(l: &prm::Light, bvh: &Bvh, spacing: f32) -> Vec3 {
+pub fn sight_eye(l: &prm::Light, first_hit: impl Fn(Vec3, Vec3, f32) -> Option<f32>, spacing: f32) -> Vec3 {
     let prm::LightKind::Spot { outer, .. } = l.kind else { return l.position };
     if outer > crate::lights::SPOT_CUBE_ABOVE {
         return l.position;
     }
     let reach = l.range.filter(|r| *r > 0.0).unwrap_or(f32::INFINITY);
-    match bvh.closest_hit(l.position, l.direction, reach) {
-        Some(hit) if hit.t.is_finite() => {
-            let back = (EYE_BACK * spacing).min(0.5 * hit.t);
-            l.position + l.direction * (hit.t - back)
+    match first_hit(l.position, l.direction, reach) {
+        Some(t) if t.is_finite() => {
+            let back = (EYE_BACK * spacing).min(0.5 * t);
+            l.position + l.direction * (t - back)
         }
         _ => l.position,
     }

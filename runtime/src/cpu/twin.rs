@@ -65,7 +65,8 @@ pub fn link_light(
 /// (the GPU: the cube's shadow maps there), for the lights that light some cell up close.
 pub fn light_sight(prm: &Prm, bvh: &Bvh, tables: &NearTables, lights: &[Light]) -> LightSight {
     let up = UpClose::new(prm, tables);
-    let eye: Vec<Vec3> = lights.iter().map(|l| sight_eye(l, bvh, up.spacing())).collect();
+    let first_hit = |o: Vec3, d: Vec3, tmax: f32| bvh.closest_hit(o, d, tmax).map(|h| h.t);
+    let eye: Vec<Vec3> = lights.iter().map(|l| sight_eye(l, first_hit, up.spacing())).collect();
     let close = up.lights(lights, &eye);
     let at: Vec<Option<Light>> = lights
         .iter()

@@ -1149,7 +1149,8 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
     spot[0].direction = Vec3::NEG_Y;
     let eyes = |lights: &[prm::Light]| -> Vec<Vec3> {
         let spacing = cpu::UpClose::new(&prm, &tables).spacing();
-        lights.iter().map(|l| cpu::sight_eye(l, &bvh, spacing)).collect()
+        let first_hit = |o: Vec3, d: Vec3, tmax: f32| bvh.closest_hit(o, d, tmax).map(|h| h.t);
+        lights.iter().map(|l| cpu::sight_eye(l, first_hit, spacing)).collect()
     };
     assert_eq!(cpu::UpClose::new(&prm, &tables).lights(&spot, &eyes(&spot)), [true], "the spot has no cube");
     // Six lamps: one mid-room, then five close to the floor, the walls and the ceiling, of
