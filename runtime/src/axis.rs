@@ -231,7 +231,10 @@ mod tests {
     #[test]
     fn the_grid_and_the_twins_bvh_find_the_same_first_hit_in_the_chamber() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let scene = prm::gltf_load::load_scene(root.join("assets/chamber.glb"), &Default::default()).unwrap();
+        let scene = match prm::gltf_load::load_scene(root.join("assets/chamber.glb"), &Default::default()) {
+            Ok(s) => s,
+            Err(e) => panic!("the bundled chamber: {e}"),
+        };
         let (caster, bvh) = (AxisCaster::new(&scene), prm::Bvh::build(&scene));
         let mut rng = rand_pcg::Pcg32::seed_from_u64(3);
         let mut rays: Vec<(Vec3, Vec3)> = (0..3000)
