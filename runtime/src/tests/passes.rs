@@ -1125,14 +1125,16 @@ fn gpu_lightmap_matches_the_cpu_twin() {
 /// one frustum, and the cube it owns for lighting a cell up close), then six lamps, five of
 /// them close to a surface (the far field sees four lights' spots at most, the GPU and the
 /// twin the same four). The far field sees each light's spot as each texel sees the light
-/// (`cpu::LightSight`), the GPU in the light's cube of shadow maps, the twin by rays. The
+/// (`cpu::LightSight`) from its eye (`cpu::sight_eye`: the lamps' own positions, the spot's
+/// axis 1.5 cm over the floor, half the way back), the GPU in the cube of shadow maps drawn
+/// there, the twin by rays. The
 /// sight must matter (the twin without it differs by more than 2 %, 1 % for the six lamps;
 /// measured 6.6, 12.7 and 1.7 % in session 80), and the GPU's lightmap must be the twin's
 /// within 3 %: where the abacus meets the shaft, texels a centimetre from its face see the
 /// light by a ray and half see it in the map's PCF (measured in session 80 1.47 % for the lamp
 /// and 2.66 % for the dimmer spot, 1.39 and 2.30 % when written, the ten worst texels all
 /// there; 0.4 % for the six lamps; 0.83 % with the lamp 1 m up, where no spot is lit up
-/// close).
+/// close; session 81, the spot seen from its eye: 2.44 %).
 #[test]
 fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
     let g = gpu();
