@@ -150,7 +150,10 @@ impl AxisCaster {
     }
 }
 
-/// Möller and Trumbore's ray-triangle test, both sides: the distance along unit `dir`.
+/// Möller and Trumbore's ray-triangle test, both sides: the distance along unit `dir`. The
+/// BVH's (`prm::bvh`, behind its `bvh` feature) is the same test on obvhs's SIMD types in the
+/// precompute's hottest loop; sharing one would either pull obvhs into the runtime or move
+/// that loop off its types (and its `.prm` bytes with the rounding).
 fn ray_triangle(origin: Vec3, dir: Vec3, tri: &[Vec3; 3]) -> Option<f32> {
     let (e1, e2) = (tri[1] - tri[0], tri[2] - tri[0]);
     let p = dir.cross(e2);

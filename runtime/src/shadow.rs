@@ -173,10 +173,12 @@ pub struct ShadowMaps {
     layout: wgpu::BindGroupLayout,
     group: Option<wgpu::BindGroup>,
     last: Option<Vec<Light>>,
-    /// Per light of `last`: a point or spot light that lights a cell up close (a spot has a
-    /// cube besides its frustum: [`lights::layers`]), and its eye (`crate::cpu::sight_eye`).
-    last_close: Vec<bool>,
+    /// Per light of `last`: its eye (`crate::cpu::sight_eye`).
     last_eyes: Vec<Vec3>,
+    /// Per light of `last`: whether the far field sees its spots (`crate::cpu::sighted`: it
+    /// lights a cell up close, among the first that do; a spot among them has a cube besides
+    /// its frustum, [`lights::layers`]).
+    last_sighted: Vec<bool>,
     /// Whether the last update drew the spots' cubes ([`ShadowMaps::update_direct`] does not).
     last_cubes: bool,
     /// The level's cells, to tell those spots, and the level, to find the eyes (none: no spot
@@ -295,8 +297,8 @@ impl ShadowMaps {
             layout,
             group: None,
             last: None,
-            last_close: Vec::new(),
             last_eyes: Vec::new(),
+            last_sighted: Vec::new(),
             last_cubes: true,
             up_close: None,
             light_count: 0,
@@ -355,7 +357,7 @@ impl ShadowMaps {
         // Layers to render: all after a reallocation, else those of lights whose frusta moved
         // (or that now sit at other layers).
         let mut dirty = Vec::new();
-        let last_cubes = crate::cpu::sighted(&self.last_close);
+        let last_cubes = &self.last_sighted;
         let old_layers = |k: usize| {
             let o = self.last.as_ref().and_then(|v| v.get(k));
             o.map(|o| lights::layers(o, n, last_cubes.get(k).copied().unwrap_or(false)))
@@ -390,8 +392,8 @@ impl ShadowMaps {
         self.render(&dirty);
         self.light_count = lights.len() as u32;
         self.last = Some(lights.to_vec());
-        self.last_close = close;
         self.last_eyes = eyes;
+        self.last_sighted = cubes;
         Ok(true)
     }
 
@@ -572,7 +574,7 @@ impl ShadowMaps {
     /// [`crate::cpu::sighted`] of those that light a cell up close.
     pub fn sighted_bits(&self) -> [u32; 2] {
         let mut bits = [0u32; 2];
-        for (i, &s) in crate::cpu::sighted(&self.last_close).iter().enumerate().take(64) {
+        for (i, &s) in self.last_sighted.iter().enumerate().take(64) {
             if s {
                 bits[i / 32] |= 1 << (i % 32);
             }
@@ -585,8 +587,7 @@ impl ShadowMaps {
     /// `IndirectParams::sight_eyes`; zero past the last.
     pub fn sight_eyes(&self) -> [[f32; 4]; 4] {
         let mut eyes = [[0.0; 4]; 4];
-        let sighted = crate::cpu::sighted(&self.last_close);
-        let seen = sighted.iter().zip(&self.last_eyes).filter(|(&s, _)| s).map(|(_, e)| e);
+        let seen = self.last_sighted.iter().zip(&self.last_eyes).filter(|(&s, _)| s).map(|(_, e)| e);
         for (slot, e) in eyes.iter_mut().zip(seen) {
             *slot = [e.x, e.y, e.z, 1.0];
         }

@@ -690,14 +690,19 @@ pub struct UpClose {
     centroid: Vec<Vec3>,
     normal: Vec<Vec3>,
     size: Vec<f32>,
+    /// The cells' mean size ([`UpClose::spacing`]), made once.
+    spacing: f32,
 }
 
 impl UpClose {
     pub fn new(prm: &Prm, tables: &NearTables) -> UpClose {
+        let n = tables.size.len();
+        let mean = tables.size.iter().map(|&s| f64::from(s)).sum::<f64>() / n.max(1) as f64;
         UpClose {
             centroid: tables.centroid.clone(),
             normal: prm.entries().iter().map(|e| e.normal).collect(),
             size: tables.size.clone(),
+            spacing: mean as f32,
         }
     }
 
@@ -718,10 +723,7 @@ impl UpClose {
     /// The cells' mean size (their entry spacing; 0 with no cells): what [`sight_eye`] steps
     /// back by.
     pub fn spacing(&self) -> f32 {
-        if self.size.is_empty() {
-            return 0.0;
-        }
-        (self.size.iter().map(|&s| f64::from(s)).sum::<f64>() / self.size.len() as f64) as f32
+        self.spacing
     }
 }
 
