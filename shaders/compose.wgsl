@@ -26,13 +26,9 @@
 // summed over them, and keeps the local_k clusters with the largest |luminance(weight)| x energy
 // (ties to the lower pane; the local_k-th score found a byte at a time by histograms of the
 // scores' bits, which order non-negative floats as their values); a group's weight there is the light of its
-// clusters left out over its own energy, a kept cluster's dipoles get its moments. It writes
+// clusters left out over its own energy. It writes
 // each record's weight at that corner of its tile; gather_main lists the records weighed at
 // any corner, and compose_main blends the four.
-//
-// A record whose data offset has DIPOLE_RECORD set is a dipole tile (prm::prm_file::Dipoles):
-// one signed code (i8 / 127) per dipole_block x dipole_block block of the tile, dipole_side a
-// row; its weight in `selected` is the cluster's moment along the axis (weights.wgsl).
 //
 // Bindings, ComposeParams, TileRecord, ActiveRecord, NO_SLOT and the workgroup sizes: the
 // generated prelude (runtime/src/contract.rs, runtime/src/compose.rs).
@@ -407,24 +403,13 @@ fn compose_main(@builtin(workgroup_id) wid: vec3u, @builtin(local_invocation_id)
                 let rec = active_records[base + a];
                 weighted_scale = mix(mix(rec.c00, rec.c10, f.x), mix(rec.c01, rec.c11, f.x), f.y);
             }
-            if (data_offset & DIPOLE_RECORD) != 0u {
-                let b = params.dipole_block;
-                let q = ((id.y % ts) / b) * params.dipole_side + (id.x % ts) / b;
-                let i = (data_offset & ~DIPOLE_RECORD) + q;
-                let code = code_at(i);
-                let v = max(f32(bitcast<i32>(code << 24u) >> 24u), -127.0) / 127.0;
-                sum += weighted_scale * v;
-            } else {
-                let i = data_offset + slot;
-                let code = code_at(i);
-                sum += weighted_scale * intensity(code);
-            }
+            sum += weighted_scale * intensity(code_at(data_offset + slot));
         }
     }
     if texel.y != NO_SLOT {
         sum += near_sum[texel.y].xyz;
     }
-    // The near field and the dipole panes are signed.
+    // The near field is signed.
     sum = max(sum, vec3f(0.0));
     let rows = params.page_rows;
     textureStore(lightmap, vec2i(i32(id.x), i32(id.y % rows)), i32(id.y / rows), vec4f(sum, 1.0));

@@ -1,7 +1,6 @@
 // Near field (runtime/src/near.rs, prm_precompute::near). deviation_main, one invocation per
-// entry: deviation = E_entry - (w_cluster(entry) + lin_entry) t_entry, t the cell's area over
-// A/N (prm_runtime::cpu::NearTables), lin the cluster's linear fit there, which dipole.wgsl
-// left in `deviation` this update. near_main, one per texel with links: near_sum = sum over its
+// entry: deviation = E_entry - w_cluster(entry) t_entry, t the cell's area over A/N
+// (prm_runtime::cpu::NearTables). near_main, one per texel with links: near_sum = sum over its
 // links of factor x deviation, factor = albedo x the cell's first bounce per unit weight (one
 // read per link); a link of a hot cell whose light concentrate.wgsl wrote this update uses it
 // in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads;
@@ -16,7 +15,7 @@ fn deviation_main(@builtin(global_invocation_id) id: vec3u) {
         return;
     }
     let ec = entry_cluster[j];
-    let fit = weights[ec.x].xyz + deviation[j].xyz;
+    let fit = weights[ec.x].xyz;
     let e = entry_irradiance[j].xyz;
     deviation[j] = vec4f(e - fit * bitcast<f32>(ec.y), luminance(e));
     // For the far field (far.wgsl): E_j itself, and where the cell's light lands and which way

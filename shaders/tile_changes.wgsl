@@ -5,8 +5,7 @@
 // in `selected` of its records' panes moved from those it was last gathered with
 // (last_records): with no tolerance when a bit differs; with params.tolerance, when the light
 // they move, sum over its records of luminance(|w - last|) x the pane's energy there, is more
-// than that share of the light they gave, sum of luminance(|last|) x energy (a dipole record,
-// which has no energy, when its own weight moved by more than that share of itself). The
+// than that share of the light they gave, sum of luminance(|last|) x energy. The
 // tile's mean light per texel goes after the list, for sums_main.
 // sums_main, one invocation per near-field sum: CHANGED_SUM in its tile's state when the sum
 // moved from what it was when it last counted as changed (by more than params.tolerance of its

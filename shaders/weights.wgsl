@@ -1,17 +1,13 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
 // weights_main: w_c = the power on cluster c's cells over their area, each entry's counted in
-// each channel by its stay share times its albedo (energy[4 C + G + 3 k ..] for the member at
+// each channel by its stay share times its albedo (energy[C + G + 3 k ..] for the member at
 // indices[k]), less the near field's share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
 // sum over its left-out clusters of w_c x energy_c / energy_g (prm_runtime::cpu::
 // residual_weights), 0 without residual. selected is all compose.wgsl reads.
-//
-// Dipoles (dipole.wgsl wrote each cluster's moments m_k at weights[C + 3 c + k]): the balance
-// keeps sum_j lin_j t_j near_j = sum_k m_k N_k, N_k = energy[C + G + 3 c + k]; a kept cluster's
-// moments go to selected[C + G + 3 c + k], zero for the rest (the dipole tiles' weights).
 //
 // Bindings (their meaning: runtime/src/weights.rs), IndirectParams, luminance and WG_LINEAR:
 // the generated prelude (runtime/src/contract.rs).
@@ -38,7 +34,7 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
     var t_total = 0.0;
     var stay_sum = vec3f(0.0);
     var stay_t = vec3f(0.0);
-    let stays = 4u * params.cluster_count + params.group_count;
+    let stays = params.cluster_count + params.group_count;
     for (var k = r.x; k < r.x + r.y; k++) {
         let m = indices[k];
         let e = entry_irradiance[m.x].xyz;
@@ -58,11 +54,6 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         plain = sum / t_total;
     }
     var w = select(plain, stay_sum / max(stay_t, vec3f(1.17549435e-38)), stay_t > vec3f(0.0));
-    let dipole = params.cluster_count + 3u * c;
-    let balance = params.cluster_count + params.group_count + 3u * c;
-    for (var k = 0u; k < 3u; k++) {
-        near_sum -= weights[dipole + k].xyz * energy[balance + k];
-    }
     // The pane's energy in each channel: its luminance's, tinted by the cluster's albedo.
     let energy_c = energy[c] * tint_of(stay_t);
     if max(max(near_total.x, near_total.y), near_total.z) > 0.0 && energy[c] > 0.0 {
@@ -90,11 +81,6 @@ fn select_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let keep = s > 0.0 && rank < params.top_k;
     selected[c] = select(vec4f(0.0), weights[c], keep);
-    let dipole = params.cluster_count + 3u * c;
-    let slot = params.cluster_count + params.group_count + 3u * c;
-    for (var k = 0u; k < 3u; k++) {
-        selected[slot + k] = select(vec4f(0.0), weights[dipole + k], keep);
-    }
 }
 
 @compute @workgroup_size(WG_LINEAR)

@@ -72,10 +72,6 @@ pub struct Args {
     /// default 1).
     #[arg(long)]
     echo_radius: Option<f32>,
-    /// Side in texels of the blocks the clusters' dipole panes (their response to light uneven
-    /// over the cluster) are stored at (0: none, the default; 2 measured best).
-    #[arg(long)]
-    dipole_block: Option<u32>,
     /// Leave out the far field (the first bounce of light uneven over a cluster, carried past
     /// the near links to the whole level; on by default).
     #[arg(long)]
@@ -111,7 +107,7 @@ pub struct Args {
     max_bounces: Option<u32>,
     /// Also write the update cache OUTPUT.cache that a later `--update` needs (where each
     /// atlas tile's walks went, and every pane tile before the drop rule; about the size of
-    /// the .prm). Gather estimator without dipoles only.
+    /// the .prm). Gather estimator only.
     #[arg(long)]
     cache: bool,
     /// Update OLD.prm after an edit of the level: walk again only the texels whose panes the
@@ -155,7 +151,6 @@ pub fn run(a: Args) -> Result<()> {
             ("--tile-size", a.tile_size.is_some()),
             ("--near-radius", a.near_radius.is_some()),
             ("--echo-radius", a.echo_radius.is_some()),
-            ("--dipole-block", a.dipole_block.is_some()),
             ("--no-far-field", a.no_far_field),
             ("--no-next-bounce", a.no_next_bounce),
             ("--far-radius", a.far_radius.is_some()),
@@ -178,7 +173,6 @@ pub fn run(a: Args) -> Result<()> {
     p.smooth_radius = a.smooth.unwrap_or(p.smooth_radius);
     p.near_radius = a.near_radius.unwrap_or(p.near_radius);
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
-    p.dipole_block = a.dipole_block.unwrap_or(p.dipole_block);
     p.far_field &= !a.no_far_field;
     p.next_bounce &= !a.no_next_bounce;
     p.far_radius = a.far_radius.unwrap_or(p.far_radius);
@@ -294,12 +288,11 @@ fn bake(a: &Args, mut p: PrecomputeParams) -> Result<()> {
     }
     let keep_cache = a.cache || a.update.is_some();
     // Said before the bake, and as what was asked for: the bake would refuse it as an update.
-    if keep_cache && (p.estimator != Estimator::Gather || p.dipole_block > 0) {
+    if keep_cache && p.estimator != Estimator::Gather {
         bail!(
-            "{} needs the gather estimator without dipole panes (this bake: {}{})",
+            "{} needs the gather estimator (this bake: {})",
             if a.update.is_some() { "--update" } else { "--cache" },
-            p.estimator,
-            if p.dipole_block > 0 { ", --dipole-block" } else { "" }
+            p.estimator
         );
     }
     // Given, not lent: the update lets each go once it is done with it.

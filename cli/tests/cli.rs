@@ -403,10 +403,8 @@ fn precompute_evaluate_and_export_panes() {
     let tables = prm_runtime::cpu::NearTables::new(&file);
     let hot = prm_runtime::cpu::link_light(&file, &bvh, &tables, &e, &lights);
     assert!(hot.hot.iter().any(|&h| h), "the corner torch makes no cell hot: this checks less");
-    let moments = prm_runtime::cpu::dipole_moments(&file, &tables, &e);
-    let lin = prm_runtime::cpu::dipole_offsets(&file, &tables, &moments);
-    let (w, near) = prm_runtime::cpu::pane_weights_with(&file, &tables, &hot, &e, &lin);
-    let mut want = prm_runtime::cpu::compose(&file, &w, &moments);
+    let (w, near) = prm_runtime::cpu::pane_weights_with(&file, &tables, &hot, &e);
+    let mut want = prm_runtime::cpu::compose(&file, &w);
     prm_runtime::cpu::add_and_clamp(&mut want, &near);
     assert_images_close(&c.rgb("").unwrap(), &want, 1e-6, "evaluate vs cpu::compose");
     let mask = c.get("mask").unwrap();
@@ -829,7 +827,7 @@ fn bench_reports_both_frame_kinds_and_the_compose() {
     assert_eq!(part("tables"), texels * 4 + (file.clusters().len() + file.groups().len()) as u64 * 16);
     assert!(part("pane_data") > 0 && part("pane_data") <= file.data().len() as u64 * 2);
     // Top-32 picked at each vertex of the tile grid: a tile sums what its four corners pick, at
-    // most 4 x 32 panes and the groups (no dipoles by default).
+    // most 4 x 32 panes and the groups.
     let most = part("most_per_tile");
     assert!(
         most > 0 && most <= (4 * 32 + file.groups().len()) as u64,

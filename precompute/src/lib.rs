@@ -4,7 +4,6 @@
 
 pub mod cells;
 pub mod cluster;
-pub mod dipole;
 pub mod entries;
 pub mod far;
 pub mod ground_truth;

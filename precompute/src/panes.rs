@@ -24,11 +24,11 @@
 use std::ops::Range;
 
 use glam::Vec3;
-use prm::prm_file::{dipole_code, intensity_code, Cluster, Dipole, Dipoles, Group, Tile};
+use prm::prm_file::{intensity_code, Cluster, Group, Tile};
 use prm::{luminance, Smoothing, TexelSet};
 use rayon::prelude::*;
 
-use crate::transport::{TexelDipoles, TexelPanes};
+use crate::transport::TexelPanes;
 use crate::update::CachedTile;
 
 /// Tile rows a band encodes at once, by default. With the margin (at most 17 rows each side)
@@ -217,65 +217,6 @@ impl<'a> Encoder<'a> {
         (self.grid.tx, self.grid.ty)
     }
 
-    /// The band's tiles of every dipole pane in `acc` (3 per cluster: `3 c + axis`; axes with
-    /// `inv_lambda` 0 are skipped): the clusters' dipole responses at the window's texels
-    /// (`texel_panes`' clusters, `texel_dipoles`' values), smoothed and dilated like the
-    /// panes, averaged over blocks of `block` x `block` stored texels.
-    #[allow(clippy::too_many_arguments)]
-    pub fn encode_dipole_band(
-        &self,
-        band: &Band,
-        first: usize,
-        texel_panes: &[TexelPanes],
-        texel_dipoles: &[TexelDipoles],
-        dipoles: &[Dipole],
-        block: u32,
-        acc: &mut Accumulated,
-    ) -> std::io::Result<()> {
-        let (grid, b) = (&self.grid, block as usize);
-        let clusters = dipoles.len();
-        let (start, list) = transpose(texel_panes, first, 0..clusters, |k, i| texel_dipoles[k][i]);
-        let own = self.texel_range(band.rows.clone());
-        let bw = grid.w.div_ceil(b);
-        let block_rows = band.rows.start as usize / b..(band.rows.end as usize).div_ceil(b);
-        let mut count = vec![0u32; bw * block_rows.len()];
-        let r0 = band.rows.start as usize;
-        for k in r0 * grid.w..band.rows.end as usize * grid.w {
-            if self.stored[k] {
-                count[(k / grid.w - r0) / b * bw + (k % grid.w) / b] += 1;
-            }
-        }
-        let out: Vec<Option<PaneBand>> = (0..clusters * 3)
-            .into_par_iter()
-            .map(|pk| {
-                let (c, k) = (pk / 3, pk % 3);
-                if dipoles[c].axes[k].inv_lambda == 0.0 {
-                    return None;
-                }
-                let axis: Vec<(u32, Vec3)> =
-                    list[start[c]..start[c + 1]].iter().map(|&(t, d)| (t, d[k])).collect();
-                let mut img = vec![Vec3::ZERO; grid.w * band.window.len()];
-                self.band_image(band, &axis, &[], &mut img, std::slice::from_ref(&(0..grid.w as u32)));
-                let offset = band.window.start as usize * grid.w;
-                let energy = self.carry_energy(band, own.clone(), &img, acc.energy[pk]);
-                let mut means = vec![Vec3::ZERO; bw * block_rows.len()];
-                for k in r0 * grid.w..band.rows.end as usize * grid.w {
-                    if self.stored[k] {
-                        means[(k / grid.w - r0) / b * bw + (k % grid.w) / b] += img[k - offset];
-                    }
-                }
-                for (m, &n) in means.iter_mut().zip(&count) {
-                    if n > 0 {
-                        *m /= n as f32;
-                    }
-                }
-                let tiles = encode_dipole_band(grid, band, &means, &count, b, bw);
-                Some(PaneBand { energy, tiles })
-            })
-            .collect();
-        acc.add(0, out)
-    }
-
     /// The runs of tile columns (ascending, apart) that the texels `values` name light, each
     /// texel's reach grown by the columns smoothing and dilation carry its light: two runs are
     /// independent, no texel's light reaching the other's columns.
@@ -391,16 +332,6 @@ impl<'a> Encoder<'a> {
         }
         let energy = tiles.iter().fold(energy, |a, t| a + t.carried);
         PaneBand { energy, tiles }
-    }
-
-    /// A pane's energy (signed luminance over the covered texels) carried on from `energy`
-    /// over the band's texels `own`, in texel order, so the sum is the whole atlas's to the bit.
-    fn carry_energy(&self, band: &Band, own: Range<usize>, img: &[Vec3], mut energy: f64) -> f64 {
-        let (w, offset) = (self.grid.w, band.window.start as usize * self.grid.w);
-        for t in &self.set.texels[own] {
-            energy += luminance(img[t.j as usize * w + t.i as usize - offset]) as f64;
-        }
-        energy
     }
 
     /// The stored-texel mask, packed, as the file keeps it.
@@ -740,31 +671,6 @@ pub fn assemble(
     })
 }
 
-/// The dipole panes' part of the file: `dipoles` (from `crate::dipole::frames`) with their
-/// tile counts, first tiles and energies filled in, and their tiles after the drop rule.
-pub fn assemble_dipoles(
-    encoder: &Encoder,
-    acc: Accumulated,
-    mut dipoles: Vec<Dipole>,
-    block: u32,
-    drop_threshold: f64,
-) -> std::io::Result<Dipoles> {
-    let side = encoder.grid.ts.div_ceil(block as usize);
-    let codes = |_: u32| side * side;
-    let (keep, n_tiles, n_codes, _) = acc.keep(drop_threshold, &codes);
-    let (mut tiles, mut data) = (Vec::with_capacity(n_tiles), Vec::with_capacity(n_codes));
-    let axes = acc.drain_into(&keep, 0, &mut tiles, &mut data)?;
-    for (pk, (energy, first, count)) in axes.into_iter().enumerate() {
-        let (c, k) = (pk / 3, pk % 3);
-        if k == 0 {
-            dipoles[c].first_tile = first;
-        }
-        dipoles[c].axes[k].energy = energy;
-        dipoles[c].axes[k].tile_count = count;
-    }
-    Ok(Dipoles { block, clusters: dipoles, tiles, data })
-}
-
 /// Codes a stored pane tile holds, per atlas tile: its stored texels.
 fn tile_codes(grid: &Grid, stored: &[bool]) -> Vec<usize> {
     (0..grid.tx * grid.ty).map(|index| grid.texels(index).filter(|&k| stored[k]).count()).collect()
@@ -799,45 +705,6 @@ fn encode_tile(vals: &[Vec3]) -> (Vec3, Vec<u8>) {
         vals.iter().map(|v| luminance(v.max(Vec3::ZERO))).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
     let data = vals.iter().map(|v| intensity_code(luminance(v.max(Vec3::ZERO)) / peak)).collect();
     (chroma * peak, data)
-}
-
-/// One dipole pane's tiles in the band from its block means (`bw` blocks a row, the band's
-/// block rows; `count`: stored texels per block), those with any energy: one signed code
-/// per block of the tile, row-major.
-fn encode_dipole_band(
-    grid: &Grid,
-    band: &Band,
-    means: &[Vec3],
-    count: &[u32],
-    b: usize,
-    bw: usize,
-) -> Vec<EncodedTile> {
-    let side = grid.ts.div_ceil(b);
-    let bh = means.len() / bw;
-    let first_block_row = band.rows.start as usize / b;
-    (band.tile_rows.start * grid.tx..band.tile_rows.end * grid.tx)
-        .filter_map(|index| {
-            let (ti, tj) = (index % grid.tx, index / grid.tx);
-            let mut vals = vec![Vec3::ZERO; side * side];
-            let mut energy = 0.0f64;
-            for (q, v) in vals.iter_mut().enumerate() {
-                let (x, y) = (ti * side + q % side, tj * side + q / side - first_block_row);
-                if x < bw && y < bh {
-                    *v = means[y * bw + x];
-                    energy += (luminance(*v).abs() * count[y * bw + x] as f32) as f64;
-                }
-            }
-            if energy <= 0.0 {
-                return None;
-            }
-            let (sum, sum_y) =
-                vals.iter().fold((Vec3::ZERO, 0.0f32), |(s, y), v| (s + v.abs(), y + luminance(*v).abs()));
-            let chroma = if sum_y > 0.0 { sum / sum_y } else { Vec3::ONE };
-            let peak = vals.iter().map(|v| luminance(*v).abs()).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
-            let data = vals.iter().map(|v| dipole_code(luminance(*v) / peak)).collect();
-            Some(EncodedTile { index: index as u32, scale: chroma * peak, energy, carried: 0.0, data })
-        })
-        .collect()
 }
 
 #[cfg(test)]

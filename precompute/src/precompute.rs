@@ -13,16 +13,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use prm::density::Atlas;
-use prm::prm_file::{Dipoles, Entry, Header, InvalidPrm, Prm, PrmParts};
+use prm::prm_file::{Entry, Header, InvalidPrm, Prm, PrmParts};
 use prm::{Bvh, Scene};
 use serde::Serialize;
 
 use crate::cluster::Clustering;
 use crate::far::EnergySum;
-use crate::panes::{assemble, assemble_dipoles, Accumulated, Encoder, Tiled};
+use crate::panes::{assemble, Accumulated, Encoder, Tiled};
 use crate::parallel::{stop_if, Cancelled, Control};
 use crate::params::{require, require_atlas, ParamError};
-use crate::transport::{Estimator, TexelDipoles, TexelPanes};
+use crate::transport::{Estimator, TexelPanes};
 use crate::update::{
     edited_voxels, refusal, relabel, tile_digests, triangle_digests, CachedTile, Plan, Refused, TileRecord,
     UpdateCache, VoxelGrid,
@@ -69,9 +69,6 @@ pub struct PrecomputeParams {
     /// Reach of the near field's echo in entry spacings (`crate::near::echo_links`; 0: none;
     /// default 1).
     pub echo_radius: f32,
-    /// Side in texels of the blocks the clusters' dipole panes are stored at (`crate::dipole`;
-    /// 0: no dipoles, the default; 2 is the measured choice; a divisor of the tile size).
-    pub dipole_block: u32,
     /// The far field of the deviations (`crate::far`; default on): the near links' first
     /// bounce carried on to every texel for the entries that hold a share of it.
     pub far_field: bool,
@@ -118,9 +115,6 @@ impl PrecomputeParams {
             groups: 16,
             near_radius: 2.5,
             echo_radius: 1.0,
-            // Off: measured mixed (chamber torches 1-6 points better, two_rooms' floor and
-            // wall torches 2-3 points worse) and +1 s of precompute (`docs/near-lights.md`).
-            dipole_block: 0,
             far_field: true,
             far_radius: 48.0,
             next_bounce: true,
@@ -134,7 +128,7 @@ impl PrecomputeParams {
     pub fn canonical(&self) -> String {
         format!(
             "entries {} paths {} clusters {} atlas {} seed {} estimator {} tile {} drop {:e} bounces {} \
-             kmeans {} smooth {} groups {} near {} echo {} dipole {} far {} far-radius {} next {} \
+             kmeans {} smooth {} groups {} near {} echo {} far {} far-radius {} next {} \
              next-cutoff {}",
             self.entries,
             self.paths,
@@ -150,7 +144,6 @@ impl PrecomputeParams {
             self.groups,
             self.near_radius,
             self.echo_radius,
-            self.dipole_block,
             self.far_field,
             self.far_radius,
             self.next_bounce,
@@ -188,9 +181,6 @@ impl PrecomputeParams {
             self.next_cutoff,
             "0 (none), or 1 to 1e6 entry spacings",
         )?;
-        let block_ok =
-            self.dipole_block == 0 || (self.dipole_block <= 64 && self.tile_size % self.dipole_block == 0);
-        require(block_ok, "dipole block", self.dipole_block, "0, or a divisor of the tile size up to 64")?;
         require(
             (1..=8192).contains(&self.band_tile_rows),
             "band tile rows",
@@ -323,9 +313,6 @@ pub struct Report {
     pub tiles_dropped: u32,
     pub dropped_energy: f64,
     pub pane_bytes: usize,
-    /// Dipole tiles kept and their codes' bytes.
-    pub dipole_tiles: usize,
-    pub dipole_bytes: usize,
     pub threads: usize,
     /// An update's atlas tiles the edit reached (their walks or other inputs changed), the
     /// tiles encoded again (those within reach of one), the texels walked again, and the rooms
@@ -476,11 +463,10 @@ pub fn precompute_with(
             return Err(r.into());
         }
     }
-    if tracing && (params.estimator != Estimator::Gather || params.dipole_block > 0) {
+    if tracing && params.estimator != Estimator::Gather {
         return Err(Refused(format!(
-            "an update cache is kept for the gather estimator without dipoles only (not {}{})",
-            params.estimator,
-            if params.dipole_block > 0 { " with dipoles" } else { "" }
+            "an update cache is kept for the gather estimator only (not {})",
+            params.estimator
         ))
         .into());
     }
@@ -696,7 +682,7 @@ pub fn precompute_with(
             range.clone().filter(|&k| plan.as_ref().is_none_or(|(p, _, _, _)| p.walk[k])).collect();
         let texels: Vec<prm::Texel> = todo.iter().map(|&k| set.texels[k]).collect();
         let walked = transport.run_traced(&texels, set.width, &grid, rooms, control)?;
-        let mut out: Walked = vec![(Vec::new(), Vec::new()); range.len()];
+        let mut out: Walked = vec![Vec::new(); range.len()];
         for (&k, (p, trace)) in todo.iter().zip(walked) {
             let t = &set.texels[k];
             let r = &mut records[crate::update::tile_of(t.i, t.j, params.tile_size, tx)];
@@ -710,7 +696,7 @@ pub fn precompute_with(
                 r.rooms.sort_unstable();
                 r.rooms.dedup();
             }
-            out[k - range.start].0 = p;
+            out[k - range.start] = p;
         }
         Ok(out)
     };
@@ -831,8 +817,6 @@ impl Report {
             tiles_dropped: h.tiles_dropped,
             dropped_energy: h.dropped_energy,
             pane_bytes: map.data().len(),
-            dipole_tiles: map.dipoles().tiles.len(),
-            dipole_bytes: map.dipoles().data.len(),
             ..Report::new(params)
         }
     }
@@ -853,7 +837,7 @@ impl Report {
 
 /// The walks' results for a run of texels, one per texel in order (empty for a texel not
 /// walked).
-pub(crate) type Walked = Vec<(TexelPanes, TexelDipoles)>;
+pub(crate) type Walked = Vec<TexelPanes>;
 
 /// Where the walks come from: `walk(texels, control)` gives those of a run of covered texels
 /// (the transport's, or a sharded precompute's parts).
@@ -892,13 +876,7 @@ pub(crate) fn finish(
     let encoder = Encoder::new(&pre.set, pre.smoothing.as_ref(), params.tile_size, params.band_tile_rows);
     let (members, threshold) = (&pre.clustering.members, params.drop_threshold);
     let tiled = assemble(&encoder, acc.fine, acc.groups, members, &pre.centroids, threshold)?;
-    let dipoles = match acc.dipoles {
-        Some(d) => assemble_dipoles(&encoder, d, pre.dipoles.clone(), params.dipole_block, threshold)?,
-        None => Dipoles::default(),
-    };
     drop(encoder);
-    report.dipole_tiles = dipoles.tiles.len();
-    report.dipole_bytes = dipoles.data.len();
     report.seconds_panes += t.elapsed().as_secs_f64();
     report.tiles_kept = tiled.tiles.len() as u32;
     report.tiles_dropped = tiled.tiles_dropped;
@@ -924,18 +902,16 @@ pub(crate) fn finish(
         tiles,
         mask,
         data,
-        dipoles,
         far,
     })?)
 }
 
-/// The panes being encoded: the clusters', the groups' and the dipoles' (if any).
+/// The panes being encoded: the clusters' and the groups'.
 pub(crate) struct Encoded {
     /// The far field's energies where they were added up beside the first bounce.
     pub(crate) far_energy: Option<Vec<f32>>,
     pub(crate) fine: Accumulated,
     pub(crate) groups: Accumulated,
-    pub(crate) dipoles: Option<Accumulated>,
 }
 
 /// What an update takes from its cache (`crate::update::Plan`): per atlas tile whether it is
@@ -970,15 +946,13 @@ pub(crate) fn walk_and_encode(
         far_energy: None,
         fine: Accumulated::new(clusters)?,
         groups: Accumulated::new(grouping.map_or(0, |g| g.members.len()))?,
-        dipoles: if pre.dipoles.is_empty() { None } else { Some(Accumulated::new(3 * pre.dipoles.len())?) },
     };
     let reuse = cached.map(|CachedPanes { dirty, panes, .. }| {
         let split = clusters.min(panes.len());
         (dirty, &panes[..split], &panes[split..])
     });
     // The walks of texels first..first + panes.len().
-    let (mut first, mut panes, mut dips): (usize, Vec<TexelPanes>, Vec<TexelDipoles>) =
-        (0, Vec::new(), Vec::new());
+    let (mut first, mut panes): (usize, Vec<TexelPanes>) = (0, Vec::new());
     let n = set.len();
     let first_bounce = pre.first_bounce();
     // The far field's energies, added up beside the first bounce where the preamble left them
@@ -992,7 +966,6 @@ pub(crate) fn walk_and_encode(
         let range = encoder.texel_range(band.window.clone());
         let gone = (range.start - first).min(panes.len());
         panes.drain(..gone);
-        dips.drain(..gone.min(dips.len()));
         // The walks the last band no longer needs, and its encoding's scratch.
         crate::memory::release_freed();
         first = range.start;
@@ -1001,10 +974,7 @@ pub(crate) fn walk_and_encode(
             let t = Instant::now();
             let on_texels = |done| progress(Phase::Transport, have + done, n);
             let control = Control { progress: &on_texels, cancel };
-            for (p, d) in walk(have..range.end, control)? {
-                panes.push(p);
-                dips.push(d);
-            }
+            panes.extend(walk(have..range.end, control)?);
             report.seconds_transport += t.elapsed().as_secs_f64();
         }
         stop_if(cancel)?;
@@ -1027,9 +997,6 @@ pub(crate) fn walk_and_encode(
             let (group_panes, group_exact) = (by_group(&panes, g), by_group(&exact, g));
             let group_reuse = reuse.map(|(dirty, _, groups)| (dirty, groups));
             encoder.encode_band(band, first, &group_panes, &group_exact, &mut out.groups, group_reuse)?;
-        }
-        if let Some(acc) = out.dipoles.as_mut() {
-            encoder.encode_dipole_band(band, first, &panes, &dips, &pre.dipoles, params.dipole_block, acc)?;
         }
         // Only what the next band's window holds is kept.
         let next = bands
@@ -1095,10 +1062,9 @@ fn header(pre: &Preamble, params: &PrecomputeParams, report: &Report, tiled: &Ti
             "max_bounces": params.max_bounces, "kmeans_iterations": params.kmeans_iterations,
             "smooth_radius": params.smooth_radius, "near_radius": params.near_radius,
             "near_links": report.near_links, "echo_radius": params.echo_radius,
-            "echo_links": report.echo_links, "dipole_block": params.dipole_block,
+            "echo_links": report.echo_links,
             "far_field": params.far_field, "next_bounce": params.next_bounce, "next_cutoff": params.next_cutoff,
             "far_texels": report.far_texels, "far_pairs": report.far_pairs,
-            "dipole_tiles": report.dipole_tiles,
             "groups": params.groups,
             "walks_truncated": report.walks_truncated, "unowned_vertices": report.unowned_vertices,
             "texels": report.texels,

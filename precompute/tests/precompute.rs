@@ -69,7 +69,7 @@ fn furnace_gives_a_over_one_minus_a_everywhere() {
         let p = PrecomputeParams { smooth_radius: 0.0, ..params(512, 256, 24, 24) };
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 24, 24);
-        let img = cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]);
+        let img = cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]);
         let vals = at_texels(&set, &img);
         let want = a / (1.0 - a);
         let sigma_walk = a * (a).sqrt() / (1.0 - a);
@@ -108,7 +108,7 @@ fn the_tables_cutoff_keeps_the_furnace_at_a_over_one_minus_a() {
         let prm = bake(&scene, &p);
         // The map says which cutoff made it.
         assert_eq!(prm.header().provenance["next_cutoff"].as_f64(), Some(f64::from(cutoff)));
-        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
+        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]));
         (vals.iter().map(|v| v.x).sum::<f32>() / vals.len() as f32, vals)
     };
     let want = a / (1.0 - a);
@@ -133,7 +133,7 @@ fn superposition_and_clustering_invariance() {
     let set = TexelSet::build(&scene, 20, 20);
     let weights: Vec<Vec3> =
         (0..prm.clusters().len()).map(|c| Vec3::new(c as f32 * 0.3, 1.0, (c % 3) as f32)).collect();
-    let composed = at_texels(&set, &cpu::compose(&prm, &weights, &[]));
+    let composed = at_texels(&set, &cpu::compose(&prm, &weights));
     // The same walks evaluated directly for that field.
     let entries = sample_entries(&scene, 256, p.seed);
     let (_, owners, _) = entry_cells(&scene, &entries, &[true; 256]);
@@ -148,7 +148,6 @@ fn superposition_and_clustering_invariance() {
         next: None,
         assignment: &clustering.assignment,
         clusters: clustering.members.len(),
-        frames: &[],
         paths: p.paths,
         max_bounces: p.max_bounces,
         seed: p.seed,
@@ -165,7 +164,7 @@ fn superposition_and_clustering_invariance() {
     }
     // With uniform weights the sum of all panes does not depend on the clustering: C = N
     // (each entry its own cluster) and C = 12 give the same lightmap.
-    let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
+    let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()]));
     let per_entry =
         bake(&scene, &PrecomputeParams { smooth_radius: 0.0, near_radius: 0.0, ..params(256, 32, 256, 20) });
     assert_eq!(per_entry.clusters().len(), 256);
@@ -175,95 +174,6 @@ fn superposition_and_clustering_invariance() {
         let bound = (a.max(*b) * 0.0373 + Vec3::splat(1e-5 * peak.max(1.0))).max_element();
         assert!((*a - *b).abs().max_element() <= bound, "{a} vs {b}");
     }
-}
-
-/// Light that varies linearly over each cluster, `w_c + g_c . (y - o_c)`: the panes weighted by
-/// w_c plus the dipole panes weighted by the slopes along their axes are the walks evaluated
-/// with that field (the same random streams), to within the stored codes: half a logarithmic
-/// step (1.9 %) of each pane term, half a signed step (1/254 of the tile's peak) of each dipole
-/// term. Blocks of one texel and no smoothing, so texel values are compared as walked.
-#[test]
-fn dipole_panes_answer_a_linear_field_over_each_cluster() {
-    let scene = open_box();
-    let bvh = Bvh::build(&scene);
-    let p = PrecomputeParams { smooth_radius: 0.0, dipole_block: 1, ..params(256, 32, 12, 20) };
-    let prm = bake(&scene, &p);
-    let d = prm.dipoles();
-    assert_eq!(d.clusters.len(), prm.clusters().len());
-    assert!(d.clusters.iter().all(|c| c.axes[0].inv_lambda > 0.0 && c.axes[1].inv_lambda > 0.0));
-    // Flat clusters: no axis along the normal.
-    assert!(d.clusters.iter().all(|c| c.axes[2].inv_lambda == 0.0));
-    let members: Vec<Vec<u32>> = prm.clusters().iter().map(|c| c.members.clone()).collect();
-    let mut assignment = vec![0u32; prm.entries().len()];
-    for (c, m) in members.iter().enumerate() {
-        for &j in m {
-            assignment[j as usize] = c as u32;
-        }
-    }
-    let (frames, _) = prm_precompute::dipole::frames(prm.entries(), prm.cells(), &members);
-    let (_, owners, _) = entry_cells(&scene, prm.entries(), &vec![true; prm.entries().len()]);
-    let tr = Transport {
-        scene: &scene,
-        bvh: &bvh,
-        entries: prm.entries(),
-        owners: &owners,
-        linked: None,
-        next: None,
-        assignment: &assignment,
-        clusters: members.len(),
-        frames: &frames,
-        paths: p.paths,
-        max_bounces: p.max_bounces,
-        seed: p.seed,
-        stats: Default::default(),
-    };
-    let set = TexelSet::build_visible(&scene, &bvh, 20, 20);
-    let walked = tr.run(Estimator::Gather, &set, prm_precompute::parallel::Control::none()).unwrap();
-    let w: Vec<Vec3> = (0..members.len()).map(|c| Vec3::new(1.0 + c as f32 * 0.2, 1.0, 0.5)).collect();
-    // Slopes of up to 2 W/m² per metre along each axis, different per channel.
-    let m: Vec<[Vec3; 3]> = (0..members.len())
-        .map(|c| {
-            let s = (c % 5) as f32 - 2.0;
-            [Vec3::new(s, -0.5 * s, 1.0), Vec3::new(1.0, s, -1.5), Vec3::ZERO]
-        })
-        .collect();
-    let direct: Vec<Vec3> = walked
-        .iter()
-        .map(|(panes, dips)| {
-            panes.iter().zip(dips).fold(Vec3::ZERO, |acc, (&(c, v), dk)| {
-                let c = c as usize;
-                acc + w[c] * v + m[c][0] * dk[0] + m[c][1] * dk[1] + m[c][2] * dk[2]
-            })
-        })
-        .collect();
-    let composed = cpu::compose(&prm, &w, &m);
-    let panes_only = cpu::compose(&prm, &w, &[]);
-    // Per texel, what the dipole codes may be off by: half a step of each covering tile's peak.
-    let layout = prm.layout();
-    let mut slack = vec![Vec3::ZERO; prm.texel_count()];
-    for t in &d.tiles {
-        let (c, axis) = (t.cluster as usize / 3, t.cluster as usize % 3);
-        for &texel in &layout.texels[t.index as usize] {
-            slack[texel as usize] += (m[c][axis] * t.scale).abs() / 254.0;
-        }
-    }
-    let peak = direct.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
-    let mut moved = 0.0f64;
-    for (t, b) in set.texels.iter().zip(&direct) {
-        let k = (t.j * set.width + t.i) as usize;
-        let a = composed[k];
-        let bound = (panes_only[k] * 0.0186 + slack[k] + Vec3::splat(1e-5 * peak)).max_element();
-        assert!(
-            (a - *b).abs().max_element() <= bound,
-            "texel ({}, {}): {a} vs walked {b} (bound {bound})",
-            t.i,
-            t.j
-        );
-        moved += (a - panes_only[k]).abs().max_element() as f64;
-    }
-    // The slopes matter here, or this checks only the panes.
-    let mean_moved = moved / set.len() as f64;
-    assert!(mean_moved > 0.005 * peak as f64, "the dipoles move a texel by {mean_moved} on average");
 }
 
 #[test]
@@ -411,6 +321,44 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
+/// `bytes` (a v13 file) as version 12 wrote the same map: a `DIPO` section between `DATA` and
+/// `FARF` whose counts are `dipoles`, 0 tiles and block 1, and the checksum made again. With
+/// `dipoles` > 0 the section holds that many zeroed 88-byte records.
+fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
+    let header = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let mut at = 16 + header;
+    while &bytes[at..at + 4] != b"FARF" {
+        at += 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+    }
+    let mut payload: Vec<u8> = [dipoles, 0, 1].iter().flat_map(|x| x.to_le_bytes()).collect();
+    payload.resize(payload.len() + 88 * dipoles as usize, 0);
+    let mut out = bytes[..at].to_vec();
+    out[8..12].copy_from_slice(&12u32.to_le_bytes());
+    out.extend_from_slice(b"DIPO");
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&payload);
+    out.extend_from_slice(&bytes[at..bytes.len() - 8]);
+    let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &out);
+    out.extend_from_slice(&sum.to_le_bytes());
+    out
+}
+
+/// Version 13 dropped the dipole panes: a version 12 file without any (every file the default
+/// preset wrote) reads as the same map, and one with some is refused, naming them.
+#[test]
+fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
+    let scene = closed_box(0.5);
+    let prm = bake(&scene, &params(64, 4, 8, 16));
+    let dir = tempfile::tempdir().unwrap();
+    let old = as_version_12(&prm.to_bytes(), 0);
+    assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), prm);
+    let with = as_version_12(&prm.to_bytes(), 4);
+    let err = write_read(dir.path(), "dipoles.prm", &with, Some(&scene)).unwrap_err();
+    assert!(matches!(err, PrmError::Retired { .. }), "{err}");
+    let m = err.to_string();
+    assert!(m.contains("dipole panes for 4 clusters") && m.contains("precompute again"), "{m}");
+}
+
 #[test]
 fn same_bytes_at_one_and_two_threads() {
     let scene = closed_box(0.7);
@@ -429,34 +377,22 @@ fn same_bytes_at_one_and_two_threads() {
 
 /// The panes are walked and encoded a band of tile rows at a time (`panes` module doc): bands
 /// of any height give the bytes of one band over the whole atlas (what the precompute did
-/// before it streamed), with smoothing, near links, groups and dipoles on, and with bands
+/// before it streamed), with smoothing, near links and groups on, and with bands
 /// (2 texel rows) shorter than the margin the smoothing needs, so a band's walks span several.
 #[test]
 fn same_bytes_at_any_band_height() {
     let scene = open_box();
-    for dipole_block in [0, 2] {
-        let p = PrecomputeParams {
-            tile_size: 2,
-            groups: 4,
-            dipole_block,
-            smooth_radius: 3.0,
-            ..params(256, 8, 12, 40)
-        };
-        let whole = bake(&scene, &PrecomputeParams { band_tile_rows: 1000, ..p.clone() });
-        assert!(!whole.tiles().is_empty() && whole.header().groups == 4);
-        assert_eq!(whole.dipoles().clusters.is_empty(), dipole_block == 0);
-        let bvh = Bvh::build(&scene);
-        let set = TexelSet::build_visible(&scene, &bvh, 40, 40);
-        let spacing = (scene.total_area() / 256.0).sqrt() as f32;
-        let margin = set.smoothing(&scene, p.smooth_radius * spacing).row_reach() + 1;
-        assert!(margin > 2, "the test wants a margin wider than a band: {margin}");
-        for rows in [1, 3] {
-            let banded = bake(&scene, &PrecomputeParams { band_tile_rows: rows, ..p.clone() });
-            assert!(
-                banded.to_bytes() == whole.to_bytes(),
-                "bands of {rows} tile rows, dipole block {dipole_block}"
-            );
-        }
+    let p = PrecomputeParams { tile_size: 2, groups: 4, smooth_radius: 3.0, ..params(256, 8, 12, 40) };
+    let whole = bake(&scene, &PrecomputeParams { band_tile_rows: 1000, ..p.clone() });
+    assert!(!whole.tiles().is_empty() && whole.header().groups == 4);
+    let bvh = Bvh::build(&scene);
+    let set = TexelSet::build_visible(&scene, &bvh, 40, 40);
+    let spacing = (scene.total_area() / 256.0).sqrt() as f32;
+    let margin = set.smoothing(&scene, p.smooth_radius * spacing).row_reach() + 1;
+    assert!(margin > 2, "the test wants a margin wider than a band: {margin}");
+    for rows in [1, 3] {
+        let banded = bake(&scene, &PrecomputeParams { band_tile_rows: rows, ..p.clone() });
+        assert!(banded.to_bytes() == whole.to_bytes(), "bands of {rows} tile rows");
     }
 }
 
@@ -505,7 +441,7 @@ fn scatter_furnace_is_unbiased_without_clamp_and_low_with_it() {
         };
         let prm = bake(&scene, &p);
         let set = TexelSet::build(&scene, 16, 16);
-        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()], &[]));
+        let vals = at_texels(&set, &cpu::compose(&prm, &vec![Vec3::ONE; prm.clusters().len()]));
         vals.iter().map(|v| v.x as f64).sum::<f64>() / vals.len() as f64
     };
     let want = (a / (1.0 - a)) as f64;
@@ -594,7 +530,7 @@ fn mutated_prm_files_are_loaded_or_refused_never_a_panic() {
         b.extend_from_slice(&sum.to_le_bytes());
         let r = std::panic::catch_unwind(|| {
             Prm::from_bytes(Path::new("m.prm"), &b)
-                .map(|p| cpu::compose(&p, &vec![Vec3::ONE; p.clusters().len()], &[]))
+                .map(|p| cpu::compose(&p, &vec![Vec3::ONE; p.clusters().len()]))
         });
         match r {
             Ok(Ok(img)) => assert!(
@@ -626,17 +562,17 @@ fn groups_carry_the_light_of_the_clusters_a_top_k_leaves_out() {
     assert_eq!(prm.group_of().len(), prm.clusters().len());
     let layout = prm.layout();
     let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat(0.5 + (c % 7) as f32)).collect();
-    let full = cpu::compose(&prm, &w, &[]);
+    let full = cpu::compose(&prm, &w);
     let energy = |img: &[Vec3]| img.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>();
     let chosen: Vec<bool> = (0..prm.clusters().len()).map(|c| c % 4 == 0).collect();
-    let with = cpu::compose_selected(&prm, &w, &[], &chosen, true, &layout);
-    let without = cpu::compose_selected(&prm, &w, &[], &chosen, false, &layout);
+    let with = cpu::compose_selected(&prm, &w, &chosen, true, &layout);
+    let without = cpu::compose_selected(&prm, &w, &chosen, false, &layout);
     let (ef, ew, eo) = (energy(&full), energy(&with), energy(&without));
     assert!((ew / ef - 1.0).abs() < 0.01, "top-K + groups {ew} vs full {ef}");
     assert!(eo < 0.5 * ef, "a quarter of the clusters should carry well under the full light: {eo} vs {ef}");
     // Everything selected: the groups add nothing.
     let all = vec![true; prm.clusters().len()];
-    assert_eq!(cpu::compose_selected(&prm, &w, &[], &all, true, &layout), full);
+    assert_eq!(cpu::compose_selected(&prm, &w, &all, true, &layout), full);
     // And the file keeps the groups.
     let back = Prm::from_bytes(std::path::Path::new("g.prm"), &prm.to_bytes()).unwrap();
     assert_eq!(back, prm);
@@ -655,7 +591,7 @@ fn linked_cells_keep_the_light_and_lose_noise() {
         let prm =
             bake(&scene, &PrecomputeParams { smooth_radius: 0.0, near_radius, ..params(256, paths, 12, 64) });
         let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat((c % 3) as f32)).collect();
-        at_texels(&set, &cpu::compose(&prm, &w, &[])).iter().map(|v| prm::luminance(*v)).collect()
+        at_texels(&set, &cpu::compose(&prm, &w)).iter().map(|v| prm::luminance(*v)).collect()
     };
     let truth = lit(0.0, 1024);
     let (with, without) = (lit(8.0, 16), lit(0.0, 16));
@@ -690,7 +626,7 @@ fn next_bounce_table_keeps_the_light_and_loses_noise() {
         let p = PrecomputeParams { smooth_radius: 0.0, next_bounce, ..params(256, paths, 12, 64) };
         let prm = bake(&scene, &p);
         let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat((c % 3) as f32)).collect();
-        at_texels(&set, &cpu::compose(&prm, &w, &[])).iter().map(|v| prm::luminance(*v)).collect()
+        at_texels(&set, &cpu::compose(&prm, &w)).iter().map(|v| prm::luminance(*v)).collect()
     };
     let truth = lit(false, 1024);
     let mean = |x: &[f32]| x.iter().map(|&v| v as f64).sum::<f64>() / x.len() as f64;
@@ -719,7 +655,7 @@ fn next_bounce_table_keeps_the_bounce_cap() {
             PrecomputeParams { smooth_radius: 0.0, next_bounce, max_bounces, ..params(256, 1024, 12, 64) };
         let prm = bake(&scene, &p);
         let w: Vec<Vec3> = (0..prm.clusters().len()).map(|c| Vec3::splat((c % 3) as f32)).collect();
-        let lit = at_texels(&set, &cpu::compose(&prm, &w, &[]));
+        let lit = at_texels(&set, &cpu::compose(&prm, &w));
         lit.iter().map(|v| prm::luminance(*v) as f64).sum::<f64>() / lit.len() as f64
     };
     let mut last = 0.0;

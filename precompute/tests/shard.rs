@@ -184,7 +184,7 @@ fn bad_parts_and_plans_are_refused_by_name() {
     let m = message(Plan::read_walks(&dir.path().join("nowhere.plan")));
     assert!(m.contains("nowhere.plan") && m.contains("cannot be read"), "{m}");
 
-    // A shard of another level, a shard index past the count, dipole panes.
+    // A shard of another level, a shard index past the count.
     let mut moved = cornell();
     moved.triangles.truncate(moved.triangles.len() - 2);
     let moved_bvh = Bvh::build(&moved);
@@ -195,8 +195,6 @@ fn bad_parts_and_plans_are_refused_by_name() {
     assert!(m.contains("3/3"), "{m}");
     let m = message(run_shard(&scene, &bvh, &made, 0, 0, &out, &quiet, &never()));
     assert!(m.contains("0/0"), "{m}");
-    let dipoles = PrecomputeParams { dipole_block: 2, ..params(3) };
-    assert!(message(plan(&scene, &bvh, &dipoles, &quiet, &never())).contains("dipole"));
     assert!(!out.exists());
 }
 

@@ -99,7 +99,7 @@ fn baked(scene: &Scene, p: &PrecomputeParams, reuse: Reuse, keep: bool) -> (Prm,
 /// Relative RMS distance between two maps' indirect light for one cluster weight pattern
 /// (every cluster at 1 W/m²), over the covered texels.
 fn distance(a: &Prm, b: &Prm, mask: &[bool]) -> f64 {
-    let img = |p: &Prm| cpu::compose(p, &vec![Vec3::ONE; p.clusters().len()], &[]);
+    let img = |p: &Prm| cpu::compose(p, &vec![Vec3::ONE; p.clusters().len()]);
     let (x, y) = (img(a), img(b));
     let (mut d, mut s) = (0.0f64, 0.0f64);
     for k in (0..x.len()).filter(|&k| mask[k]) {

@@ -21,13 +21,13 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, CORNER_WORDS, DIPOLE_RECORD, LINEAR, NO_SLOT, TILE, WG_LINEAR};
+use crate::contract::{Compute, Shader, CORNER_WORDS, LINEAR, NO_SLOT, TILE, WG_LINEAR};
 use crate::gpu;
 use crate::layout::{ActiveRecord, ComposeParams, GpuStruct, TileRecord};
 use crate::near::NearPass;
 use crate::tile_changes::{self, ComposeBuffers, TileChanges};
 
-/// The two buffers of the pane and dipole codes ([`split_words`]), as the GPU memory estimate
+/// The two buffers of the panes' codes ([`split_words`]), as the GPU memory estimate
 /// names them.
 pub const PANE_DATA: [&str; 2] = ["pane data", "pane data, second half"];
 
@@ -52,7 +52,7 @@ pub const BINDINGS: &[Binding] = &[
     // in near_sum, or NO_SLOT. Then per atlas tile: (first record, record count). One buffer,
     // for the stage's 8 storage buffers.
     b("slots", Res::Read("array<vec2u>"), COMPUTE),
-    // The pane and dipole codes, four a word: the first `ComposeParams::data_split` words, then
+    // The panes' codes, four a word: the first `ComposeParams::data_split` words, then
     // the rest ([`split_words`]).
     b("data", Res::Read("array<u32>"), COMPUTE),
     b("data_hi", Res::Read("array<u32>"), COMPUTE),
@@ -132,26 +132,13 @@ impl Tables {
                 ..Default::default()
             });
         }
-        // Dipole tiles: pane C + G + 3 c + axis, codes after the panes' in the data buffer,
-        // their offset flagged (`DIPOLE_RECORD`).
-        let d = prm.dipoles();
-        let codes = d.tile_codes(prm.header().tile_size);
-        for (k, t) in d.tiles.iter().enumerate() {
-            by_tile[t.index as usize].push(TileRecord {
-                scale: t.scale.to_array(),
-                cluster: prm.pane_count() as u32 + t.cluster,
-                data_offset: DIPOLE_RECORD | (prm.data().len() + k * codes) as u32,
-                group: NO_SLOT,
-                ..Default::default()
-            });
-        }
-        // Pane order within each atlas tile (clusters, groups, dipoles): a local budget finds
+        // Pane order within each atlas tile (clusters, then groups): a local budget finds
         // panes by binary search and breaks ties to the lower pane (`cpu::vertex_weights`).
         for list in &mut by_tile {
             list.sort_by_key(|r| r.cluster);
         }
         let mut ranges = Vec::with_capacity(atlas_tiles);
-        let mut records = Vec::with_capacity(prm.tiles().len() + d.tiles.len());
+        let mut records = Vec::with_capacity(prm.tiles().len());
         for list in &by_tile {
             ranges.push([records.len() as u32, list.len() as u32]);
             records.extend_from_slice(list);
@@ -247,16 +234,12 @@ impl ComposePass {
         let atlas_tiles = (tiles_x * prm.tiles_y()) as usize;
         let Tables { slots, ranges, records } = Tables::new(prm, atlas_tiles);
         let mut data: Vec<u8> = prm.data().to_vec();
-        data.extend_from_slice(&prm.dipoles().data);
         data.resize(data.len().next_multiple_of(4).max(4), 0);
         let split = split_words(data.len() / 4) * 4;
-        let block = prm.dipoles().block.max(1);
         // After the per-tile counts and the records' corner words: the tiles' states and list.
         let state_offset = atlas_tiles + records.len() * 4 * CORNER_WORDS as usize;
         let sum_tiles = tile_changes::sum_tiles(&near.index, w, ts, tiles_x);
         let params = ComposeParams {
-            dipole_block: block,
-            dipole_side: ts.div_ceil(block),
             atlas_width: w,
             atlas_height: h,
             tile_size: ts,
@@ -440,7 +423,7 @@ impl ComposePass {
     }
 
     /// Bytes a compose that summed `active[t]` records in atlas tile t reads and writes: one
-    /// byte per stored texel of each summed record (a dipole's codes counted per texel too),
+    /// byte per stored texel of each summed record,
     /// the gather's reads of the tile's records (a 4-byte pane id each for the weight pass's
     /// global selection; under a local budget each 64-byte record read by the four vertices
     /// around its tile, and its four corners' 16 bytes of state and weight written and read),
@@ -477,7 +460,7 @@ pub struct ComposeBytes {
     pub tables: u64,
     pub written: u64,
     pub stored_texels: u64,
-    /// Stored tiles summed, over all atlas tiles (panes, groups and dipole tiles).
+    /// Stored tiles summed, over all atlas tiles (panes and groups).
     pub records: u64,
     /// The most stored tiles one atlas tile summed: the compose's work per texel.
     pub most_per_tile: u32,

@@ -29,9 +29,6 @@ pub const WG_LINEAR: u32 = 64;
 pub const WG_TILE: u32 = 8;
 /// The slot of an atlas texel no stored tile covers (`runtime/src/compose.rs`).
 pub const NO_SLOT: u32 = u32::MAX;
-/// Set in a compose record's data offset when the record is a dipole tile (signed codes, one
-/// per block: `shaders/compose.wgsl`); pane data must stay below it.
-pub const DIPOLE_RECORD: u32 = 1 << 31;
 /// Words per record and corner of its tile in the compose's `counts` buffer under a local budget
 /// (the state of the pane standing there and its weight: `shaders/compose.wgsl`).
 pub const CORNER_WORDS: u32 = 4;
@@ -75,7 +72,6 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
     ("WG_TILE", WG_TILE),
     ("NO_SLOT", NO_SLOT),
-    ("DIPOLE_RECORD", DIPOLE_RECORD),
     ("CORNER_WORDS", CORNER_WORDS),
     ("CUBE_LAYERS", CUBE_LAYERS),
     ("SHADOW_BLOCKS", SHADOW_BLOCKS),
@@ -296,12 +292,11 @@ impl Shader {
 
 /// Every shader of the runtime.
 #[cfg_attr(not(test), allow(dead_code, reason = "the contract tests read it"))]
-pub const SHADERS: [&Shader; 17] = [
+pub const SHADERS: [&Shader; 16] = [
     &crate::shadow::SHADER,
     &crate::shadow::BLOCKS,
     &crate::irradiance::SHADER,
     &crate::concentrate::CONCENTRATE,
-    &crate::weights::DIPOLE,
     &crate::weights::SHADER,
     &crate::near::SHADER,
     &crate::near::ECHO,

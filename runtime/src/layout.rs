@@ -307,10 +307,6 @@ gpu_struct! {
         pub tile_count: u32,
         /// 1: every tile is composed again, changed or not (`crate::tile_changes`).
         pub recompose_all: u32,
-        /// Texels per side of a dipole code's block (`prm::prm_file::Dipoles`; 1 without).
-        pub dipole_block: u32,
-        /// Dipole codes per row of a dipole tile.
-        pub dipole_side: u32,
         /// Panes picked per tile grid vertex under a local budget (`cpu::compose_local`); 0: the weight
         /// pass's global selection is composed as it is.
         pub local_k: u32,
@@ -332,8 +328,6 @@ gpu_struct! {
         /// `crate::tile_changes`).
         pub tolerance: f32,
         pub _pad0: u32,
-        pub _pad1: u32,
-        pub _pad2: u32,
     }
 }
 
@@ -346,9 +340,9 @@ gpu_struct! {
         pub cluster: u32,
         /// Index (in bytes) of the tile's first stored texel in the data buffer.
         pub data_offset: u32,
-        /// Luminance energy per unit weight (`cpu::TileRecord::energy`; 0 for dipole tiles).
+        /// Luminance energy per unit weight (`cpu::TileRecord::energy`).
         pub energy: f32,
-        /// A cluster tile's group (`NO_SLOT` for none, group and dipole tiles).
+        /// A cluster tile's group (`NO_SLOT` for none and group tiles).
         pub group: u32,
         /// In this atlas tile's records: for a cluster's, the next of a cluster of the same
         /// group; for a group's, the first of its clusters (`NO_SLOT`: none).

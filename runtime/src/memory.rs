@@ -45,7 +45,7 @@ impl GpuMemory {
         let size = |n: usize, each: usize| storage(n as u64 * each as u64);
         let atlas = prm.header().atlas();
         let per_tile = tiles_per_atlas_tile(prm);
-        let records = prm.tiles().len() + prm.dipoles().tiles.len();
+        let records = prm.tiles().len();
         let (n, c, g) = (prm.entries().len(), prm.clusters().len(), prm.groups().len());
         let near = prm.near().len();
         let points = prm.near_points().len();
@@ -55,7 +55,7 @@ impl GpuMemory {
         // The near sums hold the near points, then the far field's texels that are not one.
         let linked = |texel: u32| prm.near_points().binary_search_by_key(&texel, |p| p.texel).is_ok();
         let far_only = prm.far().texels.iter().filter(|t| !linked(t.texel)).count();
-        let words = (prm.data().len() + prm.dipoles().data.len()).div_ceil(4).max(1);
+        let words = prm.data().len().div_ceil(4).max(1);
         let split = split_words(words);
         let items = [
             (PANE_DATA[0], storage(4 * split as u64)),
@@ -88,7 +88,7 @@ impl GpuMemory {
             // Each entry's irradiance, then where its light lands and which way it leaves.
             ("entry irradiance", size(3 * n.max(1), 16)),
             // The near pass's deviations and the far field's per-entry tables after them.
-            ("entry fits", size(crate::far::deviation_len(n), 16)),
+            ("entry deviations", size(crate::far::deviation_len(n), 16)),
             (crate::irradiance::ENTRY_HIDDEN, size(n, 8)),
             ("far entries", size(n, std::mem::size_of::<FarEntry>())),
             ("near sums", size(points + far_only, 16)),
@@ -97,8 +97,8 @@ impl GpuMemory {
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
             ("echo runs", size(points, 8)),
             ("echo sums", size(points, 16)),
-            ("cluster weights", size(4 * c.max(1), 16)),
-            ("selected weights", size((4 * c + g).max(1), 16)),
+            ("cluster weights", size(c.max(1), 16)),
+            ("selected weights", size((c + g).max(1), 16)),
             (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),
             // Without a far field there is no lift (`crate::lift`).
             // The relay's and the lift's (`crate::near::cluster_members`).
@@ -146,10 +146,10 @@ fn storage(bytes: u64) -> u64 {
     bytes.max(256).next_multiple_of(4)
 }
 
-/// Stored tiles (panes' and dipole panes') over each atlas tile.
+/// Stored tiles (panes' and groups') over each atlas tile.
 pub(crate) fn tiles_per_atlas_tile(prm: &Prm) -> Vec<u64> {
     let mut per_tile = vec![0u64; (prm.tiles_x() as usize) * (prm.tiles_y() as usize)];
-    for t in prm.tiles().iter().chain(&prm.dipoles().tiles) {
+    for t in prm.tiles() {
         if let Some(n) = per_tile.get_mut(t.index as usize) {
             *n += 1;
         }

@@ -272,7 +272,7 @@ impl NearPass {
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
         weights: &wgpu::Buffer,
-        lin: &wgpu::Buffer,
+        deviation: &wgpu::Buffer,
         ranges: &wgpu::Buffer,
         data: &NearData,
         link_light: &wgpu::Buffer,
@@ -286,8 +286,6 @@ impl NearPass {
         let none = wgpu::BufferUsages::empty();
         let cluster_buf =
             gpu::storage_buffer(device, "entry clusters", bytemuck::cast_slice(&entry_cluster), none);
-        // The dipole pass writes each entry's lin_j there; deviation_main replaces it.
-        let deviation = lin;
         let sums = gpu::storage_buffer(
             device,
             "near sums",

@@ -219,7 +219,7 @@ impl Runtime {
             &params_buf,
             &entries.output,
             &weights.weights,
-            &weights.lin,
+            &weights.deviation,
             &weights.ranges,
             &near_data,
             &concentrate.link_light,
@@ -529,7 +529,7 @@ impl Runtime {
         Ok((self.compose.composed_tiles(&self.device, &self.queue)?, self.compose.tile_count()))
     }
 
-    /// The records each atlas tile's last compose summed: panes, groups and dipole tiles
+    /// The records each atlas tile's last compose summed: panes and groups
     /// (read back: waits for the GPU).
     pub fn read_active_counts(&self) -> Result<Vec<u32>, RuntimeError> {
         Ok(self.compose.read_active_counts(&self.device, &self.queue)?)
@@ -572,9 +572,10 @@ fn check_limits(device: &wgpu::Device, prm: &Prm) -> Result<(), RuntimeError> {
     }
     let max_buf = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let tables = crate::memory::GpuMemory::estimate(prm);
-    let data = (prm.data().len() + prm.dipoles().data.len()) as u64;
-    if data >= crate::contract::DIPOLE_RECORD as u64 {
-        return Err(RuntimeError::Params(format!("the .prm's pane data ({data} bytes) exceed 2 GiB")));
+    // A record's data offset is a u32 of bytes.
+    let data = prm.data().len() as u64;
+    if data > u32::MAX as u64 {
+        return Err(RuntimeError::Params(format!("the .prm's pane data ({data} bytes) exceed 4 GiB")));
     }
     for (what, bytes) in tables.items.iter().filter(|(what, _)| what != crate::memory::LIGHTMAP) {
         if *bytes > max_buf {

@@ -25,41 +25,14 @@ pub const BINDINGS: &[Binding] = &[
     // bits, `prm_runtime::cpu::NearTables`; 0 for a group's children), then 0.
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
-    // Pane energy: C clusters, then G groups; then the balance's dipole terms (3 C); then each
-    // cluster member's stay share times its albedo (RGB), in `indices` order
+    // Pane energy: C clusters, then G groups; then each cluster member's stay share times its
+    // albedo (RGB), in `indices` order
     // (`prm_runtime::cpu::NearTables::reflect`).
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
     b("selected", Res::ReadWrite("array<vec4f>"), COMPUTE),
 ];
-
-/// The dipole weights' bind group (`shaders/dipole.wgsl`).
-pub const DIPOLE_BINDINGS: &[Binding] = &[
-    b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
-    // The clusters' member ranges (the first C of the weights' `ranges`).
-    b("ranges", Res::Read("array<vec2u>"), COMPUTE),
-    // Per member (as `indices`): its moment coefficients along the three axes, its entry (bits).
-    b("dipole_members", Res::Read("array<vec4f>"), COMPUTE),
-    // Per entry: its offsets along its cluster's axes, its cluster (bits).
-    b("entry_dipole", Res::Read("array<vec4f>"), COMPUTE),
-    // Cluster weights, then each cluster's three moments (written here).
-    b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // Per entry: lin_j (the near pass's deviation buffer).
-    b("lin", Res::ReadWrite("array<vec4f>"), COMPUTE),
-];
-
-pub const DIPOLE: Shader = Shader {
-    stem: "dipole",
-    body: include_str!("../../shaders/dipole.wgsl"),
-    libraries: &[],
-    groups: &[DIPOLE_BINDINGS],
-    compute: &[
-        Compute { entry: "moments_main", workgroup: LINEAR },
-        Compute { entry: "lin_main", workgroup: LINEAR },
-    ],
-};
 
 pub const SHADER: Shader = Shader {
     stem: "weights",
@@ -77,19 +50,14 @@ pub struct WeightPass {
     weights_pipeline: wgpu::ComputePipeline,
     select_pipeline: wgpu::ComputePipeline,
     residual_pipeline: wgpu::ComputePipeline,
-    moments_pipeline: wgpu::ComputePipeline,
-    lin_pipeline: wgpu::ComputePipeline,
-    dipole_group: wgpu::BindGroup,
-    entries: u32,
     groups: u32,
     group: wgpu::BindGroup,
     count: u32,
-    /// Cluster weights (`vec4f`), written by `weights_main` or uploaded, then each cluster's
-    /// three dipole moments (C + 3 c + k).
+    /// Cluster weights (`vec4f`), written by `weights_main` or uploaded.
     pub weights: wgpu::Buffer,
-    /// Per entry, the linear fit's part of its expected weight (`vec4f`): the near pass's
-    /// deviation buffer, which it turns into deviations in place.
-    pub lin: wgpu::Buffer,
+    /// The near pass's deviations and the far field's tables after them (`vec4f`,
+    /// [`crate::far::deviation_len`]), made here beside the weights the near pass reads.
+    pub deviation: wgpu::Buffer,
     /// Cluster scores (`f32`).
     pub scores: wgpu::Buffer,
     /// Weights of the selected clusters, 0 elsewhere, then the groups' weights (`vec4f`, C + G).
@@ -129,20 +97,6 @@ impl WeightPass {
         }
         let mut energy: Vec<f32> =
             prm.clusters().iter().map(|c| c.energy).chain(prm.groups().iter().map(|g| g.energy)).collect();
-        // Per cluster and axis, N_k = sum_j near_j t_j offset_jk (the balance's dipole term).
-        let mut balance = vec![0.0f32; 3 * n];
-        let mut dipole_members: Vec<[f32; 4]> = Vec::new();
-        for (c, cl) in prm.clusters().iter().enumerate() {
-            for &m in &cl.members {
-                let m = m as usize;
-                let (off, coef) = (near.dipole_offset[m], near.dipole_coef[m]);
-                for k in 0..3 {
-                    balance[3 * c + k] += near.energy[m] * near.area_ratio[m] * off[k];
-                }
-                dipole_members.push([coef[0], coef[1], coef[2], f32::from_bits(m as u32)]);
-            }
-        }
-        energy.extend(balance);
         // The members' stay shares times albedo, by their slot in `indices` (clusters' members
         // come first).
         energy.extend(
@@ -150,18 +104,6 @@ impl WeightPass {
                 .iter()
                 .flat_map(|c| c.members.iter().flat_map(|&m| near.reflect[m as usize].to_array())),
         );
-        let mut entry_dipole: Vec<[f32; 4]> = near
-            .dipole_offset
-            .iter()
-            .zip(&near.cluster)
-            .map(|(o, &c)| [o[0], o[1], o[2], f32::from_bits(c)])
-            .collect();
-        if dipole_members.is_empty() {
-            dipole_members.push([0.0; 4]);
-        }
-        if entry_dipole.is_empty() {
-            entry_dipole.push([0.0; 4]);
-        }
         let ranges = gpu::storage_buffer(
             device,
             "member ranges",
@@ -181,24 +123,17 @@ impl WeightPass {
             wgpu::BufferUsages::empty(),
         );
         let rw = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
-        let weights = gpu::storage_buffer(device, "cluster weights", &vec![0u8; 4 * n.max(1) * 16], rw);
+        let weights = gpu::storage_buffer(device, "cluster weights", &vec![0u8; n.max(1) * 16], rw);
         let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
         let selected =
-            gpu::storage_buffer(device, "selected weights", &vec![0u8; (4 * n + g_count).max(1) * 16], rw);
+            gpu::storage_buffer(device, "selected weights", &vec![0u8; (n + g_count).max(1) * 16], rw);
         let entries = prm.entries().len();
-        // The near pass turns the fits into deviations and adds the far field's tables after
-        // them (`crate::far::deviation_len`).
-        let lin = gpu::storage_buffer(
+        let deviation = gpu::storage_buffer(
             device,
-            "entry fits",
+            "entry deviations",
             &vec![0u8; crate::far::deviation_len(entries) * 16],
             rw,
         );
-        let none = wgpu::BufferUsages::empty();
-        let members_buf =
-            gpu::storage_buffer(device, "dipole members", bytemuck::cast_slice(&dipole_members), none);
-        let entry_dipole_buf =
-            gpu::storage_buffer(device, "entry dipoles", bytemuck::cast_slice(&entry_dipole), none);
 
         let layout = SHADER.layout(device, 0);
         let group = bind(
@@ -217,33 +152,10 @@ impl WeightPass {
                 ("selected", selected.as_entire_binding()),
             ],
         );
-        let dipole_layout = DIPOLE.layout(device, 0);
-        let dipole_group = bind(
-            device,
-            "dipole weights",
-            &dipole_layout,
-            DIPOLE_BINDINGS,
-            &[
-                ("params", params.as_entire_binding()),
-                ("entry_irradiance", entry_irradiance.as_entire_binding()),
-                ("ranges", ranges.as_entire_binding()),
-                ("dipole_members", members_buf.as_entire_binding()),
-                ("entry_dipole", entry_dipole_buf.as_entire_binding()),
-                ("weights", weights.as_entire_binding()),
-                ("lin", lin.as_entire_binding()),
-            ],
-        );
-        let dipole_source = DIPOLE.source();
-        let dipole_pipeline =
-            |entry| gpu::compute_pipeline(device, "dipole.wgsl", &dipole_source, entry, &[&dipole_layout]);
         let source = SHADER.source();
         let pipeline = |entry| gpu::compute_pipeline(device, "weights.wgsl", &source, entry, &[&layout]);
         WeightPass {
-            moments_pipeline: dipole_pipeline("moments_main"),
-            lin_pipeline: dipole_pipeline("lin_main"),
-            dipole_group,
-            entries: entries as u32,
-            lin,
+            deviation,
             weights_pipeline: pipeline("weights_main"),
             select_pipeline: pipeline("select_main"),
             residual_pipeline: pipeline("residual_main"),
@@ -257,8 +169,7 @@ impl WeightPass {
         }
     }
 
-    /// Records the weights: the dipole moments and fits, then `weights_main` (the balanced
-    /// weights the near pass reads).
+    /// Records `weights_main` (the balanced weights the near pass reads).
     pub fn encode_weights(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -268,11 +179,6 @@ impl WeightPass {
             label: Some("weights"),
             timestamp_writes: timestamps,
         });
-        pass.set_bind_group(0, &self.dipole_group, &[]);
-        pass.set_pipeline(&self.moments_pipeline);
-        pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
-        pass.set_pipeline(&self.lin_pipeline);
-        pass.dispatch_workgroups(self.entries.div_ceil(WG_LINEAR), 1, 1);
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.weights_pipeline);
         pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
@@ -294,11 +200,9 @@ impl WeightPass {
         }
     }
 
-    /// Uploads weights chosen by the caller (with their scores), in place of `weights_main`; the
-    /// dipole moments are zeroed (caller-chosen weights say nothing of them).
+    /// Uploads weights chosen by the caller (with their scores), in place of `weights_main`.
     pub fn upload(&self, queue: &wgpu::Queue, weights: &[Vec3], energies: &[f32]) {
-        let mut w: Vec<[f32; 4]> = weights.iter().map(|v| crate::layout::vec4(*v)).collect();
-        w.resize(4 * weights.len(), [0.0; 4]);
+        let w: Vec<[f32; 4]> = weights.iter().map(|v| crate::layout::vec4(*v)).collect();
         let s: Vec<f32> = weights.iter().zip(energies).map(|(w, e)| prm::luminance(*w) * e).collect();
         queue.write_buffer(&self.weights, 0, bytemuck::cast_slice(&w));
         queue.write_buffer(&self.scores, 0, bytemuck::cast_slice(&s));

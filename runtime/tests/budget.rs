@@ -29,16 +29,15 @@ fn bake(scene: &Scene) -> prm::prm_file::Prm {
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
 }
 
-/// The open box under a lamp near one corner, its weights and dipole moments.
-fn lit() -> (prm::prm_file::Prm, Vec<Vec3>, Vec<[Vec3; 3]>) {
+/// The open box under a lamp near one corner, and its weights.
+fn lit() -> (prm::prm_file::Prm, Vec<Vec3>) {
     let mut scene = open_box();
     scene.lights = vec![point(v(0.15, 0.2, 0.15), 2.0)];
     let prm = bake(&scene);
     let bvh = Bvh::build(&scene);
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let w = cpu::cluster_weights(&prm, &e);
-    let moments = cpu::dipole_moments(&prm, &cpu::NearTables::new(&prm), &e);
-    (prm, w, moments)
+    (prm, w)
 }
 
 /// The records of the tiles around every vertex of the map's tile grid.
@@ -58,7 +57,7 @@ fn vertices(prm: &prm::prm_file::Prm, budget: &TileBudget) -> Vec<Vec<&'static [
 
 #[test]
 fn a_budget_as_large_as_the_panes_around_any_vertex_is_the_full_sum() {
-    let (prm, w, moments) = lit();
+    let (prm, w) = lit();
     let layout = prm.layout();
     let budget = TileBudget::new(&prm, &layout);
     let c = w.len() as u32;
@@ -73,8 +72,8 @@ fn a_budget_as_large_as_the_panes_around_any_vertex_is_the_full_sum() {
         })
         .max()
         .unwrap();
-    let full = cpu::compose(&prm, &w, &moments);
-    let local = compose_local(&prm, &budget, &layout, &w, &moments, k, true);
+    let full = cpu::compose(&prm, &w);
+    let local = compose_local(&prm, &budget, &layout, &w, k, true);
     let peak = full.iter().map(|c| c.max_element()).fold(0.0f32, f32::max);
     for (a, b) in local.lightmap.iter().zip(&full) {
         assert!((*a - *b).abs().max_element() <= 1e-5 * peak, "{a} vs {b}");
@@ -85,7 +84,7 @@ fn a_budget_as_large_as_the_panes_around_any_vertex_is_the_full_sum() {
 
 #[test]
 fn each_vertex_keeps_the_energy_of_composing_everything_around_it() {
-    let (prm, w, _) = lit();
+    let (prm, w) = lit();
     let budget = TileBudget::new(&prm, &prm.layout());
     let c = w.len();
     let (mut checked, mut lost) = (0usize, 0.0f32);
@@ -111,7 +110,7 @@ fn each_vertex_keeps_the_energy_of_composing_everything_around_it() {
             })
         });
         let kept = |residual| -> f32 {
-            vertex_weights(&around, &w, &[], prm.group_of(), prm.groups().len(), 2, residual)
+            vertex_weights(&around, &w, prm.group_of(), 2, residual)
                 .iter()
                 .map(|(p, wt)| luminance(*wt) * energy[p])
                 .sum()
@@ -129,7 +128,7 @@ fn each_vertex_keeps_the_energy_of_composing_everything_around_it() {
 
 #[test]
 fn each_vertex_picks_its_strongest_clusters() {
-    let (prm, w, _) = lit();
+    let (prm, w) = lit();
     let budget = TileBudget::new(&prm, &prm.layout());
     let c = w.len() as u32;
     // Every other cluster dark: never picked, whatever its pane holds.
@@ -137,7 +136,7 @@ fn each_vertex_picks_its_strongest_clusters() {
         w.iter().enumerate().map(|(k, x)| if k % 2 == 0 { Vec3::ZERO } else { *x }).collect();
     for weights in [&w, &half] {
         for around in vertices(&prm, &budget) {
-            let picked = vertex_weights(&around, weights, &[], prm.group_of(), prm.groups().len(), 3, false);
+            let picked = vertex_weights(&around, weights, prm.group_of(), 3, false);
             let mut energy: std::collections::BTreeMap<u32, f32> = Default::default();
             for r in around.iter().flat_map(|l| l.iter()) {
                 *energy.entry(r.pane).or_default() += r.energy;
@@ -164,13 +163,13 @@ fn each_vertex_picks_its_strongest_clusters() {
 /// differs by at most 1/ts of its weights at the vertices involved.
 #[test]
 fn a_panes_weight_does_not_step_at_tile_borders() {
-    let (prm, w, _) = lit();
+    let (prm, w) = lit();
     let budget = TileBudget::new(&prm, &prm.layout());
     let (tx, ty) = (prm.tiles_x() as usize, prm.tiles_y() as usize);
     let ts = prm.header().tile_size as usize;
     let weights: Vec<Vec<(u32, Vec3)>> = vertices(&prm, &budget)
         .iter()
-        .map(|around| vertex_weights(around, &w, &[], prm.group_of(), prm.groups().len(), 3, true))
+        .map(|around| vertex_weights(around, &w, prm.group_of(), 3, true))
         .collect();
     let at = |vx: usize, vy: usize, pane: u32| {
         let l = &weights[vy * (tx + 1) + vx];
@@ -200,17 +199,17 @@ fn a_panes_weight_does_not_step_at_tile_borders() {
 
 #[test]
 fn a_local_budget_comes_nearer_the_full_sum_than_a_global_one() {
-    let (prm, w, _) = lit();
+    let (prm, w) = lit();
     let layout = prm.layout();
     let budget = TileBudget::new(&prm, &layout);
-    let full = cpu::compose(&prm, &w, &[]);
+    let full = cpu::compose(&prm, &w);
     let energies: Vec<f32> = prm.clusters().iter().map(|c| c.energy).collect();
     let k = 4;
     let top = cpu::select_top_k(&w, &energies, k);
     let chosen: Vec<bool> = (0..w.len()).map(|c| top.contains(&c)).collect();
     for residual in [false, true] {
-        let global = cpu::compose_selected(&prm, &w, &[], &chosen, residual, &layout);
-        let local = compose_local(&prm, &budget, &layout, &w, &[], k, residual).lightmap;
+        let global = cpu::compose_selected(&prm, &w, &chosen, residual, &layout);
+        let local = compose_local(&prm, &budget, &layout, &w, k, residual).lightmap;
         let eg = prm::metric::compare(&global, &full, None).error;
         let el = prm::metric::compare(&local, &full, None).error;
         // Measured: 0.21 vs 0.35 without the groups, 0.046 vs 0.16 with them.

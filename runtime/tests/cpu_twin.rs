@@ -58,17 +58,15 @@ fn bake_walked(scene: &Scene, bvh: &Bvh, atlas: u32, entries: u32, clusters: u32
 }
 
 /// The twin's lightmap for entry irradiance `e` and this frame's link light: every pane with
-/// its lifted weight, dipoles, and the near and far fields.
+/// its lifted weight, and the near and far fields.
 fn twin_lightmap(
     prm: &prm::prm_file::Prm,
     tables: &cpu::NearTables,
     link: &cpu::LinkLight,
     e: &[Vec3],
 ) -> Vec<Vec3> {
-    let moments = cpu::dipole_moments(prm, tables, e);
-    let lin = cpu::dipole_offsets(prm, tables, &moments);
-    let (w, near) = cpu::pane_weights_with(prm, tables, link, e, &lin);
-    let mut img = cpu::compose(prm, &w, &moments);
+    let (w, near) = cpu::pane_weights_with(prm, tables, link, e);
+    let mut img = cpu::compose(prm, &w);
     cpu::add_and_clamp(&mut img, &near);
     img
 }
@@ -246,13 +244,11 @@ fn the_near_fields_later_bounces_keep_the_energy() {
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
     let light = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
-    let moments = cpu::dipole_moments(&prm, &tables, &e);
-    let lin = cpu::dipole_offsets(&prm, &tables, &moments);
-    let balanced = cpu::cluster_weights_with(&prm, &tables, &e, &lin);
-    let near = cpu::near_field(&prm, &tables, &light, &e, &balanced, &lin);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e);
+    let near = cpu::near_field(&prm, &tables, &light, &e, &balanced);
     let lifted = cpu::lift_weights(&prm, &tables, &balanced, &near);
     let error = |weights: &[Vec3]| {
-        let mut img = cpu::compose(&prm, weights, &moments);
+        let mut img = cpu::compose(&prm, weights);
         cpu::add_and_clamp(&mut img, &near);
         let at: Vec<Vec3> = set.texels.iter().map(|t| img[(t.j * set.width + t.i) as usize]).collect();
         let e = prm::metric::compare(&at, &gt, None).error;
@@ -306,7 +302,7 @@ fn near_links_and_far_field_add_up_to_one_cells_first_bounce() {
         let mut img = vec![Vec3::ZERO; prm.texel_count()];
         cpu::add_and_clamp(
             &mut img,
-            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[]),
+            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights),
         );
         let entry = &prm.entries()[j0];
         let cell_area = prm.cells().area(j0);
@@ -354,7 +350,7 @@ fn the_balance_counts_what_the_near_and_far_fields_deliver() {
         let mut img = vec![Vec3::ZERO; prm.texel_count()];
         cpu::add_and_clamp(
             &mut img,
-            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights, &[]),
+            &cpu::near_field(&prm, &tables, &cpu::LinkLight::none(&prm), &e, &weights),
         );
         let got = prm.far().texels.iter().map(|t| prm::luminance(img[t.texel as usize]) as f64).sum::<f64>();
         let ratio = tables.energy[j] as f64 / got;
@@ -588,9 +584,8 @@ fn the_near_fields_own_deviation_moves_light_within_each_cluster() {
     let e = entry_irradiance(&prm, &bvh, &scene.lights);
     let tables = cpu::NearTables::new(&prm);
     let light = cpu::link_light(&prm, &bvh, &tables, &e, &scene.lights);
-    let lin = cpu::dipole_offsets(&prm, &tables, &cpu::dipole_moments(&prm, &tables, &e));
-    let balanced = cpu::cluster_weights_with(&prm, &tables, &e, &lin);
-    let linked = cpu::link_field(&prm, &tables, &light, &e, &balanced, &lin);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e);
+    let linked = cpu::link_field(&prm, &tables, &light, &e, &balanced);
     let relay = cpu::near_deviation(&prm, &tables, &linked);
     let (mut largest, mut moved) = (0.0f32, 0.0f32);
     for c in prm.clusters() {

@@ -36,7 +36,6 @@ fn bake(scene: &Scene) -> Prm {
         groups: 8,
         atlas: prm::density::Atlas::single(128),
         tile_size: 8,
-        dipole_block: 2,
         ..Default::default()
     };
     prm_precompute::precompute::precompute(scene, &bvh, &p, &|_, _, _| {}, &AtomicBool::new(false)).unwrap().0
@@ -72,7 +71,7 @@ fn lightmap(prm: &Prm, scene: &Scene, lights: &[Light]) -> Vec<Vec3> {
 fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
     let scene = two_halls();
     let prm = bake(&scene);
-    assert!(!prm.near().is_empty() && !prm.far().texels.is_empty() && !prm.dipoles().tiles.is_empty());
+    assert!(!prm.near().is_empty() && !prm.far().texels.is_empty() && !prm.groups().is_empty());
     let halls = halls_of_tiles(&scene, &prm);
     // Leave out every tile that holds only the second hall's texels.
     let drop: Vec<bool> = halls.iter().map(|&(second, first)| second && !first).collect();
@@ -81,6 +80,16 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
     let small = &reduced.prm;
     assert!(GpuMemory::estimate(small).total() < GpuMemory::estimate(&prm).total());
     assert!(reduced.energy_share > 0.2 && reduced.energy_share < 0.8, "{}", reduced.energy_share);
+    // The balance counts the same energy per entry as the whole map's (links cut and all), to
+    // float rounding, though many entries lost links.
+    let (all, kept) = (prm_runtime::cpu::NearTables::new(&prm), prm_runtime::cpu::NearTables::new(small));
+    assert!(small.link_energy().iter().zip(prm.link_energy()).filter(|(a, b)| **a < 0.9 * b).count() > 50);
+    for (j, (a, b)) in kept.energy.iter().zip(&all.energy).enumerate() {
+        assert!(
+            (a - b).abs() <= 1e-5 * b.abs().max(1.0),
+            "entry {j}: energy {a} against the whole map's {b}"
+        );
+    }
 
     // Nothing left out: the same map.
     let same = prm.without_atlas_tiles(&vec![false; drop.len()]).unwrap();
@@ -127,14 +136,15 @@ fn a_map_without_some_atlas_tiles_lights_the_rest_as_the_whole_map_does() {
         100.0 * rel[1],
         100.0 * rel[2]
     );
-    // Inside, only the near field's balance (a cluster whose links were cut weighs the rest a
-    // little differently) and the lift (a cell the cut splits reads the near field's mean over
-    // its kept texels, `cpu::cell_means`, and the room's lambda moves with it) move a texel;
-    // at the cut the pick at shared grid vertices too. Measured: 1.25 % inside, 2.1 % at the
-    // cut, 1.6 % over all kept texels (with the lift reading one texel per cell, 0.90, 1.7 and
-    // 1.2 % on the same bake, 0.39, 1.5 and 0.94 % before the far field's energies were summed
-    // as delivered; without the lift 0.69 % inside); a tile's data read at another's offset,
-    // or the ranges off by one, is tens of per cent.
+    // Inside, only the echo (its links to cut texels go) and the lift (a cell the cut splits
+    // reads the near field's mean over its kept texels, `cpu::cell_means`, and the room's lambda
+    // moves with it) move a texel; at the cut the pick at shared grid vertices too. The cut
+    // links' energy stays in the balance (`prm::prm_file::Reduced`'s module doc). Measured on
+    // this bake (session 82): 1.29 % inside, 1.77 % at the cut, 1.48 % over all kept texels;
+    // 2.47, 3.81 and 3.02 % with the balance counting only the links kept. (Before session 82
+    // this test baked with dipole panes, whose bake kept the links' first bounce in the walks:
+    // 1.25, 2.1 and 1.6 %.) A tile's data read at another's offset, or the ranges off by one,
+    // is tens of per cent.
     assert!(rel[0] < 0.02, "kept texels inside differ by {:.3} % RMS", 100.0 * rel[0]);
     assert!(rel[2] < 0.025, "kept texels differ by {:.3} % RMS", 100.0 * rel[2]);
 }

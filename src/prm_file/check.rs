@@ -20,7 +20,6 @@ pub(super) fn invariants(p: &PrmParts) -> Result<(), String> {
     entries(p)?;
     tiles(p)?;
     ranges(p)?;
-    dipoles(p)?;
     far(p)?;
     if let Some(c) = p.group_of.iter().position(|&g| g as usize >= p.groups.len()) {
         return Err(format!("cluster {c} is in group {}, of {}", p.group_of[c], p.groups.len()));
@@ -255,70 +254,6 @@ fn ranges(p: &PrmParts) -> Result<(), String> {
             "tile {k} repeats atlas tile {} of pane {}",
             p.tiles[k].index, p.tiles[k].cluster
         ));
-    }
-    Ok(())
-}
-
-/// The dipoles: none or one per cluster, finite, with non-negative `1 / lambda`, unit (or,
-/// unused, zero) directions; tiles of existing axes inside the grid with usable scales, each
-/// axis's range holding only its tiles and no atlas tile twice, the ranges covering every tile
-/// in order; exactly the codes the tiles need.
-fn dipoles(p: &PrmParts) -> Result<(), String> {
-    let (d, h) = (&p.dipoles, &p.header);
-    if d.clusters.is_empty() && d.tiles.is_empty() && d.data.is_empty() {
-        return Ok(());
-    }
-    if d.clusters.len() != p.clusters.len() {
-        return Err(format!("{} dipoles for {} clusters", d.clusters.len(), p.clusters.len()));
-    }
-    if d.block == 0 || h.tile_size % d.block != 0 {
-        return Err(format!("dipole block {} for tiles of {}", d.block, h.tile_size));
-    }
-    let grid = (h.atlas_width.div_ceil(h.tile_size) as u64) * (h.atlas_height.div_ceil(h.tile_size) as u64);
-    let mut next = 0u64;
-    let mut seen = HashSet::new();
-    for (c, dp) in d.clusters.iter().enumerate() {
-        if !dp.origin.is_finite() || dp.first_tile as u64 != next {
-            return Err(format!("dipole {c} has a non-finite origin or a misplaced tile range"));
-        }
-        for (k, a) in dp.axes.iter().enumerate() {
-            let unit = (a.direction.length() - 1.0).abs() < 1e-3
-                || (a.direction == Vec3::ZERO && a.inv_lambda == 0.0);
-            if !(a.direction.is_finite()
-                && unit
-                && a.inv_lambda.is_finite()
-                && a.inv_lambda >= 0.0
-                && a.energy.is_finite())
-            {
-                return Err(format!("dipole {c} axis {k} is not a finite unit axis with 1/lambda >= 0"));
-            }
-            let pane = 3 * c as u64 + k as u64;
-            let end = next + a.tile_count as u64;
-            if end > d.tiles.len() as u64 {
-                return Err(format!("dipole {c} axis {k}'s tiles run past the {} stored", d.tiles.len()));
-            }
-            for t in &d.tiles[next as usize..end as usize] {
-                if t.cluster as u64 != pane
-                    || t.index as u64 >= grid
-                    || !t.scale.is_finite()
-                    || t.scale.min_element() < 0.0
-                    || !seen.insert((t.cluster, t.index))
-                {
-                    return Err(format!(
-                        "dipole tile of pane {} is out of range or repeated (index {}, scale {})",
-                        t.cluster, t.index, t.scale
-                    ));
-                }
-            }
-            next = end;
-        }
-    }
-    if next != d.tiles.len() as u64 {
-        return Err(format!("the dipoles' tile ranges cover {next} of {} tiles", d.tiles.len()));
-    }
-    let want = d.tiles.len() as u64 * d.tile_codes(h.tile_size) as u64;
-    if d.data.len() as u64 != want {
-        return Err(format!("dipole data is {} bytes, its tiles need {want}", d.data.len()));
     }
     Ok(())
 }

@@ -1,10 +1,10 @@
-//! The `.prm` file, format v12 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v13 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 12 (10 and 11 are read too)
+//! 8   u32    version = 13 (10 to 12 are read too)
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, pages, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
@@ -29,10 +29,8 @@
 //!     DATA  u8 per-texel intensity code (`intensity`: 0, or 1e-4 .. 1 logarithmically, 3.7 %
 //!           a step): for each tile in TILE order, its masked texels
 //!           in row-major order (empty atlas texels are not stored)
-//!     DIPO  u32 D (0 or C), u32 K tiles, u32 block side b; D x 88 B: origin (3 x f32), first
-//!           tile u32, 3 x (direction 3 x f32, 1/lambda f32, energy f32, tile count u32);
-//!           K x 20 B tiles as in TILE (pane 3 c + axis); K x ceil(tile size / b)² B: signed
-//!           codes (`dipole_value`), one per b x b block of the tile, row-major
+//!     DIPO  (v6 to v12 only) u32 D, u32 K, u32 b, then the dipole panes: read only when
+//!           D = 0, skipped (below)
 //!     FARF  u32 T texels, u32 F block offsets (0, or B + 1 for B blocks of 32 entries), u32 P
 //!           pairs of blocks, f32 reach, f32 radius; F x u32: each block's first pair, then P;
 //!           P x u32: each pair's other block (ascending within a block); P x 32 x u32: each
@@ -66,14 +64,6 @@
 //! point and normal, so the runtime can weigh a cell's light by how the texel sees it (a hot
 //! spot at the near edge of a cell counts for more than one at its far edge).
 //!
-//! **Dipoles** (v6): the first-order part of each cluster's response. A pane answers light spread
-//! evenly over its cluster; a lamp beside a wall lights one edge of it, and the surfaces a few
-//! metres away see that edge, not the cluster's middle (measured on the chamber: the first
-//! bounce of a torch 5 cm from a wall 35 % off with one pane per cluster, 9 % with one per
-//! entry). Per cluster, up to three more panes answer irradiance that grows linearly along an
-//! axis of the cluster; the runtime weights them by the light's first moment over the cluster.
-//! They are smooth, so they are stored at half resolution with signed 8-bit codes.
-//!
 //! **Far field** (v7): what the near links leave out of the deviations' first bounce. A hot spot's
 //! light reaches the whole room, and a pane spreads it over its cluster: the pillar faces 3 m
 //! from a lamp beside a wall see the lamp's end of the wall, not the cluster's middle. Each
@@ -98,6 +88,13 @@
 //! the runtime weighs each entry's light in that mean by its stay share, so a sunlit window
 //! jamb (half of whose light leaves) in a cluster with the wall inside does not light the
 //! room as the wall would. A closed level's shares are all 1 and change nothing.
+//!
+//! **Dipoles** (v6 to v12, gone in v13): up to three more panes per cluster answered light
+//! growing linearly across it, weighted by the light's first moment over the cluster. Off by
+//! default from the start, they were last measured worth having before the far field; with it
+//! (session 82, the chamber's torch rig and the flashlight rig) every placement came out 2 to 6
+//! times the error without them, so they were removed. A v12 file without them reads as before;
+//! one with them is refused, to be baked again.
 //!
 //! **Groups** (v2) are a coarse level over the clusters: each group's pane is the sum of its
 //! clusters' panes. A runtime composing only the K strongest clusters adds each group's pane
@@ -125,6 +122,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::fingerprint::{fingerprint_hex, fnv1a, FNV_START};
+use crate::luminance;
 use crate::scene::Scene;
 pub use reduce::Reduced;
 use sections::{Reader, SectionError, Writer};
@@ -132,10 +130,11 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 12;
+pub const VERSION: u32 = 13;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
 /// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
-/// a v11 file a v12 one without stay shares (every entry's light taken to stay).
+/// a v11 file a v12 one without stay shares (every entry's light taken to stay), and a v12
+/// file a v13 one with a `DIPO` section, read when it holds no dipole panes.
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -277,76 +276,6 @@ pub struct Echo {
     pub links: Vec<EchoLink>,
 }
 
-/// One axis of a cluster's dipole (`Dipole`): a unit direction along which the cluster's
-/// entries spread, `1 / lambda` (lambda: the entries' second moment along it, sum of cell area
-/// x offset², m⁴), and the signed luminance energy of its pane (as `Cluster::energy`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct DipoleAxis {
-    pub direction: Vec3,
-    pub inv_lambda: f32,
-    pub energy: f32,
-    /// Tiles of this axis's pane, after those of the axes before it.
-    pub tile_count: u32,
-}
-
-/// The first-order (dipole) part of a cluster's response: light that is uneven over the
-/// cluster, fitted as `w_c + g . (y - origin)`, adds `sum_k m_k D_k(x)` where `D_k` is the
-/// response to irradiance `direction_k . (y - origin)` (the pane of axis k) and `m_k = g .
-/// direction_k = inv_lambda_k sum_j P_j direction_k . (x_j - origin)` (P_j: entry j's cell power,
-/// x_j its cell centroid). Unused axes have `inv_lambda` 0 and no tiles.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Dipole {
-    /// Cell-area-weighted mean of the members' cell centroids.
-    pub origin: Vec3,
-    pub axes: [DipoleAxis; 3],
-    /// The first of the cluster's tiles in [`Dipoles::tiles`] (axis 0's, then 1's, then 2's).
-    pub first_tile: u32,
-}
-
-/// The clusters' dipole panes (empty, or one [`Dipole`] per cluster). Their tiles are stored at
-/// `block` x `block` texels a value (a signed code, [`dipole_value`]), every value of the tile:
-/// `ceil(tile_size / block)²` codes each. A tile's `cluster` is `3 c + axis`.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Dipoles {
-    pub block: u32,
-    pub clusters: Vec<Dipole>,
-    pub tiles: Vec<Tile>,
-    pub data: Vec<u8>,
-}
-
-impl Dipoles {
-    /// Codes per stored tile for this tile size.
-    pub fn tile_codes(&self, tile_size: u32) -> usize {
-        (tile_size.div_ceil(self.block.max(1)) as usize).pow(2)
-    }
-
-    /// Where atlas texel `texel` (row-major, atlas `width` wide) reads its code within a stored
-    /// dipole tile of its atlas tile: its block's place, row-major, `ceil(tile_size / block)` a row.
-    pub fn code_index(&self, tile_size: u32, width: u32, texel: u32) -> usize {
-        let (ts, b) = (tile_size as usize, self.block.max(1) as usize);
-        let (x, y) = (texel as usize % width as usize, texel as usize / width as usize);
-        ((y % ts) / b) * ts.div_ceil(b) + (x % ts) / b
-    }
-
-    /// Tile range of cluster `c`'s axis `k` in [`Dipoles::tiles`].
-    pub fn range(&self, c: usize, k: usize) -> Range<usize> {
-        let d = &self.clusters[c];
-        let start = d.first_tile as usize + d.axes[..k].iter().map(|a| a.tile_count as usize).sum::<usize>();
-        start..start + d.axes[k].tile_count as usize
-    }
-}
-
-/// The signed value in [-1, 1] a dipole code stands for: the byte as an i8 over 127.
-#[inline]
-pub fn dipole_value(code: u8) -> f32 {
-    (code as i8).max(-127) as f32 / 127.0
-}
-
-/// The code of `v` in [-1, 1] (relative to its tile's peak): the nearest of 255 steps.
-pub fn dipole_code(v: f32) -> u8 {
-    ((v.clamp(-1.0, 1.0) * 127.0).round() as i8) as u8
-}
-
 /// An albedo as the file stores it: each channel in 1/255 steps of [0, 1].
 pub fn round_albedo(a: Vec3) -> Vec3 {
     (a.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round() / 255.0
@@ -457,6 +386,42 @@ pub struct Far {
     /// counts it with the near links' so that panes, links and far field together keep a
     /// cluster's light (`prm_precompute::far`).
     pub energy: Vec<f32>,
+}
+
+impl Echo {
+    /// Per near point x, the energy (summed over texels, luminance) that one unit of near-field
+    /// irradiance at x delivers with its echo: `1 + a_x S_x + a_x sum_y F_yx a_y S_y`, where `a`
+    /// is the point's albedo luminance and `S_x` the sum of the echo factors with source x (what
+    /// the echo's first bounce from x puts on all receivers per unit of radiosity). `points`:
+    /// the near points' count.
+    pub fn gain(&self, points: usize) -> Vec<f32> {
+        let mut spread = vec![0.0f32; points];
+        for l in &self.links {
+            spread[l.source as usize] += l.factor;
+        }
+        let a: Vec<f32> = (0..points).map(|k| self.albedo.get(k).map_or(0.0, |&v| luminance(v))).collect();
+        let mut second = vec![0.0f32; points];
+        for l in &self.links {
+            let (x, y) = (l.source as usize, l.receiver as usize);
+            second[x] += l.factor * a[y] * spread[y];
+        }
+        (0..points).map(|x| 1.0 + a[x] * (spread[x] + second[x])).collect()
+    }
+}
+
+/// Per entry, the energy (luminance summed over texels, a pane's unit) its near links deliver
+/// with their echo per W/m² of its deviation: `sum over its links of luminance(albedo) x
+/// factor x` the link's texel's [`Echo::gain`]. The runtime's cluster balance counts it with
+/// [`Far::energy`].
+pub fn link_energy(entries: &[Entry], near: &[NearLink], echo: &Echo, points: usize) -> Vec<f32> {
+    let mut energy = vec![0.0f32; entries.len()];
+    for (links, g) in near.chunk_by(|a, b| a.texel == b.texel).zip(echo.gain(points)) {
+        for l in links {
+            let j = l.entry as usize;
+            energy[j] += luminance(entries[j].albedo) * l.factor * g;
+        }
+    }
+    energy
 }
 
 impl Far {
@@ -630,8 +595,6 @@ pub struct PrmParts {
     pub mask: Vec<u8>,
     /// Half-float intensities of all tiles' masked texels, in tile order.
     pub data: Vec<u8>,
-    /// The clusters' dipole panes (may be empty).
-    pub dipoles: Dipoles,
     /// The far field of the deviations (may be empty).
     pub far: Far,
 }
@@ -724,6 +687,8 @@ pub enum PrmError {
     Version { path: PathBuf, found: u32 },
     #[error("{path}: truncated ({size} bytes; {what})")]
     Truncated { path: PathBuf, size: u64, what: String },
+    #[error("{path}: {what}; run prm precompute again")]
+    Retired { path: PathBuf, what: String },
     #[error("{path}: checksum mismatch: the file is corrupt")]
     Checksum { path: PathBuf },
     #[error("{path}: corrupt: {what}")]
@@ -797,7 +762,6 @@ impl PrmParts {
         w.mask(&self.mask);
         w.tiles(&self.tiles);
         w.data(&self.data);
-        w.dipoles(&self.dipoles);
         w.far(&self.far);
         let sum = w.sum;
         w.put(&sum.to_le_bytes());
@@ -860,6 +824,12 @@ impl Prm {
         &self.parts.echo
     }
 
+    /// Per entry, the energy its near links deliver per W/m² of deviation ([`link_energy`]).
+    pub fn link_energy(&self) -> Vec<f32> {
+        let p = &self.parts;
+        link_energy(&p.entries, &p.near, &p.echo, p.near_points.len())
+    }
+
     /// The far field of the deviations (empty when the map has none).
     pub fn far(&self) -> &Far {
         &self.parts.far
@@ -891,10 +861,6 @@ impl Prm {
     /// Half-float intensities of all tiles' masked texels, in tile order.
     pub fn data(&self) -> &[u8] {
         &self.parts.data
-    }
-
-    pub fn dipoles(&self) -> &Dipoles {
-        &self.parts.dipoles
     }
 
     /// Atlas width and height in texels.
@@ -1057,7 +1023,9 @@ impl Prm {
             let mask = r.mask()?;
             let tiles = r.tiles(&header)?;
             let data = r.data()?;
-            let dipoles = r.dipoles()?;
+            if version < 13 {
+                r.retired_dipoles()?;
+            }
             let far = r.far()?;
             r.finish()?;
             Ok(PrmParts {
@@ -1074,13 +1042,13 @@ impl Prm {
                 tiles,
                 mask,
                 data,
-                dipoles,
                 far,
             })
         })()
         .map_err(|e| match e {
             SectionError::Truncated(what) => truncated(&what),
             SectionError::Corrupt(what) => corrupt(what),
+            SectionError::Retired(what) => PrmError::Retired { path: path.into(), what },
         })?;
         let prm = Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))?;
         // A file of this version is what writing the map gives (an older one is written anew
@@ -1320,22 +1288,30 @@ mod tests {
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
         assert!(err.contains("version 9 keeps the far field's visibility for every pair"), "{err}");
         // A v10 or v11 file is read: it differs only in what v11 added (the near links' run
-        // bases) and v12 (the stay shares, whose slot was padding: every share is then 1).
+        // bases), v12 (the stay shares, whose slot was padding: every share is then 1) and v13
+        // (no `DIPO` section; an empty one before `FARF` here).
         let no_stays = Prm::new(PrmParts { stays: Vec::new(), ..parts() }).unwrap();
         for old in [10u32, 11] {
-            let mut bytes = no_stays.to_bytes();
+            let new = no_stays.to_bytes();
+            let Some(far) = (16..new.len()).find(|&k| &new[k..k + 4] == b"FARF") else {
+                panic!("no FARF section");
+            };
+            let mut bytes = new[..far].to_vec();
             bytes[8..12].copy_from_slice(&old.to_le_bytes());
-            let body = bytes.len() - 8;
-            let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes[..body]);
-            bytes[body..].copy_from_slice(&sum.to_le_bytes());
+            bytes.extend_from_slice(b"DIPO");
+            bytes.extend_from_slice(&12u64.to_le_bytes());
+            bytes.extend_from_slice(&[0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0]);
+            bytes.extend_from_slice(&new[far..new.len() - 8]);
+            let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes);
+            bytes.extend_from_slice(&sum.to_le_bytes());
             let read = Prm::from_bytes(Path::new("v11.prm"), &bytes).unwrap();
             assert_eq!(read, no_stays, "v{old}");
             assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
         }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&13u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&14u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 13") && err.contains("versions 10 to 12"), "{err}");
+        assert!(err.contains("version 14") && err.contains("versions 10 to 13"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back

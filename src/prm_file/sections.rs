@@ -9,8 +9,7 @@ use half::f16;
 
 use super::{
     decode_octahedral, dequantize_position, encode_octahedral, near_point_box, quantize_position, Cells,
-    Cluster, Dipole, DipoleAxis, Dipoles, Echo, EchoLink, Entry, Far, FarTexel, Group, Header, NearLink,
-    NearPoint, Tile,
+    Cluster, Echo, EchoLink, Entry, Far, FarTexel, Group, Header, NearLink, NearPoint, Tile,
 };
 
 /// Bytes of one run of near-field links: texel, count, point, normal.
@@ -22,7 +21,6 @@ pub(super) const CELL_TRIANGLE_BYTES: usize = 36;
 pub(super) const CLUSTER_BYTES: usize = 32;
 pub(super) const GROUP_BYTES: usize = 16;
 pub(super) const TILE_BYTES: usize = 20;
-pub(super) const DIPOLE_BYTES: usize = 88;
 pub(super) const FAR_TEXEL_BYTES: usize = 60;
 
 /// Writes tagged, length-prefixed sections to a stream, hashing what it writes (the file's
@@ -223,27 +221,6 @@ impl<'a> Writer<'a> {
         self.section(b"TILE", &t);
     }
 
-    /// `DIPO`: counts, the clusters' records, the tiles, the codes.
-    pub(super) fn dipoles(&mut self, d: &Dipoles) {
-        let mut b = Vec::with_capacity(12 + d.clusters.len() * DIPOLE_BYTES + d.tiles.len() * TILE_BYTES);
-        for x in [d.clusters.len() as u32, d.tiles.len() as u32, d.block] {
-            b.extend_from_slice(&x.to_le_bytes());
-        }
-        for c in &d.clusters {
-            b.extend_from_slice(bytemuck::bytes_of(&c.origin.to_array()));
-            b.extend_from_slice(&c.first_tile.to_le_bytes());
-            for a in &c.axes {
-                b.extend_from_slice(bytemuck::bytes_of(&a.direction.to_array()));
-                b.extend_from_slice(&a.inv_lambda.to_le_bytes());
-                b.extend_from_slice(&a.energy.to_le_bytes());
-                b.extend_from_slice(&a.tile_count.to_le_bytes());
-            }
-        }
-        put_tiles(&mut b, &d.tiles);
-        b.extend_from_slice(&d.data);
-        self.section(b"DIPO", &b);
-    }
-
     /// `FARF`: counts, reach and radius, the blocks' pairs and visibility words, the texels, the
     /// entries' energies. Written piece by piece: the visibility is one of the largest sections
     /// after the panes' codes, so no copy of it is made.
@@ -298,9 +275,11 @@ fn get_tile(b: &[u8]) -> Tile {
 pub(super) enum SectionError {
     Truncated(String),
     Corrupt(String),
+    /// A part of an older version this build no longer reads.
+    Retired(String),
 }
 
-use SectionError::{Corrupt, Truncated};
+use SectionError::{Corrupt, Retired, Truncated};
 
 /// Reads the sections of a checksummed body in order.
 pub(super) struct Reader<'a> {
@@ -621,38 +600,21 @@ impl<'a> Reader<'a> {
         Ok(t.chunks_exact(TILE_BYTES).map(get_tile).collect())
     }
 
-    /// `DIPO` (its codes' count against the tile size, and what its tiles point at, are checked
-    /// with the other invariants).
-    pub(super) fn dipoles(&mut self) -> Result<Dipoles, SectionError> {
+    /// `DIPO`, the dipole panes of versions 6 to 12: skipped when it holds none (every file
+    /// the default preset wrote), refused when it holds some, since this build does not compose
+    /// them (removed in v13: with the far field they made every measured placement worse).
+    pub(super) fn retired_dipoles(&mut self) -> Result<(), SectionError> {
         let d = self.next(b"DIPO")?;
         if d.len() < 12 {
             return Err(Corrupt(format!("dipole section of {} bytes", d.len())));
         }
-        let (n, k, block) = (u32_at(d, 0) as u64, u32_at(d, 4) as u64, u32_at(d, 8));
-        let fixed = 12 + n * DIPOLE_BYTES as u64 + k * TILE_BYTES as u64;
-        if (d.len() as u64) < fixed {
-            return Err(Corrupt(format!("{n} dipoles and {k} dipole tiles declared, {} bytes", d.len())));
+        match u32_at(d, 0) {
+            0 => Ok(()),
+            n => Err(Retired(format!(
+                "holds dipole panes for {n} clusters (prm precompute --dipole-block, versions 6 to 12), \
+                 which this build no longer reads"
+            ))),
         }
-        let (records, rest) = d[12..].split_at(n as usize * DIPOLE_BYTES);
-        let (tiles, data) = rest.split_at(k as usize * TILE_BYTES);
-        let clusters = records
-            .chunks_exact(DIPOLE_BYTES)
-            .map(|b| {
-                let axis = |i: usize| DipoleAxis {
-                    direction: v3(b, i),
-                    inv_lambda: f32_at(b, i + 12),
-                    energy: f32_at(b, i + 16),
-                    tile_count: u32_at(b, i + 20),
-                };
-                Dipole { origin: v3(b, 0), first_tile: u32_at(b, 12), axes: [axis(16), axis(40), axis(64)] }
-            })
-            .collect();
-        Ok(Dipoles {
-            block,
-            clusters,
-            tiles: tiles.chunks_exact(TILE_BYTES).map(get_tile).collect(),
-            data: data.to_vec(),
-        })
     }
 
     /// `DATA`: the intensity codes of every tile's stored texels (how many is the tile

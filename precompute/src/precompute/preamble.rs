@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::Vec3;
 use prm::density::UnwrapLayout;
 use prm::fingerprint::{fingerprint_hex, geometry_fingerprint};
-use prm::prm_file::{far_share, Cells, Dipole, Echo, Entry, Far, NearLink, NearPoint, Prm};
+use prm::prm_file::{far_share, Cells, Echo, Entry, Far, NearLink, NearPoint, Prm};
 use prm::{Bvh, Scene, Smoothing, TexelSet};
 use rayon::prelude::*;
 
@@ -20,9 +20,7 @@ use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, EnergySum, FarReuse, FirstBounce};
 use crate::near::{echo_links, near_links, EchoReuse, NearReuse};
 use crate::parallel::stop_if;
-use crate::transport::{
-    CellSamples, Cutoff, Estimator, Frame, LinkedCells, NextBounce, TexelPanes, Transport,
-};
+use crate::transport::{CellSamples, Cutoff, Estimator, LinkedCells, NextBounce, TexelPanes, Transport};
 use crate::update::{TriangleDigest, Untouched, UpdateCache};
 
 /// Everything the walks and the panes' encoding take from the level before any walk: the
@@ -70,12 +68,6 @@ pub struct Preamble {
     pub(crate) cutoff: Cutoff,
     pub(crate) echo: Echo,
     pub(crate) smoothing: Option<Smoothing>,
-    /// The dipole frames and dipoles (none without dipole panes; a sharded precompute
-    /// refuses them, so they are not stored).
-    #[serde(skip)]
-    pub(crate) frames: Vec<Frame>,
-    #[serde(skip)]
-    pub(crate) dipoles: Vec<Dipole>,
     /// The level's rooms, kept when the walks are recorded for an update (`keep_rooms`).
     #[serde(skip)]
     pub(crate) rooms: Option<prm::rooms::Rooms>,
@@ -183,11 +175,6 @@ impl Preamble {
             }
         });
         let cents = centroids(&entries, &clustering);
-        let (frames, dipoles) = if params.dipole_block > 0 {
-            crate::dipole::frames(&entries, &cells, &clustering.members)
-        } else {
-            (Vec::new(), Vec::new())
-        };
         progress(Phase::Clustering, 1, 1);
         stop_if(cancel)?;
 
@@ -274,8 +261,8 @@ impl Preamble {
         report.update_near_texels_kept = near_kept;
         // The links' first bounce, exact: the gather leaves it out of its first hits and the
         // panes get it back unsmoothed (`transport::LinkedCells`). Only the plain gather does
-        // this (the MIS and scatter estimators, and dipole panes, walk it as before).
-        let linked = params.estimator == Estimator::Gather && params.dipole_block == 0 && !near.is_empty();
+        // this (the MIS and scatter estimators walk it as before).
+        let linked = params.estimator == Estimator::Gather && !near.is_empty();
         let keep = linked.then(|| linked_shares(&set, &cell, &near, &far));
         // The walks read each bounce after the first from a table of the clusters' first
         // bounce (`transport::NextBounce`); the far field's share of it joins the links' in
@@ -332,8 +319,6 @@ impl Preamble {
             cutoff,
             echo,
             smoothing,
-            frames,
-            dipoles,
             rooms,
             untouched,
             fingerprint: fingerprint_hex(scene, params.atlas.width(), params.atlas.height()),
@@ -550,7 +535,6 @@ impl Preamble {
             next: self.next.as_ref(),
             assignment: &self.clustering.assignment,
             clusters: self.clustering.members.len(),
-            frames: &self.frames,
             paths: params.paths,
             max_bounces: params.max_bounces,
             seed: params.seed,
@@ -899,7 +883,7 @@ mod tests {
             let prepared = transport.prepare(Estimator::Gather);
             let out = transport.run_texels(&prepared, &texels, pre.set.width, Control::none()).unwrap();
             let met = transport.stats.rows_left_out.load(std::sync::atomic::Ordering::Relaxed);
-            (out.into_iter().map(|(p, _)| p).collect::<Vec<_>>(), met)
+            (out, met)
         };
         let (a, met_whole) = walk(&whole, true);
         let (b, met_first) = walk(&part, true);

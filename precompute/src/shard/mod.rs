@@ -18,7 +18,7 @@
 //!    band from the parts' walks (streamed, a band's at a time), the drop rule and the file:
 //!    the same code a one-machine precompute runs after its walks, so the same bytes.
 //!
-//! Refused: dipole panes (their frames are not in the plan), an update cache.
+//! Refused: an update cache.
 //!
 //! The plan file, little-endian: magic `PRMPLAN\n`, version u32, then two sections in
 //! postcard's format (its wire format is stable since 1.0). The first is what the walks need
@@ -49,7 +49,6 @@ use crate::parallel::{stop_if, Control};
 use crate::precompute::{
     check_params, finish, walk_and_encode, Phase, Preamble, PrecomputeError, PrecomputeParams, Report, Walked,
 };
-use crate::transport::TexelPanes;
 
 mod part_file;
 mod plan_file;
@@ -104,13 +103,6 @@ pub fn plan(
     cancel: &AtomicBool,
 ) -> Result<(Plan, Report), ShardError> {
     check_params(scene, params)?;
-    if params.dipole_block > 0 {
-        return Err(ShardError::Refused(
-            "a sharded precompute does not make dipole panes (their frames are not in the plan): \
-             leave out --dipole-block"
-                .into(),
-        ));
-    }
     let all = Instant::now();
     let mut report = Report::new(params);
     let preamble = Preamble::build(
@@ -215,8 +207,7 @@ pub fn run_shard(
             let walked = transport
                 .run_texels(&prepared, &pre.set.texels[at..end], pre.set.width, control)
                 .map_err(PrecomputeError::from)?;
-            let panes: Vec<TexelPanes> = walked.into_iter().map(|(p, _)| p).collect();
-            let chunk = postcard::to_stdvec(&panes)
+            let chunk = postcard::to_stdvec(&walked)
                 .map_err(|e| ShardError::Refused(format!("a chunk of walks cannot be encoded: {e}")))?;
             w.write_all(&((end - at) as u32).to_le_bytes())?;
             w.write_all(&(chunk.len() as u64).to_le_bytes())?;
@@ -276,7 +267,7 @@ pub fn merge(
         match walks.take(range) {
             Ok(w) => {
                 (control.progress)(w.len());
-                Ok(w.into_iter().map(|p| (p, Vec::new())).collect())
+                Ok(w)
             }
             Err(e) => {
                 failed = Some(e);

@@ -212,8 +212,6 @@ impl Plan {
             cutoff: Default::default(),
             echo: Echo::default(),
             smoothing: None,
-            frames: Vec::new(),
-            dipoles: Vec::new(),
             rooms: None,
             untouched: None,
             fingerprint: String::new(),

@@ -9,7 +9,7 @@ use prm::sampling::{cosine_direction, shifted_hammersley, stream};
 use prm::Texel;
 use rand::Rng;
 
-use super::{bounce, kept_share, Scratch, TexelDipoles, TexelPanes, Transport};
+use super::{bounce, kept_share, Scratch, TexelPanes, Transport};
 
 /// Per-cluster members and region areas for [`super::Estimator::Mis`].
 pub struct MisTables {
@@ -37,7 +37,7 @@ impl Transport<'_> {
         t: &Texel,
         width: u32,
         mis: Option<&MisTables>,
-    ) -> (TexelPanes, TexelDipoles) {
+    ) -> TexelPanes {
         let mut rng = stream(self.seed, 3, t.j as u64 * width as u64 + t.i as u64);
         let k = self.paths.max(1);
         // First directions: a Hammersley set shifted by a random rotation (Cranley-Patterson),
@@ -103,9 +103,9 @@ impl Transport<'_> {
                         let p_b = (t.normal.dot(y - t.position).max(0.0) * ny.dot(t.position - y).max(0.0))
                             / (std::f32::consts::PI * r2 * r2);
                         let w = 1.0 / (1.0 + 1.0 / (k as f32 * p_b * area_c).max(1e-30));
-                        scratch.add(c, beta * w, y);
+                        scratch.accumulate(c, beta * w);
                     }
-                    Some(c) => scratch.add(c, beta * credit, y),
+                    Some(c) => scratch.accumulate(c, beta * credit),
                     None => {
                         self.stats.unowned.fetch_add(1, Ordering::Relaxed);
                         if let Some(t) = scratch.trace.as_mut() {
@@ -153,7 +153,7 @@ impl Transport<'_> {
                 }
                 let area_c = m.area[c];
                 let value = e.albedo * (g_pi * area_c / (1.0 + k as f32 * g_pi * area_c));
-                scratch.add(c as u32, value * k as f32, e.position);
+                scratch.accumulate(c as u32, value * k as f32);
             }
         }
         scratch.take(1.0 / k as f32)
@@ -163,12 +163,11 @@ impl Transport<'_> {
     /// irradiance `weights`), with the same random streams as [`Transport::run`]: the twin the
     /// superposition test holds the pane sum to.
     pub fn gather_field(&self, set: &prm::TexelSet, weights: &[Vec3]) -> Vec<Vec3> {
-        let mut scratch = Scratch::new(self.clusters, &[], None);
+        let mut scratch = Scratch::new(self.clusters, None);
         set.texels
             .iter()
             .map(|t| {
                 self.gather_texel(&mut scratch, t, set.width, None)
-                    .0
                     .iter()
                     .map(|&(c, v)| v * weights[c as usize])
                     .fold(Vec3::ZERO, |a, b| a + b)

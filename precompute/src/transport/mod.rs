@@ -83,25 +83,6 @@ impl std::fmt::Display for Estimator {
 /// Per-texel pane contributions: (cluster, irradiance per unit cluster irradiance), ascending.
 pub type TexelPanes = Vec<(u32, Vec3)>;
 
-/// Per-texel dipole contributions, one per entry of the texel's [`TexelPanes`] (same order):
-/// the response along each of the cluster's [`Frame`] axes (`prm::prm_file::Dipole`).
-pub type TexelDipoles = Vec<[Vec3; 3]>;
-
-/// Where a cluster's dipole panes are measured from, and along which unit axes (zero: unused).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Frame {
-    pub origin: Vec3,
-    pub axes: [Vec3; 3],
-}
-
-impl Frame {
-    /// The coordinates of `y` along the axes.
-    fn coords(&self, y: Vec3) -> Vec3 {
-        let d = y - self.origin;
-        Vec3::new(self.axes[0].dot(d), self.axes[1].dot(d), self.axes[2].dot(d))
-    }
-}
-
 /// Counters of a transport run.
 #[derive(Debug, Default)]
 pub struct TransportStats {
@@ -122,14 +103,11 @@ struct Scratch<'f> {
     /// Per cluster, in SIMD lanes (the same sums as `Vec3`'s, lane by lane: add_visits' rows,
     /// a third of a chamber's precompute, go about twice as fast).
     dense: Vec<Vec3A>,
-    dipole: Vec<[Vec3; 3]>,
     touched: Vec<u32>,
     /// Per entry, the walks' throughput at vertices in its cell (sized on first use), and
     /// the entries with any ([`NextBounce`]).
     visits: Vec<Vec3>,
     visited: Vec<u32>,
-    /// The clusters' dipole frames (empty: no dipoles).
-    frames: &'f [Frame],
     /// Where the texel's walks go, when recorded ([`Transport::run_traced`]).
     trace: Option<Tracing<'f>>,
 }
@@ -182,15 +160,12 @@ pub struct Trace {
 }
 
 impl<'f> Scratch<'f> {
-    fn new(clusters: usize, frames: &'f [Frame], grid: Option<(&'f VoxelGrid, &'f Rooms)>) -> Self {
-        let dipoles = if frames.is_empty() { 0 } else { clusters };
+    fn new(clusters: usize, grid: Option<(&'f VoxelGrid, &'f Rooms)>) -> Self {
         Scratch {
             dense: vec![Vec3A::ZERO; clusters],
-            dipole: vec![[Vec3::ZERO; 3]; dipoles],
             touched: Vec::with_capacity(clusters),
             visits: Vec::new(),
             visited: Vec::new(),
-            frames,
             trace: grid.map(|(grid, rooms)| Tracing {
                 grid,
                 voxels: Recorder::new(grid),
@@ -237,17 +212,6 @@ impl<'f> Scratch<'f> {
             None => Trace::default(),
         }
     }
-    /// Adds `v` to cluster `c`, the light having entered the cluster at `at`.
-    fn add(&mut self, c: u32, v: Vec3, at: Vec3) {
-        self.accumulate(c, v);
-        if let Some(f) = self.frames.get(c as usize) {
-            let u = f.coords(at);
-            for (a, d) in self.dipole[c as usize].iter_mut().zip(u.to_array()) {
-                *a += v * d;
-            }
-        }
-    }
-
     /// Adds `v` to cluster `c`'s pane value, listing `c` the first time.
     fn accumulate(&mut self, c: u32, v: Vec3) {
         self.accumulate_a(c, Vec3A::from(v));
@@ -280,7 +244,7 @@ impl<'f> Scratch<'f> {
     }
 
     /// Adds each visited cell's row of `next`, times the throughput noted there, and forgets
-    /// the visits. Rows never carry dipoles (the table is built without them).
+    /// the visits.
     fn add_visits(&mut self, next: &NextBounce) {
         let mut visited = std::mem::take(&mut self.visited);
         visited.sort_unstable();
@@ -294,22 +258,14 @@ impl<'f> Scratch<'f> {
         self.visited = visited;
     }
 
-    fn take(&mut self, scale: f32) -> (TexelPanes, TexelDipoles) {
+    fn take(&mut self, scale: f32) -> TexelPanes {
         self.touched.sort_unstable();
         let out = self.touched.iter().map(|&c| (c, Vec3::from(self.dense[c as usize] * scale))).collect();
-        let dipoles = if self.frames.is_empty() {
-            Vec::new()
-        } else {
-            self.touched.iter().map(|&c| self.dipole[c as usize].map(|d| d * scale)).collect()
-        };
         for &c in &self.touched {
             self.dense[c as usize] = Vec3A::ZERO;
-            if let Some(d) = self.dipole.get_mut(c as usize) {
-                *d = [Vec3::ZERO; 3];
-            }
         }
         self.touched.clear();
-        (out, dipoles)
+        out
     }
 }
 
@@ -355,8 +311,6 @@ pub struct Transport<'a> {
     /// Cluster of each entry.
     pub assignment: &'a [u32],
     pub clusters: usize,
-    /// Each cluster's dipole frame (empty: no dipole panes).
-    pub frames: &'a [Frame],
     /// Paths per texel (gather) or per entry (scatter).
     pub paths: u32,
     pub max_bounces: u32,
@@ -413,14 +367,14 @@ fn bounce(scene: &Scene, bvh: &Bvh, x: Vec3, n: Vec3, d: Vec3, stats: &Transport
 }
 
 impl<'a> Transport<'a> {
-    /// Pane (and dipole) contributions at every texel; `control` reports texels done and
+    /// Pane contributions at every texel; `control` reports texels done and
     /// stops the run.
     pub fn run(
         &self,
         estimator: Estimator,
         set: &prm::TexelSet,
         control: Control,
-    ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
+    ) -> Result<Vec<TexelPanes>, Cancelled> {
         self.run_texels(&self.prepare(estimator), &set.texels, set.width, control)
     }
 
@@ -453,8 +407,8 @@ impl<'a> Transport<'a> {
         texels: &[Texel],
         width: u32,
         control: Control,
-    ) -> Result<Vec<(TexelPanes, TexelDipoles)>, Cancelled> {
-        let init = || Scratch::new(self.clusters, self.frames, None);
+    ) -> Result<Vec<TexelPanes>, Cancelled> {
+        let init = || Scratch::new(self.clusters, None);
         match prepared {
             Prepared::Gather(mis) => par_texels(texels, control, init, |scratch, t| {
                 self.gather_texel(scratch, t, width, mis.as_ref())
@@ -475,9 +429,9 @@ impl<'a> Transport<'a> {
         rooms: &Rooms,
         control: Control,
     ) -> Result<Vec<(TexelPanes, Trace)>, Cancelled> {
-        let init = || Scratch::new(self.clusters, self.frames, Some((grid, rooms)));
+        let init = || Scratch::new(self.clusters, Some((grid, rooms)));
         par_texels(texels, control, init, |scratch, t| {
-            let (panes, _) = self.gather_texel(scratch, t, width, None);
+            let panes = self.gather_texel(scratch, t, width, None);
             (panes, scratch.take_trace())
         })
     }

@@ -9,7 +9,7 @@ use prm::Texel;
 use rand::Rng;
 use rayon::prelude::*;
 
-use super::{bounce, Scratch, TexelDipoles, TexelPanes, Transport};
+use super::{bounce, Scratch, TexelPanes, Transport};
 
 impl Transport<'_> {
     /// Virtual point lights of every entry's walks, for unit entry irradiance: (position,
@@ -59,7 +59,7 @@ impl Transport<'_> {
         t: &Texel,
         vpls: &[(Vec3, Vec3, Vec3, u32)],
         rc2: f32,
-    ) -> (TexelPanes, TexelDipoles) {
+    ) -> TexelPanes {
         for &(z, nz, phi, j) in vpls {
             let d = t.position - z;
             let r2 = d.length_squared();
@@ -75,8 +75,8 @@ impl Transport<'_> {
             if !self.bvh.visible(z, nz, t.position, t.normal) {
                 continue;
             }
-            let (c, at) = (self.assignment[j as usize], self.entries[j as usize].position);
-            scratch.add(c, phi * (cz * cx / (std::f32::consts::PI * r2.max(rc2))), at);
+            let c = self.assignment[j as usize];
+            scratch.accumulate(c, phi * (cz * cx / (std::f32::consts::PI * r2.max(rc2))));
         }
         scratch.take(1.0)
     }

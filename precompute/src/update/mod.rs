@@ -84,7 +84,7 @@
 //! triangles added or removed; a different number of entries (the edit changed the surface's
 //! area, or what lies inside solids); the level's bounds moved (every ray's offsets follow
 //! its diagonal, so nothing traced before is what a full precompute traces); the MIS or
-//! scatter estimators (their walks depend on every cluster's entries); dipole panes.
+//! scatter estimators (their walks depend on every cluster's entries).
 //!
 //! **Texels.** A texel keeps its near and echo links (settled, or by geometry) only where the
 //! old bake had the same texel at its atlas index ([`same_texels`]): an edit of lightmap UVs
@@ -679,9 +679,6 @@ pub fn refusal(
     }
     if params.estimator != crate::transport::Estimator::Gather {
         return Some(Refused(format!("the {} estimator's walks depend on every cluster", params.estimator)));
-    }
-    if params.dipole_block > 0 {
-        return Some(Refused("dipole panes are not kept in the cache".into()));
     }
     if triangles.len() != cache.triangles.len() {
         return Some(Refused(format!(

@@ -23,16 +23,15 @@
 
 use glam::Vec3;
 use prm::luminance;
-use prm::prm_file::{dipole_value, intensity, Prm, TileLayout};
+use prm::prm_file::{intensity, Prm, TileLayout};
 
-/// One stored tile at an atlas tile: its pane (cluster c < C, group C + g, dipole axis C + G +
-/// 3 c + axis) and its place in [`Prm::tiles`] (or `Dipoles::tiles` for a dipole).
+/// One stored tile at an atlas tile: its pane (cluster c < C, group C + g) and its place in
+/// [`Prm::tiles`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TileRecord {
     pub pane: u32,
     pub stored: u32,
-    /// Luminance energy per unit weight: `luminance(scale) x sum of its texels' intensities`
-    /// (0 for a dipole's).
+    /// Luminance energy per unit weight: `luminance(scale) x sum of its texels' intensities`.
     pub energy: f32,
 }
 
@@ -50,7 +49,6 @@ pub struct TileBudget {
     /// Per atlas tile, its records in ascending pane order.
     pub tiles: Vec<Vec<TileRecord>>,
     clusters: usize,
-    groups: usize,
 }
 
 impl TileBudget {
@@ -61,16 +59,11 @@ impl TileBudget {
             let energy = stored_tile_energy(prm, layout, k);
             tiles[t.index as usize].push(TileRecord { pane: t.cluster, stored: k as u32, energy });
         }
-        let first_dipole = prm.pane_count() as u32;
-        for (k, t) in prm.dipoles().tiles.iter().enumerate() {
-            let pane = first_dipole + t.cluster;
-            tiles[t.index as usize].push(TileRecord { pane, stored: k as u32, energy: 0.0 });
-        }
         // Pane order (ties go to the lower cluster; lookups by pane); one tile per pane each.
         for list in &mut tiles {
             list.sort_by_key(|r| r.pane);
         }
-        TileBudget { tiles, clusters: prm.clusters().len(), groups: prm.groups().len() }
+        TileBudget { tiles, clusters: prm.clusters().len() }
     }
 }
 
@@ -91,14 +84,12 @@ pub fn tiles_around(vx: usize, vy: usize, tiles_x: usize, tiles_y: usize) -> [Op
 /// stored there, once, in pane order, with its energy summed over them. The (at most) `k`
 /// clusters with the largest `luminance(w_c) x energy` (positive only; ties to the lower
 /// cluster) keep their weight; with `residual`, each group gets the light of its clusters left
-/// out in the tiles that store the group's pane, over the group's energy there; a kept
-/// cluster's dipoles get its moments (`moments`, empty for none). Everything else weighs 0.
+/// out in the tiles that store the group's pane, over the group's energy there. Everything
+/// else weighs 0.
 pub fn vertex_weights(
     around: &[&[TileRecord]],
     weights: &[Vec3],
-    moments: &[[Vec3; 3]],
     group_of: &[u32],
-    groups: usize,
     k: usize,
     residual: bool,
 ) -> Vec<(u32, Vec3)> {
@@ -144,7 +135,7 @@ pub fn vertex_weights(
                 } else {
                     Vec3::ZERO
                 }
-            } else if p < c_count + groups {
+            } else {
                 // The light of the group's clusters left out, in the tiles around that store
                 // the group's pane (tile by tile, panes in order), over its energy there.
                 let g = (p - c_count) as u32;
@@ -162,12 +153,6 @@ pub fn vertex_weights(
                     left /= energy;
                 }
                 left
-            } else {
-                let (c, axis) = ((p - c_count - groups) / 3, (p - c_count - groups) % 3);
-                match moments.get(c) {
-                    Some(m) if kept(c) => m[axis],
-                    _ => Vec3::ZERO,
-                }
             };
             (pane, w)
         })
@@ -195,15 +180,14 @@ pub struct LocalCompose {
     pub summed: Vec<u32>,
 }
 
-/// The lightmap under a local budget of `k` panes picked per vertex of the tile grid (weights `weights`, dipole
-/// weights `moments`, empty for none), with, under `residual`, the groups standing in for the
+/// The lightmap under a local budget of `k` panes picked per vertex of the tile grid (weights
+/// `weights`), with, under `residual`, the groups standing in for the
 /// clusters each vertex leaves out; each pane's weight blended from its tile's corners.
 pub fn compose_local(
     prm: &Prm,
     budget: &TileBudget,
     layout: &TileLayout,
     weights: &[Vec3],
-    moments: &[[Vec3; 3]],
     k: usize,
     residual: bool,
 ) -> LocalCompose {
@@ -216,7 +200,7 @@ pub fn compose_local(
                 .flatten()
                 .map(|&t| &budget.tiles[t][..])
                 .collect();
-            vertex_weights(&around, weights, moments, prm.group_of(), budget.groups, k, residual)
+            vertex_weights(&around, weights, prm.group_of(), k, residual)
         })
         .collect();
     let mut kept = vec![false; weights.len()];
@@ -227,10 +211,7 @@ pub fn compose_local(
             }
         }
     }
-    let (d, w) = (prm.dipoles(), prm.atlas().0);
-    let tile_size = prm.header().tile_size;
-    let (ts, codes) = (tile_size as usize, d.tile_codes(tile_size));
-    let first_dipole = (budget.clusters + budget.groups) as u32;
+    let (w, ts) = (prm.atlas().0, prm.header().tile_size as usize);
     // Pane `pane`'s weight at vertex (vx, vy) (every pane of a tile is listed at its corners).
     let vertex = |vx: usize, vy: usize, pane: u32| -> Vec3 {
         let list = &vertices[vy * (tx + 1) + vx];
@@ -253,21 +234,11 @@ pub fn compose_local(
             }
             summed[t] += 1;
             let s = r.stored as usize;
-            if r.pane < first_dipole {
-                let scale = prm.tiles()[s].scale;
-                let data = &prm.data()[layout.offsets[s]..layout.offsets[s] + texels.len()];
-                for (&texel, &v) in texels.iter().zip(data) {
-                    let (x, y) = (texel as usize % w as usize, texel as usize / w as usize);
-                    img[texel as usize] += blend(&c, x % ts, y % ts, ts) * scale * intensity(v);
-                }
-            } else {
-                let scale = d.tiles[s].scale;
-                let data = &d.data[s * codes..(s + 1) * codes];
-                for &texel in texels {
-                    let (x, y) = (texel as usize % w as usize, texel as usize / w as usize);
-                    let v = dipole_value(data[d.code_index(tile_size, w, texel)]);
-                    img[texel as usize] += blend(&c, x % ts, y % ts, ts) * scale * v;
-                }
+            let scale = prm.tiles()[s].scale;
+            let data = &prm.data()[layout.offsets[s]..layout.offsets[s] + texels.len()];
+            for (&texel, &v) in texels.iter().zip(data) {
+                let (x, y) = (texel as usize % w as usize, texel as usize / w as usize);
+                img[texel as usize] += blend(&c, x % ts, y % ts, ts) * scale * intensity(v);
             }
         }
     }

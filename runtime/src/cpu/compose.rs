@@ -52,21 +52,12 @@ use super::concentrate::LinkLight;
 /// that already held all of it (a lamp 1 cm over a closed box's floor: 1.06 of the power's
 /// indirect light, 1.01 with it counted).
 pub fn cluster_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
-    let tables = NearTables::new(prm);
-    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
-    cluster_weights_with(prm, &tables, entry_irradiance, &lin)
+    cluster_weights_with(prm, &NearTables::new(prm), entry_irradiance)
 }
 
 /// [`cluster_weights`] with the map's [`NearTables`] built once (per frame they are the
-/// same). With dipoles, an entry's expected weight
-/// is `t_j (w_c + lin_j)` (`lin`: [`dipole_offsets`], empty for none), so the balance adds
-/// `sum_j lin_j t_j near_j` to the energy to keep.
-pub fn cluster_weights_with(
-    prm: &Prm,
-    tables: &NearTables,
-    entry_irradiance: &[Vec3],
-    lin: &[Vec3],
-) -> Vec<Vec3> {
+/// same).
+pub fn cluster_weights_with(prm: &Prm, tables: &NearTables, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
     prm.clusters()
         .iter()
         .map(|c| {
@@ -83,10 +74,6 @@ pub fn cluster_weights_with(
                 stay_t += tables.area_ratio[m] * tables.reflect[m];
                 t_sum += tables.area_ratio[m];
                 near_sum += tint * (e * tables.energy[m]);
-                // (Untinted: the GPU sums this term per cluster, `shaders/weights.wgsl`.)
-                if let Some(l) = lin.get(m) {
-                    near_sum -= *l * (tables.energy[m] * tables.area_ratio[m]);
-                }
                 near_total += tint * (tables.energy[m] * tables.area_ratio[m]);
             }
             let plain = if t_sum > 0.0 { sum / t_sum } else { Vec3::ZERO };
@@ -140,12 +127,6 @@ pub struct NearTables {
     pub centroid: Vec<Vec3>,
     /// The size of the entry's cell: the square root of its area.
     pub size: Vec<f32>,
-    /// Per entry, its cluster's dipole axes: `v_k . (x_j - o)` (x_j: cell centroid; zero for
-    /// an unused axis or no dipoles).
-    pub dipole_offset: Vec<[f32; 3]>,
-    /// Per entry: what one W/m² of its weight adds to its cluster's moment along each axis,
-    /// `A/N (1 / lambda_k) v_k . (x_j - o)` ([`dipole_moments`]).
-    pub dipole_coef: Vec<[f32; 3]>,
     /// Per entry, the texels that stand for its cell, where [`lift_weights`] and
     /// [`near_deviation`] read the near field ([`cell_means`]): the far texels whose nearest
     /// entry it is, in the far field's order, entry j's at `cell_texels[cell_first[j] as
@@ -208,7 +189,7 @@ pub fn cell_means(tables: &NearTables, field: &[Vec3]) -> Vec<Option<Vec3>> {
 impl NearTables {
     pub fn new(prm: &Prm) -> NearTables {
         let n = prm.entries().len();
-        let (mut cluster, mut area_ratio, mut energy) = (vec![0u32; n], vec![0.0f32; n], vec![0.0f32; n]);
+        let (mut cluster, mut area_ratio) = (vec![0u32; n], vec![0.0f32; n]);
         let cells = prm.cells();
         let (cell_first, cell_texels) = cell_texels(prm);
         for (c, cl) in prm.clusters().iter().enumerate() {
@@ -218,13 +199,7 @@ impl NearTables {
                 area_ratio[m as usize] = if a > 0.0 { cells.area(m as usize) / a } else { 0.0 };
             }
         }
-        let echo_gain = echo_gain(prm);
-        for (links, g) in prm.near().chunk_by(|a, b| a.texel == b.texel).zip(&echo_gain) {
-            for l in links {
-                let j = l.entry as usize;
-                energy[j] += luminance(prm.entries()[j].albedo) * l.factor * g;
-            }
-        }
+        let mut energy = prm.link_energy();
         // The far field carries the rest of the deviation's first bounce.
         for (j, e) in energy.iter_mut().enumerate() {
             *e += prm.far().energy.get(j).copied().unwrap_or(0.0);
@@ -233,17 +208,6 @@ impl NearTables {
             (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
         let cluster_room = super::rooms::cluster_rooms(prm);
-        let (mut dipole_offset, mut dipole_coef) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
-        for (d, cl) in prm.dipoles().clusters.iter().zip(prm.clusters()) {
-            for &m in &cl.members {
-                let (j, area) = (m as usize, prm.entries()[m as usize].area);
-                for (k, a) in d.axes.iter().enumerate() {
-                    let u = a.direction.dot(centroid[j] - d.origin);
-                    dipole_offset[j][k] = u;
-                    dipole_coef[j][k] = area * a.inv_lambda * u;
-                }
-            }
-        }
         let reflect: Vec<Vec3> = (0..n).map(|j| prm.stay(j) * prm.entries()[j].albedo).collect();
         // As the balance sums it (`cluster_weights_with`'s `stay_t`).
         let cluster_tint = prm
@@ -266,8 +230,6 @@ impl NearTables {
             energy,
             centroid,
             size,
-            dipole_offset,
-            dipole_coef,
             cell_first,
             cell_texels,
             cluster_tint,
@@ -277,85 +239,8 @@ impl NearTables {
     }
 }
 
-/// Per cluster, the weights of its dipole panes (`prm::prm_file::Dipole`): along each axis,
-/// `m_k = sum_j E_j dipole_coef_jk` (RGB), the slope of the least-squares linear fit of the
-/// light over the cluster's cells. Empty without dipoles.
-pub fn dipole_moments(prm: &Prm, tables: &NearTables, entry_irradiance: &[Vec3]) -> Vec<[Vec3; 3]> {
-    if prm.dipoles().clusters.is_empty() {
-        return Vec::new();
-    }
-    prm.clusters()
-        .iter()
-        .map(|c| {
-            let mut m = [Vec3::ZERO; 3];
-            for &j in &c.members {
-                let (e, coef) = (entry_irradiance[j as usize], tables.dipole_coef[j as usize]);
-                for k in 0..3 {
-                    m[k] += e * coef[k];
-                }
-            }
-            m
-        })
-        .collect()
-}
-
-/// Per entry, the linear fit's part of its expected weight per unit area ratio: `lin_j = sum_k
-/// m_k(c(j)) dipole_offset_jk` (empty without dipoles).
-pub fn dipole_offsets(prm: &Prm, tables: &NearTables, moments: &[[Vec3; 3]]) -> Vec<Vec3> {
-    if moments.is_empty() {
-        return Vec::new();
-    }
-    (0..prm.entries().len())
-        .map(|j| {
-            let m = &moments[tables.cluster[j] as usize];
-            let u = tables.dipole_offset[j];
-            m[0] * u[0] + m[1] * u[1] + m[2] * u[2]
-        })
-        .collect()
-}
-
-/// Add cluster `c`'s dipole panes, weighted by its `moments`, into a full-atlas image.
-pub fn add_dipole(prm: &Prm, c: usize, moments: &[Vec3; 3], img: &mut [Vec3], layout: &TileLayout) {
-    let d = prm.dipoles();
-    let (ts, w) = (prm.header().tile_size, prm.atlas().0);
-    let codes = d.tile_codes(ts);
-    for (k, m) in moments.iter().enumerate() {
-        if *m == Vec3::ZERO {
-            continue;
-        }
-        for t in d.range(c, k) {
-            let tile = &d.tiles[t];
-            let s = *m * tile.scale;
-            let data = &d.data[t * codes..(t + 1) * codes];
-            for &texel in &layout.texels[tile.index as usize] {
-                img[texel as usize] += s * prm::prm_file::dipole_value(data[d.code_index(ts, w, texel)]);
-            }
-        }
-    }
-}
-
 /// Bounces of the near field's echo the runtime applies (the second and the third).
 pub const ECHO_BOUNCES: usize = 2;
-
-/// Per near point x, the energy (summed over texels, luminance) that one unit of near-field
-/// irradiance at x delivers with its echo: `1 + a_x S_x + a_x sum_y F_yx a_y S_y`, where `a`
-/// is the point's albedo luminance and `S_x` the sum of the echo factors with source x (what
-/// the echo's first bounce from x puts on all receivers per unit of radiosity).
-pub fn echo_gain(prm: &Prm) -> Vec<f32> {
-    let echo = prm.echo();
-    let n = prm.near_points().len();
-    let mut spread = vec![0.0f32; n];
-    for l in &echo.links {
-        spread[l.source as usize] += l.factor;
-    }
-    let a: Vec<f32> = (0..n).map(|k| echo.albedo.get(k).map_or(0.0, |&v| luminance(v))).collect();
-    let mut second = vec![0.0f32; n];
-    for l in &echo.links {
-        let (x, y) = (l.source as usize, l.receiver as usize);
-        second[x] += l.factor * a[y] * spread[y];
-    }
-    (0..n).map(|x| 1.0 + a[x] * (spread[x] + second[x])).collect()
-}
 
 /// One bounce of the echo: per near point, `sum over its links of factor x albedo(source) x
 /// from(source)`.
@@ -411,12 +296,11 @@ pub fn add_pane(prm: &Prm, pane: usize, weight: Vec3, img: &mut [Vec3], layout: 
     }
 }
 
-/// The lightmap from the clusters in `selected` (weights `weights`, dipole weights `moments`,
-/// empty for none), plus, with `residual`, the groups standing in for the rest.
+/// The lightmap from the clusters in `selected` (weights `weights`), plus, with `residual`, the
+/// groups standing in for the rest.
 pub fn compose_selected(
     prm: &Prm,
     weights: &[Vec3],
-    moments: &[[Vec3; 3]],
     selected: &[bool],
     residual: bool,
     layout: &TileLayout,
@@ -425,9 +309,6 @@ pub fn compose_selected(
     for c in 0..prm.clusters().len() {
         if selected[c] && weights[c] != Vec3::ZERO {
             add_pane(prm, c, weights[c], &mut img, layout);
-            if let Some(m) = moments.get(c) {
-                add_dipole(prm, c, m, &mut img, layout);
-            }
         }
     }
     if residual {
@@ -540,7 +421,6 @@ pub fn far_sources(
     tables: &NearTables,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
-    lin: &[Vec3],
     relay: &[Vec3],
     link_light: &LinkLight,
 ) -> Vec<FarSource> {
@@ -553,7 +433,7 @@ pub fn far_sources(
         .iter()
         .enumerate()
         .map(|(j, e)| {
-            let fit = weights[tables.cluster[j] as usize] + lin.get(j).copied().unwrap_or(Vec3::ZERO);
+            let fit = weights[tables.cluster[j] as usize];
             let relay = relay.get(j).copied().unwrap_or(Vec3::ZERO);
             e.albedo * e.area * (entry_irradiance[j] - fit * tables.area_ratio[j] + relay)
         })
@@ -893,9 +773,9 @@ fn vote(
     prm::prm_file::far_vote(&t.weights, |k| far.sees(t.entries[k] as usize, j), faces)
 }
 
-/// The indirect lightmap for per-cluster weights (W/m² of entry irradiance) and dipole weights
-/// (`moments`, empty for none): every pane times its weight, no selection.
-pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> {
+/// The indirect lightmap for per-cluster weights (W/m² of entry irradiance): every pane times
+/// its weight, no selection.
+pub fn compose(prm: &Prm, weights: &[Vec3]) -> Vec<Vec3> {
     assert_eq!(weights.len(), prm.clusters().len(), "one weight per cluster");
     let mut img = vec![Vec3::ZERO; prm.texel_count()];
     let layout = prm.layout();
@@ -903,23 +783,18 @@ pub fn compose(prm: &Prm, weights: &[Vec3], moments: &[[Vec3; 3]]) -> Vec<Vec3> 
         if *w != Vec3::ZERO {
             add_pane(prm, c, *w, &mut img, &layout);
         }
-        if let Some(m) = moments.get(c) {
-            add_dipole(prm, c, m, &mut img, &layout);
-        }
     }
     img
 }
 
 /// The whole indirect lightmap of every pane for these entry irradiances (no link light, as
 /// [`cluster_weights`]): balanced weights, the near field, the weights lifted by it
-/// ([`lift_weights`]), the panes with their dipoles, the near field added and the sum clamped
+/// ([`lift_weights`]), the panes, the near field added and the sum clamped
 /// at zero. What the twin and the GPU give with every pane composed.
 pub fn lightmap(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
     let tables = NearTables::new(prm);
-    let moments = dipole_moments(prm, &tables, entry_irradiance);
-    let lin = dipole_offsets(prm, &tables, &moments);
-    let (weights, near) = pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin);
-    let mut img = compose(prm, &weights, &moments);
+    let (weights, near) = pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance);
+    let mut img = compose(prm, &weights);
     add_and_clamp(&mut img, &near);
     img
 }
@@ -932,25 +807,21 @@ pub fn pane_weights_with(
     tables: &NearTables,
     link_light: &LinkLight,
     entry_irradiance: &[Vec3],
-    lin: &[Vec3],
 ) -> (Vec<Vec3>, Vec<Vec3>) {
-    let balanced = cluster_weights_with(prm, tables, entry_irradiance, lin);
-    let near = near_field(prm, tables, link_light, entry_irradiance, &balanced, lin);
+    let balanced = cluster_weights_with(prm, tables, entry_irradiance);
+    let near = near_field(prm, tables, link_light, entry_irradiance, &balanced);
     (lift_weights(prm, tables, &balanced, &near), near)
 }
 
 /// [`pane_weights_with`]'s weights with no light on the links of hot cells, as
 /// [`cluster_weights`].
 pub fn pane_weights(prm: &Prm, entry_irradiance: &[Vec3]) -> Vec<Vec3> {
-    let tables = NearTables::new(prm);
-    let lin = dipole_offsets(prm, &tables, &dipole_moments(prm, &tables, entry_irradiance));
-    pane_weights_with(prm, &tables, &LinkLight::none(prm), entry_irradiance, &lin).0
+    pane_weights_with(prm, &NearTables::new(prm), &LinkLight::none(prm), entry_irradiance).0
 }
 
 /// Adds the near field (signed) into a lightmap of panes, then clamps every texel at zero (the
-/// near and far fields and the dipole panes are signed), as the GPU's compose does.
+/// near and far fields are signed), as the GPU's compose does.
 pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
-    // Dipole panes are signed: a fit's slope can take a texel below zero, as the near field can.
     for (v, n) in img.iter_mut().zip(near) {
         *v = (*v + *n).max(Vec3::ZERO);
     }
@@ -962,9 +833,7 @@ pub fn add_and_clamp(img: &mut [Vec3], near: &[Vec3]) {
 /// ([`link_field`]); then the far field ([`far_sources`] with the links' own deviation,
 /// [`near_deviation`]; [`far_field`], seeing lights by `link_light.sight`).
 /// Hot cells' links use their own `E_j
-/// kappa` for `E_j` (`link_light`); with dipoles (`lin`: [`dipole_offsets`]) a link's
-/// deviation is from the cluster's linear fit, `E_j - t_j (w_c + lin_j)`, since the dipole
-/// panes already carry the fit's slope. `weights` are the balanced ones
+/// kappa` for `E_j` (`link_light`). `weights` are the balanced ones
 /// ([`cluster_weights_with`]); the panes take them lifted ([`pane_weights_with`]). A frame adds
 /// it to the panes with [`add_and_clamp`].
 pub fn near_field(
@@ -973,12 +842,11 @@ pub fn near_field(
     link_light: &LinkLight,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
-    lin: &[Vec3],
 ) -> Vec<Vec3> {
-    let mut img = link_field(prm, tables, link_light, entry_irradiance, weights, lin);
+    let mut img = link_field(prm, tables, link_light, entry_irradiance, weights);
     let sight = &link_light.sight;
     let relay = near_deviation(prm, tables, &img);
-    let sources = far_sources(prm, tables, entry_irradiance, weights, lin, &relay, link_light);
+    let sources = far_sources(prm, tables, entry_irradiance, weights, &relay, link_light);
     for (t, v) in prm.far().texels.iter().zip(far_field(prm, tables, &sources, sight)) {
         img[t.texel as usize] += v;
     }
@@ -993,7 +861,6 @@ pub fn link_field(
     link_light: &LinkLight,
     entry_irradiance: &[Vec3],
     weights: &[Vec3],
-    lin: &[Vec3],
 ) -> Vec<Vec3> {
     let mut img = vec![Vec3::ZERO; prm.texel_count()];
     let mut k = 0;
@@ -1004,8 +871,7 @@ pub fn link_field(
             let mut sum = Vec3::ZERO;
             for l in links.iter() {
                 let j = l.entry as usize;
-                let fit = weights[tables.cluster[j] as usize] + lin.get(j).copied().unwrap_or(Vec3::ZERO);
-                let expected = fit * tables.area_ratio[j];
+                let expected = weights[tables.cluster[j] as usize] * tables.area_ratio[j];
                 let e = if link_light.hot[j] { link_light.value[k] } else { entry_irradiance[j] };
                 sum += prm.entries()[j].albedo * l.factor * (e - expected);
                 k += 1;

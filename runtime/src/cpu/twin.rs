@@ -10,8 +10,8 @@ use crate::Budget;
 use rayon::prelude::*;
 
 use super::{
-    add_and_clamp, compose_local, compose_selected, dipole_moments, dipole_offsets, pane_weights_with,
-    select_top_k, sight_eye, sighted, LightSight, LinkLight, NearTables, TileBudget, UpClose,
+    add_and_clamp, compose_local, compose_selected, pane_weights_with, select_top_k, sight_eye, sighted,
+    LightSight, LinkLight, NearTables, TileBudget, UpClose,
 };
 
 /// The light on every cell triangle ([`prm::prm_file::Cells`] order) from `lights`, each
@@ -158,13 +158,10 @@ impl<'a> CpuTwin<'a> {
         let e = entry_irradiance_from(self.prm, &cell_lights);
         let mut link_light = LinkLight::new(self.prm, &self.near, &e, &cell_lights, lights);
         link_light.sight = light_sight(self.prm, self.bvh, &self.near, lights);
-        let moments = dipole_moments(self.prm, &self.near, &e);
-        let lin = dipole_offsets(self.prm, &self.near, &moments);
-        let (w, near) = pane_weights_with(self.prm, &self.near, &link_light, &e, &lin);
+        let (w, near) = pane_weights_with(self.prm, &self.near, &link_light, &e);
         if self.budget == Budget::Local {
             let budget = self.tile_budget.get_or_insert_with(|| TileBudget::new(self.prm, &self.layout));
-            let local =
-                compose_local(self.prm, budget, &self.layout, &w, &moments, self.top_k, self.residual);
+            let local = compose_local(self.prm, budget, &self.layout, &w, self.top_k, self.residual);
             self.lightmap = local.lightmap;
             self.last_selected = local.kept.iter().filter(|&&c| c).count();
         } else {
@@ -174,7 +171,7 @@ impl<'a> CpuTwin<'a> {
             for &c in &selected {
                 chosen[c] = true;
             }
-            self.lightmap = compose_selected(self.prm, &w, &moments, &chosen, self.residual, &self.layout);
+            self.lightmap = compose_selected(self.prm, &w, &chosen, self.residual, &self.layout);
             self.last_selected = selected.len();
         }
         add_and_clamp(&mut self.lightmap, &near);

@@ -671,8 +671,6 @@ fn bake(scene: &Scene, entries: u32, clusters: u32, atlas: u32) -> Prm {
             paths: 16,
             clusters,
             atlas: prm::density::Atlas::single(atlas),
-            // The dipole panes are off by default; the GPU is held to the twin with them on.
-            dipole_block: 2,
             ..Default::default()
         },
     )
@@ -722,7 +720,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         // K = C: the full sum (f16 data, f32 sums in another order: 1e-5 of the brightest).
         rt.set_top_k(c).unwrap();
         rt.compose_weights(&w).unwrap();
-        assert_close(&rt.read_lightmap().unwrap(), &cpu::compose(&prm, &w, &[]), 1e-5, "K = C");
+        assert_close(&rt.read_lightmap().unwrap(), &cpu::compose(&prm, &w), 1e-5, "K = C");
         // K = 5 per vertex of the atlas tile grid: the same records summed per tile as the
         // CPU's, and the same sum, with and without the groups standing in for the others.
         rt.set_top_k(5).unwrap();
@@ -732,7 +730,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
         for residual in [false, true] {
             rt.set_residual(residual);
             rt.compose_weights(&w).unwrap();
-            let cpu_l = crate::cpu::compose_local(&prm, &budget, &layout, &w, &[], 5, residual);
+            let cpu_l = crate::cpu::compose_local(&prm, &budget, &layout, &w, 5, residual);
             let active = rt.read_active_counts().unwrap();
             assert_eq!(active, cpu_l.summed, "records summed per atlas tile, residual {residual}");
             assert_close(&rt.read_lightmap().unwrap(), &cpu_l.lightmap, 1e-5, "K = 5 per vertex");
@@ -755,7 +753,7 @@ fn gpu_compose_equals_cpu_compose_for_random_weights_and_top_k() {
             );
             assert_close(
                 &rt.read_lightmap().unwrap(),
-                &cpu::compose_selected(&prm, &w, &[], &chosen, residual, &layout),
+                &cpu::compose_selected(&prm, &w, &chosen, residual, &layout),
                 1e-5,
                 "K = 5",
             );
@@ -1067,10 +1065,8 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     assert!(by_rim > 0, "no cell is hot by the cone's rim");
     lightmaps_agree(&mut rt, &mut twin, &narrow, "narrow spot");
     let (gpu_l, cpu) = lightmaps_agree(&mut rt, &mut twin, &corner, "corner lamp");
-    // The echo is part of what the two agree on: it must change the corner's lightmap (by 19 %
-    // when measured before the dipoles; 3.8 % with them, which now carry the linear part of the
-    // hot spot's light and all its bounces, leaving the echo the rest).
-    assert!(!prm.echo().links.is_empty() && !prm.dipoles().tiles.is_empty());
+    // The echo is part of what the two agree on: it must change the corner's lightmap.
+    assert!(!prm.echo().links.is_empty());
     let mut parts = prm.clone().into_parts();
     parts.echo = Default::default();
     let silent = prm::prm_file::Prm::new(parts).unwrap();
@@ -1102,8 +1098,7 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let cpu_far: Vec<Vec3> = cpu.iter().zip(&without).map(|(a, b)| *a - *b).collect();
     let m = prm::metric::compare(&gpu_far, &cpu_far, None);
     assert!(m.error < 0.05, "corner lamp: GPU vs CPU far field: normalised RMSE {}", m.error);
-    // A local budget of 4 panes per tile grid vertex under the corner lamp, the dipoles of the panes
-    // each tile keeps with them: the GPU's pick against the twin's, without the groups (which
+    // A local budget of 4 panes per tile grid vertex under the corner lamp: the GPU's pick against the twin's, without the groups (which
     // must leave light out, or this checks nothing) and with them.
     rt.set_top_k(4).unwrap();
     for residual in [false, true] {
@@ -1183,10 +1178,8 @@ fn the_far_field_sees_a_near_lights_spot_through_its_shadow_maps() {
         let seeing = cpu::link_light(&prm, &bvh, &tables, &e, lights);
         assert!(seeing.sight.seen.iter().any(|s| !s.is_empty()), "the {what} light no cell up close");
         let blind = cpu::LinkLight { sight: cpu::LightSight::default(), ..seeing };
-        let moments = cpu::dipole_moments(&prm, &tables, &e);
-        let lin = cpu::dipole_offsets(&prm, &tables, &moments);
-        let (w, near) = cpu::pane_weights_with(&prm, &tables, &blind, &e, &lin);
-        let mut without = cpu::compose(&prm, &w, &moments);
+        let (w, near) = cpu::pane_weights_with(&prm, &tables, &blind, &e);
+        let mut without = cpu::compose(&prm, &w);
         cpu::add_and_clamp(&mut without, &near);
         let share = prm::metric::compare(&without, &cpu_l, None).error;
         println!("{what}: the sight changes the lightmap by {share}");
@@ -1250,10 +1243,8 @@ fn the_gpu_sees_a_far_spot_from_its_eye_and_fades_a_lamps_sight_as_the_twin_does
                 .map(|t| bvh.visible_point(t.position, t.normal, l.position) as u8 as f32)
                 .collect();
             let from_light = cpu::LinkLight { sight, ..link };
-            let moments = cpu::dipole_moments(&prm, &tables, &e);
-            let lin = cpu::dipole_offsets(&prm, &tables, &moments);
-            let (w, near) = cpu::pane_weights_with(&prm, &tables, &from_light, &e, &lin);
-            let mut img = cpu::compose(&prm, &w, &moments);
+            let (w, near) = cpu::pane_weights_with(&prm, &tables, &from_light, &e);
+            let mut img = cpu::compose(&prm, &w);
             cpu::add_and_clamp(&mut img, &near);
             let apart = prm::metric::compare(&img, &cpu_l, None).error;
             println!("spot: the twin from the light is {apart} off the twin from the eye");
@@ -1279,12 +1270,12 @@ fn lightmaps_agree(
 }
 
 /// How much the near field changes the twin's lightmap `twin_lightmap` for `lights`: its
-/// normalised RMSE from the panes and dipoles alone (a GPU-twin check where this is small
+/// normalised RMSE from the panes alone (a GPU-twin check where this is small
 /// checks nothing of the near pass).
 fn near_share(prm: &Prm, bvh: &Bvh, lights: &[Light], twin_lightmap: &[Vec3]) -> f64 {
     let e = crate::cpu::entry_irradiance(prm, bvh, lights);
     let w = cpu::cluster_weights(prm, &e);
-    let panes_only = cpu::compose(prm, &w, &cpu::dipole_moments(prm, &cpu::NearTables::new(prm), &e));
+    let panes_only = cpu::compose(prm, &w);
     prm::metric::compare(&panes_only, twin_lightmap, None).error
 }
 
@@ -1744,9 +1735,9 @@ fn entries_no_changed_light_reaches_keep_their_light() {
 fn the_stated_gpu_memory_is_what_the_runtime_allocates() {
     let g = gpu();
     let scene = open_box();
-    // Near links, far field, dipole panes and groups: every table the estimate lists.
+    // Near links, far field and groups: every table the estimate lists.
     let prm = bake(&scene, 512, 40, 48);
-    assert!(!prm.near().is_empty() && !prm.far().texels.is_empty() && !prm.dipoles().tiles.is_empty());
+    assert!(!prm.near().is_empty() && !prm.far().texels.is_empty() && !prm.groups().is_empty());
     let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, RuntimeParams::default()).unwrap();
     rt.update(&scene.lights).unwrap();
     let stated = crate::GpuMemory::estimate(&prm);
@@ -1860,11 +1851,10 @@ fn twin_far_field(prm: &Prm, bvh: &Bvh, lights: &[Light]) -> (Vec<(u32, Vec3)>, 
     let e = cpu::entry_irradiance_from(prm, &cells);
     let mut link = cpu::LinkLight::new(prm, &tables, &e, &cells, lights);
     link.sight = cpu::light_sight(prm, bvh, &tables, lights);
-    let lin = cpu::dipole_offsets(prm, &tables, &cpu::dipole_moments(prm, &tables, &e));
-    let balanced = cpu::cluster_weights_with(prm, &tables, &e, &lin);
-    let linked = cpu::link_field(prm, &tables, &link, &e, &balanced, &lin);
+    let balanced = cpu::cluster_weights_with(prm, &tables, &e);
+    let linked = cpu::link_field(prm, &tables, &link, &e, &balanced);
     let relay = cpu::near_deviation(prm, &tables, &linked);
-    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &lin, &relay, &link);
+    let sources = cpu::far_sources(prm, &tables, &e, &balanced, &relay, &link);
     let light = cpu::far_field(prm, &tables, &sources, &link.sight);
     (sources.iter().map(|s| (s.entry, s.phi)).collect(), light)
 }
@@ -1982,7 +1972,7 @@ fn weights_moving_within_the_tolerance_leave_the_tiles_as_they_are() {
     rt.compose_weights(&w).unwrap();
     let (first, tiles) = rt.composed_tiles().unwrap();
     assert_eq!(first, tiles, "the first compose works every tile");
-    let exact = |w: &[Vec3]| cpu::compose(&prm, w, &[]);
+    let exact = |w: &[Vec3]| cpu::compose(&prm, w);
     let scaled = |f: f32| -> Vec<Vec3> { w.iter().map(|x| *x * f).collect() };
     // Within the tolerance: nothing composed, the lightmap kept within tol of the exact one
     // (f16 data and f32 sums in another order: 1e-5 of the brightest, as elsewhere). The dim
