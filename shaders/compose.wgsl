@@ -269,7 +269,6 @@ fn select_main(
     }
     storageBarrier();
     // Each pane's weight at the vertex, in the words of the record standing for it.
-    let groups_end = params.cluster_count + params.group_count;
     for (var slot = 0u; slot < 4u; slot++) {
         let r = around(v, slot);
         for (var k = r.x + li; k < r.x + r.y; k += WG_LINEAR) {
@@ -281,7 +280,7 @@ fn select_main(
             var w = vec3f(0.0);
             if rec.cluster < params.cluster_count {
                 w = select(vec3f(0.0), selected[rec.cluster].xyz, kept_at(k, slot));
-            } else if rec.cluster < groups_end {
+            } else {
                 // The light of the group's clusters left out, in the tiles around that store the
                 // group's pane, over its energy there.
                 let e = rec.summed[corner];
@@ -298,17 +297,6 @@ fn select_main(
                         }
                     }
                     w /= e;
-                }
-            } else {
-                let cluster = (rec.cluster - groups_end) / 3u;
-                for (var s = 0u; s < 4u; s++) {
-                    let j = find(around(v, s), cluster);
-                    if j != NO_SLOT {
-                        if kept_at(j, s) {
-                            w = selected[rec.cluster].xyz;
-                        }
-                        break;
-                    }
                 }
             }
             let c = word_at(k * 4u + corner);

@@ -352,6 +352,14 @@ fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
     let dir = tempfile::tempdir().unwrap();
     let old = as_version_12(&prm.to_bytes(), 0);
     assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), prm);
+    // An empty section that declares tiles is corrupt, not skipped.
+    let mut odd = old[..old.len() - 8].to_vec();
+    let at = (16..odd.len()).find(|&k| &odd[k..k + 4] == b"DIPO").unwrap();
+    odd[at + 16..at + 20].copy_from_slice(&1u32.to_le_bytes());
+    let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &odd);
+    odd.extend_from_slice(&sum.to_le_bytes());
+    let err = write_read(dir.path(), "odd.prm", &odd, None).unwrap_err();
+    assert!(matches!(err, PrmError::Corrupt { .. }) && err.to_string().contains("dipole"), "{err}");
     let with = as_version_12(&prm.to_bytes(), 4);
     let err = write_read(dir.path(), "dipoles.prm", &with, Some(&scene)).unwrap_err();
     assert!(matches!(err, PrmError::Retired { .. }), "{err}");

@@ -3,7 +3,7 @@
 //! near field and its echo:
 //!
 //! 1. `sources_main`, one workgroup: each entry's deviation flux `albedo_j (A/N) deviation_j`
-//!    (the near pass's `deviation`, `E_j - (w_c + lin_j) t_j + relay_j`: `crate::near`), the sums of their luminances and
+//!    (the near pass's `deviation`, `E_j - w_c t_j + relay_j`: `crate::near`), the sums of their luminances and
 //!    of the light the surfaces reflect onto the level (by stay share), the threshold
 //!    (`crate::cpu::far_threshold`), and the entries over it, ascending, listed by a prefix sum
 //!    over the workgroup (the same list every time; the CPU twin's up to the rounding of the
@@ -49,7 +49,7 @@ pub fn deviation_len(entries: usize) -> usize {
 /// Group 1 (group 0 is the shadow maps' `SHADOW_GROUP`).
 pub const BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    // Per entry, this update's `E_j - (w_c + lin_j) t_j + relay_j` (the near pass's
+    // Per entry, this update's `E_j - w_c t_j + relay_j` (the near pass's
     // `deviation_main` and relay),
     // then per entry E_j, then the sources' records, written here, then per entry where its
     // light lands and which way it leaves ([`deviation_len`]).

@@ -24,7 +24,7 @@ pub const BINDINGS: &[Binding] = &[
     b("entry_cluster", Res::Read("array<vec2u>"), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
     b("near_links", Res::Read("array<GpuNearLink>"), COMPUTE),
-    // Per entry, this frame's `E_j - (w_c + lin_j) t_j` (written by `deviation_main`; the relay
+    // Per entry, this frame's `E_j - w_c t_j` (written by `deviation_main`; the relay
     // adds to it after the echo).
     b("deviation", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // One per linked texel, in near_texels order (the compose finds it through its slots).

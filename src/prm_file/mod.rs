@@ -384,7 +384,8 @@ pub struct Far {
     /// Per entry (v8): the energy (luminance summed over texels, a pane's unit) the far field
     /// delivers per W/m² of the entry's deviation, for the runtime's cluster balance, which
     /// counts it with the near links' so that panes, links and far field together keep a
-    /// cluster's light (`prm_precompute::far`).
+    /// cluster's light (`prm_precompute::far`). A map with atlas tiles left out
+    /// ([`Prm::without_atlas_tiles`]) adds here the energy of the near links it cut.
     pub energy: Vec<f32>,
 }
 

@@ -609,7 +609,12 @@ impl<'a> Reader<'a> {
             return Err(Corrupt(format!("dipole section of {} bytes", d.len())));
         }
         match u32_at(d, 0) {
-            0 => Ok(()),
+            0 if d.len() == 12 && u32_at(d, 4) == 0 => Ok(()),
+            0 => Err(Corrupt(format!(
+                "an empty dipole section of {} bytes and {} tiles",
+                d.len(),
+                u32_at(d, 4)
+            ))),
             n => Err(Retired(format!(
                 "holds dipole panes for {n} clusters (prm precompute --dipole-block, versions 6 to 12), \
                  which this build no longer reads"

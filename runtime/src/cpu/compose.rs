@@ -362,7 +362,7 @@ pub fn far_threshold(reflected: f32, total: f32, over: usize) -> f32 {
 pub struct FarSource {
     /// Its entry.
     pub entry: u32,
-    /// Its deviation flux `phi_j = albedo_j (A/N) (E_j - t_j (w_c + lin_j) + relay_j)` (W,
+    /// Its deviation flux `phi_j = albedo_j (A/N) (E_j - t_j w_c + relay_j)` (W,
     /// `relay`: [`near_deviation`]): what the far field sends, seen as its texels' neighbours
     /// see it.
     pub phi: Vec3,
