@@ -272,7 +272,6 @@ impl NearPass {
         params: &wgpu::Buffer,
         entry_irradiance: &wgpu::Buffer,
         weights: &wgpu::Buffer,
-        deviation: &wgpu::Buffer,
         ranges: &wgpu::Buffer,
         data: &NearData,
         link_light: &wgpu::Buffer,
@@ -286,6 +285,15 @@ impl NearPass {
         let none = wgpu::BufferUsages::empty();
         let cluster_buf =
             gpu::storage_buffer(device, "entry clusters", bytemuck::cast_slice(&entry_cluster), none);
+        // Per entry, this update's deviation `E_j - w_c t_j` (`vec4f`), then the far field's
+        // tables (`crate::far::deviation_len`); the bind groups hold it.
+        let deviation_buffer = gpu::storage_buffer(
+            device,
+            "entry deviations",
+            &vec![0u8; crate::far::deviation_len(prm.entries().len()) * 16],
+            none,
+        );
+        let deviation = &deviation_buffer;
         let sums = gpu::storage_buffer(
             device,
             "near sums",

@@ -219,7 +219,6 @@ impl Runtime {
             &params_buf,
             &entries.output,
             &weights.weights,
-            &weights.deviation,
             &weights.ranges,
             &near_data,
             &concentrate.link_light,

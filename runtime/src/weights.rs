@@ -55,9 +55,6 @@ pub struct WeightPass {
     count: u32,
     /// Cluster weights (`vec4f`), written by `weights_main` or uploaded.
     pub weights: wgpu::Buffer,
-    /// The near pass's deviations and the far field's tables after them (`vec4f`,
-    /// [`crate::far::deviation_len`]), made here beside the weights the near pass reads.
-    pub deviation: wgpu::Buffer,
     /// Cluster scores (`f32`).
     pub scores: wgpu::Buffer,
     /// Weights of the selected clusters, 0 elsewhere, then the groups' weights (`vec4f`, C + G).
@@ -127,13 +124,6 @@ impl WeightPass {
         let scores = gpu::storage_buffer(device, "cluster scores", &vec![0u8; n * 4], rw);
         let selected =
             gpu::storage_buffer(device, "selected weights", &vec![0u8; (n + g_count).max(1) * 16], rw);
-        let entries = prm.entries().len();
-        let deviation = gpu::storage_buffer(
-            device,
-            "entry deviations",
-            &vec![0u8; crate::far::deviation_len(entries) * 16],
-            rw,
-        );
 
         let layout = SHADER.layout(device, 0);
         let group = bind(
@@ -155,7 +145,6 @@ impl WeightPass {
         let source = SHADER.source();
         let pipeline = |entry| gpu::compute_pipeline(device, "weights.wgsl", &source, entry, &[&layout]);
         WeightPass {
-            deviation,
             weights_pipeline: pipeline("weights_main"),
             select_pipeline: pipeline("select_main"),
             residual_pipeline: pipeline("residual_main"),
