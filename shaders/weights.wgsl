@@ -1,7 +1,7 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
 // weights_main: w_c = the power on cluster c's cells over their area, each entry's counted in
-// each channel by its stay share times its albedo (energy[C + G + 3 k ..] for the member at
+// each channel by its bounce gain times its albedo (energy[C + G + 3 k ..] for the member at
 // indices[k]), less the near field's share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds

@@ -117,6 +117,13 @@ pub fn run(a: Args) -> Result<()> {
             st["mean"].as_f64().unwrap_or(1.0),
             st["lowest"].as_f64().unwrap_or(1.0)
         );
+        println!(
+            "bounce gains: {:.2} to {:.2}, mean {:.2} (light landing over every bounce per unit a cell reflects, \
+            luminance; how each entry's light counts in its cluster's weight)",
+            st["gain_lowest"].as_f64().unwrap_or(1.0),
+            st["gain_highest"].as_f64().unwrap_or(1.0),
+            st["gain_mean"].as_f64().unwrap_or(1.0)
+        );
         print_gpu_memory(&summary["gpu_memory"]);
         if let Some(text) = summary["gpu_memory"]["budget"]["text"].as_str() {
             println!("  {text}");
@@ -130,16 +137,21 @@ const LOSING_SHARE: f32 = 0.95;
 
 /// The map's stay shares (`prm::prm_file::Prm::stay`): how many entries lose light through an
 /// opening (a share under [`LOSING_SHARE`]), their mean and the lowest. A closed level's are
-/// all 1; a window's reveals and a façade's show here.
+/// all 1; a window's reveals and a façade's show here. And the bounce gains'
+/// (`Prm::gain`, in luminance) range and mean: about `1 / (1 - albedo)` in a closed room.
 fn stay_shares(map: &Prm) -> Value {
     let n = map.entries().len();
     let shares: Vec<f32> = (0..n).map(|j| map.stay(j)).collect();
-    let mean = if n > 0 { shares.iter().map(|&s| s as f64).sum::<f64>() / n as f64 } else { 1.0 };
+    let gains: Vec<f32> = (0..n).map(|j| prm::luminance(map.gain(j))).collect();
+    let mean = |v: &[f32]| if n > 0 { v.iter().map(|&s| s as f64).sum::<f64>() / n as f64 } else { 1.0 };
     json!({
         "entries": n,
         "losing": shares.iter().filter(|&&s| s < LOSING_SHARE).count(),
-        "mean": mean,
+        "mean": mean(&shares),
         "lowest": shares.iter().copied().fold(1.0f32, f32::min),
+        "gain_mean": mean(&gains),
+        "gain_lowest": gains.iter().copied().reduce(f32::min).unwrap_or(1.0),
+        "gain_highest": gains.iter().copied().reduce(f32::max).unwrap_or(1.0),
     })
 }
 

@@ -1140,6 +1140,13 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     assert_eq!(st["entries"], shares.len());
     assert_eq!(st["losing"], shares.iter().filter(|&&s| s < 0.95).count());
     assert_eq!(st["lowest"].as_f64().unwrap() as f32, shares.iter().copied().fold(1.0, f32::min));
+    // The bounce gains' range: each at least its stay share, and none more than a closed room
+    // of the level's brightest albedo sends back, 1 / (1 - albedo).
+    let gains: Vec<f32> = (0..read.entries().len()).map(|j| prm::luminance(read.gain(j))).collect();
+    assert_eq!(st["gain_highest"].as_f64().unwrap() as f32, gains.iter().copied().fold(0.0, f32::max));
+    let brightest = read.entries().iter().map(|e| e.albedo.max_element()).fold(0.0, f32::max);
+    let most = 1.0001 / (1.0 - brightest);
+    assert!(gains.iter().zip(&shares).all(|(g, s)| g >= s) && gains.iter().all(|&g| g <= most), "{gains:?}");
     assert_eq!(m["tables_bytes"], stated);
     assert_eq!(m["total_bytes"].as_u64().unwrap(), stated + m["shadow_maps_bytes"].as_u64().unwrap());
     assert!(m["shadow_maps_bytes"].as_u64().unwrap() > 0, "{m}");

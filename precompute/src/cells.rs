@@ -514,20 +514,59 @@ fn clip(poly: &[DVec2], m: DVec2, dir: DVec2) -> Vec<DVec2> {
     out
 }
 
-/// Side of [`stay_shares`]' stratified grid of directions.
-const STAY_SIDE: u32 = 8;
-/// Cosine rays per entry in [`stay_shares`]: one per cell of the grid.
+/// Side of [`reflections`]' stratified grid of directions.
+const STAY_SIDE: u32 = 16;
+/// Cosine rays per entry in [`reflections`]: one per cell of the grid.
 pub const STAY_RAYS: u32 = STAY_SIDE * STAY_SIDE;
+/// Most rounds of [`reflections`]' fixed-point iteration for the bounce gains (it stops when
+/// they settle): each round adds one bounce, and the albedos' product falls under 1e-4 of the
+/// first within 42 rounds at the brightest albedo our levels use (0.8).
+const GAIN_ROUNDS: usize = 64;
 
-/// Per entry, the share of the light its cell reflects that lands on the level: of
-/// [`STAY_RAYS`] cosine-distributed rays from points spread over the cell by area (a stratified
-/// 8 x 8 grid of directions, points by the entry's own stream), those that hit any surface. The
-/// rest leave through an opening to the sky. 1 for a cell of no area. The runtime weighs each
-/// entry's light in its cluster's mean by it (`prm::prm_file` module doc, *Stay shares*).
-pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
+/// What the light an entry's cell reflects does on the level ([`reflections`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Reflections {
+    /// Per entry, the share of its cell's reflected light that lands on the level, in [0, 1].
+    pub stays: Vec<f32>,
+    /// Per entry, `g_j`: the light that lands on the level over every bounce per unit its cell
+    /// reflects, channel by channel (`prm::prm_file` module doc, *Bounce gains*).
+    pub gains: Vec<Vec3>,
+}
+
+/// Per entry, its stay share and its bounce gain. From each cell, [`STAY_RAYS`]
+/// cosine-distributed rays from points spread over it by area (a stratified 16 x 16 grid of
+/// directions, points by the entry's own stream): those that hit a surface make the stay share
+/// `s_j` (the rest leave through an opening to the sky), and where they land the row `F_jk`,
+/// the share of cell j's reflected light that lands in cell k. The gains solve
+/// `g_j = s_j + sum_k F_jk rho_k g_k` (rho: the entry's albedo) by fixed-point iteration: the
+/// light that lands after one bounce, plus what the cells it lands in send on. A hit with no
+/// cell (the back of a double-sided triangle) lands and goes no further, as in the walks; the
+/// back of a one-sided surface absorbs, unless the ray's point is buried inside a solid
+/// (`prm::texels::is_buried`: the part of a floor cell under a plinth, of a plinth's top
+/// under its pillar): no light reaches such a point, and its ray is not counted at all. (One
+/// ray straight up could not tell them apart: the chamber's pillars are open to their
+/// capitals.) Counted as landing, the plinth tops
+/// of the chamber read gains of 1.7-2.5 where the floor's are 2.8 (40 % of some tops lie
+/// under the shaft), and in a cluster with a spot's floor cell they raised its weight by
+/// up to 9 %. A cell of no area, or all inside, stays whole with gain 1.
+///
+/// The runtime weighs each entry's light in its cluster's mean by `rho_j g_j`: a pane answers
+/// even light over its cluster, and under it every cell adds `rho_j g_j` to the pane's total;
+/// weighted so, a cluster's pane carries the total its lit cells would (the stay share alone,
+/// before, left the chamber 3-4 % too bright under a flashlight on a pillar at every seed:
+/// `docs/near-lights.md`, *Bounce gains*).
+pub fn reflections(
+    scene: &prm::Scene,
+    bvh: &prm::Bvh,
+    cells: &Cells,
+    owners: &CellOwners,
+    albedo: &[Vec3],
+    seed: u64,
+) -> Reflections {
     use rand::Rng;
     let n = cells.first.len().saturating_sub(1);
-    (0..n)
+    // Per entry: its stay share and its row.
+    let rows: Vec<(f32, Vec<(u32, f32)>)> = (0..n)
         .into_par_iter()
         .map(|j| {
             let tris = cells.of(j);
@@ -535,10 +574,11 @@ pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
                 tris.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
             let total: f32 = areas.iter().sum();
             if !(total > 0.0) {
-                return 1.0;
+                return (1.0, Vec::new());
             }
             let mut rng = prm::sampling::stream(seed, 8, j as u64);
-            let mut stays = 0u32;
+            // Rays counted (those from points inside a solid are not), rays landing.
+            let (mut counted, mut stays, mut row) = (0u32, 0u32, Vec::new());
             for k in 0..STAY_RAYS {
                 let mut pick = rng.random::<f32>() * total;
                 let mut t = 0;
@@ -558,11 +598,58 @@ pub fn stay_shares(bvh: &prm::Bvh, cells: &Cells, seed: u64) -> Vec<f32> {
                     ((k / STAY_SIDE) as f32 + rng.random::<f32>()) / STAY_SIDE as f32,
                 );
                 let dir = prm::sampling::cosine_direction(normal, u1.min(0.999_999), u2.min(0.999_999));
-                if bvh.trace_from_surface(p, normal, dir).is_some() {
-                    stays += 1;
+                let Some(hit) = bvh.trace_from_surface(p, normal, dir) else {
+                    counted += 1;
+                    continue;
+                };
+                let tri = hit.triangle as usize;
+                // The back of a one-sided surface absorbs; but where the point lies inside a
+                // solid (a floor cell under a plinth, a plinth's top under its pillar) no light
+                // reaches it, and the ray is not the cell's.
+                let Some(facing) = scene.facing_normal(tri, dir) else {
+                    counted += !prm::texels::is_buried(scene, bvh, p, normal) as u32;
+                    continue;
+                };
+                counted += 1;
+                stays += 1;
+                // Cells lie on the front of their triangles, as in the walks.
+                let front = facing.dot(scene.face_normal(tri)) > 0.0;
+                if let Some(o) = owners.owner(tri, scene.point(tri, hit.bary())).filter(|_| front) {
+                    row.push(o);
                 }
             }
-            stays as f32 / STAY_RAYS as f32
+            if counted == 0 {
+                return (1.0, Vec::new());
+            }
+            // The row as (cell, share): a cell hit by several rays is one element.
+            row.sort_unstable();
+            let per = 1.0 / counted as f32;
+            let mut shares: Vec<(u32, f32)> = Vec::new();
+            for k in row {
+                match shares.last_mut() {
+                    Some(last) if last.0 == k => last.1 += per,
+                    _ => shares.push((k, per)),
+                }
+            }
+            (stays as f32 * per, shares)
         })
-        .collect()
+        .collect();
+    let reflect = |k: u32| albedo.get(k as usize).copied().unwrap_or(Vec3::ZERO);
+    let mut gains: Vec<Vec3> = rows.iter().map(|r| Vec3::splat(r.0)).collect();
+    for _ in 0..GAIN_ROUNDS {
+        let next: Vec<Vec3> = rows
+            .par_iter()
+            .map(|(s, row)| {
+                Vec3::splat(*s) + row.iter().map(|&(k, f)| reflect(k) * gains[k as usize] * f).sum::<Vec3>()
+            })
+            .collect();
+        // Settled: another round changes no gain by more than a part in a million.
+        let settled =
+            next.iter().zip(&gains).all(|(a, b)| (*a - *b).abs().max_element() <= 1e-6 * a.max_element());
+        gains = next;
+        if settled {
+            break;
+        }
+    }
+    Reflections { stays: rows.into_iter().map(|r| r.0).collect(), gains }
 }

@@ -885,13 +885,14 @@ pub(crate) fn finish(
     report.rays_per_second = report.rays as f64 / report.seconds_transport.max(1e-9);
     report.seconds_total = all.elapsed().as_secs_f64();
     let header = header(&pre, params, report, &tiled);
-    let Preamble { entries, stays, cells, near, near_points, echo, far, grouping, .. } = pre;
+    let Preamble { entries, stays, gains, cells, near, near_points, echo, far, grouping, .. } = pre;
     let group_of = grouping.map_or_else(Vec::new, |g| g.assignment);
     let Tiled { clusters, groups, mask, tiles, data, .. } = tiled;
     Ok(Prm::new(PrmParts {
         header,
         entries,
         stays,
+        gains,
         cells,
         near,
         near_points,

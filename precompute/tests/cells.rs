@@ -209,30 +209,123 @@ fn a_triangle_without_an_entry_joins_only_a_cell_of_its_own_room() {
     assert_eq!(owners.owner(0, centroid(0)), Some(0));
 }
 
-/// Stay shares (`cells::stay_shares`): a closed box keeps a floor cell's light; with its top
-/// open, the floor loses its form factor to the opening, 0.1998 for parallel unit squares one
-/// apart (0.800 stays); a lone floor keeps none. 32 copies of the floor's cell, each with its
-/// own rays.
+/// Stay shares and bounce gains (`cells::reflections`) in a unit box of albedo 0.5, 96 entries.
+/// Closed, every cell keeps its light (share 1) and its gain is `1 / (1 - rho)` in each
+/// channel (0.5, 0.25 and 0 given as the entries' albedos: 2, 4/3, 1). With its top open, a
+/// floor cell loses its form factor to the opening, 0.1998 for parallel unit squares one apart
+/// (0.800 stays), and the gains are what a brute-force walk from each cell gives (the light
+/// landing over every bounce, Russian roulette on the albedo, 4096 walks a cell), face by face
+/// within 2 %. A closed block on the floor of the closed box leaves the floor cells reaching
+/// under it at `1 / (1 - rho)` (only their open part counts). A lone floor keeps nothing; a
+/// cell of no area stays whole with gain 1.
 #[test]
-fn a_cell_s_stay_share_is_the_light_that_lands_on_the_level() {
+fn a_cell_s_stay_share_and_bounce_gain_are_the_light_that_lands_on_the_level() {
     use prm::prm_file::Cells;
-    use prm_precompute::cells::stay_shares;
+    use prm_precompute::cells::{reflections, Reflections};
     let faces = unit_box_faces();
-    let f = faces[0];
-    let cells = Cells::from_lists(vec![vec![[f[0], f[1], f[2]], [f[0], f[2], f[3]]]; 32]);
-    let shares = |qs: &[[Vec3; 4]]| stay_shares(&prm::Bvh::build(&quads(qs, 0.5)), &cells, 3);
+    let open: Vec<[Vec3; 4]> = faces.iter().enumerate().filter(|&(k, _)| k != 1).map(|(_, q)| *q).collect();
+    let bake = |qs: &[[Vec3; 4]], albedo: Option<Vec3>| {
+        let scene = quads(qs, 0.5);
+        let bvh = prm::Bvh::build(&scene);
+        let entries = sample_entries(&scene, 96, 5);
+        let (cells, owners, _) = entry_cells(&scene, &entries, &vec![true; entries.len()]);
+        let albedo: Vec<Vec3> = entries.iter().map(|e| albedo.unwrap_or(e.albedo)).collect();
+        let r = reflections(&scene, &bvh, &cells, &owners, &albedo, 3);
+        (scene, bvh, entries, cells, r)
+    };
     let mean = |s: &[f32]| s.iter().sum::<f32>() / s.len() as f32;
 
-    let closed = shares(&faces);
-    assert!(mean(&closed) >= 0.999 && closed.iter().all(|&s| s >= 0.98), "closed: {closed:?}");
-    let open: Vec<[Vec3; 4]> = faces.iter().enumerate().filter(|&(k, _)| k != 1).map(|(_, q)| *q).collect();
-    let open = shares(&open);
-    assert!((mean(&open) - 0.8002).abs() <= 0.02, "open: mean {} of {open:?}", mean(&open));
-    assert!(open.iter().all(|&s| (s - 0.8002).abs() <= 0.15), "open: {open:?}");
-    let lone = shares(&faces[..1]);
-    assert!(lone.iter().all(|&s| s == 0.0), "a lone floor: {lone:?}");
-    // A cell of no area stays whole; the same seed gives the same shares.
-    let none = Cells::from_lists(vec![Vec::new()]);
-    assert_eq!(stay_shares(&prm::Bvh::build(&quads(&faces[..1], 0.5)), &none, 3), vec![1.0]);
-    assert_eq!(shares(&faces[..1]), lone);
+    let (_, _, _, _, closed) = bake(&faces, Some(Vec3::new(0.5, 0.25, 0.0)));
+    assert!(
+        mean(&closed.stays) >= 0.999 && closed.stays.iter().all(|&s| s >= 0.98),
+        "closed: {:?}",
+        closed.stays
+    );
+    let want = Vec3::new(2.0, 4.0 / 3.0, 1.0);
+    for g in &closed.gains {
+        assert!(((*g - want) / want).abs().max_element() <= 0.02, "closed: gain {g}, want {want}");
+    }
+
+    let (scene, bvh, entries, cells, opened) = bake(&open, None);
+    let floor: Vec<usize> = (0..entries.len()).filter(|&j| entries[j].normal.y > 0.9).collect();
+    let floor_stays: Vec<f32> = floor.iter().map(|&j| opened.stays[j]).collect();
+    assert!(floor.len() >= 8, "{} floor entries", floor.len());
+    assert!((mean(&floor_stays) - 0.8002).abs() <= 0.02, "open floor: {floor_stays:?}");
+    assert!(floor_stays.iter().all(|&s| (s - 0.8002).abs() <= 0.1), "open floor: {floor_stays:?}");
+    // The brute-force twin, face by face (walls, floor): the mean landing over every bounce.
+    let walk = |j: usize| {
+        use rand::Rng;
+        let mut rng = prm::sampling::stream(11, 1, j as u64);
+        let (tris, mut sum) = (cells.of(j), 0.0f64);
+        let areas: Vec<f32> = tris.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
+        let total: f32 = areas.iter().sum();
+        for _ in 0..4096 {
+            let mut pick = rng.random::<f32>() * total;
+            let mut t = 0;
+            while t + 1 < tris.len() && pick > areas[t] {
+                pick -= areas[t];
+                t += 1;
+            }
+            let [a, b, c] = tris[t];
+            let (mut u, mut v): (f32, f32) = (rng.random(), rng.random());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            let (mut p, mut n) = (a + (b - a) * u + (c - a) * v, (b - a).cross(c - a).normalize());
+            loop {
+                let d = prm::sampling::cosine_direction(n, rng.random(), rng.random());
+                let Some(hit) = bvh.trace_from_surface(p, n, d) else { break };
+                sum += 1.0;
+                let tri = hit.triangle as usize;
+                if rng.random::<f32>() >= 0.5 {
+                    break;
+                }
+                p = scene.point(tri, hit.bary());
+                n = scene.facing_normal(tri, d).unwrap_or(n);
+            }
+        }
+        (sum / 4096.0) as f32
+    };
+    for (name, face) in [
+        ("floor", floor.clone()),
+        ("walls", (0..entries.len()).filter(|&j| entries[j].normal.y.abs() < 0.1).collect()),
+    ] {
+        let got = mean(&face.iter().map(|&j| opened.gains[j].x).collect::<Vec<_>>());
+        let want = mean(&face.iter().map(|&j| walk(j)).collect::<Vec<_>>());
+        assert!((got - want).abs() <= 0.02 * want, "open box, {name}: gain {got}, the walks {want}");
+    }
+    // The open box's floor sends on less than a closed one's (2) and more than it keeps.
+    assert!(floor.iter().all(|&j| opened.gains[j].x > opened.stays[j] && opened.gains[j].x < 1.9));
+
+    // A closed block standing on the floor: the floor cells reaching under it count only
+    // their open part, so every floor cell's gain is still 1 / (1 - rho).
+    let block: Vec<[Vec3; 4]> = faces
+        .iter()
+        .map(|q| q.map(|p| Vec3::new(0.5, 0.15, 0.5) + (p - Vec3::splat(0.5)) * 0.3))
+        .map(|[a, b, c, d]| [a, d, c, b])
+        .collect();
+    let with_block: Vec<[Vec3; 4]> = faces.iter().chain(&block).copied().collect();
+    let (_, _, entries, _, blocked) = bake(&with_block, None);
+    let under = |p: Vec3| (p.x - 0.5).abs() < 0.15 && (p.z - 0.5).abs() < 0.15 && p.y < 0.01;
+    let mut near_block = 0;
+    for (j, e) in entries.iter().enumerate() {
+        if e.normal.y > 0.9 && e.position.y < 0.01 && !under(e.position) {
+            near_block += ((e.position - Vec3::new(0.5, 0.0, 0.5)).length() < 0.35) as usize;
+            let g = blocked.gains[j].x;
+            assert!((g - 2.0).abs() <= 0.04, "floor entry {j} at {}: gain {g}", e.position);
+        }
+    }
+    assert!(near_block > 0, "no floor cell by the block: this checks nothing");
+
+    let (_, _, _, _, lone) = bake(&faces[..1], None);
+    assert!(
+        lone.stays.iter().all(|&s| s == 0.0) && lone.gains.iter().all(|&g| g == Vec3::ZERO),
+        "a lone floor: {lone:?}"
+    );
+    // A cell of no area stays whole; the same seed gives the same shares and gains.
+    let (scene, bvh, _, _, _) = bake(&faces[..1], None);
+    let (_, owners, _) = entry_cells(&scene, &sample_entries(&scene, 4, 5), &[true; 4]);
+    let none = reflections(&scene, &bvh, &Cells::from_lists(vec![Vec::new()]), &owners, &[Vec3::ONE], 3);
+    assert_eq!(none, Reflections { stays: vec![1.0], gains: vec![Vec3::ONE] });
+    assert_eq!(bake(&open, None).4, opened);
 }

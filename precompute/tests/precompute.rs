@@ -8,7 +8,7 @@ mod common;
 
 use common::{quads, unit_box_faces, v};
 use glam::Vec3;
-use prm::prm_file::{Prm, PrmError};
+use prm::prm_file::{Prm, PrmError, PrmParts};
 use prm::{Bvh, Scene, TexelSet};
 use prm_precompute::cells::entry_cells;
 use prm_precompute::cluster::cluster_entries;
@@ -321,14 +321,22 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
-/// `bytes` (a v13 file) as version 12 wrote the same map: a `DIPO` section between `DATA` and
-/// `FARF` whose counts are `dipoles`, 0 tiles and block 1, and the checksum made again. With
-/// `dipoles` > 0 the section holds that many zeroed 88-byte records.
+/// `bytes` (a v14 file) as version 12 wrote the same map but for its bounce gains: no `GAIN`
+/// section (v14's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
+/// tiles and block 1, and the checksum made again. With `dipoles` > 0 the section holds that
+/// many zeroed 88-byte records.
 fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
     let header = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+    let mut at = 16 + header;
+    while &bytes[at..at + 4] != b"GAIN" {
+        at += section(at);
+    }
+    let bytes = [&bytes[..at], &bytes[at + section(at)..]].concat();
+    let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
     let mut at = 16 + header;
     while &bytes[at..at + 4] != b"FARF" {
-        at += 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+        at += section(at);
     }
     let mut payload: Vec<u8> = [dipoles, 0, 1].iter().flat_map(|x| x.to_le_bytes()).collect();
     payload.resize(payload.len() + 88 * dipoles as usize, 0);
@@ -344,14 +352,16 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
 }
 
 /// Version 13 dropped the dipole panes: a version 12 file without any (every file the default
-/// preset wrote) reads as the same map, and one with some is refused, naming them.
+/// preset wrote) reads as the same map (without v14's bounce gains), and one with some is
+/// refused, naming them.
 #[test]
 fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
     let scene = closed_box(0.5);
     let prm = bake(&scene, &params(64, 4, 8, 16));
     let dir = tempfile::tempdir().unwrap();
     let old = as_version_12(&prm.to_bytes(), 0);
-    assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), prm);
+    let without_gains = Prm::new(PrmParts { gains: Vec::new(), ..prm.clone().into_parts() }).unwrap();
+    assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), without_gains);
     // An empty section that declares tiles is corrupt, not skipped.
     let mut odd = old[..old.len() - 8].to_vec();
     let at = (16..odd.len()).find(|&k| &odd[k..k + 4] == b"DIPO").unwrap();

@@ -94,7 +94,7 @@ impl WeightPass {
         }
         let mut energy: Vec<f32> =
             prm.clusters().iter().map(|c| c.energy).chain(prm.groups().iter().map(|g| g.energy)).collect();
-        // The members' stay shares times albedo, by their slot in `indices` (clusters' members
+        // The members' bounce gains times albedo, by their slot in `indices` (clusters' members
         // come first).
         energy.extend(
             prm.clusters()

@@ -105,6 +105,12 @@ fn entries(p: &PrmParts) -> Result<(), String> {
     if let Some(k) = p.stays.iter().position(|s| !(0.0..=1.0).contains(s)) {
         return Err(format!("entry {k} has a stay share of {} (not in 0 to 1)", p.stays[k]));
     }
+    if !p.gains.is_empty() && p.gains.len() != p.entries.len() {
+        return Err(format!("{} bounce gains for {} entries", p.gains.len(), p.entries.len()));
+    }
+    if let Some(k) = p.gains.iter().position(|g| !(g.is_finite() && g.min_element() >= 0.0)) {
+        return Err(format!("entry {k} has a bounce gain of {} (not finite and non-negative)", p.gains[k]));
+    }
     let n = p.entries.len();
     let cells = &p.cells;
     if cells.first.len() != n + 1

@@ -1,15 +1,17 @@
-//! The `.prm` file, format v13 (DESIGN.md §8): one level's precomputed radiance map.
+//! The `.prm` file, format v14 (DESIGN.md §8): one level's precomputed radiance map.
 //!
 //! Layout, little-endian:
 //!
 //! ```text
 //! 0   magic  b"PRMAP\0\r\n"     (the CR LF catches text-mode mangling)
-//! 8   u32    version = 13 (10 to 12 are read too)
+//! 8   u32    version = 14 (10 to 13 are read too)
 //! 12  u32    JSON header length H
 //! 16  H      JSON header: fingerprint, atlas, pages, tile size, counts, parameters, statistics
 //!     then sections, each  [u8; 4] tag, u64 byte length, payload:
 //!     ENTR  N x 48 B: position, normal, albedo (3 x f32 each), area f32, triangle u32, stay
 //!           share f32 (v12; v10 and v11 wrote 0 there and are read as every share 1)
+//!     GAIN  (v14) N x 12 B: each entry's bounce gain (3 x f32), or empty (every gain its
+//!           stay share, as in a file before v14)
 //!     CELL  u32 T, then (N + 1) x u32: entry j's cell is triangles first[j] .. first[j + 1];
 //!           then T x 36 B: three corners (3 x f32 each), counter-clockwise seen from the front
 //!     NEAR  u32 R runs, u32 L links, u32 entry width W (2, 3 or 4); the box of the runs'
@@ -89,6 +91,16 @@
 //! jamb (half of whose light leaves) in a cluster with the wall inside does not light the
 //! room as the wall would. A closed level's shares are all 1 and change nothing.
 //!
+//! **Bounce gains** (v14): per entry, `g_j`, the light that lands on the level over every
+//! bounce per unit its cell reflects (channel by channel): the stay share, plus what the cells
+//! its light lands in send on (`prm_precompute::cells::reflections`). Under even light a pane's
+//! total is the sum over its cluster's cells of `rho_j g_j`, so the runtime weighs each
+//! entry's light in its cluster's mean by `rho_j g_j` (the stay share alone before v14): the
+//! mean then carries the total the lit cells give, not the cluster's. A pillar face lit across
+//! the nave, in a cluster with the pillar's faces toward the near wall (whose light comes
+//! back off the wall and the pillar again and again), lit the whole room 3-4 % too bright
+//! weighted by the stay share alone. A file before v14 reads each gain as its stay share.
+//!
 //! **Dipoles** (v6 to v12, gone in v13): up to three more panes per cluster answered light
 //! growing linearly across it, weighted by the light's first moment over the cluster. Off by
 //! default from the start, they were last measured worth having before the far field; with it
@@ -130,11 +142,12 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 13;
+pub const VERSION: u32 = 14;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
 /// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
 /// a v11 file a v12 one without stay shares (every entry's light taken to stay), and a v12
-/// file a v13 one with a `DIPO` section, read when it holds no dipole panes.
+/// file a v13 one with a `DIPO` section, read when it holds no dipole panes, and a v13 file a
+/// v14 one without bounce gains (each gain its stay share).
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -578,6 +591,9 @@ pub struct PrmParts {
     /// Per entry, the share of its cell's reflected light that lands on the level, in [0, 1]
     /// (module doc); empty: every share 1 (a v10 or v11 file).
     pub stays: Vec<f32>,
+    /// Per entry, its bounce gain, finite and non-negative (module doc, *Bounce gains*);
+    /// empty: each gain its stay share (a file before v14).
+    pub gains: Vec<Vec3>,
     /// The surface each entry stands for.
     pub cells: Cells,
     /// Near-field links, sorted by texel then entry (may be empty).
@@ -755,6 +771,7 @@ impl PrmParts {
         w.put(&(header.len() as u32).to_le_bytes());
         w.put(&header);
         w.entries(&self.entries, &self.stays);
+        w.gains(&self.gains);
         w.cells(&self.cells);
         w.near(&self.near, &self.near_points);
         w.echo(&self.echo);
@@ -803,6 +820,12 @@ impl Prm {
     /// level (1 in a file without them).
     pub fn stay(&self, j: usize) -> f32 {
         self.parts.stays.get(j).copied().unwrap_or(1.0)
+    }
+
+    /// Entry `j`'s bounce gain: the light that lands on the level over every bounce per unit
+    /// its cell reflects (module doc, *Bounce gains*; its stay share in a file without them).
+    pub fn gain(&self, j: usize) -> Vec3 {
+        self.parts.gains.get(j).copied().unwrap_or_else(|| Vec3::splat(self.stay(j)))
     }
 
     /// The surface each entry stands for.
@@ -1016,6 +1039,7 @@ impl Prm {
         let mut r = Reader::new(body, at);
         let parts = (|| -> Result<PrmParts, SectionError> {
             let (entries, stays) = r.entries(&header, version)?;
+            let gains = if version >= 14 { r.gains(entries.len())? } else { Vec::new() };
             let cells = r.cells(entries.len())?;
             let (near, near_points) = r.near()?;
             let echo = r.echo(near_points.len())?;
@@ -1033,6 +1057,7 @@ impl Prm {
                 header,
                 entries,
                 stays,
+                gains,
                 cells,
                 near,
                 near_points,
@@ -1126,6 +1151,7 @@ mod tests {
             },
             entries: vec![entry(0.0), entry(1.0)],
             stays: vec![1.0, 0.5],
+            gains: vec![Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)],
             cells: Cells::from_lists(vec![
                 vec![[Vec3::ZERO, Vec3::Z, Vec3::X]],
                 vec![[Vec3::X, Vec3::Z, Vec3::X + Vec3::Z], [Vec3::X, Vec3::X + Vec3::Z, Vec3::X * 2.0]],
@@ -1289,11 +1315,11 @@ mod tests {
         let err = Prm::from_bytes(Path::new("old.prm"), &bytes).unwrap_err().to_string();
         assert!(err.contains("version 9 keeps the far field's visibility for every pair"), "{err}");
         // A v10 or v11 file is read: it differs only in what v11 added (the near links' run
-        // bases), v12 (the stay shares, whose slot was padding: every share is then 1) and v13
-        // (no `DIPO` section; an empty one before `FARF` here).
-        let no_stays = Prm::new(PrmParts { stays: Vec::new(), ..parts() }).unwrap();
+        // bases), v12 (the stay shares, whose slot was padding: every share is then 1), v13
+        // (no `DIPO` section; an empty one before `FARF` here) and v14 (no `GAIN` section).
+        let no_stays = Prm::new(PrmParts { stays: Vec::new(), gains: Vec::new(), ..parts() }).unwrap();
         for old in [10u32, 11] {
-            let new = no_stays.to_bytes();
+            let new = without_gains(&no_stays.to_bytes());
             let Some(far) = (16..new.len()).find(|&k| &new[k..k + 4] == b"FARF") else {
                 panic!("no FARF section");
             };
@@ -1310,9 +1336,70 @@ mod tests {
             assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
         }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&14u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&15u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 14") && err.contains("versions 10 to 13"), "{err}");
+        assert!(err.contains("version 15") && err.contains("versions 10 to 14"), "{err}");
+    }
+
+    /// `bytes` (a file of this version, its `GAIN` section empty) without that section, its
+    /// checksum made again: the bytes a v13 file of the same map has but for the version.
+    fn without_gains(bytes: &[u8]) -> Vec<u8> {
+        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"GAIN") else {
+            panic!("no GAIN section");
+        };
+        assert_eq!(bytes[at + 4..at + 12], 0u64.to_le_bytes(), "the GAIN section is not empty");
+        let mut out = [&bytes[..at], &bytes[at + 12..bytes.len() - 8]].concat();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &out);
+        out.extend_from_slice(&sum.to_le_bytes());
+        out
+    }
+
+    /// Bounce gains round-trip; a map without them (a v13 file, read) gives each entry its
+    /// stay share as its gain; a gain not finite or negative, or a count other than the
+    /// entries', is refused, naming it.
+    #[test]
+    fn bounce_gains_round_trip_a_v13_file_reads_its_stay_shares_and_bad_ones_are_refused() {
+        let (Ok(prm), Ok(v14)) = (Prm::new(parts()), Prm::new(PrmParts { gains: Vec::new(), ..parts() }))
+        else {
+            panic!("valid parts refused");
+        };
+        let Ok(back) = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()) else {
+            panic!("a map's bytes refused")
+        };
+        assert_eq!((back.gain(0), back.gain(1)), (Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)));
+        let mut v13 = without_gains(&v14.to_bytes());
+        v13[8..12].copy_from_slice(&13u32.to_le_bytes());
+        let n = v13.len();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &v13[..n - 8]);
+        v13[n - 8..].copy_from_slice(&sum.to_le_bytes());
+        let read = match Prm::from_bytes(Path::new("v13.prm"), &v13) {
+            Ok(read) => read,
+            Err(e) => panic!("a v13 file refused: {e}"),
+        };
+        assert_eq!(read, v14);
+        assert_eq!((read.gain(0), read.gain(1)), (Vec3::ONE, Vec3::splat(0.5)));
+
+        let g = Vec3::ONE;
+        for bad in [
+            vec![g, Vec3::new(1.0, -0.1, 1.0)],
+            vec![g, Vec3::new(f32::NAN, 1.0, 1.0)],
+            vec![g, Vec3::INFINITY],
+            vec![g],
+        ] {
+            let err = Prm::new(PrmParts { gains: bad.clone(), ..parts() }).unwrap_err().0;
+            assert!(err.contains("bounce gain"), "{bad:?}: {err}");
+        }
+        // A GAIN section of the wrong length is corrupt.
+        let mut bytes = prm.to_bytes();
+        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"GAIN") else {
+            panic!("no GAIN section");
+        };
+        bytes[at + 4..at + 12].copy_from_slice(&12u64.to_le_bytes());
+        let n = bytes.len();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bytes[..n - 8]);
+        bytes[n - 8..].copy_from_slice(&sum.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("g.prm"), &bytes).unwrap_err().to_string();
+        assert!(err.contains("2 entries, 12 bytes of bounce gains"), "{err}");
     }
 
     /// Every code decodes to what it encodes; any intensity from the floor to 1 comes back

@@ -119,6 +119,7 @@ impl Prm {
             header,
             entries: p.entries.clone(),
             stays: p.stays.clone(),
+            gains: p.gains.clone(),
             cells: p.cells.clone(),
             near,
             near_points,

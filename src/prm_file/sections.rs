@@ -68,6 +68,12 @@ impl<'a> Writer<'a> {
         self.section(b"ENTR", &e);
     }
 
+    /// `GAIN`: each entry's bounce gain (none: empty).
+    pub(super) fn gains(&mut self, gains: &[Vec3]) {
+        let g: Vec<f32> = gains.iter().flat_map(|g| g.to_array()).collect();
+        self.section(b"GAIN", bytemuck::cast_slice(&g));
+    }
+
     /// `CELL`: the triangle count, the offsets, the triangles.
     pub(super) fn cells(&mut self, cells: &Cells) {
         let mut c =
@@ -367,6 +373,15 @@ impl<'a> Reader<'a> {
             Vec::new()
         };
         Ok((entries, stays))
+    }
+
+    /// `GAIN` (v14): the bounce gains of `entries` entries, or none.
+    pub(super) fn gains(&mut self, entries: usize) -> Result<Vec<Vec3>, SectionError> {
+        let g = self.next(b"GAIN")?;
+        if !g.is_empty() && !holds(g.len(), entries as u64, 12) {
+            return Err(Corrupt(format!("{entries} entries, {} bytes of bounce gains", g.len())));
+        }
+        Ok(g.chunks_exact(12).map(|b| v3(b, 0)).collect())
     }
 
     /// `CLUS` and `MEMB`. Members must be entries, and together the clusters may claim at most

@@ -35,8 +35,12 @@ pub struct Preamble {
     pub(crate) entries: Vec<Entry>,
     pub(crate) cells: Cells,
     /// Per entry, the share of its cell's reflected light that lands on the level
-    /// ([`crate::cells::stay_shares`]).
+    /// ([`crate::cells::reflections`]).
     pub(crate) stays: Vec<f32>,
+    /// Per entry, the light that lands on the level over every bounce per unit its cell
+    /// reflects ([`crate::cells::reflections`]).
+    pub(crate) gains: Vec<Vec3>,
+
     pub(crate) owners: CellOwners,
     pub(crate) clustering: Clustering,
     pub(crate) centroids: Vec<Vec3>,
@@ -128,7 +132,10 @@ impl Preamble {
         // the shadow rays.
         let cells =
             cut.split_long(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
-        let stays = timed(&mut report.seconds_entries, || crate::cells::stay_shares(bvh, &cut, params.seed));
+        let albedo: Vec<Vec3> = entries.iter().map(|e| e.albedo).collect();
+        let crate::cells::Reflections { stays, gains } = timed(&mut report.seconds_entries, || {
+            crate::cells::reflections(scene, bvh, &cut, &owners, &albedo, params.seed)
+        });
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
         stop_if(cancel)?;
@@ -303,6 +310,7 @@ impl Preamble {
             entries,
             cells,
             stays,
+            gains,
             owners,
             clustering,
             centroids: cents,

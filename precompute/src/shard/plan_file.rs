@@ -58,6 +58,7 @@ type Rest = (
     Cells,
     Vec<f32>,
     Vec<glam::Vec3>,
+    Vec<glam::Vec3>,
     Option<Clustering>,
     Far,
     Vec<NearPoint>,
@@ -71,6 +72,7 @@ type RestRef<'a> = (
     f64,
     &'a Cells,
     &'a [f32],
+    &'a [glam::Vec3],
     &'a [glam::Vec3],
     &'a Option<Clustering>,
     &'a Far,
@@ -114,6 +116,7 @@ impl Plan {
             pre.area_without_entry,
             &pre.cells,
             &pre.stays,
+            &pre.gains,
             &pre.centroids,
             &pre.grouping,
             &pre.far,
@@ -195,6 +198,7 @@ impl Plan {
             entries,
             cells: Cells::default(),
             stays: Vec::new(),
+            gains: Vec::new(),
             owners,
             clustering,
             centroids: Vec::new(),
@@ -240,11 +244,12 @@ impl Plan {
         let pre = &mut plan.preamble;
         (pre.fingerprint, pre.page_texel_size, pre.enclosed, pre.area_without_entry) =
             (rest.0, rest.1, rest.2, rest.3);
-        (pre.cells, pre.stays, pre.centroids, pre.grouping, pre.far) =
-            (rest.4, rest.5, rest.6, rest.7, rest.8);
-        (pre.near_points, pre.echo, pre.smoothing) = (rest.9, rest.10, rest.11);
+        (pre.cells, pre.stays, pre.gains, pre.centroids, pre.grouping, pre.far) =
+            (rest.4, rest.5, rest.6, rest.7, rest.8, rest.9);
+        (pre.near_points, pre.echo, pre.smoothing) = (rest.10, rest.11, rest.12);
         let clusters = pre.clustering.members.len();
-        if pre.centroids.len() != clusters || pre.stays.len() != pre.entries.len() {
+        let n = pre.entries.len();
+        if pre.centroids.len() != clusters || [pre.stays.len(), pre.gains.len()] != [n; 2] {
             return Err("damaged (its sections do not agree)".into());
         }
         Ok(plan)

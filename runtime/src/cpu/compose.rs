@@ -31,6 +31,13 @@ use super::concentrate::LinkLight;
 /// from the ground truth, green and blue 24 % and 22 % high; 6.1 % by albedo (bias +14.6 ->
 /// +1.9 %). A channel no member reflects falls back to the plain mean.
 ///
+/// Since `.prm` v14 the stay share's place is taken by the entry's bounce gain `g_j`
+/// (`prm::prm_file::Prm::gain`: the light that lands over every bounce per unit the cell
+/// reflects, the stay share its first term): `m_c = sum_j g_j rho_j E_j / sum_j g_j rho_j t_j`.
+/// Under even light the pane's total is the sum of its cells' `g_j rho_j t_j`, so weighted so
+/// the mean carries what the lit cells' light does over all its bounces, not what the
+/// cluster's average cell's would (`docs/near-lights.md`, *Bounce gains*).
+///
 /// The near field ([`near_field`]) adds `sum_j (E_j - w_c t_j) near_j` of energy over the
 /// texels (`near_j`: entry j's links' energy per unit weight); nothing makes that zero (a hot
 /// entry on a floor has no links to its coplanar floor, its colder neighbours by a wall do). So
@@ -109,11 +116,11 @@ pub struct NearTables {
     pub cluster: Vec<u32>,
     /// Each entry's stay share (`Prm::stay`): how its light counts in the far field's bar.
     pub stay: Vec<f32>,
-    /// Each entry's stay share times its albedo, `s_j rho_j`: how its light counts in its
+    /// Each entry's bounce gain times its albedo, `g_j rho_j`: how its light counts in its
     /// cluster's mean, channel by channel ([`cluster_weights`]).
     pub reflect: Vec<Vec3>,
-    /// [`Self::reflect`] over its luminance (its albedo's, grey where the stay
-    /// share is 0): its links' energy ([`Self::energy`], counted in luminance) in each channel.
+    /// [`Self::reflect`] over its luminance (grey where it is 0): its links' energy
+    /// ([`Self::energy`], counted in luminance) in each channel, as the weights pass takes it.
     pub tint: Vec<Vec3>,
     /// `t_j`: the entry's cell area over its share A/N. Under even irradiance E an entry's
     /// weight is `E t_j`, so `E_j - w_c t_j` is zero there: the near field answers only to
@@ -208,7 +215,7 @@ impl NearTables {
             (0..n).map(|j| cells.centroid(j).unwrap_or(prm.entries()[j].position)).collect();
         let size = (0..n).map(|j| cells.area(j).sqrt()).collect();
         let cluster_room = super::rooms::cluster_rooms(prm);
-        let reflect: Vec<Vec3> = (0..n).map(|j| prm.stay(j) * prm.entries()[j].albedo).collect();
+        let reflect: Vec<Vec3> = (0..n).map(|j| prm.gain(j) * prm.entries()[j].albedo).collect();
         // As the balance sums it (`cluster_weights_with`'s `stay_t`).
         let cluster_tint = prm
             .clusters()
@@ -224,8 +231,8 @@ impl NearTables {
         NearTables {
             cluster,
             stay: (0..n).map(|j| prm.stay(j)).collect(),
+            tint: reflect.iter().map(|&r| tint_of(r)).collect(),
             reflect,
-            tint: (0..n).map(|j| tint_of(prm.stay(j) * prm.entries()[j].albedo)).collect(),
             area_ratio,
             energy,
             centroid,

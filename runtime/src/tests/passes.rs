@@ -920,12 +920,14 @@ fn open_box_half_red() -> Scene {
     scene
 }
 
-/// A cluster's weight is its cells' light with each entry's counted by its stay share
-/// (`Prm::stay`) times its albedo, channel by channel: on a map without near links or far
-/// field the weights are exactly that mean, and in the open box, where the entries by the
-/// opening lose light through it and the floor is half red, it is not the plain mean.
+/// A cluster's weight is its cells' light with each entry's counted by its bounce gain
+/// (`Prm::gain`, the stay share its first term) times its albedo, channel by channel: on a map
+/// without near links or far field the weights are exactly that mean, and in the open box,
+/// where the entries by the opening lose light through it and the floor is half red, it is
+/// neither the plain mean nor the mean by albedo alone; the map's gains are the stay shares
+/// and more (every entry of the box has a surface in view that sends light on).
 #[test]
-fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share_and_albedo() {
+fn a_cluster_weight_counts_each_entry_s_light_by_its_bounce_gain_and_albedo() {
     let scene = open_box_half_red();
     let bvh = Bvh::build(&scene);
     let mut parts = bake(&scene, 512, 40, 48).into_parts();
@@ -937,9 +939,10 @@ fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share_and_albedo() {
     let (mut differ, mut coloured) = (0, 0);
     for (c, cl) in prm.clusters().iter().enumerate() {
         let (mut stay_sum, mut stay_t, mut sum, mut t) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO, 0.0f32);
-        let (mut grey_sum, mut grey_t) = (Vec3::ZERO, 0.0f32);
+        let (mut grey_sum, mut grey_t) = (Vec3::ZERO, Vec3::ZERO);
         for &m in &cl.members {
-            let (m, s) = (m as usize, prm.stay(m as usize));
+            let (m, s) = (m as usize, prm.gain(m as usize));
+            assert!(s.min_element() > prm.stay(m), "entry {m}: gain {s}, stay share {}", prm.stay(m));
             let sr = s * prm.entries()[m].albedo;
             (stay_sum, stay_t) = (stay_sum + e[m] * sr, stay_t + tables.area_ratio[m] * sr);
             (grey_sum, grey_t) = (grey_sum + e[m] * s, grey_t + tables.area_ratio[m] * s);
@@ -958,7 +961,7 @@ fn a_cluster_weight_counts_each_entry_s_light_by_its_stay_share_and_albedo() {
             differ += 1;
         }
     }
-    assert!(differ > 0, "no cluster's stay shares change its weight: this checks nothing");
+    assert!(differ > 0, "no cluster's gains change its weight: this checks nothing");
     assert!(coloured > 0, "no cluster's albedos change its weight: this checks nothing");
 }
 
