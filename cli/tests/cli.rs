@@ -1146,7 +1146,9 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     assert_eq!(st["gain_highest"].as_f64().unwrap() as f32, gains.iter().copied().fold(0.0, f32::max));
     let brightest = read.entries().iter().map(|e| e.albedo.max_element()).fold(0.0, f32::max);
     let most = 1.0001 / (1.0 - brightest);
-    assert!(gains.iter().zip(&shares).all(|(g, s)| g >= s) && gains.iter().all(|&g| g <= most), "{gains:?}");
+    // (A gain equal to its share reads a part in a million under it through the luminance.)
+    let at_least = |(g, s): (&f32, &f32)| *g >= s * (1.0 - 1e-6);
+    assert!(gains.iter().zip(&shares).all(at_least) && gains.iter().all(|&g| g <= most), "{gains:?}");
     assert_eq!(m["tables_bytes"], stated);
     assert_eq!(m["total_bytes"].as_u64().unwrap(), stated + m["shadow_maps_bytes"].as_u64().unwrap());
     assert!(m["shadow_maps_bytes"].as_u64().unwrap() > 0, "{m}");

@@ -85,21 +85,26 @@
 //! with the same UVs. The runtime's lightmap is a texture array of the pages.
 //!
 //! **Stay shares** (v12): per entry, the share of the light its cell reflects that lands on the
-//! level (its cosine rays that hit a surface; the rest leaves through an opening). A pane
-//! answers even light over its cluster, so a cluster's weight is a mean of its entries' light;
-//! the runtime weighs each entry's light in that mean by its stay share, so a sunlit window
-//! jamb (half of whose light leaves) in a cluster with the wall inside does not light the
-//! room as the wall would. A closed level's shares are all 1 and change nothing.
+//! level (its cosine rays that hit a surface; the rest leaves through an opening, and since
+//! v14 a ray from a point buried inside a solid is not counted and the back of a one-sided
+//! surface seen from the open absorbs: `prm_precompute::cells::reflections`, 256 rays a cell
+//! where v12 and v13 bakes drew 64). A pane answers even light over its cluster, so a cluster's
+//! weight is a mean of its entries' light; v12 and v13 weighed each entry's light in that mean
+//! by its stay share (since v14, by its bounce gain, whose first term it is), so a sunlit
+//! window jamb (half of whose light leaves) in a cluster with the wall inside does not light
+//! the room as the wall would. The far field's bar counts each entry's light by its stay
+//! share. A closed level's shares are all 1.
 //!
 //! **Bounce gains** (v14): per entry, `g_j`, the light that lands on the level over every
 //! bounce per unit its cell reflects (channel by channel): the stay share, plus what the cells
 //! its light lands in send on (`prm_precompute::cells::reflections`). Under even light a pane's
-//! total is the sum over its cluster's cells of `rho_j g_j`, so the runtime weighs each
-//! entry's light in its cluster's mean by `rho_j g_j` (the stay share alone before v14): the
-//! mean then carries the total the lit cells give, not the cluster's. A pillar face lit across
-//! the nave, in a cluster with the pillar's faces toward the near wall (whose light comes
-//! back off the wall and the pillar again and again), lit the whole room 3-4 % too bright
-//! weighted by the stay share alone. A file before v14 reads each gain as its stay share.
+//! total is the sum over its cluster's cells of `rho_j g_j t_j` (`t_j`: the cell's area over
+//! an entry's share), so the runtime weighs each entry's light in its cluster's mean by
+//! `rho_j g_j` (the stay share alone before v14): the mean then carries the total the lit
+//! cells give, not the cluster's average cell's. Weighted
+//! by the stay share alone, a flashlight on a pillar's shaft lit the whole chamber 3-4 % too
+//! bright at every seed (`docs/near-lights.md`, *Bounce gains*). A file before v14 reads each
+//! gain as its stay share.
 //!
 //! **Dipoles** (v6 to v12, gone in v13): up to three more panes per cluster answered light
 //! growing linearly across it, weighted by the light's first moment over the cluster. Off by

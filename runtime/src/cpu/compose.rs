@@ -141,7 +141,7 @@ pub struct NearTables {
     /// nearest to, and for every entry of a map without a far field).
     pub cell_first: Vec<u32>,
     pub cell_texels: Vec<u32>,
-    /// Per cluster, its albedo's tint, `tint_of` `sum_j t_j s_j rho_j` over its members: its
+    /// Per cluster, its albedo's tint, `tint_of` `sum_j t_j g_j rho_j` over its members: its
     /// pane's energy in each channel where its luminance's is 1 ([`cluster_weights`],
     /// [`lift_weights`]).
     pub cluster_tint: Vec<Vec3>,
