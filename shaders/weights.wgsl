@@ -1,8 +1,9 @@
 // Cluster weights and top-K selection (DESIGN.md §5 steps 2-3, runtime/src/weights.rs).
 //
 // weights_main: w_c = the power on cluster c's cells over their area, each entry's counted in
-// each channel by its bounce gain times its albedo (energy[C + G + 3 k ..] for the member at
-// indices[k]), less the near field's share (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
+// each channel by its bounce gain times its albedo (energy[C + G + 6 k ..] for the member at
+// indices[k]), less the near field's share, tinted by the member's albedo (energy[C + G + 6 k
+// + 3 ..]: the links carry the first bounce) (prm_runtime::cpu::cluster_weights); score_c = luminance(w_c) x
 // energy_c (lift.wgsl rescores lifted weights by |luminance|: they may be negative). select_main: cluster c is kept when score_c > 0 and fewer than top_k clusters beat
 // it (higher score, or equal score and lower index: the CPU twin's order). selected[c] holds
 // w_c for kept clusters and 0 otherwise. residual_main: group g's weight, selected[C + g], is
@@ -40,8 +41,9 @@ fn weights_main(@builtin(global_invocation_id) id: vec3u) {
         let e = entry_irradiance[m.x].xyz;
         let near = bitcast<f32>(m.y);
         let t = bitcast<f32>(m.z);
-        let s = vec3f(energy[stays + 3u * k], energy[stays + 3u * k + 1u], energy[stays + 3u * k + 2u]);
-        let tint = tint_of(s);
+        let at = stays + 6u * k;
+        let s = vec3f(energy[at], energy[at + 1u], energy[at + 2u]);
+        let tint = vec3f(energy[at + 3u], energy[at + 4u], energy[at + 5u]);
         sum += e;
         stay_sum += e * s;
         stay_t += t * s;

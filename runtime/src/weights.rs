@@ -25,9 +25,9 @@ pub const BINDINGS: &[Binding] = &[
     // bits, `prm_runtime::cpu::NearTables`; 0 for a group's children), then 0.
     b("ranges", Res::Read("array<vec2u>"), COMPUTE),
     b("indices", Res::Read("array<vec4u>"), COMPUTE),
-    // Pane energy: C clusters, then G groups; then each cluster member's stay share times its
-    // albedo (RGB), in `indices` order
-    // (`prm_runtime::cpu::NearTables::reflect`).
+    // Pane energy: C clusters, then G groups; then, in `indices` order, six floats per cluster
+    // member: its bounce gain times its albedo (RGB, `prm_runtime::cpu::NearTables::reflect`)
+    // and its links' tint (RGB, `NearTables::tint`).
     b("energy", Res::Read("array<f32>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
@@ -94,13 +94,14 @@ impl WeightPass {
         }
         let mut energy: Vec<f32> =
             prm.clusters().iter().map(|c| c.energy).chain(prm.groups().iter().map(|g| g.energy)).collect();
-        // The members' bounce gains times albedo, by their slot in `indices` (clusters' members
-        // come first).
-        energy.extend(
-            prm.clusters()
-                .iter()
-                .flat_map(|c| c.members.iter().flat_map(|&m| near.reflect[m as usize].to_array())),
-        );
+        // Per member, by its slot in `indices` (clusters' members come first): its bounce gain
+        // times albedo, then its links' tint (its albedo's).
+        energy.extend(prm.clusters().iter().flat_map(|c| {
+            c.members.iter().flat_map(|&m| {
+                let (reflect, tint) = (near.reflect[m as usize], near.tint[m as usize]);
+                reflect.to_array().into_iter().chain(tint.to_array())
+            })
+        }));
         let ranges = gpu::storage_buffer(
             device,
             "member ranges",

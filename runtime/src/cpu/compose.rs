@@ -119,8 +119,10 @@ pub struct NearTables {
     /// Each entry's bounce gain times its albedo, `g_j rho_j`: how its light counts in its
     /// cluster's mean, channel by channel ([`cluster_weights`]).
     pub reflect: Vec<Vec3>,
-    /// [`Self::reflect`] over its luminance (grey where it is 0): its links' energy
-    /// ([`Self::energy`], counted in luminance) in each channel, as the weights pass takes it.
+    /// The entry's albedo over its luminance (grey where it is 0): its links' and far field's
+    /// energy ([`Self::energy`], counted in luminance) in each channel, as the weights pass
+    /// takes it. Those carry the first bounce (and its echo), whose colour is the albedo's, not
+    /// the gain's, which counts every later bounce of the room too.
     pub tint: Vec<Vec3>,
     /// `t_j`: the entry's cell area over its share A/N. Under even irradiance E an entry's
     /// weight is `E t_j`, so `E_j - w_c t_j` is zero there: the near field answers only to
@@ -231,7 +233,7 @@ impl NearTables {
         NearTables {
             cluster,
             stay: (0..n).map(|j| prm.stay(j)).collect(),
-            tint: reflect.iter().map(|&r| tint_of(r)).collect(),
+            tint: prm.entries().iter().map(|e| tint_of(e.albedo)).collect(),
             reflect,
             area_ratio,
             energy,

@@ -965,6 +965,54 @@ fn a_cluster_weight_counts_each_entry_s_light_by_its_bounce_gain_and_albedo() {
     assert!(coloured > 0, "no cluster's albedos change its weight: this checks nothing");
 }
 
+/// The near field's share taken out of a cluster's weight (its links and far field: the first
+/// bounce off each cell, and its echo) is coloured by each member's albedo, not by its bounce
+/// gain, which counts the room's later bounces too: on the open box with its red floor the
+/// twin's weights are the balance with albedo tints, and at some cluster that differs from the
+/// one with gain tints (the GPU pass is held to the twin by `gpu_lightmap_matches_the_cpu_twin`).
+#[test]
+fn the_near_field_s_share_of_a_weight_is_coloured_by_the_albedo() {
+    let scene = open_box_half_red();
+    let bvh = Bvh::build(&scene);
+    let prm = bake(&scene, 512, 40, 48);
+    let e = crate::cpu::entry_irradiance(&prm, &bvh, &scene.lights);
+    let tables = cpu::NearTables::new(&prm);
+    let w = cpu::cluster_weights(&prm, &e);
+    let balance = |c: &prm::prm_file::Cluster, tint: &dyn Fn(usize) -> Vec3| {
+        let (mut sum, mut t, mut near_sum, mut near_total) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        for &m in &c.members {
+            let m = m as usize;
+            let r = prm.gain(m) * prm.entries()[m].albedo;
+            (sum, t) = (sum + e[m] * r, t + tables.area_ratio[m] * r);
+            near_sum += tint(m) * e[m] * tables.energy[m];
+            near_total += tint(m) * tables.energy[m] * tables.area_ratio[m];
+        }
+        let (w, energy) = (sum / t, c.energy * cpu::tint_of(t));
+        // A channel the cluster reflects none of keeps its weight.
+        let balanced = ((w * energy - near_sum) / (energy - near_total).max(0.1 * energy)).max(Vec3::ZERO);
+        Vec3::select(energy.cmpgt(Vec3::ZERO), balanced, w)
+    };
+    let (mut balanced, mut differ) = (0, 0);
+    for (c, cl) in prm.clusters().iter().enumerate() {
+        if cl.members.is_empty()
+            || !(cl.energy > 0.0)
+            || cl.members.iter().all(|&m| tables.energy[m as usize] == 0.0)
+        {
+            continue;
+        }
+        let want = balance(cl, &|m| cpu::tint_of(prm.entries()[m].albedo));
+        let by_gain = balance(cl, &|m| cpu::tint_of(prm.gain(m) * prm.entries()[m].albedo));
+        let scale = want.max_element().max(1e-12);
+        assert!((w[c] - want).abs().max_element() <= 1e-4 * scale, "cluster {c}: {} against {want}", w[c]);
+        balanced += 1;
+        if (by_gain - want).abs().max_element() > 0.005 * scale {
+            differ += 1;
+        }
+    }
+    assert!(balanced > 0, "no cluster has a near field to balance: this checks nothing");
+    assert!(differ > 0, "the gain's tint and the albedo's agree everywhere: this checks nothing");
+}
+
 #[test]
 fn gpu_lightmap_matches_the_cpu_twin() {
     let g = gpu();
