@@ -571,30 +571,15 @@ pub fn reflections(
     let rows: Vec<(f32, Vec<(u32, f32)>)> = (0..n)
         .into_par_iter()
         .map(|j| {
-            let tris = cells.of(j);
-            let areas: Vec<f32> =
-                tris.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
-            let total: f32 = areas.iter().sum();
-            if !(total > 0.0) {
+            let spread = cells.spread(j);
+            if !(spread.total > 0.0) {
                 return (1.0, Vec::new());
             }
             let mut rng = prm::sampling::stream(seed, 8, j as u64);
             // Rays counted (those from points inside a solid are not), rays landing.
             let (mut counted, mut stays, mut row) = (0u32, 0u32, Vec::new());
             for k in 0..STAY_RAYS {
-                let mut pick = rng.random::<f32>() * total;
-                let mut t = 0;
-                while t + 1 < tris.len() && pick > areas[t] {
-                    pick -= areas[t];
-                    t += 1;
-                }
-                let [a, b, c] = tris[t];
-                let (mut u, mut v): (f32, f32) = (rng.random(), rng.random());
-                if u + v > 1.0 {
-                    (u, v) = (1.0 - u, 1.0 - v);
-                }
-                let p = a + (b - a) * u + (c - a) * v;
-                let normal = (b - a).cross(c - a).normalize();
+                let (p, normal) = spread.point(rng.random(), rng.random(), rng.random());
                 let (u1, u2) = (
                     ((k % STAY_SIDE) as f32 + rng.random::<f32>()) / STAY_SIDE as f32,
                     ((k / STAY_SIDE) as f32 + rng.random::<f32>()) / STAY_SIDE as f32,

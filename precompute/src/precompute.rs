@@ -472,6 +472,17 @@ pub fn precompute_with(
     }
     let unchanged = match (cache_held.as_ref().map(Held::get), old_held.as_ref().map(Held::get)) {
         (Some(cache), Some(old)) => {
+            // An older build's file reads in this version's form, whose checksum is not its
+            // cache's: say so rather than that the cache is another map's.
+            if old.read_version() != prm::prm_file::VERSION {
+                return Err(Refused(format!(
+                    "the old .prm is format version {}, written by an older build; an update needs \
+                     version {} and its cache: bake the level in full once",
+                    old.read_version(),
+                    prm::prm_file::VERSION
+                ))
+                .into());
+            }
             if prm_checksum(old) != cache.prm_checksum {
                 return Err(Refused("the cache belongs to another .prm (checksums differ)".into()).into());
             }

@@ -256,22 +256,9 @@ fn a_cell_s_stay_share_and_bounce_gain_are_the_light_that_lands_on_the_level() {
     let walk = |j: usize| {
         use rand::Rng;
         let mut rng = prm::sampling::stream(11, 1, j as u64);
-        let (tris, mut sum) = (cells.of(j), 0.0f64);
-        let areas: Vec<f32> = tris.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
-        let total: f32 = areas.iter().sum();
+        let (spread, mut sum) = (cells.spread(j), 0.0f64);
         for _ in 0..4096 {
-            let mut pick = rng.random::<f32>() * total;
-            let mut t = 0;
-            while t + 1 < tris.len() && pick > areas[t] {
-                pick -= areas[t];
-                t += 1;
-            }
-            let [a, b, c] = tris[t];
-            let (mut u, mut v): (f32, f32) = (rng.random(), rng.random());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            let (mut p, mut n) = (a + (b - a) * u + (c - a) * v, (b - a).cross(c - a).normalize());
+            let (mut p, mut n) = spread.point(rng.random(), rng.random(), rng.random());
             loop {
                 let d = prm::sampling::cosine_direction(n, rng.random(), rng.random());
                 let Some(hit) = bvh.trace_from_surface(p, n, d) else { break };

@@ -243,6 +243,14 @@ impl Cells {
         self.of(j).iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).sum()
     }
 
+    /// Entry `j`'s cell as a set to draw points from, evenly by area.
+    pub fn spread(&self, j: usize) -> CellSpread<'_> {
+        let triangles = self.of(j);
+        let areas: Vec<f32> =
+            triangles.iter().map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()).collect();
+        CellSpread { total: areas.iter().sum(), triangles, areas }
+    }
+
     /// The area-weighted centroid of entry `j`'s cell (None for a cell of no area).
     pub fn centroid(&self, j: usize) -> Option<Vec3> {
         let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
@@ -252,6 +260,32 @@ impl Cells {
             a += at;
         }
         (a > 0.0).then(|| c / a)
+    }
+}
+
+/// One cell's triangles with their areas ([`Cells::spread`]): points drawn from it are even
+/// over the cell's area.
+pub struct CellSpread<'a> {
+    triangles: &'a [[Vec3; 3]],
+    areas: Vec<f32>,
+    /// The cell's area.
+    pub total: f32,
+}
+
+impl CellSpread<'_> {
+    /// The point that three numbers uniform in [0, 1) pick, and the normal of the triangle it
+    /// lies on: `r` picks the triangle by area, `(u, v)` the point in it (folded into the
+    /// triangle where `u + v > 1`). Call only on a cell of positive area.
+    pub fn point(&self, r: f32, u: f32, v: f32) -> (Vec3, Vec3) {
+        let mut pick = r * self.total;
+        let mut t = 0;
+        while t + 1 < self.triangles.len() && pick > self.areas[t] {
+            pick -= self.areas[t];
+            t += 1;
+        }
+        let [a, b, c] = self.triangles[t];
+        let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
+        (a + (b - a) * u + (c - a) * v, (b - a).cross(c - a).normalize())
     }
 }
 
@@ -630,6 +664,9 @@ pub struct Prm {
     /// holds the new map's: each was a pass over the whole file, 382 MB on the 16 chambers).
     /// Not part of the map's value.
     checksum: std::sync::OnceLock<u64>,
+    /// The format version of the file it was read from ([`VERSION`] for a map made here). Not
+    /// part of the map's value.
+    read_version: u32,
 }
 
 impl PartialEq for Prm {
@@ -805,7 +842,7 @@ impl Prm {
     /// and non-negative; finite non-negative energies.
     pub fn new(parts: PrmParts) -> Result<Prm, InvalidPrm> {
         check::invariants(&parts).map_err(InvalidPrm)?;
-        Ok(Prm { parts, checksum: std::sync::OnceLock::new() })
+        Ok(Prm { parts, checksum: std::sync::OnceLock::new(), read_version: VERSION })
     }
 
     /// The parts back, to change and validate again.
@@ -979,6 +1016,13 @@ impl Prm {
         Ok(())
     }
 
+    /// The format version of the file the map was read from: [`VERSION`] for one made by this
+    /// build, older for a file an older build wrote (read in this version's form: its checksum
+    /// is not the file's).
+    pub fn read_version(&self) -> u32 {
+        self.read_version
+    }
+
     /// The file bytes.
     pub fn to_bytes(&self) -> Vec<u8> {
         self.parts.to_bytes()
@@ -1081,7 +1125,8 @@ impl Prm {
             SectionError::Corrupt(what) => corrupt(what),
             SectionError::Retired(what) => PrmError::Retired { path: path.into(), what },
         })?;
-        let prm = Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))?;
+        let mut prm = Prm::new(parts).map_err(|InvalidPrm(what)| corrupt(what))?;
+        prm.read_version = version;
         // A file of this version is what writing the map gives (an older one is written anew
         // in this version, with another checksum): its checksum, checked above, is the map's.
         if bytes[8..12] == VERSION.to_le_bytes() {
@@ -1383,6 +1428,7 @@ mod tests {
         };
         assert_eq!(read, v14);
         assert_eq!((read.gain(0), read.gain(1)), (Vec3::ONE, Vec3::splat(0.5)));
+        assert_eq!((read.read_version(), back.read_version(), prm.read_version()), (13, VERSION, VERSION));
 
         let g = Vec3::ONE;
         for bad in [
