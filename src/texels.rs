@@ -89,6 +89,12 @@ pub struct TexelSet {
     /// What [`TexelSet::unbury`] moved and dropped (zero until it runs).
     #[cfg(all(feature = "bvh", feature = "sampling"))]
     pub buried: Burial,
+    /// The atlas texels (row-major) whose centre [`TexelSet::unbury`] found buried, moved or
+    /// dropped: where a texel may stand for surface inside a solid
+    /// ([`TexelSet::visible_areas`]).
+    #[cfg(all(feature = "bvh", feature = "sampling"))]
+    #[serde(default)]
+    pub buried_centres: Vec<u32>,
 }
 
 /// A candidate owner of a texel.
@@ -152,6 +158,8 @@ impl TexelSet {
             shared_gutter_texels: 0,
             #[cfg(all(feature = "bvh", feature = "sampling"))]
             buried: Burial::default(),
+            #[cfg(all(feature = "bvh", feature = "sampling"))]
+            buried_centres: Vec::new(),
         };
         set.dilation = set.dilation_ring();
         set.shared_gutter_texels = set.count_shared_gutters(&crate::uv::charts(scene));
@@ -166,6 +174,37 @@ impl TexelSet {
     /// True when no texel is covered.
     pub fn is_empty(&self) -> bool {
         self.texels.is_empty()
+    }
+
+    /// Per covered texel (in `texels` order), the world area of the surface it stands for:
+    /// each triangle's part inside the texel's square of the atlas, at that triangle's world
+    /// area per atlas area. A texel on a chart's edge holds only the part its charts cover;
+    /// together they hold the area of every triangle with lightmap UVs of positive area (a
+    /// part of a triangle in a texel another triangle won is that texel's too).
+    pub fn covered_areas(&self, scene: &Scene) -> Vec<f32> {
+        let size = DVec2::new(self.width as f64, self.height as f64);
+        let mut area = vec![0.0f64; self.texels.len()];
+        for t in 0..scene.triangles.len() {
+            let uv = scene.uv1_corners(t).map(|v| v.as_dvec2() * size);
+            let uv_area = 0.5 * (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs();
+            if !(uv_area > 1e-12) {
+                continue;
+            }
+            let per = scene.area(t) as f64 / uv_area;
+            let (lo, hi) = (uv[0].min(uv[1]).min(uv[2]), uv[0].max(uv[1]).max(uv[2]));
+            let range = |a: f64, b: f64, n: u32| (a.floor().max(0.0) as u32)..(b.ceil().min(n as f64) as u32);
+            for j in range(lo.y, hi.y, self.height) {
+                for i in range(lo.x, hi.x, self.width) {
+                    let k = self.index[(j * self.width + i) as usize];
+                    if k == Self::EMPTY {
+                        continue;
+                    }
+                    let inside = clip_to_square(&uv, DVec2::new(i as f64, j as f64));
+                    area[k as usize] += polygon_area(&inside) * per;
+                }
+            }
+        }
+        area.into_iter().map(|a| a as f32).collect()
     }
 
     /// Coverage mask per atlas texel (row-major).
@@ -412,4 +451,37 @@ fn make_texel(scene: &Scene, c: &Candidate, size: DVec2, width: u32) -> Texel {
         triangle: c.triangle,
         bary: Vec3::new(bc[0] as f32, bc[1] as f32, bc[2] as f32),
     }
+}
+
+/// Triangle `uv` clipped to the unit square at `corner` (Sutherland-Hodgman).
+fn clip_to_square(uv: &[DVec2; 3], corner: DVec2) -> Vec<DVec2> {
+    let mut poly = uv.to_vec();
+    // (axis, bound, keep below): x >= x0, x <= x0 + 1, y >= y0, y <= y0 + 1.
+    for (axis, bound, below) in
+        [(0, corner.x, false), (0, corner.x + 1.0, true), (1, corner.y, false), (1, corner.y + 1.0, true)]
+    {
+        let inside = |p: DVec2| if below { p[axis] <= bound } else { p[axis] >= bound };
+        let mut out = Vec::with_capacity(poly.len() + 2);
+        for k in 0..poly.len() {
+            let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+            if inside(a) {
+                out.push(a);
+            }
+            if inside(a) != inside(b) {
+                let t = (bound - a[axis]) / (b[axis] - a[axis]);
+                out.push(a + (b - a) * t);
+            }
+        }
+        poly = out;
+        if poly.is_empty() {
+            break;
+        }
+    }
+    poly
+}
+
+/// Area of a simple polygon (shoelace), either winding.
+fn polygon_area(poly: &[DVec2]) -> f64 {
+    let n = poly.len();
+    (0..n).map(|k| poly[k].perp_dot(poly[(k + 1) % n])).sum::<f64>().abs() * 0.5
 }

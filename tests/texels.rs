@@ -294,3 +294,89 @@ fn buried_points_move_to_the_visible_part_and_buried_texels_are_dropped() {
     let bare_set = TexelSet::build_visible(&bare, &prm::Bvh::build(&bare), 16, 16);
     assert_eq!((bare_set.buried.moved, bare_set.buried.dropped, bare_set.len()), (0, 0, 256));
 }
+
+/// The world area each covered texel stands for: on the sliver fixture every triangle's area
+/// inside the atlas lands in the texels it covers (slivers and tiny triangles included); a sloped square
+/// mapped onto 4 x 4 texels by two triangles gives each texel a sixteenth of it, the ones its
+/// diagonal crosses from both triangles, and a square mapped half a texel off the grid gives
+/// its edge texels half and its corners a quarter.
+#[test]
+fn covered_areas_hold_each_triangle_s_area_where_it_lies() {
+    let scene = sliver_scene(1);
+    let set = TexelSet::build(&scene, 64, 64);
+    let areas = set.covered_areas(&scene);
+    assert_eq!(areas.len(), set.len());
+    let got: f64 = areas.iter().map(|&a| a as f64).sum();
+    // Each triangle's share inside the atlas (some needles run off its edge).
+    let want: f64 = (0..scene.triangles.len())
+        .map(|t| {
+            let uv = scene.uv1_corners(t).map(|v| v.as_dvec2());
+            let whole = 0.5 * (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs();
+            scene.area(t) as f64 * clipped_area(&uv, 0.0, 0.0) / whole
+        })
+        .sum();
+    assert!((got - want).abs() <= 1e-5 * want, "covered {got}, triangles {want}");
+    assert!(areas.iter().all(|&a| a >= 0.0));
+
+    // A square 2 m x 1.5 m, tilted (world area 2 x 1.5 x sqrt(1 + 0.5^2)), on texels
+    // [4, 8) x [4, 8) of a 16^2 atlas, then shifted half a texel.
+    for shift in [0.0f32, 0.5] {
+        let (lo, hi) = ((4.0 + shift) / 16.0, (8.0 + shift) / 16.0);
+        let uv = vec![Vec2::new(lo, lo), Vec2::new(hi, lo), Vec2::new(hi, hi), Vec2::new(lo, hi)];
+        let pos = uv
+            .iter()
+            .map(|p| {
+                let (x, y) = ((p.x - lo) / (hi - lo) * 2.0, (p.y - lo) / (hi - lo) * 1.5);
+                Vec3::new(x, y, 0.5 * y)
+            })
+            .collect();
+        let square = Scene::from_mesh(pos, uv, &[0, 1, 2, 0, 2, 3]);
+        let set = TexelSet::build(&square, 16, 16);
+        let areas = set.covered_areas(&square);
+        let texel = 2.0 * 1.5 * 1.25f32.sqrt() / 16.0;
+        for (t, &a) in set.texels.iter().zip(&areas) {
+            let share = |k: u32| {
+                if shift == 0.0 {
+                    1.0
+                } else if k == 4 || k == 8 {
+                    0.5
+                } else {
+                    1.0
+                }
+            };
+            let want = texel * share(t.i) * share(t.j);
+            assert!(
+                (a - want).abs() <= 1e-5,
+                "shift {shift}: texel ({}, {}) holds {a}, want {want}",
+                t.i,
+                t.j
+            );
+        }
+        assert_eq!(set.len(), if shift == 0.0 { 16 } else { 25 });
+    }
+}
+
+/// The visible part of each texel: the floor under the 0.3 m box is 0.09 of its 1 m^2; the
+/// visible areas add up to the rest within the 4 x 4 grid's step (a texel on the box's edge
+/// keeps its visible share to an eighth of a texel: 28 such texels, 0.014), and texels a
+/// texel or more from the box keep their whole area.
+#[test]
+fn visible_areas_leave_out_the_floor_under_a_box() {
+    let scene = floor_with_box();
+    let bvh = prm::Bvh::build(&scene);
+    let set = TexelSet::build_visible(&scene, &bvh, 16, 16);
+    // The 16 texels wholly under it are no texels of the set.
+    let covered: f32 = set.covered_areas(&scene).iter().sum();
+    assert!((covered - 240.0 / 256.0).abs() <= 1e-5, "covered {covered}");
+    let areas = set.visible_areas(&scene, &bvh);
+    let visible: f32 = areas.iter().sum();
+    assert!((visible - 0.91).abs() <= 0.014, "visible {visible}, want 0.91");
+    for (t, &a) in set.texels.iter().zip(&areas) {
+        if !(3..=10).contains(&t.i) || !(3..=10).contains(&t.j) {
+            assert!((a - 1.0 / 256.0).abs() <= 1e-7, "texel ({}, {}) far from the box holds {a}", t.i, t.j);
+        }
+    }
+    // The texel whose centre lies under the box's corner: 0.36 of its square is under it.
+    let k = set.index[9 * 16 + 9] as usize;
+    assert!((areas[k] * 256.0 - 0.64).abs() <= 0.125, "corner texel holds {}", areas[k] * 256.0);
+}

@@ -81,6 +81,10 @@ pub struct Args {
     /// field and the near links).
     #[arg(long)]
     no_next_bounce: bool,
+    /// Leave each pane's power as the walks made it, instead of scaling it to the power its
+    /// cells send to the level over every bounce (by their bounce gains; on by default).
+    #[arg(long)]
+    no_power_match: bool,
     /// Entries farther apart than this, in entry spacings, exchange no far-field light (its
     /// visibility then grows with the level, not its square; default 48, about 26 m at the
     /// production density).
@@ -153,6 +157,7 @@ pub fn run(a: Args) -> Result<()> {
             ("--echo-radius", a.echo_radius.is_some()),
             ("--no-far-field", a.no_far_field),
             ("--no-next-bounce", a.no_next_bounce),
+            ("--no-power-match", a.no_power_match),
             ("--far-radius", a.far_radius.is_some()),
             ("--next-cutoff", a.next_cutoff.is_some()),
             ("--smooth", a.smooth.is_some()),
@@ -175,6 +180,7 @@ pub fn run(a: Args) -> Result<()> {
     p.echo_radius = a.echo_radius.unwrap_or(p.echo_radius);
     p.far_field &= !a.no_far_field;
     p.next_bounce &= !a.no_next_bounce;
+    p.match_power &= !a.no_power_match;
     p.far_radius = a.far_radius.unwrap_or(p.far_radius);
     p.next_cutoff = a.next_cutoff.unwrap_or(p.next_cutoff);
     p.max_bounces = a.max_bounces.unwrap_or(p.max_bounces);

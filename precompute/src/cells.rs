@@ -521,8 +521,8 @@ pub const STAY_RAYS: u32 = STAY_SIDE * STAY_SIDE;
 /// Most rounds of [`reflections`]' fixed-point iteration for the bounce gains (it stops when a
 /// round changes no gain by more than a part in a million): each round adds one bounce, and at
 /// the brightest albedo our levels use (0.8) a round's step falls under 1e-6 of the gain
-/// within about 55 rounds. Where albedos near 1 close a region, the gains stop here short of
-/// their limit (at 0.95 about 4 % low; at 1, 65 where the limit is infinite).
+/// within about 55 rounds. Where albedos near 1 close a region the rounds stop short, and the
+/// rest is added as a geometric series of the last step (`reflections`).
 const GAIN_ROUNDS: usize = 64;
 
 /// What the light an entry's cell reflects does on the level ([`reflections`]).
@@ -541,7 +541,9 @@ pub struct Reflections {
 /// `s_j` (the rest leave through an opening to the sky), and where they land the row `F_jk`,
 /// the share of cell j's reflected light that lands in cell k. The gains solve
 /// `g_j = s_j + sum_k F_jk rho_k g_k` (rho: the entry's albedo) by fixed-point iteration: the
-/// light that lands after one bounce, plus what the cells it lands in send on. A hit with no
+/// light that lands after one bounce, plus what the cells it lands in send on; with at most
+/// `bounces` landings where the walks stop there (`PrecomputeParams::max_bounces`: one gives
+/// the stay share). A hit with no
 /// cell (the back of a double-sided triangle) lands and goes no further, as in the walks; the
 /// back of a one-sided surface absorbs, unless the ray's point is buried inside a solid
 /// (`prm::texels::is_buried`: the part of a floor cell under a plinth, of a plinth's top
@@ -564,6 +566,7 @@ pub fn reflections(
     owners: &CellOwners,
     albedo: &[Vec3],
     seed: u64,
+    bounces: u32,
 ) -> Reflections {
     use rand::Rng;
     let n = cells.first.len().saturating_sub(1);
@@ -623,7 +626,12 @@ pub fn reflections(
         .collect();
     let reflect = |k: u32| albedo.get(k as usize).copied().unwrap_or(Vec3::ZERO);
     let mut gains: Vec<Vec3> = rows.iter().map(|r| Vec3::splat(r.0)).collect();
-    for _ in 0..GAIN_ROUNDS {
+    // Round r brings landing r + 2: a map of at most `bounces` bounces counts as many.
+    let rounds = GAIN_ROUNDS.min(bounces.saturating_sub(1) as usize);
+    // The last two rounds' steps, summed over the entries per channel.
+    let (mut step, mut before) = (Vec::new(), Vec3::ZERO);
+    let mut settled = rounds == 0;
+    for _ in 0..rounds {
         let next: Vec<Vec3> = rows
             .par_iter()
             .map(|(s, row)| {
@@ -631,11 +639,33 @@ pub fn reflections(
             })
             .collect();
         // Settled: another round changes no gain by more than a part in a million.
-        let settled =
+        settled =
             next.iter().zip(&gains).all(|(a, b)| (*a - *b).abs().max_element() <= 1e-6 * a.max_element());
+        before = step.iter().fold(Vec3::ZERO, |a, d: &Vec3| a + *d);
+        step = next.iter().zip(&gains).map(|(a, b)| *a - *b).collect();
         gains = next;
         if settled {
             break;
+        }
+    }
+    // Not settled within the rounds (albedos near 1): each further round's step is the last
+    // one's times about the same factor lambda (the light the level keeps per bounce), so the
+    // rounds left add the last step times lambda (1 - lambda^n) / (1 - lambda), n of them up to
+    // the bounce cap. A closed box of albedo 0.99 reads its gains 100 so, 47 without.
+    let left = bounces.saturating_sub(1) as usize - rounds;
+    if !settled && left > 0 {
+        let last = step.iter().fold(Vec3::ZERO, |a, d| a + *d);
+        let tail = Vec3::select(
+            before.cmpgt(Vec3::ZERO) & last.cmpge(Vec3::ZERO) & last.cmplt(before),
+            {
+                let lambda = last / before.max(Vec3::splat(f32::MIN_POSITIVE));
+                let n = left.min(i32::MAX as usize) as i32;
+                lambda * (Vec3::ONE - lambda.powf(n as f32)) / (Vec3::ONE - lambda)
+            },
+            Vec3::ZERO,
+        );
+        for (g, d) in gains.iter_mut().zip(&step) {
+            *g += *d * tail;
         }
     }
     Reflections { stays: rows.into_iter().map(|r| r.0).collect(), gains }

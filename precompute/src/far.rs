@@ -1102,6 +1102,7 @@ mod tests {
             zero_uv_area_triangles: 0,
             shared_gutter_texels: 0,
             buried: Default::default(),
+            buried_centres: Vec::new(),
         }
     }
 
@@ -1183,6 +1184,7 @@ mod tests {
             zero_uv_area_triangles: 0,
             shared_gutter_texels: 0,
             buried: Default::default(),
+            buried_centres: Vec::new(),
         };
         let mut texels = Vec::new();
         for a in (0..w * h).filter(|a| a % 5 != 0) {

@@ -489,6 +489,7 @@ mod tests {
             zero_uv_area_triangles: 0,
             shared_gutter_texels: 0,
             buried: Default::default(),
+            buried_centres: Vec::new(),
         };
         let point = |t: u32| NearPoint { texel: t, position: Vec3::new(t as f32, 0.0, 0.0), normal: Vec3::Y };
         let points = [point(0), point(2)];

@@ -128,7 +128,13 @@ fn superposition_and_clustering_invariance() {
     let bvh = Bvh::build(&scene);
     // Smoothing and near links off: the walks' own values are compared, not their filtered
     // neighbourhood or the links' exact first bounce (`transport::LinkedCells`).
-    let p = PrecomputeParams { smooth_radius: 0.0, near_radius: 0.0, ..params(256, 32, 12, 20) };
+    // The panes as walked (not scaled to their power: `each_pane_delivers_...`).
+    let p = PrecomputeParams {
+        smooth_radius: 0.0,
+        near_radius: 0.0,
+        match_power: false,
+        ..params(256, 32, 12, 20)
+    };
     let prm = bake(&scene, &p);
     let set = TexelSet::build(&scene, 20, 20);
     let weights: Vec<Vec3> =
@@ -165,8 +171,15 @@ fn superposition_and_clustering_invariance() {
     // With uniform weights the sum of all panes does not depend on the clustering: C = N
     // (each entry its own cluster) and C = 12 give the same lightmap.
     let ones = |prm: &Prm| at_texels(&set, &cpu::compose(prm, &vec![Vec3::ONE; prm.clusters().len()]));
-    let per_entry =
-        bake(&scene, &PrecomputeParams { smooth_radius: 0.0, near_radius: 0.0, ..params(256, 32, 256, 20) });
+    let per_entry = bake(
+        &scene,
+        &PrecomputeParams {
+            smooth_radius: 0.0,
+            near_radius: 0.0,
+            match_power: false,
+            ..params(256, 32, 256, 20)
+        },
+    );
     assert_eq!(per_entry.clusters().len(), 256);
     assert!(per_entry.clusters().iter().enumerate().all(|(c, cl)| cl.members == vec![c as u32]));
     for (a, b) in ones(&per_entry).iter().zip(&ones(&prm)) {
@@ -688,4 +701,89 @@ fn next_bounce_table_keeps_the_bounce_cap() {
         last = without;
     }
     assert!(energy(false, 1000) > 1.05 * last, "all bounces bring no more than two");
+}
+
+/// Each pane's power, `sum over texels of luminance x the area the texel stands for`.
+fn pane_powers(prm: &Prm, set: &TexelSet, areas: &[f32]) -> Vec<f64> {
+    let layout = prm.layout();
+    (0..prm.clusters().len() + prm.groups().len())
+        .map(|pane| {
+            let mut power = 0.0f64;
+            for t in prm.pane_tiles(pane, &layout) {
+                for (&texel, &code) in t.texels.iter().zip(t.data) {
+                    let k = set.index[texel as usize];
+                    if k != TexelSet::EMPTY {
+                        let e = prm::luminance(t.tile.scale * prm::prm_file::intensity(code));
+                        power += e as f64 * areas[k as usize] as f64;
+                    }
+                }
+            }
+            power
+        })
+        .collect()
+}
+
+/// A pane answers unit irradiance on its cluster's cells; under it the cells send
+/// `sum A_j luminance(rho_j g_j)` to the level over every bounce. With `match_power` (the
+/// default) every pane of the open box (a red floor, light lost through the opening) delivers
+/// exactly that; the same walks without it leave the panes off by their noise, and the
+/// matched map is the unmatched one with each pane, and its energy, scaled by one number.
+#[test]
+fn each_pane_delivers_the_power_its_cells_send_to_the_level() {
+    let mut scene = open_box();
+    let red = prm::Material { albedo: v(0.7, 0.1, 0.1), ..scene.materials[0].clone() };
+    scene.materials.push(red);
+    scene.triangles[0].material = 1;
+    scene.triangles[1].material = 1;
+    let p = params(512, 16, 24, 32);
+    let matched = bake(&scene, &p);
+    let raw = bake(&scene, &PrecomputeParams { match_power: false, ..p.clone() });
+    assert_eq!(raw.header().provenance["match_power"].as_bool(), Some(false));
+    let set = TexelSet::build(&scene, 32, 32);
+    let areas = set.covered_areas(&scene);
+    let mut want: Vec<f64> = matched
+        .clusters()
+        .iter()
+        .map(|c| {
+            c.members
+                .iter()
+                .map(|&m| {
+                    let m = m as usize;
+                    let reflect = matched.gain(m) * matched.entries()[m].albedo;
+                    matched.cells().area(m) as f64 * prm::luminance(reflect) as f64
+                })
+                .sum()
+        })
+        .collect();
+    let mut groups = vec![0.0; matched.groups().len()];
+    for (c, &g) in matched.group_of().iter().enumerate() {
+        groups[g as usize] += want[c];
+    }
+    want.extend(groups);
+    let (got, before) = (pane_powers(&matched, &set, &areas), pane_powers(&raw, &set, &areas));
+    let mut off = 0;
+    for (pane, w) in want.iter().enumerate() {
+        assert!((got[pane] - w).abs() <= 1e-4 * w, "pane {pane}: {} against {w}", got[pane]);
+        off += ((before[pane] - w).abs() > 0.01 * w) as usize;
+        // The same tiles, every one scaled by the pane's one number.
+        let s = (w / before[pane]) as f32;
+        let layout = matched.layout();
+        for (a, b) in matched.pane_tiles(pane, &layout).zip(raw.pane_tiles(pane, &layout)) {
+            assert_eq!((a.tile.index, a.data), (b.tile.index, b.data));
+            assert!(
+                (a.tile.scale - b.tile.scale * s).abs().max_element() <= 1e-5 * a.tile.scale.max_element()
+            );
+        }
+        let energy = |m: &Prm| match pane.checked_sub(m.clusters().len()) {
+            None => m.clusters()[pane].energy,
+            Some(g) => m.groups()[g].energy,
+        };
+        assert!(
+            (energy(&matched) - energy(&raw) * s).abs() <= 1e-5 * energy(&matched),
+            "pane {pane}'s energy"
+        );
+    }
+    assert!(off > 0, "no pane's power was off before: this checks nothing");
+    let range = matched.header().provenance["power_scale"].as_array().map(|r| r.len());
+    assert_eq!(range, Some(2), "the map states the scales' range");
 }

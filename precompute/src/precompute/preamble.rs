@@ -32,6 +32,9 @@ use crate::update::{TriangleDigest, Untouched, UpdateCache};
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct Preamble {
     pub(crate) set: TexelSet,
+    /// Per covered texel, the world area it stands for ([`TexelSet::covered_areas`]): what
+    /// a pane's power is summed over (`crate::precompute::match_power`).
+    pub(crate) texel_areas: Vec<f32>,
     pub(crate) entries: Vec<Entry>,
     pub(crate) cells: Cells,
     /// Per entry, the share of its cell's reflected light that lands on the level
@@ -134,7 +137,7 @@ impl Preamble {
             cut.split_long(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
         let albedo: Vec<Vec3> = entries.iter().map(|e| e.albedo).collect();
         let crate::cells::Reflections { stays, gains } = timed(&mut report.seconds_entries, || {
-            crate::cells::reflections(scene, bvh, &cut, &owners, &albedo, params.seed)
+            crate::cells::reflections(scene, bvh, &cut, &owners, &albedo, params.seed, params.max_bounces)
         });
         check(&entries)?;
         progress(Phase::Entries, 1, 1);
@@ -306,6 +309,7 @@ impl Preamble {
         report.seconds_panes += t.elapsed().as_secs_f64();
         let cutoff = Cutoff::new(clustering.members.iter().map(Vec::len), params.next_cutoff, params.seed);
         let mut pre = Preamble {
+            texel_areas: set.visible_areas(scene, bvh),
             set,
             entries,
             cells,

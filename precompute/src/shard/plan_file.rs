@@ -64,6 +64,7 @@ type Rest = (
     Vec<NearPoint>,
     Echo,
     Option<Smoothing>,
+    Vec<f32>,
 );
 type RestRef<'a> = (
     &'a str,
@@ -79,6 +80,7 @@ type RestRef<'a> = (
     &'a [NearPoint],
     &'a Echo,
     &'a Option<Smoothing>,
+    &'a [f32],
 );
 
 fn checksum_of(file: &[u8]) -> u64 {
@@ -123,6 +125,7 @@ impl Plan {
             &pre.near_points,
             &pre.echo,
             &pre.smoothing,
+            &pre.texel_areas,
         );
         let encode = |e: postcard::Error| ShardError::Refused(format!("the plan cannot be encoded: {e}"));
         let walks = postcard::to_stdvec(&walks).map_err(encode)?;
@@ -195,6 +198,7 @@ impl Plan {
         let next_on = next.is_some();
         let preamble = Preamble {
             set,
+            texel_areas: Vec::new(),
             entries,
             cells: Cells::default(),
             stays: Vec::new(),
@@ -246,10 +250,13 @@ impl Plan {
             (rest.0, rest.1, rest.2, rest.3);
         (pre.cells, pre.stays, pre.gains, pre.centroids, pre.grouping, pre.far) =
             (rest.4, rest.5, rest.6, rest.7, rest.8, rest.9);
-        (pre.near_points, pre.echo, pre.smoothing) = (rest.10, rest.11, rest.12);
+        (pre.near_points, pre.echo, pre.smoothing, pre.texel_areas) = (rest.10, rest.11, rest.12, rest.13);
         let clusters = pre.clustering.members.len();
         let n = pre.entries.len();
-        if pre.centroids.len() != clusters || [pre.stays.len(), pre.gains.len()] != [n; 2] {
+        if pre.centroids.len() != clusters
+            || [pre.stays.len(), pre.gains.len()] != [n; 2]
+            || pre.texel_areas.len() != pre.set.texels.len()
+        {
             return Err("damaged (its sections do not agree)".into());
         }
         Ok(plan)

@@ -18,13 +18,15 @@
 //!     not its values), walks cut u64, unowned vertices u64,
 //!     footprint (grid words x u64), rooms u32 then each room u32 (sorted; u32::MAX: any)
 //! panes u32 (clusters + groups), then per pane: tiles u32, then per tile:
-//!     atlas tile u32, energy f64, carried f64, in map u8, then unless in map:
-//!     scale 3 f32, codes u32, codes bytes
+//!     atlas tile u32, energy f64, carried f64, scale 3 f32 (v12), in map u8, then unless
+//!     in map: codes u32, codes bytes
 //! checksum u64                FNV-1a 64 of everything before it
 //! ```
 //!
-//! A tile *in map* (v5) is one the `.prm` beside the cache keeps with the same scale and codes:
-//! the reader takes them from that map (`UpdateCache::read` is given it). Only the tiles the
+//! A tile *in map* (v5) is one the `.prm` beside the cache keeps with the same codes: the
+//! reader takes them from that map (since v12 its scale is written here: the map's tiles are
+//! scaled to their pane's power, `crate::precompute::match_power`, and the cache keeps the
+//! panes as walked) (`UpdateCache::read` is given it). Only the tiles the
 //! drop rule left out carry their codes here, so the cache no longer holds the map's panes a
 //! second time (16 chambers: 370 -> 134 MB; the rest is mostly the footprints and the
 //! dropped tiles). Read beside another map, a tile may be missing (an error) or be that map's;
@@ -51,8 +53,9 @@ const MAGIC: [u8; 8] = *b"PRMUPDT\n";
 /// the far field's energies are the runtime's own sums (`crate::far`), and an update keeps a
 /// settled entry's: an older bake's were estimates, so its cache is refused and the level
 /// baked whole; 11: those sums are added in parts of 128 far texels (were 1,024), so an
-/// older bake's settled entries could differ from a fresh precompute's in their last bit.
-const VERSION: u32 = 11;
+/// older bake's settled entries could differ from a fresh precompute's in their last bit; 12:
+/// every tile's scale is written, a tile in the map beside it takes only its codes from it.
+const VERSION: u32 = 12;
 
 /// Per atlas tile: a digest of everything but the walks its texels' values are made from, the
 /// walks' counters, the voxels its own texels' walks passed through and the rooms
@@ -189,10 +192,10 @@ impl UpdateCache {
                 let in_map = kept
                     .binary_search_by_key(&t.index, |k| k.tile.index)
                     .ok()
-                    .is_some_and(|k| kept[k].tile.scale == t.scale && kept[k].data == &t.codes[..]);
+                    .is_some_and(|k| kept[k].data == &t.codes[..]);
+                put_vec3(&mut b, t.scale);
                 b.push(in_map as u8);
                 if !in_map {
-                    put_vec3(&mut b, t.scale);
                     put_u32(&mut b, t.codes.len() as u32);
                     b.extend_from_slice(&t.codes);
                 }
@@ -321,11 +324,11 @@ impl UpdateCache {
                     return Err(format!("a pane tile at atlas tile {index} of {}", tiles.len()));
                 }
                 let (energy, carried) = (r.f64()?, r.f64()?);
-                let (scale, codes) = match r.take(1)?[0] {
+                let scale = r.vec3()?;
+                let codes = match r.take(1)?[0] {
                     0 => {
-                        let scale = r.vec3()?;
                         let k = r.count(1)?;
-                        (scale, r.take(k)?.to_vec())
+                        r.take(k)?.to_vec()
                     }
                     1 => {
                         let Ok(k) = kept.binary_search_by_key(&index, |k| k.tile.index) else {
@@ -333,7 +336,7 @@ impl UpdateCache {
                                 "pane {p}'s tile at atlas tile {index} is not in the map beside it (another map's cache?)"
                             ));
                         };
-                        (kept[k].tile.scale, kept[k].data.to_vec())
+                        kept[k].data.to_vec()
                     }
                     f => return Err(format!("pane {p}'s tile at atlas tile {index} has flag {f}")),
                 };
