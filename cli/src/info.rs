@@ -79,6 +79,9 @@ pub fn run(a: Args) -> Result<()> {
         let rooms = prm_runtime::cpu::rooms::room_count(&prm_runtime::cpu::rooms::cluster_rooms(map));
         summary["runtime_rooms"] = Value::from(rooms);
         summary["stay_shares"] = stay_shares(map);
+        // Each pane scaled to the power its cells send (`prm_precompute::precompute::
+        // match_power`): the least and most scale, absent for a map made without it.
+        summary["power_scale"] = map.header().provenance.get("power_scale").cloned().unwrap_or(Value::Null);
         if let Some(mb) = a.gpu_budget {
             let camera = crate::render::camera(&scene, None)?;
             let aspect = camera.aspect.unwrap_or(1.0);
@@ -124,6 +127,18 @@ pub fn run(a: Args) -> Result<()> {
             st["gain_highest"].as_f64().unwrap_or(1.0),
             st["gain_mean"].as_f64().unwrap_or(1.0)
         );
+        match summary["power_scale"]
+            .as_array()
+            .map(|r| r.iter().filter_map(Value::as_f64).collect::<Vec<_>>())
+        {
+            Some(r) if r.len() == 2 => println!(
+                "pane power: each pane scaled by {:.3} to {:.3} to deliver what its cells send to the level",
+                r[0], r[1]
+            ),
+            _ => {
+                println!("pane power: the panes as walked (baked with --no-power-match or before session 84)")
+            }
+        }
         print_gpu_memory(&summary["gpu_memory"]);
         if let Some(text) = summary["gpu_memory"]["budget"]["text"].as_str() {
             println!("  {text}");

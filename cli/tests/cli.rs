@@ -1149,6 +1149,11 @@ fn a_level_in_several_lightmap_pages_bakes_evaluates_and_renders_on_both_backend
     // (A gain equal to its share reads a part in a million under it through the luminance.)
     let at_least = |(g, s): (&f32, &f32)| *g >= s * (1.0 - 1e-6);
     assert!(gains.iter().zip(&shares).all(at_least) && gains.iter().all(|&g| g <= most), "{gains:?}");
+    // The panes' power scales, as the map's header states them, within their bounds.
+    let scale = &info["power_scale"];
+    assert_eq!(scale, &read.header().provenance["power_scale"]);
+    let (lo, hi) = (scale[0].as_f64().unwrap(), scale[1].as_f64().unwrap());
+    assert!(0.5 <= lo && lo <= hi && hi <= 2.0, "{scale}");
     assert_eq!(m["tables_bytes"], stated);
     assert_eq!(m["total_bytes"].as_u64().unwrap(), stated + m["shadow_maps_bytes"].as_u64().unwrap());
     assert!(m["shadow_maps_bytes"].as_u64().unwrap() > 0, "{m}");

@@ -996,7 +996,7 @@ pub fn match_power(prm: Prm, set: &prm::TexelSet, areas: &[f32]) -> Result<(Prm,
                     let k = set.index[texel as usize];
                     if k != prm::TexelSet::EMPTY {
                         let e = prm::luminance(t.tile.scale * prm::prm_file::intensity(v));
-                        power += e as f64 * areas[k as usize] as f64;
+                        power += e as f64 * areas.get(k as usize).copied().unwrap_or(0.0) as f64;
                     }
                 }
             }

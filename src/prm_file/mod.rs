@@ -104,7 +104,11 @@
 //! cells give, not the cluster's average cell's. Weighted
 //! by the stay share alone, a flashlight on a pillar's shaft lit the whole chamber 3-4 % too
 //! bright at every seed (`docs/near-lights.md`, *Bounce gains*). A file before v14 reads each
-//! gain as its stay share.
+//! gain as its stay share. A bake since session 84 also scales each pane (its tiles' scales
+//! and its energy) so that it delivers that total, its texels counted at the area of surface
+//! they stand for (`prm_precompute::precompute::match_power`; the header's provenance
+//! `power_scale` states the least and most scale, `match_power` whether it was done): the
+//! format is the same.
 //!
 //! **Dipoles** (v6 to v12, gone in v13): up to three more panes per cluster answered light
 //! growing linearly across it, weighted by the light's first moment over the cluster. Off by

@@ -32,8 +32,8 @@ use crate::update::{TriangleDigest, Untouched, UpdateCache};
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct Preamble {
     pub(crate) set: TexelSet,
-    /// Per covered texel, the world area it stands for ([`TexelSet::covered_areas`]): what
-    /// a pane's power is summed over (`crate::precompute::match_power`).
+    /// Per covered texel, the world area it stands for ([`TexelSet::visible_areas`]): what
+    /// a pane's power is summed over (`crate::precompute::match_power`; empty without it).
     pub(crate) texel_areas: Vec<f32>,
     pub(crate) entries: Vec<Entry>,
     pub(crate) cells: Cells,
@@ -309,7 +309,7 @@ impl Preamble {
         report.seconds_panes += t.elapsed().as_secs_f64();
         let cutoff = Cutoff::new(clustering.members.iter().map(Vec::len), params.next_cutoff, params.seed);
         let mut pre = Preamble {
-            texel_areas: set.visible_areas(scene, bvh),
+            texel_areas: if params.match_power { set.visible_areas(scene, bvh) } else { Vec::new() },
             set,
             entries,
             cells,

@@ -255,7 +255,7 @@ impl Plan {
         let n = pre.entries.len();
         if pre.centroids.len() != clusters
             || [pre.stays.len(), pre.gains.len()] != [n; 2]
-            || pre.texel_areas.len() != pre.set.texels.len()
+            || (plan.params.match_power && pre.texel_areas.len() != pre.set.texels.len())
         {
             return Err("damaged (its sections do not agree)".into());
         }
