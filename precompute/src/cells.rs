@@ -628,8 +628,8 @@ pub fn reflections(
     let mut gains: Vec<Vec3> = rows.iter().map(|r| Vec3::splat(r.0)).collect();
     // Round r brings landing r + 2: a map of at most `bounces` bounces counts as many.
     let rounds = GAIN_ROUNDS.min(bounces.saturating_sub(1) as usize);
-    // The last two rounds' steps, summed over the entries per channel.
-    let (mut step, mut before) = (Vec::new(), Vec3::ZERO);
+    // Each entry's step in the last two rounds.
+    let (mut step, mut before): (Vec<Vec3>, Vec<Vec3>) = (Vec::new(), Vec::new());
     let mut settled = rounds == 0;
     for _ in 0..rounds {
         let next: Vec<Vec3> = rows
@@ -641,30 +641,37 @@ pub fn reflections(
         // Settled: another round changes no gain by more than a part in a million.
         settled =
             next.iter().zip(&gains).all(|(a, b)| (*a - *b).abs().max_element() <= 1e-6 * a.max_element());
-        before = step.iter().fold(Vec3::ZERO, |a, d: &Vec3| a + *d);
-        step = next.iter().zip(&gains).map(|(a, b)| *a - *b).collect();
+        before = std::mem::replace(&mut step, next.iter().zip(&gains).map(|(a, b)| *a - *b).collect());
         gains = next;
         if settled {
             break;
         }
     }
     // Not settled within the rounds (albedos near 1): each further round's step is the last
-    // one's times about the same factor lambda (the light the level keeps per bounce), so the
+    // one's times about the same factor lambda (the light its region keeps per bounce), so the
     // rounds left add the last step times lambda (1 - lambda^n) / (1 - lambda), n of them up to
-    // the bounce cap. A closed box of albedo 0.99 reads its gains 100 so, 47 without.
+    // the bounce cap; lambda entry by entry and channel by channel (two closed rooms of albedo
+    // 0.99 and 0.95 each keep their own), and 1 where the steps no longer shrink (albedo 1:
+    // the tail is the n bounces left). A closed box of albedo 0.99 reads its gains 100 so, 47
+    // without.
     let left = bounces.saturating_sub(1) as usize - rounds;
-    if !settled && left > 0 {
-        let last = step.iter().fold(Vec3::ZERO, |a, d| a + *d);
-        let tail = Vec3::select(
-            before.cmpgt(Vec3::ZERO) & last.cmpge(Vec3::ZERO) & last.cmplt(before),
-            {
-                let lambda = last / before.max(Vec3::splat(f32::MIN_POSITIVE));
-                let n = left.min(i32::MAX as usize) as i32;
-                lambda * (Vec3::ONE - lambda.powf(n as f32)) / (Vec3::ONE - lambda)
-            },
-            Vec3::ZERO,
-        );
-        for (g, d) in gains.iter_mut().zip(&step) {
+    if !settled && left > 0 && before.len() == step.len() {
+        let n = left.min(i32::MAX as usize) as f32;
+        let series = |lambda: f32| {
+            if lambda >= 1.0 - 1e-6 {
+                n
+            } else {
+                lambda * (1.0 - lambda.powf(n)) / (1.0 - lambda)
+            }
+        };
+        for ((g, d), b) in gains.iter_mut().zip(&step).zip(&before) {
+            let tail = Vec3::from_array(std::array::from_fn(|c| {
+                if b[c] > 0.0 && d[c] > 0.0 {
+                    series((d[c] / b[c]).min(1.0))
+                } else {
+                    0.0
+                }
+            }));
             *g += *d * tail;
         }
     }

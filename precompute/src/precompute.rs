@@ -836,6 +836,13 @@ impl Report {
             tiles_dropped: h.tiles_dropped,
             dropped_energy: h.dropped_energy,
             pane_bytes: map.data().len(),
+            power_scale: match p["power_scale"]
+                .as_array()
+                .map(|r| r.iter().filter_map(|x| x.as_f64()).collect::<Vec<_>>())
+            {
+                Some(r) if r.len() == 2 => [r[0] as f32, r[1] as f32],
+                _ => [1.0, 1.0],
+            },
             ..Report::new(params)
         }
     }
@@ -944,6 +951,7 @@ pub(crate) fn finish(
     let t = Instant::now();
     let (prm, matched) = match_power(prm, &pre_set, &texel_areas)?;
     report.seconds_panes += t.elapsed().as_secs_f64();
+    report.seconds_total = all.elapsed().as_secs_f64();
     report.power_scale = matched;
     Ok(prm)
 }
@@ -952,20 +960,31 @@ pub(crate) fn finish(
 /// bound: something other than walk noise is wrong with it).
 pub const POWER_SCALE_LIMITS: [f32; 2] = [0.5, 2.0];
 
-/// Each pane scaled so that the power it delivers (its texels' luminance times the area each
-/// stands for, `TexelSet::covered_areas`) is the power its cells send to the level over every
-/// bounce under unit irradiance: `sum over its entries of A_j luminance(rho_j g_j)`, by the
-/// cells' areas and their bounce gains (`crate::cells::reflections`). A pane answers unit
-/// irradiance on its cluster; under it each cell reflects `rho_j A_j` and of that `g_j` lands
-/// over every bounce, so the two are the same power but for the walks' noise (a
-/// group's pane: its clusters' sum). The walks leave each pane's total a few percent off
-/// (the chamber: 5.9 % standard deviation across its 256 panes; the gains' solve 0.7 % per entry), and a light
-/// whose beam lands in one cluster takes that pane's error whole: the flashlight on the floor
-/// by a pillar read -6.3 % and -4.4 % bias at seeds 1 and 2 where their panes held 0.94 and
-/// 0.96 of their power, +0.1 % at seed 0 (1.01). The scale is bounded by
-/// [`POWER_SCALE_LIMITS`]; a pane with no power or nothing to deliver keeps its values.
-/// Returns the map and the least and most scale used.
+/// Each pane scaled so that the power it delivers (its texels' luminance times the area of
+/// surface each stands for, `TexelSet::visible_areas`) is the power its cells send to the level
+/// over every bounce under unit irradiance: `sum over its entries of A_j luminance(rho_j g_j)`,
+/// by the cells' areas and their bounce gains (`crate::cells::reflections`). A pane answers
+/// unit irradiance on its cluster; under it each cell reflects `rho_j A_j` and of that `g_j`
+/// lands over every bounce, so the two are the same power (a group's pane: its clusters' sum).
+/// The walks left the chamber's panes 0.94-1.07 of it (seed 1, 7.8 % standard deviation over
+/// its 256 panes, the same at 512 walks a texel: the cells' geometry, chiefly floor cells
+/// reaching under plinths, which no walk hits while the weight divides by their whole area,
+/// not noise), and a light whose beam lands in one cluster takes that pane's error whole: the
+/// flashlight on the floor by a pillar read -6.3 % and -4.4 % bias at seeds 1 and 2, where
+/// their panes held 0.94 and 0.96 of their power, +0.1 % at seed 0 (1.01). The scale is
+/// bounded by [`POWER_SCALE_LIMITS`]; a pane with no power or nothing to deliver keeps its
+/// values. Returns the map and the least and most scale used; a texel set or areas not of
+/// the map's atlas are refused.
 pub fn match_power(prm: Prm, set: &prm::TexelSet, areas: &[f32]) -> Result<(Prm, [f32; 2]), InvalidPrm> {
+    if areas.len() != set.texels.len() || set.index.len() != prm.texel_count() {
+        return Err(InvalidPrm(format!(
+            "pane power: {} texel areas for {} texels, a texel set of {} atlas texels for a map of {}",
+            areas.len(),
+            set.texels.len(),
+            set.index.len(),
+            prm.texel_count()
+        )));
+    }
     let layout = prm.layout();
     let c = prm.clusters().len();
     // What each cluster's cells send to the level per unit irradiance, then each group's.
@@ -996,7 +1015,7 @@ pub fn match_power(prm: Prm, set: &prm::TexelSet, areas: &[f32]) -> Result<(Prm,
                     let k = set.index[texel as usize];
                     if k != prm::TexelSet::EMPTY {
                         let e = prm::luminance(t.tile.scale * prm::prm_file::intensity(v));
-                        power += e as f64 * areas.get(k as usize).copied().unwrap_or(0.0) as f64;
+                        power += e as f64 * areas[k as usize] as f64;
                     }
                 }
             }

@@ -211,7 +211,8 @@ fn a_triangle_without_an_entry_joins_only_a_cell_of_its_own_room() {
 
 /// Stay shares and bounce gains (`cells::reflections`) in a unit box of albedo 0.5, 96 entries.
 /// Closed, every cell keeps its light (share 1) and its gain is `1 / (1 - rho)` in each
-/// channel (0.5, 0.25 and 0 given as the entries' albedos: 2, 4/3, 1; 0.99: 100). With its top open, a
+/// channel (0.5, 0.25 and 0 given as the entries' albedos: 2, 4/3, 1; 0.99, 0.97, 0.95: 100,
+/// 33.3, 20; 1: the 1,000 bounces the walks stop at). With its top open, a
 /// floor cell loses its form factor to the opening, 0.1998 for parallel unit squares one apart
 /// (0.800 stays), and the gains are what a brute-force walk from each cell gives (the light
 /// landing over every bounce, Russian roulette on the albedo, 4096 walks a cell), face by face
@@ -247,9 +248,44 @@ fn a_cell_s_stay_share_and_bounce_gain_are_the_light_that_lands_on_the_level() {
     }
     // Albedo 0.99: 100, which the iteration's 64 rounds alone leave at 47 (their last step's
     // geometric series adds the rest).
-    let (_, _, _, _, bright) = bake(&faces, Some(Vec3::splat(0.99)));
-    let g = bright.gains.iter().map(|g| g.x).sum::<f32>() / bright.gains.len() as f32;
-    assert!((g / 100.0 - 1.0).abs() <= 0.05, "albedo 0.99: mean gain {g}, want 100");
+    // Per channel, each with its own rate (0.99, 0.97, 0.95: 100, 33.3, 20); albedo 1 counts
+    // the walks' 1,000 bounces.
+    let (_, _, _, _, bright) = bake(&faces, Some(Vec3::new(0.99, 0.97, 0.95)));
+    let g = bright.gains.iter().fold(Vec3::ZERO, |a, g| a + *g) / bright.gains.len() as f32;
+    let want = Vec3::new(100.0, 100.0 / 3.0, 20.0);
+    assert!(
+        ((g - want) / want).abs().max_element() <= 0.05,
+        "albedo 0.99 / 0.97 / 0.95: mean gain {g}, want {want}"
+    );
+    // Two closed boxes side by side, 0.99 and 0.95: each keeps its own rate (one rate for
+    // the whole level gave them 11 % low and high).
+    let two: Vec<[Vec3; 4]> = faces
+        .iter()
+        .chain(&faces)
+        .enumerate()
+        .map(|(k, q)| {
+            let shift = if k < faces.len() { Vec3::ZERO } else { Vec3::new(2.0, 0.0, 0.0) };
+            q.map(|p| p + shift)
+        })
+        .collect();
+    let scene = quads(&two, 0.5);
+    let bvh = prm::Bvh::build(&scene);
+    let entries = sample_entries(&scene, 192, 5);
+    let (cells, owners, _) = entry_cells(&scene, &entries, &vec![true; entries.len()]);
+    let albedo: Vec<Vec3> =
+        entries.iter().map(|e| Vec3::splat(if e.position.x > 1.5 { 0.95 } else { 0.99 })).collect();
+    let r = reflections(&scene, &bvh, &cells, &owners, &albedo, 3, 1000);
+    for (room, want) in [(false, 100.0), (true, 20.0)] {
+        let g: Vec<f32> = (0..entries.len())
+            .filter(|&j| (entries[j].position.x > 1.5) == room)
+            .map(|j| r.gains[j].x)
+            .collect();
+        let g = mean(&g);
+        assert!((g / want - 1.0).abs() <= 0.05, "two boxes: mean gain {g}, want {want}");
+    }
+    let (_, _, _, _, white) = bake(&faces, Some(Vec3::ONE));
+    let g = white.gains.iter().map(|g| g.x).sum::<f32>() / white.gains.len() as f32;
+    assert!((g / 1000.0 - 1.0).abs() <= 0.05, "albedo 1: mean gain {g}, want 1000 (the bounce cap)");
 
     let (scene, bvh, entries, cells, opened) = bake(&open, None);
     let floor: Vec<usize> = (0..entries.len()).filter(|&j| entries[j].normal.y > 0.9).collect();

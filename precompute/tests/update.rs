@@ -373,6 +373,9 @@ fn an_update_with_no_edit_writes_the_same_file_and_cache() {
         )
     );
     assert_eq!(r.pane_bytes, first.pane_bytes);
+    // The panes' power scales too, which the header states.
+    assert_eq!(r.power_scale, first.power_scale);
+    assert_ne!(r.power_scale, [1.0, 1.0], "the panes were scaled: this checks nothing");
     assert_eq!(moved.prm.to_bytes(), bytes);
     assert_eq!(moved.cache.as_ref(), Some(&cache));
     let fresh = run(&level, &p, Reuse::Nothing, false).unwrap();

@@ -97,12 +97,12 @@ impl TexelSet {
             })
             .collect();
         let mut burial = Burial::default();
+        self.buried_centres.clear();
         if verdicts.iter().all(Option::is_none) {
             return burial;
         }
         let old = std::mem::take(&mut self.texels);
         self.index.fill(Self::EMPTY);
-        self.buried_centres.clear();
         for (t, v) in old.into_iter().zip(verdicts) {
             if v.is_some() {
                 self.buried_centres.push(t.j * width + t.i);

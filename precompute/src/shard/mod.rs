@@ -25,8 +25,9 @@
 //! (parameters, the level's geometry hash, texel set, entries, cell owners, clusters, near
 //! links and their kept shares): its length u64, its bytes, their FNV-1a 64; a shard reads
 //! only it ([`Plan::read_walks`]: on the 4 x 4 halls a third of the plan). The second is the
-//! rest the encoding and the file need (the header's fingerprint, counts, cells, centroids,
-//! groups, far field, near points, exact first bounce, echo, smoothing). Last, FNV-1a 64 of
+//! rest the encoding and the file need (the header's fingerprint, counts, cells, stay shares,
+//! bounce gains, centroids, groups, far field, near points, echo, smoothing, the texels'
+//! visible areas). Last, FNV-1a 64 of
 //! everything before it: the plan's checksum, which every part records. A part: magic
 //! `PRMPART\n`, version u32, the plan's checksum u64,
 //! shard index u32, shard count u32, first texel u32, end texel u32; then chunks, each texel
@@ -63,7 +64,7 @@ const PART_MAGIC: [u8; 8] = *b"PRMPART\n";
 /// stay shares; 6: the table's cutoff of weak elements, a parameter; 7: the far field's
 /// energies are left out, the merge adds them up, beside the first bounce where it makes one;
 /// 8: the parameters lost `dipole_block`; 9: the entries' bounce gains; 10: the texels'
-/// covered areas and the `match_power` parameter).
+/// visible areas and the `match_power` parameter).
 const VERSION: u32 = 10;
 /// Texels walked and written at a time: a shard holds one chunk's walks.
 const CHUNK_TEXELS: usize = 4096;

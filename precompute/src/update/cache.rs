@@ -315,7 +315,7 @@ impl UpdateCache {
         let mut panes = Vec::with_capacity(n);
         let layout = map.layout();
         for p in 0..n {
-            let m = r.count(21)?;
+            let m = r.count(33)?;
             let mut pane = Vec::with_capacity(m);
             let kept = kept_tiles(map, &layout, p);
             for _ in 0..m {
