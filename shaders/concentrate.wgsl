@@ -11,7 +11,8 @@
 // SUB = CONCENTRATION_SUB on a mixed triangle and within NEAR_SIZES cell sizes of the centroid
 // of a cell a light is near, else CONCENTRATION_SUB_FAR. A point or spot light near the cell
 // takes footprint()'s points instead of the centroids alone, and the kernel's plain mean is
-// then exact (triangle_form_factor). Links of cells that are not hot are
+// then exact (triangle_form_factor). The kernel counts only the cell triangles the link's
+// texel sees (its hidden bits, at the head of link_ids). Links of cells that are not hot are
 // not written: their number stays old. (u32 words: the number kept as bits of a float could be
 // a denormal, which a GPU may flush.)
 // Structs, constants, bindings: the generated prelude; the lights: lights.wgsl;
@@ -264,8 +265,8 @@ fn footprint(x: vec3f, nx: vec3f, t: GpuCellTriangle, n: vec3f, l: GpuLight, sub
     return out;
 }
 
-// lit: near_light(h).
-fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>) -> vec3f {
+// lit: near_light(h); link: the near-field link whose texel is at x (its hidden triangles).
+fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>, link: u32) -> vec3f {
     let close = distance(x, h.centroid) < BAND_SIZES * h.size;
     let lit_near = lit.x || (close && lit.y);
     var takes = vec2u(0u);
@@ -290,6 +291,8 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>) -> vec3f {
             continue;
         }
         let n = c / len;
+        // A triangle the texel does not see adds its light to the plain mean only.
+        let sees = select(0.0, 1.0, sees_triangle(link, k - h.first_cell));
         let mixed = (t.fine_hi & CELL_MIXED) != 0u;
         let sub = select(CONCENTRATION_SUB_FAR, CONCENTRATION_SUB, near || mixed);
         let s = f32(sub);
@@ -341,7 +344,7 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>) -> vec3f {
                     area_sum += area;
                     let d = y - x;
                     let r2 = dot(d, d);
-                    let g = max(dot(nx, d), 0.0) * max(-dot(n, d), 0.0) / max(r2 * r2, 1e-30);
+                    let g = sees * max(dot(nx, d), 0.0) * max(-dot(n, d), 0.0) / max(r2 * r2, 1e-30);
                     seen += e * g;
                     weight += g * area;
                 }
@@ -353,11 +356,11 @@ fn kappa(x: vec3f, nx: vec3f, h: GpuHotEntry, lit: vec2<bool>) -> vec3f {
             if dot(n, x - t.a) > 0.0 {
                 kernel = PI * triangle_form_factor(x, nx, t.a, t.b, t.c);
             }
-            exact += kernel;
+            exact += kernel * sees;
             for (var i = 0u; i < params.light_count; i++) {
                 if reaches(t, i) && taken(takes, i, h, close) {
                     let f = footprint(x, nx, t, n, lights[i], sub, kernel);
-                    seen += f.seen;
+                    seen += f.seen * sees;
                     plain += f.plain;
                 }
             }
@@ -398,7 +401,22 @@ fn texel_of(i: u32) -> u32 {
 var<workgroup> seen_links: array<vec2u, WG_LINEAR>;
 var<workgroup> seen_count: atomic<u32>;
 
-// The work items of the hot cells, in link_ids after the links (at params.link_count: their
+// Where the hot cells' work list starts in link_ids: after each link's hidden triangles (two
+// words) and the links by entry (prm_runtime::concentrate::work_list).
+fn work_list() -> u32 {
+    return 3u * params.link_count;
+}
+
+// Whether the texel of link i sees triangle q of its cell (prm::prm_file::sees_triangle).
+fn sees_triangle(i: u32, q: u32) -> bool {
+    if q >= 64u {
+        return true;
+    }
+    let word = atomicLoad(&link_ids[2u * i + q / 32u]);
+    return ((word >> (q % 32u)) & 1u) == 0u;
+}
+
+// The work items of the hot cells, in link_ids after the links (at work_list(): their
 // count, the concentration's dispatch in three words, then per item the entry and the first
 // of its links within the entry's run, at most WG_LINEAR links an item), listed anew each
 // update in any order: one invocation per entry with links. So the concentration's
@@ -428,7 +446,7 @@ fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
         return;
     }
     let n = (h.link_count + WG_LINEAR - 1u) / WG_LINEAR;
-    let list = params.link_count;
+    let list = work_list();
     let at = atomicAdd(&link_ids[list], n);
     for (var k = 0u; k < n; k++) {
         atomicStore(&link_ids[list + 4u + 2u * (at + k)], j);
@@ -440,7 +458,7 @@ fn hot_items_main(@builtin(global_invocation_id) id: vec3u) {
 // limit is 65535), none when no cell is hot.
 @compute @workgroup_size(1)
 fn hot_args_main() {
-    let list = params.link_count;
+    let list = work_list();
     let n = atomicLoad(&link_ids[list]);
     atomicStore(&link_ids[list + 1u], min(n, 32768u));
     atomicStore(&link_ids[list + 2u], (n + 32767u) / 32768u);
@@ -459,7 +477,7 @@ fn concentrate_main(
     @builtin(num_workgroups) groups: vec3u,
 ) {
     let item = wg.x + wg.y * groups.x;
-    let list = params.link_count;
+    let list = work_list();
     if item >= atomicLoad(&link_ids[list]) {
         return;
     }
@@ -491,7 +509,7 @@ fn concentrate_main(
     if lid < n {
         let p = seen_links[lid];
         let t = near_texels[p.y];
-        let light = e.xyz * kappa(t.position, t.normal, h, lit);
+        let light = e.xyz * kappa(t.position, t.normal, h, lit, p.x);
         link_light[p.x] = vec4u(bitcast<vec3u>(light), params.frame);
     }
 }

@@ -18,12 +18,18 @@
 //! (Lambert's contour integral, the cell clipped to x's hemisphere), each cell triangle's
 //! share times the part of it x sees (shadow rays to a few points of it, [`seen_form_factor`]).
 //! Coplanar cells have F = 0 and get no link: flat interiors of walls have none.
+//!
+//! Each link also says which of the map's cell triangles (the cells as cut for the runtime,
+//! [`Cells::split_long`]) its texel does not see (`NearLink::hidden`): a triangle seen in part
+//! is looked at piece by piece, and the factor counts the pieces seen (`seen_cell`). The
+//! runtime weighs a hot cell's uneven light as the texel sees it over those alone.
 
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
 use prm::prm_file::{
     far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, Far, NearLink, NearPoint,
+    HIDDEN_TRIANGLES,
 };
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
@@ -47,7 +53,7 @@ pub fn near_links(
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
-    cells: &Cells,
+    (cells, pieces, from): (&Cells, &Cells, &[u32]),
     radius: f32,
     far: &Far,
     reuse: Option<&NearReuse>,
@@ -81,11 +87,7 @@ pub fn near_links(
                 if !(area > 0.0) || centroid.distance(t.position) > reach + area.sqrt() {
                     continue;
                 }
-                let mut f: f32 = cells
-                    .of(j)
-                    .iter()
-                    .map(|tri| seen_form_factor(bvh, t.position, t.normal, tri, e.normal, e.area / area))
-                    .sum();
+                let (mut f, hidden) = seen_cell(bvh, t, e, area, (cells, pieces, from), j);
                 if fades {
                     f *= 1.0 - far_share(centroid.distance(t.position), far.reach, area.sqrt());
                 }
@@ -94,7 +96,7 @@ pub fn near_links(
                 if !(factor >= MIN_FACTOR) {
                     continue;
                 }
-                out.push(NearLink { texel, entry: j as u32, factor });
+                out.push(NearLink { texel, entry: j as u32, factor, hidden });
             }
             out
         })
@@ -112,6 +114,50 @@ pub fn near_links(
         .collect();
     round_near_points(&mut points);
     (links, points)
+}
+
+/// The form factor from texel `t` to the part of entry `j`'s cell it sees ([`seen_part`] over the triangles of `cells`), and
+/// the [`NearLink::hidden`] bits of the map's pieces of them (`pieces`, each cut from triangle
+/// `from[k]` of `cells`, [`Cells::split_long_from`]). A triangle the texel sees whole, or not
+/// at all, gives its pieces its bit; one it sees in part is looked at piece by piece
+/// ([`seen_part`] again), each seen or not by most of its points, and the factor counts the
+/// pieces seen, so that the factor and the bits agree. (A piece past the bits' 64 counts at
+/// the share of it seen.)
+fn seen_cell(
+    bvh: &Bvh,
+    t: &prm::Texel,
+    e: &Entry,
+    area: f32,
+    (cells, pieces, from): (&Cells, &Cells, &[u32]),
+    j: usize,
+) -> (f32, u64) {
+    let scale = e.area / area;
+    let parts: Vec<(f32, f32)> =
+        cells.of(j).iter().map(|tri| seen_part(bvh, t.position, t.normal, tri, e.normal, scale)).collect();
+    let in_part = |(part, seen): (f32, f32)| part > 0.0 && seen > 0.0 && seen < 1.0;
+    let mut f: f32 = parts.iter().filter(|&&p| !in_part(p)).map(|(part, seen)| part * seen).sum();
+    let mut hidden = 0u64;
+    let range = pieces.first[j] as usize..pieces.first[j + 1] as usize;
+    for (k, (piece, &whole)) in pieces.triangles[range.clone()].iter().zip(&from[range]).enumerate() {
+        let (part, seen) = parts[(whole - cells.first[j]) as usize];
+        let sees = if in_part((part, seen)) {
+            let (part, seen) = seen_part(bvh, t.position, t.normal, piece, e.normal, scale);
+            if k >= HIDDEN_TRIANGLES {
+                f += part * seen;
+                continue;
+            }
+            if seen >= 0.5 {
+                f += part;
+            }
+            seen >= 0.5 || !(part > 0.0)
+        } else {
+            seen >= 0.5 || !(part > 0.0)
+        };
+        if !sees && k < HIDDEN_TRIANGLES {
+            hidden |= 1 << k;
+        }
+    }
+    (f, hidden)
 }
 
 /// What an update takes from the old bake's near links (`crate::update::Untouched`): the
@@ -193,18 +239,25 @@ impl NearReuse<'_> {
 /// strip in front of it (the chamber's torch by a pillar: 0.0-0.8 W/m² there against the
 /// ground truth's 2.5-3.1), and a cell half hidden was counted whole.
 pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec3, scale: f32) -> f32 {
-    let Some(normal) = (tri[1] - tri[0]).cross(tri[2] - tri[0]).try_normalize() else { return 0.0 };
+    let (f, seen) = seen_part(bvh, x, n, tri, front, scale);
+    f * seen
+}
+
+/// [`seen_form_factor`] in its two parts: the form factor of the part of `tri` in the texel's
+/// hemisphere, and the share of its points the texel sees (1 where the form factor is 0).
+pub fn seen_part(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec3, scale: f32) -> (f32, f32) {
+    let Some(normal) = (tri[1] - tri[0]).cross(tri[2] - tri[0]).try_normalize() else { return (0.0, 1.0) };
     let normal = if normal.dot(front) < 0.0 { -normal } else { normal };
     if normal.dot(x - tri[0]) <= 0.0 {
-        return 0.0;
+        return (0.0, 1.0);
     }
     let part = clip_above_plane(tri, x, n);
     if part.len() < 3 {
-        return 0.0;
+        return (0.0, 1.0);
     }
     let f = point_to_polygon(x, n, &part);
     if !(f > 0.0) {
-        return 0.0;
+        return (0.0, 1.0);
     }
     let centre = part.iter().copied().sum::<Vec3>() / part.len() as f32;
     // The centre, and where the part matters one point halfway to each of its corners (three
@@ -214,7 +267,7 @@ pub fn seen_form_factor(bvh: &Bvh, x: Vec3, n: Vec3, tri: &[Vec3; 3], front: Vec
         .chain(part.iter().take(more).map(|&v| 0.5 * (centre + v)))
         .filter(|&y| bvh.visible(x, n, y, normal))
         .count();
-    f * seen as f32 / (1 + more) as f32
+    (f, seen as f32 / (1 + more) as f32)
 }
 
 /// A cell triangle whose share of a link factor is this or more gets a shadow ray to each of
@@ -562,6 +615,70 @@ mod tests {
             assert!((got - above).abs() < 1e-6, "{got} against {above} at scale {scale}");
         }
         assert_eq!(seen_form_factor(&floor, x, n, &upright, Vec3::Z, 1.0), 0.0, "facing away");
+    }
+
+    /// The square cell 1 m over a texel (as [`a_link_counts_the_part_of_its_cell_the_texel_sees`],
+    /// two triangles cut into pieces no longer than 0.6 m), a blocker over x > 0.3 at half
+    /// height, which hides the cell's x > 0.6 from the texel: the pieces wholly beyond that are
+    /// hidden, those wholly before it seen, the factor is the seen pieces' form factor (the
+    /// bits and the factor agree) and within 3 % of the exact form factor of the cell's part
+    /// x < 0.6; with nothing in the way, nothing is hidden and the factor is the whole cell's.
+    #[test]
+    fn a_link_hides_the_pieces_of_its_cell_the_texel_does_not_see() {
+        let c = |a: f32, b: f32| Vec3::new(a, 1.0, b);
+        let square = [c(-1.0, -1.0), c(1.0, -1.0), c(1.0, 1.0), c(-1.0, 1.0)];
+        let cut = Cells::from_lists(vec![vec![
+            [square[0], square[2], square[1]],
+            [square[0], square[3], square[2]],
+        ]]);
+        let (pieces, from) = cut.split_long_from(0.6);
+        let n = pieces.triangles.len();
+        assert!(n > 16 && n <= HIDDEN_TRIANGLES, "{n} pieces");
+        let texel = prm::Texel {
+            i: 0,
+            j: 0,
+            position: Vec3::ZERO,
+            normal: Vec3::Y,
+            triangle: 0,
+            bary: Vec3::ONE / 3.0,
+        };
+        let entry =
+            Entry { position: c(0.0, 0.0), normal: Vec3::NEG_Y, albedo: Vec3::ONE, area: 4.0, triangle: 0 };
+        let quad = |pts: Vec<Vec3>| {
+            let idx = [0, 1, 2, 0, 2, 3];
+            Bvh::build(&Scene::from_mesh(pts, vec![glam::Vec2::ZERO; 4], &idx))
+        };
+        let far = |k: f32| Vec3::new(50.0 + k, 50.0, 50.0);
+        let open = quad(vec![far(0.0), far(0.1), far(0.2), far(0.3)]);
+        let whole = point_to_polygon(Vec3::ZERO, Vec3::Y, &square);
+        let (f, hidden) = seen_cell(&open, &texel, &entry, 4.0, (&cut, &pieces, &from), 0);
+        assert_eq!(hidden, 0);
+        assert!((f - whole).abs() < 1e-4 * whole, "{f} against {whole}");
+        let blocker = quad(vec![
+            Vec3::new(0.3, 0.5, -5.0),
+            Vec3::new(0.3, 0.5, 5.0),
+            Vec3::new(5.0, 0.5, 5.0),
+            Vec3::new(5.0, 0.5, -5.0),
+        ]);
+        let (f, hidden) = seen_cell(&blocker, &texel, &entry, 4.0, (&cut, &pieces, &from), 0);
+        let mut seen_pieces = 0.0;
+        for (k, t) in pieces.of(0).iter().enumerate() {
+            let is_hidden = (hidden >> k) & 1 == 1;
+            let xs = t.map(|p| p.x);
+            if xs.iter().all(|&x| x > 0.62) {
+                assert!(is_hidden, "piece {k} {t:?} is behind the blocker");
+            }
+            if xs.iter().all(|&x| x < 0.58) {
+                assert!(!is_hidden, "piece {k} {t:?} is in the open");
+            }
+            if !is_hidden {
+                seen_pieces += point_to_polygon(Vec3::ZERO, Vec3::Y, t);
+            }
+        }
+        assert!((f - seen_pieces).abs() < 1e-4 * whole, "factor {f}, seen pieces {seen_pieces}");
+        let part =
+            point_to_polygon(Vec3::ZERO, Vec3::Y, &[c(-1.0, -1.0), c(0.6, -1.0), c(0.6, 1.0), c(-1.0, 1.0)]);
+        assert!((f / part - 1.0).abs() < 0.03, "factor {f} against the seen part's {part}");
     }
 
     /// An update keeps a texel's near links by geometry (`NearReuse`) only where nothing it

@@ -289,6 +289,9 @@ pub struct Report {
     pub room_voxel: f32,
     /// Near-field links (`crate::near`) and the seconds they took.
     pub near_links: usize,
+    /// Near-field links whose texel does not see some of their cell's triangles
+    /// (`prm::prm_file::NearLink::hidden`).
+    pub near_links_hiding: usize,
     /// Links of the near field's echo.
     pub echo_links: usize,
     pub seconds_near: f64,
@@ -825,6 +828,7 @@ impl Report {
             texels: p.get("texels").map_or(count("far_texels"), |t| t.as_u64().unwrap_or(0) as usize),
             entries_enclosed: count("entries_enclosed"),
             near_links: count("near_links"),
+            near_links_hiding: map.near().iter().filter(|l| l.hidden != 0).count(),
             echo_links: count("echo_links"),
             far_texels: count("far_texels"),
             far_pairs: count("far_pairs"),

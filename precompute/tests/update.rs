@@ -451,22 +451,23 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
     let other = run(&level, &PrecomputeParams { seed: 3, ..params() }, Reuse::Nothing, false).unwrap().prm;
     let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&other) }, true);
     assert!(matches!(r, Err(PrecomputeError::Refused(ref r)) if r.0.contains("another .prm")));
-    // The same map as an older build wrote it (format version 13: no bounce gains) is refused
-    // as such, not as another map's (it reads in this version's form, whose checksum differs).
+    // The same map as an older build wrote it (format version 14: no `SEEN` section, every
+    // texel seeing its links' whole cells) is refused as such, not as another map's (it reads
+    // in this version's form, whose checksum differs).
     let bytes = old.to_bytes();
-    let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"GAIN") else {
-        panic!("no GAIN section");
+    let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"SEEN") else {
+        panic!("no SEEN section");
     };
     let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
-    let mut v13 = [&bytes[..at], &bytes[at + 12 + len..bytes.len() - 8]].concat();
-    v13[8..12].copy_from_slice(&13u32.to_le_bytes());
-    let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &v13);
-    v13.extend_from_slice(&sum.to_le_bytes());
-    let old13 = Prm::from_bytes(std::path::Path::new("old.prm"), &v13).unwrap();
-    assert_eq!(old13.read_version(), 13);
-    let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old13) }, true);
-    let Err(PrecomputeError::Refused(r)) = r else { panic!("a version 13 map updated or failed otherwise") };
-    assert!(r.0.contains("format version 13") && r.0.contains("older build"), "{}", r.0);
+    let mut v14 = [&bytes[..at], &bytes[at + 12 + len..bytes.len() - 8]].concat();
+    v14[8..12].copy_from_slice(&14u32.to_le_bytes());
+    let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &v14);
+    v14.extend_from_slice(&sum.to_le_bytes());
+    let old14 = Prm::from_bytes(std::path::Path::new("old.prm"), &v14).unwrap();
+    assert_eq!(old14.read_version(), 14);
+    let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&old14) }, true);
+    let Err(PrecomputeError::Refused(r)) = r else { panic!("a version 14 map updated or failed otherwise") };
+    assert!(r.0.contains("format version 14") && r.0.contains("older build"), "{}", r.0);
     // A cache is kept for the gather estimator only.
     let mis = PrecomputeParams { estimator: Estimator::Mis, ..params() };
     assert!(matches!(run(&level, &mis, Reuse::Nothing, true), Err(PrecomputeError::Refused(_))));

@@ -17,9 +17,11 @@ use crate::gpu;
 use crate::layout::{GpuHotEntry, GpuStruct, IndirectParams};
 use crate::shadow::SHADOW_GROUP;
 
-/// The near-field links' indices grouped by entry, then the hot cells' work list (zeros:
-/// [`hot_items_len`] words, filled each update), in one buffer (the concentration has no
-/// storage binding to spare); and each entry's run of links (first index, count).
+/// In one buffer (the concentration has no storage binding to spare): each near-field link's
+/// hidden triangles ([`prm::prm_file::NearLink::hidden`], two words, low first), then the
+/// links' indices grouped by entry, then the hot cells' work list (zeros: [`hot_items_len`]
+/// words, filled each update); and each entry's run of links (first index in the buffer,
+/// count).
 pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
     let n = prm.entries().len();
     let mut per_entry: Vec<Vec<u32>> = vec![Vec::new(); n];
@@ -27,6 +29,9 @@ pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
         per_entry[l.entry as usize].push(k as u32);
     }
     let mut ids: Vec<u32> = Vec::with_capacity(link_ids_len(prm));
+    for l in prm.near() {
+        ids.extend_from_slice(&[l.hidden as u32, (l.hidden >> 32) as u32]);
+    }
     let mut runs = Vec::with_capacity(n);
     for links in &per_entry {
         runs.push((ids.len() as u32, links.len() as u32));
@@ -38,7 +43,13 @@ pub fn link_ids(prm: &Prm) -> (Vec<u32>, Vec<(u32, u32)>) {
 
 /// The length of [`link_ids`]'s buffer, without making it.
 pub fn link_ids_len(prm: &Prm) -> usize {
-    prm.near().len() + hot_items_len(prm)
+    work_list(prm.near().len()) + hot_items_len(prm)
+}
+
+/// Where the hot cells' work list starts in [`link_ids`]'s buffer, for `links` near-field
+/// links (`shaders/concentrate.wgsl`: `work_list`).
+pub fn work_list(links: usize) -> usize {
+    3 * links
 }
 
 /// Words of the hot cells' work list (after the links in [`link_ids`]): their count, the
@@ -60,8 +71,8 @@ pub const CONCENTRATE_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
     b("near_texels", Res::Read("array<NearTexel>"), COMPUTE),
     b("hot_entries", Res::Read("array<GpuHotEntry>"), COMPUTE),
-    // [`link_ids`]: the links by entry (each entry's run: `GpuHotEntry::first_link`,
-    // `link_count`), then the hot cells' work list, made each update.
+    // [`link_ids`]: the links' hidden triangles, the links by entry (each entry's run:
+    // `GpuHotEntry::first_link`, `link_count`), then the hot cells' work list, made each update.
     b("link_ids", Res::ReadWrite("array<atomic<u32>>"), COMPUTE),
     // The entry pass's cell triangles, with their visibility.
     b("cells", Res::Read("array<GpuCellTriangle>"), COMPUTE),
@@ -199,8 +210,8 @@ impl ConcentratePass {
         if self.texels == 0 {
             return;
         }
-        // The work list starts after the links.
-        let list = self.links as u64 * 4;
+        // The work list starts after the links' bits and indices.
+        let list = work_list(self.links as usize) as u64 * 4;
         enc.clear_buffer(&self.link_ids, list, Some(16));
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {

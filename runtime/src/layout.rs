@@ -243,8 +243,8 @@ gpu_struct! {
         pub far_texel_count: u32,
         /// `prm::prm_file::Far::reach`.
         pub far_reach: f32,
-        /// Near-field links (`crate::concentrate::link_ids`): where the hot cells' work list
-        /// starts in it.
+        /// Near-field links (`crate::concentrate::link_ids`; where the hot cells' work list
+        /// starts in it: `crate::concentrate::work_list`).
         pub link_count: u32,
         /// 1: the entry pass skips the shadow probes of a light whose shadow maps' blocks hide
         /// the whole cell (`crate::RuntimeParams::cull_hidden_lights`).

@@ -137,6 +137,13 @@ fn entries(p: &PrmParts) -> Result<(), String> {
         if k > 0 && (p.near[k - 1].texel, p.near[k - 1].entry) >= (l.texel, l.entry) {
             return Err(format!("near-field link {k} is out of order"));
         }
+        let triangles = (cells.first[l.entry as usize + 1] - cells.first[l.entry as usize]) as usize;
+        if triangles < super::HIDDEN_TRIANGLES && l.hidden >> triangles != 0 {
+            return Err(format!(
+                "near-field link {k} hides triangles past its cell's {triangles} (bits {:#x})",
+                l.hidden
+            ));
+        }
     }
     let runs: Vec<u32> = p.near.chunk_by(|a, b| a.texel == b.texel).map(|r| r[0].texel).collect();
     if runs.len() != p.near_points.len() {

@@ -66,6 +66,15 @@
 //! point and normal, so the runtime can weigh a cell's light by how the texel sees it (a hot
 //! spot at the near edge of a cell counts for more than one at its far edge).
 //!
+//! **What a texel sees of each cell** (v15): per near link, a bit for each of the cell's
+//! triangles (the first 64) the texel does not see ([`NearLink::hidden`]; a `SEEN` section
+//! lists the few links that hide any, 2 % on the chamber). The link's factor counts the
+//! triangles seen, and where a cell is lit unevenly the runtime weighs its light as the texel
+//! sees it over those alone: a beam on a pillar's upper shaft lit the floor row before the
+//! plinth at the cell's light as if that row saw the lower shaft too, half of it
+//! (`docs/near-lights.md`, *What a texel sees of a hot cell*). A v14 file reads as every texel
+//! seeing every triangle.
+//!
 //! **Far field** (v7): what the near links leave out of the deviations' first bounce. A hot spot's
 //! light reaches the whole room, and a pane spreads it over its cluster: the pillar faces 3 m
 //! from a lamp beside a wall see the lamp's end of the wall, not the cluster's middle. Each
@@ -151,12 +160,13 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 14;
+pub const VERSION: u32 = 15;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
 /// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
 /// a v11 file a v12 one without stay shares (every entry's light taken to stay), and a v12
 /// file a v13 one with a `DIPO` section, read when it holds no dipole panes, and a v13 file a
-/// v14 one without bounce gains (each gain its stay share).
+/// v14 one without bounce gains (each gain its stay share), and a v14 file a v15 one whose
+/// texels see every triangle of their links' cells (no `SEEN` section).
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -211,30 +221,42 @@ impl Cells {
     /// 1.4 m, sunlit but for a strip shaded by the head above it: the head saw the jamb 0.55-0.77
     /// of its mean light, by how the fan fell, against 0.51-0.52 over a fine grid of rays.
     pub fn split_long(&self, max_edge: f32) -> Cells {
+        self.split_long_from(max_edge).0
+    }
+
+    /// [`Self::split_long`], and per triangle of the cut cells (in their order) the index of
+    /// the triangle of `self` it was cut from: a triangle's pieces follow one another, in the
+    /// order of the triangles they come from.
+    pub fn split_long_from(&self, max_edge: f32) -> (Cells, Vec<u32>) {
         if !(max_edge > 0.0 && max_edge.is_finite()) {
-            return self.clone();
+            return (self.clone(), (0..self.triangles.len() as u32).collect());
         }
+        let mut from = Vec::with_capacity(self.triangles.len());
         let lists = (0..self.first.len().saturating_sub(1))
             .map(|j| {
                 let mut out = Vec::with_capacity(self.of(j).len());
-                let mut stack: Vec<([Vec3; 3], u32)> = self.of(j).iter().rev().map(|&t| (t, 0)).collect();
-                while let Some((t, depth)) = stack.pop() {
-                    let edge = |k: usize| t[k].distance(t[(k + 1) % 3]);
-                    let k = (0..3).fold(0, |best, k| if edge(k) > edge(best) { k } else { best });
-                    if !(edge(k) > max_edge) || depth >= SPLIT_DEPTH {
-                        out.push(t);
-                        continue;
+                for (k, &whole) in self.of(j).iter().enumerate() {
+                    let before = out.len();
+                    let mut stack: Vec<([Vec3; 3], u32)> = vec![(whole, 0)];
+                    while let Some((t, depth)) = stack.pop() {
+                        let edge = |k: usize| t[k].distance(t[(k + 1) % 3]);
+                        let k = (0..3).fold(0, |best, k| if edge(k) > edge(best) { k } else { best });
+                        if !(edge(k) > max_edge) || depth >= SPLIT_DEPTH {
+                            out.push(t);
+                            continue;
+                        }
+                        let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                        let m = (a + b) * 0.5;
+                        // Both halves keep the triangle's winding; the one at `a` comes first.
+                        stack.push(([m, b, c], depth + 1));
+                        stack.push(([a, m, c], depth + 1));
                     }
-                    let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
-                    let m = (a + b) * 0.5;
-                    // Both halves keep the triangle's winding; the one at `a` comes first.
-                    stack.push(([m, b, c], depth + 1));
-                    stack.push(([a, m, c], depth + 1));
+                    from.extend(std::iter::repeat_n(self.first[j] + k as u32, out.len() - before));
                 }
                 out
             })
             .collect();
-        Cells::from_lists(lists)
+        (Cells::from_lists(lists), from)
     }
 
     /// The triangles of entry `j`'s cell.
@@ -301,6 +323,21 @@ pub struct NearLink {
     pub texel: u32,
     pub entry: u32,
     pub factor: f32,
+    /// Bit t (t below [`HIDDEN_TRIANGLES`]): the texel does not see triangle t of its entry's
+    /// cell (in [`Cells::of`] order; most of its points hidden). The factor counts only the
+    /// triangles seen, and the runtime's concentration weighs a hot cell's light as the texel
+    /// sees it over the same ones (`prm_runtime::cpu::concentrate`): a floor texel before a
+    /// plinth does not see a pillar's lower shaft, where a beam on the upper shaft puts no
+    /// light. 0 where the texel sees every triangle (most links). Since v15; 0 in older files.
+    pub hidden: u64,
+}
+
+/// The cell triangles past this many have no [`NearLink::hidden`] bit: taken as seen.
+pub const HIDDEN_TRIANGLES: usize = 64;
+
+/// Whether a link's texel sees triangle `t` of its cell, by its [`NearLink::hidden`] bits.
+pub fn sees_triangle(hidden: u64, t: usize) -> bool {
+    t >= HIDDEN_TRIANGLES || (hidden >> t) & 1 == 0
 }
 
 /// The sample point and unit normal of a texel with near-field links (one per run of links,
@@ -820,6 +857,7 @@ impl PrmParts {
         w.gains(&self.gains);
         w.cells(&self.cells);
         w.near(&self.near, &self.near_points);
+        w.seen(&self.near);
         w.echo(&self.echo);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
@@ -1094,7 +1132,10 @@ impl Prm {
             let (entries, stays) = r.entries(&header, version)?;
             let gains = if version >= 14 { r.gains(entries.len())? } else { Vec::new() };
             let cells = r.cells(entries.len())?;
-            let (near, near_points) = r.near()?;
+            let (mut near, near_points) = r.near()?;
+            if version >= 15 {
+                r.seen(&mut near)?;
+            }
             let echo = r.echo(near_points.len())?;
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
@@ -1211,9 +1252,9 @@ mod tests {
                 vec![[Vec3::X, Vec3::Z, Vec3::X + Vec3::Z], [Vec3::X, Vec3::X + Vec3::Z, Vec3::X * 2.0]],
             ]),
             near: vec![
-                NearLink { texel: 3, entry: 0, factor: 0.5 },
-                NearLink { texel: 3, entry: 1, factor: 0.25 },
-                NearLink { texel: 5, entry: 1, factor: 0.125 },
+                NearLink { texel: 3, entry: 0, factor: 0.5, hidden: 0 },
+                NearLink { texel: 3, entry: 1, factor: 0.25, hidden: 0b10 },
+                NearLink { texel: 5, entry: 1, factor: 0.125, hidden: 0 },
             ],
             // The box's corners and axis normals: what the file stores exactly.
             near_points: vec![
@@ -1292,7 +1333,27 @@ mod tests {
             let (p, q) = (split.centroid(j).unwrap(), cells.centroid(j).unwrap());
             assert!(p.distance(q) <= 1e-5, "centroid of cell {j}: {p} against {q}");
         }
+        // Each piece names the triangle it was cut from: the pieces of one cover its area.
+        let (again, from) = cells.split_long_from(0.3);
+        assert_eq!((&again, from.len()), (&split, split.triangles.len()));
+        assert!(from.windows(2).all(|w| w[0] <= w[1]), "pieces follow their triangles' order");
+        let area = |t: &[Vec3; 3]| 0.5 * normal(t).length();
+        for (k, whole) in cells.triangles.iter().enumerate() {
+            let pieces: f32 = split
+                .triangles
+                .iter()
+                .zip(&from)
+                .filter(|(_, &f)| f as usize == k)
+                .map(|(t, _)| area(t))
+                .sum();
+            assert!(
+                (pieces - area(whole)).abs() <= 1e-5,
+                "triangle {k}: pieces {pieces}, whole {}",
+                area(whole)
+            );
+        }
         for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert_eq!(cells.split_long_from(bad).1, vec![0, 1, 2], "max edge {bad}");
             assert_eq!(cells.split_long(bad), cells, "max edge {bad}");
         }
         // The depth bound: a triangle 1 m long cut to 1e-9 m stops at 2^SPLIT_DEPTH pieces.
@@ -1371,9 +1432,10 @@ mod tests {
         // A v10 or v11 file is read: it differs only in what v11 added (the near links' run
         // bases), v12 (the stay shares, whose slot was padding: every share is then 1), v13
         // (no `DIPO` section; an empty one before `FARF` here) and v14 (no `GAIN` section).
-        let no_stays = Prm::new(PrmParts { stays: Vec::new(), gains: Vec::new(), ..parts() }).unwrap();
+        let no_stays =
+            Prm::new(PrmParts { stays: Vec::new(), gains: Vec::new(), ..seeing_all(parts()) }).unwrap();
         for old in [10u32, 11] {
-            let new = without_gains(&no_stays.to_bytes());
+            let new = without_seen(&without_gains(&no_stays.to_bytes()));
             let Some(far) = (16..new.len()).find(|&k| &new[k..k + 4] == b"FARF") else {
                 panic!("no FARF section");
             };
@@ -1390,9 +1452,47 @@ mod tests {
             assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
         }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&15u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&16u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 15") && err.contains("versions 10 to 14"), "{err}");
+        assert!(err.contains("version 16") && err.contains("versions 10 to 15"), "{err}");
+    }
+
+    /// `parts` with every near link seeing its whole cell: what a file before v15 reads as.
+    fn seeing_all(mut parts: PrmParts) -> PrmParts {
+        for l in &mut parts.near {
+            l.hidden = 0;
+        }
+        parts
+    }
+
+    /// `bytes` (a file of this version) without its `SEEN` section, its checksum made again.
+    fn without_seen(bytes: &[u8]) -> Vec<u8> {
+        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"SEEN") else {
+            panic!("no SEEN section");
+        };
+        let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap_or_default()) as usize;
+        let mut out = [&bytes[..at], &bytes[at + 12 + len..bytes.len() - 8]].concat();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &out);
+        out.extend_from_slice(&sum.to_le_bytes());
+        out
+    }
+
+    /// The links' hidden triangles round-trip; a v14 file (no `SEEN` section) reads with every
+    /// texel seeing the whole of each linked cell.
+    #[test]
+    fn hidden_triangles_round_trip_and_a_v14_file_sees_every_triangle() {
+        let prm = Prm::new(parts()).unwrap();
+        assert!(prm.near().iter().any(|l| l.hidden != 0));
+        let back = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()).unwrap();
+        assert_eq!(back.near(), prm.near());
+        let mut v14 = without_seen(&prm.to_bytes());
+        v14[8..12].copy_from_slice(&14u32.to_le_bytes());
+        let n = v14.len();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &v14[..n - 8]);
+        v14[n - 8..].copy_from_slice(&sum.to_le_bytes());
+        let read = Prm::from_bytes(Path::new("v14.prm"), &v14).unwrap();
+        assert_eq!(read, Prm::new(seeing_all(parts())).unwrap());
+        assert_eq!(read.read_version(), 14);
     }
 
     /// `bytes` (a file of this version, its `GAIN` section empty) without that section, its
@@ -1413,7 +1513,8 @@ mod tests {
     /// entries', is refused, naming it.
     #[test]
     fn bounce_gains_round_trip_a_v13_file_reads_its_stay_shares_and_bad_ones_are_refused() {
-        let (Ok(prm), Ok(v14)) = (Prm::new(parts()), Prm::new(PrmParts { gains: Vec::new(), ..parts() }))
+        let (Ok(prm), Ok(v14)) =
+            (Prm::new(parts()), Prm::new(PrmParts { gains: Vec::new(), ..seeing_all(parts()) }))
         else {
             panic!("valid parts refused");
         };
@@ -1421,7 +1522,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!((back.gain(0), back.gain(1)), (Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)));
-        let mut v13 = without_gains(&v14.to_bytes());
+        let mut v13 = without_seen(&without_gains(&v14.to_bytes()));
         v13[8..12].copy_from_slice(&13u32.to_le_bytes());
         let n = v13.len();
         let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &v13[..n - 8]);
@@ -1539,6 +1640,9 @@ mod tests {
             ("near-field link 0 is out of range", |p| p.near[0].texel = 16),
             ("near-field link 1 is out of range", |p| p.near[1].factor = f32::NAN),
             ("near-field link 1 is out of order", |p| p.near.swap(0, 1)),
+            // Entry 0's cell has one triangle, entry 1's two.
+            ("near-field link 0 hides triangles past its cell's 1", |p| p.near[0].hidden = 0b10),
+            ("near-field link 1 hides triangles past its cell's 2", |p| p.near[1].hidden = 0b101),
             ("2 texels have near-field links but 1 points", |p| {
                 p.near_points.pop();
             }),

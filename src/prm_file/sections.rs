@@ -12,6 +12,8 @@ use super::{
     Cluster, Echo, EchoLink, Entry, Far, FarTexel, Group, Header, NearLink, NearPoint, Tile,
 };
 
+/// Bytes of one link's sight in `SEEN`: its index and its bits.
+const SEEN_BYTES: usize = 12;
 /// Bytes of one run of near-field links: texel, count, point, normal.
 const NEAR_RUN_BYTES: usize = 16;
 
@@ -156,6 +158,21 @@ impl<'a> Writer<'a> {
             n.extend_from_slice(&f16::from_f32(l.factor).to_le_bytes());
         }
         self.section(b"NEAR", &n);
+    }
+
+    /// `SEEN` (v15): the links whose texel does not see all of their cell
+    /// ([`NearLink::hidden`] not 0), a few per cent of them: their count u32, then per link its
+    /// index in `near` (u32) and its bits (u64), in increasing index.
+    pub(super) fn seen(&mut self, near: &[NearLink]) {
+        let hidden: Vec<(usize, u64)> =
+            near.iter().enumerate().filter(|(_, l)| l.hidden != 0).map(|(k, l)| (k, l.hidden)).collect();
+        let mut n = Vec::with_capacity(4 + SEEN_BYTES * hidden.len());
+        n.extend_from_slice(&(hidden.len() as u32).to_le_bytes());
+        for (k, bits) in hidden {
+            n.extend_from_slice(&(k as u32).to_le_bytes());
+            n.extend_from_slice(&bits.to_le_bytes());
+        }
+        self.section(b"SEEN", &n);
     }
 
     /// `ECHO`: point and link counts, each point's albedo (3 bytes, linear / 255), then the
@@ -575,13 +592,36 @@ impl<'a> Reader<'a> {
             for _ in 0..count {
                 let k = out.len();
                 let factor = f16::from_le_bytes([factors[2 * k], factors[2 * k + 1]]).to_f32();
-                out.push(NearLink { texel, entry: entry(k, run)?, factor });
+                out.push(NearLink { texel, entry: entry(k, run)?, factor, hidden: 0 });
             }
         }
         if out.len() as u64 != links {
             return Err(Corrupt("near-field runs hold fewer links than declared".into()));
         }
         Ok((out, points))
+    }
+
+    /// `SEEN` (v15): each listed link's [`NearLink::hidden`] bits, into `near` as read.
+    pub(super) fn seen(&mut self, near: &mut [NearLink]) -> Result<(), SectionError> {
+        let n = self.next(b"SEEN")?;
+        let count = if n.len() >= 4 { u32_at(n, 0) as u64 } else { u64::MAX };
+        if n.len() as u64 != 4u64.saturating_add(count.saturating_mul(SEEN_BYTES as u64)) {
+            return Err(Corrupt(format!("near-field sight section of {} bytes", n.len())));
+        }
+        let mut last = None;
+        for pair in n[4..].chunks_exact(SEEN_BYTES) {
+            let k = u32_at(pair, 0) as usize;
+            let bits = u64::from_le_bytes(pair[4..12].try_into().unwrap_or_default());
+            if last.is_some_and(|l| k <= l) || k >= near.len() || bits == 0 {
+                return Err(Corrupt(format!(
+                    "near-field sight {bits:#x} of link {k} ({} links; listed in increasing order, none 0)",
+                    near.len()
+                )));
+            }
+            near[k].hidden = bits;
+            last = Some(k);
+        }
+        Ok(())
     }
 
     /// `GRUP`: the groups and the group of each cluster (empty when there are no groups).
@@ -670,7 +710,7 @@ mod tests {
         let links = |entry: &dyn Fn(u32, u32) -> u32| -> Vec<NearLink> {
             (0..40)
                 .flat_map(|t| (0..5).map(move |k| (t, k)))
-                .map(|(t, k)| NearLink { texel: t, entry: entry(t, k), factor: 0.25 * k as f32 })
+                .map(|(t, k)| NearLink { texel: t, entry: entry(t, k), factor: 0.25 * k as f32, hidden: 0 })
                 .collect()
         };
         let small = links(&|t, k| t * 100 + k);
@@ -692,5 +732,38 @@ mod tests {
         let base = 12 + 36 + 40 * NEAR_RUN_BYTES;
         bytes[base..base + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(matches!(Reader::new(&bytes, 0).near(), Err(Corrupt(_))));
+    }
+
+    /// `SEEN` lists the links that hide triangles, by index, and reads back into them; a
+    /// length that is not its count's, a zero, an index out of order or past the links are
+    /// refused.
+    #[test]
+    fn hidden_triangles_round_trip_and_bad_lists_are_refused() {
+        let link = |entry: u32, hidden: u64| NearLink { texel: 0, entry, factor: 0.5, hidden };
+        let near = vec![link(0, 0), link(1, 0b110), link(2, 0), link(3, 1 << 63)];
+        let mut bytes = Vec::new();
+        Writer::new(&mut bytes).seen(&near);
+        // Tag and length, count, two links of 12 bytes.
+        assert_eq!(bytes.len(), 12 + 4 + 2 * SEEN_BYTES);
+        let mut back: Vec<NearLink> = near.iter().map(|l| NearLink { hidden: 0, ..*l }).collect();
+        assert!(Reader::new(&bytes, 0).seen(&mut back).is_ok());
+        assert_eq!(back, near);
+        let patched = |words: &[(usize, u32)]| {
+            let mut b = bytes.clone();
+            for &(at, word) in words {
+                b[12 + at..12 + at + 4].copy_from_slice(&word.to_le_bytes());
+            }
+            let mut links = near.clone();
+            Reader::new(&b, 0).seen(&mut links)
+        };
+        let cases: [(&str, &[(usize, u32)]); 4] = [
+            ("count", &[(0, 3)]),
+            ("a zero", &[(8, 0), (12, 0)]),
+            ("out of order", &[(4 + SEEN_BYTES, 1)]),
+            ("past the links", &[(4 + SEEN_BYTES, 4)]),
+        ];
+        for (what, words) in cases {
+            assert!(matches!(patched(words), Err(Corrupt(_))), "{what}");
+        }
     }
 }

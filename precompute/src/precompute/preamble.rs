@@ -132,9 +132,9 @@ impl Preamble {
         // The map keeps the cells in triangles no longer than an entry spacing, so that the
         // runtime's fine points lie close enough together ([`Cells::split_long`]); the near
         // links integrate the same surface over the cells as cut, which is as exact and half
-        // the shadow rays.
-        let cells =
-            cut.split_long(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
+        // the shadow rays, and look at the pieces only of a triangle a texel sees in part.
+        let (cells, piece_from) =
+            cut.split_long_from(CELL_EDGE_SPACINGS * entries.first().map_or(0.0, |e| e.area.max(0.0).sqrt()));
         let albedo: Vec<Vec3> = entries.iter().map(|e| e.albedo).collect();
         let crate::cells::Reflections { stays, gains } = timed(&mut report.seconds_entries, || {
             crate::cells::reflections(scene, bvh, &cut, &owners, &albedo, params.seed, params.max_bounces)
@@ -261,8 +261,15 @@ impl Preamble {
                     }),
                     _ => None,
                 };
-                let (near, points) =
-                    near_links(bvh, &set, &entries, &cut, params.near_radius, &far, reuse.as_ref());
+                let (near, points) = near_links(
+                    bvh,
+                    &set,
+                    &entries,
+                    (&cut, &cells, &piece_from),
+                    params.near_radius,
+                    &far,
+                    reuse.as_ref(),
+                );
                 (near, points, reuse.map_or(0, |r| r.by_geometry.into_inner()))
             } else {
                 (Vec::new(), Vec::new(), 0)
@@ -357,6 +364,7 @@ impl Preamble {
         // Each pair's bit is stored both ways.
         report.far_pairs = self.far.visible.iter().map(|w| w.count_ones() as usize).sum::<usize>() / 2;
         report.near_links = self.near.len();
+        report.near_links_hiding = self.near.iter().filter(|l| l.hidden != 0).count();
         report.echo_links = self.echo.links.len();
     }
 

@@ -84,6 +84,28 @@ pub fn pillar_room() -> Scene {
     s
 }
 
+/// A closed 4 x 2 x 2 m room with a pillar on a plinth (a 20 cm square shaft from the
+/// plinth's top up to 1.6 m, on an 80 cm square plinth 30 cm high) and a narrow spot (8-12°,
+/// 20 W/sr) 1.5 m in front of the shaft at 1.3 m, aimed at it a little low: its beam lands on
+/// the shaft's upper half (and round it, on the far wall). The floor just before the plinth
+/// sees the shaft only above its line over the plinth's edge (1.2 m up from 10 cm out), so the
+/// shaft's cells are hidden from it in part: the chamber's flashlight across the nave
+/// (`docs/near-lights.md`).
+pub fn plinth_room() -> Scene {
+    let mut qs = box_quads(Vec3::ZERO, v(4.0, 2.0, 2.0)).to_vec();
+    let out = |origin: Vec3, size: Vec3, faces: std::ops::Range<usize>| {
+        box_quads(origin, size)[faces].iter().map(|q| [q[0], q[3], q[2], q[1]]).collect::<Vec<_>>()
+    };
+    qs.extend(out(v(1.9, 0.3, 0.9), v(0.2, 1.7, 0.2), 2..6));
+    qs.extend(out(v(1.6, 0.0, 0.6), v(0.8, 0.3, 0.8), 1..6));
+    let mut s = quads_in_grid(&qs, 5);
+    let mut spot = point(v(0.4, 1.3, 1.0), 20.0);
+    spot.kind = prm::LightKind::Spot { inner: 8f32.to_radians(), outer: 12f32.to_radians() };
+    spot.direction = (v(1.9, 1.15, 1.0) - spot.position).normalize();
+    s.lights.push(spot);
+    s
+}
+
 /// [`pillar_room`] lit by one narrow spot (10°-15°, 4 W/sr) 75 cm in front of its +z wall and
 /// aimed at it, the pillar 15 cm behind the light: the light stands off the wall's lit patch
 /// by more than the patch's cells are across, and sees round the pillar where the patch does
