@@ -500,18 +500,32 @@ mod tests {
 
     /// The same with the points where `hidden` holds in shadow.
     fn kappa_dense_hidden(x: Vec3, nx: Vec3, light: &Light, hidden: impl Fn(Vec3) -> bool) -> f32 {
+        kappa_dense_seen(x, nx, light, hidden, |_| true)
+    }
+
+    /// The same with the points where `dark` holds in shadow and the texel seeing only the
+    /// points where `sees` holds: the seen mean over those, the plain mean over the whole cell.
+    fn kappa_dense_seen(
+        x: Vec3,
+        nx: Vec3,
+        light: &Light,
+        dark: impl Fn(Vec3) -> bool,
+        sees: impl Fn(Vec3) -> bool,
+    ) -> f32 {
         let (mut seen, mut weight, mut plain) = (0.0f64, 0.0f64, 0.0f64);
         let k = 1000;
         for i in 0..k {
             for j in 0..k {
                 let y = Vec3::new((i as f32 + 0.5) / k as f32, 0.0, (j as f32 + 0.5) / k as f32);
-                let e = if hidden(y) { 0.0 } else { prm::luminance(light.irradiance(y, Vec3::Y)) as f64 };
-                let d = y - x;
-                let r2 = d.length_squared();
-                let g = (nx.dot(d).max(0.0) * (-Vec3::Y.dot(d)).max(0.0) / (r2 * r2)) as f64;
-                seen += e * g;
-                weight += g;
+                let e = if dark(y) { 0.0 } else { prm::luminance(light.irradiance(y, Vec3::Y)) as f64 };
                 plain += e;
+                if sees(y) {
+                    let d = y - x;
+                    let r2 = d.length_squared();
+                    let g = (nx.dot(d).max(0.0) * (-Vec3::Y.dot(d)).max(0.0) / (r2 * r2)) as f64;
+                    seen += e * g;
+                    weight += g;
+                }
             }
         }
         ((seen / weight) / (plain / (k * k) as f64)) as f32
@@ -552,28 +566,6 @@ mod tests {
         assert_eq!(concentration(wall_texel.0, wall_texel.1, geom, &cell, &vis, &[], 0), Vec3::ONE);
     }
 
-    /// kappa by brute force for a texel that sees only the points where `sees` holds: the seen
-    /// mean over those, the plain mean over the whole cell (the module doc's two means).
-    fn kappa_dense_seen(x: Vec3, nx: Vec3, light: &Light, sees: impl Fn(Vec3) -> bool) -> f32 {
-        let (mut seen, mut weight, mut plain) = (0.0f64, 0.0f64, 0.0f64);
-        let k = 1000;
-        for i in 0..k {
-            for j in 0..k {
-                let y = Vec3::new((i as f32 + 0.5) / k as f32, 0.0, (j as f32 + 0.5) / k as f32);
-                let e = prm::luminance(light.irradiance(y, Vec3::Y)) as f64;
-                plain += e;
-                if sees(y) {
-                    let d = y - x;
-                    let r2 = d.length_squared();
-                    let g = (nx.dot(d).max(0.0) * (-Vec3::Y.dot(d)).max(0.0) / (r2 * r2)) as f64;
-                    seen += e * g;
-                    weight += g;
-                }
-            }
-        }
-        ((seen / weight) / (plain / (k * k) as f64)) as f32
-    }
-
     /// A link that hides one of its cell's two triangles from its texel
     /// (`prm::prm_file::NearLink::hidden`): the texel's mean is over the other one alone. A lamp
     /// 10 cm over the cell's middle lights both; a texel on the wall at x = 0 hidden from the
@@ -588,8 +580,8 @@ mod tests {
         let one = std::slice::from_ref(&lamp);
         let both = concentration(x, nx, GEOM, &cell, &lit, one, 0).x;
         let left = concentration(x, nx, GEOM, &cell, &lit, one, 0b10).x;
-        let dense_both = kappa_dense_seen(x, nx, &lamp, |_| true);
-        let dense_left = kappa_dense_seen(x, nx, &lamp, |y| y.x < y.z);
+        let dense_both = kappa_dense(x, nx, &lamp);
+        let dense_left = kappa_dense_seen(x, nx, &lamp, |_| false, |y| y.x < y.z);
         println!("kappa seeing both {both} (dense {dense_both}), seeing x < z {left} (dense {dense_left})");
         assert!((both / dense_both - 1.0).abs() < 0.1, "seeing both: {both} vs dense {dense_both}");
         assert!((left / dense_left - 1.0).abs() < 0.1, "seeing x < z: {left} vs dense {dense_left}");

@@ -1195,14 +1195,16 @@ fn the_gpu_weighs_a_hot_cell_only_over_the_triangles_a_texel_sees() {
     let mean = |img: &[Vec3]| front.iter().map(|&k| prm::luminance(img[k])).sum::<f32>() / front.len() as f32;
     let c = prm.clusters().len();
     let params = RuntimeParams { top_k: c, shadow_size: 1024, ..Default::default() };
-    let mut rt = Runtime::new(&g.device, &g.queue, &scene, &prm, params).unwrap();
+    let Ok(mut rt) = Runtime::new(&g.device, &g.queue, &scene, &prm, params) else {
+        panic!("the runtime refused the plinth room's map");
+    };
     let mut twin = cpu::CpuTwin::new(&prm, &bvh, c);
     let (gpu_l, cpu_l) = lightmaps_agree(&mut rt, &mut twin, &scene.lights, "spot on the shaft");
     let mut parts = prm.clone().into_parts();
     for l in &mut parts.near {
         l.hidden = 0;
     }
-    let blind_map = Prm::new(parts).unwrap();
+    let Ok(blind_map) = Prm::new(parts) else { panic!("the map without hidden bits refused") };
     let blind = cpu::CpuTwin::new(&blind_map, &bvh, c).frame(&scene.lights).to_vec();
     let (gpu_front, cpu_front, blind_front) = (mean(&gpu_l), mean(&cpu_l), mean(&blind));
     println!(

@@ -59,16 +59,18 @@ pub fn box_quads(origin: Vec3, size: Vec3) -> [[Vec3; 4]; 6] {
     ]
 }
 
+/// The faces `faces` of the box from `origin` to `origin + size`, turned out ([`box_quads`]'
+/// face in): its sides are 2..6 and its top 1.
+pub fn out(origin: Vec3, size: Vec3, faces: std::ops::Range<usize>) -> Vec<[Vec3; 4]> {
+    box_quads(origin, size)[faces].iter().map(|q| [q[0], q[3], q[2], q[1]]).collect()
+}
+
 /// A closed 4 x 2 x 2 m room with a pillar in its middle (a 20 cm square shaft up to 1.6 m
 /// under a 60 cm square abacus 10 cm thick) and a 2 W/sr lamp 3 cm over the floor 90 cm from
 /// the shaft: the abacus's underside on the lamp's side sees the lamp's spot, on the far side
 /// the shaft hides it, and its few entries lie on both sides.
 pub fn pillar_room() -> Scene {
     let mut qs = box_quads(Vec3::ZERO, v(4.0, 2.0, 2.0)).to_vec();
-    // A box's faces turned out (box_quads' face in): its sides, 2..6, and its top, 1.
-    let out = |origin: Vec3, size: Vec3, faces: std::ops::Range<usize>| {
-        box_quads(origin, size)[faces].iter().map(|q| [q[0], q[3], q[2], q[1]]).collect::<Vec<_>>()
-    };
     qs.extend(out(v(1.9, 0.0, 0.9), v(0.2, 1.6, 0.2), 2..6));
     qs.extend(out(v(1.7, 1.6, 0.7), v(0.6, 0.1, 0.6), 1..6));
     let under =
@@ -93,9 +95,6 @@ pub fn pillar_room() -> Scene {
 /// (`docs/near-lights.md`).
 pub fn plinth_room() -> Scene {
     let mut qs = box_quads(Vec3::ZERO, v(4.0, 2.0, 2.0)).to_vec();
-    let out = |origin: Vec3, size: Vec3, faces: std::ops::Range<usize>| {
-        box_quads(origin, size)[faces].iter().map(|q| [q[0], q[3], q[2], q[1]]).collect::<Vec<_>>()
-    };
     qs.extend(out(v(1.9, 0.3, 0.9), v(0.2, 1.7, 0.2), 2..6));
     qs.extend(out(v(1.6, 0.0, 0.6), v(0.8, 0.3, 0.8), 1..6));
     let mut s = quads_in_grid(&qs, 5);
