@@ -116,9 +116,9 @@ pub fn near_links(
     (links, points)
 }
 
-/// The form factor from texel `t` to the part of entry `j`'s cell it sees ([`seen_part`] over the triangles of `cells`), and
-/// the [`NearLink::hidden`] bits of the map's pieces of them (`pieces`, each cut from triangle
-/// `from[k]` of `cells`, [`Cells::split_long_from`]). A triangle the texel sees whole, or not
+/// The form factor from texel `t` to the part of entry `j`'s cell it sees ([`seen_part`] over
+/// the triangles of `cells`), and the [`NearLink::hidden`] bits of the map's pieces of them
+/// (`pieces`, each cut from triangle `from[k]` of `cells`, [`Cells::split_long_from`]). A triangle the texel sees whole, or not
 /// at all, gives its pieces its bit; one it sees in part is looked at piece by piece
 /// ([`seen_part`] again), each seen or not by most of its points, and the factor counts the
 /// pieces seen, so that the factor and the bits agree. (A piece past the bits' 64 counts at

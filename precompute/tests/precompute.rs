@@ -334,8 +334,8 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
-/// `bytes` (a v14 file) as version 12 wrote the same map but for its bounce gains: no `GAIN`
-/// section (v14's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
+/// `bytes` (a v15 file) as version 12 wrote the same map but for its bounce gains and hidden
+/// triangles: no `GAIN` section (v14's) nor `SEEN` (v15's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
 /// tiles and block 1, and the checksum made again. With `dipoles` > 0 the section holds that
 /// many zeroed 88-byte records.
 fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
@@ -343,6 +343,12 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
     let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
     let mut at = 16 + header;
     while &bytes[at..at + 4] != b"GAIN" {
+        at += section(at);
+    }
+    let bytes = [&bytes[..at], &bytes[at + section(at)..]].concat();
+    let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+    let mut at = 16 + header;
+    while &bytes[at..at + 4] != b"SEEN" {
         at += section(at);
     }
     let bytes = [&bytes[..at], &bytes[at + section(at)..]].concat();
@@ -365,7 +371,8 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
 }
 
 /// Version 13 dropped the dipole panes: a version 12 file without any (every file the default
-/// preset wrote) reads as the same map (without v14's bounce gains), and one with some is
+/// preset wrote) reads as the same map (without v14's bounce gains and v15's hidden
+/// triangles), and one with some is
 /// refused, naming them.
 #[test]
 fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
@@ -373,7 +380,11 @@ fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
     let prm = bake(&scene, &params(64, 4, 8, 16));
     let dir = tempfile::tempdir().unwrap();
     let old = as_version_12(&prm.to_bytes(), 0);
-    let without_gains = Prm::new(PrmParts { gains: Vec::new(), ..prm.clone().into_parts() }).unwrap();
+    let mut parts = prm.clone().into_parts();
+    for l in &mut parts.near {
+        l.hidden = 0;
+    }
+    let without_gains = Prm::new(PrmParts { gains: Vec::new(), ..parts }).unwrap();
     assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), without_gains);
     // An empty section that declares tiles is corrupt, not skipped.
     let mut odd = old[..old.len() - 8].to_vec();
