@@ -1467,11 +1467,25 @@ mod tests {
 
     /// `bytes` (a file of this version) without its `SEEN` section, its checksum made again.
     fn without_seen(bytes: &[u8]) -> Vec<u8> {
-        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"SEEN") else {
-            panic!("no SEEN section");
+        without_section(bytes, b"SEEN")
+    }
+
+    /// `bytes` without its section `tag` (which it must have), its checksum made again.
+    fn without_section(bytes: &[u8], tag: &[u8; 4]) -> Vec<u8> {
+        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == tag) else {
+            panic!("no {} section", String::from_utf8_lossy(tag));
         };
         let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap_or_default()) as usize;
         let mut out = [&bytes[..at], &bytes[at + 12 + len..bytes.len() - 8]].concat();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &out);
+        out.extend_from_slice(&sum.to_le_bytes());
+        out
+    }
+
+    /// `bytes` stamped as format `version`, its checksum made again.
+    fn as_version(bytes: &[u8], version: u32) -> Vec<u8> {
+        let mut out = bytes[..bytes.len() - 8].to_vec();
+        out[8..12].copy_from_slice(&version.to_le_bytes());
         let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &out);
         out.extend_from_slice(&sum.to_le_bytes());
         out
@@ -1489,11 +1503,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!(back.near(), prm.near());
-        let mut v14 = without_seen(&prm.to_bytes());
-        v14[8..12].copy_from_slice(&14u32.to_le_bytes());
-        let n = v14.len();
-        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &v14[..n - 8]);
-        v14[n - 8..].copy_from_slice(&sum.to_le_bytes());
+        let v14 = as_version(&without_seen(&prm.to_bytes()), 14);
         let read = match Prm::from_bytes(Path::new("v14.prm"), &v14) {
             Ok(read) => read,
             Err(e) => panic!("a v14 file refused: {e}"),
@@ -1505,13 +1515,8 @@ mod tests {
     /// `bytes` (a file of this version, its `GAIN` section empty) without that section, its
     /// checksum made again: the bytes a v13 file of the same map has but for the version.
     fn without_gains(bytes: &[u8]) -> Vec<u8> {
-        let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == b"GAIN") else {
-            panic!("no GAIN section");
-        };
-        assert_eq!(bytes[at + 4..at + 12], 0u64.to_le_bytes(), "the GAIN section is not empty");
-        let mut out = [&bytes[..at], &bytes[at + 12..bytes.len() - 8]].concat();
-        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &out);
-        out.extend_from_slice(&sum.to_le_bytes());
+        let out = without_section(bytes, b"GAIN");
+        assert_eq!(out.len() + 12, bytes.len(), "the GAIN section is not empty");
         out
     }
 
@@ -1529,11 +1534,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!((back.gain(0), back.gain(1)), (Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)));
-        let mut v13 = without_seen(&without_gains(&v14.to_bytes()));
-        v13[8..12].copy_from_slice(&13u32.to_le_bytes());
-        let n = v13.len();
-        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &v13[..n - 8]);
-        v13[n - 8..].copy_from_slice(&sum.to_le_bytes());
+        let v13 = as_version(&without_seen(&without_gains(&v14.to_bytes())), 13);
         let read = match Prm::from_bytes(Path::new("v13.prm"), &v13) {
             Ok(read) => read,
             Err(e) => panic!("a v13 file refused: {e}"),
