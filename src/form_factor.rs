@@ -192,6 +192,44 @@ fn clip_tolerance(poly: &[Vec3], p: Vec3) -> f32 {
     CLIP_REL * scale
 }
 
+/// The point of triangle `t` nearest to `p` (Ericson, *Real-Time Collision Detection*, 5.1.5:
+/// the Voronoi region of a corner, an edge or the face).
+pub fn closest_point(t: &[Vec3; 3], p: Vec3) -> Vec3 {
+    let (a, b, c) = (t[0], t[1], t[2]);
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = va + vb + vc;
+    if !(denom > 0.0) {
+        return (a + b + c) / 3.0;
+    }
+    a + ab * (vb / denom) + ac * (vc / denom)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

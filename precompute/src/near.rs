@@ -27,9 +27,10 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
+use prm::form_factor::closest_point;
 use prm::prm_file::{
-    far_share, round_albedo, round_near_points, Cells, Echo, EchoLink, Entry, Far, NearLink, NearPoint,
-    HIDDEN_TRIANGLES,
+    far_share, near_point_box, round_albedo, round_near_points, round_near_points_within, Cells, Echo,
+    EchoLink, Entry, Far, NearLink, NearPoint, HIDDEN_TRIANGLES,
 };
 use prm::{Bvh, TexelSet};
 use rayon::prelude::*;
@@ -53,17 +54,14 @@ pub fn near_links(
     bvh: &Bvh,
     set: &TexelSet,
     entries: &[Entry],
-    (cells, pieces, from): (&Cells, &Cells, &[u32]),
+    cells: (&Cells, &Cells, &[u32]),
     radius: f32,
     far: &Far,
     reuse: Option<&NearReuse>,
 ) -> (Vec<NearLink>, Vec<NearPoint>) {
-    let Some(first) = entries.first() else { return (Vec::new(), Vec::new()) };
-    let reach = radius * first.area.sqrt();
-    let cell: Vec<(Vec3, f32)> = (0..entries.len())
-        .map(|j| (cells.centroid(j).unwrap_or(entries[j].position), cells.area(j)))
-        .collect();
-    let reaches = ReachGrid::new(&cell, reach);
+    let Some(search) = LinkSearch::new(bvh, entries, cells, radius, far) else {
+        return (Vec::new(), Vec::new());
+    };
     let width = set.width as usize;
     let per_texel: Vec<Vec<NearLink>> = set
         .texels
@@ -75,30 +73,22 @@ pub fn near_links(
             if let Some(r) = reuse.filter(|r| {
                 r.settled.get(k) == Some(&true)
                     || (r.same_texel.get(k) == Some(&true)
-                        && r.kept_by_geometry(bvh, t, texel, fades, cells, &cell, reach, &reaches))
+                        && r.kept_by_geometry(
+                            bvh,
+                            t,
+                            texel,
+                            fades,
+                            cells.0,
+                            &search.cell,
+                            search.reach,
+                            &search.reaches,
+                        ))
             }) {
                 let from = r.old.partition_point(|l| l.texel < texel);
                 let to = from + r.old[from..].partition_point(|l| l.texel == texel);
                 return r.old[from..to].to_vec();
             }
-            let mut out = Vec::new();
-            for j in reaches.around(t.position) {
-                let (e, (centroid, area)) = (&entries[j], cell[j]);
-                if !(area > 0.0) || centroid.distance(t.position) > reach + area.sqrt() {
-                    continue;
-                }
-                let (mut f, hidden) = seen_cell(bvh, t, e, area, (cells, pieces, from), j);
-                if fades {
-                    f *= 1.0 - far_share(centroid.distance(t.position), far.reach, area.sqrt());
-                }
-                // Rounded as the file stores it (a half float), so a bake and its file agree.
-                let factor = half::f16::from_f32(e.area / area * f).to_f32();
-                if !(factor >= MIN_FACTOR) {
-                    continue;
-                }
-                out.push(NearLink { texel, entry: j as u32, factor, hidden });
-            }
-            out
+            search.links((t.position, t.normal), texel, fades)
         })
         .collect();
     let mut links: Vec<NearLink> = per_texel.into_iter().flatten().collect();
@@ -116,7 +106,60 @@ pub fn near_links(
     (links, points)
 }
 
-/// The form factor from texel `t` to the part of entry `j`'s cell it sees ([`seen_part`] over
+/// What the links of one point are found with ([`near_links`], [`crease_points`]): the cells'
+/// centroids and areas, and a grid of the cells that reach each place.
+struct LinkSearch<'a> {
+    bvh: &'a Bvh,
+    entries: &'a [Entry],
+    cells: (&'a Cells, &'a Cells, &'a [u32]),
+    far: &'a Far,
+    cell: Vec<(Vec3, f32)>,
+    reach: f32,
+    reaches: ReachGrid,
+}
+
+impl<'a> LinkSearch<'a> {
+    /// None without entries.
+    fn new(
+        bvh: &'a Bvh,
+        entries: &'a [Entry],
+        cells: (&'a Cells, &'a Cells, &'a [u32]),
+        radius: f32,
+        far: &'a Far,
+    ) -> Option<LinkSearch<'a>> {
+        let reach = radius * entries.first()?.area.sqrt();
+        let cell: Vec<(Vec3, f32)> = (0..entries.len())
+            .map(|j| (cells.0.centroid(j).unwrap_or(entries[j].position), cells.0.area(j)))
+            .collect();
+        let reaches = ReachGrid::new(&cell, reach);
+        Some(LinkSearch { bvh, entries, cells, far, cell, reach, reaches })
+    }
+
+    /// The links of the point `x` (unit normal `n`), numbered `texel`, in entry order; `fades`:
+    /// the far field lights it (each link keeps `1 - far_share` of its factor).
+    fn links(&self, (x, n): (Vec3, Vec3), texel: u32, fades: bool) -> Vec<NearLink> {
+        let mut out = Vec::new();
+        for j in self.reaches.around(x) {
+            let (e, (centroid, area)) = (&self.entries[j], self.cell[j]);
+            if !(area > 0.0) || centroid.distance(x) > self.reach + area.sqrt() {
+                continue;
+            }
+            let (mut f, hidden) = seen_cell(self.bvh, (x, n), e, area, self.cells, j);
+            if fades {
+                f *= 1.0 - far_share(centroid.distance(x), self.far.reach, area.sqrt());
+            }
+            // Rounded as the file stores it (a half float), so a bake and its file agree.
+            let factor = half::f16::from_f32(e.area / area * f).to_f32();
+            if !(factor >= MIN_FACTOR) {
+                continue;
+            }
+            out.push(NearLink { texel, entry: j as u32, factor, hidden });
+        }
+        out
+    }
+}
+
+/// The form factor from the texel at `x` (unit normal `n`) to the part of entry `j`'s cell it sees ([`seen_part`] over
 /// the triangles of `cells`), and the [`NearLink::hidden`] bits of the map's pieces of them
 /// (`pieces`, each cut from triangle `from[k]` of `cells`, [`Cells::split_long_from`]). A triangle the texel sees whole, or not
 /// at all, gives its pieces its bit; one it sees in part is looked at piece by piece
@@ -125,7 +168,7 @@ pub fn near_links(
 /// the share of it seen.)
 fn seen_cell(
     bvh: &Bvh,
-    t: &prm::Texel,
+    (x, n): (Vec3, Vec3),
     e: &Entry,
     area: f32,
     (cells, pieces, from): (&Cells, &Cells, &[u32]),
@@ -133,7 +176,7 @@ fn seen_cell(
 ) -> (f32, u64) {
     let scale = e.area / area;
     let parts: Vec<(f32, f32)> =
-        cells.of(j).iter().map(|tri| seen_part(bvh, t.position, t.normal, tri, e.normal, scale)).collect();
+        cells.of(j).iter().map(|tri| seen_part(bvh, x, n, tri, e.normal, scale)).collect();
     let in_part = |(part, seen): (f32, f32)| part > 0.0 && seen > 0.0 && seen < 1.0;
     let mut f: f32 = parts.iter().filter(|&&p| !in_part(p)).map(|(part, seen)| part * seen).sum();
     let mut hidden = 0u64;
@@ -141,7 +184,7 @@ fn seen_cell(
     for (k, (piece, &whole)) in pieces.triangles[range.clone()].iter().zip(&from[range]).enumerate() {
         let (part, seen) = parts[(whole - cells.first[j]) as usize];
         let sees = if in_part((part, seen)) {
-            let (part, seen) = seen_part(bvh, t.position, t.normal, piece, e.normal, scale);
+            let (part, seen) = seen_part(bvh, x, n, piece, e.normal, scale);
             if k >= HIDDEN_TRIANGLES {
                 f += part * seen;
                 continue;
@@ -338,6 +381,9 @@ impl ReachGrid {
 /// The runtime applies it twice (second and third bounce) to the near field's own irradiance.
 /// With `reuse` (an update) a settled receiver takes its links from the old bake, as
 /// [`near_links`] does.
+///
+/// Also the links whose receiver sees the source's square unevenly, each with the point of the
+/// square where it sees it ([`Crease`]; [`crease_points`] makes them points of their own).
 pub fn echo_links(
     scene: &prm::Scene,
     bvh: &Bvh,
@@ -346,10 +392,10 @@ pub fn echo_links(
     points: &[NearPoint],
     radius: f32,
     reuse: Option<EchoReuse<'_>>,
-) -> Echo {
-    let Some(first) = entries.first() else { return Echo::default() };
+) -> (Echo, Vec<Crease>) {
+    let Some(first) = entries.first() else { return Default::default() };
     if points.is_empty() || !(radius > 0.0) {
-        return Echo::default();
+        return Default::default();
     }
     let texels: Vec<&prm::Texel> =
         points.iter().map(|p| &set.texels[set.index[p.texel as usize] as usize]).collect();
@@ -359,12 +405,14 @@ pub fn echo_links(
     let positions: Vec<Vec3> = texels.iter().map(|t| t.position).collect();
     let (reach, grid) = echo_grid(&positions, radius * first.area.sqrt());
     let key = |p: Vec3| (p / reach).floor().as_ivec3();
-    let per_receiver: Vec<Vec<EchoLink>> = texels
+    // Per receiver, its links, each with where it sees its source when that is a crease.
+    type Seen = (EchoLink, Option<(Vec3, f32)>);
+    let per_receiver: Vec<Vec<Seen>> = texels
         .par_iter()
         .enumerate()
         .map(|(y, ty)| {
             if let Some(links) = reuse.as_ref().and_then(|r| r.links_of(set, points, y)) {
-                return links;
+                return links.into_iter().map(|l| (l, None)).collect();
             }
             let mut out = Vec::new();
             let c = key(ty.position);
@@ -386,16 +434,138 @@ pub fn echo_links(
                             {
                                 continue;
                             }
-                            out.push(EchoLink { receiver: y as u32, source: x, factor: f });
+                            let crease = seen_centre((ty.position, ty.normal), square, tx.normal)
+                                .filter(|&(centre, side)| centre.distance(tx.position) > CREASE_SHIFT * side);
+                            out.push((EchoLink { receiver: y as u32, source: x, factor: f }, crease));
                         }
                     }
                 }
             }
-            out.sort_by_key(|l| l.source);
+            out.sort_by_key(|(l, _)| l.source);
             out
         })
         .collect();
-    Echo { albedo, links: per_receiver.into_iter().flatten().collect() }
+    let mut links = Vec::new();
+    let mut creases = Vec::new();
+    for (l, crease) in per_receiver.into_iter().flatten() {
+        if let Some((position, side)) = crease {
+            creases.push(Crease { link: links.len(), position, side });
+        }
+        links.push(l);
+    }
+    (Echo { albedo, links, creases: Vec::new() }, creases)
+}
+
+/// An echo link whose receiver sees the source texel's square unevenly (a floor texel a few mm
+/// from a wall sees the wall's lowest cm most): the mean point of the square weighted by how
+/// the receiver sees it ([`seen_centre`]), more than [`CREASE_SHIFT`] of the square's side from
+/// the source's point.
+pub struct Crease {
+    /// Index of the link in the echo's links.
+    pub link: usize,
+    pub position: Vec3,
+    /// The side of the source's square (the square root of its area).
+    pub side: f32,
+}
+
+/// How far (in sides of the source's square) the point a receiver sees a source's square at
+/// may lie from the source's point before the echo reads the source there ([`crease_points`]).
+pub const CREASE_SHIFT: f32 = 0.2;
+
+/// Crease points of one source within this share of its side of each other are one.
+pub const CREASE_MERGE: f32 = 0.25;
+
+/// Quadrature points per side of a square in [`seen_centre`].
+const SEEN_CENTRE_SIDE: usize = 16;
+
+/// The mean point of the parallelogram `q` (corners in order; unit normal `nq`) weighted by the
+/// form-factor kernel `cos_x cos_y / r²` from the point `x` (unit normal `n`), and the
+/// parallelogram's side (the square root of its area); None where `x` sees none of it. Each
+/// quadrature point counts as a disk of its area seen from `x`, so that a receiver a few mm
+/// from the square weighs its nearest points by what their area can give it.
+pub fn seen_centre((x, n): (Vec3, Vec3), q: &[Vec3; 4], nq: Vec3) -> Option<(Vec3, f32)> {
+    let (u, v) = (q[1] - q[0], q[3] - q[0]);
+    let area = u.cross(v).length();
+    let m = SEEN_CENTRE_SIDE;
+    let disk = area / (m * m) as f32 / std::f32::consts::PI;
+    let (mut weight, mut sum) = (0.0f32, Vec3::ZERO);
+    for i in 0..m {
+        for j in 0..m {
+            let y = q[0] + u * ((i as f32 + 0.5) / m as f32) + v * ((j as f32 + 0.5) / m as f32);
+            let d = y - x;
+            let r2 = d.length_squared();
+            let g = n.dot(d).max(0.0) * (-nq.dot(d)).max(0.0) / (r2 * (r2 + disk)).max(1e-30);
+            weight += g;
+            sum += y * g;
+        }
+    }
+    (weight > 0.0 && area > 0.0).then(|| (sum / weight, area.sqrt()))
+}
+
+/// The crease points of the echo (`prm::prm_file::Echo::creases`): for each [`Crease`], a point
+/// on its source's triangle where its receiver sees the source's square (those of one source
+/// within [`CREASE_MERGE`] of its side are one, at their mean), with near links of its own
+/// (found as [`near_links`] finds a texel's, the far field's share as at its texel), numbered
+/// past the atlas's texels. Their echo links read the source there; `echo` gains their albedos
+/// and texels' points. A crease point without links is left out (its links read the texel).
+/// The points lie within the box of the texels' (`points`), so the file stores them all alike.
+#[allow(clippy::too_many_arguments)]
+pub fn crease_points(
+    scene: &prm::Scene,
+    bvh: &Bvh,
+    set: &TexelSet,
+    entries: &[Entry],
+    cells: (&Cells, &Cells, &[u32]),
+    radius: f32,
+    far: &Far,
+    points: &[NearPoint],
+    (echo, creases): (&mut Echo, &[Crease]),
+) -> (Vec<NearLink>, Vec<NearPoint>) {
+    let Some(search) = LinkSearch::new(bvh, entries, cells, radius, far) else { return Default::default() };
+    let mut groups: std::collections::BTreeMap<(u32, [i32; 3]), Vec<usize>> = Default::default();
+    for (k, c) in creases.iter().enumerate() {
+        let Some(l) = echo.links.get(c.link) else { continue };
+        let cell = (c.position / (CREASE_MERGE * c.side).max(1e-6)).floor().as_ivec3().to_array();
+        groups.entry((l.source, cell)).or_default().push(k);
+    }
+    let groups: Vec<(u32, Vec<usize>)> = groups.into_iter().map(|((source, _), m)| (source, m)).collect();
+    let bounds = near_point_box(points);
+    let made: Vec<Option<(Vec3, Vec<NearLink>)>> = groups
+        .par_iter()
+        .map(|(source, members)| {
+            let parent = points.get(*source as usize)?;
+            let t = &set.texels[*set.index.get(parent.texel as usize)? as usize];
+            let mean = members.iter().map(|&k| creases[k].position).sum::<Vec3>() / members.len() as f32;
+            let on = closest_point(&scene.corners(t.triangle as usize), mean).clamp(bounds.0, bounds.1);
+            let fades = far.texels.binary_search_by_key(&parent.texel, |f| f.texel).is_ok();
+            let links = search.links((on, parent.normal), 0, fades);
+            (!links.is_empty()).then_some((on, links))
+        })
+        .collect();
+    let first = points.len() as u32;
+    let texels = set.width * set.height;
+    let (mut links, mut out) = (Vec::new(), Vec::new());
+    let mut source_of: Vec<Option<u32>> = vec![None; echo.links.len()];
+    for ((source, members), made) in groups.iter().zip(made) {
+        let Some((position, found)) = made else { continue };
+        let k = out.len() as u32;
+        let texel = texels + k;
+        links.extend(found.into_iter().map(|l| NearLink { texel, ..l }));
+        out.push(NearPoint { texel, position, normal: points[*source as usize].normal });
+        echo.albedo.push(echo.albedo.get(*source as usize).copied().unwrap_or(Vec3::ZERO));
+        echo.creases.push(*source);
+        for &m in members {
+            source_of[creases[m].link] = Some(first + k);
+        }
+    }
+    for (l, s) in echo.links.iter_mut().zip(source_of) {
+        if let Some(s) = s {
+            l.source = s;
+        }
+    }
+    echo.links.sort_by_key(|l| (l.receiver, l.source));
+    round_near_points_within(&mut out, bounds);
+    (links, out)
 }
 
 /// Most points a receiver of the echo looks at, on average ([`echo_grid`]).
@@ -549,6 +719,7 @@ mod tests {
         let old = Echo {
             albedo: vec![Vec3::ONE; 2],
             links: vec![EchoLink { receiver: 0, source: 1, factor: 0.25 }],
+            creases: Vec::new(),
         };
         let reuse = |same: &[bool]| {
             EchoReuse { old: &old, old_points: &points, settled: &[true, true], same }
@@ -556,6 +727,26 @@ mod tests {
         };
         assert_eq!(reuse(&[true, true]), Some(vec![EchoLink { receiver: 0, source: 1, factor: 0.25 }]));
         assert_eq!(reuse(&[true, false]), None, "its source's slot holds another texel now");
+    }
+
+    /// A 20 cm wall square standing on a floor: a floor point 6 mm in front of its foot sees it
+    /// at its lowest 3 cm, straight above itself (the kernel's mean height over a wall that
+    /// high, seen from 6 mm, is 6 mm x (ln(2 x 20 / 0.6) - 1), 1.9 cm); a point 2 m in front, facing it, at its middle;
+    /// a point behind it not at all.
+    #[test]
+    fn a_receiver_at_a_walls_foot_sees_its_square_at_the_crease() {
+        let q = [Vec3::ZERO, Vec3::new(0.2, 0.0, 0.0), Vec3::new(0.2, 0.2, 0.0), Vec3::new(0.0, 0.2, 0.0)];
+        let Some((foot, side)) = seen_centre((Vec3::new(0.1, 0.0, 0.006), Vec3::Y), &q, Vec3::Z) else {
+            panic!("the foot of the wall sees nothing of it")
+        };
+        assert!((side - 0.2).abs() < 1e-6, "side {side}");
+        assert!(foot.y < 0.03 && (foot.x - 0.1).abs() < 0.005 && foot.z.abs() < 1e-6, "{foot}");
+        assert!(foot.distance(Vec3::new(0.1, 0.1, 0.0)) > CREASE_SHIFT * side, "not a crease: {foot}");
+        let Some((front, _)) = seen_centre((Vec3::new(0.1, 0.1, 2.0), Vec3::NEG_Z), &q, Vec3::Z) else {
+            panic!("a point in front sees nothing")
+        };
+        assert!(front.distance(Vec3::new(0.1, 0.1, 0.0)) < 1e-3, "{front}");
+        assert!(seen_centre((Vec3::new(0.1, 0.1, -1.0), Vec3::Z), &q, Vec3::Z).is_none());
     }
 
     /// A texel at the origin facing up under a square cell 1 m above it (facing down, cut into
@@ -651,7 +842,8 @@ mod tests {
         let far = |k: f32| Vec3::new(50.0 + k, 50.0, 50.0);
         let open = quad(vec![far(0.0), far(0.1), far(0.2), far(0.3)]);
         let whole = point_to_polygon(Vec3::ZERO, Vec3::Y, &square);
-        let (f, hidden) = seen_cell(&open, &texel, &entry, 4.0, (&cut, &pieces, &from), 0);
+        let (f, hidden) =
+            seen_cell(&open, (texel.position, texel.normal), &entry, 4.0, (&cut, &pieces, &from), 0);
         assert_eq!(hidden, 0);
         assert!((f - whole).abs() < 1e-4 * whole, "{f} against {whole}");
         let blocker = quad(vec![
@@ -660,7 +852,8 @@ mod tests {
             Vec3::new(5.0, 0.5, 5.0),
             Vec3::new(5.0, 0.5, -5.0),
         ]);
-        let (f, hidden) = seen_cell(&blocker, &texel, &entry, 4.0, (&cut, &pieces, &from), 0);
+        let (f, hidden) =
+            seen_cell(&blocker, (texel.position, texel.normal), &entry, 4.0, (&cut, &pieces, &from), 0);
         let mut seen_pieces = 0.0;
         for (k, t) in pieces.of(0).iter().enumerate() {
             let is_hidden = (hidden >> k) & 1 == 1;

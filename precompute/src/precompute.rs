@@ -294,6 +294,9 @@ pub struct Report {
     pub near_links_hiding: usize,
     /// Links of the near field's echo.
     pub echo_links: usize,
+    /// The echo's crease points and their near links (`crate::near::crease_points`).
+    pub crease_points: usize,
+    pub crease_links: usize,
     pub seconds_near: f64,
     /// Covered texels the far field lights, and pairs of entries that see each other.
     pub far_texels: usize,
@@ -830,6 +833,8 @@ impl Report {
             near_links: count("near_links"),
             near_links_hiding: map.near().iter().filter(|l| l.hidden != 0).count(),
             echo_links: count("echo_links"),
+            crease_points: map.echo().creases.len(),
+            crease_links: map.near().iter().filter(|l| l.texel as usize >= map.texel_count()).count(),
             far_texels: count("far_texels"),
             far_pairs: count("far_pairs"),
             cell_triangles: count("cell_triangles"),
@@ -921,15 +926,20 @@ pub(crate) fn finish(
         stays,
         gains,
         cells,
-        near,
-        near_points,
+        mut near,
+        mut near_points,
         echo,
+        crease_links,
+        crease_points,
         far,
         grouping,
         set: pre_set,
         texel_areas,
         ..
     } = pre;
+    // The crease points come after the texels' (their texels past the atlas's).
+    near.extend(crease_links);
+    near_points.extend(crease_points);
     let group_of = grouping.map_or_else(Vec::new, |g| g.assignment);
     let Tiled { clusters, groups, mask, tiles, data, .. } = tiled;
     let prm = Prm::new(PrmParts {

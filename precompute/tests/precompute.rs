@@ -334,24 +334,24 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
-/// `bytes` (a v15 file) as version 12 wrote the same map but for its bounce gains and hidden
-/// triangles: no `GAIN` section (v14's) nor `SEEN` (v15's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
+/// `bytes` (a v16 file without crease points) as version 12 wrote the same map but for its
+/// bounce gains and hidden triangles: no `GAIN` section (v14's), `SEEN` (v15's) nor `CRSE`
+/// (v16's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
 /// tiles and block 1, and the checksum made again. With `dipoles` > 0 the section holds that
 /// many zeroed 88-byte records.
 fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
     let header = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
-    let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
-    let mut at = 16 + header;
-    while &bytes[at..at + 4] != b"GAIN" {
-        at += section(at);
-    }
-    let bytes = [&bytes[..at], &bytes[at + section(at)..]].concat();
-    let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
-    let mut at = 16 + header;
-    while &bytes[at..at + 4] != b"SEEN" {
-        at += section(at);
-    }
-    let bytes = [&bytes[..at], &bytes[at + section(at)..]].concat();
+    // Without the sections v14, v15 and v16 added (the map has no crease points).
+    let without = |bytes: &[u8], tag: &[u8; 4]| -> Vec<u8> {
+        let section =
+            |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+        let mut at = 16 + header;
+        while &bytes[at..at + 4] != tag {
+            at += section(at);
+        }
+        [&bytes[..at], &bytes[at + section(at)..]].concat()
+    };
+    let bytes = without(&without(&without(bytes, b"GAIN"), b"SEEN"), b"CRSE");
     let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
     let mut at = 16 + header;
     while &bytes[at..at + 4] != b"FARF" {
@@ -371,13 +371,13 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
 }
 
 /// Version 13 dropped the dipole panes: a version 12 file without any (every file the default
-/// preset wrote) reads as the same map (without v14's bounce gains and v15's hidden
-/// triangles), and one with some is
+/// preset wrote) reads as the same map (without v14's bounce gains, v15's hidden triangles
+/// and v16's crease points), and one with some is
 /// refused, naming them.
 #[test]
 fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
     let scene = closed_box(0.5);
-    let prm = bake(&scene, &params(64, 4, 8, 16));
+    let prm = bake(&scene, &params(64, 4, 8, 16)).without_creases().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let old = as_version_12(&prm.to_bytes(), 0);
     let mut parts = prm.clone().into_parts();

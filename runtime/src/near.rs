@@ -143,6 +143,11 @@ impl EchoPass {
             }
             r[1] += 1;
         }
+        // A crease point's echo is its texel's (the third bounce goes on from there): its
+        // texel's run of links.
+        for x in echo.first_crease(points)..points {
+            runs[x] = runs[echo.echo_of(x, points)];
+        }
         let links: Vec<GpuEchoLink> = echo
             .links
             .iter()
@@ -199,7 +204,10 @@ impl NearData {
         let mut points = prm.near_points().iter();
         for l in prm.near() {
             if texels.last().is_none_or(|t| t.texel != l.texel) {
-                index[l.texel as usize] = texels.len() as u32;
+                // A crease point (its texel past the atlas's) has a sum but no texel to compose.
+                if let Some(slot) = index.get_mut(l.texel as usize) {
+                    *slot = texels.len() as u32;
+                }
                 // One point per run of links (an invariant of every `Prm`).
                 let p = points.next().copied().unwrap_or(prm::prm_file::NearPoint {
                     texel: l.texel,

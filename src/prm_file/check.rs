@@ -127,8 +127,13 @@ fn entries(p: &PrmParts) -> Result<(), String> {
         return Err(format!("cell triangle {k} has non-finite corners"));
     }
     let texels = p.header.atlas_width as u64 * p.header.atlas_height as u64;
+    // Crease points (`Echo::creases`) take the texel numbers past the atlas's, in order.
+    let creases = p.echo.creases.len() as u64;
     for (k, l) in p.near.iter().enumerate() {
-        if l.texel as u64 >= texels || l.entry as usize >= n || !(l.factor.is_finite() && l.factor >= 0.0) {
+        if l.texel as u64 >= texels + creases
+            || l.entry as usize >= n
+            || !(l.factor.is_finite() && l.factor >= 0.0)
+        {
             return Err(format!(
                 "near-field link {k} is out of range (texel {}, entry {}, factor {})",
                 l.texel, l.entry, l.factor
@@ -167,8 +172,29 @@ fn entries(p: &PrmParts) -> Result<(), String> {
             ));
         }
     }
+    let first_crease =
+        p.near_points.len().checked_sub(creases as usize).ok_or_else(|| {
+            format!("{creases} crease points but {} near-field points", p.near_points.len())
+        })?;
+    for (k, pt) in p.near_points.iter().enumerate() {
+        let crease = k >= first_crease;
+        if crease != (pt.texel as u64 >= texels)
+            || (crease && pt.texel as u64 != texels + (k - first_crease) as u64)
+        {
+            return Err(format!(
+                "near-field point {k} has texel {} where {first_crease} texels' points and {creases} crease points are given",
+                pt.texel
+            ));
+        }
+    }
+    if let Some(k) = p.echo.creases.iter().position(|&c| c as usize >= first_crease) {
+        return Err(format!(
+            "crease point {k} lies on near-field point {}, not a texel's",
+            p.echo.creases[k]
+        ));
+    }
     let echo = &p.echo;
-    if !echo.links.is_empty() && echo.albedo.len() != p.near_points.len() {
+    if (!echo.links.is_empty() || creases > 0) && echo.albedo.len() != p.near_points.len() {
         return Err(format!(
             "the echo has {} albedos for {} near-field points",
             echo.albedo.len(),
@@ -193,6 +219,9 @@ fn entries(p: &PrmParts) -> Result<(), String> {
         }
         if k > 0 && (echo.links[k - 1].receiver, echo.links[k - 1].source) >= (l.receiver, l.source) {
             return Err(format!("echo link {k} is out of order"));
+        }
+        if l.receiver as usize >= first_crease {
+            return Err(format!("echo link {k} lights crease point {}, which is never composed", l.receiver));
         }
     }
     // An entry belongs to one cluster at most: the runtime's per-entry tables name one, and

@@ -75,6 +75,12 @@
 //! (`docs/near-lights.md`, *What a texel sees of a hot cell*). A v14 file reads as every texel
 //! seeing every triangle.
 //!
+//! **Crease points** (v16): near points past the texels' (their texel numbers past the
+//! atlas's), each on a texel's square where a receiver of the echo sees that square (a floor
+//! texel 6 mm from a wall sees the wall's lowest cm), with near links of their own; the echo
+//! reads the source there (`CRSE` names each one's texel, [`Echo::creases`]). A v15 file has
+//! none (`docs/near-lights.md`, *The echo read at the creases*).
+//!
 //! **Far field** (v7): what the near links leave out of the deviations' first bounce. A hot spot's
 //! light reaches the whole room, and a pane spreads it over its cluster: the pillar faces 3 m
 //! from a lamp beside a wall see the lamp's end of the wall, not the cluster's middle. Each
@@ -160,13 +166,14 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 15;
+pub const VERSION: u32 = 16;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
 /// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
 /// a v11 file a v12 one without stay shares (every entry's light taken to stay), and a v12
 /// file a v13 one with a `DIPO` section, read when it holds no dipole panes, and a v13 file a
 /// v14 one without bounce gains (each gain its stay share), and a v14 file a v15 one whose
-/// texels see every triangle of their links' cells (no `SEEN` section).
+/// texels see every triangle of their links' cells (no `SEEN` section), and a v15 file a v16
+/// one without crease points (no `CRSE` section).
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -363,10 +370,22 @@ pub struct EchoLink {
 
 /// The echo of the near field: each near point's albedo (8-bit linear, [`round_albedo`]) and
 /// the links, sorted by receiver then source. Empty when the map has none.
+///
+/// `creases` (v16): the near points past the texels' are *crease points*, one per entry here,
+/// each naming the near point (a texel's) on whose square it lies. A receiver a few mm from a
+/// wall sees the wall's strip next to it far more than the rest of the wall texel's square, and
+/// where a hot spot lights the receiver's side of the crease, that strip takes several times
+/// the first bounce the texel's own point does: the echo reads the source's light at a point
+/// of the square where the receiver sees it ([`Echo::creases`]'s points have near links of their
+/// own, their texel `texel_count + k`), and the source's own echo, for the third bounce, at its
+/// texel. Crease points are sources only, never composed.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Echo {
     pub albedo: Vec<Vec3>,
     pub links: Vec<EchoLink>,
+    /// Per crease point (the last `creases.len()` near points), its texel's near point.
+    #[serde(default)]
+    pub creases: Vec<u32>,
 }
 
 /// An albedo as the file stores it: each channel in 1/255 steps of [0, 1].
@@ -429,6 +448,12 @@ pub(crate) fn decode_octahedral(q: [i16; 2]) -> Vec3 {
 /// Round `points` as the file stores them (a bake keeps what its file will say).
 pub fn round_near_points(points: &mut [NearPoint]) {
     let bounds = near_point_box(points);
+    round_near_points_within(points, bounds);
+}
+
+/// Round `points` as a file whose near points span the box `bounds` stores them (the crease
+/// points, which lie within the texels' box).
+pub fn round_near_points_within(points: &mut [NearPoint], bounds: (Vec3, Vec3)) {
     for p in points {
         p.position = dequantize_position(quantize_position(p.position, bounds), bounds);
         p.normal = decode_octahedral(encode_octahedral(p.normal));
@@ -493,13 +518,38 @@ impl Echo {
         for l in &self.links {
             spread[l.source as usize] += l.factor;
         }
+        // A receiver's own echo goes on from its texel's point and from each of its crease
+        // points (theirs is their texel's, [`Echo::creases`]).
+        let first_crease = points.saturating_sub(self.creases.len());
+        let mut onward = spread.clone();
+        for (k, &parent) in self.creases.iter().enumerate() {
+            if let (Some(&s), Some(o)) = (spread.get(first_crease + k), onward.get_mut(parent as usize)) {
+                *o += s;
+            }
+        }
         let a: Vec<f32> = (0..points).map(|k| self.albedo.get(k).map_or(0.0, |&v| luminance(v))).collect();
         let mut second = vec![0.0f32; points];
         for l in &self.links {
             let (x, y) = (l.source as usize, l.receiver as usize);
-            second[x] += l.factor * a[y] * spread[y];
+            second[x] += l.factor * a[y] * onward[y];
         }
-        (0..points).map(|x| 1.0 + a[x] * (spread[x] + second[x])).collect()
+        // A crease point is never composed: only its echo counts.
+        (0..points).map(|x| (x < first_crease) as u8 as f32 + a[x] * (spread[x] + second[x])).collect()
+    }
+
+    /// The index of the first crease point among `points` near points ([`Echo::creases`]).
+    pub fn first_crease(&self, points: usize) -> usize {
+        points.saturating_sub(self.creases.len())
+    }
+
+    /// The near point whose echo point `x` passes on: its texel's for a crease point, else
+    /// itself (`points` near points).
+    pub fn echo_of(&self, x: usize, points: usize) -> usize {
+        let first = self.first_crease(points);
+        match x.checked_sub(first).and_then(|k| self.creases.get(k)) {
+            Some(&parent) => parent as usize,
+            None => x,
+        }
     }
 }
 
@@ -859,6 +909,7 @@ impl PrmParts {
         w.near(&self.near, &self.near_points);
         w.seen(&self.near);
         w.echo(&self.echo);
+        w.creases(&self.echo.creases);
         w.clusters(&self.clusters);
         w.groups(&self.groups, &self.group_of);
         w.mask(&self.mask);
@@ -1136,7 +1187,10 @@ impl Prm {
             if version >= 15 {
                 r.seen(&mut near)?;
             }
-            let echo = r.echo(near_points.len())?;
+            let mut echo = r.echo(near_points.len())?;
+            if version >= 16 {
+                echo.creases = r.creases()?;
+            }
             let clusters = r.clusters(&header, entries.len())?;
             let (groups, group_of) = r.groups(&header)?;
             let mask = r.mask()?;
@@ -1268,6 +1322,7 @@ mod tests {
                     EchoLink { receiver: 0, source: 1, factor: 0.25 },
                     EchoLink { receiver: 1, source: 0, factor: 0.5 },
                 ],
+                creases: Vec::new(),
             },
             clusters: vec![Cluster {
                 members: vec![0, 1],
@@ -1435,7 +1490,7 @@ mod tests {
         let no_stays =
             Prm::new(PrmParts { stays: Vec::new(), gains: Vec::new(), ..seeing_all(parts()) }).unwrap();
         for old in [10u32, 11] {
-            let new = without_seen(&without_gains(&no_stays.to_bytes()));
+            let new = without_seen(&without_gains(&without_creases(&no_stays.to_bytes())));
             let Some(far) = (16..new.len()).find(|&k| &new[k..k + 4] == b"FARF") else {
                 panic!("no FARF section");
             };
@@ -1452,9 +1507,9 @@ mod tests {
             assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
         }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&16u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&17u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 16") && err.contains("versions 10 to 15"), "{err}");
+        assert!(err.contains("version 17") && err.contains("versions 10 to 16"), "{err}");
     }
 
     /// `parts` with every near link seeing its whole cell: what a file before v15 reads as.
@@ -1463,6 +1518,60 @@ mod tests {
             l.hidden = 0;
         }
         parts
+    }
+
+    /// `bytes` (a file of this version, without crease points) without its `CRSE` section, its
+    /// checksum made again: a v15 file of the same map but for the version.
+    fn without_creases(bytes: &[u8]) -> Vec<u8> {
+        let out = without_section(bytes, b"CRSE");
+        assert_eq!(out.len() + 16, bytes.len(), "the CRSE section lists crease points");
+        out
+    }
+
+    /// `parts()` with a crease point on texel 5's square (near point 1), linked to entry 0,
+    /// which receiver 0's echo reads in place of texel 5.
+    fn with_crease(mut p: PrmParts) -> PrmParts {
+        p.near.push(NearLink { texel: 16, entry: 0, factor: 0.375, hidden: 0 });
+        p.near_points.push(NearPoint { texel: 16, ..p.near_points[1] });
+        p.echo.albedo.push(p.echo.albedo[1]);
+        p.echo.links[0].source = 2;
+        p.echo.creases = vec![1];
+        p
+    }
+
+    /// Crease points round-trip; a map without them, stamped v15 without its `CRSE` section,
+    /// reads as it was; each one counts its echo but is never composed (`Echo::gain`), its
+    /// texel's onward echo counts what it passes on; and it goes where its texel goes when
+    /// atlas tiles are left out.
+    #[test]
+    fn crease_points_round_trip_count_their_echo_and_follow_their_texel() {
+        let (Ok(prm), Ok(plain)) = (Prm::new(with_crease(parts())), Prm::new(parts())) else {
+            panic!("valid parts refused");
+        };
+        let Ok(back) = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()) else {
+            panic!("a map's bytes refused")
+        };
+        assert_eq!(back, prm);
+        assert_eq!(back.echo().creases, vec![1]);
+        let v15 = as_version(&without_creases(&plain.to_bytes()), 15);
+        match Prm::from_bytes(Path::new("v15.prm"), &v15) {
+            Ok(read) => assert_eq!((read.read_version(), read.echo()), (15, plain.echo())),
+            Err(e) => panic!("a v15 file refused: {e}"),
+        }
+        // Echo factors 0.25 (0 <- crease) and 0.5 (1 <- 0); albedo luminances.
+        let echo = prm.echo();
+        let a: Vec<f32> = echo.albedo.iter().map(|&v| luminance(v)).collect();
+        let g = echo.gain(3);
+        let close = |x: f32, y: f32| (x - y).abs() < 1e-6;
+        // The crease point: its own spread 0.25, its receiver 0 passing on 0.5 x a_1 from there.
+        assert!(close(g[2], a[2] * (0.25 + 0.25 * a[0] * 0.0)), "{g:?}");
+        // Point 0 sends 0.5 to point 1, whose onward spread is its own (none) and its crease's.
+        assert!(close(g[0], 1.0 + a[0] * (0.5 + 0.5 * a[1] * 0.25)), "{g:?}");
+        assert!(close(g[1], 1.0), "{g:?}");
+        assert_eq!((echo.first_crease(3), echo.echo_of(2, 3), echo.echo_of(1, 3)), (2, 1, 1));
+        // Texel 5 lies in the atlas's one tile: leaving it out leaves out the crease point too.
+        let Ok(cut) = prm.without_atlas_tiles(&[true]) else { panic!("the cut map is refused") };
+        assert!(cut.prm.near_points().is_empty() && cut.prm.echo().creases.is_empty());
     }
 
     /// `bytes` (a file of this version) without its `SEEN` section, its checksum made again.
@@ -1503,7 +1612,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!(back.near(), prm.near());
-        let v14 = as_version(&without_seen(&prm.to_bytes()), 14);
+        let v14 = as_version(&without_seen(&without_creases(&prm.to_bytes())), 14);
         let read = match Prm::from_bytes(Path::new("v14.prm"), &v14) {
             Ok(read) => read,
             Err(e) => panic!("a v14 file refused: {e}"),
@@ -1534,7 +1643,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!((back.gain(0), back.gain(1)), (Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)));
-        let v13 = as_version(&without_seen(&without_gains(&v14.to_bytes())), 13);
+        let v13 = as_version(&without_seen(&without_gains(&without_creases(&v14.to_bytes()))), 13);
         let read = match Prm::from_bytes(Path::new("v13.prm"), &v13) {
             Ok(read) => read,
             Err(e) => panic!("a v13 file refused: {e}"),
@@ -1667,6 +1776,18 @@ mod tests {
             ("echo link 0 is out of range", |p| p.echo.links[0].source = 0),
             ("echo link 1 is out of range", |p| p.echo.links[1].factor = f32::NAN),
             ("echo link 1 is out of order", |p| p.echo.links.swap(0, 1)),
+            ("crease point 0 lies on near-field point 2", |p| {
+                *p = with_crease(std::mem::take(p));
+                p.echo.creases[0] = 2;
+            }),
+            ("echo link 1 lights crease point 2", |p| {
+                *p = with_crease(std::mem::take(p));
+                p.echo.links[1] = EchoLink { receiver: 2, source: 0, factor: 0.5 };
+            }),
+            ("near-field point 1 has texel 5 where 1 texels' points and 2 crease points", |p| {
+                *p = with_crease(std::mem::take(p));
+                p.echo.creases.push(1);
+            }),
             ("33 far-field visibility words for 1 pairs of blocks", |p| p.far.visible.push(0)),
             ("a far field without texels", |p| p.far.texels.clear()),
             ("far-field block offsets", |p| p.far.block_first.push(1)),

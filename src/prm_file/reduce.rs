@@ -90,7 +90,8 @@ impl Prm {
             (gr.first_tile, gr.tile_count) = range(gr.first_tile, gr.tile_count);
         }
 
-        let (near, near_points, echo) = without_near_texels(p, &texel_dropped);
+        let (near, near_points, echo) =
+            without_near_texels(p, &texel_dropped, h.atlas_width * h.atlas_height);
         let mut far = without_far_texels(&p.far, &texel_dropped);
         // The links cut go on counting in the balance, as the far field's energy: the weights
         // stay the whole map's (see the module docs).
@@ -143,6 +144,28 @@ impl Prm {
     }
 }
 
+impl Prm {
+    /// This map with its echo reading every source at its texel's point, as before v16: no
+    /// crease points ([`Echo::creases`]), each echo link that read one reading its texel again.
+    /// For a side-by-side measure of what they bring.
+    pub fn without_creases(&self) -> Result<Prm, InvalidPrm> {
+        let mut parts = self.parts.clone();
+        let points = parts.near_points.len();
+        let first = parts.echo.first_crease(points);
+        let echo = &mut parts.echo;
+        for k in 0..echo.links.len() {
+            echo.links[k].source = echo.echo_of(echo.links[k].source as usize, points) as u32;
+        }
+        echo.links.sort_by_key(|l| (l.receiver, l.source));
+        echo.albedo.truncate(first);
+        echo.creases.clear();
+        let texels = self.texel_count() as u32;
+        parts.near.retain(|l| l.texel < texels);
+        parts.near_points.truncate(first);
+        Prm::new(parts)
+    }
+}
+
 /// `out[k]` = how many of the first k flags are set (k = 0 ..= len).
 fn prefix_counts(flags: impl Iterator<Item = bool>) -> Vec<u32> {
     let mut out = vec![0u32];
@@ -153,16 +176,60 @@ fn prefix_counts(flags: impl Iterator<Item = bool>) -> Vec<u32> {
 }
 
 /// The near field without the links, points and echo of dropped texels (echo links re-indexed
-/// to the points that stay).
+/// to the points that stay). A crease point goes with its texel's point, and those that stay
+/// take the texel numbers past the atlas's (`texels`) again, in order.
 fn without_near_texels(
     p: &PrmParts,
     dropped: &dyn Fn(u32) -> bool,
+    texels: u32,
 ) -> (Vec<super::NearLink>, Vec<super::NearPoint>, Echo) {
-    let near = p.near.iter().filter(|l| !dropped(l.texel)).copied().collect();
-    let keep: Vec<bool> = p.near_points.iter().map(|pt| !dropped(pt.texel)).collect();
-    let near_points = p.near_points.iter().zip(&keep).filter(|(_, &k)| k).map(|(pt, _)| *pt).collect();
+    let first_crease = p.echo.first_crease(p.near_points.len());
+    let keep: Vec<bool> = p
+        .near_points
+        .iter()
+        .enumerate()
+        .map(|(k, pt)| {
+            let own = p.echo.echo_of(k, p.near_points.len());
+            match p.near_points.get(own) {
+                Some(parent) if k >= first_crease => !dropped(parent.texel),
+                _ => !dropped(pt.texel),
+            }
+        })
+        .collect();
     let index = prefix_counts(keep.iter().copied());
     let kept = |i: u32| keep.get(i as usize).copied().unwrap_or(false);
+    // A crease point's texel number after the cut: the atlas's count plus the creases kept
+    // before it.
+    let kept_before = index[first_crease];
+    let renumber = |texel: u32| match (texel as u64).checked_sub(texels as u64) {
+        Some(k) => texels + index[first_crease + k as usize] - kept_before,
+        None => texel,
+    };
+    let point_of_texel = |texel: u32| match (texel as u64).checked_sub(texels as u64) {
+        Some(k) => kept(first_crease as u32 + k as u32),
+        None => !dropped(texel),
+    };
+    let near = p
+        .near
+        .iter()
+        .filter(|l| point_of_texel(l.texel))
+        .map(|l| super::NearLink { texel: renumber(l.texel), ..*l })
+        .collect();
+    let near_points = p
+        .near_points
+        .iter()
+        .zip(&keep)
+        .filter(|(_, &k)| k)
+        .map(|(pt, _)| super::NearPoint { texel: renumber(pt.texel), ..*pt })
+        .collect();
+    let creases = p
+        .echo
+        .creases
+        .iter()
+        .enumerate()
+        .filter(|&(k, _)| kept((first_crease + k) as u32))
+        .map(|(_, &parent)| index[parent as usize])
+        .collect();
     let echo = Echo {
         albedo: p.echo.albedo.iter().zip(&keep).filter(|(_, &k)| k).map(|(a, _)| *a).collect(),
         links: p
@@ -176,6 +243,7 @@ fn without_near_texels(
                 ..*l
             })
             .collect(),
+        creases,
     };
     (near, near_points, echo)
 }

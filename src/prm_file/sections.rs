@@ -197,6 +197,15 @@ impl<'a> Writer<'a> {
         self.section(b"ECHO", &n);
     }
 
+    /// `CRSE` (v16): the crease points' count (u32), then each one's texel's near point
+    /// (u32; [`Echo::creases`]).
+    pub(super) fn creases(&mut self, creases: &[u32]) {
+        let mut n = Vec::with_capacity(4 + 4 * creases.len());
+        n.extend_from_slice(&(creases.len() as u32).to_le_bytes());
+        creases.iter().for_each(|c| n.extend_from_slice(&c.to_le_bytes()));
+        self.section(b"CRSE", &n);
+    }
+
     /// `CLUS` and `MEMB`: each cluster's record points at its run of the member list.
     pub(super) fn clusters(&mut self, clusters: &[Cluster]) {
         let (mut c, mut m) = (Vec::new(), Vec::new());
@@ -535,7 +544,16 @@ impl<'a> Reader<'a> {
                 factor: f16::from_le_bytes([factors[2 * k], factors[2 * k + 1]]).to_f32(),
             })
             .collect();
-        Ok(Echo { albedo, links })
+        Ok(Echo { albedo, links, creases: Vec::new() })
+    }
+
+    /// `CRSE` (v16; what the parents are is an invariant, checked with the others).
+    pub(super) fn creases(&mut self) -> Result<Vec<u32>, SectionError> {
+        let n = self.next(b"CRSE")?;
+        if n.len() < 4 || n.len() as u64 != 4 + 4 * u32_at(n, 0) as u64 {
+            return Err(Corrupt(format!("crease section of {} bytes", n.len())));
+        }
+        Ok(n[4..].chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
     }
 
     /// `NEAR` (what the links point at is an invariant, checked with the others).

@@ -18,7 +18,7 @@ use crate::cells::{entry_cells_in_rooms, entry_rooms, filled_rooms, CellOwners, 
 use crate::cluster::{centroids, cluster_by_room, cluster_entries, Clustering};
 use crate::entries::{is_enclosed, relocate, sample_entries};
 use crate::far::{far_field, EnergySum, FarReuse, FirstBounce};
-use crate::near::{echo_links, near_links, EchoReuse, NearReuse};
+use crate::near::{crease_points, echo_links, near_links, EchoReuse, NearReuse};
 use crate::parallel::stop_if;
 use crate::transport::{CellSamples, Cutoff, Estimator, LinkedCells, NextBounce, TexelPanes, Transport};
 use crate::update::{TriangleDigest, Untouched, UpdateCache};
@@ -74,6 +74,10 @@ pub struct Preamble {
     #[serde(skip)]
     pub(crate) cutoff: Cutoff,
     pub(crate) echo: Echo,
+    /// The echo's crease points and their near links (`crate::near::crease_points`), which the
+    /// file lists after the texels' (the bake's own uses of the links are the texels').
+    pub(crate) crease_links: Vec<NearLink>,
+    pub(crate) crease_points: Vec<NearPoint>,
     pub(crate) smoothing: Option<Smoothing>,
     /// The level's rooms, kept when the walks are recorded for an update (`keep_rooms`).
     #[serde(skip)]
@@ -303,8 +307,22 @@ impl Preamble {
                 }
                 _ => None,
             };
-            echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius, reuse)
+            let (mut echo, creases) =
+                echo_links(scene, bvh, &set, &entries, &near_points, params.echo_radius, reuse);
+            let made = crease_points(
+                scene,
+                bvh,
+                &set,
+                &entries,
+                (&cut, &cells, &piece_from),
+                params.near_radius,
+                &far,
+                &near_points,
+                (&mut echo, &creases),
+            );
+            (echo, made)
         });
+        let (echo, (crease_links, crease_points)) = echo;
 
         let t = Instant::now();
         let smoothing =
@@ -337,6 +355,8 @@ impl Preamble {
             lit,
             cutoff,
             echo,
+            crease_links,
+            crease_points,
             smoothing,
             rooms,
             untouched,
@@ -366,6 +386,8 @@ impl Preamble {
         report.near_links = self.near.len();
         report.near_links_hiding = self.near.iter().filter(|l| l.hidden != 0).count();
         report.echo_links = self.echo.links.len();
+        report.crease_points = self.crease_points.len();
+        report.crease_links = self.crease_links.len();
     }
 
     /// Each entry's cell centroid and area, as the far field reads them.

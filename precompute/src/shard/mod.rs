@@ -64,8 +64,9 @@ const PART_MAGIC: [u8; 8] = *b"PRMPART\n";
 /// stay shares; 6: the table's cutoff of weak elements, a parameter; 7: the far field's
 /// energies are left out, the merge adds them up, beside the first bounce where it makes one;
 /// 8: the parameters lost `dipole_block`; 9: the entries' bounce gains; 10: the texels'
-/// visible areas and the `match_power` parameter; 11: the near links' hidden triangles).
-const VERSION: u32 = 11;
+/// visible areas and the `match_power` parameter; 11: the near links' hidden triangles; 12: the
+/// echo's crease points).
+const VERSION: u32 = 12;
 /// Texels walked and written at a time: a shard holds one chunk's walks.
 const CHUNK_TEXELS: usize = 4096;
 /// Most shards a precompute is cut into.

@@ -65,6 +65,7 @@ type Rest = (
     Echo,
     Option<Smoothing>,
     Vec<f32>,
+    (Vec<NearLink>, Vec<NearPoint>),
 );
 type RestRef<'a> = (
     &'a str,
@@ -81,6 +82,7 @@ type RestRef<'a> = (
     &'a Echo,
     &'a Option<Smoothing>,
     &'a [f32],
+    (&'a [NearLink], &'a [NearPoint]),
 );
 
 fn checksum_of(file: &[u8]) -> u64 {
@@ -126,6 +128,7 @@ impl Plan {
             &pre.echo,
             &pre.smoothing,
             &pre.texel_areas,
+            (&pre.crease_links, &pre.crease_points),
         );
         let encode = |e: postcard::Error| ShardError::Refused(format!("the plan cannot be encoded: {e}"));
         let walks = postcard::to_stdvec(&walks).map_err(encode)?;
@@ -219,6 +222,8 @@ impl Plan {
             // The table is the plan's: a shard makes no row.
             cutoff: Default::default(),
             echo: Echo::default(),
+            crease_links: Vec::new(),
+            crease_points: Vec::new(),
             smoothing: None,
             rooms: None,
             untouched: None,
@@ -251,6 +256,7 @@ impl Plan {
         (pre.cells, pre.stays, pre.gains, pre.centroids, pre.grouping, pre.far) =
             (rest.4, rest.5, rest.6, rest.7, rest.8, rest.9);
         (pre.near_points, pre.echo, pre.smoothing, pre.texel_areas) = (rest.10, rest.11, rest.12, rest.13);
+        (pre.crease_links, pre.crease_points) = rest.14;
         let clusters = pre.clustering.members.len();
         let n = pre.entries.len();
         if pre.centroids.len() != clusters

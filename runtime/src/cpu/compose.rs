@@ -260,6 +260,12 @@ pub fn echo_bounce(prm: &Prm, from: &[Vec3]) -> Vec<Vec3> {
         let x = l.source as usize;
         out[l.receiver as usize] += echo.albedo[x] * from[x] * l.factor;
     }
+    // A crease point receives no echo: its bounce is its texel's, which the next bounce
+    // passes on from it (`prm::prm_file::Echo::creases`).
+    let points = out.len();
+    for x in echo.first_crease(points)..points {
+        out[x] = out[echo.echo_of(x, points)];
+    }
     out
 }
 
@@ -898,7 +904,10 @@ pub fn link_field(
         }
     }
     for (links, sum) in runs.iter().zip(near) {
-        img[links[0].texel as usize] += sum;
+        // Crease points (texels past the atlas's) are never composed.
+        if let Some(v) = img.get_mut(links[0].texel as usize) {
+            *v += sum;
+        }
     }
     img
 }

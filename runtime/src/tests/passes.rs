@@ -1119,11 +1119,18 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     // The echo is part of what the two agree on: it must change the corner's lightmap.
     assert!(!prm.echo().links.is_empty());
     let mut parts = prm.clone().into_parts();
-    parts.echo = Default::default();
+    parts.echo.links.clear();
     let silent = prm::prm_file::Prm::new(parts).unwrap();
     let without = crate::cpu::CpuTwin::new(&silent, &bvh, c).frame(&corner).to_vec();
     let echo_share = prm::metric::compare(&without, &cpu, None).error;
     assert!(echo_share > 0.02, "the echo changes the corner's lightmap by only {echo_share}");
+    // So are the echo's crease points (`prm::prm_file::Echo::creases`): the corner's walls
+    // read at the strips along its creases.
+    assert!(!prm.echo().creases.is_empty());
+    let plain = prm.without_creases().unwrap();
+    let without = crate::cpu::CpuTwin::new(&plain, &bvh, c).frame(&corner).to_vec();
+    let crease_share = prm::metric::compare(&without, &cpu, None).error;
+    assert!(crease_share > 0.002, "the crease points change the corner's lightmap by only {crease_share}");
     // And the far field, which carries the hot spot's deviation past the near links to the
     // rest of the box (texels with near links and texels without, both kinds of slot).
     assert!(prm.far().texels.len() > prm.near_points().len());

@@ -105,6 +105,19 @@ pub fn plinth_room() -> Scene {
     s
 }
 
+/// A closed 4 x 2 x 2 m room lit by one spot (20-35°, 20 W/sr) 15 cm from each of the three
+/// surfaces of its corner at the origin, aimed into it: the chamber's spot rig at its corner
+/// (`assets/chamber_spots.json`, frame 5), where the floor a few mm from a wall sees the wall's
+/// lowest cm, lit by the floor's hot spot beside it.
+pub fn corner_spot_room() -> Scene {
+    let mut s = quads_in_grid(&box_quads(Vec3::ZERO, v(4.0, 2.0, 2.0)), 5);
+    let mut spot = point(v(0.15, 0.15, 0.15), 20.0);
+    spot.kind = prm::LightKind::Spot { inner: 20f32.to_radians(), outer: 35f32.to_radians() };
+    spot.direction = -Vec3::ONE.normalize();
+    s.lights.push(spot);
+    s
+}
+
 /// [`pillar_room`] lit by one narrow spot (10°-15°, 4 W/sr) 75 cm in front of its +z wall and
 /// aimed at it, the pillar 15 cm behind the light: the light stands off the wall's lit patch
 /// by more than the patch's cells are across, and sees round the pillar where the patch does
