@@ -825,14 +825,8 @@ mod tests {
         let (pieces, from) = cut.split_long_from(0.6);
         let n = pieces.triangles.len();
         assert!(n > 16 && n <= HIDDEN_TRIANGLES, "{n} pieces");
-        let texel = prm::Texel {
-            i: 0,
-            j: 0,
-            position: Vec3::ZERO,
-            normal: Vec3::Y,
-            triangle: 0,
-            bary: Vec3::ONE / 3.0,
-        };
+        // The texel's point and normal.
+        let texel = (Vec3::ZERO, Vec3::Y);
         let entry =
             Entry { position: c(0.0, 0.0), normal: Vec3::NEG_Y, albedo: Vec3::ONE, area: 4.0, triangle: 0 };
         let quad = |pts: Vec<Vec3>| {
@@ -842,8 +836,7 @@ mod tests {
         let far = |k: f32| Vec3::new(50.0 + k, 50.0, 50.0);
         let open = quad(vec![far(0.0), far(0.1), far(0.2), far(0.3)]);
         let whole = point_to_polygon(Vec3::ZERO, Vec3::Y, &square);
-        let (f, hidden) =
-            seen_cell(&open, (texel.position, texel.normal), &entry, 4.0, (&cut, &pieces, &from), 0);
+        let (f, hidden) = seen_cell(&open, texel, &entry, 4.0, (&cut, &pieces, &from), 0);
         assert_eq!(hidden, 0);
         assert!((f - whole).abs() < 1e-4 * whole, "{f} against {whole}");
         let blocker = quad(vec![
@@ -852,8 +845,7 @@ mod tests {
             Vec3::new(5.0, 0.5, 5.0),
             Vec3::new(5.0, 0.5, -5.0),
         ]);
-        let (f, hidden) =
-            seen_cell(&blocker, (texel.position, texel.normal), &entry, 4.0, (&cut, &pieces, &from), 0);
+        let (f, hidden) = seen_cell(&blocker, texel, &entry, 4.0, (&cut, &pieces, &from), 0);
         let mut seen_pieces = 0.0;
         for (k, t) in pieces.of(0).iter().enumerate() {
             let is_hidden = (hidden >> k) & 1 == 1;

@@ -23,6 +23,22 @@ fn ground_truth(scene: &Scene, bvh: &Bvh, atlas: u32, seed: u64) -> (prm::TexelS
     (set, gt.iter().map(|r| r.indirect).collect(), noise)
 }
 
+/// The path tracer's answer at `texels` of an atlas `width` wide (1,024 samples, light paths).
+fn truth_at(
+    scene: &Scene,
+    bvh: &Bvh,
+    texels: &[prm::Texel],
+    width: u32,
+    seed: u64,
+) -> Vec<prm_precompute::ground_truth::Irradiance> {
+    let tracer = prm_precompute::ground_truth::Tracer::new(
+        scene,
+        bvh,
+        prm_precompute::ground_truth::GtParams { spp: 1024, seed, ..Default::default() },
+    );
+    tracer.texels(texels, width, prm_precompute::parallel::Control::none()).unwrap()
+}
+
 fn bake(scene: &Scene) -> prm::prm_file::Prm {
     bake_at(scene, 24)
 }
@@ -733,12 +749,7 @@ fn the_texels_at_a_lit_corner_take_the_echo_of_the_creases_they_see() {
     let set = prm::TexelSet::build_visible(&scene, &bvh, atlas, atlas);
     let corner: Vec<prm::Texel> = set.texels.iter().filter(|t| t.position.length() < 0.3).cloned().collect();
     assert!(corner.len() >= 12, "{} texels by the corner", corner.len());
-    let tracer = prm_precompute::ground_truth::Tracer::new(
-        &scene,
-        &bvh,
-        prm_precompute::ground_truth::GtParams { spp: 1024, seed: 23, ..Default::default() },
-    );
-    let gt = tracer.texels(&corner, set.width, prm_precompute::parallel::Control::none()).unwrap();
+    let gt = truth_at(&scene, &bvh, &corner, set.width, 23);
     let prm = bake_walked(&scene, &bvh, atlas, 160, 16);
     let creases = prm.echo().creases.len();
     assert!(creases > 0, "no crease points");
@@ -792,12 +803,7 @@ fn the_floor_before_a_plinth_takes_the_light_of_the_shaft_it_sees() {
         .cloned()
         .collect();
     assert!(front.len() >= 40, "{} floor texels before the plinth", front.len());
-    let tracer = prm_precompute::ground_truth::Tracer::new(
-        &scene,
-        &bvh,
-        prm_precompute::ground_truth::GtParams { spp: 1024, seed: 21, ..Default::default() },
-    );
-    let gt = tracer.texels(&front, set.width, prm_precompute::parallel::Control::none()).unwrap();
+    let gt = truth_at(&scene, &bvh, &front, set.width, 21);
     // Entries 50 cm apart, as the chamber's: the near links reach the shaft's lit cells.
     let prm = bake_walked(&scene, &bvh, atlas, 160, 16);
     let hidden = prm.near().iter().filter(|l| l.hidden != 0).count();
