@@ -6,6 +6,9 @@
 // in place of the entry's. deviation.w: luminance(E_entry), which far.wgsl's threshold reads;
 // deviation[N + j]: E_entry, which far.wgsl's sources lit up close send whole, from where
 // the cell's light lands (the entry pass's, after the records: crate::far::deviation_len).
+// near_main also writes each point's expected light, sum over its links of factor x
+// w_cluster(entry) t_entry, at near_sum[near_expected_at + k], where echo.wgsl reads it
+// (prm_runtime::cpu::echo_input).
 // Structs, bindings, WG_LINEAR, luminance: the generated prelude.
 
 @compute @workgroup_size(WG_LINEAR)
@@ -33,9 +36,12 @@ fn near_main(@builtin(global_invocation_id) id: vec3u) {
     }
     let t = near_texels[k];
     var sum = vec3f(0.0);
+    var expected = vec3f(0.0);
     for (var i = t.first; i < t.first + t.count; i++) {
         let l = near_links[i];
         var d = deviation[l.entry].xyz;
+        // w_c t_j = E_j - deviation_j, both of this buffer (one more read a link).
+        expected += l.factor * (deviation[params.entry_count + l.entry].xyz - d);
         if params.any_hot != 0u {
             let own = link_light[i];
             if own.w == params.frame {
@@ -46,4 +52,5 @@ fn near_main(@builtin(global_invocation_id) id: vec3u) {
         sum += l.factor * d;
     }
     near_sum[k] = vec4f(sum, 0.0);
+    near_sum[params.near_expected_at + k] = vec4f(expected, 0.0);
 }

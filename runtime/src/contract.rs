@@ -29,6 +29,9 @@ pub const WG_LINEAR: u32 = 64;
 pub const WG_TILE: u32 = 8;
 /// The slot of an atlas texel no stored tile covers (`runtime/src/compose.rs`).
 pub const NO_SLOT: u32 = u32::MAX;
+/// A near point without a cell to read its echo against (`shaders/echo.wgsl`,
+/// [`crate::cpu::NearTables::point_cell`]).
+pub const NO_CELL: u32 = u32::MAX;
 /// Words per record and corner of its tile in the compose's `counts` buffer under a local budget
 /// (the state of the pane standing there and its weight: `shaders/compose.wgsl`).
 pub const CORNER_WORDS: u32 = 4;
@@ -72,6 +75,7 @@ pub const U32_CONSTANTS: &[(&str, u32)] = &[
     ("WG_LINEAR", WG_LINEAR),
     ("WG_TILE", WG_TILE),
     ("NO_SLOT", NO_SLOT),
+    ("NO_CELL", NO_CELL),
     ("CORNER_WORDS", CORNER_WORDS),
     ("CUBE_LAYERS", CUBE_LAYERS),
     ("SHADOW_BLOCKS", SHADOW_BLOCKS),

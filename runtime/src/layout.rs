@@ -260,7 +260,9 @@ gpu_struct! {
         /// 32-63: `crate::cpu::sighted`, `shaders/far.wgsl`).
         pub sighted_lo: u32,
         pub sighted_hi: u32,
-        pub _pad0: u32,
+        /// Where the near points' expected light starts in `near_sum` (`shaders/near.wgsl`,
+        /// `shaders/echo.wgsl`; `crate::cpu::echo_input`): the slot after the far field's.
+        pub near_expected_at: u32,
         pub _pad1: u32,
         /// Column k: the eye of the light in sighted slot k (`crate::cpu::sight_eye`: where its
         /// cube is and its spots are seen from), w = 1; zero past the last.

@@ -55,6 +55,10 @@ impl GpuMemory {
         // The near sums hold the near points, then the far field's texels that are not one.
         let linked = |texel: u32| prm.near_points().binary_search_by_key(&texel, |p| p.texel).is_ok();
         let far_only = prm.far().texels.iter().filter(|t| !linked(t.texel)).count();
+        // The echo's tables, with each near point of a cell listed once under it.
+        let echoed = !prm.echo().links.is_empty();
+        let in_cells =
+            crate::cpu::point_cells(prm).iter().filter(|&&c| c != crate::contract::NO_CELL).count();
         let words = prm.data().len().div_ceil(4).max(1);
         let split = split_words(words);
         let items = [
@@ -91,12 +95,15 @@ impl GpuMemory {
             ("entry deviations", size(crate::far::deviation_len(n), 16)),
             (crate::irradiance::ENTRY_HIDDEN, size(n, 8)),
             ("far entries", size(n, std::mem::size_of::<FarEntry>())),
-            ("near sums", size(points + far_only, 16)),
+            // The sums, then the near points' expected light.
+            ("near sums", size(2 * points + far_only, 16)),
             ("last composed near sums", size((points + far_only).max(1), 16)),
             ("near sums' tiles", size(points + far_only, 4)),
             ("echo links", size(prm.echo().links.len(), std::mem::size_of::<GpuEchoLink>())),
-            ("echo runs", size(points, 8)),
+            ("echo runs", size(points, 16)),
             ("echo sums", size(points, 16)),
+            ("echo cells", if echoed { size(n.max(1), 16) } else { 0 }),
+            ("echo cell points", if echoed { size(in_cells.max(1), 4) } else { 0 }),
             ("cluster weights", size(c.max(1), 16)),
             ("selected weights", size((c + g).max(1), 16)),
             (crate::tile_changes::LAST_RECORDS, size(records.max(1), 16)),

@@ -10,7 +10,7 @@
 use prm::prm_file::Prm;
 
 use crate::bindings::{b, bind, Binding, Res, COMPUTE};
-use crate::contract::{Compute, Shader, LINEAR, NO_SLOT, WG_LINEAR};
+use crate::contract::{Compute, Shader, LINEAR, NO_CELL, NO_SLOT, WG_LINEAR};
 use crate::far::FarPass;
 use crate::gpu;
 use crate::layout::{GpuEchoLink, GpuNearLink, GpuStruct, IndirectParams, NearTexel};
@@ -46,12 +46,17 @@ pub const SHADER: Shader = Shader {
 
 pub const ECHO_BINDINGS: &[Binding] = &[
     b("params", Res::Uniform(IndirectParams::NAME), COMPUTE),
-    // Per near point: its echo links `first .. first + count`.
-    b("echo_runs", Res::Read("array<vec2u>"), COMPUTE),
+    // Per near point: its echo links `first .. first + count`, and its cell (`NO_CELL`: none;
+    // `crate::cpu::NearTables::point_cell`).
+    b("echo_runs", Res::Read("array<vec4u>"), COMPUTE),
     b("echo_links", Res::Read("array<GpuEchoLink>"), COMPUTE),
     b("near_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // Per near point, the echo's first bounce.
     b("echo_sum", Res::ReadWrite("array<vec4f>"), COMPUTE),
+    // Per entry, its cell's points in `echo_cell_points`: those of texels `x .. y`, then its
+    // crease points `y .. z` ([`echo_cells`]).
+    b("echo_cells", Res::Read("array<vec4u>"), COMPUTE),
+    b("echo_cell_points", Res::Read("array<u32>"), COMPUTE),
 ];
 
 pub const ECHO: Shader = Shader {
@@ -60,6 +65,7 @@ pub const ECHO: Shader = Shader {
     libraries: &[],
     groups: &[ECHO_BINDINGS],
     compute: &[
+        Compute { entry: "echo_cells_main", workgroup: LINEAR },
         Compute { entry: "echo_first_main", workgroup: LINEAR },
         Compute { entry: "echo_second_main", workgroup: LINEAR },
     ],
@@ -121,21 +127,58 @@ struct RelayPass {
     clusters: u32,
 }
 
+/// Per entry, where its cell's points lie in the list that follows (the texels' points, then
+/// the crease points: `[first, texels' end, end, 0]`), and the list: the echo reads each
+/// source against its cell's mean ([`crate::cpu::echo_input`]).
+pub fn echo_cells(prm: &Prm, tables: &crate::cpu::NearTables) -> (Vec<[u32; 4]>, Vec<u32>) {
+    let entries = tables.cell_point_first.len().saturating_sub(1);
+    let points = tables.point_cell.len();
+    // The crease points with a cell, by cell, in point order.
+    let mut creases: Vec<(u32, u32)> = (prm.echo().first_crease(points)..points)
+        .map(|x| (tables.point_cell[x], x as u32))
+        .filter(|&(c, _)| (c as usize) < entries)
+        .collect();
+    creases.sort_unstable();
+    let (mut cells, mut list) = (Vec::with_capacity(entries.max(1)), Vec::new());
+    let mut k = 0;
+    for j in 0..entries {
+        let first = list.len() as u32;
+        list.extend_from_slice(
+            &tables.cell_points[tables.cell_point_first[j] as usize..tables.cell_point_first[j + 1] as usize],
+        );
+        let texels_end = list.len() as u32;
+        while k < creases.len() && creases[k].0 as usize == j {
+            list.push(creases[k].1);
+            k += 1;
+        }
+        cells.push([first, texels_end, list.len() as u32, 0]);
+    }
+    (cells, list)
+}
+
 /// The echo's pipelines and tables (`shaders/echo.wgsl`); none when the map has no echo.
 struct EchoPass {
+    cells: wgpu::ComputePipeline,
     first: wgpu::ComputePipeline,
     second: wgpu::ComputePipeline,
     group: wgpu::BindGroup,
+    entries: u32,
 }
 
 impl EchoPass {
-    fn new(device: &wgpu::Device, prm: &Prm, params: &wgpu::Buffer, sums: &wgpu::Buffer) -> Option<EchoPass> {
+    fn new(
+        device: &wgpu::Device,
+        prm: &Prm,
+        tables: &crate::cpu::NearTables,
+        params: &wgpu::Buffer,
+        sums: &wgpu::Buffer,
+    ) -> Option<EchoPass> {
         let echo = prm.echo();
         if echo.links.is_empty() {
             return None;
         }
         let points = prm.near_points().len();
-        let mut runs = vec![[0u32; 2]; points.max(1)];
+        let mut runs = vec![[0u32, 0, NO_CELL, 0]; points.max(1)];
         for (k, l) in echo.links.iter().enumerate() {
             let r = &mut runs[l.receiver as usize];
             if r[1] == 0 {
@@ -147,6 +190,18 @@ impl EchoPass {
         // texel's run of links.
         for x in echo.first_crease(points)..points {
             runs[x] = runs[echo.echo_of(x, points)];
+        }
+        for (r, &c) in runs.iter_mut().zip(&tables.point_cell) {
+            r[2] = c;
+        }
+        let (mut cells, mut cell_points) = echo_cells(prm, tables);
+        let entries = cells.len() as u32;
+        // Storage bindings cannot be empty.
+        if cells.is_empty() {
+            cells.push([0; 4]);
+        }
+        if cell_points.is_empty() {
+            cell_points.push(0);
         }
         let links: Vec<GpuEchoLink> = echo
             .links
@@ -160,6 +215,9 @@ impl EchoPass {
         let runs = gpu::storage_buffer(device, "echo runs", bytemuck::cast_slice(&runs), none);
         let links = gpu::storage_buffer(device, "echo links", bytemuck::cast_slice(&links), none);
         let echo_sum = gpu::storage_buffer(device, "echo sums", &vec![0u8; points.max(1) * 16], none);
+        let cells = gpu::storage_buffer(device, "echo cells", bytemuck::cast_slice(&cells), none);
+        let cell_points =
+            gpu::storage_buffer(device, "echo cell points", bytemuck::cast_slice(&cell_points), none);
         let layout = ECHO.layout(device, 0);
         let group = bind(
             device,
@@ -172,12 +230,19 @@ impl EchoPass {
                 ("echo_links", links.as_entire_binding()),
                 ("near_sum", sums.as_entire_binding()),
                 ("echo_sum", echo_sum.as_entire_binding()),
+                ("echo_cells", cells.as_entire_binding()),
+                ("echo_cell_points", cell_points.as_entire_binding()),
             ],
         );
         let source = ECHO.source();
-        let first = gpu::compute_pipeline(device, "echo.wgsl", &source, "echo_first_main", &[&layout]);
-        let second = gpu::compute_pipeline(device, "echo.wgsl", &source, "echo_second_main", &[&layout]);
-        Some(EchoPass { first, second, group })
+        let pipeline = |entry: &str| gpu::compute_pipeline(device, "echo.wgsl", &source, entry, &[&layout]);
+        Some(EchoPass {
+            cells: pipeline("echo_cells_main"),
+            first: pipeline("echo_first_main"),
+            second: pipeline("echo_second_main"),
+            group,
+            entries,
+        })
     }
 }
 
@@ -261,6 +326,8 @@ pub struct NearPass {
     pub sums: wgpu::Buffer,
     /// Per atlas texel, its index in `sums`, or `NO_SLOT`.
     pub index: Vec<u32>,
+    /// Where the near points' expected light starts in `sums` (after every texel's sum).
+    pub expected_at: u32,
     echo: Option<EchoPass>,
     /// The near field's own deviation, into `deviation` for the far field.
     relay: Option<RelayPass>,
@@ -302,10 +369,11 @@ impl NearPass {
             none,
         );
         let deviation = &deviation_buffer;
+        // The sums, then the near points' expected light (`shaders/near.wgsl`).
         let sums = gpu::storage_buffer(
             device,
             "near sums",
-            &vec![0u8; data.total.max(1) as usize * 16],
+            &vec![0u8; (data.total + count).max(1) as usize * 16],
             wgpu::BufferUsages::COPY_DST,
         );
         let layout = SHADER.layout(device, 0);
@@ -331,7 +399,7 @@ impl NearPass {
         let deviation_pipeline =
             gpu::compute_pipeline(device, "near.wgsl", &source, "deviation_main", &[&layout]);
         let entries = prm.entries().len() as u32;
-        let echo = EchoPass::new(device, prm, params, &sums);
+        let echo = EchoPass::new(device, prm, tables, params, &sums);
         let far = FarPass::new(
             device,
             shadow_layout,
@@ -374,6 +442,7 @@ impl NearPass {
             count,
             sums,
             index,
+            expected_at: data.total,
             echo,
             relay,
             members,
@@ -404,8 +473,10 @@ impl NearPass {
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
         }
         if let Some(echo) = &self.echo {
-            // Two bounces (`crate::cpu::ECHO_BOUNCES`).
+            // Each source against its cell's mean, then two bounces (`crate::cpu::ECHO_BOUNCES`).
             pass.set_bind_group(0, &echo.group, &[]);
+            pass.set_pipeline(&echo.cells);
+            pass.dispatch_workgroups(echo.entries.div_ceil(WG_LINEAR), 1, 1);
             pass.set_pipeline(&echo.first);
             pass.dispatch_workgroups(self.count.div_ceil(WG_LINEAR), 1, 1);
             pass.set_pipeline(&echo.second);

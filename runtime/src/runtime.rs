@@ -413,6 +413,7 @@ impl Runtime {
             group_count: self.groups as u32,
             residual: (self.params.residual && local_k == 0) as u32,
             near_texel_count: self.near.count,
+            near_expected_at: self.near.expected_at,
             frame: self.frame,
             any_hot: self.any_hot as u32,
             far_texel_count: self.near.far.as_ref().map_or(0, |f| f.count),

@@ -32,10 +32,11 @@ pub use budget::{
 };
 pub use compose::{
     add_and_clamp, add_pane, cell_means, cluster_weights, cluster_weights_with, compose, compose_selected,
-    echo_bounce, far_field, far_sources, far_threshold, lands_apart, lift_weights, lightmap, link_field,
-    near_deviation, near_field, pane_weights, pane_weights_with, residual_weights, select_top_k, sight_eye,
-    sight_share, sighted, tint_of, up_close, FarSource, LightSight, NearTables, UpClose, CLOSE_SIGHTS,
-    CONE_REACH, ECHO_BOUNCES, EYE_BACK, FAR_SOURCES, FAR_SOURCE_SCALE, LANDING_APART, LANDING_TURN,
+    echo_bounce, echo_input, far_field, far_sources, far_threshold, lands_apart, lift_weights, lightmap,
+    link_field, near_deviation, near_field, pane_weights, pane_weights_with, point_cells, residual_weights,
+    select_top_k, sight_eye, sight_share, sighted, tint_of, up_close, FarSource, LightSight, NearTables,
+    UpClose, CLOSE_SIGHTS, CONE_REACH, ECHO_BOUNCES, EYE_BACK, FAR_SOURCES, FAR_SOURCE_SCALE, LANDING_APART,
+    LANDING_TURN,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

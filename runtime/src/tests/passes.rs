@@ -1131,6 +1131,31 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let without = crate::cpu::CpuTwin::new(&plain, &bvh, c).frame(&corner).to_vec();
     let crease_share = prm::metric::compare(&without, &cpu, None).error;
     assert!(crease_share > 0.002, "the crease points change the corner's lightmap by only {crease_share}");
+    // The echo reads each source against its cell's mean of what the panes expected
+    // (`cpu::echo_input`, `shaders/echo.wgsl`'s `echo_cells_main`): the GPU's lightmap follows
+    // the twin's much more closely than the two echoes differ.
+    let tables = cpu::NearTables::new(&prm);
+    let mut against_itself = cpu::NearTables::new(&prm);
+    against_itself.point_cell.fill(crate::contract::NO_CELL);
+    let cells = cpu::cell_lights(&prm, &bvh, &corner);
+    let e = cpu::entry_irradiance_from(&prm, &cells);
+    let link = cpu::LinkLight::new(&prm, &tables, &e, &cells, &corner);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e);
+    let rms = |a: &[Vec3], b: &[Vec3]| {
+        (a.iter().zip(b).map(|(x, y)| (*x - *y).length_squared() as f64).sum::<f64>() / a.len() as f64).sqrt()
+    };
+    let shift = rms(
+        &cpu::link_field(&prm, &tables, &link, &e, &balanced),
+        &cpu::link_field(&prm, &against_itself, &link, &e, &balanced),
+    );
+    let apart = rms(&gpu_l, &cpu);
+    let mean = cpu.iter().map(|v| v.length() as f64).sum::<f64>() / cpu.len() as f64;
+    println!(
+        "corner lamp: the cells' means move the echo by {shift:.3e} RMS; GPU and twin {apart:.3e} apart; the \
+         lightmap's mean {mean:.3e}"
+    );
+    assert!(shift > 0.01 * mean, "the cells' means move the echo by only {shift}: this checks nothing");
+    assert!(apart < 0.25 * shift, "GPU vs twin {apart} RMS, against {shift} from the cells' means");
     // And the far field, which carries the hot spot's deviation past the near links to the
     // rest of the box (texels with near links and texels without, both kinds of slot).
     assert!(prm.far().texels.len() > prm.near_points().len());
