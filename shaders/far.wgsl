@@ -1,8 +1,8 @@
 // Far field (runtime/src/far.rs; prm_precompute::far; twin: prm_runtime::cpu::far_sources and
-// far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sums of
-// |phi| luminances and of the light the surfaces reflect onto the level (luminance(flux_j) x
-// deviation_j.w x stay_j, deviation_j.w the near pass's luminance(E_j)), the count over the
-// stable threshold, the threshold (far_threshold), and the entries over it, ascending: their
+// far_field). sources_main, one workgroup: phi_j = flux_j x deviation_j per entry, the sum of
+// the light the surfaces reflect onto the level (luminance(flux_j) x deviation_j.w x stay_j,
+// deviation_j.w the near pass's luminance(E_j)), the count over the stable threshold, the
+// threshold (far_threshold; past the cap, by bisection), and the entries over it, ascending: their
 // entries in source_sees' index (source_entry; their number at FAR_SOURCES), their records in
 // deviation (record: phi, then the whole flux flux_j E_j with the slot of the sighted light
 // that lights the cell up close, lit_by, or APART where its light lands apart, or NO_LIGHT).
@@ -25,7 +25,6 @@
 // then two vec4f a source (record). source_sees: FAR_SOURCES rows of blocks() words, then the
 // sources' entries (index_base), their number, the number of those lit up close and theirs.
 
-var<workgroup> partial: array<f32, WG_FAR_SOURCES>;
 var<workgroup> reflected: array<f32, WG_FAR_SOURCES>;
 var<workgroup> scan: array<u32, WG_FAR_SOURCES>;
 var<workgroup> listed: u32;
@@ -157,13 +156,10 @@ fn lit_by(j: u32) -> u32 {
 @compute @workgroup_size(WG_FAR_SOURCES)
 fn sources_main(@builtin(local_invocation_index) lid: u32) {
     let n = params.entry_count;
-    var s = 0.0;
     var r = 0.0;
     for (var j = lid; j < n; j += WG_FAR_SOURCES) {
-        s += luminance(abs(flux_of(j)));
         r += luminance(far_entries[j].flux) * deviation[j].w * far_entries[j].stay;
     }
-    partial[lid] = s;
     reflected[lid] = r;
     if lid == 0u {
         listed = 0u;
@@ -171,7 +167,6 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     workgroupBarrier();
     for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
         if lid < stride {
-            partial[lid] += partial[lid + stride];
             reflected[lid] += reflected[lid + stride];
         }
         workgroupBarrier();
@@ -191,8 +186,40 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
         workgroupBarrier();
     }
     var threshold = stable;
-    if scan[0] > FAR_SOURCES {
-        threshold = max(stable, partial[0] / f32(FAR_SOURCES));
+    if workgroupUniformLoad(&scan[0]) > FAR_SOURCES {
+        // The (FAR_SOURCES + 1)-th largest magnitude, the least value no more than
+        // FAR_SOURCES exceed, so the cap is filled: bisection over the bits of non-negative
+        // f32s, which order as their values do (31 halvings of the range reach it).
+        var lo = bitcast<u32>(stable);
+        var hi = 0x7f800000u;
+        // Every invocation has read scan[0] before it is written again.
+        workgroupBarrier();
+        for (var step = 0u; step < 32u; step++) {
+            let mid = lo + (hi - lo) / 2u;
+            let t = bitcast<f32>(mid);
+            var c = 0u;
+            for (var j = lid; j < n; j += WG_FAR_SOURCES) {
+                c += u32(luminance(abs(flux_of(j))) > t);
+            }
+            scan[lid] = c;
+            workgroupBarrier();
+            for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
+                if lid < stride {
+                    scan[lid] += scan[lid + stride];
+                }
+                workgroupBarrier();
+            }
+            let count = workgroupUniformLoad(&scan[0]);
+            if hi - lo > 1u {
+                if count <= FAR_SOURCES {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            workgroupBarrier();
+        }
+        threshold = bitcast<f32>(hi);
     }
     workgroupBarrier();
     for (var start = 0u; start < n; start += WG_FAR_SOURCES) {

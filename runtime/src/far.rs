@@ -3,9 +3,10 @@
 //! near field and its echo:
 //!
 //! 1. `sources_main`, one workgroup: each entry's deviation flux `albedo_j (A/N) deviation_j`
-//!    (the near pass's `deviation`, `E_j - w_c t_j + relay_j`: `crate::near`), the sums of their luminances and
-//!    of the light the surfaces reflect onto the level (by stay share), the threshold
-//!    (`crate::cpu::far_threshold`), and the entries over it, ascending, listed by a prefix sum
+//!    (the near pass's `deviation`, `E_j - w_c t_j + relay_j`: `crate::near`), the sum of the
+//!    light the surfaces reflect onto the level (by stay share), the threshold
+//!    (`crate::cpu::far_threshold`; past the cap, found by bisection over the magnitudes' bits),
+//!    and the entries over it, ascending, listed by a prefix sum
 //!    over the workgroup (the same list every time; the CPU twin's up to the rounding of the
 //!    sums, which it adds in another order, at the threshold).
 //! 2. `far_main`, one invocation per far texel: the sources' light at the texel, added to the

@@ -1468,6 +1468,52 @@ fn gpu_far_field_matches_the_twin_across_sealed_rooms() {
     assert_eq!(crate::far::far_words_len(far), crate::far::far_words(far).len());
 }
 
+/// More entries over the far field's stable bar than it may send (two closed rooms baked with
+/// 4,096 entries in 8 clusters, so that most entries deviate far from their cluster's mean,
+/// a lamp in a corner of each): the twin's threshold is the (`FAR_SOURCES` +
+/// 1)-th largest magnitude (`cpu::far_threshold`), so it sends exactly `FAR_SOURCES`; the GPU
+/// finds the same threshold by bisection and its far field agrees with the twin's.
+#[test]
+fn the_gpu_fills_the_far_fields_cap_as_the_twin_does() {
+    let g = gpu();
+    let scene = two_closed_rooms();
+    let prm = bake(&scene, 4096, 8, 128);
+    let mut lights = scene.lights.clone();
+    lights[0].position = v(0.05, 0.05, 0.05);
+    lights[1].position = v(4.45, 1.45, 1.95);
+    let bvh = Bvh::build(&scene);
+    let (sources, _) = twin_far_field(&prm, &bvh, &lights);
+    assert_eq!(sources.len(), cpu::FAR_SOURCES, "the cap is not reached: this checks nothing");
+    // The cut it replaced, the magnitudes' sum over FAR_SOURCES, sends far fewer here.
+    let tables = cpu::NearTables::new(&prm);
+    let cells = cpu::cell_lights(&prm, &bvh, &lights);
+    let e = cpu::entry_irradiance_from(&prm, &cells);
+    let mut link = cpu::LinkLight::new(&prm, &tables, &e, &cells, &lights);
+    link.sight = cpu::light_sight(&prm, &bvh, &tables, &lights);
+    let balanced = cpu::cluster_weights_with(&prm, &tables, &e);
+    let relay = cpu::near_deviation(&prm, &tables, &cpu::link_field(&prm, &tables, &link, &e, &balanced));
+    let magnitudes: Vec<f32> = prm
+        .entries()
+        .iter()
+        .enumerate()
+        .map(|(j, en)| {
+            let fit = balanced[tables.cluster[j] as usize] * tables.area_ratio[j];
+            prm::luminance((en.albedo * en.area * (e[j] - fit + relay[j])).abs())
+        })
+        .collect();
+    let sum: f32 = magnitudes.iter().sum();
+    let old = magnitudes.iter().filter(|&&m| m > sum / cpu::FAR_SOURCES as f32).count();
+    let (gpu_far, cpu_far) = far_field_alone(&g, &scene, &prm, &lights);
+    let m = prm::metric::compare(&gpu_far, &cpu_far, None);
+    println!("{} sources ({old} by the old cut); GPU vs twin far field {:.4}", sources.len(), m.error);
+    assert!(old * 10 < cpu::FAR_SOURCES * 9, "the old cut sent {old}: this tells the two apart too little");
+    assert!(
+        m.error < 0.05,
+        "corner lamps, the cap filled: GPU vs CPU far field: normalised RMSE {}",
+        m.error
+    );
+}
+
 /// A far radius shorter than the box: the far field keeps the pairs of blocks near each other
 /// only, and the GPU walks each neighbour's run of pairs (skipping blocks it does not keep) to
 /// the same light as the twin's lookups.
