@@ -153,6 +153,26 @@ fn lit_by(j: u32) -> u32 {
     return best;
 }
 
+// How many entries' deviation fluxes exceed t in luminance, the same in every invocation of
+// sources_main's workgroup (summed in scan, which is free again on return).
+fn count_over(lid: u32, t: f32) -> u32 {
+    var c = 0u;
+    for (var j = lid; j < params.entry_count; j += WG_FAR_SOURCES) {
+        c += u32(luminance(abs(flux_of(j))) > t);
+    }
+    scan[lid] = c;
+    workgroupBarrier();
+    for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
+        if lid < stride {
+            scan[lid] += scan[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    let count = workgroupUniformLoad(&scan[0]);
+    workgroupBarrier();
+    return count;
+}
+
 @compute @workgroup_size(WG_FAR_SOURCES)
 fn sources_main(@builtin(local_invocation_index) lid: u32) {
     let n = params.entry_count;
@@ -173,43 +193,16 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
     }
     // prm_runtime::cpu::far_threshold: the stable threshold unless too many are over it.
     let stable = reflected[0] / FAR_SOURCE_SCALE;
-    var over = 0u;
-    for (var j = lid; j < n; j += WG_FAR_SOURCES) {
-        over += u32(luminance(abs(flux_of(j))) > stable);
-    }
-    scan[lid] = over;
-    workgroupBarrier();
-    for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
-        if lid < stride {
-            scan[lid] += scan[lid + stride];
-        }
-        workgroupBarrier();
-    }
     var threshold = stable;
-    if workgroupUniformLoad(&scan[0]) > FAR_SOURCES {
+    if count_over(lid, stable) > FAR_SOURCES {
         // The (FAR_SOURCES + 1)-th largest magnitude, the least value no more than
         // FAR_SOURCES exceed, so the cap is filled: bisection over the bits of non-negative
         // f32s, which order as their values do (31 halvings of the range reach it).
         var lo = bitcast<u32>(stable);
         var hi = 0x7f800000u;
-        // Every invocation has read scan[0] before it is written again.
-        workgroupBarrier();
         for (var step = 0u; step < 32u; step++) {
             let mid = lo + (hi - lo) / 2u;
-            let t = bitcast<f32>(mid);
-            var c = 0u;
-            for (var j = lid; j < n; j += WG_FAR_SOURCES) {
-                c += u32(luminance(abs(flux_of(j))) > t);
-            }
-            scan[lid] = c;
-            workgroupBarrier();
-            for (var stride = WG_FAR_SOURCES / 2u; stride > 0u; stride /= 2u) {
-                if lid < stride {
-                    scan[lid] += scan[lid + stride];
-                }
-                workgroupBarrier();
-            }
-            let count = workgroupUniformLoad(&scan[0]);
+            let count = count_over(lid, bitcast<f32>(mid));
             if hi - lo > 1u {
                 if count <= FAR_SOURCES {
                     hi = mid;
@@ -217,7 +210,6 @@ fn sources_main(@builtin(local_invocation_index) lid: u32) {
                     lo = mid;
                 }
             }
-            workgroupBarrier();
         }
         threshold = bitcast<f32>(hi);
     }
