@@ -236,13 +236,17 @@ pub fn point_cells(prm: &Prm) -> Vec<u32> {
 /// nearest the entry) read the peak of the first bounce rather than the cell's share (the
 /// chamber's corner spot lifted a side wall's cluster to 1.9x its balanced weight).
 pub fn cell_means(tables: &NearTables, field: &[Vec3]) -> Vec<Option<Vec3>> {
-    tables
-        .cell_first
+    run_means(&tables.cell_first, &tables.cell_texels, field)
+}
+
+/// Per run `list[first[j]..first[j + 1]]`, the mean of `field` over the indices it lists,
+/// None for an empty run.
+fn run_means(first: &[u32], list: &[u32], field: &[Vec3]) -> Vec<Option<Vec3>> {
+    first
         .windows(2)
         .map(|w| {
-            let texels = &tables.cell_texels[w[0] as usize..w[1] as usize];
-            (!texels.is_empty())
-                .then(|| texels.iter().map(|&t| field[t as usize]).sum::<Vec3>() / texels.len() as f32)
+            let run = &list[w[0] as usize..w[1] as usize];
+            (!run.is_empty()).then(|| run.iter().map(|&k| field[k as usize]).sum::<Vec3>() / run.len() as f32)
         })
         .collect()
 }
@@ -322,15 +326,7 @@ pub const ECHO_BOUNCES: usize = 2;
 /// the sunroom read -0.66 W/m² of echo against 0.47 of panes at the jamb below it (truth
 /// 0.63); with the cell's mean, 0.29.
 pub fn echo_input(tables: &NearTables, near: &[Vec3], expected: &[Vec3]) -> Vec<Vec3> {
-    let means: Vec<Option<Vec3>> = tables
-        .cell_point_first
-        .windows(2)
-        .map(|w| {
-            let points = &tables.cell_points[w[0] as usize..w[1] as usize];
-            (!points.is_empty())
-                .then(|| points.iter().map(|&x| expected[x as usize]).sum::<Vec3>() / points.len() as f32)
-        })
-        .collect();
+    let means = run_means(&tables.cell_point_first, &tables.cell_points, expected);
     near.iter()
         .zip(expected)
         .zip(&tables.point_cell)
