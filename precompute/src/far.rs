@@ -94,7 +94,16 @@ pub fn far_field(
             && r.old_room.len() == entries.len()
     });
     let (block_first, pair_block, visible) = pair_visibility(bvh, entries, room, radius, reuse);
-    let mut far = Far { reach, radius, block_first, pair_block, visible, texels, energy: Vec::new() };
+    let mut far = Far {
+        reach,
+        radius,
+        block_first,
+        pair_block,
+        visible,
+        texels,
+        energy: Vec::new(),
+        areas: Vec::new(),
+    };
     if sum_energy {
         far.energy = far_energy(&far, entries, cell, reuse);
     }
@@ -1222,6 +1231,7 @@ mod tests {
             visible,
             texels,
             energy: Vec::new(),
+            areas: Vec::new(),
         };
         let cell: Vec<(Vec3, f32)> = entries.iter().map(|e| (e.position + Vec3::X * 0.05, e.area)).collect();
         let assignment: Vec<u32> = (0..2 * B as u32).map(|j| j % 5).collect();
@@ -1321,6 +1331,7 @@ mod tests {
                 weights: [0.25; 4],
             }],
             energy: vec![0.0; 2 * B],
+            areas: Vec::new(),
         };
         let cell: Vec<(Vec3, f32)> = entries.iter().map(|e| (e.position, e.area)).collect();
         let lit = |far: &Far, assignment: &[u32], cell: &[(Vec3, f32)]| {

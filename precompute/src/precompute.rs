@@ -931,12 +931,25 @@ pub(crate) fn finish(
         echo,
         crease_links,
         crease_points,
-        far,
+        mut far,
         grouping,
         set: pre_set,
         texel_areas,
         ..
     } = pre;
+    // Each far texel's area, for the runtime's sum of the near field's power (none where the
+    // areas were not made: without `match_power`).
+    far.areas = if texel_areas.is_empty() {
+        Vec::new()
+    } else {
+        far.texels
+            .iter()
+            .map(|t| match pre_set.index.get(t.texel as usize) {
+                Some(&k) if k != prm::TexelSet::EMPTY => texel_areas.get(k as usize).copied().unwrap_or(0.0),
+                _ => 0.0,
+            })
+            .collect()
+    };
     // The crease points come after the texels' (their texels past the atlas's).
     near.extend(crease_links);
     near_points.extend(crease_points);

@@ -263,7 +263,9 @@ gpu_struct! {
         /// Where the near points' expected light starts in `near_sum` (`shaders/near.wgsl`,
         /// `shaders/echo.wgsl`; `crate::cpu::echo_input`): the slot after the far field's.
         pub near_expected_at: u32,
-        pub _pad1: u32,
+        /// 1: the lift keeps each room's power from the far texels' areas
+        /// (`crate::cpu::lift_weights`, `shaders/lift.wgsl`); 0: its energy (a map before v17).
+        pub lift_power: u32,
         /// Column k: the eye of the light in sighted slot k (`crate::cpu::sight_eye`: where its
         /// cube is and its spots are seen from), w = 1; zero past the last.
         pub sight_eyes: [[f32; 4]; 4],

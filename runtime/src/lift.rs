@@ -22,15 +22,15 @@ pub const BINDINGS: &[Binding] = &[
     b("lift_members", Res::Read("array<u32>"), COMPUTE),
     // The near pass's sums: near links with their echo, and the far field.
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
-    // Per cluster, its pane's energy in each channel (its luminance's tinted by the cluster's
-    // albedo, `NearTables::cluster_tint`), and in w its luminance's ([`cluster_energies`]).
-    b("energy", Res::Read("array<vec4f>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
     // Per cluster u_c, then each room's lambda (C + R).
     b("lifted", Res::ReadWrite("array<vec4f>"), COMPUTE),
-    // The rooms ([`room_words`]).
-    b("rooms", Res::Read("array<u32>"), COMPUTE),
+    // The entry pass's irradiance per entry.
+    b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
+    // [`lift_tables`]: the clusters' energies, the rooms, the entries' `(A/N) g rho`, the
+    // slots' areas, in one buffer (WebGPU gives a stage 8 storage buffers).
+    b("lift_tables", Res::Read("array<u32>"), COMPUTE),
 ];
 
 pub const SHADER: Shader = Shader {
@@ -52,6 +52,7 @@ pub struct LiftBuffers<'a> {
     pub weights: &'a wgpu::Buffer,
     pub scores: &'a wgpu::Buffer,
     pub near_sum: &'a wgpu::Buffer,
+    pub entry_irradiance: &'a wgpu::Buffer,
 }
 
 pub struct LiftPass {
@@ -61,6 +62,51 @@ pub struct LiftPass {
     group: wgpu::BindGroup,
     clusters: u32,
     rooms: u32,
+    /// The map has its far texels' areas: the lift keeps each room's power (`IndirectParams::
+    /// lift_power`).
+    pub power: bool,
+}
+
+/// The length of the lift's `lifted` buffer: per cluster `u_c`, per room `lambda`, then per
+/// cluster what its cells send and the near and far fields' power over them.
+pub fn lifted_len(clusters: usize, rooms: usize) -> usize {
+    3 * clusters + rooms
+}
+
+/// Part of [`lift_tables`]: per entry `(A/N) g_j rho_j` (`NearTables::reflect`).
+pub fn entry_reflect(prm: &Prm, tables: &NearTables) -> Vec<[f32; 4]> {
+    (prm.entries().iter().zip(&tables.reflect))
+        .map(|(e, r)| {
+            let x = e.area * *r;
+            [x.x, x.y, x.z, 0.0]
+        })
+        .collect()
+}
+
+/// Part of [`lift_tables`]: aligned with the near pass's member table
+/// (`crate::near::cluster_members`), 0 for each member's four words, then each listed far
+/// texel's area (`NearTables::cell_areas`); one 0 for a map without them.
+pub fn slot_areas(prm: &Prm, tables: &NearTables) -> Vec<f32> {
+    if tables.cell_areas.is_empty() {
+        return vec![0.0];
+    }
+    let count: usize = prm.clusters().iter().map(|c| c.members.len()).sum();
+    let mut areas = vec![0.0f32; 4 * count];
+    for &m in prm.clusters().iter().flat_map(|c| c.members.iter()) {
+        let run = tables.cell_first[m as usize] as usize..tables.cell_first[m as usize + 1] as usize;
+        areas.extend_from_slice(&tables.cell_areas[run]);
+    }
+    areas
+}
+
+/// The lift's `lift_tables` buffer (words): [`cluster_energies`] (four f32 a cluster), then
+/// [`room_words`], [`entry_reflect`] (four f32 an entry) and [`slot_areas`].
+pub fn lift_tables(prm: &Prm, tables: &NearTables) -> Vec<u32> {
+    let mut words: Vec<u32> = cluster_energies(prm, tables).iter().flatten().map(|f| f.to_bits()).collect();
+    words.extend(room_words(tables));
+    words.extend(entry_reflect(prm, tables).iter().flatten().map(|f| f.to_bits()));
+    words.extend(slot_areas(prm, tables).iter().map(|f| f.to_bits()));
+    words
 }
 
 /// The length of [`room_words`] for `clusters` clusters in `rooms` rooms.
@@ -68,7 +114,7 @@ pub fn room_words_len(clusters: usize, rooms: usize) -> usize {
     2 + 2 * clusters + rooms
 }
 
-/// The lift's `rooms` buffer: R, each cluster's room (`NearTables::cluster_room`), where each
+/// Part of [`lift_tables`]: R, each cluster's room (`NearTables::cluster_room`), where each
 /// room's clusters start in the list (R + 1), and the list (ascending within each room).
 pub fn room_words(tables: &NearTables) -> Vec<u32> {
     let (rooms, c) = (tables.rooms, tables.cluster_room.len());
@@ -91,14 +137,16 @@ pub fn room_words(tables: &NearTables) -> Vec<u32> {
     words
 }
 
-/// The lift's `energy` buffer: per cluster, `energy_c` times its tint in xyz (what
-/// [`crate::cpu::lift_weights`] weighs each channel by) and `energy_c` in w (the score's).
+/// Part of [`lift_tables`]: per cluster, in xyz what [`crate::cpu::lift_weights`] weighs
+/// each channel by: its pane's power `P_c` (`NearTables::power`) where the map has its far
+/// texels' areas, else `energy_c` times its tint; and `energy_c` in w (the score's).
 pub fn cluster_energies(prm: &Prm, tables: &NearTables) -> Vec<[f32; 4]> {
+    let power = !tables.cell_areas.is_empty();
     prm.clusters()
         .iter()
-        .zip(&tables.cluster_tint)
-        .map(|(c, t)| {
-            let e = c.energy * *t;
+        .enumerate()
+        .map(|(k, c)| {
+            let e = if power { tables.power[k] } else { c.energy * tables.cluster_tint[k] };
             [e.x, e.y, e.z, c.energy]
         })
         .collect()
@@ -117,14 +165,15 @@ impl LiftPass {
         let members = members?;
         let clusters = prm.clusters().len();
         let none = wgpu::BufferUsages::empty();
-        let lifted =
-            gpu::storage_buffer(device, "lifted weights", &vec![0u8; (clusters + tables.rooms) * 16], none);
-        let rooms = gpu::storage_buffer(device, "rooms", bytemuck::cast_slice(&room_words(tables)), none);
-        let mut energies = cluster_energies(prm, tables);
-        if energies.is_empty() {
-            energies.push([0.0; 4]);
-        }
-        let energy = gpu::storage_buffer(device, "lift energies", bytemuck::cast_slice(&energies), none);
+        let lifted = gpu::storage_buffer(
+            device,
+            "lifted weights",
+            &vec![0u8; lifted_len(clusters, tables.rooms) * 16],
+            none,
+        );
+
+        let lift_tables =
+            gpu::storage_buffer(device, "lift tables", bytemuck::cast_slice(&lift_tables(prm, tables)), none);
         let layout = SHADER.layout(device, 0);
         let group = bind(
             device,
@@ -136,11 +185,11 @@ impl LiftPass {
                 ("ranges", buffers.ranges.as_entire_binding()),
                 ("lift_members", members.as_entire_binding()),
                 ("near_sum", buffers.near_sum.as_entire_binding()),
-                ("energy", energy.as_entire_binding()),
                 ("weights", buffers.weights.as_entire_binding()),
                 ("scores", buffers.scores.as_entire_binding()),
                 ("lifted", lifted.as_entire_binding()),
-                ("rooms", rooms.as_entire_binding()),
+                ("entry_irradiance", buffers.entry_irradiance.as_entire_binding()),
+                ("lift_tables", lift_tables.as_entire_binding()),
             ],
         );
         let source = SHADER.source();
@@ -152,6 +201,7 @@ impl LiftPass {
             group,
             clusters: clusters as u32,
             rooms: tables.rooms as u32,
+            power: !tables.cell_areas.is_empty(),
         })
     }
 

@@ -111,9 +111,17 @@ impl GpuMemory {
             // The relay's and the lift's (`crate::near::cluster_members`).
             // Four words a member, then each far texel's slot under its nearest entry's cell.
             ("cluster members", if far_texels > 0 { size(4 * members + far_texels, 4) } else { 0 }),
-            ("lifted weights", if far_texels > 0 { size(c + rooms, 16) } else { 0 }),
-            ("lift energies", if far_texels > 0 { size(c.max(1), 16) } else { 0 }),
-            ("rooms", if far_texels > 0 { size(crate::lift::room_words_len(c, rooms), 4) } else { 0 }),
+            ("lifted weights", if far_texels > 0 { size(crate::lift::lifted_len(c, rooms), 16) } else { 0 }),
+            // The clusters' energies, the rooms, the entries' (A/N) g rho, the slots' areas.
+            (
+                "lift tables",
+                if far_texels > 0 {
+                    let areas = if prm.far().areas.is_empty() { 1 } else { 4 * members + far_texels };
+                    size(4 * c + crate::lift::room_words_len(c, rooms) + 4 * n + areas, 4)
+                } else {
+                    0
+                },
+            ),
         ];
         GpuMemory { items: items.iter().map(|(n, b)| (n.to_string(), *b)).collect() }
     }

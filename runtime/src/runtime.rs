@@ -234,6 +234,7 @@ impl Runtime {
                 weights: &weights.weights,
                 scores: &weights.scores,
                 near_sum: &near.sums,
+                entry_irradiance: &entries.output,
             },
         );
         let compose = ComposePass::new(device, prm, &weights.selected, &near);
@@ -414,6 +415,7 @@ impl Runtime {
             residual: (self.params.residual && local_k == 0) as u32,
             near_texel_count: self.near.count,
             near_expected_at: self.near.expected_at,
+            lift_power: self.lift.as_ref().is_some_and(|l| l.power) as u32,
             frame: self.frame,
             any_hot: self.any_hot as u32,
             far_texel_count: self.near.far.as_ref().map_or(0, |f| f.count),
@@ -426,7 +428,6 @@ impl Runtime {
             sighted_lo: self.shadows.sighted_bits()[0],
             sighted_hi: self.shadows.sighted_bits()[1],
             sight_eyes: self.shadows.sight_eyes(),
-            ..Default::default()
         };
         self.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&p));
     }

@@ -303,13 +303,14 @@ fn ranges(p: &PrmParts) -> Result<(), String> {
 /// The far field: empty, or block offsets for the entries' blocks running up to the pairs,
 /// each block's pairs naming blocks in ascending order, a block's bits per pair, a finite reach
 /// and radius, texels in atlas order with finite points, unit normals, entries in range and
-/// weights >= 0 summing to 1, and a finite energy >= 0 per entry.
+/// weights >= 0 summing to 1, a finite energy >= 0 per entry, and (v17) none or one finite area
+/// >= 0 per texel.
 fn far(p: &PrmParts) -> Result<(), String> {
     let (f, h, n) = (&p.far, &p.header, p.entries.len());
     if f.texels.is_empty() && f.block_first.is_empty() && f.pair_block.is_empty() && f.visible.is_empty() {
-        return match f.energy.len() {
-            0 => Ok(()),
-            e => Err(format!("{e} far-field energies without a far field")),
+        return match (f.energy.len(), f.areas.len()) {
+            (0, 0) => Ok(()),
+            (e, a) => Err(format!("{e} far-field energies and {a} texel areas without a far field")),
         };
     }
     if f.texels.is_empty() {
@@ -369,6 +370,12 @@ fn far(p: &PrmParts) -> Result<(), String> {
         if !ok {
             return Err(format!("far-field texel {k} is out of range, out of order or not finite"));
         }
+    }
+    if !f.areas.is_empty() && f.areas.len() != f.texels.len() {
+        return Err(format!("{} far-field texel areas for {} texels", f.areas.len(), f.texels.len()));
+    }
+    if let Some(k) = f.areas.iter().position(|a| !(a.is_finite() && *a >= 0.0)) {
+        return Err(format!("far-field texel {k}'s area is {} (not finite and >= 0)", f.areas[k]));
     }
     Ok(())
 }

@@ -39,6 +39,7 @@
 //!           pair's visibility bits ([`Far`]); T x 60 B: texel u32, point (3 x f32), normal
 //!           (3 x f32), 4 entries u32, 4 weights f32; then (when T > 0) N x f32: each entry's
 //!           far-field energy per unit deviation (`Far::energy`). T = F = P = 0: no far field
+//!     TXAR  (v17) T x f32: each far texel's area (`Far::areas`), or none
 //! end u64    FNV-1a 64 checksum of every byte before it
 //! ```
 //!
@@ -166,14 +167,16 @@ use sections::{Reader, SectionError, Writer};
 /// File magic.
 pub const MAGIC: [u8; 8] = *b"PRMAP\0\r\n";
 /// The format version this code writes.
-pub const VERSION: u32 = 16;
+pub const VERSION: u32 = 17;
 /// The oldest version this code reads: a v10 file is a v11 file whose near links never take
 /// the per-run bases (`NEAR` width 3, added in v11 for levels of more than 65,536 entries), and
 /// a v11 file a v12 one without stay shares (every entry's light taken to stay), and a v12
 /// file a v13 one with a `DIPO` section, read when it holds no dipole panes, and a v13 file a
 /// v14 one without bounce gains (each gain its stay share), and a v14 file a v15 one whose
 /// texels see every triangle of their links' cells (no `SEEN` section), and a v15 file a v16
-/// one without crease points (no `CRSE` section).
+/// one without crease points (no `CRSE` section), and a v16 file a v17 one without the far
+/// texels' areas (no `TXAR` section: the runtime's lift then keeps the panes' energy as the
+/// balance set it).
 pub const OLDEST_READ: u32 = 10;
 
 /// An entry point (DESIGN.md §4).
@@ -505,6 +508,11 @@ pub struct Far {
     /// cluster's light (`prm_precompute::far`). A map with atlas tiles left out
     /// ([`Prm::without_atlas_tiles`]) adds here the energy of the near links it cut.
     pub energy: Vec<f32>,
+    /// Per far texel (v17; empty in an older map): the area of surface it stands for (scene
+    /// units², `prm::TexelSet::visible_areas`), so the runtime can sum the near and far fields'
+    /// power and keep each room's light at the power its cells send (`prm_runtime::cpu::
+    /// lift_weights`).
+    pub areas: Vec<f32>,
 }
 
 impl Echo {
@@ -916,6 +924,7 @@ impl PrmParts {
         w.tiles(&self.tiles);
         w.data(&self.data);
         w.far(&self.far);
+        w.texel_areas(&self.far.areas);
         let sum = w.sum;
         w.put(&sum.to_le_bytes());
         match w.error {
@@ -1199,7 +1208,10 @@ impl Prm {
             if version < 13 {
                 r.retired_dipoles()?;
             }
-            let far = r.far()?;
+            let mut far = r.far()?;
+            if version >= 17 {
+                far.areas = r.texel_areas(far.texels.len())?;
+            }
             r.finish()?;
             Ok(PrmParts {
                 header,
@@ -1357,6 +1369,7 @@ mod tests {
                     },
                 ],
                 energy: vec![0.5, 2.0],
+                areas: Vec::new(),
             },
             ..Default::default()
         }
@@ -1490,7 +1503,7 @@ mod tests {
         let no_stays =
             Prm::new(PrmParts { stays: Vec::new(), gains: Vec::new(), ..seeing_all(parts()) }).unwrap();
         for old in [10u32, 11] {
-            let new = without_seen(&without_gains(&without_creases(&no_stays.to_bytes())));
+            let new = without_seen(&without_gains(&without_creases(&before_areas(&no_stays.to_bytes()))));
             let Some(far) = (16..new.len()).find(|&k| &new[k..k + 4] == b"FARF") else {
                 panic!("no FARF section");
             };
@@ -1507,9 +1520,9 @@ mod tests {
             assert_eq!((read.stay(0), read.stay(1)), (1.0, 1.0));
         }
         // A version from a later build is refused, not misread.
-        bytes[8..12].copy_from_slice(&17u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&18u32.to_le_bytes());
         let err = Prm::from_bytes(Path::new("new.prm"), &bytes).unwrap_err().to_string();
-        assert!(err.contains("version 17") && err.contains("versions 10 to 16"), "{err}");
+        assert!(err.contains("version 18") && err.contains("versions 10 to 17"), "{err}");
     }
 
     /// `parts` with every near link seeing its whole cell: what a file before v15 reads as.
@@ -1553,7 +1566,7 @@ mod tests {
         };
         assert_eq!(back, prm);
         assert_eq!(back.echo().creases, vec![1]);
-        let v15 = as_version(&without_creases(&plain.to_bytes()), 15);
+        let v15 = as_version(&without_creases(&before_areas(&plain.to_bytes())), 15);
         match Prm::from_bytes(Path::new("v15.prm"), &v15) {
             Ok(read) => assert_eq!((read.read_version(), read.echo()), (15, plain.echo())),
             Err(e) => panic!("a v15 file refused: {e}"),
@@ -1572,6 +1585,48 @@ mod tests {
         // Texel 5 lies in the atlas's one tile: leaving it out leaves out the crease point too.
         let Ok(cut) = prm.without_atlas_tiles(&[true]) else { panic!("the cut map is refused") };
         assert!(cut.prm.near_points().is_empty() && cut.prm.echo().creases.is_empty());
+    }
+
+    /// `bytes` (a file of this version) without its `TXAR` section (a map without the far
+    /// texels' areas), its checksum made again: what the file was before v17.
+    fn before_areas(bytes: &[u8]) -> Vec<u8> {
+        let out = without_section(bytes, b"TXAR");
+        assert_eq!(out.len() + 12, bytes.len(), "the map has no far texel areas");
+        out
+    }
+
+    /// The far texels' areas round-trip; a map without them, stamped v16 without its `TXAR`
+    /// section, reads as it was (no areas: the runtime's lift keeps the energy); the areas
+    /// follow their texels when atlas tiles are left out.
+    #[test]
+    fn far_texel_areas_round_trip_and_a_v16_file_has_none() {
+        let mut p = parts();
+        p.far.areas = vec![0.04, 0.01];
+        let (Ok(prm), Ok(plain)) = (Prm::new(p), Prm::new(parts())) else { panic!("valid parts refused") };
+        let Ok(back) = Prm::from_bytes(Path::new("t.prm"), &prm.to_bytes()) else {
+            panic!("a map's bytes refused")
+        };
+        assert_eq!(back.far().areas, vec![0.04, 0.01]);
+        assert_eq!(back, prm);
+        let v16 = as_version(&before_areas(&plain.to_bytes()), 16);
+        match Prm::from_bytes(Path::new("v16.prm"), &v16) {
+            Ok(read) => {
+                assert_eq!((read.read_version(), read.far().areas.is_empty(), &read), (16, true, &plain))
+            }
+            Err(e) => panic!("a v16 file refused: {e}"),
+        }
+        // Bytes of areas for another count of texels are refused.
+        let mut bad = prm.to_bytes();
+        let Some(at) = (16..bad.len()).find(|&k| &bad[k..k + 4] == b"TXAR") else {
+            panic!("no TXAR section")
+        };
+        bad[at + 4..at + 12].copy_from_slice(&4u64.to_le_bytes());
+        bad.drain(at + 16..at + 20);
+        let len = bad.len();
+        let sum = crate::fingerprint::fnv1a(crate::fingerprint::FNV_START, &bad[..len - 8]);
+        bad[len - 8..].copy_from_slice(&sum.to_le_bytes());
+        let err = Prm::from_bytes(Path::new("bad.prm"), &bad).unwrap_err().to_string();
+        assert!(err.contains("2 far-field texels, 4 bytes of their areas"), "{err}");
     }
 
     /// `bytes` (a file of this version) without its `SEEN` section, its checksum made again.
@@ -1612,7 +1667,7 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!(back.near(), prm.near());
-        let v14 = as_version(&without_seen(&without_creases(&prm.to_bytes())), 14);
+        let v14 = as_version(&without_seen(&without_creases(&before_areas(&prm.to_bytes()))), 14);
         let read = match Prm::from_bytes(Path::new("v14.prm"), &v14) {
             Ok(read) => read,
             Err(e) => panic!("a v14 file refused: {e}"),
@@ -1643,7 +1698,8 @@ mod tests {
             panic!("a map's bytes refused")
         };
         assert_eq!((back.gain(0), back.gain(1)), (Vec3::new(2.5, 2.4, 2.3), Vec3::new(0.5, 0.6, 0.7)));
-        let v13 = as_version(&without_seen(&without_gains(&without_creases(&v14.to_bytes()))), 13);
+        let v13 =
+            as_version(&without_seen(&without_gains(&without_creases(&before_areas(&v14.to_bytes())))), 13);
         let read = match Prm::from_bytes(Path::new("v13.prm"), &v13) {
             Ok(read) => read,
             Err(e) => panic!("a v13 file refused: {e}"),
@@ -1802,7 +1858,7 @@ mod tests {
             ("far-field radius", |p| p.far.radius = -1.0),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[0] = 0.5),
             ("far-field reach", |p| p.far.reach = f32::NAN),
-            ("1 far-field energies without a far field", |p| {
+            ("1 far-field energies and 0 texel areas without a far field", |p| {
                 p.far = Far { energy: vec![1.0], ..Far::default() }
             }),
             ("1 far-field energies for 2 entries", |p| {
@@ -1814,6 +1870,12 @@ mod tests {
             ("far-field texel 1 is out of range", |p| p.far.texels.swap(0, 1)),
             ("far-field texel 0 is out of range", |p| p.far.texels[0].weights[3] = -1.0),
             ("far-field texel 1 is out of range", |p| p.far.texels[1].texel = 16),
+            ("1 far-field texel areas for 2 texels", |p| p.far.areas = vec![0.04]),
+            ("far-field texel 1's area is NaN", |p| p.far.areas = vec![0.04, f32::NAN]),
+            ("far-field texel 0's area is -1", |p| p.far.areas = vec![-1.0, 0.01]),
+            ("0 far-field energies and 2 texel areas without a far field", |p| {
+                p.far = Far { areas: vec![1.0, 1.0], ..Far::default() }
+            }),
             ("out of range", |p| p.tiles[0].index = 1),
             ("out of range", |p| p.tiles[0].scale.x = -1.0),
             ("tile range is wrong", |p| p.clusters[0].tile_count = 2),

@@ -251,9 +251,11 @@ fn without_near_texels(
 /// The far field without dropped texels; none at all when no texel stays (its entry energies
 /// then reach no receiver).
 fn without_far_texels(f: &Far, dropped: &dyn Fn(u32) -> bool) -> Far {
-    let texels: Vec<_> = f.texels.iter().filter(|t| !dropped(t.texel)).copied().collect();
-    if texels.is_empty() {
+    let kept: Vec<usize> = (0..f.texels.len()).filter(|&k| !dropped(f.texels[k].texel)).collect();
+    if kept.is_empty() {
         return Far::default();
     }
-    Far { texels, ..f.clone() }
+    let texels = kept.iter().map(|&k| f.texels[k]).collect();
+    let areas = if f.areas.is_empty() { Vec::new() } else { kept.iter().map(|&k| f.areas[k]).collect() };
+    Far { texels, areas, ..f.clone() }
 }

@@ -286,6 +286,11 @@ impl<'a> Writer<'a> {
         debug_assert!(self.error.is_some() || self.len - start == 12 + len as u64, "FARF's length");
     }
 
+    /// `TXAR` (v17): the far texels' areas, or none.
+    pub(super) fn texel_areas(&mut self, areas: &[f32]) {
+        self.section(b"TXAR", bytemuck::cast_slice(areas));
+    }
+
     pub(super) fn data(&mut self, data: &[u8]) {
         self.section(b"DATA", data);
     }
@@ -513,7 +518,16 @@ impl<'a> Reader<'a> {
                 weights: at(c, 44).map(f32::from_bits),
             })
             .collect();
-        Ok(Far { reach, radius, block_first, pair_block, visible, texels, energy })
+        Ok(Far { reach, radius, block_first, pair_block, visible, texels, energy, areas: Vec::new() })
+    }
+
+    /// `TXAR` (v17): the areas of `texels` far texels, or none.
+    pub(super) fn texel_areas(&mut self, texels: usize) -> Result<Vec<f32>, SectionError> {
+        let a = self.next(b"TXAR")?;
+        if !a.is_empty() && !holds(a.len(), texels as u64, 4) {
+            return Err(Corrupt(format!("{texels} far-field texels, {} bytes of their areas", a.len())));
+        }
+        Ok(a.chunks_exact(4).map(|c| f32_at(c, 0)).collect())
     }
 
     /// `ECHO` for `points` near points (what the links point at is checked with the others).

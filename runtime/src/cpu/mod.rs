@@ -36,7 +36,7 @@ pub use compose::{
     link_field, near_deviation, near_field, pane_weights, pane_weights_with, point_cells, residual_weights,
     select_top_k, sight_eye, sight_share, sighted, tint_of, up_close, FarSource, LightSight, NearTables,
     UpClose, CLOSE_SIGHTS, CONE_REACH, ECHO_BOUNCES, EYE_BACK, FAR_SOURCES, FAR_SOURCE_SCALE, LANDING_APART,
-    LANDING_TURN,
+    LANDING_TURN, POWER_KEPT_LIMITS,
 };
 pub use concentrate::LinkLight;
 #[cfg(feature = "cpu-twin")]

@@ -1018,6 +1018,9 @@ fn gpu_lightmap_matches_the_cpu_twin() {
     let g = gpu();
     let scene = open_box_half_red();
     let prm = bake(&scene, 512, 40, 48);
+    // The lift keeps the level's power by the far texels' areas (`cpu::lift_weights`).
+    assert_eq!(prm.far().areas.len(), prm.far().texels.len());
+    assert!(!prm.far().areas.is_empty());
     // The entries by the opening lose light through it, and half the floor is red: the GPU's
     // weights count their stay shares and albedos as the twin's do.
     assert!((0..prm.entries().len()).any(|j| prm.stay(j) < 0.8));
@@ -1964,6 +1967,7 @@ fn a_light_moving_in_one_sealed_room_recomposes_only_what_it_reaches() {
     let w: Vec<Vec3> =
         (0..second.len()).map(|_| Vec3::new(rng.random(), rng.random(), rng.random())).collect();
     let near: Vec<Vec3> = (0..prm.texel_count()).map(|_| Vec3::splat(rng.random::<f32>() - 0.3)).collect();
+    let e: Vec<Vec3> = (0..prm.entries().len()).map(|_| Vec3::splat(rng.random::<f32>())).collect();
     let mut brighter = near.clone();
     for (j, w) in tables.cell_first.windows(2).enumerate() {
         if !second[tables.cluster[j] as usize] {
@@ -1972,8 +1976,10 @@ fn a_light_moving_in_one_sealed_room_recomposes_only_what_it_reaches() {
             }
         }
     }
-    let (a, b) =
-        (cpu::lift_weights(&prm, &tables, &w, &near), cpu::lift_weights(&prm, &tables, &w, &brighter));
+    let (a, b) = (
+        cpu::lift_weights(&prm, &tables, &w, &near, &e),
+        cpu::lift_weights(&prm, &tables, &w, &brighter, &e),
+    );
     for c in 0..second.len() {
         if second[c] {
             assert_eq!(a[c], b[c], "the twin's cluster {c} of the second room");
