@@ -334,14 +334,14 @@ fn bad_prm_files_get_their_errors() {
     assert!(matches!(Prm::read(&dir.path().join("absent.prm"), None), Err(PrmError::Io { .. })));
 }
 
-/// `bytes` (a v16 file without crease points) as version 12 wrote the same map but for its
-/// bounce gains and hidden triangles: no `GAIN` section (v14's), `SEEN` (v15's) nor `CRSE`
-/// (v16's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
+/// `bytes` (a v17 file without crease points) as version 12 wrote the same map but for its
+/// bounce gains, hidden triangles and far texels' areas: no `GAIN` section (v14's), `SEEN`
+/// (v15's), `CRSE` (v16's) nor `TXAR` (v17's), a `DIPO` section between `DATA` and `FARF` whose counts are `dipoles`, 0
 /// tiles and block 1, and the checksum made again. With `dipoles` > 0 the section holds that
 /// many zeroed 88-byte records.
 fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
     let header = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
-    // Without the sections v14, v15 and v16 added (the map has no crease points).
+    // Without the sections v14, v15, v16 and v17 added (the map has no crease points).
     let without = |bytes: &[u8], tag: &[u8; 4]| -> Vec<u8> {
         let section =
             |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
@@ -351,7 +351,7 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
         }
         [&bytes[..at], &bytes[at + section(at)..]].concat()
     };
-    let bytes = without(&without(&without(bytes, b"GAIN"), b"SEEN"), b"CRSE");
+    let bytes = without(&without(&without(&without(bytes, b"GAIN"), b"SEEN"), b"CRSE"), b"TXAR");
     let section = |at: usize| 12 + u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
     let mut at = 16 + header;
     while &bytes[at..at + 4] != b"FARF" {
@@ -371,8 +371,8 @@ fn as_version_12(bytes: &[u8], dipoles: u32) -> Vec<u8> {
 }
 
 /// Version 13 dropped the dipole panes: a version 12 file without any (every file the default
-/// preset wrote) reads as the same map (without v14's bounce gains, v15's hidden triangles
-/// and v16's crease points), and one with some is
+/// preset wrote) reads as the same map (without v14's bounce gains, v15's hidden triangles,
+/// v16's crease points and v17's far texel areas), and one with some is
 /// refused, naming them.
 #[test]
 fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
@@ -384,6 +384,7 @@ fn a_version_12_file_reads_without_dipole_panes_and_is_refused_with_them() {
     for l in &mut parts.near {
         l.hidden = 0;
     }
+    parts.far.areas.clear();
     let without_gains = Prm::new(PrmParts { gains: Vec::new(), ..parts }).unwrap();
     assert_eq!(write_read(dir.path(), "v12.prm", &old, Some(&scene)).unwrap(), without_gains);
     // An empty section that declares tiles is corrupt, not skipped.

@@ -452,7 +452,8 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
     let r = run(&level, &p, Reuse::Update { cache: Held::Lent(&cache), old: Held::Lent(&other) }, true);
     assert!(matches!(r, Err(PrecomputeError::Refused(ref r)) if r.0.contains("another .prm")));
     // The same map as an older build wrote it (format version 14: no `SEEN` section, every
-    // texel seeing its links' whole cells, and no crease points, v16's `CRSE`) is refused as
+    // texel seeing its links' whole cells, no crease points, v16's `CRSE`, and no far texel
+    // areas, v17's `TXAR`) is refused as
     // such, not as another map's (it reads in this version's form, whose checksum differs).
     let without = |bytes: &[u8], tag: &[u8; 4]| -> Vec<u8> {
         let Some(at) = (16..bytes.len()).find(|&k| &bytes[k..k + 4] == tag) else {
@@ -461,7 +462,8 @@ fn updates_it_cannot_do_are_refused_with_the_reason() {
         let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
         [&bytes[..at], &bytes[at + 12 + len..]].concat()
     };
-    let bytes = without(&without(&old.without_creases().unwrap().to_bytes(), b"SEEN"), b"CRSE");
+    let bytes =
+        without(&without(&without(&old.without_creases().unwrap().to_bytes(), b"SEEN"), b"CRSE"), b"TXAR");
     let mut v14 = bytes[..bytes.len() - 8].to_vec();
     v14[8..12].copy_from_slice(&14u32.to_le_bytes());
     let sum = prm::fingerprint::fnv1a(prm::fingerprint::FNV_START, &v14);
