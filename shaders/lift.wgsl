@@ -4,18 +4,17 @@
 // sum t_j, n_j the mean of near_sum over the member's cell's texels, into lifted[c].
 // With params.lift_power (a map with its far texels' areas), lift_main also writes per cluster
 // what its cells send over every bounce, sum E_j (A/N) g_j rho_j, into lifted[C + R + 2c], and
-// the near field's power over its cells' texels, sum over its cells' texels of area x near_sum, into
-// lifted[C + R + 2c + 1].
+// the near field's power over its cells' texels (area x near_sum) into lifted[C + R + 2c + 1].
 // lambda_main, one workgroup per room: per channel K = sum_c w_c energy_c and L = sum_c u_c
 // energy_c over the room's clusters; lambda = L / K, or with params.lift_power (energy_c then the
 // pane's power P_c) (K + L - D) / K with D = the room's sent less its near power, held within
-// [0.5 K, 2 K] (prm_runtime::cpu::POWER_KEPT_LIMITS); 0 where K is 0; into lifted[C + room]. apply_main, one per cluster: w_c = w_c (1 - lambda of its
-// room) + u_c, signed (the twin's doc says why), and its score |luminance(w_c)| x energy[c].w.
-// rooms holds R, then each cluster's room (C), then where each room's clusters start in the list
-// (R + 1), then the list (C, ascending within a room; prm_runtime::cpu::rooms).
+// [POWER_KEPT_LO K, POWER_KEPT_HI K]; 0 where K is 0; into lifted[C + room].
+// apply_main, one per cluster: w_c = w_c (1 - lambda of its room) + u_c, signed (the twin's doc
+// says why), and its score |luminance(w_c)| x energy_c.w.
 // lift_tables (runtime/src/lift.rs, lift_tables): per cluster its energy (vec4 as f32 bits),
-// then the rooms' words, then per entry (A/N) g rho (vec4), then per word of lift_members the
-// area of its slot's texel.
+// then the rooms' words (R, each cluster's room (C), where each room's clusters start in the
+// list (R + 1), the list (C, ascending within a room; prm_runtime::cpu::rooms)), then per entry
+// (A/N) g rho (vec4), then per word of lift_members the area of its slot's texel.
 // Bindings, IndirectParams, NO_SLOT, luminance and WG_LINEAR: the generated prelude.
 
 fn table_vec4(at: u32) -> vec4f {
@@ -141,7 +140,7 @@ fn lambda_main(
         let kept = part_kept[0];
         var ratio = part_lifted[0] / max(kept, vec3f(1e-30));
         if params.lift_power == 1u {
-            let want = min(max(part_power[0], 0.5 * kept), 2.0 * kept);
+            let want = min(max(part_power[0], POWER_KEPT_LO * kept), POWER_KEPT_HI * kept);
             ratio = (kept + part_lifted[0] - want) / max(kept, vec3f(1e-30));
         }
         lifted[params.cluster_count + room] = vec4f(select(vec3f(0.0), ratio, kept > vec3f(0.0)), 0.0);

@@ -144,6 +144,9 @@ pub fn prelude() -> &'static str {
              // The far field sends a cell's light from where it lands this many sizes off its centroid, or leaving past this cosine of its normal (prm_runtime::cpu::lands_apart).\n\
              const LANDING_APART: f32 = {:?}f;\n\
              const LANDING_TURN: f32 = {:?}f;\n\
+             // The least and most the lift moves a room's panes' power from the balance's (prm_runtime::cpu::POWER_KEPT_LIMITS).\n\
+             const POWER_KEPT_LO: f32 = {:?}f;\n\
+             const POWER_KEPT_HI: f32 = {:?}f;\n\
              const PI: f32 = {:?}f;\n",
             crate::cpu::concentrate::HOT_REACH,
             crate::cpu::concentrate::NEAR_SIZES,
@@ -157,6 +160,8 @@ pub fn prelude() -> &'static str {
             prm::cell_light::LANDING_REACH,
             crate::cpu::LANDING_APART,
             crate::cpu::LANDING_TURN,
+            crate::cpu::POWER_KEPT_LIMITS[0],
+            crate::cpu::POWER_KEPT_LIMITS[1],
             std::f32::consts::PI
         );
         let _ = writeln!(

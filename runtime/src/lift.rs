@@ -24,7 +24,8 @@ pub const BINDINGS: &[Binding] = &[
     b("near_sum", Res::Read("array<vec4f>"), COMPUTE),
     b("weights", Res::ReadWrite("array<vec4f>"), COMPUTE),
     b("scores", Res::ReadWrite("array<f32>"), COMPUTE),
-    // Per cluster u_c, then each room's lambda (C + R).
+    // Per cluster u_c, each room's lambda, then per cluster what its cells send and the near
+    // field's power over them ([`lifted_len`]).
     b("lifted", Res::ReadWrite("array<vec4f>"), COMPUTE),
     // The entry pass's irradiance per entry.
     b("entry_irradiance", Res::Read("array<vec4f>"), COMPUTE),
@@ -64,7 +65,7 @@ pub struct LiftPass {
     rooms: u32,
     /// The map has its far texels' areas: the lift keeps each room's power (`IndirectParams::
     /// lift_power`).
-    pub power: bool,
+    pub(crate) power: bool,
 }
 
 /// The length of the lift's `lifted` buffer: per cluster `u_c`, per room `lambda`, then per
@@ -75,7 +76,9 @@ pub fn lifted_len(clusters: usize, rooms: usize) -> usize {
 
 /// Part of [`lift_tables`]: per entry `(A/N) g_j rho_j` (`NearTables::reflect`).
 pub fn entry_reflect(prm: &Prm, tables: &NearTables) -> Vec<[f32; 4]> {
-    (prm.entries().iter().zip(&tables.reflect))
+    prm.entries()
+        .iter()
+        .zip(&tables.reflect)
         .map(|(e, r)| {
             let x = e.area * *r;
             [x.x, x.y, x.z, 0.0]
@@ -171,7 +174,6 @@ impl LiftPass {
             &vec![0u8; lifted_len(clusters, tables.rooms) * 16],
             none,
         );
-
         let lift_tables =
             gpu::storage_buffer(device, "lift tables", bytemuck::cast_slice(&lift_tables(prm, tables)), none);
         let layout = SHADER.layout(device, 0);
