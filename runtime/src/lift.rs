@@ -95,8 +95,7 @@ pub fn slot_areas(prm: &Prm, tables: &NearTables) -> Vec<f32> {
     }
     let count: usize = prm.clusters().iter().map(|c| c.members.len()).sum();
     let mut areas = vec![0.0f32; 4 * count];
-    for &m in prm.clusters().iter().flat_map(|c| c.members.iter()) {
-        let run = tables.cell_first[m as usize] as usize..tables.cell_first[m as usize + 1] as usize;
+    for run in crate::near::member_cell_runs(prm, tables) {
         areas.extend_from_slice(&tables.cell_areas[run]);
     }
     areas

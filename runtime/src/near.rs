@@ -110,13 +110,25 @@ fn cluster_members(prm: &Prm, tables: &crate::cpu::NearTables, index: &[u32]) ->
     if first as usize == 4 * count {
         return None;
     }
-    for &m in prm.clusters().iter().flat_map(|c| c.members.iter()) {
-        let run = tables.cell_first[m as usize] as usize..tables.cell_first[m as usize + 1] as usize;
+    for run in member_cell_runs(prm, tables) {
         words.extend(
             tables.cell_texels[run].iter().map(|&t| index.get(t as usize).copied().unwrap_or(NO_SLOT)),
         );
     }
     Some(words)
+}
+
+/// Each cluster member's run of its cell's texels in `NearTables::cell_texels`, members in
+/// cluster order: the order the member table lists them in after its four words a member
+/// ([`cluster_members`]; the lift's slot areas follow it, `crate::lift::slot_areas`).
+pub(crate) fn member_cell_runs<'a>(
+    prm: &'a Prm,
+    tables: &'a crate::cpu::NearTables,
+) -> impl Iterator<Item = std::ops::Range<usize>> + 'a {
+    prm.clusters().iter().flat_map(|c| c.members.iter()).map(|&m| {
+        let j = m as usize;
+        tables.cell_first[j] as usize..tables.cell_first[j + 1] as usize
+    })
 }
 
 /// The relay's pipeline (`shaders/relay.wgsl`): the near field's own deviation from each

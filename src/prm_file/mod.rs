@@ -1590,14 +1590,20 @@ mod tests {
     /// `bytes` (a file of this version) without its `TXAR` section (a map without the far
     /// texels' areas), its checksum made again: what the file was before v17.
     fn before_areas(bytes: &[u8]) -> Vec<u8> {
-        let out = without_section(bytes, b"TXAR");
-        assert_eq!(out.len() + 12, bytes.len(), "the map has no far texel areas");
+        without_empty_section(bytes, b"TXAR")
+    }
+
+    /// `bytes` without its section `tag`, which must be empty, its checksum made again.
+    fn without_empty_section(bytes: &[u8], tag: &[u8; 4]) -> Vec<u8> {
+        let out = without_section(bytes, tag);
+        assert_eq!(out.len() + 12, bytes.len(), "the {} section is not empty", String::from_utf8_lossy(tag));
         out
     }
 
     /// The far texels' areas round-trip; a map without them, stamped v16 without its `TXAR`
-    /// section, reads as it was (no areas: the runtime's lift keeps the energy); the areas
-    /// follow their texels when atlas tiles are left out.
+    /// section, reads as it was (no areas: the runtime's lift keeps the energy); a section for
+    /// another count of texels is refused; leaving out every texel leaves out every area (one
+    /// texel at a time: `reduce`'s test).
     #[test]
     fn far_texel_areas_round_trip_and_a_v16_file_has_none() {
         let mut p = parts();
@@ -1627,6 +1633,9 @@ mod tests {
         bad[len - 8..].copy_from_slice(&sum.to_le_bytes());
         let err = Prm::from_bytes(Path::new("bad.prm"), &bad).unwrap_err().to_string();
         assert!(err.contains("2 far-field texels, 4 bytes of their areas"), "{err}");
+        // Leaving out the atlas's one tile leaves out every far texel, and their areas with them.
+        let Ok(cut) = prm.without_atlas_tiles(&[true]) else { panic!("the cut map is refused") };
+        assert!(cut.prm.far().texels.is_empty() && cut.prm.far().areas.is_empty());
     }
 
     /// `bytes` (a file of this version) without its `SEEN` section, its checksum made again.
@@ -1679,9 +1688,7 @@ mod tests {
     /// `bytes` (a file of this version, its `GAIN` section empty) without that section, its
     /// checksum made again: the bytes a v13 file of the same map has but for the version.
     fn without_gains(bytes: &[u8]) -> Vec<u8> {
-        let out = without_section(bytes, b"GAIN");
-        assert_eq!(out.len() + 12, bytes.len(), "the GAIN section is not empty");
-        out
+        without_empty_section(bytes, b"GAIN")
     }
 
     /// Bounce gains round-trip; a map without them (a v13 file, read) gives each entry its

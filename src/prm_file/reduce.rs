@@ -259,3 +259,23 @@ fn without_far_texels(f: &Far, dropped: &dyn Fn(u32) -> bool) -> Far {
     let areas = if f.areas.is_empty() { Vec::new() } else { kept.iter().map(|&k| f.areas[k]).collect() };
     Far { texels, areas, ..f.clone() }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::prm_file::FarTexel;
+
+    /// A far texel left out takes its area with it; the others keep theirs, in order.
+    #[test]
+    fn the_far_texels_left_out_take_their_areas() {
+        let texel = |t: u32| FarTexel { texel: t, ..Default::default() };
+        let far =
+            Far { texels: vec![texel(2), texel(5), texel(9)], areas: vec![0.1, 0.2, 0.3], ..Far::default() };
+        let kept = without_far_texels(&far, &|t| t == 5);
+        assert_eq!(kept.texels.iter().map(|t| t.texel).collect::<Vec<_>>(), vec![2, 9]);
+        assert_eq!(kept.areas, vec![0.1, 0.3]);
+        // A map before v17 has none to keep.
+        let old = Far { areas: Vec::new(), ..far };
+        assert!(without_far_texels(&old, &|t| t == 5).areas.is_empty());
+    }
+}
